@@ -1,0 +1,3 @@
+from mousedom.cli import main
+
+raise SystemExit(main())

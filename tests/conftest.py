@@ -1,0 +1,52 @@
+"""Shared test helpers.
+
+Tests run the CLI as a real process (``python -m mousedom``) so that exit codes, stderr
+and stdout are what a user sees.  The repository root goes on PYTHONPATH so this works
+both from an installed venv and from a plain checkout.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+SHARED = REPO.parent / "shared"
+EXTERNAL_CAPTURES = SHARED / "captures" / "external"
+
+
+def mousedom_env(**extra: str) -> dict[str, str]:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
+    env.update(extra)
+    return env
+
+
+def run_mousedom(
+    *args: str, input: str | bytes | None = None, timeout: float = 120, **kw
+) -> subprocess.CompletedProcess:
+    """Run ``mousedom ARGS`` as a subprocess and return the completed process (text mode)."""
+    text = not isinstance(input, bytes)
+    return subprocess.run(
+        [sys.executable, "-m", "mousedom", *args],
+        input=input,
+        capture_output=True,
+        text=text,
+        timeout=timeout,
+        env=kw.pop("env", None) or mousedom_env(),
+        **kw,
+    )
+
+
+@pytest.fixture
+def external_captures() -> Path:
+    """The real recordings of ../shared/captures/external; CI always has them."""
+    if not EXTERNAL_CAPTURES.is_dir():
+        if os.environ.get("CI"):
+            pytest.fail(f"{EXTERNAL_CAPTURES} is missing in CI")
+        pytest.skip(f"{EXTERNAL_CAPTURES} not present (it sits beside the repo as shared/)")
+    return EXTERNAL_CAPTURES
