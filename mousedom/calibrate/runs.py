@@ -50,7 +50,7 @@ def split_runs(recording: Mapping[str, Reports], gap: float = 0.5) -> list[Run]:
     breaks = np.flatnonzero(np.diff(t) > gap)
     starts = np.concatenate([[0], breaks + 1])
     ends = np.concatenate([breaks, [len(t) - 1]])
-    return [Run(float(t[a]), float(t[b])) for a, b in zip(starts, ends)]
+    return [Run(float(t[a]), float(t[b])) for a, b in zip(starts, ends, strict=True)]
 
 
 def run_counts(recording: Mapping[str, Reports], runs: Sequence[Run], names: Sequence[str]):

@@ -141,5 +141,7 @@ def twist_csv(motion: Motion, rate_hz: float = 100.0, t_offset: float = 0.0) -> 
     )
     v = motion.twist(t)
     lines = ["t,vx,vy,omega"]
-    lines += [f"{a + t_offset:.6f},{b:.9g},{c:.9g},{d:.9g}" for a, (b, c, d) in zip(t, v)]
+    lines += [
+        f"{a + t_offset:.6f},{b:.9g},{c:.9g},{d:.9g}" for a, (b, c, d) in zip(t, v, strict=True)
+    ]
     return "\n".join(lines) + "\n"
