@@ -1,37 +1,20 @@
-"""Counts to metres: in the mouse's own frame, and in the body frame.
+"""Counts to metres, in the mouse's own frame and in the body frame.
 
-evdev convention (DESIGN.md): REL_X + = the mouse moved to its right, REL_Y + = it moved
-backwards.  So in the mouse's own frame (x toward its buttons, y to its left)
-forward = -REL_Y / cpi_y and left = -REL_X / cpi_x (inches); a mirrored sensor
-(``flip``) has REL_X pointing left, so left = +REL_X / cpi_x.  The body frame is the
-mouse frame turned by the mount yaw.
+The conversion itself is ``mousedom.units`` (one convention for the whole program); this
+adds the mouse's own frame (forward, left), which the exact mount fit needs because it
+estimates the mount yaw itself, and a CPI override for freshly calibrated values.
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from mousedom.config import MouseConfig
+from mousedom.units import INCH, counts_to_body
 
-INCH = 0.0254  # metres
-
-
-def mouse_frame(
-    mouse: MouseConfig,
-    dx: np.ndarray | float,
-    dy: np.ndarray | float,
-    cpi: tuple[float, float] | None = None,
-) -> np.ndarray:
-    """(..., 2) metres (forward, left) in the mouse's own frame from REL_X, REL_Y counts.
-
-    ``cpi`` = (cpi_x, cpi_y) overrides the configured values (e.g. freshly calibrated).
-    """
-    cx, cy = cpi if cpi is not None else (mouse.cpi_x, mouse.cpi_y)
-    dx = np.asarray(dx, dtype=float)
-    dy = np.asarray(dy, dtype=float)
-    left = (dx if mouse.flip else -dx) * INCH / cx
-    forward = -dy * INCH / cy
-    return np.stack([forward, left], axis=-1)
+__all__ = ["INCH", "body_frame", "mouse_frame", "rotate"]
 
 
 def rotate(v: np.ndarray, angle: float | np.ndarray) -> np.ndarray:
@@ -47,5 +30,18 @@ def body_frame(
     dy: np.ndarray | float,
     cpi: tuple[float, float] | None = None,
 ) -> np.ndarray:
-    """(..., 2) metres in the body frame: the mouse frame turned by the mount yaw."""
-    return rotate(mouse_frame(mouse, dx, dy, cpi), mouse.mount.yaw)
+    """(..., 2) body-frame metres from REL_X, REL_Y counts; ``cpi`` = (x, y) overrides."""
+    if cpi is not None:
+        mouse = replace(mouse, cpi_x=float(cpi[0]), cpi_y=float(cpi[1]))
+    bx, by = counts_to_body(mouse, dx, dy)
+    return np.stack([bx, by], axis=-1)
+
+
+def mouse_frame(
+    mouse: MouseConfig,
+    dx: np.ndarray | float,
+    dy: np.ndarray | float,
+    cpi: tuple[float, float] | None = None,
+) -> np.ndarray:
+    """(..., 2) metres (forward, left) in the mouse's own frame: the mount yaw undone."""
+    return rotate(body_frame(mouse, dx, dy, cpi), -mouse.mount.yaw)

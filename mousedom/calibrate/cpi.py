@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mousedom.calibrate.counts import INCH
+from mousedom.units import INCH
 
 AXES = ("x", "y")
 

@@ -152,7 +152,7 @@ def motion_problem(w: np.ndarray, length: float = 0.1) -> str | None:
     _, sv, vt = np.linalg.svd(scaled, full_matrices=False)
     if len(sv) < 2 or sv[1] < 0.02 * sv[0]:
         v = vt[0]
-        cx, cy = v[1] / v[2] * length, -v[0] / v[2] * length
+        cx, cy = -v[1] / v[2] * length, v[0] / v[2] * length  # v + w x c = 0
         return (
             f"all the motion is a rotation about one point (x={cx:.3f}, y={cy:.3f} m), "
             "which cannot tell a mouse's CPI scale from its distance to that point: add "

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mousedom import models
 from mousedom.errors import UserError, located
 
 TWIST = ("t", "vx", "vy", "omega")
@@ -122,11 +123,7 @@ def _cumulative_twist(ref: Reference) -> np.ndarray:
 
 def wheel_twist(d_left: np.ndarray, d_right: np.ndarray, geo: WheelGeometry) -> np.ndarray:
     """McGill: wheel angle increments (rad) -> (n, 3) integrated twist (dC, 0, dtheta)."""
-    arc_l = np.asarray(d_left, dtype=float) * geo.radius_left
-    arc_r = np.asarray(d_right, dtype=float) * geo.radius_right
-    return np.stack(
-        [(arc_r + arc_l) / 2, np.zeros_like(arc_l), (arc_r - arc_l) / geo.track], axis=-1
-    )
+    return models.wheels(d_left, d_right, geo.radius_left, geo.radius_right, geo.track).q
 
 
 def window_twist(ref: Reference, edges: np.ndarray, geo: WheelGeometry | None = None):

@@ -15,8 +15,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mousedom.calibrate.counts import INCH, rotate
+from mousedom.calibrate.counts import rotate
 from mousedom.sources.base import Reports
+from mousedom.units import INCH
 
 
 @dataclass(frozen=True)
