@@ -104,7 +104,7 @@ def test_no_count_is_ever_lost(reports, cuts, rate_hz):
             part = [r for r in rs[pos[i] :] if r[0] <= cut]
             pos[i] += len(part)
             if part:
-                t, dx, dy = map(np.array, zip(*part))
+                t, dx, dy = map(np.array, zip(*part, strict=True))
                 tracker.push(i, t, dx, dy)
         if cut != math.inf:
             tracker.complete_until(cut)
