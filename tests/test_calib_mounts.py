@@ -196,3 +196,26 @@ def test_exact_beats_kimlee_with_noise_on_the_core_simulator():
     errs_kl = np.hypot(*(kl.positions - truth).T)
     assert max(errs_exact) < 1e-3
     assert max(errs_exact) < max(errs_kl)
+
+
+def test_kimlee_rank_is_at_most_three_whatever_the_motion():
+    """Kim & Lee (38)-(40), (45): the third row of every S_k is w_k (p_true - 2 p_nominal)
+    (the translation terms of C1 and C2 cancel), so S has rank <= 3 for any motion; with
+    a common scale error (their example) the minimum-norm answer is still right."""
+    motion = build_motion(RICH_MOTION)
+    edges = np.linspace(0.3, motion.end, 60)
+    w = true_window_twist(motion, edges)
+    nominal, _ = kim_lee_example()
+    for true, exact_expected in (
+        (nominal * 1.05, True),
+        (nominal + [[0.01, 0], [0, 0.01], [-0.005, 0.003]], False),
+    ):
+        v_s = np.stack(
+            [np.column_stack([w[:, 0] - w[:, 2] * p[1], w[:, 1] + w[:, 2] * p[0]]) for p in true],
+            axis=1,
+        )
+        s, _ = kimlee_system(v_s, w, nominal)
+        res = kimlee(v_s, w, nominal)
+        assert np.linalg.matrix_rank(s) <= 3 and res.rank <= 3
+        err = np.max(np.hypot(*(res.positions - true).T))
+        assert (err < 0.0015) == exact_expected

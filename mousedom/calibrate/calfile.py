@@ -79,10 +79,21 @@ def merge_section(data: dict[str, Any], key: str, value: Any) -> dict[str, Any]:
     return out
 
 
+def _plain(value: Any) -> Any:
+    """numpy scalars and tuples -> plain Python, which safe_dump can write."""
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if hasattr(value, "item") and callable(value.item):  # numpy scalar
+        return value.item()
+    return value
+
+
 def write_calibration(path: str, data: dict[str, Any]) -> None:
     """Replace ``path`` atomically with ``data`` as YAML."""
     target = Path(path)
-    text = HEADER + yaml.safe_dump(data, sort_keys=False, default_flow_style=None)
+    text = HEADER + yaml.safe_dump(_plain(data), sort_keys=False, default_flow_style=None)
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)

@@ -14,6 +14,13 @@ minimum-norm least squares (a pseudo-inverse in place of (48), which needs S^T S
 invertible; for a pure rotation it is not, and the minimum-norm solution is what gives
 their result (53)).
 
+A limit of the published method, found while testing it: the third row of S_k is
+w_k (p_true - 2 p_nominal) to first order whatever the translation (the v_b terms of C1
+and C2 cancel), so every measurement after the first adds the same equation, and S has
+rank at most 3 for any motion, not 2N as (49) suggests.  With N >= 2 mice the result is
+always a minimum-norm solution: right when the mounts are off by a common scale about the
+centre (their example), not in general.  ``exact`` has no such limit.
+
 ``exact``: with the mouse's unknown yaw and CPI scale written as G = k R(yaw), k = 1/scale,
 a reading m in the mouse's own frame (metres by the configured CPI) is G m in body axes,
 so per window  k R(yaw) m = (U_x - Θ p_y, U_y + Θ p_x)  is linear in
@@ -69,9 +76,13 @@ def kimlee_system(v_s: np.ndarray, v_m: np.ndarray, nominal: np.ndarray):
         ],
         axis=-1,
     )
-    # (45)-(46): all of the first measurement, the third row of the others.
-    big_s = np.concatenate([s[0], s[1:, 2, :]], axis=0)
-    big_b = np.concatenate([b[0], b[1:, 2]])
+    # (45)-(46): all of the "first" measurement, the third row of the others.  Rows 1-2
+    # of a measurement are its rotation times constants, so a window without rotation
+    # gives zero rows there; the window that turns most plays the first measurement.
+    first = int(np.argmax(np.abs(w)))
+    others = np.arange(m_count) != first
+    big_s = np.concatenate([s[first], s[others, 2, :]], axis=0)
+    big_b = np.concatenate([b[first], b[others, 2]])
     return big_s, big_b
 
 
@@ -82,10 +93,18 @@ class KimLeeResult:
     unknowns: int  # 2N
 
 
+KIMLEE_RCOND = 1e-3
+
+
 def kimlee(v_s: np.ndarray, v_m: np.ndarray, nominal: np.ndarray) -> KimLeeResult:
-    """Kim & Lee (47) with a minimum-norm least squares; see the module docstring."""
+    """Kim & Lee (47) with a minimum-norm least squares; see the module docstring.
+
+    Singular values of S below ``KIMLEE_RCOND`` of the largest count as zero: S has rank
+    <= 3 in exact arithmetic, and with noisy counts the missing directions would
+    otherwise be filled with noise divided by nearly nothing.
+    """
     s, b = kimlee_system(v_s, v_m, nominal)
-    dp, _, rank, _ = np.linalg.lstsq(s, b, rcond=None)
+    dp, _, rank, _ = np.linalg.lstsq(s, b, rcond=KIMLEE_RCOND)
     p = np.asarray(nominal, dtype=float).reshape(-1, 2)
     return KimLeeResult(p + dp.reshape(-1, 2), int(rank), 2 * len(p))
 
