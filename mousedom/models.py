@@ -143,14 +143,14 @@ def _linear(
     a = design_matrix(positions[idx])[:, cols]  # (2L, k)
     w = np.repeat(1.0 / sigma[idx] ** 2, 2)  # per row: x1, y1, x2, ...
     sv = np.linalg.svd(a * np.sqrt(w)[:, None], compute_uv=False)
-    if len(sv) < len(cols) or sv[-1] <= _RANK_TOL * max(1.0, sv[0]):
+    if len(sv) < len(cols) or not sv[-1] > _RANK_TOL * sv[0]:
         return  # rank deficient: ok stays False, q and cov stay 0
     info = a.T @ (w[:, None] * a)
     c = np.linalg.inv(info)
     b = c @ (a.T * w)  # (k, 2L)
     dl = d[rows] if live.all() else d[rows][:, idx]
     m = len(dl)
-    dl = dl.reshape(m, -1)
+    dl = dl.reshape(m, 2 * len(idx))
     qk = dl @ b.T
     res = (dl - qk @ a.T).reshape(m, len(idx), 2)
     c3 = np.zeros((3, 3))
