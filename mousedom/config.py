@@ -348,7 +348,7 @@ def _mouse(doc: _Doc, name: str, value: Any, base_dir: Path) -> MouseConfig:
             file, device = r.string("replay"), None
         if not file:
             raise r.err("replay", "needs a capture file")
-        mouse = replace(mouse, replay=str((base_dir / file)), replay_device=device)
+        mouse = replace(mouse, replay=str(base_dir / file), replay_device=device)
     r.finish()
     return mouse
 
@@ -360,7 +360,9 @@ def _server(r: _Reader) -> ServerConfig:
         try:
             mode = int(mode, 8)
         except ValueError:
-            raise s.err("mode", f"must be an octal file mode such as '0660', got {mode!r}") from None
+            raise s.err(
+                "mode", f"must be an octal file mode such as '0660', got {mode!r}"
+            ) from None
     if isinstance(mode, bool) or not isinstance(mode, int) or not 0 <= mode <= 0o777:
         raise s.err("mode", f"must be a file mode between 0 and 0777, got {_show(mode)}")
 
@@ -406,7 +408,9 @@ def _apply_calibration(mice: tuple[MouseConfig, ...], path: Path) -> tuple[Mouse
     except FileNotFoundError:
         return mice
     except OSError as e:
-        raise ConfigError(located(str(path), None, f"cannot read calibration: {e.strerror}"))
+        raise ConfigError(
+            located(str(path), None, f"cannot read calibration: {e.strerror}")
+        ) from None
     doc = _Doc(str(path), text)
     top = _Reader(doc, doc.data, ())
     section = top.sub("mice")
