@@ -263,7 +263,7 @@ def _bonarini(
         pert[2 + 2 * j, :, j] -= h[j]
     qs = _bonarini_q(pert, origin, rot, dist)  # (9, m, 3)
     jac = np.stack([(qs[1 + 2 * j] - qs[2 + 2 * j]) / (2 * h[j]) for j in range(4)], axis=-1)
-    cov = np.einsum("mij,j,mkj->mik", jac, s4**2, jac)
+    cov = (jac * s4**2) @ jac.transpose(0, 2, 1)
     return qs[0], cov
 
 
