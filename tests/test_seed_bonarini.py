@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import assume, example, given, settings
+from hypothesis import strategies as st
 
 from mousedom import models
 from mousedom.geometry import design_matrix
@@ -205,3 +207,21 @@ def test_bonarini_covariance_linearises_to_lsq_for_small_noise():
     bon = models.solve("bonarini", d, pos, 1e-5)
     lsq = models.solve("lsq", d, pos, 1e-5)
     np.testing.assert_allclose(bon.cov, lsq.cov, rtol=1e-4, atol=1e-16)
+
+
+@settings(max_examples=300, deadline=None)
+@example(p=(0.25, 0.0, 0.0, 0.0), q=(0.027007315427299533, 0.0, 1.401298464324817e-45))
+@given(
+    p=st.tuples(*[st.floats(-0.3, 0.3) for _ in range(4)]),
+    q=st.tuples(st.floats(-0.05, 0.05), st.floats(-0.05, 0.05), st.floats(-2.0, 2.0)),
+)
+def test_noise_free_any_geometry_any_arc(p, q):
+    """Eqs. (3)-(14) + the frame mapping equal lsq + exact for any two distinct mounts and
+    any constant-twist window (hypothesis).  The @example is a nearly straight window where
+    eq. (8)'s law of cosines, evaluated literally, kept only half the digits (2e-9 rad)."""
+    pos = np.array(p).reshape(2, 2)
+    assume(np.hypot(*(pos[0] - pos[1])) > 0.02)
+    qa = np.array([q])
+    d = rigid(qa, pos)
+    bon = models.solve("bonarini", d, pos, 1e-5)
+    np.testing.assert_allclose(body_step(bon.q), body_step(qa), atol=1e-9)

@@ -30,7 +30,7 @@ def test_exact_is_midpoint_times_sinc_half_angle(ux, uy, a):
     q = np.array([[ux, uy, a]])
     ex = body_step(q, "exact")[0]
     mid = body_step(q, "midpoint")[0]
-    factor = math.sin(a / 2) / (a / 2) if a != 0 else 1.0
+    factor = math.sin(a / 2) / (a / 2) if a / 2 != 0 else 1.0
     np.testing.assert_allclose(ex[:2], factor * mid[:2], rtol=1e-13, atol=1e-16)
     assert ex[2] == mid[2] == a
 
