@@ -209,7 +209,7 @@ def test_a_node_that_is_not_an_evdev_device(tmp_path):
     """A regular file where a node should be: python-evdev's ioctls fail -> unavailable."""
     add_device(tmp_path, 1, "Fake", fifo=False)
     src = EvdevSource(mouse(name="Fake"), paths(tmp_path))
-    with pytest.raises(SourceUnavailable, match="event1"):
+    with pytest.raises(SourceUnavailable, match="event1: not an evdev device"):
         src.open()
 
 

@@ -131,7 +131,8 @@ class EvdevSource(Source):
         except PermissionError:
             raise SourceUnavailable(join_group_hint(info)) from None
         except OSError as e:
-            raise SourceUnavailable(f"{self.name}: {info.node}: {e.strerror}") from None
+            why = "not an evdev device" if e.errno == errno.ENOTTY else e.strerror
+            raise SourceUnavailable(f"{self.name}: {info.node}: {why}") from None
         try:
             if self.rule.grab:
                 try:
@@ -190,10 +191,10 @@ class EvdevSource(Source):
             except BlockingIOError:
                 break
             except OSError as e:
-                if e.errno in (errno.ENODEV, errno.EIO, errno.EBADF):
-                    gone = f"{self.name}: device gone ({e.strerror})"
-                    break
-                raise
+                # ENODEV is the unplug; anything else (EIO from a dying USB port...) leaves
+                # the descriptor unusable too: treat it the same and let open() retry.
+                gone = f"{self.name}: device gone ({e.strerror or e})"
+                break
             if not data:
                 gone = f"{self.name}: device gone (end of stream)"
                 break
