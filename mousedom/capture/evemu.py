@@ -38,8 +38,8 @@ from mousedom.capture.base import (
     Feed,
     Motion,
 )
-from mousedom.capture.frames import EV_REL, REL_X, REL_Y, group_frames
 from mousedom.errors import UserError, located
+from mousedom.events import EV_REL, REL_X, REL_Y, FrameAssembler
 
 KNOWN_VERSIONS = ("1.0", "1.1", "1.2", "1.3")
 HEADER_TAGS = (b"N", b"I", b"P", b"B", b"A", b"L", b"S")
@@ -63,28 +63,6 @@ class _Events:
 
     def __len__(self) -> int:
         return len(self.t)
-
-    def tail(self, start: int) -> _Events:
-        return _Events(
-            self.t[start:],
-            self.typ[start:],
-            self.code[start:],
-            self.value[start:],
-            self.line[start:],
-        )
-
-    @staticmethod
-    def concat(a: _Events, b: _Events) -> _Events:
-        if not len(a):
-            return b
-        return _Events(
-            *(np.concatenate([getattr(a, s), getattr(b, s)]) for s in _Events.__slots__)
-        )
-
-    @staticmethod
-    def empty() -> _Events:
-        i = np.empty(0, np.int64)
-        return _Events(np.empty(0, np.float64), i, i, i, i)
 
 
 # --------------------------------------------------------------------------- header
@@ -117,9 +95,7 @@ def _parse_header(path: str, lines: list[bytes], first_line: int, info: DeviceIn
             continue
         tag, sep, rest = line.partition(b":")
         if not sep or tag not in HEADER_TAGS:
-            raise CaptureError(
-                located(path, lineno, f"not an evemu header line: {_show(line)}")
-            )
+            raise CaptureError(located(path, lineno, f"not an evemu header line: {_show(line)}"))
         try:
             if tag == b"N":
                 info.name = rest.strip().decode("utf-8", "replace")
@@ -183,7 +159,7 @@ def _fast_events(block: bytes, first_line: int) -> _Events | None:
         frac = usec / np.power(10.0, np.fromiter(map(len, usec_tok), np.int64, n))
     if (sec < 0).any() or (usec < 0).any():
         return None
-    keys = list(zip(tok[3::6], tok[4::6]))
+    keys = list(zip(tok[3::6], tok[4::6], strict=False))
     mapping = {}
     try:
         for k in set(keys):
@@ -352,12 +328,13 @@ class EvemuCapture(Capture):
                 carry = buf[cut:]
                 if cut:
                     block = buf[:cut]
+                    self.bytes_done += len(block)
                     yield block, line, False
                     line += block.count(b"\n")
 
     def _batches(self) -> Iterator[Batch]:
         stats = self.stats[0]
-        pending = _Events.empty()
+        asm = FrameAssembler()
         last_t = -np.inf
         for block, first_line, at_eof in self._blocks():
             ev = None if at_eof else _fast_events(block, first_line)
@@ -365,36 +342,30 @@ class EvemuCapture(Capture):
                 try:
                     ev = _slow_events(self.path, block, first_line, at_eof=at_eof)
                 except _TornLine as torn:
-                    stats.torn_bytes += len(block.rsplit(b"\n", 1)[-1])
+                    stats.torn_bytes += len(block)
                     self.warnings.append(
-                        f"{self.path}:{torn.line}: last line cut off (truncated recording); "
-                        "skipped"
+                        f"{self.path}:{torn.line}: last line cut off (truncated recording); skipped"
                     )
-                    head = block[: block.rfind(b"\n") + 1]
-                    ev = _slow_events(self.path, head, first_line, at_eof=False)
+                    continue
             if not len(ev):
                 continue
-            self._check_time(ev, last_t, block, first_line)
+            self._check_time(ev, last_t)
             last_t = float(ev.t[-1])
-            stats.events += len(ev)
-            ev = _Events.concat(pending, ev)
-            fr = group_frames(ev.typ, ev.code, ev.value, ev.t)
-            stats.add_frames(fr)
-            pending = ev.tail(fr.rest)
-            yield Batch(
-                [Motion(0, fr.t, fr.dx, fr.dy)],
-                [],
-                float(np.nextafter(last_t, -np.inf)),
-            )
-        if len(pending):
-            stats.unterminated += int(np.count_nonzero(pending.typ != 0))
+            fr = asm.feed(ev.t, ev.typ, ev.code, ev.value)
+            stats.add_motion(fr.t, fr.dx, fr.dy)
+            stats.take_assembler(asm.stats)
+            yield Batch([Motion(0, fr.t, fr.dx, fr.dy)], [], float(np.nextafter(last_t, -np.inf)))
+        fr = asm.flush()
+        stats.add_motion(fr.t, fr.dx, fr.dy)
+        stats.take_assembler(asm.stats)
+        if stats.unterminated:
             self.warnings.append(
-                f"{self.path}:{int(pending.line[0])}: the last {len(pending)} events have no "
-                "SYN_REPORT (truncated recording); skipped"
+                f"{self.path}: the last frame has no SYN_REPORT (truncated recording); "
+                "its counts are kept"
             )
-        yield Batch([], [], np.inf)
+        yield Batch([Motion(0, fr.t, fr.dx, fr.dy)], [], np.inf)
 
-    def _check_time(self, ev: _Events, last_t: float, block: bytes, first_line: int) -> None:
+    def _check_time(self, ev: _Events, last_t: float) -> None:
         t = ev.t
         if t[0] >= last_t and (len(t) < 2 or not (np.diff(t) < 0).any()):
             return
