@@ -134,9 +134,7 @@ class Replay:
         self.offset, warnings = time_offset(self.captures)
         self.warnings = list(warnings)
         firsts = [
-            t - self._offset_of(c)
-            for c in self.captures
-            if (t := c.first_time()) is not None
+            t - self._offset_of(c) for c in self.captures if (t := c.first_time()) is not None
         ]
         self.t0 = min(firsts) if firsts else None
         self.tracker = Tracker(config, t0=self.t0, model=model, integrator=integrator)

@@ -145,11 +145,7 @@ def _matches(mouse: MouseConfig, dev: DeviceInfo) -> bool:
 
 def _candidates(capture: Capture) -> list[int]:
     """Devices that can be mice: they move (or may), or they are serial sensors."""
-    return [
-        i
-        for i, d in enumerate(capture.devices)
-        if d.kind == "serial" or d.rel_xy is not False
-    ]
+    return [i for i, d in enumerate(capture.devices) if d.kind == "serial" or d.rel_xy is not False]
 
 
 def _describe(capture: Capture, devices: list[int]) -> str:

@@ -339,3 +339,44 @@ def _line_of(text: bytes, needle: bytes) -> int | None:
 def _show(raw: bytes) -> str:
     text = raw.decode("utf-8", "replace").strip()
     return text if len(text) <= 50 else text[:47] + "..."
+
+
+def format_libinput(devices: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]]) -> str:
+    """A ``libinput record`` file holding one mouse per (name, t, dx, dy), for tests."""
+    out = [
+        "# libinput record",
+        "version: 1",
+        f"ndevices: {len(devices)}",
+        "libinput:",
+        "  version: 1.25.0",
+        "system:",
+        '  kernel: "6.8.0"',
+        "devices:",
+    ]
+    for k, (name, t, dx, dy) in enumerate(devices):
+        out += [
+            f"- node: /dev/input/event{k + 5}",
+            "  evdev:",
+            f"    # Name: {name}",
+            f"    name: {name}",
+            f"    id: [3, 1133, {49271 + k}, 273]",
+            "    codes:",
+            "      0: [0, 1, 2] # EV_SYN",
+            "      1: [272, 273, 274] # EV_KEY",
+            "      2: [0, 1, 8, 11] # EV_REL",
+            "    properties: []",
+            "  udev:",
+            "    properties:",
+            "    - ID_INPUT_MOUSE=1",
+            "  events:",
+        ]
+        us = np.round(np.asarray(t, dtype=np.float64) * 1e6).astype(np.int64)
+        sec, usec = np.divmod(us, 1_000_000)
+        for s, u, x, y in zip(sec.tolist(), usec.tolist(), dx.tolist(), dy.tolist(), strict=True):
+            out.append("  - evdev:")
+            if x:
+                out.append(f"    - [{s:3d}, {u:6d},   2,   0, {int(x):5d}] # EV_REL / REL_X")
+            if y:
+                out.append(f"    - [{s:3d}, {u:6d},   2,   1, {int(y):5d}] # EV_REL / REL_Y")
+            out.append(f"    - [{s:3d}, {u:6d},   0,   0,     0] # SYN_REPORT +0ms")
+    return "\n".join(out) + "\n"

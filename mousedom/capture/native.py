@@ -222,6 +222,8 @@ class NativeCapture(Capture):
         self._first: float | None | bool = False
 
     def first_time(self) -> float | None:
+        if self._first is False and isinstance(self.header.get("first_time"), (int, float)):
+            self._first = float(self.header["first_time"])
         if self._first is False:
             first = None
             for kind, _source, count, payload, _ in self._chunks(check_tail=False):

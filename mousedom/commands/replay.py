@@ -59,8 +59,7 @@ def run(args) -> int:
     specs = [parse_capture_arg(a) for a in args.capture]
     if not specs and not any(m.replay for m in config.mice):
         raise UserError(
-            f"{args.config}: nothing to replay: give --capture NAME=FILE (or replay: in the "
-            "config)"
+            f"{args.config}: nothing to replay: give --capture NAME=FILE (or replay: in the config)"
         )
     assignments = assign(config, specs)
     replay = Replay(config, assignments, model=args.model, integrator=args.integrator)
