@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import struct
 from dataclasses import dataclass, field
-from typing import Union
 
 PROTO_VERSION = 1
 
@@ -107,7 +106,7 @@ class Nak:
     host_t: float | None = None
 
 
-Packet = Union[Motion, Status, Version, Nak]
+Packet = Motion | Status | Version | Nak
 _LAYOUT: dict[int, tuple[struct.Struct, type]] = {
     PKT_MOTION: (_MOTION, Motion),
     PKT_STATUS: (_STATUS, Status),

@@ -122,7 +122,7 @@ class ClockSync:
         hull = _lower_hull(pts)
         mean_f = sum(x for x, _ in pts) / len(pts)
         slope = 0.0
-        for (x0, y0), (x1, y1) in zip(hull, hull[1:]):
+        for (x0, y0), (x1, y1) in zip(hull, hull[1:], strict=False):
             if x0 <= mean_f <= x1:
                 slope = (y1 - y0) / (x1 - x0) if x1 > x0 else 0.0
                 break
