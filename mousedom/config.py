@@ -360,9 +360,7 @@ def _server(r: _Reader) -> ServerConfig:
         try:
             mode = int(mode, 8)
         except ValueError:
-            raise s.err(
-                "mode", f"must be an octal file mode such as '0660', got {mode!r}"
-            ) from None
+            raise s.err("mode", f"must be an octal file mode such as '0660', got {mode!r}") from None
     if isinstance(mode, bool) or not isinstance(mode, int) or not 0 <= mode <= 0o777:
         raise s.err("mode", f"must be a file mode between 0 and 0777, got {_show(mode)}")
 

@@ -139,7 +139,9 @@ class Server:
         try:
             os.makedirs(directory, mode=0o755, exist_ok=True)
         except OSError as e:
-            raise UserError(f"{self.path}: cannot create the socket directory: {e.strerror}")
+            raise UserError(
+                f"{self.path}: cannot create the socket directory: {e.strerror}"
+            ) from None
         self._remove_stale()
         sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM | socket.SOCK_CLOEXEC)
         old_umask = os.umask(0o177)  # nobody gets in before chmod below says who may
