@@ -142,6 +142,14 @@ class Server:
             raise UserError(
                 f"{self.path}: cannot create the socket directory: {e.strerror}"
             ) from None
+        gid = None
+        if self.settings.group:
+            try:
+                gid = grp.getgrnam(self.settings.group).gr_gid
+            except KeyError:
+                raise UserError(
+                    f"{self.path}: server.group: no group named {self.settings.group!r}"
+                ) from None
         self._remove_stale()
         sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM | socket.SOCK_CLOEXEC)
         old_umask = os.umask(0o177)  # nobody gets in before chmod below says who may
@@ -153,13 +161,7 @@ class Server:
         finally:
             os.umask(old_umask)
         try:
-            if self.settings.group:
-                try:
-                    gid = grp.getgrnam(self.settings.group).gr_gid
-                except KeyError:
-                    raise UserError(
-                        f"{self.path}: server.group: no group named {self.settings.group!r}"
-                    ) from None
+            if gid is not None:
                 os.chown(self.path, -1, gid)
             os.chmod(self.path, self.settings.mode)
         except OSError as e:
