@@ -133,6 +133,7 @@ class Daemon:
         self._reload = False
         self._wake_r, self._wake_w = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
         self._status_text = ""
+        self._ready = False
         self._old_handlers: dict[int, Any] = {}
         self._old_wakeup: int | None = None
 
@@ -185,13 +186,18 @@ class Daemon:
             self.slots = [self._new_slot(i, m) for i, m in enumerate(self.config.mice)]
             for slot in self.slots:
                 self._try_open(slot, now)
+            # Nothing stamped before the start is still to come; this also gives the
+            # tracker a finite frontier before the first report (its poll needs one).
+            self.tracker.complete_until(now - max(s.latency for s in self.slots))
             self.server.open()
             log.info(
                 "listening on %s; watch it with: mousedom watch --socket %s",
                 self.server.path,
                 self.server.path,
             )
-            self.notifier.ready(self._status_line())
+            self._status_text = self._status_line()
+            self.notifier.ready(self._status_text)
+            self._ready = True
             self._loop()
         finally:
             self._shutdown()
@@ -342,6 +348,8 @@ class Daemon:
 
     def _sources_changed(self, now: float) -> None:
         self._broadcast_sources(now)
+        if not self._ready:
+            return  # READY=1 carries the first STATUS
         status = self._status_line()
         if status != self._status_text:
             self._status_text = status
@@ -480,6 +488,7 @@ class Daemon:
         pose = self._pose_now()
         tracker = self._tracker_class(new, t0=now)
         tracker.reset(**pose)
+        tracker.complete_until(now)  # what came before now went to the old tracker
         old = {s.name: s for s in self.slots}
         slots = []
         for i, mouse in enumerate(new.mice):

@@ -74,7 +74,12 @@ class Notifier:
             text = str(value).replace("\n", " ")  # one field a line: no newlines inside
             lines.append(f"{key}={text}")
         try:
-            self._sock.sendto("\n".join(lines).encode(), self.address)
+            # Never block the fusion on the notify socket: a receiver whose queue is full
+            # (it holds only a few datagrams) costs us one status line, not a stall.
+            self._sock.sendto("\n".join(lines).encode(), socket.MSG_DONTWAIT, self.address)
+        except BlockingIOError:
+            log.debug("sd_notify to %r: receiver busy, line dropped", self.address)
+            return False
         except OSError as e:
             log.warning("sd_notify to %r failed: %s", self.address, e)
             return False

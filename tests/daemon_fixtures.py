@@ -63,7 +63,10 @@ class FifoMouse:
 
     def write(self, data: bytes) -> None:
         if self.fd is not None:
-            os.write(self.fd, data)
+            try:
+                os.write(self.fd, data)
+            except BrokenPipeError:  # the daemon is gone (stopped by the test)
+                self.unplug()
 
     def unplug(self) -> None:
         if self.fd is not None:
@@ -137,7 +140,7 @@ class DaemonProcess:
         environ["PYTHONPATH"] = str(REPO) + os.pathsep + environ.get("PYTHONPATH", "")
         environ.update(env or {})
         self.socket_path = socket_path
-        self.stderr_path = socket_path.parent / "daemon.log"
+        self.stderr_path = socket_path.parent.parent / f"{socket_path.stem}.log"
         self._log = open(self.stderr_path, "w")  # noqa: SIM115 - closed in stop()
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "mousedom", "run", "--config", str(config)]

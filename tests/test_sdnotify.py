@@ -67,3 +67,16 @@ def test_watchdog_interval_is_half_of_watchdog_usec():
     assert watchdog_interval({}) is None
     assert watchdog_interval({"WATCHDOG_USEC": "x"}) is None
     assert watchdog_interval({"WATCHDOG_USEC": "0"}) is None
+
+
+def test_a_full_receiver_never_blocks_the_sender(listener):
+    """The receiver's queue holds a few datagrams; the daemon must not wait for systemd."""
+    import time
+
+    path, sock = listener
+    n = Notifier({"NOTIFY_SOCKET": path})
+    t = time.monotonic()
+    results = [n.watchdog() for _ in range(500)]  # nobody reads meanwhile
+    assert time.monotonic() - t < 1.0
+    assert results[0] and not results[-1]
+    assert sock.recv(4096) == b"WATCHDOG=1"
