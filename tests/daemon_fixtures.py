@@ -68,10 +68,19 @@ class FifoMouse:
             except BrokenPipeError:  # the daemon is gone (stopped by the test)
                 self.unplug()
 
-    def unplug(self) -> None:
+    def unplug(self, remove: bool = False) -> None:
+        """Close the writing end (the reader sees end of file, as on ENODEV); ``remove``
+        also deletes the FIFO, as the kernel deletes an unplugged mouse's node."""
         if self.fd is not None:
             os.close(self.fd)
             self.fd = None
+        if remove:
+            os.unlink(self.path)
+
+    def replug(self) -> None:
+        if not self.path.exists():
+            os.mkfifo(self.path)
+        self.attach()
 
 
 class Feeder(threading.Thread):

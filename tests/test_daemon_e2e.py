@@ -205,7 +205,7 @@ def test_sensor_vanishes_and_returns(rig_run):
     c.poses(0.3)
 
     with run.feeder.lock:
-        run.mice["left"].unplug()
+        run.mice["left"].unplug(remove=True)
     p = c.until("POSE", lambda m: m["missing"] == ["left"])
     src = c.until("SOURCE", lambda m: m["name"] == "left")
     assert src["connected"] is False and src["excluded"] is True and src["error"]
@@ -215,14 +215,14 @@ def test_sensor_vanishes_and_returns(rig_run):
 
     # the mouse comes back: the daemon reopens it and uses it again
     with run.feeder.lock:
-        run.mice["left"].attach()
+        run.mice["left"].replug()
     p = c.until("POSE", lambda m: m["missing"] == [] and m["used"] == 3, limit=500)
     assert c.until("SOURCE", lambda m: m["name"] == "left")["connected"] is True
 
     # two gone: one mouse cannot give lsq its rank; the pose is held, not invented
     with run.feeder.lock:
-        run.mice["left"].unplug()
-        run.mice["right"].unplug()
+        run.mice["left"].unplug(remove=True)
+        run.mice["right"].unplug(remove=True)
     c.until("POSE", lambda m: sorted(m["missing"]) == ["left", "right"])
     held = c.poses(0.5)[3:]
     assert held and not any(q["updating"] for q in held)

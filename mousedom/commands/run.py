@@ -90,7 +90,9 @@ def run(args: argparse.Namespace) -> int:
             config = load_config(path)
         except ConfigError as e:
             if args.config is None and not os.path.exists(path):
-                raise ConfigError(f"{e} (give --config FILE, or try: mousedom run --demo)") from None
+                raise ConfigError(
+                    f"{e} (give --config FILE, or try: mousedom run --demo)"
+                ) from None
             raise
     socket_path = args.socket or config.server.socket or default_socket_path()
     return Daemon(config, socket_path).run()
