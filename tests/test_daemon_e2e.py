@@ -58,7 +58,7 @@ def _rate(poses: list[dict]) -> float:
 def test_clients_rate_commands_and_sigterm(rig_run):
     run = rig_run(sim.straight(1.0, 0.1), extra="server: {queue_lines: 16}\n")
     sock = run.daemon.socket_path
-    a, stalled, slow = Conn(sock), Conn(sock), Conn(sock)
+    a, _stalled, slow = Conn(sock), Conn(sock), Conn(sock)
     banner = a.read()
     assert banner["class"] == "VERSION" and banner["rate_hz"] == RATE
     assert banner["sensors"] == ["front", "left", "right"] and banner["control"] is True
