@@ -115,7 +115,9 @@ class AssemblerStats:
     dropped_frames: int = 0  # frames discarded because they held a SYN_DROPPED
     dropped_dx: int = 0  # REL_X counts inside discarded frames
     dropped_dy: int = 0  # REL_Y counts inside discarded frames
+    dropped_events: int = 0  # non-SYN events inside discarded frames
     incomplete_frames: int = 0  # trailing frames without SYN_REPORT closed by flush()
+    incomplete_events: int = 0  # events in those frames
     rel_x_in: int = 0  # sum of every REL_X value fed
     rel_y_in: int = 0  # sum of every REL_Y value fed
 
@@ -142,6 +144,7 @@ class FrameAssembler:
         self._open_motion = False  # the open frame holds REL_X or REL_Y
         self._open_dropped = False  # the open frame holds a SYN_DROPPED
         self._open_events = 0
+        self._open_nonsyn = 0  # events of the open frame that are not EV_SYN
         self._open_t = 0.0
 
     @property
@@ -194,17 +197,18 @@ class FrameAssembler:
         # One prefix-sum table for the four per-event quantities; row i holds the sums
         # over events [0, i).  Frame k of this chunk spans (r[k-1], r[k]] where r are the
         # SYN_REPORT indices, so its sums are differences of rows just after those.
-        c = np.zeros((n + 1, 4), dtype=np.int64)
+        c = np.zeros((n + 1, 5), dtype=np.int64)
         c[1:, 0] = np.where(is_x, value, 0)
         c[1:, 1] = np.where(is_y, value, 0)
         c[1:, 2] = is_x | is_y
         c[1:, 3] = syn & (code == SYN_DROPPED)
+        c[1:, 4] = ~syn
         np.cumsum(c, axis=0, out=c)
         ends = np.flatnonzero(is_report)
         cut = np.empty(len(ends) + 1, dtype=np.intp)
         cut[0] = 0
         cut[1:] = ends + 1
-        per = c[cut[1:]] - c[cut[:-1]]  # (frames, 4): dx, dy, motion events, SYN_DROPPEDs
+        per = c[cut[1:]] - c[cut[:-1]]  # (frames, 5): dx, dy, motion, SYN_DROPPED, non-SYN
         total = c[n]
         st.rel_x_in += int(total[0])
         st.rel_y_in += int(total[1])
@@ -214,7 +218,13 @@ class FrameAssembler:
         if len(ends):
             # The frame left open by the previous chunk is closed by this chunk's first
             # SYN_REPORT: fold its sums into frame 0.
-            per[0] += (self._open_dx, self._open_dy, self._open_motion, self._open_dropped)
+            per[0] += (
+                self._open_dx,
+                self._open_dy,
+                self._open_motion,
+                self._open_dropped,
+                self._open_nonsyn,
+            )
             self._reset_open()
         last = int(cut[-1])
         if last < n:  # the events after the last SYN_REPORT open (or extend) a frame
@@ -223,6 +233,7 @@ class FrameAssembler:
             self._open_dy += int(rest[1])
             self._open_motion |= bool(rest[2])
             self._open_dropped |= bool(rest[3])
+            self._open_nonsyn += int(rest[4])
             self._open_events += n - last
             self._open_t = float(time_at(n - 1))
 
@@ -233,6 +244,7 @@ class FrameAssembler:
             st.dropped_frames += int(np.count_nonzero(has_drop))
             st.dropped_dx += int(per[has_drop, 0].sum())
             st.dropped_dy += int(per[has_drop, 1].sum())
+            st.dropped_events += int(per[has_drop, 4].sum())
         idx = ends[keep]
         st.motion_frames += len(idx)
         return MotionFrames(time_at(idx), per[keep, 0], per[keep, 1])
@@ -257,8 +269,11 @@ class FrameAssembler:
         out_dy: list[int] = []
         dx, dy = self._open_dx, self._open_dy
         motion, dropped, open_events = self._open_motion, self._open_dropped, self._open_events
+        nonsyn = self._open_nonsyn
         for i, (ty, co, va) in enumerate(zip(type, code, value, strict=True)):
             open_events += 1
+            if ty != EV_SYN:
+                nonsyn += 1
             if ty == EV_REL and co == REL_X:
                 dx += va
                 st.rel_x_in += va
@@ -273,11 +288,12 @@ class FrameAssembler:
                     st.dropped_frames += 1
                     st.dropped_dx += dx
                     st.dropped_dy += dy
+                    st.dropped_events += nonsyn
                 elif motion:
                     ends.append(i)
                     out_dx.append(dx)
                     out_dy.append(dy)
-                dx = dy = open_events = 0
+                dx = dy = open_events = nonsyn = 0
                 motion = dropped = False
             elif ty == EV_SYN and co == SYN_DROPPED:
                 st.syn_dropped += 1
@@ -286,6 +302,7 @@ class FrameAssembler:
                 st.skipped += 1
         self._open_dx, self._open_dy = dx, dy
         self._open_motion, self._open_dropped = motion, dropped
+        self._open_nonsyn = nonsyn
         if open_events:  # the chunk's last event belongs to the open frame
             self._open_t = float(time_at(len(type) - 1))
         self._open_events = open_events
@@ -311,11 +328,13 @@ class FrameAssembler:
             return MotionFrames()
         st = self.stats
         st.incomplete_frames += 1
+        st.incomplete_events += self._open_events
         out = MotionFrames()
         if self._open_dropped:
             st.dropped_frames += 1
             st.dropped_dx += self._open_dx
             st.dropped_dy += self._open_dy
+            st.dropped_events += self._open_nonsyn
         elif self._open_motion:
             st.motion_frames += 1
             out = MotionFrames(

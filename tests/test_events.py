@@ -130,6 +130,7 @@ def test_syn_dropped_mid_frame_drops_both_halves_and_counts_them(mk):
     assert as_rows(a.feed(*ev(rows))) == [(1.0, 1, 0), (1.3, 0, 2)]
     s = a.stats
     assert (s.syn_dropped, s.dropped_frames, s.dropped_dx, s.dropped_dy) == (1, 1, 10, 20)
+    assert s.dropped_events == 2  # the two REL events; SYN_DROPPED and SYN_REPORT are not
     assert s.frames == 3 and s.motion_frames == 2
 
 
@@ -155,7 +156,7 @@ def test_flush_keeps_trailing_counts_and_says_so(mk):
     assert as_rows(f) == [(2.0, 4, 0)]
     assert a.open_frame_events == 1
     assert as_rows(a.flush()) == [(2.5, 3, 0)]
-    assert a.stats.incomplete_frames == 1
+    assert (a.stats.incomplete_frames, a.stats.incomplete_events) == (1, 1)
     assert len(a.flush()) == 0  # nothing open any more
     # A trailing frame with SYN_DROPPED is dropped, and counted.
     b = mk()
