@@ -143,8 +143,8 @@ def test_live_quit_early_is_too_few_runs(rig):
 
 def test_live_needs_evdev_mice(tmp_path):
     (tmp_path / "rig.yaml").write_text(
-        "mice:\n  a: {cpi: 800, mount: {x: 0.1}, replay: a.events}\n"
-        "  b: {cpi: 800, mount: {x: -0.1}, replay: b.events}\n"
+        "mice:\n  a: {cpi: 800, mount: {x: 0.1}, serial: {port: /dev/ttyUSB9}}\n"
+        "  b: {cpi: 800, mount: {x: -0.1}, serial: {port: /dev/ttyUSB8}}\n"
     )
     p = subprocess.run(
         [
