@@ -167,3 +167,17 @@ def test_distance_refuses_bad_runs():
         np.array([[0.1, 0.0], [0.1, 0.02]]), np.array([[-0.1, 0.0]] * 2), 1.0, line=[0, 1]
     )
     assert any("joining line" in w for w in slip.warnings)
+
+
+def test_cpi_on_the_core_simulator_with_noise():
+    """mousedom.sim: 10 pushes of 20 cm forth and back, 0.5 count noise per report."""
+    m = sim.SimMouse("m", 0.0, 0.0, cpi_x=455.0, cpi_y=455.0, noise=0.5)
+    legs = [sim.straight(0.2 * (-1) ** k, 0.25) + sim.pause(0.8) for k in range(10)]
+    res = sim.simulate(sim.Rig((m,)), sim.sequence(sim.pause(0.5), *legs), seed=4)
+    r = res.reports["m"]
+    rec = {"m": Reports("m", r.t, r.dx, r.dy)}
+    counts = run_counts(rec, split_runs(rec), ["m"])[:, 0, :]
+    assert len(counts) == 10
+    # sim's forward motion along body x with yaw 0 is -REL_Y: 'y' axis pushes.
+    out = calibrate_cpi(counts, 0.2, "y", cpi_across=455)
+    assert abs(out.cpi / 455 - 1) < 0.003

@@ -264,8 +264,8 @@ def _wheel_geometry(args: argparse.Namespace, config: Config) -> WheelGeometry |
 
 
 def run_mounts(args: argparse.Namespace) -> int:
-    ref = read_reference(args.reference)
     config, s = _setup(args)
+    ref = read_reference(args.reference)  # after a live session: the logger may write it
     need_runs(len(s.runs), 1, "calibrate mounts", args.gap)
     geo = _wheel_geometry(args, config)
     result = session.mounts(s, ref, args.method, geo, args.window)
