@@ -79,6 +79,8 @@ def test_cpi_warns_when_runs_disagree_and_refuses_bad_runs():
         calibrate_cpi(counts[:1], 2 * INCH)
     with pytest.raises(CpiError, match="run 2: no counts along y"):
         calibrate_cpi(np.array([[0, 1000], [5, 0]]), 2 * INCH)
+    with pytest.raises(CpiError, match="run 2: the push was 30 deg off the mouse's y axis"):
+        calibrate_cpi(np.array([[0, 1000], [500, 866]]), 1000 / 1000 * INCH, "y", 1000)
     with pytest.raises(CpiError, match="more than the push length"):
         calibrate_cpi(np.array([[3000, 10], [3000, 10]]), 2 * INCH, "y", cpi_across=1000)
 

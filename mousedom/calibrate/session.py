@@ -76,11 +76,10 @@ def cpi(session: Session, distance: float, axis: str, min_runs: int = 2) -> dict
         raise UserError("calibrate cpi: no runs: the mice never moved")
     _no_motion(session, counts)
     out = {}
-    i = "xy".index(axis)
     for j, name in enumerate(session.names):
         mouse = session.config.mouse(name)
         c = counts[:, j, :]
-        keep = _keep_real_runs(session, np.abs(c[:, i]), f"mouse {name}")
+        keep = _keep_real_runs(session, np.hypot(c[:, 0], c[:, 1]), f"mouse {name}")
         across = mouse.cpi_y if axis == "x" else mouse.cpi_x
         try:
             out[name] = calibrate_cpi(c[keep], distance, axis, across, min_runs=min_runs)
