@@ -209,6 +209,27 @@ def test_cpi_bad_inputs(cpi_session):
     )
 
 
+def test_a_mouse_that_never_moved_is_named(cpi_session):
+    tmp, cfg, files = cpi_session
+    still = tmp / "still.events"
+    still.write_text(f"E: {EPOCH + 1:.6f} 0000 0000 0\nE: {EPOCH + 2:.6f} 0000 0000 0\n")
+    fails(
+        run_mousedom(
+            "calibrate",
+            "cpi",
+            "--config",
+            str(cfg),
+            "--capture",
+            f"left={files['left']}",
+            "--capture",
+            f"right={still}",
+            "--distance",
+            "0.2",
+        ),
+        "mouse right: no motion in any run",
+    )
+
+
 def test_cpi_warns_when_runs_disagree(tmp_path):
     # Two short pushes among long ones: not bumps (over 25 % of the median), but 10 % off.
     motion = build_motion(

@@ -166,3 +166,25 @@ def test_live_needs_evdev_mice(tmp_path):
         timeout=60,
     )
     assert p.returncode == 2 and "live calibration reads evdev mice" in p.stderr
+
+
+def test_live_mouse_unplugged_mid_run_is_a_clear_error(rig):
+    tmp, fifos = rig
+    proc = Proc(["calibrate", "cpi", "--config", "rig.yaml", "--distance", "0.1"], tmp)
+    writers = {}
+    try:
+        proc.wait_for("push 1: press Enter")
+        writers = {n: os.open(f, os.O_WRONLY) for n, f in fifos.items()}
+        proc.enter()
+        proc.wait_for("moving... press Enter to stop")
+        os.write(writers["left"], frames(1.0, [-100] * 5))
+        os.close(writers.pop("left"))  # the writer going away is the unplug
+        out, err = proc.p.communicate(timeout=30)
+    finally:
+        for fd in writers.values():
+            os.close(fd)
+        if proc.p.poll() is None:
+            proc.p.kill()
+    text = (proc.err + err).decode()
+    assert proc.p.returncode == 2, text
+    assert "mouse left went away" in text and "Traceback" not in text
