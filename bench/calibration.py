@@ -89,10 +89,12 @@ def cpi_trial(rng, true_cpi=450.3):
     return ours / true_cpi - 1, naive / true_cpi - 1, ours
 
 
-def distance_trial(rng, cpi_est, true_cpi=(450.3, 450.3), d=0.27):
-    """cpi_est, true_cpi: (left, right)."""
+def distance_trial(rng, cpi_est, true_cpi=(450.3, 450.3), d=0.27, beyond=False):
+    """cpi_est, true_cpi: (left, right); ``beyond``: the pivot lies past the left mouse."""
     eta = math.pi / 2
     pivot = (rng.uniform(-0.03, 0.03), rng.uniform(-0.03, 0.03))
+    if beyond:
+        pivot = (pivot[0], d / 2 + 0.05 + pivot[1])
     moves = [(eta * pivot[1] * s, -eta * pivot[0] * s, eta * s, 2.0) for s in (1, -1, 1, -1)]
     motion = build_motion(moves)
     mice = [
@@ -199,6 +201,15 @@ def main() -> None:
         "distance error, mm (baseline: eq. 19)",
         [d[0] for d in dist_runs],
         [d[1] for d in dist_runs],
+        "mm",
+        1000,
+    )
+    beyond = [distance_trial(rng, (c[2], c[2]), beyond=True) for c in cpi_runs]
+    print("   the same with the pivot 50 mm beyond the left mouse (eq. 19 assumes it between):")
+    line(
+        "distance error, mm (baseline: eq. 19)",
+        [d[0] for d in beyond],
+        [d[1] for d in beyond],
         "mm",
         1000,
     )
