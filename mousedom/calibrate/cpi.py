@@ -45,7 +45,9 @@ class CpiError(ValueError):
     """The runs cannot give a CPI (too few, no motion, longer across than the push)."""
 
 
-def cpi_per_run(along: np.ndarray, across: np.ndarray, distance: float, cpi_across: float):
+def cpi_per_run(
+    along: np.ndarray, across: np.ndarray, distance: float, cpi_across: float
+) -> tuple[np.ndarray, np.ndarray]:
     """(cpi, skew) per run from counts along and across the axis, for pushes of ``distance`` m.
 
     Returns arrays of the CPI along the axis and the skew angle (radians) of each push.

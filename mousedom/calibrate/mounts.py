@@ -39,7 +39,9 @@ import numpy as np
 # --------------------------------------------------------------------------- Kim & Lee
 
 
-def kimlee_system(v_s: np.ndarray, v_m: np.ndarray, nominal: np.ndarray):
+def kimlee_system(
+    v_s: np.ndarray, v_m: np.ndarray, nominal: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """S and b of Kim & Lee eqs. (38)-(46) for M measurements.
 
     v_s (M, N, 2): mouse readings in body axes; v_m (M, 3): reference (v_bx, v_by, w_b);
