@@ -188,3 +188,36 @@ def test_live_mouse_unplugged_mid_run_is_a_clear_error(rig):
     text = (proc.err + err).decode()
     assert proc.p.returncode == 2, text
     assert "mouse left went away" in text and "Traceback" not in text
+
+
+def test_live_distance_turns(rig):
+    """Two turns of 90 degrees by hand: left mouse backwards, right forwards (CCW)."""
+    tmp, fifos = rig
+    proc = Proc(
+        ["calibrate", "distance", "--config", "rig.yaml", "--angle", "90", "--runs", "2", "--json"],
+        tmp,
+    )
+    writers = {}
+    counts = 4947  # 0.1 m * pi/2 at 800 cpi
+    try:
+        proc.wait_for("turn 1: press Enter to start")
+        writers = {n: os.open(f, os.O_WRONLY) for n, f in fifos.items()}
+        for k in range(2):
+            proc.enter()
+            proc.wait_for("moving... press Enter to stop", times=k + 1)
+            sign = 1 if k == 0 else -1
+            for name, s in (("left", sign), ("right", -sign)):
+                parts = [s * 100] * (counts // 100) + [s * (counts % 100)]
+                os.write(writers[name], frames(30.0 + 5 * k, parts))
+            proc.enter()
+            proc.wait_for(f"turn {k + 1} recorded")
+        out, err = proc.p.communicate(timeout=30)
+        assert proc.p.returncode == 0, (proc.err + err).decode()
+    finally:
+        for fd in writers.values():
+            os.close(fd)
+        if proc.p.poll() is None:
+            proc.p.kill()
+    doc = json.loads(out)
+    assert doc["runs"] == 2
+    assert doc["distance"] == pytest.approx(2 * counts / 800 * 0.0254 / (np.pi / 2), rel=1e-6)
