@@ -220,4 +220,4 @@ def test_live_distance_turns(rig):
             proc.p.kill()
     doc = json.loads(out)
     assert doc["runs"] == 2
-    assert doc["distance"] == pytest.approx(2 * counts / 800 * 0.0254 / (np.pi / 2), rel=1e-6)
+    assert doc["distance"] == pytest.approx(2 * counts / 800 * 0.0254 / (np.pi / 2), abs=1e-6)
