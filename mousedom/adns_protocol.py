@@ -338,3 +338,28 @@ def _stamp(packet: Packet, host_t: float) -> Packet:
     from dataclasses import replace
 
     return replace(packet, host_t=host_t)
+
+
+def parse_commands(data: bytes) -> list[tuple[int, int | None]]:
+    """Host -> device frames in ``data`` as ``(cmd, arg)``; damaged frames are skipped.
+
+    The device side of the protocol, for emulators and tests (the firmware has its own).
+    """
+    out: list[tuple[int, int | None]] = []
+    for chunk in data.split(b"\0"):
+        if not chunk:
+            continue
+        try:
+            body = cobs_decode(chunk)
+        except ValueError:
+            continue
+        if len(body) < 3 or crc16(body[:-2]) != body[-2] | (body[-1] << 8):
+            continue
+        cmd, args = body[0], body[1:-2]
+        if cmd == CMD_SET_K and len(args) == 1:
+            out.append((cmd, args[0]))
+        elif cmd == CMD_SET_CPI and len(args) == 2:
+            out.append((cmd, args[0] | (args[1] << 8)))
+        elif cmd in (CMD_GET_STATUS, CMD_GET_VERSION) and not args:
+            out.append((cmd, None))
+    return out
