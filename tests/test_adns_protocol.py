@@ -49,6 +49,11 @@ def test_crc_check_value():
     assert P.crc16(b"") == 0xFFFF
 
 
+@given(st.binary(max_size=64))
+def test_crc_matches_the_firmware_algorithm(data):
+    assert P.crc16(data) == P.crc16_bitwise(data)
+
+
 @given(st.binary(max_size=600))
 def test_cobs_roundtrip(data):
     enc = P.cobs_encode(data)
