@@ -1,0 +1,95 @@
+"""Pose covariance over a whole batch of windows at once.
+
+Composition pose_k = pose_{k-1} (+) step_k has the Jacobian S(p_k - p_{k-1}) with respect
+to the previous pose, where S(d) = [[1, 0, -d_y], [0, 1, d_x], [0, 0, 1]].  These matrices
+form a group, S(a) S(b) = S(a + b), so the covariance after window k is
+
+    P_k = sum_j S(p_k - p_j) G_j S(p_k - p_j)^T
+
+over every noise input j (the starting covariance counts as one, at the start position),
+with G_j the step noise in world axes.  Expanding S with e = J p_k - J p_j (J the 90 degree
+rotation) makes every term a cumulative sum over j, so a batch of windows needs no Python
+loop.  The running sums are rebased onto the last pose at the end of every batch, which
+keeps them small and makes batch-by-batch equal to one big batch.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+def _perp(p: np.ndarray) -> np.ndarray:
+    """J p: rotate (n,2) vectors by +90 degrees."""
+    return np.stack([-p[..., 1], p[..., 0]], axis=-1)
+
+
+@dataclass
+class CovarianceState:
+    """Covariance of the pose at ``position`` (3x3 over x, y, theta)."""
+
+    cov: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
+    position: np.ndarray = field(default_factory=lambda: np.zeros(2))
+
+
+def outer(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Batched outer products of (n,2) vectors."""
+    return u[:, :, None] * v[:, None, :]
+
+
+def world_step_noise(theta_before: np.ndarray, jac: np.ndarray, q_cov: np.ndarray) -> np.ndarray:
+    """G_k = M Q M^T with M = blockdiag(R(theta_{k-1}), 1) @ d step / d q.  Shapes (n,3,3)."""
+    c, s = np.cos(theta_before), np.sin(theta_before)
+    rot = np.zeros((len(theta_before), 3, 3))
+    rot[:, 0, 0], rot[:, 0, 1], rot[:, 1, 0], rot[:, 1, 1] = c, -s, s, c
+    rot[:, 2, 2] = 1.0
+    m = rot @ jac
+    return m @ q_cov @ np.swapaxes(m, 1, 2)
+
+
+def propagate(
+    state: CovarianceState, positions: np.ndarray, noise: np.ndarray
+) -> tuple[np.ndarray, CovarianceState]:
+    """Pose covariances (n,3,3) after each window, and the state rebased on the last one.
+
+    ``positions`` (n,2) are the poses' positions after each window; ``noise`` (n,3,3) the
+    world-frame step noise G_k entering at those positions.
+    """
+    n = len(positions)
+    if n == 0:
+        return np.zeros((0, 3, 3)), state
+    # Inputs: the carried covariance (at its position) followed by each window's noise.
+    g = np.concatenate([state.cov[None], noise])
+    b = _perp(np.concatenate([state.position[None], positions]))
+    gpp = g[:, :2, :2]
+    gpt = g[:, :2, 2]
+    gtt = g[:, 2, 2]
+    s1 = np.cumsum(gpp, axis=0)[1:]
+    s2 = np.cumsum(gpt, axis=0)[1:]
+    s3 = np.cumsum(b[:, :, None] * gpt[:, None, :], axis=0)[1:]
+    s4 = np.cumsum(gtt)[1:]
+    s5 = np.cumsum(gtt[:, None] * b, axis=0)[1:]
+    s6 = np.cumsum(gtt[:, None, None] * b[:, :, None] * b[:, None, :], axis=0)[1:]
+    # Row 0 is the carried input, so every window's cumulative sum includes it.
+    a = _perp(positions)
+    pp = (
+        s1
+        + outer(a, s2)
+        - s3
+        + outer(s2, a)
+        - np.swapaxes(s3, 1, 2)
+        + s4[:, None, None] * outer(a, a)
+        - outer(a, s5)
+        - outer(s5, a)
+        + s6
+    )
+    pt = s2 + a * s4[:, None] - s5
+    out = np.empty((n, 3, 3))
+    out[:, :2, :2] = pp
+    out[:, :2, 2] = pt
+    out[:, 2, :2] = pt
+    out[:, 2, 2] = s4
+    # Symmetrise away rounding so consumers can rely on it.
+    out = 0.5 * (out + np.swapaxes(out, 1, 2))
+    return out, CovarianceState(cov=out[-1].copy(), position=positions[-1].copy())

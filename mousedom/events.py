@@ -1,0 +1,346 @@
+"""Decode Linux ``struct input_event`` streams into mouse motion reports, in bulk.
+
+Pure functions and one small state machine, no I/O: the live evdev source, the
+capture readers (evemu, libinput record, native) and the benches all feed this.
+
+Two steps:
+
+1. ``decode_input_events(buf)`` views raw bytes as an array of ``EVENT_DTYPE`` records
+   (one ``np.frombuffer``, no Python object per event) and hands back the bytes of a
+   trailing incomplete record so that the next read can complete it.
+2. ``FrameAssembler.feed(t, type, code, value)`` groups events into SYN_REPORT frames and
+   returns one motion report per frame that holds REL_X and/or REL_Y.  It keeps the
+   partial frame at the end of a chunk as a few running sums, so a frame may straddle
+   any number of reads and the result does not depend on where the chunks were cut.
+
+The kernel's SYN_DROPPED rule (Documentation/input/event-codes.rst): the client's
+buffer overflowed, so the frame being assembled is incomplete; discard it and every
+event up to and including the next SYN_REPORT.  Both halves are the one frame (from the
+previous SYN_REPORT to the next) that contains the SYN_DROPPED, so such frames are
+dropped whole, and their REL_X/REL_Y counts are added to ``dropped_dx``/``dropped_dy``
+rather than vanishing: ``counts in == counts out + dropped counts`` always holds.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+# struct input_event on 64-bit Linux (x86_64, aarch64, ...): struct timeval
+# {long tv_sec; long tv_usec}, __u16 type, __u16 code, __s32 value = 24 bytes, no padding.
+# (32-bit ABIs use 16-byte records; mousedom targets 64-bit hosts only.)
+EVENT_DTYPE = np.dtype(
+    [("sec", "<i8"), ("usec", "<i8"), ("type", "<u2"), ("code", "<u2"), ("value", "<i4")]
+)
+EVENT_SIZE = EVENT_DTYPE.itemsize
+assert EVENT_SIZE == 24
+
+# Chunks up to this many events take a plain loop: below ~100 events numpy's per-call
+# overhead costs more than the loop (bench/decode.py prints both).
+SMALL_CHUNK = 48
+
+EV_SYN, EV_KEY, EV_REL, EV_MSC = 0x00, 0x01, 0x02, 0x04
+SYN_REPORT, SYN_CONFIG, SYN_MT_REPORT, SYN_DROPPED = 0, 1, 2, 3
+REL_X, REL_Y, REL_WHEEL, REL_HWHEEL = 0x00, 0x01, 0x08, 0x06
+REL_WHEEL_HI_RES, REL_HWHEEL_HI_RES = 0x0B, 0x0C
+
+
+def decode_input_events(buf: bytes | bytearray | memoryview) -> tuple[np.ndarray, bytes]:
+    """View ``buf`` as input_event records; return (events, leftover bytes).
+
+    ``leftover`` is the tail shorter than one record (0 to 23 bytes): prepend it to the
+    next read.  The returned array is a read-only view when ``buf`` is immutable.
+    """
+    mv = memoryview(buf).cast("B")
+    n = len(mv) // EVENT_SIZE
+    events = np.frombuffer(mv, dtype=EVENT_DTYPE, count=n)
+    return events, bytes(mv[n * EVENT_SIZE :])
+
+
+def encode_input_events(
+    t: np.ndarray, type: np.ndarray, code: np.ndarray, value: np.ndarray
+) -> bytes:
+    """The inverse of ``decode_input_events``: arrays (t in seconds) -> raw bytes.
+
+    For tests, benches and FIFO feeders.  ``t`` is split into whole seconds and
+    microseconds (rounded to the nearest microsecond, as the kernel's timeval holds).
+    """
+    t = np.asarray(t, dtype=np.float64)
+    us = np.round(t * 1e6).astype(np.int64)
+    out = np.empty(len(t), dtype=EVENT_DTYPE)
+    out["sec"], out["usec"] = np.divmod(us, 1_000_000)
+    out["type"], out["code"], out["value"] = type, code, value
+    return out.tobytes()
+
+
+def event_times(events: np.ndarray) -> np.ndarray:
+    """Seconds (float64) from the records' timeval: sec + usec * 1e-6."""
+    return events["sec"].astype(np.float64) + events["usec"].astype(np.float64) * 1e-6
+
+
+@dataclass
+class MotionFrames:
+    """One report per SYN_REPORT frame with motion: t (s), dx = sum REL_X, dy = sum REL_Y."""
+
+    t: np.ndarray = field(default_factory=lambda: np.empty(0, np.float64))
+    dx: np.ndarray = field(default_factory=lambda: np.empty(0, np.int64))
+    dy: np.ndarray = field(default_factory=lambda: np.empty(0, np.int64))
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    @staticmethod
+    def concat(parts: list[MotionFrames]) -> MotionFrames:
+        if not parts:
+            return MotionFrames()
+        return MotionFrames(
+            np.concatenate([p.t for p in parts]),
+            np.concatenate([p.dx for p in parts]),
+            np.concatenate([p.dy for p in parts]),
+        )
+
+
+@dataclass
+class AssemblerStats:
+    """Everything the assembler saw, so that no count is ever lost without a trace."""
+
+    events: int = 0  # events fed, all types
+    frames: int = 0  # SYN_REPORT frames closed (motion or not, dropped or not)
+    motion_frames: int = 0  # frames returned as motion reports
+    skipped: int = 0  # non-motion events: buttons, wheels (incl. hi-res), MSC_SCAN, ...
+    syn_dropped: int = 0  # SYN_DROPPED events seen
+    dropped_frames: int = 0  # frames discarded because they held a SYN_DROPPED
+    dropped_dx: int = 0  # REL_X counts inside discarded frames
+    dropped_dy: int = 0  # REL_Y counts inside discarded frames
+    dropped_events: int = 0  # non-SYN events inside discarded frames
+    incomplete_frames: int = 0  # trailing frames without SYN_REPORT closed by flush()
+    incomplete_events: int = 0  # events in those frames
+    rel_x_in: int = 0  # sum of every REL_X value fed
+    rel_y_in: int = 0  # sum of every REL_Y value fed
+
+    def as_dict(self) -> dict[str, int]:
+        return dict(self.__dict__)
+
+
+class FrameAssembler:
+    """Streaming SYN_REPORT frame assembler (vectorised per chunk; state between chunks).
+
+    State carried from one ``feed`` to the next is just the open frame's running sums:
+    REL_X/REL_Y totals and presence, whether it holds a SYN_DROPPED, and the time of its
+    last event.  ``flush()`` closes that open frame at the end of a finite input.
+    """
+
+    def __init__(self, small_chunk: int = SMALL_CHUNK) -> None:
+        self.stats = AssemblerStats()
+        self.small_chunk = small_chunk
+        self._reset_open()
+
+    def _reset_open(self) -> None:
+        self._open_dx = 0
+        self._open_dy = 0
+        self._open_motion = False  # the open frame holds REL_X or REL_Y
+        self._open_dropped = False  # the open frame holds a SYN_DROPPED
+        self._open_events = 0
+        self._open_nonsyn = 0  # events of the open frame that are not EV_SYN
+        self._open_t = 0.0
+
+    @property
+    def open_frame_events(self) -> int:
+        """Events in the frame not yet closed by a SYN_REPORT."""
+        return self._open_events
+
+    def feed_events(self, events: np.ndarray) -> MotionFrames:
+        """``feed`` for an ``EVENT_DTYPE`` array (as ``decode_input_events`` returns).
+
+        Only the SYN_REPORT records' times are converted to float, not every event's.
+        """
+        sec, usec = events["sec"], events["usec"]
+        return self._feed(
+            events["type"], events["code"], events["value"], lambda i: sec[i] + usec[i] * 1e-6
+        )
+
+    def feed(
+        self, t: np.ndarray, type: np.ndarray, code: np.ndarray, value: np.ndarray
+    ) -> MotionFrames:
+        """Add a chunk of events; return the motion frames closed by its SYN_REPORTs."""
+        t = np.asarray(t, dtype=np.float64)
+        if not (len(type) == len(code) == len(value) == len(t)):
+            raise ValueError("t, type, code and value must have the same length")
+        return self._feed(
+            np.asarray(type), np.asarray(code), np.asarray(value, dtype=np.int64), t.__getitem__
+        )
+
+    def _feed(
+        self,
+        type: np.ndarray,
+        code: np.ndarray,
+        value: np.ndarray,
+        time_at: Callable[[Any], np.ndarray],
+    ) -> MotionFrames:
+        n = len(type)
+        if n == 0:
+            return MotionFrames()
+        if n <= self.small_chunk:
+            return self._feed_loop(type.tolist(), code.tolist(), value.tolist(), time_at)
+        st = self.stats
+        st.events += n
+
+        syn = type == EV_SYN
+        rel = type == EV_REL
+        is_report = syn & (code == SYN_REPORT)
+        is_x = rel & (code == REL_X)
+        is_y = rel & (code == REL_Y)
+
+        # One prefix-sum table for the four per-event quantities; row i holds the sums
+        # over events [0, i).  Frame k of this chunk spans (r[k-1], r[k]] where r are the
+        # SYN_REPORT indices, so its sums are differences of rows just after those.
+        c = np.zeros((n + 1, 5), dtype=np.int64)
+        c[1:, 0] = np.where(is_x, value, 0)
+        c[1:, 1] = np.where(is_y, value, 0)
+        c[1:, 2] = is_x | is_y
+        c[1:, 3] = syn & (code == SYN_DROPPED)
+        c[1:, 4] = ~syn
+        np.cumsum(c, axis=0, out=c)
+        ends = np.flatnonzero(is_report)
+        cut = np.empty(len(ends) + 1, dtype=np.intp)
+        cut[0] = 0
+        cut[1:] = ends + 1
+        per = c[cut[1:]] - c[cut[:-1]]  # (frames, 5): dx, dy, motion, SYN_DROPPED, non-SYN
+        total = c[n]
+        st.rel_x_in += int(total[0])
+        st.rel_y_in += int(total[1])
+        st.syn_dropped += int(total[3])
+        st.skipped += n - len(ends) - int(total[2]) - int(total[3])
+
+        if len(ends):
+            # The frame left open by the previous chunk is closed by this chunk's first
+            # SYN_REPORT: fold its sums into frame 0.
+            per[0] += (
+                self._open_dx,
+                self._open_dy,
+                self._open_motion,
+                self._open_dropped,
+                self._open_nonsyn,
+            )
+            self._reset_open()
+        last = int(cut[-1])
+        if last < n:  # the events after the last SYN_REPORT open (or extend) a frame
+            rest = total - c[last]
+            self._open_dx += int(rest[0])
+            self._open_dy += int(rest[1])
+            self._open_motion |= bool(rest[2])
+            self._open_dropped |= bool(rest[3])
+            self._open_nonsyn += int(rest[4])
+            self._open_events += n - last
+            self._open_t = float(time_at(n - 1))
+
+        has_drop = per[:, 3] > 0
+        keep = (per[:, 2] > 0) & ~has_drop
+        st.frames += len(ends)
+        if has_drop.any():
+            st.dropped_frames += int(np.count_nonzero(has_drop))
+            st.dropped_dx += int(per[has_drop, 0].sum())
+            st.dropped_dy += int(per[has_drop, 1].sum())
+            st.dropped_events += int(per[has_drop, 4].sum())
+        idx = ends[keep]
+        st.motion_frames += len(idx)
+        return MotionFrames(time_at(idx), per[keep, 0], per[keep, 1])
+
+    def _feed_loop(
+        self,
+        type: list[int],
+        code: list[int],
+        value: list[int],
+        time_at: Callable[[Any], np.ndarray],
+    ) -> MotionFrames:
+        """The same rules event by event, for the few events of one live read.
+
+        numpy costs ~25 us per call whatever the size, which is more than a plain loop
+        over the 3 to 30 events a live mouse delivers per wake-up; the property tests check
+        that both paths give identical frames and statistics.
+        """
+        st = self.stats
+        st.events += len(type)
+        ends: list[int] = []
+        out_dx: list[int] = []
+        out_dy: list[int] = []
+        dx, dy = self._open_dx, self._open_dy
+        motion, dropped, open_events = self._open_motion, self._open_dropped, self._open_events
+        nonsyn = self._open_nonsyn
+        for i, (ty, co, va) in enumerate(zip(type, code, value, strict=True)):
+            open_events += 1
+            if ty != EV_SYN:
+                nonsyn += 1
+            if ty == EV_REL and co == REL_X:
+                dx += va
+                st.rel_x_in += va
+                motion = True
+            elif ty == EV_REL and co == REL_Y:
+                dy += va
+                st.rel_y_in += va
+                motion = True
+            elif ty == EV_SYN and co == SYN_REPORT:
+                st.frames += 1
+                if dropped:
+                    st.dropped_frames += 1
+                    st.dropped_dx += dx
+                    st.dropped_dy += dy
+                    st.dropped_events += nonsyn
+                elif motion:
+                    ends.append(i)
+                    out_dx.append(dx)
+                    out_dy.append(dy)
+                dx = dy = open_events = nonsyn = 0
+                motion = dropped = False
+            elif ty == EV_SYN and co == SYN_DROPPED:
+                st.syn_dropped += 1
+                dropped = True
+            else:
+                st.skipped += 1
+        self._open_dx, self._open_dy = dx, dy
+        self._open_motion, self._open_dropped = motion, dropped
+        self._open_nonsyn = nonsyn
+        if open_events:  # the chunk's last event belongs to the open frame
+            self._open_t = float(time_at(len(type) - 1))
+        self._open_events = open_events
+        st.motion_frames += len(ends)
+        if not ends:
+            return MotionFrames()
+        return MotionFrames(
+            time_at(np.array(ends, dtype=np.intp)),
+            np.array(out_dx, dtype=np.int64),
+            np.array(out_dy, dtype=np.int64),
+        )
+
+    def flush(self) -> MotionFrames:
+        """End of a finite input: close the open frame, if any, and count it incomplete.
+
+        A frame without its SYN_REPORT comes from a capture cut short (a recorder that was
+        killed) or a device unplugged mid-frame.  Its counts did happen, so they are kept:
+        it is reported as one motion frame stamped with the time of its last event (unless
+        it holds a SYN_DROPPED, in which case it is dropped and counted like any other).
+        ``stats.incomplete_frames`` says how many frames were closed this way.
+        """
+        if self._open_events == 0:
+            return MotionFrames()
+        st = self.stats
+        st.incomplete_frames += 1
+        st.incomplete_events += self._open_events
+        out = MotionFrames()
+        if self._open_dropped:
+            st.dropped_frames += 1
+            st.dropped_dx += self._open_dx
+            st.dropped_dy += self._open_dy
+            st.dropped_events += self._open_nonsyn
+        elif self._open_motion:
+            st.motion_frames += 1
+            out = MotionFrames(
+                np.array([self._open_t]),
+                np.array([self._open_dx], dtype=np.int64),
+                np.array([self._open_dy], dtype=np.int64),
+            )
+        self._reset_open()
+        return out

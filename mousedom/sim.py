@@ -1,0 +1,316 @@
+"""Simulated rigs and trajectories with exact truth, for tests, demos and benchmarks.
+
+A trajectory is a sequence of segments of constant body twist (v_x, v_y, omega).  Within
+a segment a rigidly mounted sensor moves at a constant velocity in the body frame,
+(v_x - omega p_y, v_y + omega p_x), hence also in its own frame: its cumulative reading is
+piecewise linear in time, and the reading at any report time is exact.  The true pose is
+the SE(2) exponential of each segment, composed.
+
+Sensors behave as real ones do: they report at their own rate and phase, only when they
+moved; counts are whole and the sub-count remainder carries over to the next report;
+noise (optional) perturbs each report's increment; during spans of lost tracking (the
+sensor lifted off the floor) motion is not seen at all.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from mousedom.config import Config, parse_config
+from mousedom.units import INCH
+
+# ---------------------------------------------------------------------------- trajectories
+
+
+@dataclass(frozen=True)
+class Segment:
+    """Constant body twist for ``duration`` seconds (m/s, m/s, rad/s)."""
+
+    duration: float
+    vx: float = 0.0
+    vy: float = 0.0
+    omega: float = 0.0
+
+
+def straight(distance: float, speed: float = 0.2) -> list[Segment]:
+    """Drive ``distance`` metres forward (negative: backwards) at ``speed`` m/s."""
+    return [Segment(abs(distance) / speed, vx=math.copysign(speed, distance))]
+
+
+def sideways(distance: float, speed: float = 0.2) -> list[Segment]:
+    """Slide left (negative: right): holonomic rigs only."""
+    return [Segment(abs(distance) / speed, vy=math.copysign(speed, distance))]
+
+
+def turn(angle: float, rate: float = 0.5) -> list[Segment]:
+    """Turn in place by ``angle`` radians (CCW positive) at ``rate`` rad/s."""
+    return [Segment(abs(angle) / rate, omega=math.copysign(rate, angle))]
+
+
+def arc(radius: float, angle: float, speed: float = 0.2) -> list[Segment]:
+    """Drive forward along a circle of ``radius`` (positive: centre on the left)."""
+    duration = abs(angle * radius) / speed
+    return [Segment(duration, vx=speed, omega=math.copysign(speed / abs(radius), angle))]
+
+
+def pause(duration: float) -> list[Segment]:
+    return [Segment(duration)]
+
+
+def sequence(*parts: Iterable[Segment]) -> list[Segment]:
+    return [s for part in parts for s in part]
+
+
+def umbmark_square(
+    cw: bool = True,
+    side: float = 4.0,
+    speed: float = 0.3,
+    turn_rate: float = 0.5,
+    rest: float = 0.5,
+) -> list[Segment]:
+    """Borenstein & Feng's UMBmark path: four legs of ``side`` with 90 degree turns on the
+    spot, clockwise or counter-clockwise, stopping before and after each turn."""
+    quarter = -math.pi / 2 if cw else math.pi / 2
+    leg = sequence(straight(side, speed), pause(rest), turn(quarter, turn_rate), pause(rest))
+    return sequence(pause(rest), leg, leg, leg, leg)
+
+
+# ---------------------------------------------------------------------------- SE(2) truth
+
+
+def _exp(vx: float, vy: float, w: float, dt: np.ndarray) -> np.ndarray:
+    """Body-frame displacement (n,3) after dt under a constant twist (exact)."""
+    a = w * dt
+    small = np.abs(a) < 1e-6
+    safe = np.where(small, 1.0, a)
+    s = np.where(small, 1 - a**2 / 6, np.sin(safe) / safe)
+    c = np.where(small, a / 2 - a**3 / 24, (1 - np.cos(safe)) / safe)
+    ux, uy = vx * dt, vy * dt
+    return np.stack([s * ux - c * uy, c * ux + s * uy, a], axis=-1)
+
+
+def _compose(pose: np.ndarray, step: np.ndarray) -> np.ndarray:
+    c, s = np.cos(pose[..., 2]), np.sin(pose[..., 2])
+    return np.stack(
+        [
+            pose[..., 0] + c * step[..., 0] - s * step[..., 1],
+            pose[..., 1] + s * step[..., 0] + c * step[..., 1],
+            pose[..., 2] + step[..., 2],
+        ],
+        axis=-1,
+    )
+
+
+@dataclass(frozen=True)
+class Motion:
+    """A trajectory made absolute: segment start times and the poses there."""
+
+    segments: tuple[Segment, ...]
+    starts: np.ndarray  # (k+1,) segment start times, last = end time
+    poses: np.ndarray  # (k+1, 3) poses at those times
+
+    @classmethod
+    def of(cls, segments: Sequence[Segment], t_start: float = 0.0) -> Motion:
+        starts = [t_start]
+        poses = [np.zeros(3)]
+        for seg in segments:
+            step = _exp(seg.vx, seg.vy, seg.omega, np.array([seg.duration]))[0]
+            poses.append(_compose(poses[-1], step))
+            starts.append(starts[-1] + seg.duration)
+        return cls(tuple(segments), np.array(starts), np.array(poses))
+
+    @property
+    def duration(self) -> float:
+        return float(self.starts[-1] - self.starts[0])
+
+    def pose(self, t: np.ndarray | float) -> np.ndarray:
+        """True pose(s) at time(s) t, shape (n,3) (clamped to the trajectory's span)."""
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        t = np.clip(t, self.starts[0], self.starts[-1])
+        k = np.clip(np.searchsorted(self.starts, t, side="right") - 1, 0, len(self.segments) - 1)
+        out = np.empty((len(t), 3))
+        for j in np.unique(k):
+            sel = k == j
+            seg = self.segments[j]
+            step = _exp(seg.vx, seg.vy, seg.omega, t[sel] - self.starts[j])
+            out[sel] = _compose(self.poses[j], step)
+        return out
+
+
+# ---------------------------------------------------------------------------- sensors
+
+
+@dataclass(frozen=True)
+class SimMouse:
+    """A simulated sensor: true mount and CPI, timing, and imperfections."""
+
+    name: str
+    x: float
+    y: float
+    yaw: float = 0.0  # degrees, body x to the mouse's forward
+    cpi_x: float = 450.0
+    cpi_y: float = 450.0
+    rate_hz: float = 125.0
+    phase: float = 0.0  # seconds: time of the first report slot
+    noise: float = 0.0  # std of added counts per report (only while moving)
+    lost: tuple[tuple[float, float], ...] = ()  # spans of lost tracking [from, to)
+    flip: bool = False
+    quantize: bool = True  # False: exact float counts (for exactness tests)
+
+    def counts_per_body_metre(self) -> np.ndarray:
+        """2x2 matrix: body-frame metres of sensor motion -> (REL_X, REL_Y) counts."""
+        c, s = math.cos(math.radians(self.yaw)), math.sin(math.radians(self.yaw))
+        to_mouse = np.array([[c, s], [-s, c]])  # body -> mouse frame (forward, left)
+        kx = self.cpi_x / INCH
+        ky = self.cpi_y / INCH
+        relx_per_left = kx if self.flip else -kx
+        return np.array([[0.0, relx_per_left], [-ky, 0.0]]) @ to_mouse
+
+
+@dataclass(frozen=True)
+class Rig:
+    mice: tuple[SimMouse, ...]
+    rate_hz: float = 100.0
+    model: str = "lsq"
+    integrator: str = "exact"
+
+
+def three_mouse_rig(cpi: float = 450.0, rate_hz: float = 125.0, radius: float = 0.15) -> Rig:
+    """Three mice on a triangle round the body origin, reporting with different phases."""
+    mice = []
+    for i, name in enumerate(("front", "left", "right")):
+        ang = 2 * math.pi * i / 3
+        mice.append(
+            SimMouse(
+                name=name,
+                x=radius * math.cos(ang),
+                y=radius * math.sin(ang),
+                yaw=0.0,
+                cpi_x=cpi,
+                cpi_y=cpi,
+                rate_hz=rate_hz,
+                phase=i / (3 * rate_hz) + 0.00037 * i,
+            )
+        )
+    return Rig(tuple(mice))
+
+
+def rig_yaml(rig: Rig, cpi: dict[str, tuple[float, float]] | None = None) -> str:
+    """The config a robot would be given for this rig (true values unless ``cpi`` says
+    what the robot believes)."""
+    lines = [
+        f"rate_hz: {rig.rate_hz!r}",
+        f"model: {rig.model}",
+        f"integrator: {rig.integrator}",
+        "mice:",
+    ]
+    for m in rig.mice:
+        cx, cy = (cpi or {}).get(m.name, (m.cpi_x, m.cpi_y))
+        lines += [
+            f"  {m.name}:",
+            f"    cpi: {{x: {cx!r}, y: {cy!r}}}",
+            f"    mount: {{x: {m.x!r}, y: {m.y!r}, yaw: {m.yaw!r}}}",
+            f"    report_hz: {m.rate_hz!r}",
+            f"    flip: {'true' if m.flip else 'false'}",
+        ]
+    return "\n".join(lines) + "\n"
+
+
+def rig_config(rig: Rig, cpi: dict[str, tuple[float, float]] | None = None) -> Config:
+    return parse_config(rig_yaml(rig, cpi), "<sim>", need_sources=False)
+
+
+# ---------------------------------------------------------------------------- simulation
+
+
+@dataclass
+class SimReports:
+    t: np.ndarray
+    dx: np.ndarray  # REL_X counts
+    dy: np.ndarray  # REL_Y counts
+
+
+@dataclass
+class SimResult:
+    rig: Rig
+    motion: Motion
+    reports: dict[str, SimReports] = field(default_factory=dict)
+
+    def truth(self, t: np.ndarray | float) -> np.ndarray:
+        return self.motion.pose(t)
+
+    @property
+    def duration(self) -> float:
+        return self.motion.duration
+
+    def total_reports(self) -> int:
+        return sum(len(r.t) for r in self.reports.values())
+
+
+def _sensor_cumulative(mouse: SimMouse, motion: Motion, t: np.ndarray) -> np.ndarray:
+    """Exact cumulative (REL_X, REL_Y) counts, unrounded, of ``mouse`` at times t (n,2)."""
+    k_matrix = mouse.counts_per_body_metre()
+    # Count rates per segment (constant within a segment) and cumulative at the starts.
+    rates = np.array(
+        [k_matrix @ (s.vx - s.omega * mouse.y, s.vy + s.omega * mouse.x) for s in motion.segments]
+    ).reshape(-1, 2)
+    durations = np.diff(motion.starts)
+    at_starts = np.vstack([np.zeros(2), np.cumsum(rates * durations[:, None], axis=0)])
+
+    def cumulative(times: np.ndarray) -> np.ndarray:
+        times = np.clip(times, motion.starts[0], motion.starts[-1])
+        k = np.searchsorted(motion.starts, times, side="right") - 1
+        k = np.clip(k, 0, len(motion.segments) - 1)
+        return at_starts[k] + rates[k] * (times - motion.starts[k])[:, None]
+
+    c = cumulative(t)
+    for a, b in mouse.lost:  # motion during a lost span is never seen
+        c = c - (cumulative(np.clip(t, a, b)) - cumulative(np.full_like(t, a)))
+    return c
+
+
+def simulate(
+    rig: Rig, trajectory: Sequence[Segment], seed: int | None = 0, t_start: float = 0.0
+) -> SimResult:
+    """Run ``trajectory`` on ``rig``: per-mouse reports (evdev convention) and the truth."""
+    rng = np.random.default_rng(seed)
+    motion = Motion.of(trajectory, t_start)
+    result = SimResult(rig, motion)
+    end = motion.starts[-1]
+    for mouse in rig.mice:
+        period = 1.0 / mouse.rate_hz
+        first = t_start + (mouse.phase % period)
+        slots = first + period * np.arange(int(math.floor((end - first) / period)) + 2)
+        slots = slots[slots <= end + period]
+        cum = _sensor_cumulative(mouse, motion, slots)
+        inc = np.diff(cum, axis=0, prepend=np.zeros((1, 2)))
+        moving = np.any(np.abs(inc) > 1e-12, axis=1)
+        if mouse.noise > 0:
+            inc = inc + moving[:, None] * rng.normal(0.0, mouse.noise, inc.shape)
+        seen = np.cumsum(inc, axis=0)
+        if mouse.quantize:
+            # The sensor reports whole counts and keeps the remainder for later.
+            whole = np.floor(seen + 1e-9)
+            counts = np.diff(whole, axis=0, prepend=np.zeros((1, 2)))
+        else:
+            counts = inc
+        keep = np.any(counts != 0, axis=1)
+        result.reports[mouse.name] = SimReports(
+            t=slots[keep], dx=counts[keep, 0], dy=counts[keep, 1]
+        )
+    return result
+
+
+def run_tracker(result: SimResult, config: Config | None = None, **tracker_kw):
+    """Feed a simulation through a Tracker in one batch; returns the PoseBatch."""
+    from mousedom.tracker import Tracker
+
+    cfg = config or rig_config(result.rig)
+    tracker = Tracker(cfg, t0=float(result.motion.starts[0]), **tracker_kw)
+    for name, rep in result.reports.items():
+        tracker.push(name, rep.t, rep.dx, rep.dy)
+    return tracker.finish(), tracker

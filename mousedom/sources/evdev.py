@@ -1,0 +1,271 @@
+"""A live mouse over evdev: raw input_event bytes from the node, decoded in bulk.
+
+``open()`` finds the device the config rule names (``mousedom.discovery``), opens it with
+python-evdev, grabs it (EVIOCGRAB, unless ``grab: false``) so that the robot's mice do not
+move a cursor, and switches its timestamps to CLOCK_MONOTONIC (EVIOCSCLOCKID, which
+python-evdev does not wrap).  The hot path is ``os.read`` of up to ``READ_EVENTS`` records
+at a time and one ``np.frombuffer``: no Python object per event.
+
+Unplugging shows at once: the kernel wakes the reader and ``read`` fails with ENODEV
+(or returns EOF); the source closes the frame it was assembling (its counts are kept,
+see ``FrameAssembler.flush``) and raises ``SourceGone``.  ``open()`` later rescans and
+reattaches to whichever device matches the same rule.
+
+Test hook: when the configured ``path`` is a FIFO or pipe rather than a character device,
+it is read as a raw input_event stream and the ioctls are skipped (logged at debug).  The
+writer closing its end is the unplug; reopening the FIFO is the reattach.  Times are then
+whatever the writer put in the records.
+"""
+
+from __future__ import annotations
+
+import errno
+import fcntl
+import logging
+import os
+import select
+import struct
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from mousedom.config import EvdevMatch, MouseConfig
+from mousedom.discovery import (
+    AmbiguousDevice,
+    DeviceInfo,
+    NoDevice,
+    SystemPaths,
+    is_stream,
+    join_group_hint,
+    match_device,
+    scan,
+)
+from mousedom.events import EVENT_SIZE, FrameAssembler, MotionFrames, decode_input_events
+from mousedom.sources.base import Reports, Source, SourceGone, SourceUnavailable
+
+log = logging.getLogger(__name__)
+
+# _IOW('E', 0xa0, int): set the clock of the event timestamps (linux/input.h).
+EVIOCSCLOCKID = (1 << 30) | (4 << 16) | (ord("E") << 8) | 0xA0
+CLOCK_MONOTONIC = 1
+READ_EVENTS = 1024  # records per os.read: 24 KiB, ~1 s of an 8 kHz mouse's frames
+MAX_READS = 16  # per read() call, so that one busy source cannot starve the others
+
+
+class EvdevSource(Source):
+    """One configured mouse read from its evdev node (or from a FIFO, for tests)."""
+
+    kind = "evdev"
+
+    def __init__(
+        self,
+        mouse: MouseConfig,
+        paths: SystemPaths | None = None,
+        *,
+        device_opener: Callable[[str], Any] | None = None,
+        ioctl: Callable[[int, int, bytes], Any] | None = None,
+    ) -> None:
+        """``device_opener`` (default ``evdev.InputDevice``) and ``ioctl`` (default
+        ``fcntl.ioctl``) are the two doors to the kernel's evdev interface; tests pass
+        fakes because this machine has no /dev/input nor /dev/uinput."""
+        if mouse.evdev is None:
+            raise ValueError(f"mouse {mouse.name} has no evdev section")
+        super().__init__(mouse.name)
+        self.rule: EvdevMatch = mouse.evdev
+        self.paths = paths or SystemPaths()
+        self.assembler = FrameAssembler()
+        self.device: DeviceInfo | None = None
+        self._dev = None  # python-evdev InputDevice while a real node is open
+        self._fd = -1
+        self._stream = False  # reading a FIFO/pipe: no ioctls, poll for hang-up
+        self._rest = b""  # bytes of an incomplete record, completed by the next read
+        self._gone: str | None = None  # the device went away; raise after handing over data
+        self._attached_once = False
+        self.truncated_bytes = 0  # bytes of incomplete records lost at unplug
+        self.grabbed = False
+        self._device_opener = device_opener or _input_device
+        self._ioctl = ioctl or fcntl.ioctl
+
+    # ----------------------------------------------------------------- open / close
+
+    def _open(self) -> None:
+        self.close()
+        self._gone, self._rest = None, b""
+        if self.rule.path and is_stream(self.rule.path):
+            self._open_stream(DeviceInfo(node=self.rule.path, name="(input_event stream)"))
+        else:
+            info = self._find()
+            if is_stream(info.node):  # a test machine described as a directory tree
+                self._open_stream(info)
+            else:
+                self._open_device(info)
+        self._attached_once = True
+        self._update_health()
+
+    def _open_stream(self, info: DeviceInfo) -> None:
+        try:
+            self._fd = os.open(info.node, os.O_RDONLY | os.O_NONBLOCK)
+        except OSError as e:
+            raise SourceUnavailable(f"{self.name}: {info.node}: {e.strerror}") from None
+        self._stream, self.grabbed, self.device = True, False, info
+        log.debug(
+            "%s: %s is a FIFO/pipe: reading raw input_event records, no grab, no clock ioctl",
+            self.name,
+            info.node,
+        )
+
+    def _find(self) -> DeviceInfo:
+        resolved = os.path.realpath(self.rule.path) if self.rule.path else None
+        try:
+            return match_device(
+                self.rule, scan(self.paths).devices, resolved_path=resolved, who=self.name
+            )
+        except AmbiguousDevice as e:
+            if self._attached_once:  # a second look-alike was plugged in: wait, don't die
+                raise SourceUnavailable(str(e)) from None
+            raise
+        except NoDevice as e:
+            if (
+                self.rule.path
+                and os.path.exists(self.rule.path)
+                and not os.access(self.rule.path, os.R_OK)
+            ):
+                group = _group_of(self.rule.path)
+                raise SourceUnavailable(
+                    join_group_hint(DeviceInfo(node=self.rule.path, group=group))
+                ) from None
+            raise SourceUnavailable(str(e)) from None
+
+    def _open_device(self, info: DeviceInfo) -> None:
+        try:
+            dev = self._device_opener(info.node)
+        except PermissionError:
+            raise SourceUnavailable(join_group_hint(info)) from None
+        except OSError as e:
+            why = "not an evdev device" if e.errno == errno.ENOTTY else e.strerror
+            raise SourceUnavailable(f"{self.name}: {info.node}: {why}") from None
+        try:
+            if self.rule.grab:
+                try:
+                    dev.grab()
+                except OSError as e:
+                    if e.errno == errno.EBUSY:
+                        raise SourceUnavailable(
+                            f"{self.name}: {info.node} is grabbed by another process "
+                            "(another mousedom? set grab: false to share it)"
+                        ) from None
+                    raise
+            self._ioctl(dev.fd, EVIOCSCLOCKID, struct.pack("i", CLOCK_MONOTONIC))
+            os.set_blocking(dev.fd, False)  # python-evdev opens O_NONBLOCK; make sure
+        except SourceUnavailable:
+            dev.close()
+            raise
+        except OSError as e:
+            dev.close()
+            raise SourceUnavailable(f"{self.name}: {info.node}: {e.strerror}") from None
+        self._dev, self._fd, self._stream = dev, dev.fd, False
+        self.grabbed = self.rule.grab
+        self.device = info
+        log.info("%s: attached to %s (%s)", self.name, info.node, info.name)
+
+    def fileno(self) -> int:
+        return self._fd
+
+    def close(self) -> None:
+        if self._dev is not None:
+            try:
+                self._dev.close()  # closing the fd releases the grab too
+            except OSError:
+                pass
+            self._dev = None
+        elif self._fd >= 0:
+            try:
+                os.close(self._fd)
+            except OSError:
+                pass
+        self._fd = -1
+        self.grabbed = False
+
+    # ----------------------------------------------------------------- data plane
+
+    def _read(self, now: float) -> list[Reports]:
+        if self._gone is not None:
+            raise SourceGone(self._gone)
+        if self._fd < 0:
+            raise SourceGone(f"{self.name}: not open")
+        chunks = [self._rest] if self._rest else []
+        gone = None
+        if self._stream and not _ready(self._fd):
+            return []
+        for _ in range(MAX_READS):
+            try:
+                data = os.read(self._fd, READ_EVENTS * EVENT_SIZE)
+            except BlockingIOError:
+                break
+            except OSError as e:
+                # ENODEV is the unplug; anything else (EIO from a dying USB port...) leaves
+                # the descriptor unusable too: treat it the same and let open() retry.
+                gone = f"{self.name}: device gone ({e.strerror or e})"
+                break
+            if not data:
+                gone = f"{self.name}: device gone (end of stream)"
+                break
+            chunks.append(data)
+            if len(data) < READ_EVENTS * EVENT_SIZE:
+                break
+        events, self._rest = decode_input_events(b"".join(chunks))
+        frames = self.assembler.feed_events(events)
+        if gone is not None:
+            # The frame being assembled will never get its SYN_REPORT: keep its counts.
+            frames = MotionFrames.concat([frames, self.assembler.flush()])
+            self.truncated_bytes += len(self._rest)
+            self._rest = b""
+        self._update_health()
+        if gone is not None and not len(frames):
+            raise SourceGone(gone)
+        self._gone = gone  # raised by the next call, after these frames are delivered
+        if not len(frames):
+            return []
+        return [Reports(self.name, frames.t, frames.dx.astype(np.float64), frames.dy)]
+
+    def _update_health(self) -> None:
+        s = self.assembler.stats
+        self.health.dropped = s.dropped_frames
+        self.health.skipped = s.skipped
+        self.health.extra.update(
+            node=self.device.node if self.device else None,
+            device=self.device.name if self.device else None,
+            grabbed=self.grabbed,
+            clock="as-written (stream)" if self._stream else "monotonic",
+            syn_dropped=s.syn_dropped,
+            dropped_counts=[s.dropped_dx, s.dropped_dy],
+            incomplete_frames=s.incomplete_frames,
+            truncated_bytes=self.truncated_bytes,
+        )
+
+
+def _input_device(node: str) -> Any:
+    import evdev  # the C extension: only for real nodes (open, identity, grab)
+
+    return evdev.InputDevice(node)
+
+
+def _ready(fd: int) -> bool:
+    """A FIFO whose writer never connected reads as EOF; only read when poll says so.
+
+    Linux reports POLLHUP on a FIFO's read end only after a writer has come and gone,
+    so "nothing yet" (no event) and "unplugged" (POLLHUP) are told apart here.
+    """
+    p = select.poll()
+    p.register(fd, select.POLLIN)
+    return bool(p.poll(0))
+
+
+def _group_of(path: str) -> str | None:
+    import grp
+
+    try:
+        return grp.getgrgid(os.stat(path).st_gid).gr_name
+    except (OSError, KeyError):
+        return None

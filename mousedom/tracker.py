@@ -1,0 +1,336 @@
+"""The fusion engine: asynchronous reports in, poses at the output rate out.
+
+Time is cut into windows of length T = 1/rate_hz on a grid starting at ``t0``.  A report
+stamped t covers the motion since its mouse's previous report, but never more than one
+report period P back: it covers [max(t_prev, t - P), t].  Each mouse's counts therefore
+form a cumulative count function F(t) that is flat between reports and rises linearly
+over each report's span.  A window's counts are F(end) - F(start): a report that straddles
+a window edge is split in proportion to time (which removes the heading jitter of naive
+bucketing), and the totals telescope, so every count lands in exactly one window or is
+split into parts that sum to it.
+
+A window closes once its end is behind every live mouse's frontier: the time up to which
+that mouse's motion is final.  That is its last report time, or, once the caller declares
+that all reports stamped up to tau have been pushed (``complete_until``), tau - P (a later
+report can still reach P back).  A silent mouse therefore does not hold the output back:
+the daemon calls ``complete_until(now - margin)`` on every tick.
+
+The tracker does no I/O and has no clock: time is data, so replay (millions of windows at
+once) and the daemon (a few at a time) run exactly the same code.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from mousedom import integrate, models
+from mousedom.config import Config
+from mousedom.covariance import CovarianceState, propagate, world_step_noise
+from mousedom.units import counts_matrices, sigma_metres
+
+
+@dataclass
+class PoseBatch:
+    """Poses after consecutive windows; every field's first axis is the window."""
+
+    t: np.ndarray  # window end times
+    x: np.ndarray
+    y: np.ndarray
+    theta: np.ndarray
+    vx: np.ndarray  # body-frame twist over the window (m/s, m/s, rad/s)
+    vy: np.ndarray
+    omega: np.ndarray
+    cov: np.ndarray  # (n,3,3) covariance of (x, y, theta)
+    used: np.ndarray  # number of sensors used
+    ok: np.ndarray  # False: the live mice could not determine the motion; pose held
+    residual: np.ndarray  # (n,N,2) metres, body frame: d - A q
+    counts: np.ndarray  # (n,N,2) counts (REL_X, REL_Y) that fell into the window
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    @classmethod
+    def empty(cls, n_mice: int) -> PoseBatch:
+        z = np.zeros(0)
+        return cls(
+            t=z, x=z, y=z, theta=z, vx=z, vy=z, omega=z,
+            cov=np.zeros((0, 3, 3)), used=np.zeros(0, dtype=int), ok=np.zeros(0, dtype=bool),
+            residual=np.zeros((0, n_mice, 2)), counts=np.zeros((0, n_mice, 2)),
+        )  # fmt: skip
+
+    @classmethod
+    def concat(cls, batches: list[PoseBatch], n_mice: int | None = None) -> PoseBatch:
+        batches = [b for b in batches if len(b)]
+        if not batches:
+            return cls.empty(n_mice or 0)
+        return cls(
+            **{f.name: np.concatenate([getattr(b, f.name) for b in batches]) for f in fields(cls)}
+        )
+
+    def last(self) -> dict[str, float]:
+        """The final pose as plain floats (for summaries)."""
+        return {k: float(getattr(self, k)[-1]) for k in ("t", "x", "y", "theta")}
+
+
+class _Mouse:
+    """Per-mouse state: the not-yet-closed part of its cumulative count function."""
+
+    def __init__(self, period: float) -> None:
+        self.period = period
+        self.last_t = -math.inf  # stamp of the last report pushed
+        self.complete = -math.inf  # all reports stamped <= this have been pushed
+        # Knots of F after the closed frontier, relative to F at the frontier (the anchor).
+        self.kx = np.zeros(0)  # knot times
+        self.fx = np.zeros(0)  # cumulative REL_X at the knots
+        self.fy = np.zeros(0)  # cumulative REL_Y at the knots
+        self.dead: list[list[float]] = []  # [from, to) spans in which the mouse is not live
+        self.counts_in = np.zeros(2)
+        self.late = 0  # reports stamped behind the closed frontier (moved forward)
+        self.backwards = 0  # reports stamped before the previous one (clamped)
+
+    @property
+    def live(self) -> bool:
+        return not self.dead or self.dead[-1][1] != math.inf
+
+    def frontier(self) -> float:
+        return max(self.last_t, self.complete - self.period)
+
+    def level(self) -> tuple[float, float]:
+        return (float(self.fx[-1]), float(self.fy[-1])) if len(self.kx) else (0.0, 0.0)
+
+
+class Tracker:
+    """Fuses the reports of a rig's mice into poses.  See the module docstring."""
+
+    def __init__(
+        self,
+        config: Config,
+        *,
+        t0: float | None = None,
+        model: str | None = None,
+        integrator: str | None = None,
+    ) -> None:
+        self.config = config
+        self.model = model or config.model
+        self.integrator = integrator or config.integrator
+        self.period = 1.0 / config.rate_hz
+        self.t0 = t0
+        self.n_mice = len(config.mice)
+        self._mice = [_Mouse(1.0 / m.report_hz) for m in config.mice]
+        self._names = {m.name: i for i, m in enumerate(config.mice)}
+        self._to_body = counts_matrices(config.mice)  # (N,2,2)
+        self._positions = np.array([[m.mount.x, m.mount.y] for m in config.mice])
+        self._sigma = np.array([sigma_metres(m) for m in config.mice])
+        self._closed = 0  # number of windows closed so far
+        self._complete_all = -math.inf
+        self._pose = np.zeros(3)
+        self._cov = CovarianceState()
+        self.counts_out = np.zeros((self.n_mice, 2))
+
+    # ------------------------------------------------------------------ inputs
+
+    def _index(self, mouse: int | str) -> int:
+        return self._names[mouse] if isinstance(mouse, str) else int(mouse)
+
+    def _start(self, t: float) -> None:
+        if self.t0 is None:
+            self.t0 = float(t)
+
+    @property
+    def frontier_time(self) -> float:
+        """End of the last closed window (the start of the grid before any)."""
+        return (self.t0 or 0.0) + self._closed * self.period
+
+    def push(self, mouse: int | str, t: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> None:
+        """Add one mouse's reports (stamps non-decreasing; counts in evdev convention)."""
+        i = self._index(mouse)
+        t = np.asarray(t, dtype=np.float64)
+        if t.size == 0:
+            return
+        dx = np.asarray(dx, dtype=np.float64)
+        dy = np.asarray(dy, dtype=np.float64)
+        m = self._mice[i]
+        self._start(t[0])
+        m.counts_in += (dx.sum(), dy.sum())
+
+        # Time must not run backwards: clamp to the running maximum (counted, kept).
+        run_max = np.maximum.accumulate(np.concatenate([[m.last_t], t]))[1:]
+        m.backwards += int(np.count_nonzero(run_max > t))
+        t = run_max
+        # Reports behind the closed frontier go into the first open window.
+        edge = self.frontier_time
+        late = t < edge
+        if late.any():
+            m.late += int(np.count_nonzero(late))
+            t = np.maximum(t, edge)
+        prev = np.concatenate([[m.last_t], t[:-1]])
+        start = np.maximum(np.maximum(prev, t - m.period), edge)
+
+        base_x, base_y = m.level()
+        cx = base_x + np.cumsum(dx)
+        cy = base_y + np.cumsum(dy)
+        # Knot pairs: F holds its level until the report's span starts, then rises to it.
+        m.kx = np.concatenate([m.kx, np.column_stack([start, t]).ravel()])
+        m.fx = np.concatenate([m.fx, np.column_stack([cx - dx, cx]).ravel()])
+        m.fy = np.concatenate([m.fy, np.column_stack([cy - dy, cy]).ravel()])
+        m.last_t = float(t[-1])
+
+    def complete_until(self, t: float, mouse: int | str | None = None) -> None:
+        """Declare that every report stamped <= t has been pushed (one mouse, or all)."""
+        self._start(t)
+        if mouse is None:
+            self._complete_all = max(self._complete_all, t)
+            for m in self._mice:
+                m.complete = max(m.complete, t)
+        else:
+            m = self._mice[self._index(mouse)]
+            m.complete = max(m.complete, t)
+            self._complete_all = max(self._complete_all, t)
+
+    def set_live(self, mouse: int | str, live: bool, t: float) -> None:
+        """A sensor vanished (live=False) or came back at time t.
+
+        Windows that overlap a dead span do not use that mouse; the model goes on with
+        the others while it has rank, and reports ok=False otherwise.
+        """
+        m = self._mice[self._index(mouse)]
+        if live == m.live:
+            return
+        if live:
+            m.dead[-1][1] = t
+            m.complete = max(m.complete, t)
+        else:
+            m.dead.append([t, math.inf])
+
+    def is_live(self, mouse: int | str) -> bool:
+        return self._mice[self._index(mouse)].live
+
+    # ------------------------------------------------------------------ pose commands
+
+    @property
+    def pose(self) -> tuple[float, float, float]:
+        return float(self._pose[0]), float(self._pose[1]), float(self._pose[2])
+
+    @property
+    def pose_cov(self) -> np.ndarray:
+        return self._cov.cov.copy()
+
+    def reset(self, x: float = 0.0, y: float = 0.0, theta: float = 0.0) -> None:
+        """Start the odometry frame again at the given pose, with zero uncertainty."""
+        self._pose = np.array([x, y, theta], dtype=float)
+        self._cov = CovarianceState(position=self._pose[:2].copy())
+
+    def fix(self, x: float | None = None, y: float | None = None, theta: float | None = None):
+        """Absolute fix of some coordinates only (McGill's grid-line correction).
+
+        The fixed coordinates take the given values and lose their uncertainty; the
+        others, and their correlations with each other, are kept.
+        """
+        cov = self._cov.cov.copy()
+        for k, v in enumerate((x, y, theta)):
+            if v is not None:
+                self._pose[k] = float(v)
+                cov[k, :] = 0.0
+                cov[:, k] = 0.0
+        self._cov = CovarianceState(cov=cov, position=self._pose[:2].copy())
+
+    # ------------------------------------------------------------------ outputs
+
+    @property
+    def counts_in(self) -> np.ndarray:
+        return np.array([m.counts_in for m in self._mice]).reshape(self.n_mice, 2)
+
+    def stats(self) -> dict[str, dict[str, int]]:
+        return {
+            name: {"late": self._mice[i].late, "backwards": self._mice[i].backwards}
+            for name, i in self._names.items()
+        }
+
+    def poll(self) -> PoseBatch:
+        """Close every window that no future report can change."""
+        if self.t0 is None:
+            return PoseBatch.empty(self.n_mice)
+        target = min(
+            (m.frontier() if m.live else self._complete_all for m in self._mice),
+            default=self._complete_all,
+        )
+        if not math.isfinite(target):
+            return PoseBatch.empty(self.n_mice)
+        return self._close_until(math.floor((target - self.t0) / self.period + 1e-9))
+
+    def finish(self) -> PoseBatch:
+        """End of a finite input: close every window up to the last report."""
+        if self.t0 is None:
+            return PoseBatch.empty(self.n_mice)
+        last = max([m.last_t for m in self._mice] + [self._complete_all])
+        if last == -math.inf:
+            return PoseBatch.empty(self.n_mice)
+        k = math.ceil((last - self.t0) / self.period - 1e-9)
+        if self._pending():
+            # Counts moved onto the closed frontier itself still need one more window.
+            k = max(k, self._closed + 1)
+        return self._close_until(k)
+
+    def _pending(self) -> bool:
+        return any(len(m.kx) and (m.fx[-1] != 0 or m.fy[-1] != 0) for m in self._mice)
+
+    def _close_until(self, k_new: int) -> PoseBatch:
+        k_old = self._closed
+        if k_new <= k_old:
+            return PoseBatch.empty(self.n_mice)
+        n = k_new - k_old
+        edges = self.t0 + self.period * np.arange(k_old, k_new + 1)
+        counts = np.zeros((n, self.n_mice, 2))
+        mask = np.ones((n, self.n_mice), dtype=bool)
+        for i, m in enumerate(self._mice):
+            if len(m.kx):
+                # F is relative to the closed frontier, so its value there is 0.
+                fx = np.interp(edges[1:], m.kx, m.fx)
+                fy = np.interp(edges[1:], m.kx, m.fy)
+                counts[:, i, 0] = np.diff(fx, prepend=0.0)
+                counts[:, i, 1] = np.diff(fy, prepend=0.0)
+                self._rebase(m, edges[-1], fx[-1], fy[-1])
+            for start, end in m.dead:
+                mask[(edges[:-1] < end) & (edges[1:] > start), i] = False
+            m.dead = [span for span in m.dead if span[1] > edges[-1]]
+        self._closed = k_new
+        self.counts_out += counts.sum(axis=0)
+        return self._solve(edges[1:], counts, mask)
+
+    @staticmethod
+    def _rebase(m: _Mouse, edge: float, fx_edge: float, fy_edge: float) -> None:
+        # Knots exactly on the edge are kept: a jump there (reports with one stamp) may
+        # have been evaluated on either side, and keeping them, relative, loses neither.
+        keep = m.kx >= edge
+        m.kx = np.concatenate([[edge], m.kx[keep]])
+        m.fx = np.concatenate([[0.0], m.fx[keep] - fx_edge])
+        m.fy = np.concatenate([[0.0], m.fy[keep] - fy_edge])
+
+    def _solve(self, t_end: np.ndarray, counts: np.ndarray, mask: np.ndarray) -> PoseBatch:
+        d = np.einsum("nij,knj->kni", self._to_body, counts) if self.n_mice else counts
+        sol = models.solve(self.model, d, self._positions, self._sigma, mask)
+        q = np.where(sol.ok[:, None], sol.q, 0.0)
+        steps = integrate.body_step(q, self.integrator)
+        poses = integrate.compose(self._pose, steps)
+        theta_before = np.concatenate([[self._pose[2]], poses[:-1, 2]])
+        noise = world_step_noise(theta_before, integrate.step_jacobian(q), sol.cov)
+        cov, self._cov = propagate(self._cov, poses[:, :2], noise)
+        self._pose = poses[-1].copy()
+        rate = 1.0 / self.period
+        return PoseBatch(
+            t=t_end,
+            x=poses[:, 0],
+            y=poses[:, 1],
+            theta=poses[:, 2],
+            vx=q[:, 0] * rate,
+            vy=q[:, 1] * rate,
+            omega=q[:, 2] * rate,
+            cov=cov,
+            used=sol.used,
+            ok=sol.ok,
+            residual=sol.residual,
+            counts=counts,
+        )

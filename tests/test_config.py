@@ -1,0 +1,157 @@
+"""Config loader: valid rigs load into frozen dataclasses; every mistake names file, line, key."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from mousedom.config import ConfigError, load_config, parse_config
+
+GOOD = """\
+rate_hz: 100
+model: lsq
+integrator: exact
+mice:
+  left:
+    cpi: 450
+    mount: {x: 0.0, y: 0.135, yaw: 0.0}
+    replay: left.events
+  right:
+    cpi: {x: 450, y: 452}
+    mount: {x: 0.0, y: -0.135, yaw: 90}
+    evdev: {path: /dev/input/by-path/pci-0000:00:14.0-usb-0:2:1.0-event-mouse}
+"""
+
+
+def test_good_config_loads(tmp_path):
+    path = tmp_path / "rig.yaml"
+    path.write_text(GOOD)
+    cfg = load_config(path)
+    assert cfg.rate_hz == 100 and cfg.model == "lsq" and cfg.integrator == "exact"
+    assert cfg.names == ("left", "right")
+    left, right = cfg.mice
+    assert (left.cpi_x, left.cpi_y) == (450, 450)
+    assert (right.cpi_x, right.cpi_y) == (450, 452)
+    assert right.mount.yaw == pytest.approx(math.pi / 2)
+    assert left.replay == str(tmp_path / "left.events")
+    assert right.evdev.grab is True
+    with pytest.raises(AttributeError):
+        cfg.rate_hz = 5  # frozen
+
+
+@pytest.mark.parametrize(
+    "old, new, line, key, words",
+    [
+        ("cpi: 450\n", "cpi: -3\n", 6, "mice.left.cpi", "positive"),
+        ("model: lsq", "model: kalman", 2, "model", "lsq, diff-drive, bonarini"),
+        ("rate_hz: 100", "rate_hz: fast", 1, "rate_hz", "number"),
+        ("yaw: 90}", "yaw: 90, z: 1}", 11, "mice.right.mount.z", "unknown key"),
+        ("    replay: left.events\n", "", 5, "mice.left", "nowhere"),
+        ("integrator: exact", "integrator: rk4", 3, "integrator", "exact, taylor"),
+    ],
+)
+def test_mistakes_name_file_line_and_key(tmp_path, old, new, line, key, words):
+    path = tmp_path / "rig.yaml"
+    assert old in GOOD
+    path.write_text(GOOD.replace(old, new, 1))
+    with pytest.raises(ConfigError) as err:
+        load_config(path)
+    msg = str(err.value)
+    assert msg.startswith(f"{path}:{line}: {key}:"), msg
+    assert words in msg
+
+
+def test_rank_problem_names_the_mice():
+    text = GOOD.replace("y: -0.135, yaw: 90", "y: 0.135, yaw: 90")
+    with pytest.raises(ConfigError) as err:
+        parse_config(text, "rig.yaml")
+    assert "left, right" in str(err.value) and "one point" in str(err.value)
+
+
+def test_single_mouse_needs_diff_drive():
+    one = "model: lsq\nmice:\n  m: {cpi: 400, mount: {x: 0.1, y: 0}, replay: a}\n"
+    with pytest.raises(ConfigError, match="diff-drive"):
+        parse_config(one, "one.yaml")
+    cfg = parse_config(one.replace("lsq", "diff-drive"), "one.yaml")
+    assert cfg.model == "diff-drive"
+    on_axle = one.replace("lsq", "diff-drive").replace("x: 0.1", "x: 0.0")
+    with pytest.raises(ConfigError, match="cannot see rotation"):
+        parse_config(on_axle, "one.yaml")
+
+
+def test_invalid_yaml_names_line(tmp_path):
+    path = tmp_path / "bad.yaml"
+    path.write_text("rate_hz: 100\nmice: [\n  left: {\n")
+    with pytest.raises(ConfigError, match=rf"{path}:\d+: invalid YAML"):
+        load_config(path)
+
+
+def test_missing_file_and_not_utf8(tmp_path):
+    with pytest.raises(ConfigError, match="not found"):
+        load_config(tmp_path / "nope.yaml")
+    p = tmp_path / "bin.yaml"
+    p.write_bytes(b"rate_hz: 1\n\xff\xfe")
+    with pytest.raises(ConfigError, match="byte offset 11"):
+        load_config(p)
+
+
+def test_calibration_file_overrides(tmp_path):
+    (tmp_path / "rig.yaml").write_text(GOOD + "calibration: rig.calib.yaml\n")
+    cfg = load_config(tmp_path / "rig.yaml")  # file absent: not calibrated yet, fine
+    assert cfg.mouse("left").cpi_x == 450
+    (tmp_path / "rig.calib.yaml").write_text(
+        "mice:\n  left:\n    cpi: {x: 455.5, y: 456.5}\n    mount: {x: 0.01, y: 0.14, yaw: 1}\n"
+    )
+    cfg = load_config(tmp_path / "rig.yaml")
+    left = cfg.mouse("left")
+    assert (left.cpi_x, left.cpi_y) == (455.5, 456.5)
+    assert (left.mount.x, left.mount.y) == (0.01, 0.14)
+    assert left.mount.yaw == pytest.approx(math.radians(1))
+    (tmp_path / "rig.calib.yaml").write_text("mice:\n  middle:\n    cpi: 400\n")
+    with pytest.raises(ConfigError, match=r"rig.calib.yaml:2: mice.middle: calibration for"):
+        load_config(tmp_path / "rig.yaml")
+
+
+def test_cli_reports_config_error_without_traceback(tmp_path):
+    from conftest import run_mousedom
+
+    path = tmp_path / "rig.yaml"
+    path.write_text(GOOD.replace("cpi: 450\n", "cpi: zero\n", 1))
+    # Any subcommand that loads a config will do; `check-config` is the lead's.
+    proc = run_mousedom("check-config", "--config", str(path))
+    assert proc.returncode == 2
+    assert "Traceback" not in proc.stderr
+    assert f"{path}:6: mice.left.cpi: must be a number" in proc.stderr
+
+
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.text(max_size=300))
+def test_any_text_is_a_config_or_a_config_error(text):
+    """Garbage never escapes as another exception (which the CLI would show as a traceback)."""
+    try:
+        parse_config(text, "fuzz.yaml")
+    except ConfigError as e:
+        assert str(e).startswith("fuzz.yaml")
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.recursive(
+        st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=5),
+        lambda kids: st.lists(kids, max_size=3) | st.dictionaries(st.text(max_size=8), kids),
+        max_leaves=12,
+    )
+)
+def test_any_yaml_value_under_a_mouse_is_handled(value):
+    import yaml
+
+    doc = {"mice": {"a": value, "b": {"cpi": 400, "mount": {"x": 0, "y": 1}, "replay": "x"}}}
+    try:
+        parse_config(yaml.safe_dump(doc), "fuzz.yaml")
+    except ConfigError:
+        pass
