@@ -14,6 +14,7 @@ sequence numbers that never arrived.
 
 from __future__ import annotations
 
+import binascii
 import struct
 from dataclasses import dataclass, field
 
@@ -33,7 +34,7 @@ CMD_GET_VERSION = 0x84
 FLAG_OVERFLOW = 0x01  # the sensor's OVF bit: counts were lost inside the sensor
 FLAG_FAULT = 0x02  # the sensor stopped answering during this packet
 FLAG_BOOT = 0x04  # first MOTION packet since the firmware started
-FLAG_DELAYED = 0x08  # sent late (UART busy or K lowered): more than K frames
+FLAG_DELAYED = 0x08  # frames > K: UART busy, K lowered, or a poll overran its period
 FLAG_RES1600 = 0x10  # the sensor said 1600 CPI in its last Motion read
 FLAG_SATURATED = 0x20  # a delta came back at full scale and was drained by re-reading
 FLAGS_KNOWN = 0x3F
@@ -119,7 +120,15 @@ _LAYOUT: dict[int, tuple[struct.Struct, type]] = {
 
 
 def crc16(data: bytes, crc: int = 0xFFFF) -> int:
-    """CRC-16/CCITT-FALSE: poly 0x1021, init 0xFFFF; crc16(b"123456789") == 0x29B1."""
+    """CRC-16/CCITT-FALSE: poly 0x1021, init 0xFFFF; crc16(b"123456789") == 0x29B1.
+
+    binascii.crc_hqx is this very CRC (poly 0x1021, no reflection) with the initial value
+    as an argument, in C: replay parses millions of packets."""
+    return binascii.crc_hqx(data, crc)
+
+
+def crc16_bitwise(data: bytes, crc: int = 0xFFFF) -> int:
+    """The same CRC the way the firmware computes it (a reference for the tests)."""
     for byte in data:
         crc ^= byte << 8
         for _ in range(8):
@@ -207,7 +216,7 @@ def encode_packet(packet: Packet) -> bytes:
 # --------------------------------------------------------------------------- parsing
 
 
-def decode_body(body: bytes) -> Packet:
+def decode_body(body: bytes, host_t: float | None = None) -> Packet:
     """Check and unpack one decoded body; ValueError (with the reason) when it is bad."""
     if len(body) < 3:
         raise ValueError("frame too short")
@@ -220,7 +229,7 @@ def decode_body(body: bytes) -> Packet:
     layout, cls = _LAYOUT[ptype]
     if len(payload) != layout.size:
         raise ValueError(f"type 0x{ptype:02x} has {len(payload)} bytes, not {layout.size}")
-    packet = cls(*layout.unpack(payload))
+    packet = cls(*layout.unpack(payload), host_t)
     _check_values(packet)
     return packet
 
@@ -309,7 +318,7 @@ class Parser:
 
     def _frame(self, chunk: bytes, host_t: float | None) -> Packet | None:
         try:
-            packet = decode_body(cobs_decode(chunk))
+            packet = decode_body(cobs_decode(chunk), host_t)
         except _CrcError:
             self.stats.crc_errors += 1
         except ValueError:
@@ -317,8 +326,6 @@ class Parser:
         else:
             self._sequence(packet.seq)
             self.stats.packets += 1
-            if host_t is not None:
-                packet = _stamp(packet, host_t)
             return packet
         self.stats.resyncs += 1
         self.stats.discarded_bytes += len(chunk) + 1
@@ -334,7 +341,26 @@ class Parser:
         self._expect_seq = (seq + 1) % SEQ_MOD
 
 
-def _stamp(packet: Packet, host_t: float) -> Packet:
-    from dataclasses import replace
+def parse_commands(data: bytes) -> list[tuple[int, int | None]]:
+    """Host -> device frames in ``data`` as ``(cmd, arg)``; damaged frames are skipped.
 
-    return replace(packet, host_t=host_t)
+    The device side of the protocol, for emulators and tests (the firmware has its own).
+    """
+    out: list[tuple[int, int | None]] = []
+    for chunk in data.split(b"\0"):
+        if not chunk:
+            continue
+        try:
+            body = cobs_decode(chunk)
+        except ValueError:
+            continue
+        if len(body) < 3 or crc16(body[:-2]) != body[-2] | (body[-1] << 8):
+            continue
+        cmd, args = body[0], body[1:-2]
+        if cmd == CMD_SET_K and len(args) == 1:
+            out.append((cmd, args[0]))
+        elif cmd == CMD_SET_CPI and len(args) == 2:
+            out.append((cmd, args[0] | (args[1] << 8)))
+        elif cmd in (CMD_GET_STATUS, CMD_GET_VERSION) and not args:
+            out.append((cmd, None))
+    return out
