@@ -245,3 +245,7 @@ def test_user_errors(tmp_path):
         "0.1",
     )
     assert r.returncode == 1 and "cannot write" in r.stderr
+    (tmp_path / "old.mdcap").write_bytes(b"precious")
+    r = run_mousedom("record", "--config", str(rig(tmp_path, f)), "-o", str(tmp_path / "old.mdcap"))
+    assert r.returncode == 2 and "exists" in r.stderr and "--force" in r.stderr
+    assert (tmp_path / "old.mdcap").read_bytes() == b"precious"

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import selectors
 import signal
 import sys
@@ -49,6 +50,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="seconds between status lines on stderr (0: none)",
     )
     p.add_argument("--fsync", action="store_true", help="fsync every chunk (power-loss safe)")
+    p.add_argument("--force", action="store_true", help="overwrite FILE if it exists")
     p.set_defaults(func=run)
 
 
@@ -336,6 +338,8 @@ class Recorder:
 
 def run(args: argparse.Namespace) -> int:
     cfg = load_config(args.config)
+    if os.path.exists(args.output) and not args.force:
+        raise UserError(f"{args.output}: exists; not overwriting a recording (use --force)")
     config_text = Path(args.config).read_text()
     if args.duration is not None and not (args.duration > 0 and math.isfinite(args.duration)):
         raise UserError(f"--duration: must be a positive number of seconds, got {args.duration}")
