@@ -16,6 +16,7 @@ needs every file given together.
 
 from __future__ import annotations
 
+import os
 from abc import ABC, abstractmethod
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
@@ -23,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from mousedom.capture.frames import Frames
+from mousedom.events import AssemblerStats
 
 TIME_BASES = ("epoch", "relative", "monotonic")
 # evemu writes CLOCK_REALTIME in old recordings: anything past 1973-03-03 is taken as an
@@ -65,10 +66,9 @@ class DeviceStats:
     reports: int = 0
     skipped: int = 0  # non-motion events: buttons, wheels, MSC_SCAN ...
     dropped_frames: int = 0  # frames discarded because of SYN_DROPPED
-    dropped_events: int = 0
     lost_x: int = 0  # counts inside dropped frames
     lost_y: int = 0
-    unterminated: int = 0  # events after the last SYN_REPORT of a truncated capture
+    unterminated: int = 0  # frames without SYN_REPORT at the end (kept: their counts happened)
     torn_bytes: int = 0  # unreadable tail of a crashed recording
     net_x: int = 0
     net_y: int = 0
@@ -91,14 +91,15 @@ class DeviceStats:
             self.first_t = float(t[0])
         self.last_t = float(t[-1])
 
-    def add_frames(self, fr: Frames) -> None:
-        self.frames += fr.frames
-        self.skipped += fr.skipped
-        self.dropped_frames += fr.dropped_frames
-        self.dropped_events += fr.dropped_events
-        self.lost_x += fr.lost_x
-        self.lost_y += fr.lost_y
-        self.add_motion(fr.t, fr.dx, fr.dy)
+    def take_assembler(self, st: AssemblerStats) -> None:
+        """Copy the frame assembler's counters (they are running totals)."""
+        self.events = st.events
+        self.frames = st.frames
+        self.skipped = st.skipped
+        self.dropped_frames = st.dropped_frames
+        self.lost_x = st.dropped_dx
+        self.lost_y = st.dropped_dy
+        self.unterminated = st.incomplete_frames
 
     def merge(self, other: DeviceStats) -> None:
         """Add counters recorded elsewhere (e.g. a native file's notes of its source)."""
@@ -107,7 +108,6 @@ class DeviceStats:
             "frames",
             "skipped",
             "dropped_frames",
-            "dropped_events",
             "lost_x",
             "lost_y",
             "unterminated",
@@ -162,6 +162,11 @@ class Capture(ABC):
         self.time_base = "relative"
         self.header: dict[str, Any] = {}  # format specific (the native config snapshot)
         self.warnings: list[str] = []
+        try:
+            self.bytes_total = os.path.getsize(path)
+        except OSError:
+            self.bytes_total = 0
+        self.bytes_done = 0  # how far the feeds have read (for progress bars)
 
     @abstractmethod
     def first_time(self) -> float | None:
@@ -174,3 +179,4 @@ class Capture(ABC):
     def reset_stats(self) -> None:
         self.stats = [DeviceStats() for _ in self.devices]
         self.warnings = []
+        self.bytes_done = 0

@@ -24,7 +24,6 @@ fails the quick checks is parsed again line by line to name the exact line at fa
 from __future__ import annotations
 
 import re
-import warnings
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -38,14 +37,13 @@ from mousedom.capture.base import (
     Feed,
     Motion,
 )
-from mousedom.capture.frames import EV_REL, REL_X, REL_Y, group_frames
 from mousedom.errors import UserError, located
+from mousedom.events import EV_REL, REL_X, REL_Y, FrameAssembler
 
 KNOWN_VERSIONS = ("1.0", "1.1", "1.2", "1.3")
 HEADER_TAGS = (b"N", b"I", b"P", b"B", b"A", b"L", b"S")
 BLOCK_BYTES = 4 << 20
 
-_COMMENT = re.compile(rb"[ \t]*#[^\n]*")
 _VERSION = re.compile(rb"#\s*EVEMU\s+(\S+)")
 
 
@@ -63,28 +61,6 @@ class _Events:
 
     def __len__(self) -> int:
         return len(self.t)
-
-    def tail(self, start: int) -> _Events:
-        return _Events(
-            self.t[start:],
-            self.typ[start:],
-            self.code[start:],
-            self.value[start:],
-            self.line[start:],
-        )
-
-    @staticmethod
-    def concat(a: _Events, b: _Events) -> _Events:
-        if not len(a):
-            return b
-        return _Events(
-            *(np.concatenate([getattr(a, s), getattr(b, s)]) for s in _Events.__slots__)
-        )
-
-    @staticmethod
-    def empty() -> _Events:
-        i = np.empty(0, np.int64)
-        return _Events(np.empty(0, np.float64), i, i, i, i)
 
 
 # --------------------------------------------------------------------------- header
@@ -117,9 +93,7 @@ def _parse_header(path: str, lines: list[bytes], first_line: int, info: DeviceIn
             continue
         tag, sep, rest = line.partition(b":")
         if not sep or tag not in HEADER_TAGS:
-            raise CaptureError(
-                located(path, lineno, f"not an evemu header line: {_show(line)}")
-            )
+            raise CaptureError(located(path, lineno, f"not an evemu header line: {_show(line)}"))
         try:
             if tag == b"N":
                 info.name = rest.strip().decode("utf-8", "replace")
@@ -154,50 +128,106 @@ def _show(line: bytes) -> str:
 # --------------------------------------------------------------------------- event lines
 
 
-def _fast_events(block: bytes, first_line: int) -> _Events | None:
-    """Parse a block of complete lines if every line is a well-formed E: line; else None."""
-    text = _COMMENT.sub(b"", block) if b"#" in block else block
-    n = text.count(b"\n")
-    if n == 0 or (b"\n" + text).count(b"\nE:") != n:
+_WS = np.zeros(256, dtype=bool)
+_WS[[ord(" "), ord("\t"), ord("\r")]] = True
+_HEX = np.full(256, -1, dtype=np.int64)
+for _i, _c in enumerate(b"0123456789abcdef"):
+    _HEX[_c] = _i
+for _i, _c in enumerate(b"ABCDEF"):
+    _HEX[_c] = 10 + _i
+_DEC = np.full(256, -1, dtype=np.int64)
+for _i, _c in enumerate(b"0123456789"):
+    _DEC[_c] = _i
+
+
+def _digits(b: np.ndarray, begin: np.ndarray, end: np.ndarray, base: int, width: int):
+    """Vectorised integer fields b[begin:end] (one per line); None if any is malformed.
+
+    Horner's rule one column at a time: at most ``width`` passes over n-long arrays.
+    """
+    w = end - begin
+    if len(w) and (w.min() < 1 or w.max() > width):
         return None
-    tok = text.replace(b".", b" ").split()
-    if len(tok) != 6 * n or tok[0::6].count(b"E:") != n:
-        return None
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("error")
-            sec = np.fromstring(b" ".join(tok[1::6]), dtype=np.int64, sep=" ")
-            usec = np.fromstring(b" ".join(tok[2::6]), dtype=np.int64, sep=" ")
-            value = np.fromstring(b" ".join(tok[5::6]), dtype=np.int64, sep=" ")
-    except (ValueError, DeprecationWarning):
-        return None
-    if len(sec) != n or len(usec) != n or len(value) != n:
-        return None
-    usec_tok = tok[2::6]
-    lengths = set(map(len, usec_tok))
-    if lengths == {6}:
-        frac = usec / 1_000_000
-    else:
-        if any(not x.isdigit() for x in usec_tok) or any(not x.isdigit() for x in tok[1::6]):
+    lut = _HEX if base == 16 else _DEC
+    value = np.zeros(len(begin), dtype=np.int64)
+    last = len(b) - 1
+    for j in range(int(w.max()) if len(w) else 0):
+        digit = lut[b[np.minimum(begin + j, last)]]
+        used = j < w
+        if ((digit < 0) & used).any():
             return None
-        frac = usec / np.power(10.0, np.fromiter(map(len, usec_tok), np.int64, n))
-    if (sec < 0).any() or (usec < 0).any():
+        value = np.where(used, value * base + digit, value)
+    return value
+
+
+def _fast_events(block: bytes, first_line: int) -> _Events | None:
+    """Parse a block of whole lines when every one is a plain E: line; else None.
+
+    Everything happens on the block's bytes as one numpy array: line starts, the three
+    separators of each line (found with searchsorted on the whitespace positions), then
+    each field's digits gathered into a (lines x width) matrix.  Anything unusual (a
+    comment line, doubled blanks, odd widths) returns None and the careful line-by-line
+    parser takes over, so this path only has to be right, never clever about errors.
+    """
+    b = np.frombuffer(block, dtype=np.uint8)
+    nl = np.flatnonzero(b == 10)
+    n = len(nl)
+    if n == 0 or nl[-1] != len(b) - 1:
         return None
-    keys = list(zip(tok[3::6], tok[4::6]))
-    mapping = {}
-    try:
-        for k in set(keys):
-            ty, co = int(k[0], 16), int(k[1], 16)
-            if not (0 <= ty <= 0xFFFF and 0 <= co <= 0xFFFF) or b"_" in k[0] + k[1]:
-                return None
-            mapping[k] = ty << 16 | co
-    except ValueError:
+    starts = np.empty(n, dtype=np.int64)
+    starts[0] = 0
+    starts[1:] = nl[:-1] + 1
+    if ((nl - starts) < 11).any():  # "E: 0.0 0 0 0" is the shortest event line
         return None
-    packed = np.fromiter(map(mapping.__getitem__, keys), dtype=np.int64, count=n)
+    if not ((b[starts] == 69) & (b[starts + 1] == 58) & (b[starts + 2] == 32)).all():
+        return None
+    ws = np.flatnonzero(_WS[b])
+    k = np.searchsorted(ws, starts + 3)
+    if k.max() + 2 >= len(ws):
+        return None
+    s1, s2, s3 = ws[k], ws[k + 1], ws[k + 2]
+    if not ((s3 < nl) & (b[s1] == 32) & (b[s2] == 32) & (b[s3] == 32)).all():
+        return None
+    # Value ends at the next blank or the newline; after it only blanks and a comment.
+    k4 = k + 3
+    s4 = np.where(k4 < len(ws), ws[np.minimum(k4, len(ws) - 1)], len(b))
+    vend = np.minimum(s4, nl)
+    rest_ok = vend == nl
+    if not rest_ok.all():
+        # Only blanks, then a comment, may follow the value.
+        ve = vend[~rest_ok]
+        hashes = np.flatnonzero(b == 35)
+        hi = np.searchsorted(hashes, ve)
+        if hi.max() >= len(hashes):
+            return None
+        h = hashes[hi]
+        if not (h < nl[~rest_ok]).all():
+            return None
+        if not (np.searchsorted(ws, h) - np.searchsorted(ws, ve) == h - ve).all():
+            return None
+    dots = np.flatnonzero(b == 46)
+    di = np.searchsorted(dots, starts + 3)
+    if di.max() >= len(dots):
+        return None
+    dot = dots[di]
+    if not (dot < s1).all():
+        return None
+    sec = _digits(b, starts + 3, dot, 10, 12)
+    usec = _digits(b, dot + 1, s1, 10, 9)
+    typ = _digits(b, s1 + 1, s2, 16, 4)
+    code = _digits(b, s2 + 1, s3, 16, 4)
+    neg = b[s3 + 1] == 45
+    pos = b[s3 + 1] == 43
+    value = _digits(b, s3 + 1 + (neg | pos), vend, 10, 10)
+    if sec is None or usec is None or typ is None or code is None or value is None:
+        return None
+    value = np.where(neg, -value, value)
     if (value < -(2**31)).any() or (value >= 2**31).any():
         return None
+    w_usec = s1 - dot - 1
+    frac = usec / 1_000_000 if (w_usec == 6).all() else usec / np.power(10.0, w_usec)
     line = np.arange(first_line, first_line + n, dtype=np.int64)
-    return _Events(sec + frac, packed >> 16, packed & 0xFFFF, value, line)
+    return _Events(sec + frac, typ, code, value, line)
 
 
 def _slow_events(path: str, block: bytes, first_line: int, *, at_eof: bool) -> _Events:
@@ -352,12 +382,13 @@ class EvemuCapture(Capture):
                 carry = buf[cut:]
                 if cut:
                     block = buf[:cut]
+                    self.bytes_done += len(block)
                     yield block, line, False
                     line += block.count(b"\n")
 
     def _batches(self) -> Iterator[Batch]:
         stats = self.stats[0]
-        pending = _Events.empty()
+        asm = FrameAssembler()
         last_t = -np.inf
         for block, first_line, at_eof in self._blocks():
             ev = None if at_eof else _fast_events(block, first_line)
@@ -365,36 +396,30 @@ class EvemuCapture(Capture):
                 try:
                     ev = _slow_events(self.path, block, first_line, at_eof=at_eof)
                 except _TornLine as torn:
-                    stats.torn_bytes += len(block.rsplit(b"\n", 1)[-1])
+                    stats.torn_bytes += len(block)
                     self.warnings.append(
-                        f"{self.path}:{torn.line}: last line cut off (truncated recording); "
-                        "skipped"
+                        f"{self.path}:{torn.line}: last line cut off (truncated recording); skipped"
                     )
-                    head = block[: block.rfind(b"\n") + 1]
-                    ev = _slow_events(self.path, head, first_line, at_eof=False)
+                    continue
             if not len(ev):
                 continue
-            self._check_time(ev, last_t, block, first_line)
+            self._check_time(ev, last_t)
             last_t = float(ev.t[-1])
-            stats.events += len(ev)
-            ev = _Events.concat(pending, ev)
-            fr = group_frames(ev.typ, ev.code, ev.value, ev.t)
-            stats.add_frames(fr)
-            pending = ev.tail(fr.rest)
-            yield Batch(
-                [Motion(0, fr.t, fr.dx, fr.dy)],
-                [],
-                float(np.nextafter(last_t, -np.inf)),
-            )
-        if len(pending):
-            stats.unterminated += int(np.count_nonzero(pending.typ != 0))
+            fr = asm.feed(ev.t, ev.typ, ev.code, ev.value)
+            stats.add_motion(fr.t, fr.dx, fr.dy)
+            stats.take_assembler(asm.stats)
+            yield Batch([Motion(0, fr.t, fr.dx, fr.dy)], [], float(np.nextafter(last_t, -np.inf)))
+        fr = asm.flush()
+        stats.add_motion(fr.t, fr.dx, fr.dy)
+        stats.take_assembler(asm.stats)
+        if stats.unterminated:
             self.warnings.append(
-                f"{self.path}:{int(pending.line[0])}: the last {len(pending)} events have no "
-                "SYN_REPORT (truncated recording); skipped"
+                f"{self.path}: the last frame has no SYN_REPORT (truncated recording); "
+                "its counts are kept"
             )
-        yield Batch([], [], np.inf)
+        yield Batch([Motion(0, fr.t, fr.dx, fr.dy)], [], np.inf)
 
-    def _check_time(self, ev: _Events, last_t: float, block: bytes, first_line: int) -> None:
+    def _check_time(self, ev: _Events, last_t: float) -> None:
         t = ev.t
         if t[0] >= last_t and (len(t) < 2 or not (np.diff(t) < 0).any()):
             return
@@ -432,3 +457,49 @@ def _first_event_line(lines: list[bytes]) -> int:
         if raw.lstrip().startswith(b"E:"):
             return i
     return len(lines)
+
+
+# --------------------------------------------------------------------------- writing
+
+
+def format_evemu(
+    t: np.ndarray,
+    dx: np.ndarray,
+    dy: np.ndarray,
+    *,
+    name: str = "mousedom simulated mouse",
+    version: str | None = "1.3",
+    ids: tuple[int, int, int, int] = (0x03, 0x046D, 0xC077, 0x0111),
+    comments: bool = False,
+) -> str:
+    """An evemu recording of motion reports (one frame per report), as evemu writes it.
+
+    ``version=None`` writes an old-style body without header.  Used by tests, benches and
+    the demo; times are written as given (relative or epoch).
+    """
+    lines = []
+    if version is not None:
+        lines += [
+            f"# EVEMU {version}",
+            f'# Input device name: "{name}"',
+            f"N: {name}",
+            "I: " + " ".join(f"{i:04x}" for i in ids),
+            "P: 00 00 00 00 00 00 00 00",
+            "B: 00 0b 00 00 00 00 00 00 00",
+            "B: 01 00 00 00 00 00 00 00 00",
+            "B: 01 00 00 07 00 00 00 00 00",
+            "B: 02 03 01 00 00 00 00 00 00",
+        ]
+    us = np.round(np.asarray(t, dtype=np.float64) * 1e6).astype(np.int64)
+    sec, usec = np.divmod(us, 1_000_000)
+    cx = "\t# EV_REL / REL_X" if comments else ""
+    cy = "\t# EV_REL / REL_Y" if comments else ""
+    cs = "\t# ------------ SYN_REPORT (0) ----------" if comments else ""
+    for s, u, x, y in zip(sec.tolist(), usec.tolist(), dx.tolist(), dy.tolist(), strict=True):
+        stamp = f"E: {s}.{u:06d}"
+        if x:
+            lines.append(f"{stamp} 0002 0000 {int(x):04d}{cx}")
+        if y:
+            lines.append(f"{stamp} 0002 0001 {int(y):04d}{cy}")
+        lines.append(f"{stamp} 0000 0000 0000{cs}")
+    return "\n".join(lines) + "\n"

@@ -39,8 +39,8 @@ import yaml
 
 from mousedom.capture.base import Batch, Capture, DeviceInfo, Feed, Motion
 from mousedom.capture.evemu import CaptureError, _open
-from mousedom.capture.frames import EV_REL, REL_X, REL_Y, group_frames
 from mousedom.errors import located
+from mousedom.events import EV_REL, REL_X, REL_Y, FrameAssembler
 
 KNOWN_VERSIONS = (1,)
 BLOCK_BYTES = 4 << 20
@@ -224,6 +224,8 @@ class LibinputCapture(Capture):
                 cut = buf.rfind(b"\n") + 1 if left > 0 else len(buf)
                 block, carry = buf[:cut], buf[cut:]
                 if block:
+                    if not limit:
+                        self.bytes_done += len(block)
                     yield block, line
                     line += block.count(b"\n")
                 if limit:
@@ -284,7 +286,7 @@ class LibinputCapture(Capture):
     def _batches(self, index: int) -> Iterator[Batch]:
         stats = self.stats[index]
         span = self._spans[index]
-        pend = (np.empty(0, np.float64),) + (np.empty(0, np.int64),) * 3
+        asm = FrameAssembler()
         last_t = -np.inf
         for block, line in self._blocks(span):
             t, typ, code, value = self._parse(block, line)
@@ -293,19 +295,20 @@ class LibinputCapture(Capture):
             if t[0] < last_t or (np.diff(t) < 0).any():
                 self._backwards(block, line, last_t)
             last_t = float(t[-1])
-            stats.events += len(t)
-            t, typ, code, value = (np.concatenate([p, x]) for p, x in zip(pend, (t, typ, code, value)))
-            fr = group_frames(typ, code, value, t)
-            stats.add_frames(fr)
-            pend = (t[fr.rest :], typ[fr.rest :], code[fr.rest :], value[fr.rest :])
-            yield Batch([Motion(index, fr.t, fr.dx, fr.dy)], [], float(np.nextafter(last_t, -np.inf)))
-        if len(pend[0]):
-            stats.unterminated += int(np.count_nonzero(pend[1] != 0))
+            fr = asm.feed(t, typ, code, value)
+            stats.add_motion(fr.t, fr.dx, fr.dy)
+            stats.take_assembler(asm.stats)
+            complete = float(np.nextafter(last_t, -np.inf))
+            yield Batch([Motion(index, fr.t, fr.dx, fr.dy)], [], complete)
+        fr = asm.flush()
+        stats.add_motion(fr.t, fr.dx, fr.dy)
+        stats.take_assembler(asm.stats)
+        if stats.unterminated:
             self.warnings.append(
-                f"{self.path}: device {self.devices[index].name!r}: the last {len(pend[0])} "
-                "events have no SYN_REPORT (truncated recording); skipped"
+                f"{self.path}: device {self.devices[index].name!r}: the last frame has no "
+                "SYN_REPORT (truncated recording); its counts are kept"
             )
-        yield Batch([], [], np.inf)
+        yield Batch([Motion(index, fr.t, fr.dx, fr.dy)], [], np.inf)
 
     def _backwards(self, block: bytes, line: int, last_t: float) -> None:
         prev = last_t
@@ -336,3 +339,44 @@ def _line_of(text: bytes, needle: bytes) -> int | None:
 def _show(raw: bytes) -> str:
     text = raw.decode("utf-8", "replace").strip()
     return text if len(text) <= 50 else text[:47] + "..."
+
+
+def format_libinput(devices: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]]) -> str:
+    """A ``libinput record`` file holding one mouse per (name, t, dx, dy), for tests."""
+    out = [
+        "# libinput record",
+        "version: 1",
+        f"ndevices: {len(devices)}",
+        "libinput:",
+        "  version: 1.25.0",
+        "system:",
+        '  kernel: "6.8.0"',
+        "devices:",
+    ]
+    for k, (name, t, dx, dy) in enumerate(devices):
+        out += [
+            f"- node: /dev/input/event{k + 5}",
+            "  evdev:",
+            f"    # Name: {name}",
+            f"    name: {name}",
+            f"    id: [3, 1133, {49271 + k}, 273]",
+            "    codes:",
+            "      0: [0, 1, 2] # EV_SYN",
+            "      1: [272, 273, 274] # EV_KEY",
+            "      2: [0, 1, 8, 11] # EV_REL",
+            "    properties: []",
+            "  udev:",
+            "    properties:",
+            "    - ID_INPUT_MOUSE=1",
+            "  events:",
+        ]
+        us = np.round(np.asarray(t, dtype=np.float64) * 1e6).astype(np.int64)
+        sec, usec = np.divmod(us, 1_000_000)
+        for s, u, x, y in zip(sec.tolist(), usec.tolist(), dx.tolist(), dy.tolist(), strict=True):
+            out.append("  - evdev:")
+            if x:
+                out.append(f"    - [{s:3d}, {u:6d},   2,   0, {int(x):5d}] # EV_REL / REL_X")
+            if y:
+                out.append(f"    - [{s:3d}, {u:6d},   2,   1, {int(y):5d}] # EV_REL / REL_Y")
+            out.append(f"    - [{s:3d}, {u:6d},   0,   0,     0] # SYN_REPORT +0ms")
+    return "\n".join(out) + "\n"

@@ -60,7 +60,6 @@ NOTE_FIELDS = (
     "frames",
     "skipped",
     "dropped_frames",
-    "dropped_events",
     "lost_x",
     "lost_y",
     "unterminated",
@@ -101,9 +100,7 @@ class NativeWriter:
         self.compress = compress
         self.chunk_reports = chunk_reports
         self.fsync = fsync
-        self._buf: list[list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = [
-            [] for _ in devices
-        ]
+        self._buf: list[list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = [[] for _ in devices]
         self._buffered = [0] * len(devices)
         self.reports_written = 0
         header = {
@@ -124,9 +121,7 @@ class NativeWriter:
         t = np.ascontiguousarray(t, dtype="<f8")
         if not len(t):
             return
-        self._buf[device].append(
-            (t, np.asarray(dx, dtype="<i4"), np.asarray(dy, dtype="<i4"))
-        )
+        self._buf[device].append((t, np.asarray(dx, dtype="<i4"), np.asarray(dy, dtype="<i4")))
         self._buffered[device] += len(t)
         if self._buffered[device] >= self.chunk_reports:
             self._flush_motion(device)
@@ -227,9 +222,11 @@ class NativeCapture(Capture):
         self._first: float | None | bool = False
 
     def first_time(self) -> float | None:
+        if self._first is False and isinstance(self.header.get("first_time"), (int, float)):
+            self._first = float(self.header["first_time"])
         if self._first is False:
             first = None
-            for kind, source, count, payload, _ in self._chunks(check_tail=False):
+            for kind, _source, count, payload, _ in self._chunks(check_tail=False):
                 if kind == MOTION and count:
                     t = np.frombuffer(payload, "<f8", count)
                     first = float(t[0]) if first is None else min(first, float(t[0]))
@@ -253,16 +250,24 @@ class NativeCapture(Capture):
         for kind, source, count, payload, offset in self._chunks(check_tail=True):
             if source >= len(self.devices):
                 raise CaptureError(
-                    located(self.path, None, f"byte offset {offset}: chunk for source "
-                            f"{source}, but the header lists {len(self.devices)} devices")
+                    located(
+                        self.path,
+                        None,
+                        f"byte offset {offset}: chunk for source "
+                        f"{source}, but the header lists {len(self.devices)} devices",
+                    )
                 )
             st = self.stats[source]
             if kind == MOTION:
                 t, dx, dy = _motion_columns(self.path, payload, count, offset)
                 if len(t) and (t[0] < last[source] or (np.diff(t) < 0).any()):
                     raise CaptureError(
-                        located(self.path, None, f"byte offset {offset}: time goes "
-                                f"backwards for device {self.devices[source].name!r}")
+                        located(
+                            self.path,
+                            None,
+                            f"byte offset {offset}: time goes "
+                            f"backwards for device {self.devices[source].name!r}",
+                        )
                     )
                 if len(t):
                     last[source] = float(t[-1])
@@ -327,6 +332,8 @@ class NativeCapture(Capture):
                         ) from None
                 yield kind, source, count, payload, offset
                 offset += CHUNK.size + size
+                if check_tail:
+                    self.bytes_done = offset
 
     def _bad_chunk(self, offset: int, why: str) -> None:
         """A torn tail is a warning; a bad chunk with good ones after it is an error."""
@@ -429,5 +436,5 @@ def _serial_pieces(path: str, payload: bytes, count: int, offset: int):
         )
     ends = 12 * count + np.cumsum(lens)
     starts = ends - lens
-    pieces = [payload[s:e] for s, e in zip(starts.tolist(), ends.tolist())]
+    pieces = [payload[s:e] for s, e in zip(starts.tolist(), ends.tolist(), strict=False)]
     return t, pieces
