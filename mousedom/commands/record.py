@@ -13,6 +13,7 @@ and closes the file.
 from __future__ import annotations
 
 import argparse
+import logging
 import math
 import os
 import selectors
@@ -25,6 +26,8 @@ from pathlib import Path
 from mousedom.config import Config, MouseConfig, load_config
 from mousedom.errors import UserError
 from mousedom.sources.base import SourceGone, SourceUnavailable
+
+log = logging.getLogger(__name__)
 
 FLUSH_S = 0.25  # bound on what a kill -9 can lose
 RETRY_S = 0.5  # how often to look for an unplugged device
@@ -273,6 +276,15 @@ class Recorder:
         return f"record: {elapsed:6.1f} s  " + " | ".join(parts)
 
     def run(self, duration: float | None, status_every: float) -> None:
+        try:
+            self._loop(duration, status_every)
+        finally:
+            # Whatever happened, what was recorded stays readable and the devices are
+            # released (both are idempotent after a normal finish).
+            self.writer.close()
+            self.close_sources()
+
+    def _loop(self, duration: float | None, status_every: float) -> None:
         t0 = time.monotonic()
         last_flush = last_status = t0
         polled = [s for s in self.slots if s.source.fileno() < 0]
@@ -311,20 +323,9 @@ class Recorder:
         for s in self.slots:
             if isinstance(s.source, RawSerial):
                 continue
-            a = s.source.assembler.stats
-            self.writer.note(
-                s.index,
-                DeviceStats(
-                    events=a.events,
-                    frames=a.frames,
-                    skipped=a.skipped,
-                    dropped_frames=a.dropped_frames,
-                    dropped_events=a.dropped_events,
-                    lost_x=a.dropped_dx,
-                    lost_y=a.dropped_dy,
-                    unterminated=a.incomplete_events,
-                ),
-            )
+            note = DeviceStats()
+            note.take_assembler(s.source.assembler.stats)
+            self.writer.note(s.index, note)
         self.writer.close()
         self.close_sources()
         for s in self.slots:  # the last line gives average rates over the whole run
@@ -354,7 +355,15 @@ def run(args: argparse.Namespace) -> int:
     rec = Recorder(cfg, config_text, args.output, fsync=args.fsync, stop=stop)
     names = ", ".join(f"{s.mouse.name} ({_describe(s)})" for s in rec.slots)
     print(f"record: {args.output}: recording {names}", file=sys.stderr, flush=True)
-    rec.run(args.duration, args.status_interval)
+    try:
+        rec.run(args.duration, args.status_interval)
+    except Exception as e:  # a bug must not end in a traceback; the file is closed already
+        log.debug("record failed", exc_info=True)
+        raise UserError(
+            f"{args.output}: recording stopped by an internal error ({type(e).__name__}: {e}); "
+            "the file holds everything recorded until then. Run with -v for details.",
+            exit_code=1,
+        ) from None
     return 0
 
 
