@@ -249,3 +249,31 @@ def test_user_errors(tmp_path):
     r = run_mousedom("record", "--config", str(rig(tmp_path, f)), "-o", str(tmp_path / "old.mdcap"))
     assert r.returncode == 2 and "exists" in r.stderr and "--force" in r.stderr
     assert (tmp_path / "old.mdcap").read_bytes() == b"precious"
+
+
+def test_recording_replays_to_the_motion_that_was_made(tmp_path):
+    """record -> replay: two mice pushed 1000 counts forward at 800 cpi = 31.75 mm."""
+    f = fifos(tmp_path, "left", "right")
+    cfg = rig(tmp_path, f)
+    out = tmp_path / "straight.mdcap"
+    p = start("record", "--config", str(cfg), "-o", str(out), "--status-interval", "0")
+    try:
+        ws = [os.open(path, os.O_WRONLY) for path in f.values()]
+        t0 = time.monotonic()
+        for w in ws:  # forward = -REL_Y (the mouse moves away from its user)
+            os.write(w, motion_bytes(t0, [0] * 100, [-10] * 100, dt=0.008))
+        time.sleep(0.5)
+        p.send_signal(signal.SIGTERM)
+        _, err = p.communicate(timeout=20)
+    finally:
+        p.kill()
+    assert p.returncode == 0, err
+    r = run_mousedom("replay", "--config", str(cfg), "--capture", str(out), "-o", "-")
+    assert r.returncode == 0, r.stderr
+    rows = [line.split(",") for line in r.stdout.strip().splitlines()]
+    header, last = rows[0], rows[-1]
+    x, y, theta = (float(last[header.index(k)]) for k in ("x", "y", "theta"))
+    assert abs(x - 1000 / 800 * 0.0254) < 1e-9
+    assert abs(y) < 1e-12 and abs(theta) < 1e-12
+    for w in ws:
+        os.close(w)
