@@ -195,18 +195,31 @@ def test_duration_unplug_and_reattach(tmp_path):
 
 
 def test_serial_bytes_recorded_raw(tmp_path):
+    """A downsampler on a pty: line noise then 20 MOTION packets; the file holds the exact
+    bytes, which decode to the same 20 reports as the bytes that were sent."""
+    from mousedom import adns_protocol as P
+    from mousedom.adns_decode import packets_to_reports
+
     master, slave = os.openpty()
     port = os.ttyname(slave)
     f = fifos(tmp_path, "left")
     cfg = rig(tmp_path, {"left": f["left"], "adns": f"serial:{port}"})
     out = tmp_path / "serial.mdcap"
     p = start("record", "--config", str(cfg), "-o", str(out), "--status-interval", "0.2")
-    payload = bytes(range(256)) * 8
+    packets = [
+        P.encode_packet(
+            P.Motion(
+                seq=i, t_us=10_000 * (i + 1), dx=i, dy=2 * i, frames=12, squal_min=100, flags=0
+            )
+        )
+        for i in range(20)
+    ]
+    payload = b"\x55\xaa noise \x00" + b"".join(packets)
     try:
         w = os.open(f["left"], os.O_WRONLY)
         time.sleep(0.3)  # the port is open once the FIFO is (sources open in order)
-        for i in range(0, len(payload), 100):
-            os.write(master, payload[i : i + 100])
+        for i in range(0, len(payload), 37):  # chunks that cut packets anywhere
+            os.write(master, payload[i : i + 37])
             time.sleep(0.005)
         time.sleep(0.5)
         p.send_signal(signal.SIGTERM)
@@ -214,10 +227,17 @@ def test_serial_bytes_recorded_raw(tmp_path):
     finally:
         p.kill()
     assert p.returncode == 0, err
-    assert f"adns (serial {port})" in err and f"adns {len(payload)} B" in err
+    assert f"adns (serial {port})" in err and f"adns {len(payload)} B 20 reports" in err
     cap, _, serial = read_capture(out)
     assert serial["adns"] == payload
     assert cap.devices[1].kind == "serial" and cap.devices[1].extra["port"] == port
+    sent, _ = packets_to_reports([(0.0, payload)])
+    got, _ = packets_to_reports([(0.0, serial["adns"])])
+    assert len(got) == len(sent) == 20
+    assert got.dx.tolist() == sent.dx.tolist() and got.dy.tolist() == sent.dy.tolist()
+    assert sorted(abs(v) for v in got.dx.tolist() + got.dy.tolist()) == sorted(
+        list(range(20)) + [2 * i for i in range(20)]
+    )
     os.close(w)
     os.close(master)
     os.close(slave)
