@@ -297,3 +297,16 @@ def test_recording_replays_to_the_motion_that_was_made(tmp_path):
     assert abs(y) < 1e-12 and abs(theta) < 1e-12
     for w in ws:
         os.close(w)
+
+
+def test_a_replay_mouse_cannot_be_recorded(tmp_path):
+    f = fifos(tmp_path, "a")
+    cfg = tmp_path / "rig.yaml"
+    cfg.write_text(
+        "mice:\n"
+        f"  a: {{cpi: 800, mount: {{x: 0, y: 0.1}}, evdev: {{path: {f['a']}}}}}\n"
+        "  b: {cpi: 800, mount: {x: 0, y: -0.1}, replay: old.mdcap}\n"
+    )
+    r = run_mousedom("record", "--config", str(cfg), "-o", str(tmp_path / "z.mdcap"))
+    assert r.returncode == 2 and "mice.b: a replay source cannot be recorded" in r.stderr
+    assert "Traceback" not in r.stderr and not (tmp_path / "z.mdcap").exists()
