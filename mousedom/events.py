@@ -41,6 +41,8 @@ assert EVENT_SIZE == 24
 # Chunks up to this many events take a plain loop: for small chunks numpy's fixed cost
 # per call is more than the loop's (bench/decode.py prints per-read figures).
 SMALL_CHUNK = 48
+# Larger chunks are assembled this many events at a time (temporaries stay in cache).
+BLOCK = 65536
 
 EV_SYN, EV_KEY, EV_REL, EV_MSC = 0x00, 0x01, 0x02, 0x04
 SYN_REPORT, SYN_CONFIG, SYN_MT_REPORT, SYN_DROPPED = 0, 1, 2, 3
@@ -138,9 +140,10 @@ class FrameAssembler:
     last event.  ``flush()`` closes that open frame at the end of a finite input.
     """
 
-    def __init__(self, small_chunk: int = SMALL_CHUNK) -> None:
+    def __init__(self, small_chunk: int = SMALL_CHUNK, block: int = BLOCK) -> None:
         self.stats = AssemblerStats()
         self.small_chunk = small_chunk
+        self.block = max(1, block)
         self._reset_open()
 
     def _reset_open(self) -> None:
@@ -190,6 +193,22 @@ class FrameAssembler:
             return MotionFrames()
         if n <= self.small_chunk:
             return self._feed_loop(key.tolist(), value.tolist(), time_at)
+        if n > self.block:
+            # Blocks that stay in cache, with the open frame carried between them as
+            # between chunks: big temporaries would cost page faults and memory traffic.
+            parts = []
+            for lo in range(0, n, self.block):
+                hi = min(lo + self.block, n)
+                parts.append(
+                    self._feed_block(key[lo:hi], value[lo:hi], lambda i, lo=lo: time_at(i + lo))
+                )
+            return MotionFrames.concat(parts)
+        return self._feed_block(key, value, time_at)
+
+    def _feed_block(
+        self, key: np.ndarray, value: np.ndarray, time_at: Callable[[Any], np.ndarray]
+    ) -> MotionFrames:
+        n = len(key)
         st = self.stats
         st.events += n
 
