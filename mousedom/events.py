@@ -172,6 +172,14 @@ class FrameAssembler:
             events = np.ascontiguousarray(events)
         words = events.view("<u4")  # 6 words per record: sec, usec, type | code << 16, value
         sec, usec = events["sec"], events["usec"]
+        if 0 < len(events) <= self.small_chunk:
+            # Python floats: the same IEEE operations as numpy's, so the same times.
+            secs, usecs = sec.tolist(), usec.tolist()
+            return self._feed_loop(
+                words[4::6].tolist(),
+                words[5::6].view("<i4").tolist(),
+                lambda i: secs[i] + usecs[i] * 1e-6,
+            )
         return self._feed(words[4::6], words[5::6].view("<i4"), lambda i: sec[i] + usec[i] * 1e-6)
 
     def feed(
@@ -192,7 +200,7 @@ class FrameAssembler:
         if n == 0:
             return MotionFrames()
         if n <= self.small_chunk:
-            return self._feed_loop(key.tolist(), value.tolist(), time_at)
+            return self._feed_loop(key.tolist(), value.tolist(), lambda i: float(time_at(i)))
         if n > self.block:
             # Blocks that stay in cache, with the open frame carried between them as
             # between chunks: big temporaries would cost page faults and memory traffic.
@@ -282,7 +290,7 @@ class FrameAssembler:
         return MotionFrames(time_at(idx), dx[keep], dy[keep])
 
     def _feed_loop(
-        self, key: list[int], value: list[int], time_at: Callable[[Any], np.ndarray]
+        self, key: list[int], value: list[int], time_of: Callable[[int], float]
     ) -> MotionFrames:
         """The same rules event by event, for the few events of one live read.
 
@@ -332,13 +340,13 @@ class FrameAssembler:
         self._open_motion, self._open_dropped = motion, dropped
         self._open_nonsyn = nonsyn
         if open_events:  # the chunk's last event belongs to the open frame
-            self._open_t = float(time_at(len(key) - 1))
+            self._open_t = time_of(len(key) - 1)
         self._open_events = open_events
         st.motion_frames += len(ends)
         if not ends:
             return MotionFrames()
         return MotionFrames(
-            time_at(np.array(ends, dtype=np.intp)),
+            np.array([time_of(i) for i in ends], dtype=np.float64),
             np.array(out_dx, dtype=np.int64),
             np.array(out_dy, dtype=np.int64),
         )

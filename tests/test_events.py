@@ -263,3 +263,26 @@ def test_open_frame_time_is_its_last_event_across_chunks(mk):
     f = a.feed(*ev([(2.0, EV_SYN, SYN_REPORT, 0), (3.0, EV_REL, REL_Y, 5)]))
     assert as_rows(f) == [(2.0, 1, 0)]
     assert as_rows(a.flush()) == [(3.0, 0, 5)]
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    st.lists(
+        st.tuples(
+            st.integers(0, 2**40),
+            st.integers(0, 999_999),
+            st.sampled_from(CODES),
+            st.integers(-(2**31), 2**31 - 1),
+        ),
+        max_size=60,
+    )
+)
+def test_record_paths_give_bitwise_equal_times(rows):
+    """feed_events: the per-event loop (Python floats) and numpy give the same times."""
+    arr = np.array([(s, u, c[0], c[1], v) for s, u, c, v in rows], dtype=EVENT_DTYPE)
+    outs = []
+    for small in (0, 10**9):
+        a = FrameAssembler(small)
+        f = MotionFrames.concat([a.feed_events(arr), a.flush()])
+        outs.append((f.t.tobytes(), f.dx.tolist(), f.dy.tolist(), a.stats))
+    assert outs[0] == outs[1]
