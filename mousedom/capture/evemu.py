@@ -192,9 +192,9 @@ def _fast_events(block: bytes, first_line: int) -> _Events | None:
     k4 = k + 3
     s4 = np.where(k4 < len(ws), ws[np.minimum(k4, len(ws) - 1)], len(b))
     vend = np.minimum(s4, nl)
-    rest_ok = vend == nl
+    # After the value: nothing, blanks, or blanks and a comment.
+    rest_ok = np.searchsorted(ws, nl) - np.searchsorted(ws, vend) == nl - vend
     if not rest_ok.all():
-        # Only blanks, then a comment, may follow the value.
         ve = vend[~rest_ok]
         hashes = np.flatnonzero(b == 35)
         hi = np.searchsorted(hashes, ve)
