@@ -230,6 +230,40 @@ def test_a_mouse_that_never_moved_is_named(cpi_session):
     )
 
 
+def test_run_counts_are_validated(cpi_session):
+    """Regression: --min-runs 0/-3 and --runs -3 were accepted; --min-runs 1 printed
+    "stderr": NaN (not JSON) with numpy warnings."""
+    tmp, cfg, files = cpi_session
+    base = ["calibrate", "cpi", "--config", str(cfg), "--capture", f"left={files['left']}"]
+    for flag, value in (("--min-runs", "0"), ("--min-runs", "-3"), ("--runs", "-3")):
+        fails(run_mousedom(*base, "--distance", "0.2", flag, value), flag, "must be 1 or more")
+    fails(run_mousedom(*base, "--distance", "0.2", "--runs", "2.5"), "not a whole number")
+    # One push: no standard error, so no answer, whatever --min-runs says.
+    one = write_evemu(
+        tmp / "one.events",
+        mouse_reports(SynthMouse("left", 0, 0.1, 450, 455), build_motion([(0.2, 0, 0, 1.2)])),
+    )
+    p = fails(
+        run_mousedom(
+            "calibrate", "cpi", "--config", str(cfg), "--capture", f"left={one}",
+            "--distance", "0.2", "--min-runs", "1", "--json",
+        ),
+        "mouse left: 1 run(s), need at least 2 for a standard error",
+    )  # fmt: skip
+    assert p.stdout == "" and "RuntimeWarning" not in p.stderr
+
+
+def test_mounts_window_and_min_runs_are_validated(mounts_session):
+    """Regression: --window nan was a traceback, --window -1 silently meant 0, and mounts
+    ignored --min-runs."""
+    tmp, cfg, caps, ref, _, _ = mounts_session
+    mounts = ["calibrate", "mounts", "--config", str(cfg), *caps, "--reference", str(ref)]
+    for value in ("nan", "-1", "inf", "x"):
+        fails(run_mousedom(*mounts, "--window", value), "--window")
+    # mounts honours --min-runs too (the session has 5 runs).
+    fails(run_mousedom(*mounts, "--min-runs", "6"), "found 5 run(s), need at least 6")
+
+
 def test_cpi_warns_when_runs_disagree(tmp_path):
     # Two short pushes among long ones: not bumps (over 25 % of the median), but 10 % off.
     motion = build_motion(
