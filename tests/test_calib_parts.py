@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+import os
+import stat
 
 import numpy as np
 import pytest
@@ -178,3 +180,20 @@ def test_csv_parsers_take_any_text_without_a_traceback(text):
             parse(text, "F.csv")
         except UserError as e:
             assert str(e).startswith("F.csv")
+
+
+def test_calibration_file_is_readable_by_the_daemon(tmp_path):
+    """Regression: the file was written through mkstemp and came out 0600, so a daemon
+    running as another user could not read it.  A new file gets 0666 minus the umask, a
+    replaced one keeps its mode."""
+    cal = tmp_path / "new.calib.yaml"
+    old = os.umask(0o022)
+    try:
+        calfile.write_calibration(str(cal), {"umbmark": {"e_max_syst": 0.1}})
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE(cal.stat().st_mode) == 0o644
+    cal.chmod(0o640)
+    calfile.write_calibration(str(cal), {"umbmark": {"e_max_syst": 0.2}})
+    assert stat.S_IMODE(cal.stat().st_mode) == 0o640
+    assert calfile.read_calibration(str(cal))["umbmark"]["e_max_syst"] == 0.2
