@@ -197,3 +197,14 @@ def test_calibration_file_is_readable_by_the_daemon(tmp_path):
     calfile.write_calibration(str(cal), {"umbmark": {"e_max_syst": 0.2}})
     assert stat.S_IMODE(cal.stat().st_mode) == 0o640
     assert calfile.read_calibration(str(cal))["umbmark"]["e_max_syst"] == 0.2
+
+
+def test_csv_files_with_a_byte_order_mark_are_read(tmp_path):
+    """Regression: a spreadsheet's CSV starts with U+FEFF, and the header 't,vx,vy,omega'
+    was refused as '\\ufefft,vx,vy,omega'."""
+    from mousedom.calibrate.umbmark import parse_runs
+
+    ref = parse_reference("\ufefft,vx,vy,omega\n0,1,0,0\n1,1,0,0\n", "REF.csv")
+    assert ref.kind == "twist" and len(ref.t) == 2
+    dirs, err = parse_runs("\ufeffdirection,dx,dy\ncw,0.1,0\n", "RUNS.csv")
+    assert dirs == ["cw"] and err.tolist() == [[0.1, 0.0]]
