@@ -264,6 +264,20 @@ def test_mounts_window_and_min_runs_are_validated(mounts_session):
     fails(run_mousedom(*mounts, "--min-runs", "6"), "found 5 run(s), need at least 6")
 
 
+def test_runs_not_split_say_so(cpi_session):
+    """Regression: with --gap longer than the pauses, all pushes forth and back are one run
+    whose counts add up to nothing, and the message said the mouse never moved."""
+    tmp, cfg, files = cpi_session
+    fails(
+        run_mousedom(
+            "calibrate", "cpi", "--config", str(cfg), "--capture", f"left={files['left']}",
+            "--distance", "0.2", "--gap", "100", "--min-runs", "1",
+        ),
+        "mouse left: its motion adds up to nothing in every run (runs: 1)",
+        "--gap",
+    )  # fmt: skip
+
+
 def test_cpi_warns_when_runs_disagree(tmp_path):
     # Two short pushes among long ones: not bumps (over 25 % of the median), but 10 % off.
     motion = build_motion(

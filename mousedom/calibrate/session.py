@@ -20,7 +20,7 @@ from mousedom.calibrate.cpi import CpiError, CpiResult, calibrate_cpi
 from mousedom.calibrate.distance import DistanceError, DistanceResult, calibrate_distance
 from mousedom.calibrate.mounts import MountError, MountFit, exact_mount, kimlee, motion_problem
 from mousedom.calibrate.reference import Reference, WheelGeometry, check_coverage, window_twist
-from mousedom.calibrate.runs import Run, run_counts, run_windows, window_counts
+from mousedom.calibrate.runs import Run, moving, run_counts, run_windows, window_counts
 from mousedom.config import Config
 from mousedom.errors import UserError
 from mousedom.sources.base import Reports
@@ -65,6 +65,13 @@ def _no_motion(session: Session, counts: np.ndarray) -> None:
     """Raise when a mouse shows no motion at all: wrong capture or a mouse off the floor."""
     for j, name in enumerate(session.names):
         if not np.any(counts[:, j, :]):
+            if len(moving(session.recording[name])):
+                # It moved, but forth and back inside one run: the runs were not split.
+                raise UserError(
+                    f"mouse {name}: its motion adds up to nothing in every run (runs: "
+                    f"{len(session.runs)}): pushes or turns forth and back must be separated "
+                    "by pauses longer than --gap"
+                )
             raise UserError(
                 f"mouse {name}: no motion in any run (is it on the floor? is this its capture?)"
             )
