@@ -278,6 +278,22 @@ def test_runs_not_split_say_so(cpi_session):
     )  # fmt: skip
 
 
+def test_cpi_report_shows_a_small_standard_error(tmp_path):
+    """Regression: the readable report rounded the standard error to one decimal, so a
+    noise-free session printed '+- 0.0'; it now has two."""
+    motion = build_motion([(0.2 * (-1) ** k, 0, 0, 1.2) for k in range(6)])
+    rep = mouse_reports(SynthMouse("m", 0, 0, cpi_x=450, cpi_y=455, rel_noise=0.001), motion)
+    f = write_evemu(tmp_path / "m.events", rep)
+    cfg = write_config(
+        tmp_path, {"m": {"cpi": 450, "mount": {"x": 0.1}}}, False, "model: diff-drive\n"
+    )
+    base = ["calibrate", "cpi", "--config", str(cfg), "--capture", f"m={f}", "--distance", "0.2"]
+    doc = json.loads(ok(run_mousedom(*base, "--json")).stdout)["m"]
+    assert 0 < doc["stderr"] < 0.5  # would print as "+- 0.0" or "+- 0.1" before
+    text = ok(run_mousedom(*base)).stdout
+    assert f"m: cpi y = {doc['cpi']:.2f} +- {doc['stderr']:.2f} from 6 pushes" in text
+
+
 def test_cpi_warns_when_runs_disagree(tmp_path):
     # Two short pushes among long ones: not bumps (over 25 % of the median), but 10 % off.
     motion = build_motion(
