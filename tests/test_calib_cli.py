@@ -627,3 +627,54 @@ def test_mounts_bad_inputs(mounts_session):
         "rotation about one point",
         "add a straight drive",
     )
+
+
+# --------------------------------------------------------------------------- ADNS captures
+
+
+def write_adns_capture(path: Path, pushes: int, counts: int, drop: int | None = None) -> Path:
+    """A native capture of a downsampler's raw bytes: pushes forth and back of ``counts``
+    along the sensor's Delta_Y, 1 s each, 1 s pauses, one MOTION packet every 15 ms.
+    ``drop``: leave out that packet (a sequence gap)."""
+    from mousedom import adns_protocol as P
+
+    seq, t_us, host = 0, 0, 100.0
+    ts, pieces = [], []
+    for k in range(pushes):
+        per = [counts // 66] * 66
+        per[-1] += counts - sum(per)
+        for moving in (True, False):
+            for i in range(66):
+                seq, t_us, host = seq + 1, t_us + 15000, host + 0.015
+                dy = (-1) ** k * per[i] if moving else 0
+                pk = P.Motion(seq, t_us, 0, dy, 12, 80, P.FLAG_RES1600)
+                if seq != drop:
+                    ts.append(host + 0.002)
+                    pieces.append(P.encode_packet(pk))
+    dev = DeviceInfo(name="downsampler", kind="serial", mouse="floor", rel_xy=True)
+    with NativeWriter(path, [dev]) as w:
+        w.serial_many(0, ts, pieces)
+        w.sync(host + 1)
+    return path
+
+
+def test_cpi_from_an_adns_capture(tmp_path):
+    """Regression: the serial bytes of a recorded downsampler were never decoded, so an
+    ADNS mouse could not be calibrated from a capture ('found 0 run(s)')."""
+    counts = 12598  # 0.2 m at 1600 cpi, to the count
+    cap = write_adns_capture(tmp_path / "adns.mdcap", 6, counts)
+    cfg = write_config(
+        tmp_path,
+        {"floor": {"cpi": 1500, "mount": {"x": 0.1}, "serial": {"port": "/dev/ttyUSB0"}}},
+        extra="model: diff-drive\n",
+    )
+    base = ["calibrate", "cpi", "--config", str(cfg), "--distance", "0.2", "--json"]
+    doc = json.loads(ok(run_mousedom(*base, "--capture", str(cap))).stdout)
+    assert doc["floor"]["runs"] == 6
+    assert doc["floor"]["cpi"] == pytest.approx(counts / (0.2 / 0.0254), abs=1e-3)
+    # A packet lost on the line: its counts are missing, so no answer.
+    lossy = write_adns_capture(tmp_path / "lossy.mdcap", 6, counts, drop=20)
+    fails(
+        run_mousedom(*base, "--capture", str(lossy)),
+        "lossy.mdcap: device 'downsampler' (mouse floor): 1 serial packet(s) lost",
+    )
