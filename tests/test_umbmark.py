@@ -132,3 +132,15 @@ def test_cli_reads_a_spreadsheet_csv_with_a_byte_order_mark(tmp_path):
     p = run_mousedom("umbmark", str(runs), "--json")
     assert p.returncode == 0, p.stderr
     assert json.loads(p.stdout)["cw"]["x"] == pytest.approx(0.11)
+
+
+def test_cli_binary_input_is_one_line_naming_the_byte(tmp_path):
+    """Regression: binary garbage on stdin was decoded with surrogates and echoed back as
+    a header of mojibake; a file and stdin now both name the first bad byte."""
+    garbage = b"direction,dx,dy\ncw,1,1\n\xff\xfe\x00\x81"
+    p = run_mousedom("umbmark", "-", input=garbage)
+    assert p.returncode == 2 and b"Traceback" not in p.stderr
+    assert p.stderr.strip() == b"mousedom: error: <stdin>: byte offset 23: not UTF-8 text"
+    (tmp_path / "bin.csv").write_bytes(garbage)
+    p = run_mousedom("umbmark", str(tmp_path / "bin.csv"))
+    assert p.returncode == 2 and "bin.csv: byte offset 23: not UTF-8 text" in p.stderr
