@@ -64,7 +64,9 @@ def _window(text: str) -> float:
 
 def register(sub: argparse._SubParsersAction) -> None:
     common = argparse.ArgumentParser(add_help=False)
-    common.add_argument("--config", default=DEFAULT_CONFIG_PATH, help="rig YAML")
+    common.add_argument(
+        "--config", default=DEFAULT_CONFIG_PATH, help=f"rig YAML (default {DEFAULT_CONFIG_PATH})"
+    )
     common.add_argument(
         "--capture",
         action="append",
@@ -144,7 +146,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="REF.csv",
         help="t,vx,vy,omega (body twist) or t,left,right (wheel ticks)",
     )
-    m.add_argument("--method", choices=("exact", "kimlee"), default="exact")
+    m.add_argument(
+        "--method",
+        choices=("exact", "kimlee"),
+        default="exact",
+        help="exact: position, yaw and CPI scale per mouse (default); kimlee: Kim & Lee's "
+        "linearised positions, as published",
+    )
     m.add_argument(
         "--window",
         type=_window,
@@ -152,9 +160,16 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="SECONDS",
         help="window length inside runs (0: one window per run; default 0.25)",
     )
-    m.add_argument("--wheel-radius", type=_positive, metavar="METRES")
-    m.add_argument("--ticks-per-rev", type=_positive, metavar="TICKS")
-    m.add_argument("--track", type=_positive, metavar="METRES")
+    wheels = "for a t,left,right reference (or the config's wheels: section)"
+    m.add_argument(
+        "--wheel-radius", type=_positive, metavar="METRES", help=f"wheel radius, {wheels}"
+    )
+    m.add_argument(
+        "--ticks-per-rev", type=_positive, metavar="TICKS", help=f"encoder ticks per turn, {wheels}"
+    )
+    m.add_argument(
+        "--track", type=_positive, metavar="METRES", help=f"distance between the wheels, {wheels}"
+    )
     m.set_defaults(func=run_mounts)
 
 
