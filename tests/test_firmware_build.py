@@ -130,3 +130,13 @@ def test_install_script_installs_every_tool_the_tests_need():
     assert listed, "no PACKAGES= line in install-toolchain.sh"
     needed = set(NEEDS.values()) | set(FILES.values()) | {"libc6-dev"}
     assert needed <= set(listed.group(1).split()), needed - set(listed.group(1).split())
+
+
+def test_simulator_help(build):
+    """Regression: `adns_sim --help` tried to load a firmware file called --help."""
+    r = make(build, "sim-tools")
+    assert r.returncode == 0, r.stdout + r.stderr
+    r = subprocess.run([str(build / "adns_sim"), "--help"], capture_output=True, text=True)
+    assert r.returncode == 0 and "--seg T:VX:VY" in r.stdout and "SUMMARY" in r.stdout
+    r = subprocess.run([str(build / "adns_sim")], capture_output=True, text=True)
+    assert r.returncode == 2 and r.stderr.startswith("usage: adns_sim FIRMWARE.elf")
