@@ -147,7 +147,7 @@ def test_calibration_file_merges_and_the_config_applies_it(tmp_path):
     data = calfile.merge_mouse({}, "left", cpi={"y": 455.2})
     data = calfile.merge_mouse(data, "left", cpi={"x": 451.0})
     data = calfile.merge_mouse(data, "right", mount={"x": 0.01, "y": -0.11, "yaw": 1.5}, scale=1.01)
-    data = calfile.merge_section(data, "distance", {"value": 0.2})
+    data = calfile.merge_section(data, "distance", {"distance": 0.2})
     calfile.write_calibration(str(cal), data)
     assert calfile.read_calibration(str(cal)) == data
     assert cal.read_text().startswith("#")

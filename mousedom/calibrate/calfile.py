@@ -4,7 +4,7 @@ Schema (read by ``mousedom.config._apply_calibration``)::
 
     mice:
       left: {cpi: {x: 452.1, y: 455.2}, mount: {x: 0.0, y: 0.135, yaw: 0.0}, scale: 1.0}
-    distance: {mice: [left, right], value: 0.2701, stderr: 0.0002, runs: 4}
+    distance: {mice: [left, right], distance: 0.2701, stderr: 0.0002, runs: 4}
     umbmark: {e_max_syst: 0.114, ...}
 
 Mount yaw is in degrees, like the config.  Top-level keys other than ``mice`` are
