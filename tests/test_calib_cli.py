@@ -414,6 +414,10 @@ def test_distance_json_and_write(tmp_path):
         run_mousedom("calibrate", "distance", "--config", str(cfg), *caps, "--angle", "0"),
         "non-zero",
     )
+    # Regression: the angle in radians (1.5708 for 90 deg) gave D = 15.5 m and no word.
+    p = ok(run_mousedom("calibrate", "distance", "--config", str(cfg), *caps, "--angle", "1.5708"))
+    assert "warning: the distance 15470.1 mm is +5630% off the configured 270.0 mm" in p.stderr
+    assert "is --angle right (in degrees)?" in p.stderr
     fails(
         run_mousedom(
             "calibrate", "distance", "--config", str(cfg), *caps, "--angle", "90", "--mice", "left"

@@ -26,6 +26,7 @@ from mousedom.errors import UserError
 from mousedom.sources.base import Reports
 
 SMALL_RUN = 0.25  # a run with less motion than this fraction of the median is a bump
+DRAWING_TOLERANCE = 0.1  # a measured distance this far off the config's is suspicious
 PAD = 0.2  # seconds of pause added around each run for the reference (clock offsets)
 
 
@@ -113,9 +114,18 @@ def distance(session: Session, angle: float, min_runs: int = 2) -> DistanceResul
     keep = _keep_real_runs(session, np.hypot(*(d1 - d2).T), "distance")
     line = np.array([b.mount.x - a.mount.x, b.mount.y - a.mount.y])
     try:
-        return calibrate_distance(d1[keep], d2[keep], angle, line, min_runs=min_runs)
+        result = calibrate_distance(d1[keep], d2[keep], angle, line, min_runs=min_runs)
     except DistanceError as e:
         raise UserError(f"calibrate distance ({a.name}, {b.name}): {e}") from None
+    # A distance far from the drawing's is most often a wrong --angle (radians given for
+    # degrees, a half turn for a quarter): say so rather than let --write store it quietly.
+    nominal = float(np.hypot(*line))
+    if nominal > 0 and abs(result.distance / nominal - 1) > DRAWING_TOLERANCE:
+        result.warnings.append(
+            f"the distance {result.distance * 1000:.1f} mm is {result.distance / nominal - 1:+.0%} "
+            f"off the configured {nominal * 1000:.1f} mm: is --angle right (in degrees)?"
+        )
+    return result
 
 
 def spread_mounts(config: Config, names: Sequence[str], d: float) -> dict[str, tuple[float, float]]:
