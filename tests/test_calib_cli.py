@@ -238,6 +238,12 @@ def test_run_counts_are_validated(cpi_session):
     for flag, value in (("--min-runs", "0"), ("--min-runs", "-3"), ("--runs", "-3")):
         fails(run_mousedom(*base, "--distance", "0.2", flag, value), flag, "must be 1 or more")
     fails(run_mousedom(*base, "--distance", "0.2", "--runs", "2.5"), "not a whole number")
+    # Regression: --distance 20 (centimetres) gave cpi 4.5 against 400 configured, silently.
+    p = ok(run_mousedom(*base, "--distance", "20"))
+    assert "mousedom: warning: mouse left: cpi 4.5 is -99% off the configured 400" in p.stderr
+    assert "is --distance right (metres: 20 m = 20000 mm)?" in p.stderr
+    p = ok(run_mousedom(*base, "--distance", "0.2"))  # 455 vs 400: within 25 %, no warning
+    assert "warning" not in p.stderr
     # One push: no standard error, so no answer, whatever --min-runs says.
     one = write_evemu(
         tmp / "one.events",

@@ -26,6 +26,7 @@ from mousedom.errors import UserError
 from mousedom.sources.base import Reports
 
 SMALL_RUN = 0.25  # a run with less motion than this fraction of the median is a bump
+CPI_TOLERANCE = 0.25  # a CPI this far off the configured one is suspicious
 DRAWING_TOLERANCE = 0.1  # a measured distance this far off the config's is suspicious
 PAD = 0.2  # seconds of pause added around each run for the reference (clock offsets)
 
@@ -94,6 +95,14 @@ def cpi(session: Session, distance: float, axis: str, min_runs: int = 2) -> dict
             out[name] = calibrate_cpi(c[keep], distance, axis, across, min_runs=min_runs)
         except CpiError as e:
             raise UserError(f"mouse {name}: {e}") from None
+        # Far from the configured CPI is most often a --distance in the wrong unit.
+        before = mouse.cpi_y if axis == "y" else mouse.cpi_x
+        off = out[name].cpi / before - 1
+        if abs(off) > CPI_TOLERANCE:
+            out[name].warnings.append(
+                f"cpi {out[name].cpi:.1f} is {off:+.0%} off the configured {before:g}: "
+                f"is --distance right (metres: {distance:g} m = {distance * 1000:g} mm)?"
+            )
     return out
 
 
