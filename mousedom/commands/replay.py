@@ -198,7 +198,7 @@ class ProgressBar:
 
     def update(self, fraction: float) -> None:
         now = time.monotonic()
-        if now - self.last < 0.1 or now - self.t0 < 0.5:
+        if self.drawn and now - self.last < 0.1:
             return
         self.last = now
         fraction = min(max(fraction, 0.0), 1.0)
