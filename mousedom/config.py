@@ -195,7 +195,14 @@ class _Reader:
     def err(self, key: str | None, message: str) -> ConfigError:
         return self.doc.error(self.keys + ((key,) if key else ()), message)
 
-    def number(self, key: str, default: float | None = None, *, positive: bool = False) -> float:
+    def number(
+        self,
+        key: str,
+        default: float | None = None,
+        *,
+        positive: bool = False,
+        within: tuple[float, float] | None = None,
+    ) -> float:
         v = self.raw(key, default)
         if v is None:
             raise self.err(key, "is required")
@@ -203,6 +210,8 @@ class _Reader:
             raise self.err(key, f"must be a number, got {_show(v)}")
         if positive and v <= 0:
             raise self.err(key, f"must be a positive number, got {v}")
+        if within and not within[0] <= v <= within[1]:
+            raise self.err(key, f"must be between {within[0]:g} and {within[1]:g}, got {v}")
         return float(v)
 
     def integer(self, key: str, default: int | None = None, *, minimum: int | None = None) -> int:
@@ -328,7 +337,7 @@ def _mouse(doc: _Doc, name: str, value: Any, base_dir: Path) -> MouseConfig:
         mount=mount,
         flip=r.boolean("flip", False),
         sigma=r.number("sigma", 0.5, positive=True),
-        report_hz=r.number("report_hz", 125.0, positive=True),
+        report_hz=r.number("report_hz", 125.0, within=(1.0, 100000.0)),
     )
     sources = [k for k in ("evdev", "serial", "replay") if r.has(k)]
     if len(sources) > 1:
@@ -442,7 +451,7 @@ def parse_config(text: str, path: str | None = None, *, need_sources: bool = Tru
     doc = _Doc(path, text)
     base_dir = Path(path).resolve().parent if path else Path.cwd()
     top = _Reader(doc, doc.data, ())
-    rate_hz = top.number("rate_hz", 100.0, positive=True)
+    rate_hz = top.number("rate_hz", 100.0, within=(0.1, 10000.0))
     model = top.choice("model", MODELS, "lsq")
     integrator = top.choice("integrator", INTEGRATORS, "exact")
     mice_raw = top.raw("mice")

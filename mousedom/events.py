@@ -23,7 +23,9 @@ rather than vanishing: ``counts in == counts out + dropped counts`` always holds
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -35,6 +37,10 @@ EVENT_DTYPE = np.dtype(
 )
 EVENT_SIZE = EVENT_DTYPE.itemsize
 assert EVENT_SIZE == 24
+
+# Chunks up to this many events take a plain loop: below ~100 events numpy's per-call
+# overhead costs more than the loop (bench/decode.py prints both).
+SMALL_CHUNK = 48
 
 EV_SYN, EV_KEY, EV_REL, EV_MSC = 0x00, 0x01, 0x02, 0x04
 SYN_REPORT, SYN_CONFIG, SYN_MT_REPORT, SYN_DROPPED = 0, 1, 2, 3
@@ -109,7 +115,9 @@ class AssemblerStats:
     dropped_frames: int = 0  # frames discarded because they held a SYN_DROPPED
     dropped_dx: int = 0  # REL_X counts inside discarded frames
     dropped_dy: int = 0  # REL_Y counts inside discarded frames
+    dropped_events: int = 0  # non-SYN events inside discarded frames
     incomplete_frames: int = 0  # trailing frames without SYN_REPORT closed by flush()
+    incomplete_events: int = 0  # events in those frames
     rel_x_in: int = 0  # sum of every REL_X value fed
     rel_y_in: int = 0  # sum of every REL_Y value fed
 
@@ -125,8 +133,9 @@ class FrameAssembler:
     last event.  ``flush()`` closes that open frame at the end of a finite input.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, small_chunk: int = SMALL_CHUNK) -> None:
         self.stats = AssemblerStats()
+        self.small_chunk = small_chunk
         self._reset_open()
 
     def _reset_open(self) -> None:
@@ -135,6 +144,7 @@ class FrameAssembler:
         self._open_motion = False  # the open frame holds REL_X or REL_Y
         self._open_dropped = False  # the open frame holds a SYN_DROPPED
         self._open_events = 0
+        self._open_nonsyn = 0  # events of the open frame that are not EV_SYN
         self._open_t = 0.0
 
     @property
@@ -143,79 +153,167 @@ class FrameAssembler:
         return self._open_events
 
     def feed_events(self, events: np.ndarray) -> MotionFrames:
-        """``feed`` for an ``EVENT_DTYPE`` array (as ``decode_input_events`` returns)."""
-        return self.feed(event_times(events), events["type"], events["code"], events["value"])
+        """``feed`` for an ``EVENT_DTYPE`` array (as ``decode_input_events`` returns).
+
+        Only the SYN_REPORT records' times are converted to float, not every event's.
+        """
+        sec, usec = events["sec"], events["usec"]
+        return self._feed(
+            events["type"], events["code"], events["value"], lambda i: sec[i] + usec[i] * 1e-6
+        )
 
     def feed(
         self, t: np.ndarray, type: np.ndarray, code: np.ndarray, value: np.ndarray
     ) -> MotionFrames:
         """Add a chunk of events; return the motion frames closed by its SYN_REPORTs."""
         t = np.asarray(t, dtype=np.float64)
-        type = np.asarray(type)
-        code = np.asarray(code)
-        value = np.asarray(value, dtype=np.int64)
-        n = len(t)
-        if not (len(type) == len(code) == len(value) == n):
+        if not (len(type) == len(code) == len(value) == len(t)):
             raise ValueError("t, type, code and value must have the same length")
+        return self._feed(
+            np.asarray(type), np.asarray(code), np.asarray(value, dtype=np.int64), t.__getitem__
+        )
+
+    def _feed(
+        self,
+        type: np.ndarray,
+        code: np.ndarray,
+        value: np.ndarray,
+        time_at: Callable[[Any], np.ndarray],
+    ) -> MotionFrames:
+        n = len(type)
         if n == 0:
             return MotionFrames()
+        if n <= self.small_chunk:
+            return self._feed_loop(type.tolist(), code.tolist(), value.tolist(), time_at)
         st = self.stats
         st.events += n
 
         syn = type == EV_SYN
-        is_report = syn & (code == SYN_REPORT)
-        is_drop = syn & (code == SYN_DROPPED)
         rel = type == EV_REL
+        is_report = syn & (code == SYN_REPORT)
         is_x = rel & (code == REL_X)
         is_y = rel & (code == REL_Y)
-        st.skipped += n - int(np.count_nonzero(is_report | is_drop | is_x | is_y))
-        st.syn_dropped += int(np.count_nonzero(is_drop))
 
-        vx = np.where(is_x, value, 0)
-        vy = np.where(is_y, value, 0)
-        st.rel_x_in += int(vx.sum())
-        st.rel_y_in += int(vy.sum())
-
-        # Frame k of this chunk spans (r[k-1], r[k]] where r are the SYN_REPORT indices;
-        # the carried-over open frame is prepended to frame 0.  Per-frame sums are
-        # differences of prefix sums taken just after each frame's last event.
+        # One prefix-sum table for the four per-event quantities; row i holds the sums
+        # over events [0, i).  Frame k of this chunk spans (r[k-1], r[k]] where r are the
+        # SYN_REPORT indices, so its sums are differences of rows just after those.
+        c = np.zeros((n + 1, 5), dtype=np.int64)
+        c[1:, 0] = np.where(is_x, value, 0)
+        c[1:, 1] = np.where(is_y, value, 0)
+        c[1:, 2] = is_x | is_y
+        c[1:, 3] = syn & (code == SYN_DROPPED)
+        c[1:, 4] = ~syn
+        np.cumsum(c, axis=0, out=c)
         ends = np.flatnonzero(is_report)
-        cut = np.concatenate(([0], ends + 1))  # prefix-sum index where each frame starts/ends
+        cut = np.empty(len(ends) + 1, dtype=np.intp)
+        cut[0] = 0
+        cut[1:] = ends + 1
+        per = c[cut[1:]] - c[cut[:-1]]  # (frames, 5): dx, dy, motion, SYN_DROPPED, non-SYN
+        total = c[n]
+        st.rel_x_in += int(total[0])
+        st.rel_y_in += int(total[1])
+        st.syn_dropped += int(total[3])
+        st.skipped += n - len(ends) - int(total[2]) - int(total[3])
 
-        def per_frame(x: np.ndarray) -> np.ndarray:
-            c = np.concatenate(([0], np.cumsum(x, dtype=np.int64)))
-            return c[cut[1:]] - c[cut[:-1]]
-
-        def tail(x: np.ndarray) -> int:
-            return int(x[cut[-1] :].sum())
-
-        motion = is_x | is_y
-        dx, dy = per_frame(vx), per_frame(vy)
-        has_motion = per_frame(motion) > 0
-        has_drop = per_frame(is_drop) > 0
         if len(ends):
-            dx[0] += self._open_dx
-            dy[0] += self._open_dy
-            has_motion[0] |= self._open_motion
-            has_drop[0] |= self._open_dropped
+            # The frame left open by the previous chunk is closed by this chunk's first
+            # SYN_REPORT: fold its sums into frame 0.
+            per[0] += (
+                self._open_dx,
+                self._open_dy,
+                self._open_motion,
+                self._open_dropped,
+                self._open_nonsyn,
+            )
             self._reset_open()
+        last = int(cut[-1])
+        if last < n:  # the events after the last SYN_REPORT open (or extend) a frame
+            rest = total - c[last]
+            self._open_dx += int(rest[0])
+            self._open_dy += int(rest[1])
+            self._open_motion |= bool(rest[2])
+            self._open_dropped |= bool(rest[3])
+            self._open_nonsyn += int(rest[4])
+            self._open_events += n - last
+            self._open_t = float(time_at(n - 1))
 
-        # The events after the last SYN_REPORT open (or extend) the next frame.
-        if cut[-1] < n:
-            self._open_dx += tail(vx)
-            self._open_dy += tail(vy)
-            self._open_motion |= bool(motion[cut[-1] :].any())
-            self._open_dropped |= bool(is_drop[cut[-1] :].any())
-            self._open_events += n - int(cut[-1])
-            self._open_t = float(t[-1])
-
+        has_drop = per[:, 3] > 0
+        keep = (per[:, 2] > 0) & ~has_drop
         st.frames += len(ends)
-        st.dropped_frames += int(np.count_nonzero(has_drop))
-        st.dropped_dx += int(dx[has_drop].sum())
-        st.dropped_dy += int(dy[has_drop].sum())
-        keep = has_motion & ~has_drop
-        st.motion_frames += int(np.count_nonzero(keep))
-        return MotionFrames(t[ends[keep]], dx[keep], dy[keep])
+        if has_drop.any():
+            st.dropped_frames += int(np.count_nonzero(has_drop))
+            st.dropped_dx += int(per[has_drop, 0].sum())
+            st.dropped_dy += int(per[has_drop, 1].sum())
+            st.dropped_events += int(per[has_drop, 4].sum())
+        idx = ends[keep]
+        st.motion_frames += len(idx)
+        return MotionFrames(time_at(idx), per[keep, 0], per[keep, 1])
+
+    def _feed_loop(
+        self,
+        type: list[int],
+        code: list[int],
+        value: list[int],
+        time_at: Callable[[Any], np.ndarray],
+    ) -> MotionFrames:
+        """The same rules event by event, for the few events of one live read.
+
+        numpy costs ~25 us per call whatever the size, which is more than a plain loop
+        over the 3 to 30 events a live mouse delivers per wake-up; the property tests check
+        that both paths give identical frames and statistics.
+        """
+        st = self.stats
+        st.events += len(type)
+        ends: list[int] = []
+        out_dx: list[int] = []
+        out_dy: list[int] = []
+        dx, dy = self._open_dx, self._open_dy
+        motion, dropped, open_events = self._open_motion, self._open_dropped, self._open_events
+        nonsyn = self._open_nonsyn
+        for i, (ty, co, va) in enumerate(zip(type, code, value, strict=True)):
+            open_events += 1
+            if ty != EV_SYN:
+                nonsyn += 1
+            if ty == EV_REL and co == REL_X:
+                dx += va
+                st.rel_x_in += va
+                motion = True
+            elif ty == EV_REL and co == REL_Y:
+                dy += va
+                st.rel_y_in += va
+                motion = True
+            elif ty == EV_SYN and co == SYN_REPORT:
+                st.frames += 1
+                if dropped:
+                    st.dropped_frames += 1
+                    st.dropped_dx += dx
+                    st.dropped_dy += dy
+                    st.dropped_events += nonsyn
+                elif motion:
+                    ends.append(i)
+                    out_dx.append(dx)
+                    out_dy.append(dy)
+                dx = dy = open_events = nonsyn = 0
+                motion = dropped = False
+            elif ty == EV_SYN and co == SYN_DROPPED:
+                st.syn_dropped += 1
+                dropped = True
+            else:
+                st.skipped += 1
+        self._open_dx, self._open_dy = dx, dy
+        self._open_motion, self._open_dropped = motion, dropped
+        self._open_nonsyn = nonsyn
+        if open_events:  # the chunk's last event belongs to the open frame
+            self._open_t = float(time_at(len(type) - 1))
+        self._open_events = open_events
+        st.motion_frames += len(ends)
+        if not ends:
+            return MotionFrames()
+        return MotionFrames(
+            time_at(np.array(ends, dtype=np.intp)),
+            np.array(out_dx, dtype=np.int64),
+            np.array(out_dy, dtype=np.int64),
+        )
 
     def flush(self) -> MotionFrames:
         """End of a finite input: close the open frame, if any, and count it incomplete.
@@ -230,11 +328,13 @@ class FrameAssembler:
             return MotionFrames()
         st = self.stats
         st.incomplete_frames += 1
+        st.incomplete_events += self._open_events
         out = MotionFrames()
         if self._open_dropped:
             st.dropped_frames += 1
             st.dropped_dx += self._open_dx
             st.dropped_dy += self._open_dy
+            st.dropped_events += self._open_nonsyn
         elif self._open_motion:
             st.motion_frames += 1
             out = MotionFrames(

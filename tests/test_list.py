@@ -6,7 +6,7 @@ import json
 import os
 from pathlib import Path
 
-from conftest import run_mousedom
+from conftest import mousedom_env, run_mousedom
 from test_evdev_fakes import add_device
 
 
@@ -63,23 +63,61 @@ def test_list_no_pointer_among_devices(tmp_path):
     assert "no devices with REL_X and REL_Y among 1 input devices" in p.stdout
 
 
-def test_list_unreadable_device_names_the_group(tmp_path):
-    """As a normal user, a node mode 0660 root:input cannot be opened: say join 'input'."""
-    if os.geteuid() == 0:
-        # root can open anything; run the check as nobody through setpriv/su is not
-        # portable, so exercise the same code path with the text formatter instead.
-        from mousedom.commands.list import _text
-        from mousedom.discovery import DeviceInfo, Scan, SystemPaths
+def test_list_unreadable_device_names_the_group():
+    """A node the user may not open (0660 root:GROUP): list it and say which group to join.
 
-        d = DeviceInfo(
-            "/dev/input/event3", "M", rel_x=True, rel_y=True, readable=False, group="input"
-        )
-        out = _text(Scan(SystemPaths(), True, 1, [d]))
-        assert "cannot open: permission denied on /dev/input/event3: join group 'input'" in out
-        assert "1 cannot be opened by this user: join group input" in out
-        return
-    node = add_device(tmp_path, 3, "Locked Mouse")
-    os.chmod(node, 0)
-    p = run_mousedom("list", "--root", str(tmp_path))
-    assert p.returncode == 0
-    assert "cannot open: permission denied" in p.stdout
+    Run as a real process that drops to nobody (root opens anything); the interpreter
+    lives under /root, so the child imports everything first and then drops privileges,
+    as the daemon engineer's SO_PEERCRED test does.
+    """
+    import grp
+    import shutil
+    import subprocess
+    import sys
+    import tempfile
+
+    group = next(g for g in ("tty", "disk", "users", "daemon") if _has_group(g))
+    root = Path(tempfile.mkdtemp(prefix="mousedom-list-"))
+    try:
+        node = add_device(root, 3, "Locked Mouse", by_path=("pci-usb-0:1-event-mouse",))
+        for d, _, files in os.walk(root):
+            os.chmod(d, 0o755)
+            for f in files:
+                os.chmod(os.path.join(d, f), 0o644)
+        os.chown(node, 0, grp.getgrnam(group).gr_gid)
+        os.chmod(node, 0o660)
+        if os.geteuid() == 0:
+            code = (
+                "import os, sys\n"
+                "from mousedom.cli import build_parser, main\n"
+                "import mousedom.commands.list, mousedom.discovery, json, grp, stat\n"
+                "build_parser()\n"
+                "os.setgid(65534); os.setuid(65534)\n"
+                f"sys.exit(main(['list', '--root', {str(root)!r}]))\n"
+            )
+            p = subprocess.run(
+                [sys.executable, "-c", code],
+                capture_output=True,
+                text=True,
+                env=mousedom_env(),
+                timeout=60,
+            )
+        else:
+            p = run_mousedom("list", "--root", str(root))
+        assert p.returncode == 0, p.stderr
+        assert f"cannot open: permission denied on {node}: join group '{group}'" in p.stdout
+        assert f"usermod -aG {group}" in p.stdout
+        assert f"1 cannot be opened by this user: join group {group}" in p.stdout
+        assert "event3  Locked Mouse" in p.stdout  # sysfs still describes it
+    finally:
+        shutil.rmtree(root)
+
+
+def _has_group(name: str) -> bool:
+    import grp
+
+    try:
+        grp.getgrnam(name)
+        return True
+    except KeyError:
+        return False

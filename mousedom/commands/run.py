@@ -1,0 +1,98 @@
+"""``mousedom run``: the daemon in the foreground (systemd runs exactly this)."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import sys
+
+from mousedom.config import DEFAULT_CONFIG_PATH, ConfigError, load_config
+from mousedom.errors import UserError
+
+log = logging.getLogger("mousedom.run")
+
+# syslog priorities (sd-daemon(3)): journald reads a "<N>" prefix on each stderr line.
+_PRIORITY = {
+    logging.DEBUG: 7,
+    logging.INFO: 6,
+    logging.WARNING: 4,
+    logging.ERROR: 3,
+    logging.CRITICAL: 2,
+}
+
+
+class JournalFormatter(logging.Formatter):
+    """``<priority>logger: message``: journald stamps and levels each line itself."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        prio = _PRIORITY.get(record.levelno, 6)
+        text = super().format(record)
+        # One record may span lines (tracebacks): prefix each so none loses its level.
+        return "\n".join(f"<{prio}>{line}" for line in text.splitlines())
+
+
+def configure_logging(verbose: bool, environ: dict[str, str] | None = None) -> None:
+    """Under systemd (JOURNAL_STREAM set) log with priority prefixes, else level names."""
+    env = os.environ if environ is None else environ
+    root = logging.getLogger()
+    root.setLevel(logging.DEBUG if verbose else logging.INFO)
+    if env.get("JOURNAL_STREAM"):
+        formatter: logging.Formatter = JournalFormatter("%(name)s: %(message)s")
+    else:
+        formatter = logging.Formatter("%(levelname)s %(name)s: %(message)s")
+    if not root.handlers:
+        root.addHandler(logging.StreamHandler(sys.stderr))
+    for handler in root.handlers:
+        handler.setFormatter(formatter)
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "run",
+        help="run the odometry daemon (socket publisher)",
+        description="Read the configured mice, fuse them and publish the pose on a Unix "
+        "socket until SIGTERM/SIGINT; SIGHUP reloads the config and calibration.",
+    )
+    p.add_argument(
+        "--config",
+        metavar="FILE",
+        default=None,
+        help=f"rig config (default {DEFAULT_CONFIG_PATH})",
+    )
+    p.add_argument("--socket", metavar="PATH", help="Unix socket path (default: see docs)")
+    p.add_argument(
+        "--demo",
+        action="store_true",
+        help="run on the bundled capture of a simulated rig, replayed in real time, looping",
+    )
+    p.add_argument(
+        "--verbose", action="store_true", default=argparse.SUPPRESS, help="debug logging"
+    )
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from mousedom.daemon import Daemon
+    from mousedom.server import default_socket_path
+
+    configure_logging(bool(getattr(args, "verbose", False)))
+    if args.demo:
+        if args.config:
+            raise UserError("--demo and --config exclude each other")
+        from mousedom.demo import demo_config
+
+        config = demo_config()
+        log.info("demo: a simulated rig replayed in real time, in a loop (%s)", config.path)
+    else:
+        path = args.config or DEFAULT_CONFIG_PATH
+        try:
+            config = load_config(path)
+        except ConfigError as e:
+            if args.config is None and not os.path.exists(path):
+                raise ConfigError(
+                    f"{e} (give --config FILE, or try: mousedom run --demo)"
+                ) from None
+            raise
+    socket_path = args.socket or config.server.socket or default_socket_path()
+    return Daemon(config, socket_path).run()

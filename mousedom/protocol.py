@@ -1,0 +1,221 @@
+"""The socket protocol without the sockets: line framing, commands, message objects.
+
+Newline-delimited JSON, each object with a ``class`` field (as gpsd does).  The server sends
+VERSION on connect, then POSE at the output rate and SOURCE per sensor; clients send one
+command object a line (``{"cmd": "reset"}``, ``{"cmd": "fix", "x": 1.0}``, ``{"cmd":
+"status"}``, ``{"cmd": "rate", "hz": 10}``).  A bad line gets an ERROR and changes nothing.
+Everything here is bytes and dicts in, bytes and dicts out, so it tests without I/O; the full
+description with an example session is docs/protocol.md.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass
+from typing import Any
+
+from mousedom import __version__
+
+PROTO_MAJOR = 1
+PROTO_MINOR = 0
+
+# Which keys each command takes; anything else is a mistake worth telling the client about.
+COMMANDS: dict[str, tuple[str, ...]] = {
+    "reset": ("x", "y", "theta"),
+    "fix": ("x", "y", "theta"),
+    "status": (),
+    "rate": ("hz",),
+}
+POSE_MOVING = frozenset({"reset", "fix"})
+MAX_CLIENT_HZ = 10000.0
+
+
+class ProtocolError(ValueError):
+    """A client line that is not a valid command; the message goes back in an ERROR."""
+
+
+@dataclass(frozen=True)
+class Command:
+    name: str
+    args: dict[str, float]
+    id: Any = None  # echoed back in the reply so a client can match answers to questions
+
+
+class TooLong:
+    """Marker that LineBuffer yields in place of an over-long line (which it discards)."""
+
+    def __init__(self, size: int) -> None:
+        self.size = size
+
+    def __repr__(self) -> str:
+        return f"TooLong({self.size})"
+
+
+class LineBuffer:
+    """Splits a byte stream into lines of at most ``max_line`` bytes (newline excluded).
+
+    A longer line is reported once as ``TooLong`` and skipped up to its newline, without
+    ever holding more than ``max_line`` bytes: a client cannot make the daemon buffer
+    without bound by never sending a newline.
+    """
+
+    def __init__(self, max_line: int) -> None:
+        self.max_line = max_line
+        self._buf = bytearray()
+        self._skipping = 0  # bytes of an over-long line seen so far (0: not skipping)
+
+    def feed(self, data: bytes) -> list[bytes | TooLong]:
+        out: list[bytes | TooLong] = []
+        start = 0
+        while start < len(data):
+            nl = data.find(b"\n", start)
+            end = len(data) if nl < 0 else nl
+            chunk = data[start:end]
+            if self._skipping:
+                self._skipping += len(chunk)
+            else:
+                self._buf += chunk
+                if len(self._buf) > self.max_line:
+                    self._skipping = len(self._buf)
+                    self._buf.clear()
+            if nl < 0:
+                break
+            if self._skipping:
+                out.append(TooLong(self._skipping))
+                self._skipping = 0
+            else:
+                out.append(bytes(self._buf).rstrip(b"\r"))
+                self._buf.clear()
+            start = nl + 1
+        return out
+
+
+def _number(name: str, key: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ProtocolError(f"{name}: {key} must be a number, got {json.dumps(value)[:40]}")
+    if not math.isfinite(value):
+        raise ProtocolError(f"{name}: {key} must be finite")
+    return float(value)
+
+
+def parse_command(line: bytes) -> Command:
+    """One client line -> Command, or ProtocolError saying exactly what is wrong."""
+    try:
+        text = line.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise ProtocolError(f"byte offset {e.start}: not UTF-8") from None
+    try:
+        # Python's json accepts NaN/Infinity; the protocol is strict JSON.
+        obj = json.loads(text, parse_constant=_reject_constant)
+    except json.JSONDecodeError as e:
+        raise ProtocolError(f"invalid JSON at column {e.colno}: {e.msg}") from None
+    if not isinstance(obj, dict):
+        raise ProtocolError('a command is a JSON object such as {"cmd": "status"}')
+    name = obj.get("cmd")
+    if not isinstance(name, str):
+        raise ProtocolError('missing "cmd" (one of: ' + ", ".join(COMMANDS) + ")")
+    if name not in COMMANDS:
+        raise ProtocolError(f"unknown command {name!r} (one of: {', '.join(COMMANDS)})")
+    allowed = COMMANDS[name]
+    args: dict[str, float] = {}
+    for key, value in obj.items():
+        if key in ("cmd", "id"):
+            continue
+        if key not in allowed:
+            takes = ", ".join(allowed) if allowed else "no arguments"
+            raise ProtocolError(f"{name}: unknown key {key!r} (takes {takes})")
+        args[key] = _number(name, key, value)
+    if name == "fix" and not args:
+        raise ProtocolError("fix: give at least one of x, y, theta")
+    if name == "rate":
+        if "hz" not in args:
+            raise ProtocolError("rate: needs hz (poses per second; 0 stops POSE)")
+        if not 0 <= args["hz"] <= MAX_CLIENT_HZ:
+            raise ProtocolError(f"rate: hz must be between 0 and {MAX_CLIENT_HZ:g}")
+    return Command(name=name, args=args, id=obj.get("id"))
+
+
+def _reject_constant(name: str) -> Any:
+    raise json.JSONDecodeError(f"{name} is not JSON", name, 0)
+
+
+# --------------------------------------------------------------------------- messages
+
+
+def encode(message: dict[str, Any]) -> bytes:
+    """One message as a JSON line.  NaN/inf are not JSON: they become null."""
+    return (json.dumps(message, separators=(",", ":"), allow_nan=False) + "\n").encode()
+
+
+def _finite(v: float) -> float | None:
+    v = float(v)
+    return v if math.isfinite(v) else None
+
+
+def version_message(
+    rate_hz: float, sensors: Iterable[str], control: bool, model: str
+) -> dict[str, Any]:
+    return {
+        "class": "VERSION",
+        "release": __version__,
+        "proto_major": PROTO_MAJOR,
+        "proto_minor": PROTO_MINOR,
+        "rate_hz": rate_hz,
+        "model": model,
+        "sensors": list(sensors),
+        "control": control,  # whether this peer may send reset/fix
+    }
+
+
+def pose_message(
+    t: float,
+    pose: tuple[float, float, float],
+    twist: tuple[float, float, float],
+    cov: Any,
+    used: int,
+    updating: bool,
+    missing: Iterable[str] = (),
+) -> dict[str, Any]:
+    """A POSE: odometry-frame pose, body-frame velocities, covariance of (x, y, theta).
+
+    ``updating`` is False when the model had no rank over this window: the pose was held,
+    not guessed.  ``missing`` names the sensors that did not contribute (gone or excluded).
+    """
+    return {
+        "class": "POSE",
+        "t": round(float(t), 6),
+        "x": _finite(pose[0]),
+        "y": _finite(pose[1]),
+        "theta": _finite(pose[2]),
+        "vx": _finite(twist[0]),
+        "vy": _finite(twist[1]),
+        "omega": _finite(twist[2]),
+        "cov": [[_finite(c) for c in row] for row in cov],
+        "used": int(used),
+        "updating": bool(updating),
+        "missing": list(missing),
+    }
+
+
+def source_message(health: dict[str, Any], **extra: Any) -> dict[str, Any]:
+    """A SOURCE from a SourceHealth.as_dict() plus what the daemon knows (age, residual)."""
+    msg: dict[str, Any] = {"class": "SOURCE"}
+    for key, value in {**health, **extra}.items():
+        msg[key] = _finite(value) if isinstance(value, float) else value
+    return msg
+
+
+def error_message(text: str, id: Any = None) -> dict[str, Any]:
+    msg: dict[str, Any] = {"class": "ERROR", "message": text}
+    if id is not None:
+        msg["id"] = id
+    return msg
+
+
+def ok_message(cmd: str, id: Any = None, **extra: Any) -> dict[str, Any]:
+    msg: dict[str, Any] = {"class": "OK", "cmd": cmd, **extra}
+    if id is not None:
+        msg["id"] = id
+    return msg

@@ -1,0 +1,371 @@
+"""The Unix-socket publisher: listening socket, clients, bounded queues, permissions.
+
+The server never blocks the fusion.  Every socket is non-blocking; what a client cannot take
+right now waits in its own queue of at most ``queue_lines`` lines, and a client whose queue
+is full is dropped (a stalled reader is not worth one late pose for the others).  Commands
+are parsed by ``mousedom.protocol``; the ones that move the pose are allowed only to the uids
+and gids of ``server.control_uids/control_gids`` (and the daemon's own uid), read from the
+peer with SO_PEERCRED.  The daemon owns the selector and calls ``Server.handle_event`` for
+the keys it registered; the daemon applies commands through the ``on_command`` callback.
+"""
+
+from __future__ import annotations
+
+import errno
+import grp
+import logging
+import os
+import selectors
+import socket
+import stat
+import struct
+from collections import deque
+from collections.abc import Callable
+from typing import Any
+
+from mousedom.config import ServerConfig
+from mousedom.errors import UserError
+from mousedom.protocol import (
+    POSE_MOVING,
+    Command,
+    LineBuffer,
+    ProtocolError,
+    TooLong,
+    encode,
+    error_message,
+    parse_command,
+)
+
+log = logging.getLogger(__name__)
+
+SOCKET_NAME = "mousedom.sock"
+# Small kernel send buffers make a stalled client show up in its queue within a second or
+# two instead of after the kernel has swallowed minutes of poses.
+SNDBUF = 32 * 1024
+
+
+def default_socket_path(environ: dict[str, str] | None = None, uid: int | None = None) -> str:
+    """Where the socket goes when the config does not say.
+
+    Under systemd, $RUNTIME_DIRECTORY (from RuntimeDirectory=); as root /run/mousedom; as a
+    user $XDG_RUNTIME_DIR, else a per-user directory under the temporary directory.
+    """
+    env = os.environ if environ is None else environ
+    uid = os.getuid() if uid is None else uid
+    runtime = env.get("RUNTIME_DIRECTORY")
+    if runtime:
+        return os.path.join(runtime.split(":")[0], SOCKET_NAME)
+    if uid == 0:
+        return os.path.join("/run/mousedom", SOCKET_NAME)
+    xdg = env.get("XDG_RUNTIME_DIR")
+    if xdg:
+        return os.path.join(xdg, "mousedom", SOCKET_NAME)
+    tmp = env.get("TMPDIR") or "/tmp"
+    return os.path.join(tmp, f"mousedom-{uid}", SOCKET_NAME)
+
+
+class Client:
+    """One connected peer: its credentials, input framing, output queue and POSE rate."""
+
+    def __init__(self, sock: socket.socket, settings: ServerConfig, control: bool) -> None:
+        self.sock = sock
+        self.fd = sock.fileno()
+        self.pid, self.uid, self.gid = peer_credentials(sock)
+        self.control = control
+        self.rx = LineBuffer(settings.max_line)
+        self.queue: deque[bytes] = deque()
+        self.queue_limit = settings.queue_lines
+        self.partial = b""  # the unsent tail of the line being written
+        self.period = 0.0  # seconds between POSEs for this client; 0: every pose
+        self.paused = False  # rate 0: no POSE at all
+        self.next_t: float | None = None
+        self.lines_out = 0
+
+    def __repr__(self) -> str:
+        return f"client fd={self.fd} pid={self.pid} uid={self.uid}"
+
+    def wants_pose(self, t: float, tolerance: float) -> bool:
+        """Decimate POSE to this client's own rate, keeping a steady phase."""
+        if self.paused:
+            return False
+        if self.period <= 0:
+            return True
+        if self.next_t is None or t >= self.next_t - tolerance:
+            base = t if self.next_t is None else self.next_t
+            self.next_t = base + self.period
+            if self.next_t < t:  # fell far behind (paused rate change): restart the phase
+                self.next_t = t + self.period
+            return True
+        return False
+
+    def set_rate(self, hz: float) -> None:
+        self.paused = hz == 0
+        self.period = 1.0 / hz if hz > 0 else 0.0
+        self.next_t = None
+
+
+def peer_credentials(sock: socket.socket) -> tuple[int, int, int]:
+    """(pid, uid, gid) of the process at the other end of a Unix socket (SO_PEERCRED)."""
+    fmt = "3i"
+    raw = sock.getsockopt(socket.SOL_SOCKET, socket.SO_PEERCRED, struct.calcsize(fmt))
+    return struct.unpack(fmt, raw)
+
+
+class Server:
+    """Listening socket plus clients, driven by the daemon's selector."""
+
+    def __init__(
+        self,
+        path: str,
+        settings: ServerConfig,
+        selector: selectors.BaseSelector,
+        on_command: Callable[[Client, Command], list[dict[str, Any]]],
+        on_connect: Callable[[Client], list[dict[str, Any]]],
+    ) -> None:
+        self.path = path
+        self.settings = settings
+        self.selector = selector
+        self.on_command = on_command
+        self.on_connect = on_connect
+        self.clients: dict[int, Client] = {}
+        self.listener: socket.socket | None = None
+        self.dropped = 0  # clients dropped for a full queue
+        self.refused = 0  # clients refused for the client limit
+
+    # ------------------------------------------------------------------ lifecycle
+
+    def open(self) -> None:
+        directory = os.path.dirname(self.path) or "."
+        try:
+            os.makedirs(directory, mode=0o755, exist_ok=True)
+        except OSError as e:
+            raise UserError(
+                f"{self.path}: cannot create the socket directory: {e.strerror}"
+            ) from None
+        gid = None
+        if self.settings.group:
+            try:
+                gid = grp.getgrnam(self.settings.group).gr_gid
+            except KeyError:
+                raise UserError(
+                    f"{self.path}: server.group: no group named {self.settings.group!r}"
+                ) from None
+        self._remove_stale()
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM | socket.SOCK_CLOEXEC)
+        old_umask = os.umask(0o177)  # nobody gets in before chmod below says who may
+        try:
+            sock.bind(self.path)
+        except OSError as e:
+            sock.close()
+            raise UserError(f"{self.path}: cannot bind the socket: {e.strerror}") from None
+        finally:
+            os.umask(old_umask)
+        try:
+            if gid is not None:
+                os.chown(self.path, -1, gid)
+            os.chmod(self.path, self.settings.mode)
+        except OSError as e:
+            sock.close()
+            os.unlink(self.path)
+            raise UserError(f"{self.path}: cannot set owner or mode: {e.strerror}") from None
+        sock.listen(16)
+        sock.setblocking(False)
+        self.listener = sock
+        self.selector.register(sock, selectors.EVENT_READ, self._accept)
+
+    def _remove_stale(self) -> None:
+        """A socket file left by a crash is removed; one with a live daemon behind it is not."""
+        try:
+            st = os.lstat(self.path)
+        except FileNotFoundError:
+            return
+        if not stat.S_ISSOCK(st.st_mode):
+            raise UserError(f"{self.path}: exists and is not a socket; not touching it")
+        probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        try:
+            probe.connect(self.path)
+        except OSError:
+            os.unlink(self.path)
+            log.info("removed stale socket %s", self.path)
+            return
+        finally:
+            probe.close()
+        raise UserError(f"{self.path}: another mousedom daemon is listening there")
+
+    def close(self) -> None:
+        for client in list(self.clients.values()):
+            self._flush(client)
+            self.drop(client, None)
+        if self.listener is not None:
+            self.selector.unregister(self.listener)
+            self.listener.close()
+            self.listener = None
+            try:
+                os.unlink(self.path)
+            except FileNotFoundError:
+                pass
+
+    def apply_settings(self, settings: ServerConfig) -> None:
+        """New limits after a reload; the socket path and existing clients stay."""
+        self.settings = settings
+        if self.listener is not None:
+            try:
+                os.chmod(self.path, settings.mode)
+            except OSError as e:
+                log.warning("cannot set mode of %s: %s", self.path, e)
+        for c in self.clients.values():
+            c.queue_limit = settings.queue_lines
+            c.rx.max_line = settings.max_line
+            c.control = self.may_control(c.uid, c.gid)
+
+    def may_control(self, uid: int, gid: int) -> bool:
+        s = self.settings
+        return uid in s.control_uids or gid in s.control_gids or uid == os.getuid()
+
+    # ------------------------------------------------------------------ events
+
+    def _accept(self, events: int) -> None:
+        assert self.listener is not None
+        while True:
+            try:
+                sock, _ = self.listener.accept()
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError as e:  # EMFILE and friends: log and try again on the next event
+                log.warning("accept failed: %s", e)
+                return
+            sock.setblocking(False)
+            try:
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SNDBUF)
+            except OSError:
+                pass
+            _, uid, gid = peer_credentials(sock)
+            client = Client(sock, self.settings, self.may_control(uid, gid))
+            if len(self.clients) >= self.settings.max_clients:
+                self.refused += 1
+                log.warning("refusing %r: already %d clients", client, len(self.clients))
+                try:
+                    sock.send(encode(error_message("too many clients; try again later")))
+                except OSError:
+                    pass
+                sock.close()
+                continue
+            self.clients[client.fd] = client
+            self.selector.register(sock, selectors.EVENT_READ, self._make_handler(client))
+            log.debug("connected %r (control=%s)", client, client.control)
+            for msg in self.on_connect(client):
+                self.send(client, encode(msg))
+
+    def _make_handler(self, client: Client) -> Callable[[int], None]:
+        def handle(events: int) -> None:
+            if events & selectors.EVENT_WRITE and client.fd in self.clients:
+                self._flush(client)
+            if events & selectors.EVENT_READ and client.fd in self.clients:
+                self._read(client)
+
+        return handle
+
+    def _read(self, client: Client) -> None:
+        try:
+            data = client.sock.recv(65536)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError as e:
+            self.drop(client, f"read error: {e}")
+            return
+        if not data:
+            self.drop(client, None)
+            return
+        for line in client.rx.feed(data):
+            if client.fd not in self.clients:
+                return
+            for msg in self._answer(client, line):
+                self.send(client, encode(msg))
+
+    def _answer(self, client: Client, line: bytes | TooLong) -> list[dict[str, Any]]:
+        if isinstance(line, TooLong):
+            return [error_message(f"line too long ({line.size} > {client.rx.max_line} bytes)")]
+        if not line.strip():
+            return []
+        try:
+            cmd = parse_command(line)
+        except ProtocolError as e:
+            return [error_message(str(e))]
+        if cmd.name in POSE_MOVING and not client.control:
+            log.warning("%r may not %s the pose (server.control_uids/gids)", client, cmd.name)
+            return [
+                error_message(
+                    f"{cmd.name}: not allowed for uid {client.uid} gid {client.gid} "
+                    "(see server.control_uids and control_gids)",
+                    cmd.id,
+                )
+            ]
+        return self.on_command(client, cmd)
+
+    # ------------------------------------------------------------------ output
+
+    def send(self, client: Client, line: bytes) -> None:
+        """Queue one line for a client; drop the client when its queue is full."""
+        if client.fd not in self.clients:
+            return
+        if len(client.queue) >= client.queue_limit:
+            self.dropped += 1
+            self.drop(client, f"queue full ({client.queue_limit} lines): client not reading")
+            return
+        was_idle = not client.queue and not client.partial
+        client.queue.append(line)
+        if was_idle:
+            self._flush(client)
+
+    def broadcast(self, line: bytes) -> None:
+        for client in list(self.clients.values()):
+            self.send(client, line)
+
+    def broadcast_pose(self, t: float, line: bytes, tolerance: float) -> int:
+        """Send a POSE line to the clients whose own rate wants one at time ``t``."""
+        n = 0
+        for client in list(self.clients.values()):
+            if client.wants_pose(t, tolerance):
+                self.send(client, line)
+                n += 1
+        return n
+
+    def _flush(self, client: Client) -> None:
+        sock = client.sock
+        while client.partial or client.queue:
+            if not client.partial:
+                # Several lines per send: fewer syscalls when a client lags a little.
+                chunk = [client.queue.popleft()]
+                while client.queue and len(chunk) < 64:
+                    chunk.append(client.queue.popleft())
+                client.partial = b"".join(chunk)
+                client.lines_out += len(chunk)
+            try:
+                n = sock.send(client.partial)
+            except (BlockingIOError, InterruptedError):
+                break
+            except OSError as e:
+                quiet = e.errno in (errno.EPIPE, errno.ECONNRESET)
+                self.drop(client, None if quiet else f"write error: {e}")
+                return
+            client.partial = client.partial[n:]
+        self._want_write(client, bool(client.partial or client.queue))
+
+    def _want_write(self, client: Client, want: bool) -> None:
+        events = selectors.EVENT_READ | (selectors.EVENT_WRITE if want else 0)
+        key = self.selector.get_key(client.sock)
+        if key.events != events:
+            self.selector.modify(client.sock, events, key.data)
+
+    def drop(self, client: Client, reason: str | None) -> None:
+        if self.clients.pop(client.fd, None) is None:
+            return
+        if reason:
+            log.warning("dropping %r: %s", client, reason)
+        else:
+            log.debug("disconnected %r", client)
+        try:
+            self.selector.unregister(client.sock)
+        except (KeyError, ValueError):
+            pass
+        client.sock.close()

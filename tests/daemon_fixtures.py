@@ -1,0 +1,228 @@
+"""Helpers for the daemon's end-to-end tests: FIFO mice, a real-time feeder, the process.
+
+Mice are FIFOs that the evdev source reads as raw ``struct input_event`` streams (its test
+hook); the feeder writes simulated reports into them at their real times, stamped on
+CLOCK_MONOTONIC as the kernel would.  The daemon runs as a real process on a real socket.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from mousedom.events import EV_REL, EV_SYN, EVENT_DTYPE, SYN_REPORT
+
+REPO = Path(__file__).resolve().parent.parent
+REL_X, REL_Y = 0, 1
+
+
+def input_events(t: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> bytes:
+    """Reports -> REL_X, REL_Y, SYN_REPORT records (3 per report), stamped t."""
+    n = len(t)
+    ev = np.zeros((n, 3), dtype=EVENT_DTYPE)
+    usec_total = np.round(np.asarray(t) * 1e6).astype(np.int64)
+    ev["sec"] = (usec_total // 1_000_000)[:, None]
+    ev["usec"] = (usec_total % 1_000_000)[:, None]
+    ev["type"] = [EV_REL, EV_REL, EV_SYN]
+    ev["code"] = [REL_X, REL_Y, SYN_REPORT]
+    ev["value"][:, 0] = dx
+    ev["value"][:, 1] = dy
+    return ev.tobytes()
+
+
+class FifoMouse:
+    """A named pipe standing in for one mouse's /dev/input/eventN."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        os.mkfifo(path)
+        self.fd: int | None = None
+
+    def attach(self, timeout: float = 10.0) -> None:
+        """Open the writing end once the daemon has opened the reading end."""
+        deadline = time.monotonic() + timeout
+        while True:
+            try:
+                fd = os.open(self.path, os.O_WRONLY | os.O_NONBLOCK)
+                break
+            except OSError:  # ENXIO: no reader yet
+                if time.monotonic() > deadline:
+                    raise
+                time.sleep(0.02)
+        os.set_blocking(fd, True)
+        self.fd = fd
+
+    def write(self, data: bytes) -> None:
+        if self.fd is not None:
+            try:
+                os.write(self.fd, data)
+            except BrokenPipeError:  # the daemon is gone (stopped by the test)
+                self.unplug()
+
+    def unplug(self, remove: bool = False) -> None:
+        """Close the writing end (the reader sees end of file, as on ENODEV); ``remove``
+        also deletes the FIFO, as the kernel deletes an unplugged mouse's node."""
+        if self.fd is not None:
+            os.close(self.fd)
+            self.fd = None
+        if remove:
+            os.unlink(self.path)
+
+    def replug(self) -> None:
+        if not self.path.exists():
+            os.mkfifo(self.path)
+        self.attach()
+
+
+class Feeder(threading.Thread):
+    """Writes each mouse's reports into its FIFO when their (monotonic) time comes."""
+
+    def __init__(
+        self, mice: dict[str, FifoMouse], reports: dict, t0: float, step: float = 0.002
+    ) -> None:
+        super().__init__(daemon=True)
+        self.mice, self.reports, self.t0, self.step = mice, reports, t0, step
+        self.stopped = threading.Event()
+        self.lock = threading.Lock()  # held while writing, so a test can unplug safely
+        self.sent = {name: 0 for name in mice}
+
+    def run(self) -> None:
+        cursor = {name: 0 for name in self.mice}
+        while not self.stopped.is_set():
+            now = time.monotonic()
+            done = True
+            with self.lock:
+                for name, mouse in self.mice.items():
+                    rep = self.reports[name]
+                    times = rep.t + self.t0
+                    i = cursor[name]
+                    j = int(np.searchsorted(times, now, side="right"))
+                    if j < len(times):
+                        done = False
+                    if j > i:
+                        if mouse.fd is not None:
+                            mouse.write(input_events(times[i:j], rep.dx[i:j], rep.dy[i:j]))
+                            self.sent[name] += j - i
+                        cursor[name] = j
+            if done:
+                return
+            time.sleep(self.step)
+
+    def stop(self) -> None:
+        self.stopped.set()
+        self.join(5)
+
+
+def write_rig_config(
+    path: Path, rig, fifos: dict[str, Path], extra: str = "", rate_hz: float | None = None
+) -> Path:
+    from mousedom.sim import rig_yaml
+
+    text = rig_yaml(rig)
+    if rate_hz is not None:
+        text = text.replace(f"rate_hz: {rig.rate_hz!r}", f"rate_hz: {rate_hz!r}", 1)
+    lines = []
+    for line in text.splitlines():
+        lines.append(line)
+        stripped = line.strip()
+        if line.startswith("  ") and not line.startswith("    ") and stripped.endswith(":"):
+            name = stripped[:-1]
+            lines.append(f"    evdev: {{path: {fifos[name]}, grab: false}}")
+    path.write_text("\n".join(lines) + "\n" + extra)
+    return path
+
+
+class DaemonProcess:
+    """``mousedom run`` as a real child process."""
+
+    def __init__(self, config: Path, socket_path: Path, *args: str, env=None) -> None:
+        environ = dict(os.environ)
+        environ["PYTHONPATH"] = str(REPO) + os.pathsep + environ.get("PYTHONPATH", "")
+        environ.update(env or {})
+        self.socket_path = socket_path
+        self.stderr_path = socket_path.parent.parent / f"{socket_path.stem}.log"
+        self._log = open(self.stderr_path, "w")  # noqa: SIM115 - closed in stop()
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "mousedom", "run", "--config", str(config)]
+            + ["--socket", str(socket_path), *args],
+            stdout=subprocess.DEVNULL,
+            stderr=self._log,
+            env=environ,
+        )
+
+    def wait_socket(self, timeout: float = 15.0) -> None:
+        deadline = time.monotonic() + timeout
+        while not self.socket_path.exists():
+            if self.proc.poll() is not None:
+                raise AssertionError(f"daemon exited {self.proc.returncode}: {self.log()}")
+            if time.monotonic() > deadline:
+                raise AssertionError(f"no socket after {timeout}s: {self.log()}")
+            time.sleep(0.02)
+
+    def log(self) -> str:
+        if not self._log.closed:
+            self._log.flush()
+        return self.stderr_path.read_text()
+
+    def signal(self, sig: int) -> None:
+        self.proc.send_signal(sig)
+
+    def stop(self, timeout: float = 5.0) -> int:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        self._log.close()
+        return self.proc.returncode
+
+
+class Conn:
+    """A protocol client on a real socket, reading line by line with a timeout."""
+
+    def __init__(self, path: Path, timeout: float = 5.0) -> None:
+        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        self.sock.connect(str(path))
+        self.sock.settimeout(timeout)
+        self.file = self.sock.makefile("rb")
+
+    def read(self) -> dict:
+        line = self.file.readline()
+        if not line:
+            raise EOFError("daemon closed the connection")
+        return json.loads(line)
+
+    def send(self, obj) -> None:
+        data = obj if isinstance(obj, bytes) else (json.dumps(obj) + "\n").encode()
+        self.sock.sendall(data)
+
+    def until(self, cls: str, pred=lambda m: True, limit: int = 10000) -> dict:
+        for _ in range(limit):
+            m = self.read()
+            if m["class"] == cls and pred(m):
+                return m
+        raise AssertionError(f"no {cls} in {limit} messages")
+
+    def poses(self, seconds: float) -> list[dict]:
+        out = []
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            m = self.read()
+            if m["class"] == "POSE":
+                out.append(m)
+        return out
+
+    def close(self) -> None:
+        self.file.close()
+        self.sock.close()

@@ -1,0 +1,249 @@
+"""The daemon end to end: a real ``mousedom run`` process, FIFO mice, real sockets, signals.
+
+Three simulated mice are written into FIFOs as raw input_event records at their real
+times; the evdev source reads them (its FIFO hook) as it would read /dev/input nodes.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+import socket
+import threading
+import time
+
+import numpy as np
+import pytest
+from daemon_fixtures import Conn, DaemonProcess, Feeder, FifoMouse, write_rig_config
+
+from mousedom import sim
+
+RATE = 50.0
+
+
+@pytest.fixture
+def rig_run(tmp_path):
+    """Start a daemon on a three-mouse FIFO rig driving ``trajectory``; yields a context."""
+    started = []
+
+    def start(trajectory, extra: str = "", rate_hz: float = RATE, env=None):
+        rig = sim.three_mouse_rig()
+        fifos = {m.name: tmp_path / f"{m.name}.fifo" for m in rig.mice}
+        mice = {n: FifoMouse(p) for n, p in fifos.items()}
+        config = write_rig_config(tmp_path / "rig.yaml", rig, fifos, extra, rate_hz=rate_hz)
+        daemon = DaemonProcess(config, tmp_path / "run" / "mousedom.sock", env=env)
+        daemon.wait_socket()
+        for m in mice.values():
+            m.attach()
+        result = sim.simulate(rig, trajectory, seed=3)
+        feeder = Feeder(mice, result.reports, time.monotonic() + 0.1)
+        feeder.start()
+        ctx = type("Run", (), {})()
+        ctx.rig, ctx.fifos, ctx.mice, ctx.config = rig, fifos, mice, config
+        ctx.daemon, ctx.feeder, ctx.result, ctx.fifo_paths = daemon, feeder, result, fifos
+        started.append(ctx)
+        return ctx
+
+    yield start
+    for ctx in started:
+        ctx.feeder.stop()
+        ctx.daemon.stop()
+
+
+def _rate(poses: list[dict]) -> float:
+    return (len(poses) - 1) / (poses[-1]["t"] - poses[0]["t"])
+
+
+def test_clients_rate_commands_and_sigterm(rig_run):
+    run = rig_run(sim.straight(1.0, 0.1), extra="server: {queue_lines: 16}\n")
+    sock = run.daemon.socket_path
+    a, _stalled, slow = Conn(sock), Conn(sock), Conn(sock)
+    banner = a.read()
+    assert banner["class"] == "VERSION" and banner["rate_hz"] == RATE
+    assert banner["sensors"] == ["front", "left", "right"] and banner["control"] is True
+    slow.until("VERSION")
+    slow.send({"cmd": "rate", "hz": 10, "id": 1})
+    assert slow.until("OK") == {"class": "OK", "cmd": "rate", "hz": 10, "id": 1}
+
+    # POSE at the configured rate, by stamps and by wall clock, while one client stalls.
+    t_wall = time.monotonic()
+    poses = a.poses(2.0)
+    wall = time.monotonic() - t_wall
+    assert _rate(poses) == pytest.approx(RATE, rel=0.10)
+    assert len(poses) / wall == pytest.approx(RATE, rel=0.10)
+    assert all(p["updating"] and p["used"] == 3 and p["missing"] == [] for p in poses)
+    assert np.all(np.diff([p["x"] for p in poses[15:]]) > 0)  # driving forward
+    assert abs(poses[-1]["vx"] - 0.1) < 0.01 and abs(poses[-1]["omega"]) < 0.05
+    slow_poses = slow.poses(1.0)  # queued while the other client was read: 10 Hz by stamps
+    assert len(slow_poses) >= 10
+    assert np.diff([p["t"] for p in slow_poses]) == pytest.approx(0.1, abs=1e-3)
+
+    # status: STATUS then one SOURCE per sensor
+    a.send({"cmd": "status", "id": "s"})
+    st = a.until("STATUS")
+    assert st["id"] == "s" and st["model"] == "lsq" and st["clients"] in (2, 3)
+    sources = [a.until("SOURCE") for _ in range(3)]
+    assert {s["name"] for s in sources} == {"front", "left", "right"}
+    for s in sources:
+        assert s["connected"] and not s["excluded"] and s["kind"] == "evdev"
+        assert s["age"] is not None and s["age"] < 0.1
+        assert s["rate_hz"] == pytest.approx(125, rel=0.2)
+
+    # reset, then the pose starts again from the origin
+    a.send({"cmd": "reset"})
+    ok = a.until("OK")
+    assert ok["cmd"] == "reset" and ok["pose"] == {"x": 0.0, "y": 0.0, "theta": 0.0}
+    after = a.until("POSE")
+    assert abs(after["x"]) < 0.01 and after["cov"][0][0] < 1e-6
+
+    # fix of x only: x jumps, y and theta stay
+    before = a.until("POSE")
+    a.send({"cmd": "fix", "x": 5.0})
+    ok = a.until("OK")
+    assert ok["pose"]["x"] == 5.0 and ok["pose"]["y"] == pytest.approx(before["y"], abs=1e-3)
+    after = a.until("POSE")
+    assert 5.0 <= after["x"] < 5.05
+
+    # bad commands: one ERROR each, and the pose goes on undisturbed
+    before = a.until("POSE")
+    a.send(b'{"cmd": "fix", "x": "far"}\n{oops\n{"cmd": "jump"}\n' + b"z" * 5000 + b"\n")
+    errors = [a.until("ERROR") for _ in range(4)]
+    assert "x must be a number" in errors[0]["message"]
+    assert "invalid JSON" in errors[1]["message"]
+    assert "unknown command 'jump'" in errors[2]["message"]
+    assert "line too long" in errors[3]["message"]
+    after = a.until("POSE")
+    assert 0 <= after["x"] - before["x"] < 0.02
+
+    # the client that never read has been dropped; the others never waited for it
+    deadline = time.monotonic() + 8
+    while True:
+        a.send({"cmd": "status"})
+        st = a.until("STATUS")
+        if st["dropped_clients"] >= 1 or time.monotonic() > deadline:
+            break
+        a.poses(0.5)
+    assert st["dropped_clients"] == 1 and st["clients"] == 2
+    assert "queue full" in run.daemon.log()
+
+    # SIGTERM: exit 0 within a second, socket removed
+    t = time.monotonic()
+    run.daemon.signal(signal.SIGTERM)
+    rc = run.daemon.proc.wait(5)
+    assert rc == 0 and time.monotonic() - t < 1.0
+    assert not sock.exists()
+    with pytest.raises(EOFError):
+        while True:
+            a.read()
+
+
+def test_sighup_reload_good_and_broken_with_sd_notify(rig_run, tmp_path):
+    notify_path = str(tmp_path / "notify")
+    notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    notify.bind(notify_path)
+    notify.settimeout(5)
+    env = {"NOTIFY_SOCKET": notify_path, "WATCHDOG_USEC": "200000"}
+    run = rig_run(sim.straight(1.0, 0.1), env=env)
+    ready = notify.recv(4096).decode()
+    assert ready.startswith("READY=1\nSTATUS=3/3 sensors live")
+    assert notify.recv(4096) == b"WATCHDOG=1"
+    messages: list[str] = []  # drained as systemd would, so that no ping is lost
+    drain = threading.Thread(target=_drain, args=(notify, messages), daemon=True)
+    drain.start()
+
+    c = Conn(run.daemon.socket_path)
+    c.until("VERSION")
+    poses = c.poses(0.6)
+    assert _rate(poses) == pytest.approx(RATE, rel=0.1)
+
+    # A good config with half the rate: the rate changes, the pose carries on.
+    text = run.config.read_text()
+    run.config.write_text(text.replace(f"rate_hz: {RATE!r}", "rate_hz: 25.0"))
+    x_before = c.until("POSE")["x"]
+    run.daemon.signal(signal.SIGHUP)
+    time.sleep(0.5)
+    poses = c.poses(1.0)
+    assert _rate(poses[2:]) == pytest.approx(25.0, rel=0.1)
+    assert x_before <= poses[0]["x"] < x_before + 0.1  # kept, not reset to 0
+    assert "reloaded" in run.daemon.log()
+
+    # A broken config: logged with file and line, the running one stays.
+    run.config.write_text(text.replace("model: lsq", "model: [lsq"))
+    run.daemon.signal(signal.SIGHUP)
+    time.sleep(0.5)
+    poses = c.poses(1.0)
+    assert _rate(poses) == pytest.approx(25.0, rel=0.1)
+    assert all(p["updating"] for p in poses)
+    log = run.daemon.log()
+    assert "reload failed, keeping the running config" in log and f"{run.config}:" in log
+    assert run.daemon.proc.poll() is None
+
+    assert "RELOADING=1" in messages
+    assert any(m.startswith("READY=1\nSTATUS=reload failed") for m in messages)
+    assert messages.count("WATCHDOG=1") >= 10  # every 0.1 s
+    assert run.daemon.stop() == 0
+    drain.join(5)
+    assert messages[-1] == "STOPPING=1"
+    notify.close()
+
+
+def _drain(sock: socket.socket, into: list[str]) -> None:
+    sock.settimeout(1.0)
+    try:
+        while True:
+            into.append(sock.recv(4096).decode())
+    except (TimeoutError, OSError):
+        pass
+
+
+def test_sensor_vanishes_and_returns(rig_run):
+    """Degraded operation: lsq goes on with two mice; with one it holds the pose."""
+    run = rig_run(sim.arc(2.0, 1.0, 0.1))
+    c = Conn(run.daemon.socket_path)
+    c.until("VERSION")
+    c.poses(0.3)
+
+    with run.feeder.lock:
+        run.mice["left"].unplug(remove=True)
+    p = c.until("POSE", lambda m: m["missing"] == ["left"])
+    src = c.until("SOURCE", lambda m: m["name"] == "left")
+    assert src["connected"] is False and src["excluded"] is True and src["error"]
+    degraded = c.poses(0.4)
+    assert all(q["updating"] and q["used"] == 2 for q in degraded[2:])
+    assert degraded[-1]["x"] > p["x"]  # still tracking with two mice
+
+    # the mouse comes back: the daemon reopens it and uses it again
+    with run.feeder.lock:
+        run.mice["left"].replug()
+    p = c.until("POSE", lambda m: m["missing"] == [] and m["used"] == 3, limit=500)
+    assert c.until("SOURCE", lambda m: m["name"] == "left")["connected"] is True
+
+    # two gone: one mouse cannot give lsq its rank; the pose is held, not invented
+    with run.feeder.lock:
+        run.mice["left"].unplug(remove=True)
+        run.mice["right"].unplug(remove=True)
+    c.until("POSE", lambda m: sorted(m["missing"]) == ["left", "right"])
+    held = c.poses(0.5)[3:]
+    assert held and not any(q["updating"] for q in held)
+    assert len({(q["x"], q["y"], q["theta"]) for q in held}) == 1
+    assert all(q["vx"] == 0 and q["omega"] == 0 for q in held)
+    assert "left: lost" in run.daemon.log()
+    assert run.daemon.stop() == 0
+
+
+def test_pose_tracks_the_simulated_motion(rig_run):
+    """The daemon's pose after a quarter turn and a leg matches the simulator's truth."""
+    traj = sim.sequence(sim.turn(math.pi / 2, 1.5), sim.straight(0.2, 0.2))
+    run = rig_run(traj)
+    c = Conn(run.daemon.socket_path)
+    c.until("VERSION")
+    time.sleep(run.result.duration + 0.4)
+    c.send({"cmd": "status"})
+    pose = c.until("STATUS")["pose"]
+    truth = run.result.truth(run.result.duration)[0]
+    assert pose["theta"] == pytest.approx(truth[2], abs=0.02)
+    assert pose["x"] == pytest.approx(truth[0], abs=0.01)
+    assert pose["y"] == pytest.approx(truth[1], abs=0.01)
+    os.kill(run.daemon.proc.pid, signal.SIGINT)
+    assert run.daemon.proc.wait(2) == 0

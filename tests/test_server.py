@@ -1,0 +1,262 @@
+"""The Unix-socket server on real sockets: banner, commands, permissions, limits, stalls."""
+
+from __future__ import annotations
+
+import json
+import os
+import queue
+import selectors
+import socket
+import stat
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from dataclasses import replace
+
+import pytest
+
+from mousedom.config import ServerConfig
+from mousedom.errors import UserError
+from mousedom.protocol import encode, error_message, ok_message
+from mousedom.server import Server, default_socket_path
+
+NOBODY = 65534
+
+
+class Harness:
+    """A Server driven by its own selector loop in a thread; work is posted to that thread."""
+
+    def __init__(self, path: str, settings: ServerConfig) -> None:
+        self.sel = selectors.DefaultSelector()
+        self.commands: list[tuple[int, str, dict]] = []
+        self.server = Server(path, settings, self.sel, self._on_command, self._on_connect)
+        self.server.open()
+        self.jobs: queue.Queue = queue.Queue()
+        self.wake_r, self.wake_w = os.pipe()
+        self.sel.register(self.wake_r, selectors.EVENT_READ, lambda m: os.read(self.wake_r, 512))
+        self.stop = False
+        self.thread = threading.Thread(target=self._loop, daemon=True)
+        self.thread.start()
+
+    def _on_connect(self, client):
+        return [{"class": "VERSION", "control": client.control}]
+
+    def _on_command(self, client, cmd):
+        self.commands.append((client.uid, cmd.name, cmd.args))
+        if cmd.name == "rate":
+            client.set_rate(cmd.args["hz"])
+        return [ok_message(cmd.name, cmd.id)]
+
+    def _loop(self) -> None:
+        while not self.stop:
+            for key, mask in self.sel.select(0.1):
+                key.data(mask)
+            while not self.jobs.empty():
+                self.jobs.get()()
+
+    def call(self, fn) -> None:
+        done = threading.Event()
+        self.jobs.put(lambda: (fn(), done.set()))
+        os.write(self.wake_w, b"x")
+        assert done.wait(5)
+
+    def close(self) -> None:
+        self.call(self.server.close)
+        self.stop = True
+        os.write(self.wake_w, b"x")
+        self.thread.join(5)
+
+
+@pytest.fixture
+def harness(tmp_path):
+    made = []
+
+    def make(path=None, **kw):
+        path = path or str(tmp_path / "run" / "m.sock")
+        h = Harness(path, replace(ServerConfig(), **kw))
+        made.append(h)
+        return h
+
+    yield make
+    for h in made:
+        if h.thread.is_alive():
+            h.close()
+
+
+class Peer:
+    def __init__(self, path: str) -> None:
+        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        self.sock.connect(path)
+        self.sock.settimeout(3)
+        self.file = self.sock.makefile("rb")
+
+    def send(self, data: bytes) -> None:
+        self.sock.sendall(data)
+
+    def read(self) -> dict:
+        line = self.file.readline()
+        assert line, "server closed the connection"
+        return json.loads(line)
+
+    def close(self) -> None:
+        self.file.close()
+        self.sock.close()
+
+
+def test_banner_commands_and_errors(harness):
+    h = harness(control_uids=(os.getuid(),))
+    p = Peer(h.server.path)
+    assert p.read() == {"class": "VERSION", "control": True}
+    p.send(b'{"cmd": "fix", "x": 2.5, "id": "a"}\n')
+    assert p.read() == {"class": "OK", "cmd": "fix", "id": "a"}
+    p.send(b'{"cmd": "teleport"}\n{bad\n\n' + b"x" * 5000 + b"\n")
+    assert "unknown command" in p.read()["message"]
+    assert "invalid JSON" in p.read()["message"]
+    assert "line too long (5000 > 4096 bytes)" in p.read()["message"]
+    p.send(b'{"cmd": "status"}\n')
+    assert p.read()["cmd"] == "status"
+    # Only the two good commands reached the daemon: bad lines changed nothing.
+    assert [c[1] for c in h.commands] == ["fix", "status"]
+    p.close()
+
+
+def test_socket_mode_and_group_come_from_config(harness, tmp_path):
+    import grp
+
+    group = grp.getgrgid(os.getgid()).gr_name
+    h = harness(mode=0o640, group=group)
+    st = os.stat(h.server.path)
+    assert stat.S_ISSOCK(st.st_mode)
+    assert stat.S_IMODE(st.st_mode) == 0o640
+    assert st.st_gid == os.getgid()
+    h.close()
+    assert not os.path.exists(h.server.path)  # removed on close
+
+
+def test_unknown_group_is_a_user_error(tmp_path):
+    s = Server(
+        str(tmp_path / "x.sock"),
+        ServerConfig(group="no-such-group-here"),
+        selectors.DefaultSelector(),
+        lambda c, m: [],
+        lambda c: [],
+    )
+    with pytest.raises(UserError, match="server.group: no group named 'no-such-group-here'"):
+        s.open()
+    assert not os.path.exists(tmp_path / "x.sock")
+
+
+def test_stale_socket_is_replaced_but_a_live_one_is_not(harness, tmp_path):
+    path = tmp_path / "run" / "m.sock"
+    path.parent.mkdir()
+    stale = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    stale.bind(str(path))
+    stale.close()  # file left behind, nobody listening: a crashed daemon
+    h = harness()
+    with pytest.raises(UserError, match="another mousedom daemon is listening"):
+        Server(str(path), ServerConfig(), selectors.DefaultSelector(), None, None).open()
+    h.close()
+    path.write_text("not a socket")
+    with pytest.raises(UserError, match="exists and is not a socket"):
+        Server(str(path), ServerConfig(), selectors.DefaultSelector(), None, None).open()
+
+
+@pytest.mark.skipif(os.getuid() != 0, reason="needs root to connect as another uid")
+def test_pose_moving_commands_need_a_listed_uid(harness):
+    """SO_PEERCRED: a client running as nobody may ask status but not reset or fix."""
+    shared = tempfile.mkdtemp(prefix="mousedom-test-")  # tmp_path's parents are 0700
+    os.chmod(shared, 0o755)
+    h = harness(os.path.join(shared, "m.sock"), control_uids=(0,), mode=0o666)
+    script = (
+        "import os, socket, sys\n"
+        f"os.setgid({NOBODY}); os.setuid({NOBODY})\n"
+        "s = socket.socket(socket.AF_UNIX); s.connect(sys.argv[1]); f = s.makefile('rb')\n"
+        "print(f.readline().decode(), end='')\n"
+        's.sendall(b\'{"cmd": "reset"}\\n{"cmd": "fix", "y": 1}\\n{"cmd": "status"}\\n\')\n'
+        "for _ in range(3): print(f.readline().decode(), end='')\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", script, h.server.path], capture_output=True, text=True, timeout=10
+    )
+    assert out.returncode == 0, out.stderr
+    lines = [json.loads(x) for x in out.stdout.splitlines()]
+    assert lines[0] == {"class": "VERSION", "control": False}
+    assert (
+        lines[1]["class"] == "ERROR" and "reset: not allowed for uid 65534" in lines[1]["message"]
+    )
+    assert lines[2]["class"] == "ERROR" and "fix: not allowed" in lines[2]["message"]
+    assert lines[3] == {"class": "OK", "cmd": "status"}
+    assert [c[1] for c in h.commands] == ["status"]
+    h.close()
+    os.rmdir(shared)
+
+
+def test_client_limit(harness):
+    h = harness(max_clients=2)
+    a, b = Peer(h.server.path), Peer(h.server.path)
+    a.read(), b.read()
+    c = Peer(h.server.path)
+    assert c.read() == error_message("too many clients; try again later")
+    assert c.file.readline() == b""  # and closed
+    assert h.server.refused == 1
+    a.close()
+    time.sleep(0.1)
+    d = Peer(h.server.path)
+    assert d.read()["class"] == "VERSION"
+
+
+def test_stalled_client_is_dropped_and_others_keep_receiving(harness):
+    h = harness(queue_lines=8)
+    stalled, reader = Peer(h.server.path), Peer(h.server.path)
+    stalled.read(), reader.read()
+    line = encode({"class": "POSE", "pad": "x" * 400})
+    got = 0
+    for _ in range(600):  # ~250 kB: more than the kernel buffers plus 8 queued lines
+        h.call(lambda: h.server.broadcast_pose(0.0, line, 0.0))
+        assert reader.read()["class"] == "POSE"
+        got += 1
+    assert got == 600
+    assert h.server.dropped == 1 and len(h.server.clients) == 1
+    # The stalled peer gets what was in the kernel buffer, then end of file.
+    stalled.sock.settimeout(3)
+    n = 0
+    while stalled.file.readline():
+        n += 1
+    assert 0 < n < 600
+
+
+def test_client_rate_decimates_poses(harness):
+    h = harness()
+    p = Peer(h.server.path)
+    p.read()
+    p.send(b'{"cmd": "rate", "hz": 10}\n')
+    assert p.read()["cmd"] == "rate"
+    for k in range(100):  # 1 s of poses at 100 Hz
+        t = k * 0.01
+        h.call(lambda t=t: h.server.broadcast_pose(t, encode({"class": "POSE", "t": t}), 0.005))
+    h.call(lambda: h.server.broadcast(encode({"class": "END"})))
+    ts = []
+    while (m := p.read())["class"] == "POSE":
+        ts.append(m["t"])
+    assert len(ts) == 10
+    assert ts == pytest.approx([k / 10 for k in range(10)])
+    p.send(b'{"cmd": "rate", "hz": 0}\n')
+    assert p.read()["cmd"] == "rate"
+    h.call(lambda: h.server.broadcast_pose(5.0, encode({"class": "POSE"}), 0.005))
+    h.call(lambda: h.server.broadcast(encode({"class": "END"})))
+    assert p.read()["class"] == "END"  # paused: no POSE in between
+
+
+def test_default_socket_path():
+    assert default_socket_path({"RUNTIME_DIRECTORY": "/run/mousedom"}, 1000) == (
+        "/run/mousedom/mousedom.sock"
+    )
+    assert default_socket_path({}, 0) == "/run/mousedom/mousedom.sock"
+    assert default_socket_path({"XDG_RUNTIME_DIR": "/run/user/1000"}, 1000) == (
+        "/run/user/1000/mousedom/mousedom.sock"
+    )
+    assert (
+        default_socket_path({"TMPDIR": "/var/tmp"}, 1000) == "/var/tmp/mousedom-1000/mousedom.sock"
+    )
