@@ -14,6 +14,7 @@ sequence numbers that never arrived.
 
 from __future__ import annotations
 
+import binascii
 import struct
 from dataclasses import dataclass, field
 
@@ -119,7 +120,15 @@ _LAYOUT: dict[int, tuple[struct.Struct, type]] = {
 
 
 def crc16(data: bytes, crc: int = 0xFFFF) -> int:
-    """CRC-16/CCITT-FALSE: poly 0x1021, init 0xFFFF; crc16(b"123456789") == 0x29B1."""
+    """CRC-16/CCITT-FALSE: poly 0x1021, init 0xFFFF; crc16(b"123456789") == 0x29B1.
+
+    binascii.crc_hqx is this very CRC (poly 0x1021, no reflection) with the initial value
+    as an argument, in C: replay parses millions of packets."""
+    return binascii.crc_hqx(data, crc)
+
+
+def crc16_bitwise(data: bytes, crc: int = 0xFFFF) -> int:
+    """The same CRC the way the firmware computes it (a reference for the tests)."""
     for byte in data:
         crc ^= byte << 8
         for _ in range(8):
@@ -338,3 +347,28 @@ def _stamp(packet: Packet, host_t: float) -> Packet:
     from dataclasses import replace
 
     return replace(packet, host_t=host_t)
+
+
+def parse_commands(data: bytes) -> list[tuple[int, int | None]]:
+    """Host -> device frames in ``data`` as ``(cmd, arg)``; damaged frames are skipped.
+
+    The device side of the protocol, for emulators and tests (the firmware has its own).
+    """
+    out: list[tuple[int, int | None]] = []
+    for chunk in data.split(b"\0"):
+        if not chunk:
+            continue
+        try:
+            body = cobs_decode(chunk)
+        except ValueError:
+            continue
+        if len(body) < 3 or crc16(body[:-2]) != body[-2] | (body[-1] << 8):
+            continue
+        cmd, args = body[0], body[1:-2]
+        if cmd == CMD_SET_K and len(args) == 1:
+            out.append((cmd, args[0]))
+        elif cmd == CMD_SET_CPI and len(args) == 2:
+            out.append((cmd, args[0] | (args[1] << 8)))
+        elif cmd in (CMD_GET_STATUS, CMD_GET_VERSION) and not args:
+            out.append((cmd, None))
+    return out
