@@ -379,3 +379,46 @@ def test_native_stats_survive_convert(tmp_path):
     cap = drain(native)
     assert cap.stats[0].skipped == 13 and cap.stats[0].net_x == -111
     assert cap.devices[0].mouse == "m" and cap.devices[0].name == "Saitek Cyborg R.A.T.5 Mouse"
+
+
+def test_serial_adns_bytes_replay_through_the_daemon_decoder(tmp_path):
+    from mousedom import adns_protocol as P
+
+    rng = np.random.default_rng(11)
+    n = 400
+    dx = rng.integers(-30, 30, n)
+    dy = rng.integers(0, 60, n)  # sensor +dy = forward
+    wire = b"".join(
+        P.encode_packet(
+            P.Motion(
+                seq=k,
+                t_us=5000 + 10_000 * k,
+                dx=int(dx[k]),
+                dy=int(dy[k]),
+                frames=12,
+                squal_min=40,
+                flags=0,
+            )
+        )
+        for k in range(n)
+    )
+    # Cut the byte stream anywhere, as reads from a port do; arrival 0.5 to 3 ms after.
+    cuts = np.sort(rng.choice(np.arange(1, len(wire)), 150, replace=False))
+    pieces = np.split(np.frombuffer(wire, np.uint8), cuts)
+    ends = np.cumsum([len(p) for p in pieces])
+    times = []
+    for e in ends:
+        k = wire.count(b"\0", 0, e) - 1  # index of the last complete packet in the read
+        times.append(20.0 + 0.005 + 0.01 * max(k, 0) + 0.0005 + 0.0025 * rng.random())
+    times = np.maximum.accumulate(times)
+    p = tmp_path / "adns.mdcap"
+    dev = DeviceInfo(name="downsampler", kind="serial", mouse="floor")
+    with NativeWriter(p, [dev], time_base="monotonic") as w:
+        w.serial_many(0, times.tolist(), [bytes(x) for x in pieces])
+    cfg = one_mouse_config(tmp_path, name="floor")
+    proc = _ok(run_mousedom("replay", "--config", str(cfg), "--capture", str(p)))
+    row = next(ln.split() for ln in proc.stdout.splitlines() if ln.startswith("floor "))
+    assert row[1] == str(n)
+    # REL_X = Delta_X, REL_Y = -Delta_Y (adns_decode): every count arrives.
+    assert row[3:5] == [str(int(dx.sum())), str(int(-dy.sum()))]
+    assert row[8] == "0"  # no packet lost

@@ -47,7 +47,7 @@ def test_reports_are_due_on_the_clock_and_restamped(tmp_path):
     assert src.next_due() is None and src.timeout() is None and src.finished
     assert src.read(clock.now + 1) == []
     assert src.health.reports == 50
-    assert src.fileno() >= 0
+    assert src.fileno() == -1  # polled: nothing to select on
     src.close()
 
 
@@ -91,3 +91,33 @@ def test_missing_file_is_unavailable(tmp_path):
     with pytest.raises(SourceUnavailable):
         src.open()
     assert not src.health.connected
+
+
+def test_built_from_a_mouse_config_loops_and_mice_share_one_anchor(tmp_path):
+    from mousedom.config import parse_config
+
+    p = tmp_path / "two.mdcap"
+    devs = [
+        DeviceInfo(name="a", mouse="left", rel_xy=True),
+        DeviceInfo(name="b", mouse="right", rel_xy=True),
+    ]
+    with NativeWriter(p, devs, time_base="monotonic") as w:
+        w.motion(0, [10.0, 10.5, 11.0], [1, 1, 1], [0, 0, 0])
+        w.motion(1, [10.2, 12.0], [5, 5], [0, 0])
+    cfg = parse_config(
+        f"mice:\n  left: {{cpi: 400, mount: {{x: 0, y: 0.1}}, replay: {p}}}\n"
+        f"  right: {{cpi: 400, mount: {{x: 0, y: -0.1}}, replay: {p}}}\n",
+        str(tmp_path / "c.yaml"),
+    )
+    clock = Clock()
+    left = ReplaySource(cfg.mice[0], clock=clock)
+    left.open()
+    clock.now += 0.3  # the second source opens later, on the same anchor
+    right = ReplaySource(cfg.mice[1], clock=clock)
+    right.open()
+    assert left.loop and right.loop and left.fileno() == -1
+    clock.now = 100.0 + 2.0 + 0.5 + 0.25  # past the whole file (2 s) and one period on
+    lt = left.read(clock.now)[0].t
+    rt = right.read(clock.now)[0].t
+    assert lt.tolist() == pytest.approx([100.0, 100.5, 101.0, 102.5])
+    assert rt.tolist() == pytest.approx([100.2, 102.0, 102.7])

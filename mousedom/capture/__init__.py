@@ -288,11 +288,24 @@ def read_reports(
     stats: dict[str, DeviceStats] = {}
     for cap in captures:
         wanted = {a.device: a.mouse for a in assignments if a.capture is cap}
+        decoders: dict = {}
         for feed in cap.feeds():
             for batch in feed.batches:
                 for mo in batch.motion:
                     if mo.device in wanted:
                         parts[wanted[mo.device]].append(mo)
+                for chunk in batch.serial:
+                    if chunk.device in wanted:
+                        # Raw ADNS-3080 bytes: the daemon's own decoder, on the file's times
+                        # (the epoch offset is applied below, as for motion).
+                        from mousedom.adns_decode import AdnsDecoder
+                        from mousedom.replay import decode_serial
+
+                        name = config.mice[wanted[chunk.device]].name
+                        dec = decoders.setdefault(chunk.device, AdnsDecoder(name=name))
+                        t, dx, dy = decode_serial(dec, chunk, 0.0)
+                        cap.stats[chunk.device].add_motion(t, dx, dy)
+                        parts[wanted[chunk.device]].append(Motion(chunk.device, t, dx, dy))
         for dev, mouse in wanted.items():
             stats[config.mice[mouse].name] = cap.stats[dev]
         warnings += cap.warnings
