@@ -35,6 +35,7 @@ from mousedom import sim  # noqa: E402
 from mousedom.capture import DeviceInfo, NativeWriter, assign, open_capture  # noqa: E402
 from mousedom.capture import evemu as evemu_mod  # noqa: E402
 from mousedom.capture.evemu import format_evemu  # noqa: E402
+from mousedom.capture.libinput import format_libinput  # noqa: E402
 from mousedom.config import parse_config  # noqa: E402
 from mousedom.replay import CsvSink, Replay  # noqa: E402
 
@@ -82,6 +83,7 @@ def generate(directory: Path, minutes: float, evemu_seconds: float) -> tuple[Pat
                     evemu_parts[n].append((t[lim], dx[lim], dy[lim]))
             w.sync(np.nextafter(end, -np.inf))
     evemu_files = []
+    devices_li = []
     for n in NAMES:
         t = np.concatenate([p[0] for p in evemu_parts[n]])
         dx = np.concatenate([p[1] for p in evemu_parts[n]]).astype(np.int64)
@@ -89,6 +91,8 @@ def generate(directory: Path, minutes: float, evemu_seconds: float) -> tuple[Pat
         path = directory / f"{n}.evemu"
         path.write_text(format_evemu(t, dx, dy, name=f"sim {n}", comments=True))
         evemu_files.append(path)
+        devices_li.append((n, t, dx, dy))
+    (directory / "all.yml").write_text(format_libinput(devices_li))
     return cfg, evemu_files, total
 
 
@@ -162,7 +166,9 @@ def main() -> None:
         native_specs = [(None, str(short))]
         evemu_specs = list(zip(NAMES, map(str, evemu_files), strict=True))
 
+        libinput_specs = [(None, str(d / "all.yml"))]
         nat, n_nat = median_rate(lambda: replay_once(cfg, native_specs), args.repeat)
+        li, n_li = median_rate(lambda: replay_once(cfg, libinput_specs), args.repeat)
         ev, n_ev = median_rate(lambda: replay_once(cfg, evemu_specs), args.repeat)
         nat_read, _ = median_rate(lambda: read_only(native_specs), args.repeat)
         ev_read, _ = median_rate(lambda: read_only(evemu_specs), args.repeat)
@@ -174,6 +180,7 @@ def main() -> None:
             evemu_mod._fast_events = fast
         print(f"replay end to end, native : {nat:12,.0f} reports/s  ({n_nat} reports)")
         print(f"replay end to end, evemu  : {ev:12,.0f} reports/s  ({n_ev} reports)")
+        print(f"replay end to end, libinput record: {li:12,.0f} reports/s  ({n_li} reports)")
         print(
             f"baseline, native read only: {nat_read:12,.0f} reports/s  (fusion+CSV costs "
             f"{nat_read / nat:.2f}x)"
