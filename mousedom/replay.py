@@ -237,6 +237,8 @@ class Replay:
         for c in self.captures:
             summary.warnings += c.warnings
         summary.warnings = self.warnings + summary.warnings
+        if not summary.windows:
+            summary.warnings.append("no motion reports in the captures: no pose to write")
         return summary
 
 

@@ -422,3 +422,58 @@ def test_serial_adns_bytes_replay_through_the_daemon_decoder(tmp_path):
     # REL_X = Delta_X, REL_Y = -Delta_Y (adns_decode): every count arrives.
     assert row[3:5] == [str(int(dx.sum())), str(int(-dy.sum()))]
     assert row[8] == "0"  # no packet lost
+
+
+def test_unknown_devices_and_non_mice(tmp_path):
+    from test_capture_libinput import KEYBOARD
+
+    t = np.array([0.01, 0.02])
+    rec = tmp_path / "kb.yml"
+    rec.write_text(
+        format_libinput([("gaming mouse", t, np.array([1, 1]), np.array([0, 0]))]) + KEYBOARD
+    )
+    cfg = one_mouse_config(tmp_path)
+    # Given without NAME=, the file's mouse matches no mouse of the config.
+    _fails(
+        run_mousedom("replay", "--config", str(cfg), "--capture", str(rec)),
+        "no device ('gaming mouse') matches a mouse",
+        "give it as NAME=",
+    )
+    # Given by name, its one motion device is taken; a keyboard-only file is refused.
+    _ok(run_mousedom("replay", "--config", str(cfg), "--capture", f"m={rec}"))
+    kb_only = tmp_path / "kbonly.yml"
+    kb_only.write_text(
+        rec.read_text().split("- node:")[0] + "- node:" + KEYBOARD.split("- node:")[1]
+    )
+    _fails(
+        run_mousedom("replay", "--config", str(cfg), "--capture", f"m={kb_only}"),
+        "no REL_X/REL_Y motion",
+    )
+
+
+def test_convert_refuses_to_overwrite_its_input_and_ambiguous_names(tmp_path):
+    src = tmp_path / "a.evemu"
+    src.write_text(format_evemu(np.array([1.0]), np.array([1]), np.array([1])))
+    _fails(run_mousedom("convert", "--capture", f"m={src}", "-o", str(src)), "overwrite")
+    two = tmp_path / "two.yml"
+    two.write_text(
+        format_libinput(
+            [
+                ("l", np.array([0.1]), np.array([1]), np.array([0])),
+                ("r", np.array([0.1]), np.array([1]), np.array([0])),
+            ]
+        )
+    )
+    _fails(
+        run_mousedom("convert", "--capture", f"m={two}", "-o", str(tmp_path / "o.mdcap")),
+        "2 motion devices",
+    )
+
+
+def test_a_capture_without_motion_warns(tmp_path):
+    src = tmp_path / "btn.evemu"
+    src.write_text("E: 1.0 0001 0110 1\nE: 1.0 0000 0000 0\n")
+    cfg = one_mouse_config(tmp_path)
+    proc = _ok(run_mousedom("replay", "--config", str(cfg), "--capture", f"m={src}", "-o", "-"))
+    assert proc.stdout == "t,x,y,theta,vx,vy,omega,used,ok\n"
+    assert "no motion reports" in proc.stderr
