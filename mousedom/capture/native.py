@@ -60,6 +60,7 @@ NOTE_FIELDS = (
     "frames",
     "skipped",
     "dropped_frames",
+    "dropped_events",
     "lost_x",
     "lost_y",
     "unterminated",

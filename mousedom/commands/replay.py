@@ -179,7 +179,7 @@ def format_summary(s: Summary, replay: Replay, args) -> str:
         if st.lost_x or st.lost_y:
             extra.append(f"{st.lost_x} x / {st.lost_y} y counts lost in dropped frames")
         if st.unterminated:
-            extra.append(f"{st.unterminated} frame without SYN_REPORT at the end (kept)")
+            extra.append(f"{st.unterminated} events without SYN_REPORT at the end (kept)")
         if st.torn_bytes:
             extra.append(f"{st.torn_bytes} bytes of torn tail skipped")
         if extra:
