@@ -33,7 +33,7 @@ import numpy as np  # noqa: E402
 
 from mousedom import sim  # noqa: E402
 from mousedom.capture import DeviceInfo, NativeWriter, assign, open_capture  # noqa: E402
-from mousedom.capture import evemu as evemu_mod  # noqa: E402
+from mousedom.capture import evemu as evemu_mod  # noqa: E402  (its _fast_events is swapped)
 from mousedom.capture.evemu import format_evemu  # noqa: E402
 from mousedom.capture.libinput import format_libinput  # noqa: E402
 from mousedom.config import parse_config  # noqa: E402

@@ -21,13 +21,14 @@ import numpy as np
 from mousedom.capture.base import (
     Batch,
     Capture,
+    CaptureError,
     DeviceInfo,
     DeviceStats,
     Feed,
     Motion,
     Serial,
 )
-from mousedom.capture.evemu import CaptureError, EvemuCapture
+from mousedom.capture.evemu import EvemuCapture
 from mousedom.capture.libinput import LibinputCapture, looks_like_libinput
 from mousedom.capture.native import NativeCapture, NativeWriter, is_native
 from mousedom.config import Config, EvdevMatch, MouseConfig

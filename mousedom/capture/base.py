@@ -24,7 +24,25 @@ from typing import Any
 
 import numpy as np
 
+from mousedom.errors import UserError
 from mousedom.events import AssemblerStats
+
+
+class CaptureError(UserError):
+    """A capture file is malformed; the message names file and line (or byte offset)."""
+
+
+def open_binary(path: str):
+    """Open a capture for reading; a missing or unreadable file is a CaptureError."""
+    try:
+        return open(path, "rb")
+    except FileNotFoundError:
+        raise CaptureError(f"{path}: capture file not found") from None
+    except IsADirectoryError:
+        raise CaptureError(f"{path}: is a directory, not a capture") from None
+    except OSError as e:
+        raise CaptureError(f"{path}: cannot read: {e.strerror}") from None
+
 
 TIME_BASES = ("epoch", "relative", "monotonic")
 # evemu writes CLOCK_REALTIME in old recordings: anything past 1973-03-03 is taken as an

@@ -37,8 +37,8 @@ from collections.abc import Iterator
 import numpy as np
 import yaml
 
-from mousedom.capture.base import Batch, Capture, DeviceInfo, Feed, Motion
-from mousedom.capture.evemu import CaptureError, _open
+from mousedom.capture.base import Batch, Capture, CaptureError, DeviceInfo, Feed, Motion
+from mousedom.capture.base import open_binary as _open
 from mousedom.errors import located
 from mousedom.events import EV_REL, REL_X, REL_Y, FrameAssembler
 
