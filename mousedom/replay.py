@@ -237,6 +237,12 @@ class Replay:
         for c in self.captures:
             summary.warnings += c.warnings
         summary.warnings = self.warnings + summary.warnings
+        for name, st in tracker.stats().items():
+            if st.get("late"):
+                summary.warnings.append(
+                    f"mouse {name}: {st['late']} reports came after their window had closed "
+                    "and were moved into the next one"
+                )
         if not summary.windows:
             summary.warnings.append("no motion reports in the captures: no pose to write")
         return summary
