@@ -15,7 +15,7 @@ from capture_helpers import EXTERNAL, GOLDEN, drain, external_dir, one_mouse_con
 from conftest import mousedom_env, run_mousedom
 
 from mousedom import sim
-from mousedom.capture import DeviceInfo, NativeWriter, assign, read_reports
+from mousedom.capture import DeviceInfo, NativeWriter, assign, open_capture, read_reports
 from mousedom.capture.evemu import format_evemu
 from mousedom.capture.libinput import format_libinput
 from mousedom.config import parse_config
@@ -477,3 +477,26 @@ def test_a_capture_without_motion_warns(tmp_path):
     proc = _ok(run_mousedom("replay", "--config", str(cfg), "--capture", f"m={src}", "-o", "-"))
     assert proc.stdout == "t,x,y,theta,vx,vy,omega,used,ok\n"
     assert "no motion reports" in proc.stderr
+
+
+def test_convert_keeps_serial_bytes(tmp_path):
+    p = tmp_path / "in.mdcap"
+    devs = [
+        DeviceInfo(name="m", mouse="m", rel_xy=True),
+        DeviceInfo(name="adns", kind="serial", mouse="floor"),
+    ]
+    with NativeWriter(p, devs) as w:
+        w.motion(0, [1.0, 2.0], [1, 2], [3, 4])
+        w.serial_many(1, [1.5, 1.7], [b"\x01\x02", b"\x00"])
+    out = tmp_path / "out.mdcap"
+    _ok(run_mousedom("convert", "--capture", str(p), "-o", str(out)))
+    cap = open_capture(out)
+    pieces = [
+        (float(t), d)
+        for f in cap.feeds()
+        for b in f.batches
+        for s in b.serial
+        for t, d in zip(s.t, s.data, strict=True)
+    ]
+    assert pieces == [(1.5, b"\x01\x02"), (1.7, b"\x00")]
+    assert [d.kind for d in cap.devices] == ["evdev", "serial"]
