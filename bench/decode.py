@@ -51,8 +51,14 @@ def mouse_stream(n_frames: int, seed: int = 0) -> bytes:
 
 
 def python_evdev_objects(buf: bytes) -> int:
-    events = [InputEvent(*rec) for rec in struct.iter_unpack("llHHi", buf)]
-    return len(events)
+    """As InputDevice.read(): per read of up to 64 records, a tuple per record (done in C
+    by device_read_many), then one InputEvent per tuple, handed out and dropped."""
+    n = 0
+    for lo in range(0, len(buf), 64 * 24):
+        for rec in tuple(struct.iter_unpack("llHHi", buf[lo : lo + 64 * 24])):
+            InputEvent(*rec)
+            n += 1
+    return n
 
 
 def bulk_decode(buf: bytes) -> int:
@@ -66,6 +72,59 @@ def bulk_decode_and_frames(buf: bytes) -> int:
     events, _ = decode_input_events(buf)
     FrameAssembler().feed_events(events)
     return len(events)
+
+
+def through_pipe(buf: bytes, consume) -> float:
+    """events/s for a writer thread pushing ``buf`` through a real pipe to ``consume(fd)``."""
+    import os
+    import threading
+
+    r, w = os.pipe()
+
+    def writer() -> None:
+        os.write(w, buf)
+        os.close(w)
+
+    th = threading.Thread(target=writer)
+    t0 = time.perf_counter()
+    th.start()
+    consume(r)
+    elapsed = time.perf_counter() - t0
+    th.join()
+    os.close(r)
+    return len(buf) // 24 / elapsed
+
+
+def consume_source(fd: int) -> None:
+    from mousedom.config import EvdevMatch, Mount, MouseConfig
+    from mousedom.sources.base import SourceGone
+    from mousedom.sources.evdev import EvdevSource
+
+    src = EvdevSource(
+        MouseConfig("m", 800, 800, Mount(), evdev=EvdevMatch(path=f"/proc/self/fd/{fd}"))
+    )
+    src.open()
+    try:
+        while True:
+            src.read(0.0)
+    except SourceGone:
+        pass
+
+
+def consume_objects(fd: int) -> None:
+    """python-evdev's read path: read up to 64 events, one InputEvent each (device_read_many)."""
+    import os
+
+    rest = b""
+    while True:
+        data = os.read(fd, 64 * 24)
+        if not data:
+            return
+        data = rest + data
+        n = len(data) // 24 * 24
+        rest = data[n:]
+        for rec in struct.iter_unpack("llHHi", data[:n]):
+            InputEvent(*rec)
 
 
 def bench(fn, buf: bytes, repeats: int) -> float:
@@ -92,6 +151,20 @@ def main() -> None:
     print(f"input_event decoding, {len(buf) // 24} events in one buffer, median of {a.repeats}")
     for name, rate in rows:
         print(f"  {name:36s} {rate / 1e6:8.2f} M events/s   x{rate / base:7.1f}")
+    pipe_rows = [
+        (
+            "pipe -> InputEvent objects (64/read)",
+            statistics.median(through_pipe(buf, consume_objects) for _ in range(3)),
+        ),
+        (
+            "pipe -> EvdevSource (Reports)",
+            statistics.median(through_pipe(buf, consume_source) for _ in range(3)),
+        ),
+    ]
+    pbase = pipe_rows[0][1]
+    print("through a real pipe, writer thread + reader, median of 3")
+    for name, rate in pipe_rows:
+        print(f"  {name:36s} {rate / 1e6:8.2f} M events/s   x{rate / pbase:7.1f}")
     # What one live read hands the decoder: a few frames (a 1 kHz mouse woken every ms)
     # up to a full 1024-record read.  Small chunks take the assembler's loop path.
     print("per read, decode + frame assembly vs InputEvent objects (median of many reads)")

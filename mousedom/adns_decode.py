@@ -101,6 +101,20 @@ class AdnsDecoder:
                 self.health.last_nak = f"command 0x{p.cmd:02x}: {name}"
         return Reports(self.name, np.array(t), np.array(dx), np.array(dy)), packets
 
+    def feed_many(self, ts: Iterable[float], pieces: Iterable[bytes]) -> Reports:
+        """Feed recorded pieces (a capture's serial batch: host times and raw bytes) and
+        return all their motion reports at once."""
+        parts = [self.feed(bytes(d), float(t))[0] for t, d in zip(ts, pieces, strict=True)]
+        parts = [r for r in parts if len(r)]
+        if not parts:
+            return Reports(self.name, np.zeros(0), np.zeros(0), np.zeros(0))
+        return Reports(
+            self.name,
+            np.concatenate([r.t for r in parts]),
+            np.concatenate([r.dx for r in parts]),
+            np.concatenate([r.dy for r in parts]),
+        )
+
     def _restarted(self) -> None:
         # The firmware's clock went backwards: it rebooted.  Its new clock has nothing
         # to do with the old one.
@@ -157,19 +171,6 @@ def packets_to_reports(
     come in the order they were read; a chunk may hold any part of any frame.
     """
     dec = AdnsDecoder(name=name)
-    parts: list[Reports] = []
-    for host_t, data in chunks:
-        reports, _ = dec.feed(bytes(data), float(host_t))
-        if len(reports):
-            parts.append(reports)
-    if not parts:
-        return Reports(name, np.zeros(0), np.zeros(0), np.zeros(0)), dec
-    return (
-        Reports(
-            name,
-            np.concatenate([r.t for r in parts]),
-            np.concatenate([r.dx for r in parts]),
-            np.concatenate([r.dy for r in parts]),
-        ),
-        dec,
-    )
+    pairs = list(chunks)
+    reports = dec.feed_many([t for t, _ in pairs], [d for _, d in pairs])
+    return reports, dec

@@ -34,7 +34,7 @@ CMD_GET_VERSION = 0x84
 FLAG_OVERFLOW = 0x01  # the sensor's OVF bit: counts were lost inside the sensor
 FLAG_FAULT = 0x02  # the sensor stopped answering during this packet
 FLAG_BOOT = 0x04  # first MOTION packet since the firmware started
-FLAG_DELAYED = 0x08  # sent late (UART busy or K lowered): more than K frames
+FLAG_DELAYED = 0x08  # frames > K: UART busy, K lowered, or a poll overran its period
 FLAG_RES1600 = 0x10  # the sensor said 1600 CPI in its last Motion read
 FLAG_SATURATED = 0x20  # a delta came back at full scale and was drained by re-reading
 FLAGS_KNOWN = 0x3F
@@ -216,7 +216,7 @@ def encode_packet(packet: Packet) -> bytes:
 # --------------------------------------------------------------------------- parsing
 
 
-def decode_body(body: bytes) -> Packet:
+def decode_body(body: bytes, host_t: float | None = None) -> Packet:
     """Check and unpack one decoded body; ValueError (with the reason) when it is bad."""
     if len(body) < 3:
         raise ValueError("frame too short")
@@ -229,7 +229,7 @@ def decode_body(body: bytes) -> Packet:
     layout, cls = _LAYOUT[ptype]
     if len(payload) != layout.size:
         raise ValueError(f"type 0x{ptype:02x} has {len(payload)} bytes, not {layout.size}")
-    packet = cls(*layout.unpack(payload))
+    packet = cls(*layout.unpack(payload), host_t)
     _check_values(packet)
     return packet
 
@@ -318,7 +318,7 @@ class Parser:
 
     def _frame(self, chunk: bytes, host_t: float | None) -> Packet | None:
         try:
-            packet = decode_body(cobs_decode(chunk))
+            packet = decode_body(cobs_decode(chunk), host_t)
         except _CrcError:
             self.stats.crc_errors += 1
         except ValueError:
@@ -326,8 +326,6 @@ class Parser:
         else:
             self._sequence(packet.seq)
             self.stats.packets += 1
-            if host_t is not None:
-                packet = _stamp(packet, host_t)
             return packet
         self.stats.resyncs += 1
         self.stats.discarded_bytes += len(chunk) + 1
@@ -341,12 +339,6 @@ class Parser:
             else:
                 self.stats.lost_seq += (seq - expect) % SEQ_MOD
         self._expect_seq = (seq + 1) % SEQ_MOD
-
-
-def _stamp(packet: Packet, host_t: float) -> Packet:
-    from dataclasses import replace
-
-    return replace(packet, host_t=host_t)
 
 
 def parse_commands(data: bytes) -> list[tuple[int, int | None]]:

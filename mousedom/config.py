@@ -345,7 +345,11 @@ def _mouse(doc: _Doc, name: str, value: Any, base_dir: Path) -> MouseConfig:
     if r.has("evdev"):
         mouse = replace(mouse, evdev=_evdev(r))
     elif r.has("serial"):
-        mouse = replace(mouse, serial=_serial(r))
+        serial = _serial(r)
+        mouse = replace(mouse, serial=serial)
+        if not r.has("report_hz"):
+            # The downsampler sends one packet per K sensor polls of 1250 us (firmware/).
+            mouse = replace(mouse, report_hz=1e6 / (serial.k * 1250.0))
     elif r.has("replay"):
         v = r.raw("replay")
         if isinstance(v, dict):

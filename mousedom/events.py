@@ -38,14 +38,21 @@ EVENT_DTYPE = np.dtype(
 EVENT_SIZE = EVENT_DTYPE.itemsize
 assert EVENT_SIZE == 24
 
-# Chunks up to this many events take a plain loop: below ~100 events numpy's per-call
-# overhead costs more than the loop (bench/decode.py prints both).
+# Chunks up to this many events take a plain loop: for small chunks numpy's fixed cost
+# per call is more than the loop's (bench/decode.py prints per-read figures).
 SMALL_CHUNK = 48
+# Larger chunks are assembled this many events at a time (temporaries stay in cache).
+BLOCK = 65536
 
 EV_SYN, EV_KEY, EV_REL, EV_MSC = 0x00, 0x01, 0x02, 0x04
 SYN_REPORT, SYN_CONFIG, SYN_MT_REPORT, SYN_DROPPED = 0, 1, 2, 3
 REL_X, REL_Y, REL_WHEEL, REL_HWHEEL = 0x00, 0x01, 0x08, 0x06
 REL_WHEEL_HI_RES, REL_HWHEEL_HI_RES = 0x0B, 0x0C
+# type | code << 16: the two little-endian u16 at byte 16 of a record, read as one u32
+KEY_SYN_REPORT = EV_SYN | SYN_REPORT << 16
+KEY_SYN_DROPPED = EV_SYN | SYN_DROPPED << 16
+KEY_REL_X = EV_REL | REL_X << 16
+KEY_REL_Y = EV_REL | REL_Y << 16
 
 
 def decode_input_events(buf: bytes | bytearray | memoryview) -> tuple[np.ndarray, bytes]:
@@ -133,9 +140,10 @@ class FrameAssembler:
     last event.  ``flush()`` closes that open frame at the end of a finite input.
     """
 
-    def __init__(self, small_chunk: int = SMALL_CHUNK) -> None:
+    def __init__(self, small_chunk: int = SMALL_CHUNK, block: int = BLOCK) -> None:
         self.stats = AssemblerStats()
         self.small_chunk = small_chunk
+        self.block = max(1, block)
         self._reset_open()
 
     def _reset_open(self) -> None:
@@ -155,12 +163,24 @@ class FrameAssembler:
     def feed_events(self, events: np.ndarray) -> MotionFrames:
         """``feed`` for an ``EVENT_DTYPE`` array (as ``decode_input_events`` returns).
 
-        Only the SYN_REPORT records' times are converted to float, not every event's.
+        Reads type and code as one 32-bit word per record, with no copy, and converts
+        only the SYN_REPORT records' times to float.
         """
+        if events.dtype != EVENT_DTYPE:
+            raise TypeError(f"expected EVENT_DTYPE records, got {events.dtype}")
+        if not events.flags.c_contiguous:
+            events = np.ascontiguousarray(events)
+        words = events.view("<u4")  # 6 words per record: sec, usec, type | code << 16, value
         sec, usec = events["sec"], events["usec"]
-        return self._feed(
-            events["type"], events["code"], events["value"], lambda i: sec[i] + usec[i] * 1e-6
-        )
+        if 0 < len(events) <= self.small_chunk:
+            # Python floats: the same IEEE operations as numpy's, so the same times.
+            secs, usecs = sec.tolist(), usec.tolist()
+            return self._feed_loop(
+                words[4::6].tolist(),
+                words[5::6].view("<i4").tolist(),
+                lambda i: secs[i] + usecs[i] * 1e-6,
+            )
+        return self._feed(words[4::6], words[5::6].view("<i4"), lambda i: sec[i] + usec[i] * 1e-6)
 
     def feed(
         self, t: np.ndarray, type: np.ndarray, code: np.ndarray, value: np.ndarray
@@ -169,92 +189,108 @@ class FrameAssembler:
         t = np.asarray(t, dtype=np.float64)
         if not (len(type) == len(code) == len(value) == len(t)):
             raise ValueError("t, type, code and value must have the same length")
-        return self._feed(
-            np.asarray(type), np.asarray(code), np.asarray(value, dtype=np.int64), t.__getitem__
-        )
+        key = np.asarray(type).astype(np.uint32) | (np.asarray(code).astype(np.uint32) << 16)
+        return self._feed(key, np.asarray(value, dtype=np.int64), t.__getitem__)
 
     def _feed(
-        self,
-        type: np.ndarray,
-        code: np.ndarray,
-        value: np.ndarray,
-        time_at: Callable[[Any], np.ndarray],
+        self, key: np.ndarray, value: np.ndarray, time_at: Callable[[Any], np.ndarray]
     ) -> MotionFrames:
-        n = len(type)
+        """``key`` = type | code << 16 per event (one compare per event kind)."""
+        n = len(key)
         if n == 0:
             return MotionFrames()
         if n <= self.small_chunk:
-            return self._feed_loop(type.tolist(), code.tolist(), value.tolist(), time_at)
+            return self._feed_loop(key.tolist(), value.tolist(), lambda i: float(time_at(i)))
+        if n > self.block:
+            # Blocks that stay in cache, with the open frame carried between them as
+            # between chunks: big temporaries would cost page faults and memory traffic.
+            parts = []
+            for lo in range(0, n, self.block):
+                hi = min(lo + self.block, n)
+                parts.append(
+                    self._feed_block(key[lo:hi], value[lo:hi], lambda i, lo=lo: time_at(i + lo))
+                )
+            return MotionFrames.concat(parts)
+        return self._feed_block(key, value, time_at)
+
+    def _feed_block(
+        self, key: np.ndarray, value: np.ndarray, time_at: Callable[[Any], np.ndarray]
+    ) -> MotionFrames:
+        n = len(key)
         st = self.stats
         st.events += n
 
-        syn = type == EV_SYN
-        rel = type == EV_REL
-        is_report = syn & (code == SYN_REPORT)
-        is_x = rel & (code == REL_X)
-        is_y = rel & (code == REL_Y)
-
-        # One prefix-sum table for the four per-event quantities; row i holds the sums
-        # over events [0, i).  Frame k of this chunk spans (r[k-1], r[k]] where r are the
-        # SYN_REPORT indices, so its sums are differences of rows just after those.
-        c = np.zeros((n + 1, 5), dtype=np.int64)
-        c[1:, 0] = np.where(is_x, value, 0)
-        c[1:, 1] = np.where(is_y, value, 0)
-        c[1:, 2] = is_x | is_y
-        c[1:, 3] = syn & (code == SYN_DROPPED)
-        c[1:, 4] = ~syn
-        np.cumsum(c, axis=0, out=c)
-        ends = np.flatnonzero(is_report)
+        is_x = key == KEY_REL_X
+        is_y = key == KEY_REL_Y
+        is_motion = is_x | is_y
+        ends = np.flatnonzero(key == KEY_SYN_REPORT)
+        # Prefix sums over events [0, i) at row i.  Frame k of this chunk spans
+        # (r[k-1], r[k]] where r are the SYN_REPORT indices, so its sums are differences
+        # of rows just after those; the events after the last one open a frame.
         cut = np.empty(len(ends) + 1, dtype=np.intp)
         cut[0] = 0
         cut[1:] = ends + 1
-        per = c[cut[1:]] - c[cut[:-1]]  # (frames, 5): dx, dy, motion, SYN_DROPPED, non-SYN
-        total = c[n]
-        st.rel_x_in += int(total[0])
-        st.rel_y_in += int(total[1])
-        st.syn_dropped += int(total[3])
-        st.skipped += n - len(ends) - int(total[2]) - int(total[3])
+        last = int(cut[-1])
 
+        def prefix(x: np.ndarray, dtype: type) -> np.ndarray:
+            c = np.empty(n + 1, dtype=dtype)
+            c[0] = 0
+            np.cumsum(x, dtype=dtype, out=c[1:])
+            return c
+
+        cx = prefix(np.where(is_x, value, 0), np.int64)
+        cy = prefix(np.where(is_y, value, 0), np.int64)
+        cm = prefix(is_motion, np.intp)
+        dx = cx[cut[1:]] - cx[cut[:-1]]
+        dy = cy[cut[1:]] - cy[cut[:-1]]
+        has_motion = cm[cut[1:]] > cm[cut[:-1]]
+        drops = np.flatnonzero(key == KEY_SYN_DROPPED)  # rare: handled apart, by index
+        st.rel_x_in += int(cx[n])
+        st.rel_y_in += int(cy[n])
+        st.syn_dropped += len(drops)
+        st.skipped += n - len(ends) - int(cm[n]) - len(drops)
+
+        has_drop = np.zeros(len(ends), dtype=bool)
+        nonsyn = None
+        if len(drops):
+            # The frame of each SYN_DROPPED: how many SYN_REPORTs come before it.
+            has_drop[np.searchsorted(ends, drops[drops < last])] = True
+            nonsyn = prefix((key & 0xFFFF) != EV_SYN, np.intp)
         if len(ends):
             # The frame left open by the previous chunk is closed by this chunk's first
             # SYN_REPORT: fold its sums into frame 0.
-            per[0] += (
-                self._open_dx,
-                self._open_dy,
-                self._open_motion,
-                self._open_dropped,
-                self._open_nonsyn,
-            )
+            dx[0] += self._open_dx
+            dy[0] += self._open_dy
+            has_motion[0] |= self._open_motion
+            has_drop[0] |= self._open_dropped
+            open_nonsyn = self._open_nonsyn
             self._reset_open()
-        last = int(cut[-1])
         if last < n:  # the events after the last SYN_REPORT open (or extend) a frame
-            rest = total - c[last]
-            self._open_dx += int(rest[0])
-            self._open_dy += int(rest[1])
-            self._open_motion |= bool(rest[2])
-            self._open_dropped |= bool(rest[3])
-            self._open_nonsyn += int(rest[4])
+            self._open_dx += int(cx[n] - cx[last])
+            self._open_dy += int(cy[n] - cy[last])
+            self._open_motion |= bool(cm[n] > cm[last])
+            self._open_dropped |= bool(len(drops) and drops[-1] >= last)
+            self._open_nonsyn += int(np.count_nonzero((key[last:] & 0xFFFF) != EV_SYN))
             self._open_events += n - last
             self._open_t = float(time_at(n - 1))
 
-        has_drop = per[:, 3] > 0
-        keep = (per[:, 2] > 0) & ~has_drop
         st.frames += len(ends)
         if has_drop.any():
             st.dropped_frames += int(np.count_nonzero(has_drop))
-            st.dropped_dx += int(per[has_drop, 0].sum())
-            st.dropped_dy += int(per[has_drop, 1].sum())
-            st.dropped_events += int(per[has_drop, 4].sum())
+            st.dropped_dx += int(dx[has_drop].sum())
+            st.dropped_dy += int(dy[has_drop].sum())
+            if nonsyn is None:  # only the carried-over frame held a SYN_DROPPED
+                nonsyn = prefix((key & 0xFFFF) != EV_SYN, np.intp)
+            per_nonsyn = nonsyn[cut[1:]] - nonsyn[cut[:-1]]
+            per_nonsyn[0] += open_nonsyn
+            st.dropped_events += int(per_nonsyn[has_drop].sum())
+        keep = has_motion & ~has_drop
         idx = ends[keep]
         st.motion_frames += len(idx)
-        return MotionFrames(time_at(idx), per[keep, 0], per[keep, 1])
+        return MotionFrames(time_at(idx), dx[keep], dy[keep])
 
     def _feed_loop(
-        self,
-        type: list[int],
-        code: list[int],
-        value: list[int],
-        time_at: Callable[[Any], np.ndarray],
+        self, key: list[int], value: list[int], time_of: Callable[[int], float]
     ) -> MotionFrames:
         """The same rules event by event, for the few events of one live read.
 
@@ -263,26 +299,26 @@ class FrameAssembler:
         that both paths give identical frames and statistics.
         """
         st = self.stats
-        st.events += len(type)
+        st.events += len(key)
         ends: list[int] = []
         out_dx: list[int] = []
         out_dy: list[int] = []
         dx, dy = self._open_dx, self._open_dy
         motion, dropped, open_events = self._open_motion, self._open_dropped, self._open_events
         nonsyn = self._open_nonsyn
-        for i, (ty, co, va) in enumerate(zip(type, code, value, strict=True)):
+        for i, (k, va) in enumerate(zip(key, value, strict=True)):
             open_events += 1
-            if ty != EV_SYN:
+            if k & 0xFFFF != EV_SYN:
                 nonsyn += 1
-            if ty == EV_REL and co == REL_X:
+            if k == KEY_REL_X:
                 dx += va
                 st.rel_x_in += va
                 motion = True
-            elif ty == EV_REL and co == REL_Y:
+            elif k == KEY_REL_Y:
                 dy += va
                 st.rel_y_in += va
                 motion = True
-            elif ty == EV_SYN and co == SYN_REPORT:
+            elif k == KEY_SYN_REPORT:
                 st.frames += 1
                 if dropped:
                     st.dropped_frames += 1
@@ -295,7 +331,7 @@ class FrameAssembler:
                     out_dy.append(dy)
                 dx = dy = open_events = nonsyn = 0
                 motion = dropped = False
-            elif ty == EV_SYN and co == SYN_DROPPED:
+            elif k == KEY_SYN_DROPPED:
                 st.syn_dropped += 1
                 dropped = True
             else:
@@ -304,13 +340,13 @@ class FrameAssembler:
         self._open_motion, self._open_dropped = motion, dropped
         self._open_nonsyn = nonsyn
         if open_events:  # the chunk's last event belongs to the open frame
-            self._open_t = float(time_at(len(type) - 1))
+            self._open_t = time_of(len(key) - 1)
         self._open_events = open_events
         st.motion_frames += len(ends)
         if not ends:
             return MotionFrames()
         return MotionFrames(
-            time_at(np.array(ends, dtype=np.intp)),
+            np.array([time_of(i) for i in ends], dtype=np.float64),
             np.array(out_dx, dtype=np.int64),
             np.array(out_dy, dtype=np.int64),
         )

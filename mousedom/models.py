@@ -201,7 +201,10 @@ def _alpha_length(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]
         # Eq. (4) says l = |x| for alpha = 0; |x| would turn a backward step into a forward
         # one, so l = x there (the one deviation).  Elsewhere l = y / sin(alpha), signed, so
         # that (l cos alpha, l sin alpha) = (x, y) whatever quadrant arctan folded into.
-        length = np.where(alpha == 0, x, y / np.sin(alpha))
+        # That l is the projection x cos(alpha) + y sin(alpha), which is how it is computed:
+        # y / sin(alpha) is the same number but loses all its digits when alpha is tiny but
+        # not zero (hypothesis found a window moving along the joining line that did).
+        length = x * np.cos(alpha) + y * np.sin(alpha)
     return alpha, length
 
 

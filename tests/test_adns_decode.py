@@ -87,3 +87,18 @@ def test_replay_is_independent_of_chunking(cuts):
 def test_replay_of_nothing():
     reports, dec = packets_to_reports([])
     assert len(reports) == 0 and dec.lost == 0
+
+
+def test_replay_decoder_hook_for_capture_batches():
+    """The replay engine's hook: one decoder per recorded port, fed batch by batch."""
+    from mousedom.config import Mount, MouseConfig, SerialSource
+    from mousedom.sources.adns import replay_decoder
+
+    m = MouseConfig("floor", 1600, 1600, Mount(), serial=SerialSource("/dev/null"))
+    dec = replay_decoder(m)
+    wire = b"".join(motion(i, i * 15000, 1, 2) for i in range(10))
+    half = len(wire) // 2
+    r1 = dec.feed_many(np.array([1.0, 1.1]), [wire[:7], wire[7:half]])
+    r2 = dec.feed_many(np.array([1.2]), [wire[half:]])
+    assert r1.mouse == "floor" and len(r1) + len(r2) == 10
+    assert r1.dx.sum() + r2.dx.sum() == 10 and r1.dy.sum() + r2.dy.sum() == -20

@@ -151,7 +151,7 @@ def test_cpi_bad_inputs(cpi_session):
         run_mousedom(
             "calibrate", "cpi", "--config", str(cfg), "--capture", "left", "--distance", "0.2"
         ),
-        "expected NAME=FILE",
+        "left: capture file not found",  # FILE alone is allowed: its device names a mouse
     )
     fails(
         run_mousedom(
@@ -206,6 +206,27 @@ def test_cpi_bad_inputs(cpi_session):
             "calibrate", "cpi", "--config", str(bad), "--capture", left, "--distance", "-1"
         ),
         "must be a positive number",
+    )
+
+
+def test_a_mouse_that_never_moved_is_named(cpi_session):
+    tmp, cfg, files = cpi_session
+    still = tmp / "still.events"
+    still.write_text(f"E: {EPOCH + 1:.6f} 0000 0000 0\nE: {EPOCH + 2:.6f} 0000 0000 0\n")
+    fails(
+        run_mousedom(
+            "calibrate",
+            "cpi",
+            "--config",
+            str(cfg),
+            "--capture",
+            f"left={files['left']}",
+            "--capture",
+            f"right={still}",
+            "--distance",
+            "0.2",
+        ),
+        "mouse right: no motion in any run",
     )
 
 
@@ -318,7 +339,8 @@ def test_distance_json_and_write(tmp_path):
     # Same midpoint (0.01, 0) and direction, 270 mm apart.
     assert cal["mice"]["left"]["mount"]["y"] == pytest.approx(0.135, abs=3e-4)
     assert cal["mice"]["right"]["mount"]["x"] == pytest.approx(0.01, abs=1e-9)
-    three = ["--capture", f"left={cap}", "--capture", f"right={cap}", "--capture", f"rear={cap}#0"]
+    rear = write_native(tmp_path / "rear.mdcap", {"rear": rec["left"]})
+    three = ["--capture", f"left={cap}", "--capture", f"right={cap}", "--capture", f"rear={rear}"]
     fails(
         run_mousedom("calibrate", "distance", "--config", str(cfg), *three, "--angle", "90"),
         "exactly two mice",

@@ -79,6 +79,8 @@ def test_cpi_warns_when_runs_disagree_and_refuses_bad_runs():
         calibrate_cpi(counts[:1], 2 * INCH)
     with pytest.raises(CpiError, match="run 2: no counts along y"):
         calibrate_cpi(np.array([[0, 1000], [5, 0]]), 2 * INCH)
+    with pytest.raises(CpiError, match="run 2: the push was 30 deg off the mouse's y axis"):
+        calibrate_cpi(np.array([[0, 1000], [500, 866]]), 1000 / 1000 * INCH, "y", 1000)
     with pytest.raises(CpiError, match="more than the push length"):
         calibrate_cpi(np.array([[3000, 10], [3000, 10]]), 2 * INCH, "y", cpi_across=1000)
 
@@ -167,3 +169,17 @@ def test_distance_refuses_bad_runs():
         np.array([[0.1, 0.0], [0.1, 0.02]]), np.array([[-0.1, 0.0]] * 2), 1.0, line=[0, 1]
     )
     assert any("joining line" in w for w in slip.warnings)
+
+
+def test_cpi_on_the_core_simulator_with_noise():
+    """mousedom.sim: 10 pushes of 20 cm forth and back, 0.5 count noise per report."""
+    m = sim.SimMouse("m", 0.0, 0.0, cpi_x=455.0, cpi_y=455.0, noise=0.5)
+    legs = [sim.straight(0.2 * (-1) ** k, 0.25) + sim.pause(0.8) for k in range(10)]
+    res = sim.simulate(sim.Rig((m,)), sim.sequence(sim.pause(0.5), *legs), seed=4)
+    r = res.reports["m"]
+    rec = {"m": Reports("m", r.t, r.dx, r.dy)}
+    counts = run_counts(rec, split_runs(rec), ["m"])[:, 0, :]
+    assert len(counts) == 10
+    # sim's forward motion along body x with yaw 0 is -REL_Y: 'y' axis pushes.
+    out = calibrate_cpi(counts, 0.2, "y", cpi_across=455)
+    assert abs(out.cpi / 455 - 1) < 0.003

@@ -219,3 +219,31 @@ def test_kimlee_rank_is_at_most_three_whatever_the_motion():
         assert np.linalg.matrix_rank(s) <= 3 and res.rank <= 3
         err = np.max(np.hypot(*(res.positions - true).T))
         assert (err < 0.0015) == exact_expected
+
+
+@pytest.mark.parametrize("window, tolerance", [(0.25, 5e-4), (0.0, 1e-4)])
+def test_exact_with_a_reference_clock_20_ms_late(window, tolerance):
+    """Runs start and end at rest, and their windows reach into the pauses: a reference
+    lagging the mice by 20 ms costs little with windows and nothing with whole runs."""
+    from mousedom.calibrate import session as sess
+    from mousedom.calibrate.reference import parse_reference
+    from mousedom.calibrate.synth import twist_csv
+    from mousedom.config import parse_config
+
+    motion = build_motion(RICH_MOTION)
+    mice = [
+        SynthMouse("a", 0.12, 0.05, yaw=0.03, cpi_x=1010, cpi_y=1010),
+        SynthMouse("b", -0.1, -0.02, phase=0.5),
+    ]
+    rec = {m.name: mouse_reports(m, motion, i) for i, m in enumerate(mice)}
+    cfg = parse_config(
+        "mice:\n  a: {cpi: 1000, mount: {x: 0.1}}\n  b: {cpi: 1000, mount: {x: -0.1}}\n",
+        "rig.yaml",
+        need_sources=False,
+    )
+    ref = parse_reference(twist_csv(motion, 200.0, t_offset=0.02), "REF.csv")
+    s = sess.make_session(cfg, rec, split_runs(rec))
+    res = sess.mounts(s, ref, "exact", window=window)
+    for m in mice:
+        fit = res.fits[m.name]
+        assert math.hypot(fit.x - m.x, fit.y - m.y) < tolerance

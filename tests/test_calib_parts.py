@@ -165,3 +165,16 @@ def test_calibration_file_errors(tmp_path):
     with pytest.raises(UserError, match="must be a mapping"):
         calfile.read_calibration(str(bad))
     assert yaml.safe_load(calfile.HEADER) is None
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.text(alphabet="tvxyomegaleftrighdirectionc,.-0123456789e\n #", max_size=200))
+def test_csv_parsers_take_any_text_without_a_traceback(text):
+    """Malformed REF.csv and RUNS.csv: a UserError naming the file, or a result; nothing else."""
+    from mousedom.calibrate.umbmark import parse_runs
+
+    for parse in (parse_reference, parse_runs):
+        try:
+            parse(text, "F.csv")
+        except UserError as e:
+            assert str(e).startswith("F.csv")

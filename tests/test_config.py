@@ -155,3 +155,11 @@ def test_any_yaml_value_under_a_mouse_is_handled(value):
         parse_config(yaml.safe_dump(doc), "fuzz.yaml")
     except ConfigError:
         pass
+
+
+def test_serial_mouse_report_rate_follows_k():
+    text = "model: diff-drive\nmice:\n  adns:\n    cpi: 1600\n    mount: {x: 0.2, y: 0}\n"
+    cfg = parse_config(text + "    serial: {port: 'loop://', k: 12}\n", "s.yaml")
+    assert cfg.mouse("adns").report_hz == pytest.approx(1e6 / (12 * 1250))
+    cfg = parse_config(text + "    serial: {port: 'loop://'}\n    report_hz: 50\n", "s.yaml")
+    assert cfg.mouse("adns").report_hz == 50

@@ -196,8 +196,8 @@ event_rows = st.lists(
 ).map(lambda xs: [(i * 0.001, c[0], c[1], v) for i, (c, v) in enumerate(xs)])
 
 
-def feed_in_chunks(rows, cuts, small_chunk=0):
-    a = FrameAssembler(small_chunk)
+def feed_in_chunks(rows, cuts, small_chunk=0, block=10**9):
+    a = FrameAssembler(small_chunk, block)
     bounds = sorted({0, len(rows), *(c % (len(rows) + 1) for c in cuts)})
     parts = [a.feed(*ev(rows[lo:hi])) for lo, hi in zip(bounds[:-1], bounds[1:], strict=False)]
     parts.append(a.flush())
@@ -216,6 +216,11 @@ def test_chunking_does_not_change_frames_and_counts_are_conserved(rows, cuts):
         loop, f_loop = feed_in_chunks(rows, cuts, small_chunk=small)
         assert as_rows(f_loop) == as_rows(f_whole)
         assert loop.stats == whole.stats
+    # Big chunks are assembled in blocks; tiny blocks must not change anything either.
+    for block in (1, 7):
+        blocked, f_blocked = feed_in_chunks(rows, cuts, block=block)
+        assert as_rows(f_blocked) == as_rows(f_whole)
+        assert blocked.stats == whole.stats
     # The complete frames match the event-by-event reference.
     n_complete = len(reference_frames(rows))
     assert as_rows(f_whole)[:n_complete] == [(t, x, y) for t, x, y in reference_frames(rows)]
@@ -231,11 +236,12 @@ def test_chunking_does_not_change_frames_and_counts_are_conserved(rows, cuts):
     st.binary(max_size=24 * 40),
     st.lists(st.integers(0, 24 * 40), max_size=6),
     st.sampled_from([0, 5, 10**9]),
+    st.sampled_from([3, 10**9]),
 )
-def test_random_bytes_never_crash_and_conserve_counts(data, cuts, small_chunk):
+def test_random_bytes_never_crash_and_conserve_counts(data, cuts, small_chunk, block):
     """Arbitrary bytes, cut anywhere (not on record boundaries), decode like one read."""
     bounds = sorted({0, len(data), *(c % (len(data) + 1) for c in cuts)})
-    a, parts, rest = FrameAssembler(small_chunk), [], b""
+    a, parts, rest = FrameAssembler(small_chunk, block), [], b""
     for lo, hi in zip(bounds[:-1], bounds[1:], strict=False):
         events, rest = decode_input_events(rest + data[lo:hi])
         parts.append(a.feed_events(events))
@@ -257,3 +263,26 @@ def test_open_frame_time_is_its_last_event_across_chunks(mk):
     f = a.feed(*ev([(2.0, EV_SYN, SYN_REPORT, 0), (3.0, EV_REL, REL_Y, 5)]))
     assert as_rows(f) == [(2.0, 1, 0)]
     assert as_rows(a.flush()) == [(3.0, 0, 5)]
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    st.lists(
+        st.tuples(
+            st.integers(0, 2**40),
+            st.integers(0, 999_999),
+            st.sampled_from(CODES),
+            st.integers(-(2**31), 2**31 - 1),
+        ),
+        max_size=60,
+    )
+)
+def test_record_paths_give_bitwise_equal_times(rows):
+    """feed_events: the per-event loop (Python floats) and numpy give the same times."""
+    arr = np.array([(s, u, c[0], c[1], v) for s, u, c, v in rows], dtype=EVENT_DTYPE)
+    outs = []
+    for small in (0, 10**9):
+        a = FrameAssembler(small)
+        f = MotionFrames.concat([a.feed_events(arr), a.flush()])
+        outs.append((f.t.tobytes(), f.dx.tolist(), f.dy.tolist(), a.stats))
+    assert outs[0] == outs[1]

@@ -103,3 +103,20 @@ def test_sensor_model_unit_tests(build):
     assert r.returncode == 0, r.stdout + r.stderr
     r = subprocess.run([str(build / "test_sensor")], capture_output=True, text=True)
     assert r.returncode == 0 and " 0 failures" in r.stdout, r.stdout + r.stderr
+
+
+def test_missing_toolchain_skips_locally_and_fails_in_ci(monkeypatch):
+    """Without the tools: a skip naming what to install, unless CI or
+    MOUSEDOM_REQUIRE_FIRMWARE=1 asks for the firmware tests to run, then a failure."""
+    monkeypatch.setattr(shutil, "which", lambda tool: None)
+    monkeypatch.delenv("CI", raising=False)
+    monkeypatch.delenv("MOUSEDOM_REQUIRE_FIRMWARE", raising=False)
+    with pytest.raises(pytest.skip.Exception, match="install-toolchain.sh.*gcc-avr"):
+        require_toolchain()
+    monkeypatch.setenv("MOUSEDOM_REQUIRE_FIRMWARE", "1")
+    with pytest.raises(pytest.fail.Exception, match="gcc-avr"):
+        require_toolchain()
+    monkeypatch.delenv("MOUSEDOM_REQUIRE_FIRMWARE")
+    monkeypatch.setenv("CI", "true")
+    with pytest.raises(pytest.fail.Exception):
+        require_toolchain()

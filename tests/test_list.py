@@ -121,3 +121,41 @@ def _has_group(name: str) -> bool:
         return True
     except KeyError:
         return False
+
+
+def test_list_with_config_says_which_device_each_mouse_is(tmp_path):
+    root = tmp_path / "m"
+    for n in (3, 4):  # regular files as nodes: a FIFO node would read as a stream
+        add_device(
+            root,
+            n,
+            "Twin",
+            phys=f"usb-{n}/input0",
+            by_path=(f"pci-usb-0:{n}-event-mouse",),
+            fifo=False,
+        )
+    fifo = tmp_path / "sim.fifo"
+    os.mkfifo(fifo)
+    link = root / "dev/input/by-path/pci-usb-0:4-event-mouse"
+    cfg = tmp_path / "rig.yaml"
+    cfg.write_text(
+        "mice:\n"
+        "  left: {cpi: 800, mount: {x: 0, y: 0.1}, evdev: {path: " + str(link) + "}}\n"
+        "  right: {cpi: 800, mount: {x: 0, y: -0.1}, evdev: {path: " + str(fifo) + "}}\n"
+    )
+    p = run_mousedom("list", "--root", str(root), "--config", str(cfg))
+    assert p.returncode == 0, p.stdout + p.stderr
+    assert f"left -> {root}/dev/input/event4" in p.stdout
+    assert f"right -> {fifo} (FIFO/pipe stream)" in p.stdout
+    # A rule that is ambiguous: exit 1, both candidates named.
+    cfg.write_text(
+        "mice:\n"
+        "  left: {cpi: 800, mount: {x: 0, y: 0.1}, evdev: {name: Twin}}\n"
+        "  right: {cpi: 800, mount: {x: 0, y: -0.1}, evdev: {name: Gone}}\n"
+    )
+    p = run_mousedom("list", "--json", "--root", str(root), "--config", str(cfg))
+    assert p.returncode == 1
+    mice = json.loads(p.stdout)["config"]["mice"]
+    assert "2 devices match name='Twin'" in mice["left"]["error"]
+    assert "event3" in mice["left"]["error"] and "event4" in mice["left"]["error"]
+    assert mice["right"]["node"] is None and "no input device matches" in mice["right"]["error"]

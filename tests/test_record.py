@@ -195,18 +195,31 @@ def test_duration_unplug_and_reattach(tmp_path):
 
 
 def test_serial_bytes_recorded_raw(tmp_path):
+    """A downsampler on a pty: line noise then 20 MOTION packets; the file holds the exact
+    bytes, which decode to the same 20 reports as the bytes that were sent."""
+    from mousedom import adns_protocol as P
+    from mousedom.adns_decode import packets_to_reports
+
     master, slave = os.openpty()
     port = os.ttyname(slave)
     f = fifos(tmp_path, "left")
     cfg = rig(tmp_path, {"left": f["left"], "adns": f"serial:{port}"})
     out = tmp_path / "serial.mdcap"
     p = start("record", "--config", str(cfg), "-o", str(out), "--status-interval", "0.2")
-    payload = bytes(range(256)) * 8
+    packets = [
+        P.encode_packet(
+            P.Motion(
+                seq=i, t_us=10_000 * (i + 1), dx=i, dy=2 * i, frames=12, squal_min=100, flags=0
+            )
+        )
+        for i in range(20)
+    ]
+    payload = b"\x55\xaa noise \x00" + b"".join(packets)
     try:
         w = os.open(f["left"], os.O_WRONLY)
         time.sleep(0.3)  # the port is open once the FIFO is (sources open in order)
-        for i in range(0, len(payload), 100):
-            os.write(master, payload[i : i + 100])
+        for i in range(0, len(payload), 37):  # chunks that cut packets anywhere
+            os.write(master, payload[i : i + 37])
             time.sleep(0.005)
         time.sleep(0.5)
         p.send_signal(signal.SIGTERM)
@@ -214,10 +227,17 @@ def test_serial_bytes_recorded_raw(tmp_path):
     finally:
         p.kill()
     assert p.returncode == 0, err
-    assert f"adns (serial {port})" in err and f"adns {len(payload)} B" in err
+    assert f"adns (serial {port})" in err and f"adns {len(payload)} B 20 reports" in err
     cap, _, serial = read_capture(out)
     assert serial["adns"] == payload
     assert cap.devices[1].kind == "serial" and cap.devices[1].extra["port"] == port
+    sent, _ = packets_to_reports([(0.0, payload)])
+    got, _ = packets_to_reports([(0.0, serial["adns"])])
+    assert len(got) == len(sent) == 20
+    assert got.dx.tolist() == sent.dx.tolist() and got.dy.tolist() == sent.dy.tolist()
+    assert sorted(abs(v) for v in got.dx.tolist() + got.dy.tolist()) == sorted(
+        list(range(20)) + [2 * i for i in range(20)]
+    )
     os.close(w)
     os.close(master)
     os.close(slave)
@@ -245,3 +265,48 @@ def test_user_errors(tmp_path):
         "0.1",
     )
     assert r.returncode == 1 and "cannot write" in r.stderr
+    (tmp_path / "old.mdcap").write_bytes(b"precious")
+    r = run_mousedom("record", "--config", str(rig(tmp_path, f)), "-o", str(tmp_path / "old.mdcap"))
+    assert r.returncode == 2 and "exists" in r.stderr and "--force" in r.stderr
+    assert (tmp_path / "old.mdcap").read_bytes() == b"precious"
+
+
+def test_recording_replays_to_the_motion_that_was_made(tmp_path):
+    """record -> replay: two mice pushed 1000 counts forward at 800 cpi = 31.75 mm."""
+    f = fifos(tmp_path, "left", "right")
+    cfg = rig(tmp_path, f)
+    out = tmp_path / "straight.mdcap"
+    p = start("record", "--config", str(cfg), "-o", str(out), "--status-interval", "0")
+    try:
+        ws = [os.open(path, os.O_WRONLY) for path in f.values()]
+        t0 = time.monotonic()
+        for w in ws:  # forward = -REL_Y (the mouse moves away from its user)
+            os.write(w, motion_bytes(t0, [0] * 100, [-10] * 100, dt=0.008))
+        time.sleep(0.5)
+        p.send_signal(signal.SIGTERM)
+        _, err = p.communicate(timeout=20)
+    finally:
+        p.kill()
+    assert p.returncode == 0, err
+    r = run_mousedom("replay", "--config", str(cfg), "--capture", str(out), "-o", "-")
+    assert r.returncode == 0, r.stderr
+    rows = [line.split(",") for line in r.stdout.strip().splitlines()]
+    header, last = rows[0], rows[-1]
+    x, y, theta = (float(last[header.index(k)]) for k in ("x", "y", "theta"))
+    assert abs(x - 1000 / 800 * 0.0254) < 1e-9
+    assert abs(y) < 1e-12 and abs(theta) < 1e-12
+    for w in ws:
+        os.close(w)
+
+
+def test_a_replay_mouse_cannot_be_recorded(tmp_path):
+    f = fifos(tmp_path, "a")
+    cfg = tmp_path / "rig.yaml"
+    cfg.write_text(
+        "mice:\n"
+        f"  a: {{cpi: 800, mount: {{x: 0, y: 0.1}}, evdev: {{path: {f['a']}}}}}\n"
+        "  b: {cpi: 800, mount: {x: 0, y: -0.1}, replay: old.mdcap}\n"
+    )
+    r = run_mousedom("record", "--config", str(cfg), "-o", str(tmp_path / "z.mdcap"))
+    assert r.returncode == 2 and "mice.b: a replay source cannot be recorded" in r.stderr
+    assert "Traceback" not in r.stderr and not (tmp_path / "z.mdcap").exists()

@@ -211,14 +211,17 @@ def test_bonarini_covariance_linearises_to_lsq_for_small_noise():
 
 @settings(max_examples=300, deadline=None)
 @example(p=(0.25, 0.0, 0.0, 0.0), q=(0.027007315427299533, 0.0, 1.401298464324817e-45))
+@example(p=(5e-324, 0.0625, 0.0, 0.0), q=(0.0, 0.046875, 0.0))
 @given(
     p=st.tuples(*[st.floats(-0.3, 0.3) for _ in range(4)]),
     q=st.tuples(st.floats(-0.05, 0.05), st.floats(-0.05, 0.05), st.floats(-2.0, 2.0)),
 )
 def test_noise_free_any_geometry_any_arc(p, q):
     """Eqs. (3)-(14) + the frame mapping equal lsq + exact for any two distinct mounts and
-    any constant-twist window (hypothesis).  The @example is a nearly straight window where
-    eq. (8)'s law of cosines, evaluated literally, kept only half the digits (2e-9 rad)."""
+    any constant-twist window (hypothesis).  The first @example is a nearly straight window
+    where eq. (8)'s law of cosines, evaluated literally, kept only half the digits (2e-9 rad);
+    the second moves along the joining line, where alpha is tiny but not zero and eq. (4)'s
+    y / sin(alpha) lost every digit."""
     pos = np.array(p).reshape(2, 2)
     assume(np.hypot(*(pos[0] - pos[1])) > 0.02)
     qa = np.array([q])

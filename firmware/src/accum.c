@@ -32,8 +32,8 @@ void accum_read(accum_t *a, uint8_t motion, int8_t dx, int8_t dy, uint8_t squal)
         a->squal_min = squal;
 }
 
-void accum_frame(accum_t *a)
+void accum_frames(accum_t *a, uint8_t n)
 {
-    if (a->frames != 0xFFFFu)
-        a->frames++;
+    uint16_t room = (uint16_t)(0xFFFFu - a->frames);
+    a->frames = (uint16_t)(a->frames + (n < room ? n : room));
 }

@@ -29,7 +29,8 @@ ISR(TIMER1_OVF_vect) { usclock_overflow((usclock_t *)&clk); }
 ISR(TIMER1_COMPA_vect)
 {
     OCR1A += POLL_TICKS;
-    tick_pending = 1;
+    if (tick_pending != 0xFF)
+        tick_pending++; /* a counter: a poll that overruns still accounts for the time */
 }
 
 static uint32_t clock_us(void)
@@ -178,8 +179,10 @@ static void start_run(void)
     state = S_RUN;
 }
 
-/* One poll: one frame of the packet, drained while the deltas come back at full scale. */
-static void poll_sensor(void)
+/* One poll covering `periods` poll periods, drained while the deltas come back at full
+ * scale.  The sensor keeps summing between reads, so a late poll loses nothing; counting
+ * the periods keeps `frames` a measure of time for Kim & Lee's eq. (50). */
+static void poll_sensor(uint8_t periods)
 {
     adns_burst_t b;
     for (uint8_t i = 0; i < DRAIN_MAX_READS; i++) {
@@ -193,7 +196,7 @@ static void poll_sensor(void)
         if (!(b.motion & ADNS_MOT) || !accum_saturated(b.dx, b.dy))
             break;
     }
-    accum_frame(&acc);
+    accum_frames(&acc, periods);
 }
 
 static void maybe_send_motion(uint32_t now)
@@ -232,7 +235,7 @@ static void maybe_send_motion(uint32_t now)
         apply_cpi();
 }
 
-static void on_tick(void)
+static void on_tick(uint8_t periods)
 {
     uint32_t now = clock_us();
     switch (state) {
@@ -249,7 +252,7 @@ static void on_tick(void)
             start_run();
         break;
     case S_RUN:
-        poll_sensor();
+        poll_sensor(periods);
         maybe_send_motion(now);
         break;
     case S_RETRY:
@@ -317,10 +320,12 @@ int main(void)
     set_sleep_mode(SLEEP_MODE_IDLE);
     sei();
     for (;;) {
-        if (tick_pending) {
-            tick_pending = 0;
-            on_tick();
-        }
+        cli();
+        uint8_t periods = tick_pending;
+        tick_pending = 0;
+        sei();
+        if (periods)
+            on_tick(periods);
         serve_host();
         flush_replies();
         cli();

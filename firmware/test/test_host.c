@@ -221,7 +221,7 @@ static void test_accum(void)
     accum_read(&a, 0x00, 5, 5, 80);
     CHECK(a.sx == 0 && a.sy == 0 && a.squal_min == 80);
     accum_read(&a, ADNS_MOT | ADNS_RES, 3, -4, 60);
-    accum_frame(&a);
+    accum_frames(&a, 1);
     CHECK(a.sx == 3 && a.sy == -4 && a.frames == 1 && a.squal_min == 60);
     CHECK(a.flags & FLAG_RES1600);
     accum_read(&a, ADNS_MOT, 1, 1, 70); /* RES cleared: 400 CPI now */
@@ -232,16 +232,21 @@ static void test_accum(void)
     accum_clear(&a);
     for (int i = 0; i < 1000; i++) {
         accum_read(&a, ADNS_MOT, 127, -128, 50);
-        accum_frame(&a);
+        accum_frames(&a, 1);
     }
     CHECK(a.sx == 127000 && a.sy == -128000 && a.frames == 1000);
     CHECK(accum_saturated(127, 0) && accum_saturated(0, -128) && accum_saturated(-127, 3));
     CHECK(!accum_saturated(126, -126));
     /* the frame count saturates instead of wrapping */
     a.frames = 0xFFFE;
-    accum_frame(&a);
-    accum_frame(&a);
+    accum_frames(&a, 1);
+    accum_frames(&a, 1);
     CHECK(a.frames == 0xFFFF);
+    /* merged ticks count as the periods they covered */
+    accum_clear(&a);
+    accum_frames(&a, 3);
+    accum_frames(&a, 1);
+    CHECK(a.frames == 4);
 }
 
 static void test_usclock(void)

@@ -1,7 +1,7 @@
 """Calibration and evaluation: CPI, mouse distance, mount positions, UMBmark.
 
-Every module here is pure (arrays in, results out, no I/O) except ``calfile`` (the
-calibration YAML) and ``reference`` / ``umbmark`` readers, which only parse files.  The
+The algorithms are pure (arrays in, results out, no I/O); ``calfile``, ``inputs`` and
+``live`` do the file and device I/O, and ``reference.read_reference`` reads one file.  The
 CLI layers are ``mousedom/commands/calibrate.py`` and ``mousedom/commands/umbmark.py``.
 
 - ``counts``: counts -> metres in the mouse's own frame and in the body frame.
@@ -12,4 +12,9 @@ CLI layers are ``mousedom/commands/calibrate.py`` and ``mousedom/commands/umbmar
 - ``reference``: the REF.csv reader (body twist or wheel ticks, McGill model).
 - ``umbmark``: Borenstein & Feng's UMBmark figures.
 - ``synth``: exact synthetic rigs for the tests and the benchmark.
+- ``inputs``: ``--capture`` arguments to per-mouse reports (via ``mousedom.capture``).
+- ``live``: interactive runs from live mice (Enter starts and stops a run).
+- ``session``: recording + config -> results (the glue the commands call).
+- ``report``: readable text of the results.
+- ``calfile``: reading, merging and atomically writing the calibration YAML.
 """

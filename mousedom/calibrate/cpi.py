@@ -19,6 +19,7 @@ import numpy as np
 from mousedom.units import INCH
 
 AXES = ("x", "y")
+MAX_SKEW = np.radians(15.0)  # beyond this a push is along the wrong axis, not askew
 
 
 @dataclass(frozen=True)
@@ -44,7 +45,9 @@ class CpiError(ValueError):
     """The runs cannot give a CPI (too few, no motion, longer across than the push)."""
 
 
-def cpi_per_run(along: np.ndarray, across: np.ndarray, distance: float, cpi_across: float):
+def cpi_per_run(
+    along: np.ndarray, across: np.ndarray, distance: float, cpi_across: float
+) -> tuple[np.ndarray, np.ndarray]:
     """(cpi, skew) per run from counts along and across the axis, for pushes of ``distance`` m.
 
     Returns arrays of the CPI along the axis and the skew angle (radians) of each push.
@@ -90,6 +93,12 @@ def calibrate_cpi(
             f"floor, or was pushed along the other axis)"
         )
     per_run, skew = cpi_per_run(along, across, distance, cpi_across)
+    if np.any(skew > MAX_SKEW):
+        k = int(np.argmax(skew > MAX_SKEW))
+        raise CpiError(
+            f"run {k + 1}: the push was {np.degrees(skew[k]):.0f} deg off the mouse's {axis} "
+            "axis (more than 15): wrong --axis, or the mouse sits askew on the track"
+        )
     mean = float(np.mean(per_run))
     stderr = float(np.std(per_run, ddof=1) / np.sqrt(len(per_run)))
     warnings = []

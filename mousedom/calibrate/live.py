@@ -99,6 +99,7 @@ def collect_runs(
     sel.register(stdin_fd, selectors.EVENT_READ, None)
     pending = b""
     last_show = 0.0
+    tty = out.isatty()  # live counts redraw one line: only on a terminal
 
     def drain(source: Source) -> None:
         try:
@@ -122,7 +123,7 @@ def collect_runs(
             for key, _ in sel.select(timeout=REFRESH):
                 if key.data is not None:
                     drain(key.data)
-            if col.active and clock() - last_show >= REFRESH:
+            if tty and col.active and clock() - last_show >= REFRESH:
                 out.write("\r" + col.status())
                 out.flush()
                 last_show = clock()
@@ -142,7 +143,7 @@ def collect_runs(
                 for s in sources:
                     drain(s)
                 kept = col.stop()
-                out.write("\r" + col.status() + "\n")
+                out.write(("\r" if tty else "") + col.status() + "\n")
                 out.write(
                     f"{what} {len(col.runs)} recorded\n"
                     if kept

@@ -15,7 +15,7 @@ invertible; for a pure rotation it is not, and the minimum-norm solution is what
 their result (53)).
 
 A limit of the published method, found while testing it: the third row of S_k is
-w_k (p_true - 2 p_nominal) to first order whatever the translation (the v_b terms of C1
+w_k (p_true - 2 p_nominal) exactly, whatever the translation (the v_b terms of C1
 and C2 cancel), so every measurement after the first adds the same equation, and S has
 rank at most 3 for any motion, not 2N as (49) suggests.  With N >= 2 mice the result is
 always a minimum-norm solution: right when the mounts are off by a common scale about the
@@ -39,7 +39,9 @@ import numpy as np
 # --------------------------------------------------------------------------- Kim & Lee
 
 
-def kimlee_system(v_s: np.ndarray, v_m: np.ndarray, nominal: np.ndarray):
+def kimlee_system(
+    v_s: np.ndarray, v_m: np.ndarray, nominal: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """S and b of Kim & Lee eqs. (38)-(46) for M measurements.
 
     v_s (M, N, 2): mouse readings in body axes; v_m (M, 3): reference (v_bx, v_by, w_b);
@@ -93,18 +95,21 @@ class KimLeeResult:
     unknowns: int  # 2N
 
 
-KIMLEE_RCOND = 1e-3
+MAX_KIMLEE_RANK = 3  # the rank of S in exact arithmetic, whatever the motion (see above)
 
 
 def kimlee(v_s: np.ndarray, v_m: np.ndarray, nominal: np.ndarray) -> KimLeeResult:
-    """Kim & Lee (47) with a minimum-norm least squares; see the module docstring.
+    """Kim & Lee (47) as a minimum-norm least squares; see the module docstring.
 
-    Singular values of S below ``KIMLEE_RCOND`` of the largest count as zero: S has rank
-    <= 3 in exact arithmetic, and with noisy counts the missing directions would
-    otherwise be filled with noise divided by nearly nothing.
+    The pseudo-inverse keeps at most the 3 largest singular values of S: in exact
+    arithmetic S has no more, and with noisy counts the other directions would be filled
+    with noise divided by nearly nothing (hundreds of millimetres in bench/calibration.py).
+    Noise-free this is the plain pseudo-inverse, which gives their (53).
     """
     s, b = kimlee_system(v_s, v_m, nominal)
-    dp, _, rank, _ = np.linalg.lstsq(s, b, rcond=KIMLEE_RCOND)
+    u, sv, vt = np.linalg.svd(s, full_matrices=False)
+    rank = int(min(MAX_KIMLEE_RANK, np.sum(sv > 1e-9 * sv[0]))) if sv[0] > 0 else 0
+    dp = vt[:rank].T @ ((u[:, :rank].T @ b) / sv[:rank])
     p = np.asarray(nominal, dtype=float).reshape(-1, 2)
     return KimLeeResult(p + dp.reshape(-1, 2), int(rank), 2 * len(p))
 

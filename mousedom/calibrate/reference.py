@@ -126,7 +126,7 @@ def wheel_twist(d_left: np.ndarray, d_right: np.ndarray, geo: WheelGeometry) -> 
     return models.wheels(d_left, d_right, geo.radius_left, geo.radius_right, geo.track).q
 
 
-def window_twist(ref: Reference, edges: np.ndarray, geo: WheelGeometry | None = None):
+def window_twist(ref: Reference, edges: np.ndarray, geo: WheelGeometry | None = None) -> np.ndarray:
     """(len(edges) - 1, 3) body twist integrated over each window (edges[k], edges[k+1]]."""
     edges = np.asarray(edges, dtype=float)
     if ref.kind == "twist":

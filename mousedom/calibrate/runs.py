@@ -53,7 +53,9 @@ def split_runs(recording: Mapping[str, Reports], gap: float = 0.5) -> list[Run]:
     return [Run(float(t[a]), float(t[b])) for a, b in zip(starts, ends, strict=True)]
 
 
-def run_counts(recording: Mapping[str, Reports], runs: Sequence[Run], names: Sequence[str]):
+def run_counts(
+    recording: Mapping[str, Reports], runs: Sequence[Run], names: Sequence[str]
+) -> np.ndarray:
     """(n_runs, N, 2) counts (REL_X, REL_Y) summed per run and mouse, in ``names`` order.
 
     Every report with a stamp inside [t0, t1] of a run belongs to it: runs are separated

@@ -26,6 +26,7 @@ from mousedom.errors import UserError
 from mousedom.sources.base import Reports
 
 SMALL_RUN = 0.25  # a run with less motion than this fraction of the median is a bump
+PAD = 0.2  # seconds of pause added around each run for the reference (clock offsets)
 
 
 @dataclass
@@ -76,11 +77,10 @@ def cpi(session: Session, distance: float, axis: str, min_runs: int = 2) -> dict
         raise UserError("calibrate cpi: no runs: the mice never moved")
     _no_motion(session, counts)
     out = {}
-    i = "xy".index(axis)
     for j, name in enumerate(session.names):
         mouse = session.config.mouse(name)
         c = counts[:, j, :]
-        keep = _keep_real_runs(session, np.abs(c[:, i]), f"mouse {name}")
+        keep = _keep_real_runs(session, np.hypot(c[:, 0], c[:, 1]), f"mouse {name}")
         across = mouse.cpi_y if axis == "x" else mouse.cpi_x
         try:
             out[name] = calibrate_cpi(c[keep], distance, axis, across, min_runs=min_runs)
@@ -143,6 +143,16 @@ def mounts(
     for r in session.runs:
         check_coverage(ref, r.t0 - period, r.t1, slack=period)
     edges = run_windows(session.runs, window, period)
+    # Runs start and end at rest: widen each run's outer edges into the pauses around it
+    # (up to PAD, never past halfway to the next run), so that a reference whose clock lags
+    # or leads the mice's by some milliseconds still has all of its motion inside.
+    starts = np.array([r.t0 for r in session.runs])
+    ends = np.array([r.t1 for r in session.runs])
+    room = (starts - np.concatenate([[-np.inf], ends[:-1]])) / 2
+    after = (np.concatenate([starts[1:], [np.inf]]) - ends) / 2
+    for k, e in enumerate(edges):
+        e[0] -= max(0.0, min(PAD, room[k] - period))
+        e[-1] += max(0.0, min(PAD, after[k]))
     w = np.concatenate([window_twist(ref, e, geo) for e in edges])
     counts = np.zeros((len(w), len(mice), 2))
     for j, m in enumerate(mice):

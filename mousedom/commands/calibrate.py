@@ -138,7 +138,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _setup(args: argparse.Namespace, names: list[str] | None = None):
-    config = load_config(args.config, need_sources=not args.capture)
+    config = load_config(args.config, need_sources=False)
+    replaying = args.capture or any(m.replay for m in config.mice)
     if args.write and not config.calibration:
         raise UserError(
             f"{args.config}: --write needs a calibration file: add a line such as "
@@ -148,7 +149,7 @@ def _setup(args: argparse.Namespace, names: list[str] | None = None):
     for n in wanted:
         if n not in config.names:
             raise UserError(f"{args.config}: no mouse {n!r} (it has {', '.join(config.names)})")
-    if args.capture:
+    if replaying:
         recording = load_captures(args.capture, config)
         if wanted:
             missing = [n for n in wanted if n not in recording]
@@ -263,8 +264,8 @@ def _wheel_geometry(args: argparse.Namespace, config: Config) -> WheelGeometry |
 
 
 def run_mounts(args: argparse.Namespace) -> int:
-    ref = read_reference(args.reference)
     config, s = _setup(args)
+    ref = read_reference(args.reference)  # after a live session: the logger may write it
     need_runs(len(s.runs), 1, "calibrate mounts", args.gap)
     geo = _wheel_geometry(args, config)
     result = session.mounts(s, ref, args.method, geo, args.window)

@@ -4,9 +4,20 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 
-from mousedom.discovery import DeviceInfo, Scan, SystemPaths, join_group_hint, scan
+from mousedom.config import load_config
+from mousedom.discovery import (
+    DeviceInfo,
+    Scan,
+    SystemPaths,
+    is_stream,
+    join_group_hint,
+    match_device,
+    scan,
+)
+from mousedom.errors import UserError
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -18,6 +29,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "config rule that names it.",
     )
     p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.add_argument(
+        "--config",
+        "-c",
+        metavar="RIG.yaml",
+        help="also say which device each evdev mouse of this config matches; exit 1 if a "
+        "rule matches none or several",
+    )
     p.add_argument(
         "--root",
         metavar="DIR",
@@ -80,9 +98,43 @@ def _text(result: Scan) -> str:
     return "\n".join(lines) + "\n"
 
 
+def config_matches(config_path: str, result: Scan) -> dict[str, dict[str, str | None]]:
+    """For each evdev mouse of the config: the node its rule matches, or why none."""
+    cfg = load_config(config_path)
+    out: dict[str, dict[str, str | None]] = {}
+    for m in cfg.mice:
+        if m.evdev is None:
+            continue
+        rule = m.evdev
+        if rule.path and is_stream(rule.path):
+            out[m.name] = {"node": rule.path, "error": None, "note": "FIFO/pipe stream"}
+            continue
+        resolved = os.path.realpath(rule.path) if rule.path else None
+        try:
+            dev = match_device(rule, result.devices, resolved_path=resolved)
+            out[m.name] = {"node": dev.node, "error": None, "note": None}
+        except UserError as e:
+            out[m.name] = {"node": None, "error": str(e), "note": None}
+    return out
+
+
+def _config_text(config_path: str, matches: dict[str, dict[str, str | None]]) -> str:
+    lines = [f"{config_path}:"]
+    if not matches:
+        lines.append("  no evdev mice in this config")
+    for name, r in matches.items():
+        if r["error"]:
+            lines.append(f"  {name}: {r['error']}")
+        else:
+            note = f" ({r['note']})" if r["note"] else ""
+            lines.append(f"  {name} -> {r['node']}{note}")
+    return "\n".join(lines) + "\n"
+
+
 def run(args: argparse.Namespace) -> int:
     paths = SystemPaths.under(args.root) if args.root else SystemPaths()
     result = scan(paths)
+    matches = config_matches(args.config, result) if args.config else None
     if args.json:
         doc = {
             "input_dir": paths.dev_input,
@@ -90,7 +142,13 @@ def run(args: argparse.Namespace) -> int:
             "nodes": result.nodes,
             "devices": [d.as_dict() for d in result.devices],
         }
+        if matches is not None:
+            doc["config"] = {"path": args.config, "mice": matches}
         sys.stdout.write(json.dumps(doc, indent=2) + "\n")
     else:
         sys.stdout.write(_text(result))
+        if matches is not None:
+            sys.stdout.write("\n" + _config_text(args.config, matches))
+    if matches and any(r["error"] for r in matches.values()):
+        return 1
     return 0

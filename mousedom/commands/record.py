@@ -4,7 +4,8 @@ Evdev mice are recorded as their decoded motion reports (t on CLOCK_MONOTONIC, s
 REL_X/REL_Y per SYN_REPORT frame) plus a NOTE per mouse with what was skipped or dropped;
 serial sources (the ADNS-3080 downsampler) as the raw bytes read from the port, each read
 stamped with its host arrival time, so that replay can parse them with the same code as
-the live daemon.  The file is append-only and flushed to the OS at least every
+the live daemon (the port is driven by ``AdnsSource``, which also sets K and CPI, through
+its ``on_raw`` hook).  The file is append-only and flushed to the OS at least every
 ``FLUSH_S`` seconds: a crash or ``kill -9`` loses at most that much, and the reader reports
 the torn tail.  SIGINT and SIGTERM only set a flag; the loop then drains, writes the notes
 and closes the file.
@@ -13,7 +14,9 @@ and closes the file.
 from __future__ import annotations
 
 import argparse
+import logging
 import math
+import os
 import selectors
 import signal
 import sys
@@ -23,7 +26,9 @@ from pathlib import Path
 
 from mousedom.config import Config, MouseConfig, load_config
 from mousedom.errors import UserError
-from mousedom.sources.base import SourceGone, SourceUnavailable
+from mousedom.sources.base import Source, SourceGone, SourceUnavailable
+
+log = logging.getLogger(__name__)
 
 FLUSH_S = 0.25  # bound on what a kill -9 can lose
 RETRY_S = 0.5  # how often to look for an unplugged device
@@ -49,65 +54,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="seconds between status lines on stderr (0: none)",
     )
     p.add_argument("--fsync", action="store_true", help="fsync every chunk (power-loss safe)")
+    p.add_argument("--force", action="store_true", help="overwrite FILE if it exists")
     p.set_defaults(func=run)
-
-
-# --------------------------------------------------------------------------- serial, raw
-
-
-class RawSerial:
-    """A serial port read as raw bytes (any pyserial URL), for recording only.
-
-    The daemon parses the downsampler's packets (mousedom/sources/adns.py); recording
-    keeps the bytes as they came, so a parser bug can be fixed and the run replayed.
-    """
-
-    kind = "serial"
-
-    def __init__(self, mouse: MouseConfig) -> None:
-        assert mouse.serial is not None
-        self.name = mouse.name
-        self.port = mouse.serial.port
-        self.baud = mouse.serial.baud
-        self._ser = None
-        self.bytes = 0
-        self.reads = 0
-
-    def open(self) -> None:
-        import serial  # pyserial
-
-        try:
-            self._ser = serial.serial_for_url(self.port, baudrate=self.baud, timeout=0)
-        except (serial.SerialException, OSError, ValueError) as e:
-            raise SourceUnavailable(f"{self.name}: serial port {self.port}: {e}") from None
-
-    def fileno(self) -> int:
-        try:
-            return self._ser.fileno() if self._ser is not None else -1
-        except (AttributeError, OSError, ValueError):
-            return -1  # loop:// and friends: polled every tick instead
-
-    def read(self) -> bytes:
-        import serial
-
-        if self._ser is None:
-            raise SourceGone(f"{self.name}: not open")
-        try:
-            data = self._ser.read(65536)
-        except (serial.SerialException, OSError) as e:
-            self.close()
-            raise SourceGone(f"{self.name}: serial port {self.port}: {e}") from None
-        self.bytes += len(data)
-        self.reads += bool(data)
-        return data
-
-    def close(self) -> None:
-        if self._ser is not None:
-            try:
-                self._ser.close()
-            except Exception:  # closing a dead port may fail in many ways; it is gone
-                pass
-            self._ser = None
 
 
 # --------------------------------------------------------------------------- recording
@@ -119,38 +67,61 @@ class Slot:
 
     index: int
     mouse: MouseConfig
-    source: object  # EvdevSource or RawSerial
+    source: Source  # EvdevSource or AdnsSource
+    serial: bool = False  # an ADNS-3080 downsampler: its raw bytes are what is recorded
     connected: bool = True
     next_retry: float = 0.0
     reports: int = 0
     last_reports: int = 0
     serial_t: list[float] = field(default_factory=list)
     serial_data: list[bytes] = field(default_factory=list)
+    serial_bytes: int = 0
 
 
-def _make_source(cfg: Config, mouse: MouseConfig):
+def _make_slot(cfg: Config, index: int, mouse: MouseConfig) -> Slot:
     where = f"{cfg.path}: mice.{mouse.name}"
     if mouse.evdev is not None:
         from mousedom.sources.evdev import EvdevSource
 
-        return EvdevSource(mouse)
+        return Slot(index, mouse, EvdevSource(mouse))
     if mouse.serial is not None:
-        return RawSerial(mouse)
+        # The serial source configures the downsampler (K, CPI) as the daemon would, and
+        # hands every chunk it reads to on_raw before decoding: those bytes are recorded.
+        from mousedom.sources.adns import AdnsSource
+
+        slot = Slot(index, mouse, None, serial=True)  # type: ignore[arg-type]
+
+        def on_raw(t: float, data: bytes) -> None:
+            slot.serial_t.append(t)
+            slot.serial_data.append(bytes(data))
+            slot.serial_bytes += len(data)
+
+        slot.source = AdnsSource(mouse, on_raw=on_raw)
+        return slot
     raise UserError(f"{where}: a replay source cannot be recorded (it is a recording already)")
+
+
+def _fileno(source: Source) -> int:
+    """The fd to wait on, or -1 for ports without one (loop:// ...): those are polled."""
+    try:
+        fd = source.fileno()
+    except Exception:  # pyserial URL handlers differ in what they raise here
+        return -1
+    return fd if isinstance(fd, int) and fd >= 0 else -1
 
 
 def _device_info(slot: Slot):
     from mousedom.capture.base import DeviceInfo as CaptureDevice
 
     m, src = slot.mouse, slot.source
-    if isinstance(src, RawSerial):
+    if slot.serial:
         return CaptureDevice(
-            name=src.port,
+            name=m.serial.port,
             kind="serial",
             mouse=m.name,
             extra={
-                "port": src.port,
-                "baud": src.baud,
+                "port": m.serial.port,
+                "baud": m.serial.baud,
                 "k": m.serial.k,
                 "sensor_cpi": m.serial.sensor_cpi,
             },
@@ -185,7 +156,7 @@ class Recorder:
     ) -> None:
         from mousedom.capture.native import NativeWriter
 
-        self.slots = [Slot(i, m, _make_source(cfg, m)) for i, m in enumerate(cfg.mice)]
+        self.slots = [_make_slot(cfg, i, m) for i, m in enumerate(cfg.mice)]
         for s in self.slots:
             try:
                 s.source.open()
@@ -210,7 +181,7 @@ class Recorder:
         self._stop = stop  # the signal handler appends to it
 
     def _register(self, s: Slot) -> None:
-        fd = s.source.fileno()
+        fd = _fileno(s.source)
         if fd >= 0:
             self.sel.register(fd, selectors.EVENT_READ, s)
 
@@ -221,14 +192,9 @@ class Recorder:
 
     def _read(self, s: Slot, now: float) -> None:
         try:
-            if isinstance(s.source, RawSerial):
-                data = s.source.read()
-                if data:
-                    s.serial_t.append(now)
-                    s.serial_data.append(data)
-                return
-            for batch in s.source.read(now):
-                self.writer.motion(s.index, batch.t, batch.dx, batch.dy)
+            for batch in s.source.read(now):  # a serial source's bytes went to on_raw
+                if not s.serial:
+                    self.writer.motion(s.index, batch.t, batch.dx, batch.dy)
                 s.reports += len(batch)
         except SourceGone as e:
             self._unregister(s)
@@ -257,13 +223,15 @@ class Recorder:
         parts = []
         for s in self.slots:
             src = s.source
-            if isinstance(src, RawSerial):
-                parts.append(f"{s.mouse.name} {src.bytes} B in {src.reads} reads")
-                continue
-            st = src.assembler.stats
             rate = (s.reports - s.last_reports) / dt if dt > 0 else 0.0
             s.last_reports = s.reports
             state = "" if s.connected else " (gone)"
+            if s.serial:
+                parts.append(
+                    f"{s.mouse.name} {s.serial_bytes} B {s.reports} reports {rate:.0f} Hz{state}"
+                )
+                continue
+            st = src.assembler.stats
             extra = f" dropped {st.dropped_frames}" if st.dropped_frames else ""
             parts.append(
                 f"{s.mouse.name} {st.events} events {s.reports} reports {rate:.0f} Hz{extra}{state}"
@@ -271,9 +239,18 @@ class Recorder:
         return f"record: {elapsed:6.1f} s  " + " | ".join(parts)
 
     def run(self, duration: float | None, status_every: float) -> None:
+        try:
+            self._loop(duration, status_every)
+        finally:
+            # Whatever happened, what was recorded stays readable and the devices are
+            # released (both are idempotent after a normal finish).
+            self.writer.close()
+            self.close_sources()
+
+    def _loop(self, duration: float | None, status_every: float) -> None:
         t0 = time.monotonic()
         last_flush = last_status = t0
-        polled = [s for s in self.slots if s.source.fileno() < 0]
+        polled = [s for s in self.slots if _fileno(s.source) < 0]
         while not self._stop:
             now = time.monotonic()
             if duration is not None and now - t0 >= duration:
@@ -286,7 +263,7 @@ class Recorder:
             for s in self.slots:
                 if not s.connected and now >= s.next_retry:
                     self._retry(s, now)
-                elif s.connected and s.source.fileno() < 0:
+                elif s.connected and _fileno(s.source) < 0:
                     self._read(s, now)
             if now - last_flush >= FLUSH_S:
                 self._flush()
@@ -307,22 +284,11 @@ class Recorder:
         from mousedom.capture.base import DeviceStats
 
         for s in self.slots:
-            if isinstance(s.source, RawSerial):
+            if s.serial:
                 continue
-            a = s.source.assembler.stats
-            self.writer.note(
-                s.index,
-                DeviceStats(
-                    events=a.events,
-                    frames=a.frames,
-                    skipped=a.skipped,
-                    dropped_frames=a.dropped_frames,
-                    dropped_events=a.dropped_events,
-                    lost_x=a.dropped_dx,
-                    lost_y=a.dropped_dy,
-                    unterminated=a.incomplete_events,
-                ),
-            )
+            note = DeviceStats()
+            note.take_assembler(s.source.assembler.stats)
+            self.writer.note(s.index, note)
         self.writer.close()
         self.close_sources()
         for s in self.slots:  # the last line gives average rates over the whole run
@@ -336,6 +302,8 @@ class Recorder:
 
 def run(args: argparse.Namespace) -> int:
     cfg = load_config(args.config)
+    if os.path.exists(args.output) and not args.force:
+        raise UserError(f"{args.output}: exists; not overwriting a recording (use --force)")
     config_text = Path(args.config).read_text()
     if args.duration is not None and not (args.duration > 0 and math.isfinite(args.duration)):
         raise UserError(f"--duration: must be a positive number of seconds, got {args.duration}")
@@ -350,11 +318,19 @@ def run(args: argparse.Namespace) -> int:
     rec = Recorder(cfg, config_text, args.output, fsync=args.fsync, stop=stop)
     names = ", ".join(f"{s.mouse.name} ({_describe(s)})" for s in rec.slots)
     print(f"record: {args.output}: recording {names}", file=sys.stderr, flush=True)
-    rec.run(args.duration, args.status_interval)
+    try:
+        rec.run(args.duration, args.status_interval)
+    except Exception as e:  # a bug must not end in a traceback; the file is closed already
+        log.debug("record failed", exc_info=True)
+        raise UserError(
+            f"{args.output}: recording stopped by an internal error ({type(e).__name__}: {e}); "
+            "the file holds everything recorded until then. Run with -v for details.",
+            exit_code=1,
+        ) from None
     return 0
 
 
 def _describe(s: Slot) -> str:
-    if isinstance(s.source, RawSerial):
-        return f"serial {s.source.port}"
+    if s.serial:
+        return f"serial {s.mouse.serial.port}"
     return s.source.device.node

@@ -135,3 +135,10 @@ class AdnsSource(Source):
             h.error = f"no ADNS-3080 answers (Product_ID read 0x{status.product_id:02x})"
         elif status is not None and status.state == P.STATE_OK:
             h.error = None
+
+
+def replay_decoder(mouse: MouseConfig) -> AdnsDecoder:
+    """A fresh decoder for one recorded serial port of ``mouse`` (the replay engine's
+    hook): ``decoder.feed_many(serial.t, serial.data) -> Reports`` for each batch, in
+    order.  Same parser and clock mapping as the live source."""
+    return AdnsDecoder(name=mouse.name)
