@@ -266,6 +266,12 @@ def test_mounts_window_and_min_runs_are_validated(mounts_session):
     mounts = ["calibrate", "mounts", "--config", str(cfg), *caps, "--reference", str(ref)]
     for value in ("nan", "-1", "inf", "x"):
         fails(run_mousedom(*mounts, "--window", value), "--window")
+    # Regression: --window 1e-9 asked for 2e9 windows (a MemoryError traceback).
+    fails(
+        run_mousedom(*mounts, "--window", "1e-9"),
+        "--window 1e-09 s is shorter than one report period (8 ms, mouse a)",
+    )
+    ok(run_mousedom(*mounts, "--window", "0.008"))
     # mounts honours --min-runs too (the session has 5 runs).
     fails(run_mousedom(*mounts, "--min-runs", "6"), "found 5 run(s), need at least 6")
 

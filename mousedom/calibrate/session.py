@@ -166,6 +166,15 @@ def mounts(
         raise UserError("calibrate mounts: no runs: the mice never moved")
     mice = [session.config.mouse(n) for n in session.names]
     period = max(1.0 / m.report_hz for m in mice)
+    if 0 < window < period:
+        # Shorter windows hold less than one report each (and a tiny one would ask for
+        # billions of windows): they cannot say more than one window per report.
+        slow = max(mice, key=lambda m: 1.0 / m.report_hz)
+        raise UserError(
+            f"calibrate mounts: --window {window:g} s is shorter than one report period "
+            f"({period * 1000:.3g} ms, mouse {slow.name}): give 0 (one window per run) or "
+            f"at least {period:g}"
+        )
     for r in session.runs:
         check_coverage(ref, r.t0 - period, r.t1, slack=period)
     edges = run_windows(session.runs, window, period)
