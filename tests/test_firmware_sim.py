@@ -338,3 +338,40 @@ def test_uart_slower_than_the_packets_loses_nothing(slow_build):
     assert max(p.frames for p in motion) >= 4
     span_polls = (motion[-1].t_us - motion[0].t_us) / POLL_US
     assert sum(p.frames for p in motion[1:]) == pytest.approx(span_polls, abs=1)
+
+
+def test_recorded_firmware_bytes_calibrate_cpi(build, tmp_path):
+    """The firmware's own bytes, recorded as `mousedom record` stores a serial port, give
+    the sensor's CPI through `mousedom calibrate cpi`: 4 pushes of 1 inch (4 in/s for
+    0.25 s at 1600 CPI: 1600 counts each) forth and back along the sensor's Y."""
+    from conftest import run_mousedom
+
+    from mousedom.capture.base import DeviceInfo
+    from mousedom.capture.native import NativeWriter
+
+    segs = []
+    for k, t0 in enumerate((0.4, 0.9, 1.4, 1.9)):
+        segs += ["--seg", f"{t0}:0:{4 if k % 2 == 0 else -4}", "--seg", f"{t0 + 0.25}:0:0"]
+    run = run_sim(build, "--duration", "2.4", *segs)
+    assert_clean_bus(run)
+    assert_counts_conserved(run)
+    assert run.summary["gen"][1] == 0  # forth and back: the pushes cancel
+    cap = tmp_path / "adns.mdcap"
+    dev = DeviceInfo(name="downsampler", kind="serial", mouse="floor", rel_xy=True)
+    with NativeWriter(cap, [dev]) as w:
+        w.serial_many(0, [t for t, _ in run.raw], [b for _, b in run.raw])
+        w.sync(run.raw[-1][0])
+    cfg = tmp_path / "rig.yaml"
+    cfg.write_text(
+        "model: diff-drive\n"
+        "mice:\n  floor: {cpi: 1500, mount: {x: 0.1}, serial: {port: /dev/null}}\n"
+    )
+    p = run_mousedom(
+        "calibrate", "cpi", "--config", str(cfg), "--capture", str(cap),
+        "--distance", "0.0254", "--gap", "0.15", "--json",
+    )  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    doc = json.loads(p.stdout)["floor"]
+    assert doc["runs"] == 4 and doc["axis"] == "y"
+    assert doc["stderr"] < 0.5, doc  # the pushes are the same to a count or so
+    assert doc["cpi"] == pytest.approx(1600, abs=1.0), doc
