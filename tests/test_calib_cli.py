@@ -694,3 +694,49 @@ def test_cpi_from_an_adns_capture(tmp_path):
         run_mousedom(*base, "--capture", str(lossy)),
         "lossy.mdcap: device 'downsampler' (mouse floor): 1 serial packet(s) lost",
     )
+
+
+# --------------------------------------------------------------------------- --write safety
+
+
+def test_write_never_leaves_a_calibration_that_does_not_load(cpi_session):
+    """Regression: --write replaced the file first and checked it after, so a result the
+    config refuses (here cpi 0.0 from a --distance in the wrong unit) stayed on disk and
+    broke the next daemon start or SIGHUP.  Now the old file is put back."""
+    tmp, cfg, files = cpi_session
+    base = ["calibrate", "cpi", "--config", str(cfg), "--capture", f"left={files['left']}"]
+    cal = tmp / "rig.calib.yaml"
+    p = fails(run_mousedom(*base, "--distance", "1e6", "--write"), "not written")
+    assert "mice.left.cpi.y: must be a positive number" in p.stderr
+    assert not cal.exists()  # there was none before
+    ok(run_mousedom(*base, "--distance", "0.2", "--write"))
+    before = cal.read_bytes()
+    fails(run_mousedom(*base, "--distance", "1e6", "--write"), "not written")
+    assert cal.read_bytes() == before
+    assert sorted(p.name for p in tmp.iterdir() if p.name.startswith(".")) == []
+    ok(run_mousedom("check-config", "--config", str(cfg), "--no-sources"))
+
+
+def test_distance_write_with_mice_at_one_point(tmp_path):
+    """Regression: two mice configured at one point have no line to be spread along, and
+    --write stored mount: {x: .nan, y: .nan}."""
+    eta = math.radians(90)
+    motion = build_motion([(0, 0, eta * s, 2.0) for s in (1, -1, 1)])
+    mice = [SynthMouse("left", 0.0, 0.135), SynthMouse("right", 0.0, -0.135, phase=0.5)]
+    cap = write_native(
+        tmp_path / "turns.mdcap", {m.name: mouse_reports(m, motion, i) for i, m in enumerate(mice)}
+    )
+    cfg = write_config(
+        tmp_path,
+        {"left": {"cpi": 1000, "mount": {"x": 0.1}}, "right": {"cpi": 1000, "mount": {"x": 0.1}}},
+        extra="model: diff-drive\n",
+    )
+    p = fails(
+        run_mousedom(
+            "calibrate", "distance", "--config", str(cfg), "--capture", str(cap),
+            "--angle", "90", "--write",
+        ),
+        "mice left and right sit at one point in the config",
+    )  # fmt: skip
+    assert "RuntimeWarning" not in p.stderr
+    assert not (tmp_path / "rig.calib.yaml").exists()

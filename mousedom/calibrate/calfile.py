@@ -102,8 +102,13 @@ def _mode_for(target: Path) -> int:
 
 def write_calibration(path: str, data: dict[str, Any]) -> None:
     """Replace ``path`` atomically with ``data`` as YAML."""
-    target = Path(path)
     text = HEADER + yaml.safe_dump(_plain(data), sort_keys=False, default_flow_style=None)
+    replace_bytes(path, text.encode("utf-8"))
+
+
+def replace_bytes(path: str, raw: bytes) -> None:
+    """Replace ``path`` atomically with ``raw`` (also to put an old file back)."""
+    target = Path(path)
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
@@ -113,8 +118,8 @@ def write_calibration(path: str, data: dict[str, Any]) -> None:
         # mkstemp makes the file 0600: the daemon (often another user) could not read it.
         # Keep the mode of the file being replaced, or give a new one the umask's default.
         os.fchmod(fd, _mode_for(target))
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
+        with os.fdopen(fd, "wb") as f:
+            f.write(raw)
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, target)

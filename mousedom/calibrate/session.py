@@ -141,7 +141,13 @@ def spread_mounts(config: Config, names: Sequence[str], d: float) -> dict[str, t
     """New positions of the two mice: same midpoint and direction, distance ``d`` apart."""
     a, b = (config.mouse(n) for n in names)
     pa, pb = np.array([a.mount.x, a.mount.y]), np.array([b.mount.x, b.mount.y])
-    mid, u = (pa + pb) / 2, (pb - pa) / np.linalg.norm(pb - pa)
+    gap = float(np.linalg.norm(pb - pa))
+    if not gap > 0:
+        raise UserError(
+            f"--write: mice {a.name} and {b.name} sit at one point in the config, so the "
+            "line to spread them along is unknown: set their mounts roughly, then write again"
+        )
+    mid, u = (pa + pb) / 2, (pb - pa) / gap
     return {a.name: tuple(mid - u * d / 2), b.name: tuple(mid + u * d / 2)}
 
 

@@ -12,7 +12,9 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
+from pathlib import Path
 
 from mousedom.calibrate import calfile, report, session
 from mousedom.calibrate.inputs import load_captures
@@ -233,10 +235,24 @@ def _emit(
 
 
 def _store(config: Config, update) -> None:
-    data = calfile.read_calibration(config.calibration)
-    calfile.write_calibration(config.calibration, update(data))
-    load_config(config.path, need_sources=False)  # what was written must load
-    print(f"written to {config.calibration}", file=sys.stderr)
+    path = config.calibration
+    try:
+        old: bytes | None = Path(path).read_bytes()
+    except OSError:
+        old = None  # not written yet (read_calibration says why if it is unreadable)
+    data = calfile.read_calibration(path)
+    calfile.write_calibration(path, update(data))
+    try:
+        load_config(config.path, need_sources=False)  # what was written must load
+    except UserError as e:
+        # Put the old file back: a daemon reloading on SIGHUP, or starting, must not
+        # meet a calibration that this command knows to be broken.
+        if old is None:
+            os.unlink(path)
+        else:
+            calfile.replace_bytes(path, old)
+        raise UserError(f"{path}: not written, the result does not load: {e}") from None
+    print(f"written to {path}", file=sys.stderr)
 
 
 # --------------------------------------------------------------------------- subcommands
