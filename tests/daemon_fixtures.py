@@ -19,10 +19,12 @@ from pathlib import Path
 
 import numpy as np
 
+from mousedom import sim
 from mousedom.events import EV_REL, EV_SYN, EVENT_DTYPE, SYN_REPORT
 
 REPO = Path(__file__).resolve().parent.parent
 REL_X, REL_Y = 0, 1
+RATE = 50.0
 
 
 def input_events(t: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> bytes:
@@ -226,3 +228,32 @@ class Conn:
     def close(self) -> None:
         self.file.close()
         self.sock.close()
+
+
+def rig_runner(tmp_path):
+    """Generator behind the ``rig_run`` fixtures: yields ``start(trajectory, ...)`` that
+    runs a daemon on a three-mouse FIFO rig driving ``trajectory``; stops all at the end."""
+    started = []
+
+    def start(trajectory, extra: str = "", rate_hz: float = RATE, env=None):
+        rig = sim.three_mouse_rig()
+        fifos = {m.name: tmp_path / f"{m.name}.fifo" for m in rig.mice}
+        mice = {n: FifoMouse(p) for n, p in fifos.items()}
+        config = write_rig_config(tmp_path / "rig.yaml", rig, fifos, extra, rate_hz=rate_hz)
+        daemon = DaemonProcess(config, tmp_path / "run" / "mousedom.sock", env=env)
+        daemon.wait_socket()
+        for m in mice.values():
+            m.attach()
+        result = sim.simulate(rig, trajectory, seed=3)
+        feeder = Feeder(mice, result.reports, time.monotonic() + 0.1)
+        feeder.start()
+        ctx = type("Run", (), {})()
+        ctx.rig, ctx.fifos, ctx.mice, ctx.config = rig, fifos, mice, config
+        ctx.daemon, ctx.feeder, ctx.result, ctx.fifo_paths = daemon, feeder, result, fifos
+        started.append(ctx)
+        return ctx
+
+    yield start
+    for ctx in started:
+        ctx.feeder.stop()
+        ctx.daemon.stop()

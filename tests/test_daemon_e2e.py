@@ -15,40 +15,14 @@ import time
 
 import numpy as np
 import pytest
-from daemon_fixtures import Conn, DaemonProcess, Feeder, FifoMouse, write_rig_config
+from daemon_fixtures import RATE, Conn, rig_runner
 
 from mousedom import sim
-
-RATE = 50.0
 
 
 @pytest.fixture
 def rig_run(tmp_path):
-    """Start a daemon on a three-mouse FIFO rig driving ``trajectory``; yields a context."""
-    started = []
-
-    def start(trajectory, extra: str = "", rate_hz: float = RATE, env=None):
-        rig = sim.three_mouse_rig()
-        fifos = {m.name: tmp_path / f"{m.name}.fifo" for m in rig.mice}
-        mice = {n: FifoMouse(p) for n, p in fifos.items()}
-        config = write_rig_config(tmp_path / "rig.yaml", rig, fifos, extra, rate_hz=rate_hz)
-        daemon = DaemonProcess(config, tmp_path / "run" / "mousedom.sock", env=env)
-        daemon.wait_socket()
-        for m in mice.values():
-            m.attach()
-        result = sim.simulate(rig, trajectory, seed=3)
-        feeder = Feeder(mice, result.reports, time.monotonic() + 0.1)
-        feeder.start()
-        ctx = type("Run", (), {})()
-        ctx.rig, ctx.fifos, ctx.mice, ctx.config = rig, fifos, mice, config
-        ctx.daemon, ctx.feeder, ctx.result, ctx.fifo_paths = daemon, feeder, result, fifos
-        started.append(ctx)
-        return ctx
-
-    yield start
-    for ctx in started:
-        ctx.feeder.stop()
-        ctx.daemon.stop()
+    yield from rig_runner(tmp_path)
 
 
 def _rate(poses: list[dict]) -> float:
