@@ -195,7 +195,14 @@ class _Reader:
     def err(self, key: str | None, message: str) -> ConfigError:
         return self.doc.error(self.keys + ((key,) if key else ()), message)
 
-    def number(self, key: str, default: float | None = None, *, positive: bool = False) -> float:
+    def number(
+        self,
+        key: str,
+        default: float | None = None,
+        *,
+        positive: bool = False,
+        within: tuple[float, float] | None = None,
+    ) -> float:
         v = self.raw(key, default)
         if v is None:
             raise self.err(key, "is required")
@@ -203,6 +210,8 @@ class _Reader:
             raise self.err(key, f"must be a number, got {_show(v)}")
         if positive and v <= 0:
             raise self.err(key, f"must be a positive number, got {v}")
+        if within and not within[0] <= v <= within[1]:
+            raise self.err(key, f"must be between {within[0]:g} and {within[1]:g}, got {v}")
         return float(v)
 
     def integer(self, key: str, default: int | None = None, *, minimum: int | None = None) -> int:
@@ -328,7 +337,7 @@ def _mouse(doc: _Doc, name: str, value: Any, base_dir: Path) -> MouseConfig:
         mount=mount,
         flip=r.boolean("flip", False),
         sigma=r.number("sigma", 0.5, positive=True),
-        report_hz=r.number("report_hz", 125.0, positive=True),
+        report_hz=r.number("report_hz", 125.0, within=(1.0, 100000.0)),
     )
     sources = [k for k in ("evdev", "serial", "replay") if r.has(k)]
     if len(sources) > 1:
@@ -336,7 +345,11 @@ def _mouse(doc: _Doc, name: str, value: Any, base_dir: Path) -> MouseConfig:
     if r.has("evdev"):
         mouse = replace(mouse, evdev=_evdev(r))
     elif r.has("serial"):
-        mouse = replace(mouse, serial=_serial(r))
+        serial = _serial(r)
+        mouse = replace(mouse, serial=serial)
+        if not r.has("report_hz"):
+            # The downsampler sends one packet per K sensor polls of 1250 us (firmware/).
+            mouse = replace(mouse, report_hz=1e6 / (serial.k * 1250.0))
     elif r.has("replay"):
         v = r.raw("replay")
         if isinstance(v, dict):
@@ -348,7 +361,7 @@ def _mouse(doc: _Doc, name: str, value: Any, base_dir: Path) -> MouseConfig:
             file, device = r.string("replay"), None
         if not file:
             raise r.err("replay", "needs a capture file")
-        mouse = replace(mouse, replay=str((base_dir / file)), replay_device=device)
+        mouse = replace(mouse, replay=str(base_dir / file), replay_device=device)
     r.finish()
     return mouse
 
@@ -360,7 +373,9 @@ def _server(r: _Reader) -> ServerConfig:
         try:
             mode = int(mode, 8)
         except ValueError:
-            raise s.err("mode", f"must be an octal file mode such as '0660', got {mode!r}") from None
+            raise s.err(
+                "mode", f"must be an octal file mode such as '0660', got {mode!r}"
+            ) from None
     if isinstance(mode, bool) or not isinstance(mode, int) or not 0 <= mode <= 0o777:
         raise s.err("mode", f"must be a file mode between 0 and 0777, got {_show(mode)}")
 
@@ -406,7 +421,9 @@ def _apply_calibration(mice: tuple[MouseConfig, ...], path: Path) -> tuple[Mouse
     except FileNotFoundError:
         return mice
     except OSError as e:
-        raise ConfigError(located(str(path), None, f"cannot read calibration: {e.strerror}"))
+        raise ConfigError(
+            located(str(path), None, f"cannot read calibration: {e.strerror}")
+        ) from None
     doc = _Doc(str(path), text)
     top = _Reader(doc, doc.data, ())
     section = top.sub("mice")
@@ -438,7 +455,7 @@ def parse_config(text: str, path: str | None = None, *, need_sources: bool = Tru
     doc = _Doc(path, text)
     base_dir = Path(path).resolve().parent if path else Path.cwd()
     top = _Reader(doc, doc.data, ())
-    rate_hz = top.number("rate_hz", 100.0, positive=True)
+    rate_hz = top.number("rate_hz", 100.0, within=(0.1, 10000.0))
     model = top.choice("model", MODELS, "lsq")
     integrator = top.choice("integrator", INTEGRATORS, "exact")
     mice_raw = top.raw("mice")

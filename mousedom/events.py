@@ -23,7 +23,9 @@ rather than vanishing: ``counts in == counts out + dropped counts`` always holds
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -36,10 +38,21 @@ EVENT_DTYPE = np.dtype(
 EVENT_SIZE = EVENT_DTYPE.itemsize
 assert EVENT_SIZE == 24
 
+# Chunks up to this many events take a plain loop: for small chunks numpy's fixed cost
+# per call is more than the loop's (bench/decode.py prints per-read figures).
+SMALL_CHUNK = 48
+# Larger chunks are assembled this many events at a time (temporaries stay in cache).
+BLOCK = 65536
+
 EV_SYN, EV_KEY, EV_REL, EV_MSC = 0x00, 0x01, 0x02, 0x04
 SYN_REPORT, SYN_CONFIG, SYN_MT_REPORT, SYN_DROPPED = 0, 1, 2, 3
 REL_X, REL_Y, REL_WHEEL, REL_HWHEEL = 0x00, 0x01, 0x08, 0x06
 REL_WHEEL_HI_RES, REL_HWHEEL_HI_RES = 0x0B, 0x0C
+# type | code << 16: the two little-endian u16 at byte 16 of a record, read as one u32
+KEY_SYN_REPORT = EV_SYN | SYN_REPORT << 16
+KEY_SYN_DROPPED = EV_SYN | SYN_DROPPED << 16
+KEY_REL_X = EV_REL | REL_X << 16
+KEY_REL_Y = EV_REL | REL_Y << 16
 
 
 def decode_input_events(buf: bytes | bytearray | memoryview) -> tuple[np.ndarray, bytes]:
@@ -109,7 +122,9 @@ class AssemblerStats:
     dropped_frames: int = 0  # frames discarded because they held a SYN_DROPPED
     dropped_dx: int = 0  # REL_X counts inside discarded frames
     dropped_dy: int = 0  # REL_Y counts inside discarded frames
+    dropped_events: int = 0  # non-SYN events inside discarded frames
     incomplete_frames: int = 0  # trailing frames without SYN_REPORT closed by flush()
+    incomplete_events: int = 0  # events in those frames
     rel_x_in: int = 0  # sum of every REL_X value fed
     rel_y_in: int = 0  # sum of every REL_Y value fed
 
@@ -125,8 +140,10 @@ class FrameAssembler:
     last event.  ``flush()`` closes that open frame at the end of a finite input.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, small_chunk: int = SMALL_CHUNK, block: int = BLOCK) -> None:
         self.stats = AssemblerStats()
+        self.small_chunk = small_chunk
+        self.block = max(1, block)
         self._reset_open()
 
     def _reset_open(self) -> None:
@@ -135,6 +152,7 @@ class FrameAssembler:
         self._open_motion = False  # the open frame holds REL_X or REL_Y
         self._open_dropped = False  # the open frame holds a SYN_DROPPED
         self._open_events = 0
+        self._open_nonsyn = 0  # events of the open frame that are not EV_SYN
         self._open_t = 0.0
 
     @property
@@ -143,79 +161,195 @@ class FrameAssembler:
         return self._open_events
 
     def feed_events(self, events: np.ndarray) -> MotionFrames:
-        """``feed`` for an ``EVENT_DTYPE`` array (as ``decode_input_events`` returns)."""
-        return self.feed(event_times(events), events["type"], events["code"], events["value"])
+        """``feed`` for an ``EVENT_DTYPE`` array (as ``decode_input_events`` returns).
+
+        Reads type and code as one 32-bit word per record, with no copy, and converts
+        only the SYN_REPORT records' times to float.
+        """
+        if events.dtype != EVENT_DTYPE:
+            raise TypeError(f"expected EVENT_DTYPE records, got {events.dtype}")
+        if not events.flags.c_contiguous:
+            events = np.ascontiguousarray(events)
+        words = events.view("<u4")  # 6 words per record: sec, usec, type | code << 16, value
+        sec, usec = events["sec"], events["usec"]
+        if 0 < len(events) <= self.small_chunk:
+            # Python floats: the same IEEE operations as numpy's, so the same times.
+            secs, usecs = sec.tolist(), usec.tolist()
+            return self._feed_loop(
+                words[4::6].tolist(),
+                words[5::6].view("<i4").tolist(),
+                lambda i: secs[i] + usecs[i] * 1e-6,
+            )
+        return self._feed(words[4::6], words[5::6].view("<i4"), lambda i: sec[i] + usec[i] * 1e-6)
 
     def feed(
         self, t: np.ndarray, type: np.ndarray, code: np.ndarray, value: np.ndarray
     ) -> MotionFrames:
         """Add a chunk of events; return the motion frames closed by its SYN_REPORTs."""
         t = np.asarray(t, dtype=np.float64)
-        type = np.asarray(type)
-        code = np.asarray(code)
-        value = np.asarray(value, dtype=np.int64)
-        n = len(t)
-        if not (len(type) == len(code) == len(value) == n):
+        if not (len(type) == len(code) == len(value) == len(t)):
             raise ValueError("t, type, code and value must have the same length")
+        key = np.asarray(type).astype(np.uint32) | (np.asarray(code).astype(np.uint32) << 16)
+        return self._feed(key, np.asarray(value, dtype=np.int64), t.__getitem__)
+
+    def _feed(
+        self, key: np.ndarray, value: np.ndarray, time_at: Callable[[Any], np.ndarray]
+    ) -> MotionFrames:
+        """``key`` = type | code << 16 per event (one compare per event kind)."""
+        n = len(key)
         if n == 0:
             return MotionFrames()
+        if n <= self.small_chunk:
+            return self._feed_loop(key.tolist(), value.tolist(), lambda i: float(time_at(i)))
+        if n > self.block:
+            # Blocks that stay in cache, with the open frame carried between them as
+            # between chunks: big temporaries would cost page faults and memory traffic.
+            parts = []
+            for lo in range(0, n, self.block):
+                hi = min(lo + self.block, n)
+                parts.append(
+                    self._feed_block(key[lo:hi], value[lo:hi], lambda i, lo=lo: time_at(i + lo))
+                )
+            return MotionFrames.concat(parts)
+        return self._feed_block(key, value, time_at)
+
+    def _feed_block(
+        self, key: np.ndarray, value: np.ndarray, time_at: Callable[[Any], np.ndarray]
+    ) -> MotionFrames:
+        n = len(key)
         st = self.stats
         st.events += n
 
-        syn = type == EV_SYN
-        is_report = syn & (code == SYN_REPORT)
-        is_drop = syn & (code == SYN_DROPPED)
-        rel = type == EV_REL
-        is_x = rel & (code == REL_X)
-        is_y = rel & (code == REL_Y)
-        st.skipped += n - int(np.count_nonzero(is_report | is_drop | is_x | is_y))
-        st.syn_dropped += int(np.count_nonzero(is_drop))
+        is_x = key == KEY_REL_X
+        is_y = key == KEY_REL_Y
+        is_motion = is_x | is_y
+        ends = np.flatnonzero(key == KEY_SYN_REPORT)
+        # Prefix sums over events [0, i) at row i.  Frame k of this chunk spans
+        # (r[k-1], r[k]] where r are the SYN_REPORT indices, so its sums are differences
+        # of rows just after those; the events after the last one open a frame.
+        cut = np.empty(len(ends) + 1, dtype=np.intp)
+        cut[0] = 0
+        cut[1:] = ends + 1
+        last = int(cut[-1])
 
-        vx = np.where(is_x, value, 0)
-        vy = np.where(is_y, value, 0)
-        st.rel_x_in += int(vx.sum())
-        st.rel_y_in += int(vy.sum())
+        def prefix(x: np.ndarray, dtype: type) -> np.ndarray:
+            c = np.empty(n + 1, dtype=dtype)
+            c[0] = 0
+            np.cumsum(x, dtype=dtype, out=c[1:])
+            return c
 
-        # Frame k of this chunk spans (r[k-1], r[k]] where r are the SYN_REPORT indices;
-        # the carried-over open frame is prepended to frame 0.  Per-frame sums are
-        # differences of prefix sums taken just after each frame's last event.
-        ends = np.flatnonzero(is_report)
-        cut = np.concatenate(([0], ends + 1))  # prefix-sum index where each frame starts/ends
+        cx = prefix(np.where(is_x, value, 0), np.int64)
+        cy = prefix(np.where(is_y, value, 0), np.int64)
+        cm = prefix(is_motion, np.intp)
+        dx = cx[cut[1:]] - cx[cut[:-1]]
+        dy = cy[cut[1:]] - cy[cut[:-1]]
+        has_motion = cm[cut[1:]] > cm[cut[:-1]]
+        drops = np.flatnonzero(key == KEY_SYN_DROPPED)  # rare: handled apart, by index
+        st.rel_x_in += int(cx[n])
+        st.rel_y_in += int(cy[n])
+        st.syn_dropped += len(drops)
+        st.skipped += n - len(ends) - int(cm[n]) - len(drops)
 
-        def per_frame(x: np.ndarray) -> np.ndarray:
-            c = np.concatenate(([0], np.cumsum(x, dtype=np.int64)))
-            return c[cut[1:]] - c[cut[:-1]]
-
-        def tail(x: np.ndarray) -> int:
-            return int(x[cut[-1] :].sum())
-
-        motion = is_x | is_y
-        dx, dy = per_frame(vx), per_frame(vy)
-        has_motion = per_frame(motion) > 0
-        has_drop = per_frame(is_drop) > 0
+        has_drop = np.zeros(len(ends), dtype=bool)
+        nonsyn = None
+        if len(drops):
+            # The frame of each SYN_DROPPED: how many SYN_REPORTs come before it.
+            has_drop[np.searchsorted(ends, drops[drops < last])] = True
+            nonsyn = prefix((key & 0xFFFF) != EV_SYN, np.intp)
         if len(ends):
+            # The frame left open by the previous chunk is closed by this chunk's first
+            # SYN_REPORT: fold its sums into frame 0.
             dx[0] += self._open_dx
             dy[0] += self._open_dy
             has_motion[0] |= self._open_motion
             has_drop[0] |= self._open_dropped
+            open_nonsyn = self._open_nonsyn
             self._reset_open()
-
-        # The events after the last SYN_REPORT open (or extend) the next frame.
-        if cut[-1] < n:
-            self._open_dx += tail(vx)
-            self._open_dy += tail(vy)
-            self._open_motion |= bool(motion[cut[-1] :].any())
-            self._open_dropped |= bool(is_drop[cut[-1] :].any())
-            self._open_events += n - int(cut[-1])
-            self._open_t = float(t[-1])
+        if last < n:  # the events after the last SYN_REPORT open (or extend) a frame
+            self._open_dx += int(cx[n] - cx[last])
+            self._open_dy += int(cy[n] - cy[last])
+            self._open_motion |= bool(cm[n] > cm[last])
+            self._open_dropped |= bool(len(drops) and drops[-1] >= last)
+            self._open_nonsyn += int(np.count_nonzero((key[last:] & 0xFFFF) != EV_SYN))
+            self._open_events += n - last
+            self._open_t = float(time_at(n - 1))
 
         st.frames += len(ends)
-        st.dropped_frames += int(np.count_nonzero(has_drop))
-        st.dropped_dx += int(dx[has_drop].sum())
-        st.dropped_dy += int(dy[has_drop].sum())
+        if has_drop.any():
+            st.dropped_frames += int(np.count_nonzero(has_drop))
+            st.dropped_dx += int(dx[has_drop].sum())
+            st.dropped_dy += int(dy[has_drop].sum())
+            if nonsyn is None:  # only the carried-over frame held a SYN_DROPPED
+                nonsyn = prefix((key & 0xFFFF) != EV_SYN, np.intp)
+            per_nonsyn = nonsyn[cut[1:]] - nonsyn[cut[:-1]]
+            per_nonsyn[0] += open_nonsyn
+            st.dropped_events += int(per_nonsyn[has_drop].sum())
         keep = has_motion & ~has_drop
-        st.motion_frames += int(np.count_nonzero(keep))
-        return MotionFrames(t[ends[keep]], dx[keep], dy[keep])
+        idx = ends[keep]
+        st.motion_frames += len(idx)
+        return MotionFrames(time_at(idx), dx[keep], dy[keep])
+
+    def _feed_loop(
+        self, key: list[int], value: list[int], time_of: Callable[[int], float]
+    ) -> MotionFrames:
+        """The same rules event by event, for the few events of one live read.
+
+        numpy costs ~25 us per call whatever the size, which is more than a plain loop
+        over the 3 to 30 events a live mouse delivers per wake-up; the property tests check
+        that both paths give identical frames and statistics.
+        """
+        st = self.stats
+        st.events += len(key)
+        ends: list[int] = []
+        out_dx: list[int] = []
+        out_dy: list[int] = []
+        dx, dy = self._open_dx, self._open_dy
+        motion, dropped, open_events = self._open_motion, self._open_dropped, self._open_events
+        nonsyn = self._open_nonsyn
+        for i, (k, va) in enumerate(zip(key, value, strict=True)):
+            open_events += 1
+            if k & 0xFFFF != EV_SYN:
+                nonsyn += 1
+            if k == KEY_REL_X:
+                dx += va
+                st.rel_x_in += va
+                motion = True
+            elif k == KEY_REL_Y:
+                dy += va
+                st.rel_y_in += va
+                motion = True
+            elif k == KEY_SYN_REPORT:
+                st.frames += 1
+                if dropped:
+                    st.dropped_frames += 1
+                    st.dropped_dx += dx
+                    st.dropped_dy += dy
+                    st.dropped_events += nonsyn
+                elif motion:
+                    ends.append(i)
+                    out_dx.append(dx)
+                    out_dy.append(dy)
+                dx = dy = open_events = nonsyn = 0
+                motion = dropped = False
+            elif k == KEY_SYN_DROPPED:
+                st.syn_dropped += 1
+                dropped = True
+            else:
+                st.skipped += 1
+        self._open_dx, self._open_dy = dx, dy
+        self._open_motion, self._open_dropped = motion, dropped
+        self._open_nonsyn = nonsyn
+        if open_events:  # the chunk's last event belongs to the open frame
+            self._open_t = time_of(len(key) - 1)
+        self._open_events = open_events
+        st.motion_frames += len(ends)
+        if not ends:
+            return MotionFrames()
+        return MotionFrames(
+            np.array([time_of(i) for i in ends], dtype=np.float64),
+            np.array(out_dx, dtype=np.int64),
+            np.array(out_dy, dtype=np.int64),
+        )
 
     def flush(self) -> MotionFrames:
         """End of a finite input: close the open frame, if any, and count it incomplete.
@@ -230,11 +364,13 @@ class FrameAssembler:
             return MotionFrames()
         st = self.stats
         st.incomplete_frames += 1
+        st.incomplete_events += self._open_events
         out = MotionFrames()
         if self._open_dropped:
             st.dropped_frames += 1
             st.dropped_dx += self._open_dx
             st.dropped_dy += self._open_dy
+            st.dropped_events += self._open_nonsyn
         elif self._open_motion:
             st.motion_frames += 1
             out = MotionFrames(

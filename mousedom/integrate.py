@@ -29,7 +29,7 @@ INTEGRATORS = ("exact", "taylor", "euler", "midpoint")
 
 # sinc(h) = sum_k (-1)^k h^(2k) / (2k+1)!  and its derivative.  Evaluated by Horner in h^2.
 # Below _SINC_SWITCH the series with these terms is exact to rounding: the first omitted term
-# of sinc is h^20/21! < 2e-20 at h = 1 and the derivative's is 20 h^19/21! < 4e-19.  Above it the
+# of sinc is h^20/21! < 2e-20 at h = 1 and the derivative's is 22 h^21/23! < 1e-21.  Above it the
 # closed forms are used; they lose at most a few ulp there (sin(h)/h has no cancellation,
 # h cos h - sin h loses about log10(3/h^2) < 1 digit for h >= 1).
 _SINC_TERMS = 10

@@ -257,6 +257,8 @@ class Tracker:
             (m.frontier() if m.live else self._complete_all for m in self._mice),
             default=self._complete_all,
         )
+        if not math.isfinite(target):
+            return PoseBatch.empty(self.n_mice)
         return self._close_until(math.floor((target - self.t0) / self.period + 1e-9))
 
     def finish(self) -> PoseBatch:

@@ -123,3 +123,43 @@ def test_cli_reports_config_error_without_traceback(tmp_path):
     assert proc.returncode == 2
     assert "Traceback" not in proc.stderr
     assert f"{path}:6: mice.left.cpi: must be a number" in proc.stderr
+
+
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.text(max_size=300))
+def test_any_text_is_a_config_or_a_config_error(text):
+    """Garbage never escapes as another exception (which the CLI would show as a traceback)."""
+    try:
+        parse_config(text, "fuzz.yaml")
+    except ConfigError as e:
+        assert str(e).startswith("fuzz.yaml")
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.recursive(
+        st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=5),
+        lambda kids: st.lists(kids, max_size=3) | st.dictionaries(st.text(max_size=8), kids),
+        max_leaves=12,
+    )
+)
+def test_any_yaml_value_under_a_mouse_is_handled(value):
+    import yaml
+
+    doc = {"mice": {"a": value, "b": {"cpi": 400, "mount": {"x": 0, "y": 1}, "replay": "x"}}}
+    try:
+        parse_config(yaml.safe_dump(doc), "fuzz.yaml")
+    except ConfigError:
+        pass
+
+
+def test_serial_mouse_report_rate_follows_k():
+    text = "model: diff-drive\nmice:\n  adns:\n    cpi: 1600\n    mount: {x: 0.2, y: 0}\n"
+    cfg = parse_config(text + "    serial: {port: 'loop://', k: 12}\n", "s.yaml")
+    assert cfg.mouse("adns").report_hz == pytest.approx(1e6 / (12 * 1250))
+    cfg = parse_config(text + "    serial: {port: 'loop://'}\n    report_hz: 50\n", "s.yaml")
+    assert cfg.mouse("adns").report_hz == 50

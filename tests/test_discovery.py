@@ -160,3 +160,15 @@ def test_no_match_names_the_rule_and_skips_non_pointers():
 def test_join_group_hint_names_the_group():
     hint = join_group_hint(DeviceInfo("/dev/input/event3", group="input"))
     assert "/dev/input/event3" in hint and "group 'input'" in hint and "usermod -aG input" in hint
+
+
+def test_scan_without_sysfs_falls_back_to_python_evdev(tmp_path):
+    """No /sys/class/input: each node is opened with python-evdev; nodes that are not
+    evdev devices (here a FIFO and a regular file) are left out, nothing crashes."""
+    import shutil
+
+    add_device(tmp_path, 1, "A")
+    add_device(tmp_path, 2, "B", fifo=False)
+    shutil.rmtree(tmp_path / "sys")
+    s = scan(paths(tmp_path))
+    assert s.present and s.nodes == 2 and s.devices == []

@@ -209,10 +209,92 @@ def test_a_node_that_is_not_an_evdev_device(tmp_path):
     """A regular file where a node should be: python-evdev's ioctls fail -> unavailable."""
     add_device(tmp_path, 1, "Fake", fifo=False)
     src = EvdevSource(mouse(name="Fake"), paths(tmp_path))
-    with pytest.raises(SourceUnavailable, match="event1"):
+    with pytest.raises(SourceUnavailable, match="event1: not an evdev device"):
         src.open()
 
 
 def test_record_layout_is_native_struct():
     raw = motion_bytes(3.5, [1], [2])
     assert struct.unpack("@llHHi", raw[:24]) == (3, 500000, EV_REL, REL_X, 1)
+
+
+class FakeInputDevice:
+    """Stands in for python-evdev's InputDevice (no /dev/input here): its fd is a real
+    pipe, so the data plane under test is the real one."""
+
+    def __init__(self, fd: int, grab_error: int | None = None) -> None:
+        self.fd, self.grab_error, self.grabs, self.closed = fd, grab_error, 0, False
+
+    def grab(self) -> None:
+        if self.grab_error:
+            raise OSError(self.grab_error, os.strerror(self.grab_error))
+        self.grabs += 1
+
+    def close(self) -> None:
+        self.closed = True
+        os.close(self.fd)
+
+
+def fake_node(tmp_path, **kw):
+    add_device(tmp_path, 3, "Real Mouse", fifo=False, **kw)
+    return str(tmp_path / "dev/input/event3")
+
+
+def test_real_node_is_grabbed_and_switched_to_monotonic(tmp_path):
+    node = fake_node(tmp_path)
+    r, w = os.pipe()
+    opened, ioctls = [], []
+
+    def opener(path):
+        opened.append(path)
+        return FakeInputDevice(r)
+
+    src = EvdevSource(
+        mouse(name="Real Mouse"),
+        paths(tmp_path),
+        device_opener=opener,
+        ioctl=lambda fd, req, arg: ioctls.append((fd, req, arg)),
+    )
+    src.open()
+    dev = src._dev
+    assert opened == [node] and dev.grabs == 1 and src.grabbed
+    assert ioctls == [(r, 0x400445A0, struct.pack("i", 1))]
+    assert src.health.extra["clock"] == "monotonic" and src.health.extra["grabbed"]
+    os.write(w, motion_bytes(7.0, [4, -4], [1, 1]))
+    os.close(w)
+    t, dx, dy, gone = read_all(src)
+    assert gone and dx == [4, -4] and dev.closed
+
+
+def test_grab_false_and_busy_and_permission(tmp_path):
+    fake_node(tmp_path)
+    r, w = os.pipe()
+    src = EvdevSource(
+        mouse(name="Real Mouse", grab=False),
+        paths(tmp_path),
+        device_opener=lambda p: FakeInputDevice(r),
+        ioctl=lambda *a: None,
+    )
+    src.open()
+    assert src._dev.grabs == 0 and not src.grabbed
+    src.close()
+    os.close(w)
+    r, w = os.pipe()
+    busy = FakeInputDevice(r, grab_error=16)  # EBUSY: someone else holds the grab
+    src = EvdevSource(
+        mouse(name="Real Mouse"),
+        paths(tmp_path),
+        device_opener=lambda p: busy,
+        ioctl=lambda *a: None,
+    )
+    with pytest.raises(SourceUnavailable, match="grabbed by another process"):
+        src.open()
+    assert busy.closed
+    os.close(w)
+
+    def denied(p):
+        raise PermissionError(13, "Permission denied", p)
+
+    src = EvdevSource(mouse(name="Real Mouse"), paths(tmp_path), device_opener=denied)
+    with pytest.raises(SourceUnavailable, match="join group 'root'"):
+        src.open()

@@ -30,6 +30,12 @@ from mousedom.events import (
 )
 
 
+@pytest.fixture(params=[0, 10**9], ids=["vectorised", "loop"])
+def mk(request):
+    """Both assembler paths: numpy for every chunk, and the per-event loop."""
+    return lambda: FrameAssembler(request.param)
+
+
 def ev(rows):
     """rows of (t, type, code, value) -> the four arrays."""
     a = np.array(rows, dtype=np.float64).reshape(-1, 4)
@@ -85,7 +91,7 @@ def test_encode_decode_round_trip():
     assert list(events["value"]) == [3, 0]
 
 
-def test_frames_sum_repeated_codes_and_take_report_time():
+def test_frames_sum_repeated_codes_and_take_report_time(mk):
     rows = [
         (1.0, EV_REL, REL_X, 2),
         (1.0, EV_REL, REL_X, 3),  # repeated code in one frame: sums
@@ -99,7 +105,7 @@ def test_frames_sum_repeated_codes_and_take_report_time():
         (1.003, EV_MSC, 4, 589825),
         (1.004, EV_SYN, SYN_REPORT, 0),
     ]
-    a = FrameAssembler()
+    a = mk()
     f = a.feed(*ev(rows))
     assert as_rows(f) == [(1.001, 5, -1), (1.004, 0, 4)]
     s = a.stats
@@ -107,7 +113,7 @@ def test_frames_sum_repeated_codes_and_take_report_time():
     assert (s.rel_x_in, s.rel_y_in) == (5, 3)
 
 
-def test_syn_dropped_mid_frame_drops_both_halves_and_counts_them():
+def test_syn_dropped_mid_frame_drops_both_halves_and_counts_them(mk):
     """Kernel rule: drop the partial frame, then discard up to and including the next
     SYN_REPORT; the frames before and after are untouched."""
     rows = [
@@ -120,14 +126,15 @@ def test_syn_dropped_mid_frame_drops_both_halves_and_counts_them():
         (1.3, EV_REL, REL_Y, 2),
         (1.3, EV_SYN, SYN_REPORT, 0),
     ]
-    a = FrameAssembler()
+    a = mk()
     assert as_rows(a.feed(*ev(rows))) == [(1.0, 1, 0), (1.3, 0, 2)]
     s = a.stats
     assert (s.syn_dropped, s.dropped_frames, s.dropped_dx, s.dropped_dy) == (1, 1, 10, 20)
+    assert s.dropped_events == 2  # the two REL events; SYN_DROPPED and SYN_REPORT are not
     assert s.frames == 3 and s.motion_frames == 2
 
 
-def test_syn_dropped_straddling_chunks():
+def test_syn_dropped_straddling_chunks(mk):
     rows = [
         (1.1, EV_REL, REL_X, 10),
         (1.1, EV_SYN, SYN_DROPPED, 0),
@@ -137,29 +144,29 @@ def test_syn_dropped_straddling_chunks():
         (1.3, EV_SYN, SYN_REPORT, 0),
     ]
     for cut in range(len(rows) + 1):
-        a = FrameAssembler()
+        a = mk()
         got = as_rows(a.feed(*ev(rows[:cut]))) + as_rows(a.feed(*ev(rows[cut:])))
         assert got == [(1.3, 0, 2)], cut
         assert a.stats.dropped_frames == 1
 
 
-def test_flush_keeps_trailing_counts_and_says_so():
-    a = FrameAssembler()
+def test_flush_keeps_trailing_counts_and_says_so(mk):
+    a = mk()
     f = a.feed(*ev([(2.0, EV_REL, REL_X, 4), (2.0, EV_SYN, SYN_REPORT, 0), (2.5, EV_REL, 0, 3)]))
     assert as_rows(f) == [(2.0, 4, 0)]
     assert a.open_frame_events == 1
     assert as_rows(a.flush()) == [(2.5, 3, 0)]
-    assert a.stats.incomplete_frames == 1
+    assert (a.stats.incomplete_frames, a.stats.incomplete_events) == (1, 1)
     assert len(a.flush()) == 0  # nothing open any more
     # A trailing frame with SYN_DROPPED is dropped, and counted.
-    b = FrameAssembler()
+    b = mk()
     b.feed(*ev([(1.0, EV_REL, REL_Y, 9), (1.0, EV_SYN, SYN_DROPPED, 0)]))
     assert len(b.flush()) == 0
     assert (b.stats.incomplete_frames, b.stats.dropped_frames, b.stats.dropped_dy) == (1, 1, 9)
 
 
-def test_empty_and_mismatched_input():
-    a = FrameAssembler()
+def test_empty_and_mismatched_input(mk):
+    a = mk()
     assert len(a.feed(*ev([]))) == 0
     with pytest.raises(ValueError):
         a.feed(np.zeros(2), np.zeros(1), np.zeros(2), np.zeros(2))
@@ -189,8 +196,8 @@ event_rows = st.lists(
 ).map(lambda xs: [(i * 0.001, c[0], c[1], v) for i, (c, v) in enumerate(xs)])
 
 
-def feed_in_chunks(rows, cuts):
-    a = FrameAssembler()
+def feed_in_chunks(rows, cuts, small_chunk=0, block=10**9):
+    a = FrameAssembler(small_chunk, block)
     bounds = sorted({0, len(rows), *(c % (len(rows) + 1) for c in cuts)})
     parts = [a.feed(*ev(rows[lo:hi])) for lo, hi in zip(bounds[:-1], bounds[1:], strict=False)]
     parts.append(a.flush())
@@ -204,6 +211,16 @@ def test_chunking_does_not_change_frames_and_counts_are_conserved(rows, cuts):
     split, f_split = feed_in_chunks(rows, cuts)
     assert as_rows(f_split) == as_rows(f_whole)
     assert split.stats == whole.stats
+    # The per-event loop (small chunks) and the vectorised path agree exactly.
+    for small in (10**9, 3):
+        loop, f_loop = feed_in_chunks(rows, cuts, small_chunk=small)
+        assert as_rows(f_loop) == as_rows(f_whole)
+        assert loop.stats == whole.stats
+    # Big chunks are assembled in blocks; tiny blocks must not change anything either.
+    for block in (1, 7):
+        blocked, f_blocked = feed_in_chunks(rows, cuts, block=block)
+        assert as_rows(f_blocked) == as_rows(f_whole)
+        assert blocked.stats == whole.stats
     # The complete frames match the event-by-event reference.
     n_complete = len(reference_frames(rows))
     assert as_rows(f_whole)[:n_complete] == [(t, x, y) for t, x, y in reference_frames(rows)]
@@ -215,11 +232,16 @@ def test_chunking_does_not_change_frames_and_counts_are_conserved(rows, cuts):
 
 
 @settings(max_examples=150, deadline=None)
-@given(st.binary(max_size=24 * 40), st.lists(st.integers(0, 24 * 40), max_size=6))
-def test_random_bytes_never_crash_and_conserve_counts(data, cuts):
+@given(
+    st.binary(max_size=24 * 40),
+    st.lists(st.integers(0, 24 * 40), max_size=6),
+    st.sampled_from([0, 5, 10**9]),
+    st.sampled_from([3, 10**9]),
+)
+def test_random_bytes_never_crash_and_conserve_counts(data, cuts, small_chunk, block):
     """Arbitrary bytes, cut anywhere (not on record boundaries), decode like one read."""
     bounds = sorted({0, len(data), *(c % (len(data) + 1) for c in cuts)})
-    a, parts, rest = FrameAssembler(), [], b""
+    a, parts, rest = FrameAssembler(small_chunk, block), [], b""
     for lo, hi in zip(bounds[:-1], bounds[1:], strict=False):
         events, rest = decode_input_events(rest + data[lo:hi])
         parts.append(a.feed_events(events))
@@ -232,3 +254,35 @@ def test_random_bytes_never_crash_and_conserve_counts(data, cuts):
     x_in = int(whole["value"][rel & (whole["code"] == REL_X)].astype(np.int64).sum())
     assert a.stats.rel_x_in == x_in == int(frames.dx.sum()) + a.stats.dropped_dx
     assert np.all(np.isfinite(frames.t))
+
+
+def test_open_frame_time_is_its_last_event_across_chunks(mk):
+    """An open frame of one event, closed, then another open frame of one event."""
+    a = mk()
+    a.feed(*ev([(1.0, EV_REL, REL_X, 1)]))
+    f = a.feed(*ev([(2.0, EV_SYN, SYN_REPORT, 0), (3.0, EV_REL, REL_Y, 5)]))
+    assert as_rows(f) == [(2.0, 1, 0)]
+    assert as_rows(a.flush()) == [(3.0, 0, 5)]
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    st.lists(
+        st.tuples(
+            st.integers(0, 2**40),
+            st.integers(0, 999_999),
+            st.sampled_from(CODES),
+            st.integers(-(2**31), 2**31 - 1),
+        ),
+        max_size=60,
+    )
+)
+def test_record_paths_give_bitwise_equal_times(rows):
+    """feed_events: the per-event loop (Python floats) and numpy give the same times."""
+    arr = np.array([(s, u, c[0], c[1], v) for s, u, c, v in rows], dtype=EVENT_DTYPE)
+    outs = []
+    for small in (0, 10**9):
+        a = FrameAssembler(small)
+        f = MotionFrames.concat([a.feed_events(arr), a.flush()])
+        outs.append((f.t.tobytes(), f.dx.tolist(), f.dy.tolist(), a.stats))
+    assert outs[0] == outs[1]

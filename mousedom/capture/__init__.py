@@ -1,0 +1,319 @@
+"""Capture files: evemu, libinput record and mousedom's native format.
+
+Entry points:
+
+- ``open_capture(path)``: sniff the format and open it for streaming (a ``Capture``).
+- ``parse_capture_arg("NAME=FILE")``: one ``--capture`` argument.
+- ``assign(config, specs)``: open every ``--capture`` (and the config's own ``replay:``
+  entries), and map each capture device onto a mouse of the config.
+- ``time_offset(captures)``: what to subtract so that epoch-stamped files start at 0.
+- ``read_reports(config, specs)``: whole captures as per-mouse report arrays on one time
+  base (for calibration and other tools that want everything in memory).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from mousedom.capture.base import (
+    Batch,
+    Capture,
+    DeviceInfo,
+    DeviceStats,
+    Feed,
+    Motion,
+    Serial,
+)
+from mousedom.capture.evemu import CaptureError, EvemuCapture
+from mousedom.capture.libinput import LibinputCapture, looks_like_libinput
+from mousedom.capture.native import NativeCapture, NativeWriter, is_native
+from mousedom.config import Config, EvdevMatch, MouseConfig
+from mousedom.sources.base import Reports
+
+__all__ = [
+    "Assignment",
+    "Batch",
+    "Capture",
+    "CaptureError",
+    "DeviceInfo",
+    "DeviceStats",
+    "Feed",
+    "Motion",
+    "NativeWriter",
+    "Serial",
+    "assign",
+    "open_capture",
+    "parse_capture_arg",
+    "read_reports",
+    "time_offset",
+]
+
+
+def sniff(path: str) -> str:
+    """'native', 'libinput' or 'evemu' from the first bytes of the file."""
+    try:
+        with open(path, "rb") as f:
+            prefix = f.read(65536)
+    except FileNotFoundError:
+        if path.endswith(".desc") or path.endswith(".events"):
+            return "evemu"  # the companion logic gives the better message
+        raise CaptureError(f"{path}: capture file not found") from None
+    except IsADirectoryError:
+        raise CaptureError(f"{path}: is a directory, not a capture") from None
+    except OSError as e:
+        raise CaptureError(f"{path}: cannot read: {e.strerror}") from None
+    if is_native(prefix):
+        return "native"
+    if looks_like_libinput(prefix):
+        return "libinput"
+    for raw in prefix.splitlines():
+        line = raw.strip()
+        if line.startswith(b"#") and b"EVEMU" in line.upper():
+            return "evemu"
+        if not line or line.startswith(b"#"):
+            continue
+        if line[:2] in (b"E:", b"N:", b"I:", b"P:", b"B:", b"A:"):
+            return "evemu"
+        break
+    if not prefix.strip() and (path.endswith(".events") or path.endswith(".desc")):
+        return "evemu"
+    raise CaptureError(
+        f"{path}: byte offset 0: not a capture this program knows "
+        "(evemu-record text, libinput record YAML, or a mousedom native capture)"
+    )
+
+
+def open_capture(path: str | os.PathLike[str]) -> Capture:
+    p = str(path)
+    kind = sniff(p)
+    if kind == "native":
+        return NativeCapture(p)
+    if kind == "libinput":
+        return LibinputCapture(p)
+    return EvemuCapture(p)
+
+
+# --------------------------------------------------------------------------- --capture
+
+
+def parse_capture_arg(arg: str) -> tuple[str | None, str]:
+    """``NAME=FILE`` -> (NAME, FILE); ``FILE`` -> (None, FILE).
+
+    A file whose own name holds ``=`` is taken whole when it exists.
+    """
+    name, sep, file = arg.partition("=")
+    if not sep or os.path.exists(arg):
+        return None, arg
+    if not name or not file:
+        raise CaptureError(f"--capture {arg!r}: expected NAME=FILE or FILE")
+    return name, file
+
+
+@dataclass
+class Assignment:
+    """Mouse ``mouse`` (index into config.mice) comes from ``capture.devices[device]``."""
+
+    mouse: int
+    capture: Capture
+    device: int
+
+
+def _evdev_matches(match: EvdevMatch, dev: DeviceInfo) -> bool:
+    given = False
+    for key in ("name", "phys", "uniq", "vendor", "product"):
+        want = getattr(match, key)
+        if want is None:
+            continue
+        given = True
+        if getattr(dev, key) != want:
+            return False
+    return given
+
+
+def _matches(mouse: MouseConfig, dev: DeviceInfo) -> bool:
+    if mouse.replay_device is not None:
+        return dev.name == mouse.replay_device
+    if dev.mouse is not None:
+        return dev.mouse == mouse.name
+    if mouse.evdev is not None and _evdev_matches(mouse.evdev, dev):
+        return True
+    return dev.name == mouse.name
+
+
+def _candidates(capture: Capture) -> list[int]:
+    """Devices that can be mice: they move (or may), or they are serial sensors."""
+    return [i for i, d in enumerate(capture.devices) if d.kind == "serial" or d.rel_xy is not False]
+
+
+def _describe(capture: Capture, devices: list[int]) -> str:
+    return ", ".join(repr(capture.devices[i].name) for i in devices) or "none"
+
+
+def assign(
+    config: Config, specs: list[tuple[str | None, str]], *, require_all: bool = True
+) -> list[Assignment]:
+    """Open the captures and map their devices onto the config's mice.
+
+    ``specs`` are parsed ``--capture`` arguments; mice of the config with a ``replay:``
+    source and no ``--capture`` of their own are read from that file.  Every mouse of the
+    config must get exactly one device (unless ``require_all`` is false).
+    """
+    cfg_name = config.path or "the config"
+    opened: dict[str, Capture] = {}
+
+    def get(path: str) -> Capture:
+        key = os.path.realpath(path)
+        if key not in opened:
+            opened[key] = open_capture(path)
+        return opened[key]
+
+    result: dict[int, Assignment] = {}
+
+    def put(mouse: int, cap: Capture, dev: int, why: str) -> None:
+        name = config.mice[mouse].name
+        if mouse in result:
+            prev = result[mouse]
+            raise CaptureError(
+                f"mouse {name!r} is given twice: {prev.capture.path} "
+                f"({prev.capture.devices[prev.device].name!r}) and {cap.path} ({why})"
+            )
+        dev_info = cap.devices[dev]
+        if dev_info.rel_xy is False:
+            raise CaptureError(
+                f"{cap.path}: device {dev_info.name!r} has no REL_X/REL_Y motion: "
+                f"not a mouse, cannot be {name!r}"
+            )
+        result[mouse] = Assignment(mouse, cap, dev)
+
+    for name, path in specs:
+        cap = get(path)
+        cands = _candidates(cap)
+        if name is not None:
+            if name not in config.names:
+                raise CaptureError(
+                    f"--capture {name}={path}: {cfg_name} has no mouse {name!r} "
+                    f"(its mice: {', '.join(config.names)})"
+                )
+            mouse = config.index(name)
+            if len(cap.devices) == 1:
+                put(mouse, cap, 0, "given by name")
+                continue
+            hits = [i for i in cands if _matches(config.mice[mouse], cap.devices[i])]
+            if len(cands) == 1 and not hits:
+                hits = cands
+            if len(hits) != 1:
+                raise CaptureError(
+                    f"--capture {name}={path}: the file holds {len(cands)} motion devices "
+                    f"({_describe(cap, cands)}) and {len(hits)} match mouse {name!r}; "
+                    f"name the device in {cfg_name} (mice.{name}.replay.device)"
+                )
+            put(mouse, cap, hits[0], "given by name")
+        else:
+            used = False
+            for i in cands:
+                hits = [k for k, m in enumerate(config.mice) if _matches(m, cap.devices[i])]
+                if len(hits) > 1:
+                    raise CaptureError(
+                        f"{path}: device {cap.devices[i].name!r} matches several mice "
+                        f"({', '.join(config.mice[k].name for k in hits)}); give it as "
+                        "NAME=FILE"
+                    )
+                if hits:
+                    put(hits[0], cap, i, "matched")
+                    used = True
+            if not used:
+                raise CaptureError(
+                    f"{path}: no device ({_describe(cap, cands)}) matches a mouse of "
+                    f"{cfg_name} ({', '.join(config.names)}); give it as NAME={path}"
+                )
+
+    for k, m in enumerate(config.mice):
+        if k in result or not m.replay:
+            continue
+        cap = get(m.replay)
+        cands = _candidates(cap)
+        hits = [i for i in cands if _matches(m, cap.devices[i])]
+        if not hits and len(cands) == 1:
+            hits = cands
+        if len(hits) != 1:
+            raise CaptureError(
+                f"{m.replay}: mice.{m.name}.replay: {len(hits)} devices match "
+                f"(the file holds {_describe(cap, cands)}); set replay.device"
+            )
+        put(k, cap, hits[0], "from the config")
+
+    if require_all:
+        missing = [m.name for k, m in enumerate(config.mice) if k not in result]
+        if missing:
+            raise CaptureError(
+                f"no capture for mouse {', '.join(map(repr, missing))} of {cfg_name}: "
+                "give --capture NAME=FILE for every mouse"
+            )
+    return [result[k] for k in sorted(result)]
+
+
+def time_offset(captures: list[Capture]) -> tuple[float, list[str]]:
+    """Seconds to subtract from epoch-stamped captures (0 for the others), and warnings.
+
+    Epoch times are rebased to the earliest event of all epoch files given together, so
+    that they stay aligned with one another; relative and monotonic times are kept.
+    """
+    firsts = [c.first_time() for c in captures if c.time_base == "epoch"]
+    firsts = [t for t in firsts if t is not None]
+    warnings = []
+    bases = {c.time_base for c in captures}
+    if "epoch" in bases and len(bases) > 1:
+        warnings.append(
+            "captures mix epoch (wall clock) and relative/monotonic times; "
+            "their events cannot be aligned in time"
+        )
+    return (min(firsts) if firsts else 0.0), warnings
+
+
+def read_reports(
+    config: Config, specs: list[tuple[str | None, str]], *, require_all: bool = True
+) -> tuple[dict[str, Reports], dict[str, DeviceStats], list[str]]:
+    """Every assigned mouse's whole capture as ``Reports`` on one time base.
+
+    Returns (reports by mouse name, reader stats by mouse name, warnings).  For tools that
+    need all the data at once (calibration); replay streams instead.
+    """
+    assignments = assign(config, specs, require_all=require_all)
+    captures = _unique([a.capture for a in assignments])
+    offset, warnings = time_offset(captures)
+    parts: dict[int, list[Motion]] = {a.mouse: [] for a in assignments}
+    stats: dict[str, DeviceStats] = {}
+    for cap in captures:
+        wanted = {a.device: a.mouse for a in assignments if a.capture is cap}
+        for feed in cap.feeds():
+            for batch in feed.batches:
+                for mo in batch.motion:
+                    if mo.device in wanted:
+                        parts[wanted[mo.device]].append(mo)
+        for dev, mouse in wanted.items():
+            stats[config.mice[mouse].name] = cap.stats[dev]
+        warnings += cap.warnings
+    out = {}
+    for mouse, mos in parts.items():
+        sub = offset if _capture_of(assignments, mouse).time_base == "epoch" else 0.0
+        t = np.concatenate([m.t for m in mos]) if mos else np.empty(0)
+        dx = np.concatenate([m.dx for m in mos]) if mos else np.empty(0)
+        dy = np.concatenate([m.dy for m in mos]) if mos else np.empty(0)
+        name = config.mice[mouse].name
+        out[name] = Reports(name, t - sub, dx, dy)
+    return out, stats, warnings
+
+
+def _capture_of(assignments: list[Assignment], mouse: int) -> Capture:
+    return next(a.capture for a in assignments if a.mouse == mouse)
+
+
+def _unique(captures: list[Capture]) -> list[Capture]:
+    seen: list[Capture] = []
+    for c in captures:
+        if all(c is not s for s in seen):
+            seen.append(c)
+    return seen

@@ -21,9 +21,7 @@ def run(args: argparse.Namespace) -> int:
     cfg = load_config(args.config, need_sources=not args.no_sources)
     print(f"{cfg.path}: {cfg.model} model, {cfg.integrator} integrator, {cfg.rate_hz:g} Hz")
     for m in cfg.mice:
-        source = (
-            "evdev" if m.evdev else "serial" if m.serial else "replay" if m.replay else "none"
-        )
+        source = "evdev" if m.evdev else "serial" if m.serial else "replay" if m.replay else "none"
         print(
             f"  {m.name}: cpi {m.cpi_x:g}/{m.cpi_y:g}, mount ({m.mount.x:g}, {m.mount.y:g}) m, "
             f"yaw {math.degrees(m.mount.yaw):g} deg{', flipped' if m.flip else ''}, "

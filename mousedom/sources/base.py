@@ -134,5 +134,5 @@ class Source(ABC):
     @abstractmethod
     def _read(self, now: float) -> list[Reports]: ...
 
-    def close(self) -> None:
+    def close(self) -> None:  # noqa: B027 (an optional hook, not abstract)
         """Release the device; safe to call twice."""

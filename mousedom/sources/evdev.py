@@ -25,6 +25,8 @@ import logging
 import os
 import select
 import struct
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -56,7 +58,17 @@ class EvdevSource(Source):
 
     kind = "evdev"
 
-    def __init__(self, mouse: MouseConfig, paths: SystemPaths | None = None) -> None:
+    def __init__(
+        self,
+        mouse: MouseConfig,
+        paths: SystemPaths | None = None,
+        *,
+        device_opener: Callable[[str], Any] | None = None,
+        ioctl: Callable[[int, int, bytes], Any] | None = None,
+    ) -> None:
+        """``device_opener`` (default ``evdev.InputDevice``) and ``ioctl`` (default
+        ``fcntl.ioctl``) are the two doors to the kernel's evdev interface; tests pass
+        fakes because this machine has no /dev/input nor /dev/uinput."""
         if mouse.evdev is None:
             raise ValueError(f"mouse {mouse.name} has no evdev section")
         super().__init__(mouse.name)
@@ -72,6 +84,8 @@ class EvdevSource(Source):
         self._attached_once = False
         self.truncated_bytes = 0  # bytes of incomplete records lost at unplug
         self.grabbed = False
+        self._device_opener = device_opener or _input_device
+        self._ioctl = ioctl or fcntl.ioctl
 
     # ----------------------------------------------------------------- open / close
 
@@ -124,14 +138,13 @@ class EvdevSource(Source):
             raise SourceUnavailable(str(e)) from None
 
     def _open_device(self, info: DeviceInfo) -> None:
-        import evdev  # the C extension; discovery and the ioctls only
-
         try:
-            dev = evdev.InputDevice(info.node)
+            dev = self._device_opener(info.node)
         except PermissionError:
             raise SourceUnavailable(join_group_hint(info)) from None
         except OSError as e:
-            raise SourceUnavailable(f"{self.name}: {info.node}: {e.strerror}") from None
+            why = "not an evdev device" if e.errno == errno.ENOTTY else e.strerror
+            raise SourceUnavailable(f"{self.name}: {info.node}: {why}") from None
         try:
             if self.rule.grab:
                 try:
@@ -143,7 +156,8 @@ class EvdevSource(Source):
                             "(another mousedom? set grab: false to share it)"
                         ) from None
                     raise
-            fcntl.ioctl(dev.fd, EVIOCSCLOCKID, struct.pack("i", CLOCK_MONOTONIC))
+            self._ioctl(dev.fd, EVIOCSCLOCKID, struct.pack("i", CLOCK_MONOTONIC))
+            os.set_blocking(dev.fd, False)  # python-evdev opens O_NONBLOCK; make sure
         except SourceUnavailable:
             dev.close()
             raise
@@ -190,10 +204,10 @@ class EvdevSource(Source):
             except BlockingIOError:
                 break
             except OSError as e:
-                if e.errno in (errno.ENODEV, errno.EIO, errno.EBADF):
-                    gone = f"{self.name}: device gone ({e.strerror})"
-                    break
-                raise
+                # ENODEV is the unplug; anything else (EIO from a dying USB port...) leaves
+                # the descriptor unusable too: treat it the same and let open() retry.
+                gone = f"{self.name}: device gone ({e.strerror or e})"
+                break
             if not data:
                 gone = f"{self.name}: device gone (end of stream)"
                 break
@@ -229,6 +243,12 @@ class EvdevSource(Source):
             incomplete_frames=s.incomplete_frames,
             truncated_bytes=self.truncated_bytes,
         )
+
+
+def _input_device(node: str) -> Any:
+    import evdev  # the C extension: only for real nodes (open, identity, grab)
+
+    return evdev.InputDevice(node)
 
 
 def _ready(fd: int) -> bool:

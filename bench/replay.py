@@ -1,0 +1,199 @@
+"""Replay throughput (native and evemu) and peak memory of a long four-mouse capture.
+
+    /work/venv/bin/python bench/replay.py [--minutes 60] [--evemu-seconds 60] [--repeat 3]
+
+Generates, in a temporary directory, a simulated rig of four mice at 1 kHz driving arcs
+for ``--minutes`` (60 = the issue's one hour, 14.4 M reports), as one native capture and
+(for ``--evemu-seconds``) as four evemu files.  Prints:
+
+- end-to-end replay (read, fuse, write CSV) in reports/s, median of ``--repeat`` runs,
+  from native and from evemu, in this process;
+- baselines measured in the same run: the readers alone (no fusion), and evemu parsed by
+  the line-by-line fallback parser instead of the vectorised one (ratio = speed-up);
+- the peak RSS (ru_maxrss) and wall time of ``mousedom replay`` of the whole long capture
+  in a child process, which shows whether memory stays bounded as the capture grows.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(REPO))
+
+import numpy as np  # noqa: E402
+
+from mousedom import sim  # noqa: E402
+from mousedom.capture import DeviceInfo, NativeWriter, assign, open_capture  # noqa: E402
+from mousedom.capture import evemu as evemu_mod  # noqa: E402
+from mousedom.capture.evemu import format_evemu  # noqa: E402
+from mousedom.config import parse_config  # noqa: E402
+from mousedom.replay import CsvSink, Replay  # noqa: E402
+
+NAMES = ("fl", "fr", "rl", "rr")
+PIECE = 60.0  # seconds simulated at a time (bounded memory while generating)
+
+
+def rig() -> sim.Rig:
+    mice = tuple(
+        sim.SimMouse(name, x, y, cpi_x=1000.0, cpi_y=1000.0, rate_hz=1000.0, phase=k * 1.3e-4)
+        for k, (name, x, y) in enumerate(
+            zip(NAMES, (0.1, 0.1, -0.1, -0.1), (0.1, -0.1, 0.1, -0.1), strict=True)
+        )
+    )
+    return sim.Rig(mice, rate_hz=100.0)
+
+
+def piece(k: int) -> list[sim.Segment]:
+    # Always moving (so every 1 kHz slot reports), alternating left and right arcs.
+    sign = 1 if k % 2 == 0 else -1
+    return sim.arc(sign * 1.5, PIECE * 0.2 / 1.5, speed=0.2)
+
+
+def generate(directory: Path, minutes: float, evemu_seconds: float) -> tuple[Path, list[Path], int]:
+    r = rig()
+    cfg = directory / "rig.yaml"
+    cfg.write_text(sim.rig_yaml(r))
+    native = directory / "long.mdcap"
+    devices = [DeviceInfo(name=f"sim {n}", mouse=n, rel_xy=True) for n in NAMES]
+    total = 0
+    evemu_parts: dict[str, list] = {n: [] for n in NAMES}
+    with NativeWriter(native, devices, time_base="relative", config_text=cfg.read_text()) as w:
+        pieces = max(1, math.ceil(minutes * 60.0 / PIECE))
+        for k in range(pieces):
+            res = sim.simulate(r, piece(k), seed=k, t_start=k * PIECE)
+            end = (k + 1) * PIECE
+            for i, n in enumerate(NAMES):
+                rep = res.reports[n]
+                keep = rep.t < end  # pieces must not overlap
+                t, dx, dy = rep.t[keep], rep.dx[keep], rep.dy[keep]
+                w.motion(i, t, dx.astype(np.int64), dy.astype(np.int64))
+                total += len(t)
+                if k * PIECE < evemu_seconds:
+                    lim = t < evemu_seconds
+                    evemu_parts[n].append((t[lim], dx[lim], dy[lim]))
+            w.sync(np.nextafter(end, -np.inf))
+    evemu_files = []
+    for n in NAMES:
+        t = np.concatenate([p[0] for p in evemu_parts[n]])
+        dx = np.concatenate([p[1] for p in evemu_parts[n]]).astype(np.int64)
+        dy = np.concatenate([p[2] for p in evemu_parts[n]]).astype(np.int64)
+        path = directory / f"{n}.evemu"
+        path.write_text(format_evemu(t, dx, dy, name=f"sim {n}", comments=True))
+        evemu_files.append(path)
+    return cfg, evemu_files, total
+
+
+def replay_once(cfg: Path, specs: list[tuple[str | None, str]]) -> tuple[float, int]:
+    config = parse_config(cfg.read_text(), str(cfg), need_sources=False)
+    t0 = time.perf_counter()
+    rp = Replay(config, assign(config, specs))
+    with open(os.devnull, "w") as out:
+        summary = rp.run(CsvSink(out))
+    return time.perf_counter() - t0, summary.reports
+
+
+def read_only(specs: list[tuple[str | None, str]]) -> tuple[float, int]:
+    t0 = time.perf_counter()
+    n = 0
+    for _, path in specs:
+        cap = open_capture(path)
+        for feed in cap.feeds():
+            for batch in feed.batches:
+                n += sum(len(m.t) for m in batch.motion)
+    return time.perf_counter() - t0, n
+
+
+def median_rate(fn, repeat: int) -> tuple[float, int]:
+    rates, n = [], 0
+    for _ in range(repeat):
+        dt, n = fn()
+        rates.append(n / dt)
+    return statistics.median(rates), n
+
+
+def child_replay(cfg: Path, native: Path, csv: Path) -> tuple[float, float, int]:
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    cmd = [sys.executable, "-m", "mousedom", "replay", "--config", str(cfg)]
+    cmd += ["--capture", str(native), "-o", str(csv)]
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(cmd, env=env, stderr=subprocess.PIPE)
+    _, status, usage = os.wait4(proc.pid, 0)
+    wall = time.perf_counter() - t0
+    err = proc.stderr.read().decode() if proc.stderr else ""
+    if os.waitstatus_to_exitcode(status) != 0:
+        raise SystemExit(f"child replay failed: {err}")
+    rows = sum(1 for _ in open(csv)) - 1
+    return wall, usage.ru_maxrss / 1024.0, rows
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--minutes", type=float, default=5.0, help="long capture length (60: 1 h)")
+    ap.add_argument("--evemu-seconds", type=float, default=60.0)
+    ap.add_argument("--repeat", type=int, default=3)
+    args = ap.parse_args()
+    with tempfile.TemporaryDirectory(prefix="mousedom-bench-") as tmp:
+        d = Path(tmp)
+        t0 = time.perf_counter()
+        cfg, evemu_files, total = generate(d, args.minutes, args.evemu_seconds)
+        native = d / "long.mdcap"
+        print(
+            f"generated {total} reports ({args.minutes:g} min, 4 mice, 1 kHz) in "
+            f"{time.perf_counter() - t0:.1f} s; native {native.stat().st_size / 1e6:.1f} MB, "
+            f"evemu {sum(p.stat().st_size for p in evemu_files) / 1e6:.1f} MB "
+            f"({args.evemu_seconds:g} s)"
+        )
+
+        # In-process throughput on the first minute's worth of native data (same as evemu).
+        short = d / "short.mdcap"
+        from mousedom.commands.convert import convert
+
+        caps = [(n, open_capture(p)) for n, p in zip(NAMES, map(str, evemu_files), strict=True)]
+        convert(caps, str(short))
+        native_specs = [(None, str(short))]
+        evemu_specs = list(zip(NAMES, map(str, evemu_files), strict=True))
+
+        nat, n_nat = median_rate(lambda: replay_once(cfg, native_specs), args.repeat)
+        ev, n_ev = median_rate(lambda: replay_once(cfg, evemu_specs), args.repeat)
+        nat_read, _ = median_rate(lambda: read_only(native_specs), args.repeat)
+        ev_read, _ = median_rate(lambda: read_only(evemu_specs), args.repeat)
+        fast = evemu_mod._fast_events
+        evemu_mod._fast_events = lambda block, line: None  # force the line-by-line parser
+        try:
+            ev_slow, _ = median_rate(lambda: read_only(evemu_specs), 1)
+        finally:
+            evemu_mod._fast_events = fast
+        print(f"replay end to end, native : {nat:12,.0f} reports/s  ({n_nat} reports)")
+        print(f"replay end to end, evemu  : {ev:12,.0f} reports/s  ({n_ev} reports)")
+        print(
+            f"baseline, native read only: {nat_read:12,.0f} reports/s  (fusion+CSV costs "
+            f"{nat_read / nat:.2f}x)"
+        )
+        print(
+            f"baseline, evemu read only : {ev_read:12,.0f} reports/s  (fusion+CSV costs "
+            f"{ev_read / ev:.2f}x)"
+        )
+        print(
+            f"baseline, evemu line by line parser: {ev_slow:12,.0f} reports/s  "
+            f"(vectorised parser is {ev_read / ev_slow:.1f}x faster)"
+        )
+
+        wall, rss, rows = child_replay(cfg, native, d / "long.csv")
+        print(
+            f"long capture: mousedom replay of {total} reports in {wall:.1f} s "
+            f"({total / wall:,.0f} reports/s incl. start-up), {rows} CSV rows, "
+            f"peak RSS {rss:.0f} MB"
+        )
+
+
+if __name__ == "__main__":
+    main()

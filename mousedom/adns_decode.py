@@ -1,0 +1,176 @@
+"""Raw serial bytes of the ADNS-3080 downsampler -> motion reports on host time.  Pure.
+
+``AdnsDecoder`` chains the frame parser (adns_protocol), the firmware clock unwrapper and
+the clock sync (clocksync), and turns MOTION packets into ``Reports`` in evdev
+convention.  The live serial source (sources/adns.py) and replay of captured serial bytes
+both go through it, so a replay gives exactly what the daemon saw.
+
+Axes: the ADNS-3080 counts Delta_X positive when the sensor moves to its right and
+Delta_Y positive when it moves forward (datasheet, figure 25: +Y toward the cable).
+evdev's REL_X is positive to the right and REL_Y positive backwards, so
+``REL_X = Delta_X`` and ``REL_Y = -Delta_Y``.  A board that mirrors the image (sensor
+mounted upside down) is the config's ``flip``, handled with the other mount maths.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from mousedom import adns_protocol as P
+from mousedom.clocksync import ClockSync, FirmwareClock
+from mousedom.sources.base import Reports
+
+DEFAULT_POLL_US = 1250  # the firmware's poll period until it tells its own
+
+
+def kim_lee_velocity(counts: float, cpi: float, k: float, fps: float) -> float:
+    """Kim & Lee eq. (50): v = (sum of K counts / CPI) / (K / FPS), in inches per second.
+
+    For the downsampler, K is the packet's frame count and FPS its poll rate
+    (1e6 / poll_us): the sensor is read once per poll and sums its own frames between.
+    """
+    return (counts / cpi) / (k / fps)
+
+
+@dataclass
+class AdnsHealth:
+    """What the decoder knows about the sensor and the line, for SOURCE status."""
+
+    sensor: str = "unknown"  # starting / ok / no-sensor (from STATUS packets)
+    squal: int | None = None  # minimum SQUAL of the last motion packet
+    squal_min: int | None = None  # minimum SQUAL since the last status query
+    fault_packets: int = 0
+    overflow_packets: int = 0
+    saturated_packets: int = 0
+    sensor_retries: int = 0
+    motion_packets: int = 0
+    k: int | None = None
+    cpi: int | None = None
+    res1600: bool | None = None
+    poll_us: int = DEFAULT_POLL_US
+    firmware: str | None = None
+    velocity_ips: tuple[float, float] = (0.0, 0.0)
+    firmware_rx_errors: int = 0
+    naks: int = 0
+    last_nak: str | None = None
+    reboots: int = 0
+
+    def as_dict(self) -> dict[str, Any]:
+        return dict(self.__dict__)
+
+
+@dataclass
+class AdnsDecoder:
+    """Feed raw chunks with their host arrival times; get reports and packets back."""
+
+    name: str = "adns"
+    parser: P.Parser = field(default_factory=P.Parser)
+    clock: FirmwareClock = field(default_factory=FirmwareClock)
+    sync: ClockSync = field(default_factory=ClockSync)
+    health: AdnsHealth = field(default_factory=AdnsHealth)
+    last_status: P.Status | None = None
+    last_version: P.Version | None = None
+
+    def feed(self, data: bytes, host_t: float) -> tuple[Reports, list[P.Packet]]:
+        packets = self.parser.feed(data, host_t)
+        t: list[float] = []
+        dx: list[int] = []
+        dy: list[int] = []
+        for p in packets:
+            if self.clock.is_backwards(p.t_us):
+                self._restarted()
+            mapped = self.sync.update(self.clock.unwrap(p.t_us), host_t)
+            if isinstance(p, P.Motion):
+                t.append(mapped)
+                dx.append(p.dx)
+                dy.append(-p.dy)
+                self._motion(p)
+            elif isinstance(p, P.Status):
+                self._status(p)
+            elif isinstance(p, P.Version):
+                self.last_version = p
+                self.health.poll_us = p.poll_us
+                self.health.firmware = f"{p.fw_major}.{p.fw_minor} (protocol {p.proto})"
+            elif isinstance(p, P.Nak):
+                self.health.naks += 1
+                name = P.NAK_NAMES.get(p.error, str(p.error))
+                self.health.last_nak = f"command 0x{p.cmd:02x}: {name}"
+        return Reports(self.name, np.array(t), np.array(dx), np.array(dy)), packets
+
+    def feed_many(self, ts: Iterable[float], pieces: Iterable[bytes]) -> Reports:
+        """Feed recorded pieces (a capture's serial batch: host times and raw bytes) and
+        return all their motion reports at once."""
+        parts = [self.feed(bytes(d), float(t))[0] for t, d in zip(ts, pieces, strict=True)]
+        parts = [r for r in parts if len(r)]
+        if not parts:
+            return Reports(self.name, np.zeros(0), np.zeros(0), np.zeros(0))
+        return Reports(
+            self.name,
+            np.concatenate([r.t for r in parts]),
+            np.concatenate([r.dx for r in parts]),
+            np.concatenate([r.dy for r in parts]),
+        )
+
+    def _restarted(self) -> None:
+        # The firmware's clock went backwards: it rebooted.  Its new clock has nothing
+        # to do with the old one.
+        self.clock.reset()
+        self.sync.reset()
+        self.health.reboots += 1
+
+    def _motion(self, p: P.Motion) -> None:
+        h = self.health
+        h.motion_packets += 1
+        h.squal = p.squal_min if p.squal_min != 0xFF else None
+        if h.squal is not None:
+            h.squal_min = h.squal if h.squal_min is None else min(h.squal_min, h.squal)
+        h.res1600 = bool(p.flags & P.FLAG_RES1600)
+        if p.flags & P.FLAG_FAULT:
+            h.fault_packets += 1
+        if p.flags & P.FLAG_OVERFLOW:
+            h.overflow_packets += 1
+        if p.flags & P.FLAG_SATURATED:
+            h.saturated_packets += 1
+        fps = 1e6 / h.poll_us
+        cpi = 1600 if h.res1600 else 400
+        h.velocity_ips = (
+            kim_lee_velocity(p.dx, cpi, p.frames, fps),
+            kim_lee_velocity(p.dy, cpi, p.frames, fps),
+        )
+
+    def _status(self, p: P.Status) -> None:
+        self.last_status = p
+        h = self.health
+        h.sensor = P.STATE_NAMES.get(p.state, str(p.state))
+        h.k, h.cpi, h.poll_us = p.k, p.cpi, p.poll_us
+        h.sensor_retries = p.retries
+        h.firmware_rx_errors = p.rx_errors
+
+    def stats(self) -> dict[str, Any]:
+        """Everything for ``SourceHealth.extra``: sensor health and line counters."""
+        return {**self.health.as_dict(), **self.parser.stats.as_dict()}
+
+    @property
+    def lost(self) -> int:
+        """Packets known lost: sequence gaps plus frames refused by CRC or framing."""
+        s = self.parser.stats
+        return s.lost_seq + s.crc_errors + s.bad_frames
+
+
+def packets_to_reports(
+    chunks: Iterable[tuple[float, bytes]], name: str = "adns"
+) -> tuple[Reports, AdnsDecoder]:
+    """Replay raw serial chunks ``(host_t, bytes)``, as a capture stores them.
+
+    Returns all motion reports (host time, REL_X, REL_Y counts) in one ``Reports`` and the
+    decoder, whose ``stats()`` and ``lost`` tell what was refused or missing.  Chunks must
+    come in the order they were read; a chunk may hold any part of any frame.
+    """
+    dec = AdnsDecoder(name=name)
+    pairs = list(chunks)
+    reports = dec.feed_many([t for t, _ in pairs], [d for _, d in pairs])
+    return reports, dec

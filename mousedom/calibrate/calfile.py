@@ -1,0 +1,113 @@
+"""The calibration YAML that a config references (``calibration: rig.calib.yaml``).
+
+Schema (read by ``mousedom.config._apply_calibration``)::
+
+    mice:
+      left: {cpi: {x: 452.1, y: 455.2}, mount: {x: 0.0, y: 0.135, yaw: 0.0}, scale: 1.0}
+    distance: {mice: [left, right], value: 0.2701, stderr: 0.0002, runs: 4}
+    umbmark: {e_max_syst: 0.114, ...}
+
+Mount yaw is in degrees, like the config.  Top-level keys other than ``mice`` are
+informational.  Each command merges its result into what is there (a CPI calibration
+keeps the mounts, and so on) and the file is replaced atomically, so the daemon never
+reads half a file on SIGHUP.
+"""
+
+from __future__ import annotations
+
+import copy
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from mousedom.errors import UserError
+
+HEADER = "# mousedom calibration: written by `mousedom calibrate ... --write`; edits are kept\n"
+
+
+def read_calibration(path: str) -> dict[str, Any]:
+    """The calibration file as a dict; {} when it does not exist yet."""
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except FileNotFoundError:
+        return {}
+    except OSError as e:
+        raise UserError(f"{path}: cannot read calibration: {e.strerror}") from None
+    except UnicodeDecodeError as e:
+        raise UserError(f"{path}: byte offset {e.start}: not UTF-8 text") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f"{path}:{mark.line + 1}" if mark else path
+        raise UserError(f"{where}: invalid YAML: {getattr(e, 'problem', None) or e}") from None
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise UserError(f"{path}:1: a calibration file must be a mapping")
+    if not isinstance(data.get("mice", {}), dict):
+        raise UserError(f"{path}: mice: must be a mapping of mouse names")
+    return data
+
+
+def merge_mouse(data: dict[str, Any], name: str, **values: Any) -> dict[str, Any]:
+    """A copy of ``data`` with ``values`` (cpi, mount, scale) merged into mice.<name>.
+
+    Nested mappings (cpi: {x, y}, mount: {x, y, yaw}) are merged key by key, so a
+    y-axis CPI calibration keeps the x value already there.
+    """
+    out = copy.deepcopy(data)
+    mice = out.setdefault("mice", {})
+    entry = mice.setdefault(name, {})
+    if not isinstance(entry, dict):
+        entry = mice[name] = {}
+    for key, value in values.items():
+        if isinstance(value, dict) and isinstance(entry.get(key), dict):
+            entry[key] = {**entry[key], **value}
+        else:
+            entry[key] = value
+    return out
+
+
+def merge_section(data: dict[str, Any], key: str, value: Any) -> dict[str, Any]:
+    """A copy of ``data`` with the top-level ``key`` set to ``value``."""
+    out = copy.deepcopy(data)
+    out[key] = value
+    return out
+
+
+def _plain(value: Any) -> Any:
+    """numpy scalars and tuples -> plain Python, which safe_dump can write."""
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if hasattr(value, "item") and callable(value.item):  # numpy scalar
+        return value.item()
+    return value
+
+
+def write_calibration(path: str, data: dict[str, Any]) -> None:
+    """Replace ``path`` atomically with ``data`` as YAML."""
+    target = Path(path)
+    text = HEADER + yaml.safe_dump(_plain(data), sort_keys=False, default_flow_style=None)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
+    except OSError as e:
+        raise UserError(f"{path}: cannot write calibration: {e.strerror}") from None
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, target)
+    except OSError as e:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise UserError(f"{path}: cannot write calibration: {e.strerror}") from None

@@ -1,0 +1,67 @@
+"""``--capture`` arguments -> per-mouse report arrays, for calibration.
+
+``mousedom.capture`` opens the files and maps their devices onto the config's mice
+(``assign``: NAME=FILE, FILE alone when a device matches a mouse, and the config's own
+``replay:`` entries).  Calibration then needs each mouse's whole recording in memory, on
+the captures' *own* time base: unlike replay, no epoch rebasing here, because
+``calibrate mounts`` lines the captures up with a reference file recorded on that same
+clock.  Captures that cannot share one time base are refused.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+
+import numpy as np
+
+from mousedom.capture import Capture, CaptureError, assign, parse_capture_arg
+from mousedom.config import Config
+from mousedom.errors import UserError
+from mousedom.sources.base import Reports
+
+
+def read_motion(cap: Capture, index: int, name: str) -> Reports:
+    """All motion reports of one device of ``cap``, in time order, times as recorded."""
+    ts, dxs, dys = [], [], []
+    for feed in cap.feeds():
+        if index not in feed.devices:
+            continue
+        for batch in feed.batches:
+            for m in batch.motion:
+                if m.device == index:
+                    ts.append(m.t)
+                    dxs.append(m.dx)
+                    dys.append(m.dy)
+    if not ts:
+        return Reports(name, np.zeros(0), np.zeros(0), np.zeros(0))
+    t = np.concatenate(ts)
+    order = np.argsort(t, kind="stable")
+    return Reports(name, t[order], np.concatenate(dxs)[order], np.concatenate(dys)[order])
+
+
+def load_captures(specs: Sequence[str], config: Config) -> dict[str, Reports]:
+    """Per-mouse reports of the mice that have a capture (``--capture`` or ``replay:``)."""
+    try:
+        assignments = assign(config, [parse_capture_arg(s) for s in specs], require_all=False)
+    except CaptureError as e:
+        raise UserError(str(e)) from None
+    recording: dict[str, Reports] = {}
+    bases: dict[str, str] = {}
+    files: set[str] = set()
+    for a in assignments:
+        name = config.mice[a.mouse].name
+        recording[name] = read_motion(a.capture, a.device, name)
+        bases[name] = a.capture.time_base
+        files.add(os.path.realpath(a.capture.path))
+    if len(files) > 1 and "relative" in bases.values():
+        rel = ", ".join(n for n, b in bases.items() if b == "relative")
+        raise UserError(
+            f"the captures of {rel} have times relative to their own first event, so "
+            "separate files cannot be aligned: record the mice together (one libinput "
+            "record or native file) or with absolute times"
+        )
+    if len(set(bases.values())) > 1:
+        listing = ", ".join(f"{n}: {b}" for n, b in bases.items())
+        raise UserError(f"the captures do not share one time base ({listing})")
+    return recording

@@ -1,0 +1,82 @@
+"""Readable reports and JSON documents of calibration results (strings only, no I/O)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from mousedom.calibrate.cpi import CpiResult
+from mousedom.calibrate.distance import DistanceResult
+from mousedom.calibrate.session import MountsResult
+from mousedom.calibrate.umbmark import UmbResult
+from mousedom.config import Config
+
+
+def cpi_text(results: dict[str, CpiResult], config: Config, distance: float) -> list[str]:
+    lines = []
+    for name, r in results.items():
+        m = config.mouse(name)
+        before = m.cpi_y if r.axis == "y" else m.cpi_x
+        lines.append(
+            f"{name}: cpi {r.axis} = {r.cpi:.1f} +- {r.stderr:.1f} from {r.runs} pushes of "
+            f"{distance * 1000:g} mm (configured {before:g}, {r.cpi / before - 1:+.2%})"
+        )
+        per = ", ".join(f"{c:.1f}" for c in r.per_run)
+        lines.append(f"  per run: {per}")
+        if np.max(r.skew_deg) >= 1.0:
+            lines.append(
+                f"  pushes were up to {np.max(r.skew_deg):.1f} deg off the mouse's "
+                "axis (corrected with the counts across it)"
+            )
+    return lines
+
+
+def distance_text(r: DistanceResult, names: list[str], angle_deg: float) -> list[str]:
+    per = ", ".join(f"{d * 1000:.2f}" for d in r.per_run)
+    return [
+        f"distance {names[0]} - {names[1]}: {r.distance * 1000:.2f} +- {r.stderr * 1000:.2f} mm "
+        f"from {r.runs} turns of {angle_deg:g} deg",
+        f"  per run (mm): {per}",
+    ]
+
+
+def mounts_json(r: MountsResult) -> dict:
+    return {name: fit.as_json() for name, fit in r.fits.items()}
+
+
+def mounts_text(r: MountsResult, config: Config) -> list[str]:
+    head = {
+        "exact": "exact fit (position, yaw and CPI scale per mouse)",
+        "kimlee": "Kim & Lee linearised (positions only; yaw and CPI as configured)",
+    }
+    lines = [f"mounts, {head[r.method]}, {r.windows} windows:"]
+    for name, f in r.fits.items():
+        m = config.mouse(name).mount
+        moved = math.hypot(f.x - m.x, f.y - m.y)
+        text = (
+            f"  {name}: x {f.x * 1000:.2f} mm, y {f.y * 1000:.2f} mm, yaw "
+            f"{math.degrees(f.yaw):.2f} deg, scale {f.scale:.4f}  (configured x "
+            f"{m.x * 1000:.2f}, y {m.y * 1000:.2f}, yaw {math.degrees(m.yaw):.2f}; moved "
+            f"{moved * 1000:.2f} mm)"
+        )
+        lines.append(text)
+        if r.method == "exact":
+            sx, sy, syaw, ss = f.stderr
+            lines.append(
+                f"    stderr: x {sx * 1000:.2f} mm, y {sy * 1000:.2f} mm, yaw "
+                f"{math.degrees(syaw):.3f} deg, scale {ss:.4f}; residual "
+                f"{f.rms * 1000:.3f} mm rms"
+            )
+    return lines
+
+
+def umbmark_text(r: UmbResult) -> list[str]:
+    lines = []
+    for d, c in (("cw", r.cw), ("ccw", r.ccw)):
+        lines.append(
+            f"{d:>3}: {c.runs} runs, centre of gravity x {c.x * 1000:+.1f} mm, "
+            f"y {c.y * 1000:+.1f} mm, r = {c.r * 1000:.1f} mm"
+        )
+    lines.append(f"E_max,syst = {r.e_max_syst * 1000:.1f} mm")
+    return lines

@@ -1,0 +1,134 @@
+"""Cutting recordings into runs at idle gaps, and into time windows.
+
+A calibration session is a sequence of runs (one push, one turn, one drive) separated by
+pauses.  A rig moves as one body, so the runs are found on the union of every mouse's
+motion reports: a new run starts where no mouse reported motion for longer than ``gap``.
+
+A report stamped t covers the motion since the device's previous report, but never more
+than one report period back (DESIGN.md, time alignment).  ``window_counts`` spreads each
+report uniformly over that span, so that windows cut anywhere get the counts that belong
+to them, and the window sums still add up exactly to the totals (no count is lost).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from mousedom.errors import UserError
+from mousedom.sources.base import Reports
+
+
+@dataclass(frozen=True)
+class Run:
+    """One run: the first and last motion report stamps (seconds)."""
+
+    t0: float
+    t1: float
+
+    @property
+    def duration(self) -> float:
+        return self.t1 - self.t0
+
+
+def moving(rep: Reports) -> np.ndarray:
+    """Stamps of the reports of ``rep`` that carry motion."""
+    keep = (np.asarray(rep.dx) != 0) | (np.asarray(rep.dy) != 0)
+    return np.asarray(rep.t, dtype=float)[keep]
+
+
+def split_runs(recording: Mapping[str, Reports], gap: float = 0.5) -> list[Run]:
+    """Runs of motion over all mice, split where every mouse was still for > ``gap`` s."""
+    if gap <= 0:
+        raise ValueError("gap must be positive")
+    stamps = [moving(rep) for rep in recording.values()]
+    t = np.sort(np.concatenate(stamps)) if stamps else np.zeros(0)
+    if len(t) == 0:
+        return []
+    breaks = np.flatnonzero(np.diff(t) > gap)
+    starts = np.concatenate([[0], breaks + 1])
+    ends = np.concatenate([breaks, [len(t) - 1]])
+    return [Run(float(t[a]), float(t[b])) for a, b in zip(starts, ends, strict=True)]
+
+
+def run_counts(
+    recording: Mapping[str, Reports], runs: Sequence[Run], names: Sequence[str]
+) -> np.ndarray:
+    """(n_runs, N, 2) counts (REL_X, REL_Y) summed per run and mouse, in ``names`` order.
+
+    Every report with a stamp inside [t0, t1] of a run belongs to it: runs are separated
+    by idle gaps, so no motion report falls between two runs.
+    """
+    out = np.zeros((len(runs), len(names), 2))
+    if not runs:
+        return out
+    t0 = np.array([r.t0 for r in runs])
+    t1 = np.array([r.t1 for r in runs])
+    for j, name in enumerate(names):
+        rep = recording[name]
+        t = np.asarray(rep.t, dtype=float)
+        k = np.searchsorted(t0, t, side="right") - 1  # the run that starts at or before t
+        inside = (k >= 0) & (t <= t1[np.clip(k, 0, None)])
+        for axis, values in enumerate((rep.dx, rep.dy)):
+            v = np.asarray(values, dtype=float)
+            np.add.at(out[:, j, axis], k[inside], v[inside])
+    return out
+
+
+def cumulative(t: np.ndarray, values: np.ndarray, period: float) -> tuple[np.ndarray, np.ndarray]:
+    """Knots (x, y) of the piecewise-linear cumulative sum of ``values`` over time.
+
+    Report i rises linearly from max(t[i-1], t[i] - period) to t[i].  Reports with equal
+    stamps are merged first so that the knots never step vertically.
+    """
+    t = np.asarray(t, dtype=float)
+    v = np.asarray(values, dtype=float)
+    if len(t) and np.any(np.diff(t) < 0):
+        raise ValueError("report stamps must be non-decreasing")
+    if len(t) == 0:
+        return np.array([0.0]), np.array([0.0])
+    uniq, first = np.unique(t, return_index=True)
+    sums = np.add.reduceat(v, first)
+    c = np.cumsum(sums)
+    prev_t = np.concatenate([[-np.inf], uniq[:-1]])
+    start = np.maximum(prev_t, uniq - period)
+    prev_c = np.concatenate([[0.0], c[:-1]])
+    x = np.empty(2 * len(uniq))
+    y = np.empty(2 * len(uniq))
+    x[0::2], y[0::2] = start, prev_c
+    x[1::2], y[1::2] = uniq, c
+    return x, y
+
+
+def window_counts(
+    t: np.ndarray, values: np.ndarray, edges: np.ndarray, period: float
+) -> np.ndarray:
+    """Counts per window (edges[k], edges[k+1]], each report spread over its span."""
+    x, y = cumulative(t, values, period)
+    at = np.interp(np.asarray(edges, dtype=float), x, y, left=0.0, right=y[-1])
+    return np.diff(at)
+
+
+def run_windows(runs: Sequence[Run], window: float, margin: float) -> list[np.ndarray]:
+    """Window edges inside each run: [t0 - margin, t1] cut into near-equal windows.
+
+    ``margin`` (one report period) reaches back to the start of the first report's span.
+    ``window <= 0`` makes each run a single window.
+    """
+    out = []
+    for r in runs:
+        a, b = r.t0 - margin, r.t1
+        n = 1 if window <= 0 else max(1, int(round((b - a) / window)))
+        out.append(np.linspace(a, b, n + 1))
+    return out
+
+
+def need_runs(found: int, needed: int, what: str, gap: float) -> None:
+    """Raise a UserError when fewer than ``needed`` runs were found."""
+    if found < needed:
+        raise UserError(
+            f"{what}: found {found} run(s), need at least {needed} "
+            f"(runs are separated by pauses of more than {gap:g} s; see --gap)"
+        )

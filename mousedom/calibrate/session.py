@@ -1,0 +1,208 @@
+"""From a recording (per-mouse reports and runs) and a config to calibration results.
+
+The glue between the pure algorithms and the command line: it picks the mice, sums
+counts per run or window, converts them with the config (whose calibration file is
+already applied, so "calibrated CPI" is simply the config's CPI), and turns every reason
+the data cannot give an answer into a UserError naming the mouse and run at fault.
+No I/O here: files are read by the command, results are printed by ``report``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from mousedom.calibrate.counts import body_frame, mouse_frame
+from mousedom.calibrate.cpi import CpiError, CpiResult, calibrate_cpi
+from mousedom.calibrate.distance import DistanceError, DistanceResult, calibrate_distance
+from mousedom.calibrate.mounts import MountError, MountFit, exact_mount, kimlee, motion_problem
+from mousedom.calibrate.reference import Reference, WheelGeometry, check_coverage, window_twist
+from mousedom.calibrate.runs import Run, run_counts, run_windows, window_counts
+from mousedom.config import Config
+from mousedom.errors import UserError
+from mousedom.sources.base import Reports
+
+SMALL_RUN = 0.25  # a run with less motion than this fraction of the median is a bump
+PAD = 0.2  # seconds of pause added around each run for the reference (clock offsets)
+
+
+@dataclass
+class Session:
+    config: Config
+    recording: dict[str, Reports]  # the mice being calibrated, config order
+    runs: list[Run]
+    notes: list[str] = field(default_factory=list)  # what was left out, and why
+
+    @property
+    def names(self) -> list[str]:
+        return list(self.recording)
+
+
+def make_session(config: Config, recording: Mapping[str, Reports], runs: Sequence[Run]) -> Session:
+    ordered = {n: recording[n] for n in config.names if n in recording}
+    return Session(config, ordered, list(runs))
+
+
+def _keep_real_runs(session: Session, magnitude: np.ndarray, what: str) -> np.ndarray:
+    """Mask of runs that are real motion; bumps are left out with a note."""
+    if len(magnitude) == 0:
+        return np.zeros(0, bool)
+    median = float(np.median(magnitude))
+    keep = magnitude >= SMALL_RUN * median
+    for k in np.flatnonzero(~keep):
+        r = session.runs[k]
+        session.notes.append(
+            f"{what}: left out run {k + 1} at t = {r.t0:.3f} .. {r.t1:.3f} s: its motion is "
+            f"{magnitude[k] / median:.0%} of the median run (a bump, not a run)"
+        )
+    return keep
+
+
+def _no_motion(session: Session, counts: np.ndarray) -> None:
+    """Raise when a mouse shows no motion at all: wrong capture or a mouse off the floor."""
+    for j, name in enumerate(session.names):
+        if not np.any(counts[:, j, :]):
+            raise UserError(
+                f"mouse {name}: no motion in any run (is it on the floor? is this its capture?)"
+            )
+
+
+def cpi(session: Session, distance: float, axis: str, min_runs: int = 2) -> dict[str, CpiResult]:
+    """Bonarini 4.2 per mouse: CPI along ``axis`` from pushes of ``distance`` metres."""
+    counts = run_counts(session.recording, session.runs, session.names)
+    if len(session.runs) == 0:
+        raise UserError("calibrate cpi: no runs: the mice never moved")
+    _no_motion(session, counts)
+    out = {}
+    for j, name in enumerate(session.names):
+        mouse = session.config.mouse(name)
+        c = counts[:, j, :]
+        keep = _keep_real_runs(session, np.hypot(c[:, 0], c[:, 1]), f"mouse {name}")
+        across = mouse.cpi_y if axis == "x" else mouse.cpi_x
+        try:
+            out[name] = calibrate_cpi(c[keep], distance, axis, across, min_runs=min_runs)
+        except CpiError as e:
+            raise UserError(f"mouse {name}: {e}") from None
+    return out
+
+
+def distance(session: Session, angle: float, min_runs: int = 2) -> DistanceResult:
+    """Bonarini (18)-(19) for the session's two mice; ``angle`` in radians."""
+    if len(session.names) != 2:
+        raise UserError(
+            f"calibrate distance takes exactly two mice, got {len(session.names)} "
+            f"({', '.join(session.names)}): choose them with --mice A,B"
+        )
+    a, b = (session.config.mouse(n) for n in session.names)
+    counts = run_counts(session.recording, session.runs, session.names)
+    if len(session.runs) == 0:
+        raise UserError("calibrate distance: no runs: the mice never moved")
+    _no_motion(session, counts)
+    d1 = body_frame(a, counts[:, 0, 0], counts[:, 0, 1])
+    d2 = body_frame(b, counts[:, 1, 0], counts[:, 1, 1])
+    keep = _keep_real_runs(session, np.hypot(*(d1 - d2).T), "distance")
+    line = np.array([b.mount.x - a.mount.x, b.mount.y - a.mount.y])
+    try:
+        return calibrate_distance(d1[keep], d2[keep], angle, line, min_runs=min_runs)
+    except DistanceError as e:
+        raise UserError(f"calibrate distance ({a.name}, {b.name}): {e}") from None
+
+
+def spread_mounts(config: Config, names: Sequence[str], d: float) -> dict[str, tuple[float, float]]:
+    """New positions of the two mice: same midpoint and direction, distance ``d`` apart."""
+    a, b = (config.mouse(n) for n in names)
+    pa, pb = np.array([a.mount.x, a.mount.y]), np.array([b.mount.x, b.mount.y])
+    mid, u = (pa + pb) / 2, (pb - pa) / np.linalg.norm(pb - pa)
+    return {a.name: tuple(mid - u * d / 2), b.name: tuple(mid + u * d / 2)}
+
+
+@dataclass
+class MountsResult:
+    method: str
+    fits: dict[str, MountFit]  # exact: everything estimated; kimlee: yaw, scale as configured
+    windows: int
+    rank: int | None = None  # kimlee: rank of S (below 2N: minimum-norm solution)
+    warnings: list[str] = field(default_factory=list)
+
+
+def mounts(
+    session: Session,
+    ref: Reference,
+    method: str = "exact",
+    geo: WheelGeometry | None = None,
+    window: float = 0.25,
+) -> MountsResult:
+    """Kim & Lee or exact mount calibration against the reference motion."""
+    if not session.runs:
+        raise UserError("calibrate mounts: no runs: the mice never moved")
+    mice = [session.config.mouse(n) for n in session.names]
+    period = max(1.0 / m.report_hz for m in mice)
+    for r in session.runs:
+        check_coverage(ref, r.t0 - period, r.t1, slack=period)
+    edges = run_windows(session.runs, window, period)
+    # Runs start and end at rest: widen each run's outer edges into the pauses around it
+    # (up to PAD, never past halfway to the next run), so that a reference whose clock lags
+    # or leads the mice's by some milliseconds still has all of its motion inside.
+    starts = np.array([r.t0 for r in session.runs])
+    ends = np.array([r.t1 for r in session.runs])
+    room = (starts - np.concatenate([[-np.inf], ends[:-1]])) / 2
+    after = (np.concatenate([starts[1:], [np.inf]]) - ends) / 2
+    for k, e in enumerate(edges):
+        e[0] -= max(0.0, min(PAD, room[k] - period))
+        e[-1] += max(0.0, min(PAD, after[k]))
+    w = np.concatenate([window_twist(ref, e, geo) for e in edges])
+    counts = np.zeros((len(w), len(mice), 2))
+    for j, m in enumerate(mice):
+        rep = session.recording[m.name]
+        for axis, values in enumerate((rep.dx, rep.dy)):
+            counts[:, j, axis] = np.concatenate(
+                [window_counts(rep.t, values, e, 1.0 / m.report_hz) for e in edges]
+            )
+    _no_motion(session, counts)
+    size = max([0.05] + [math.hypot(m.mount.x, m.mount.y) for m in mice])
+    problem = motion_problem(w, size)
+    if problem:
+        raise UserError(f"calibrate mounts: {problem}")
+    if method == "exact":
+        fits = {}
+        for j, m in enumerate(mice):
+            reading = mouse_frame(m, counts[:, j, 0], counts[:, j, 1])
+            try:
+                fits[m.name] = exact_mount(reading, w)
+            except MountError as e:
+                raise UserError(f"mouse {m.name}: {e}") from None
+        return MountsResult("exact", fits, len(w))
+    if method != "kimlee":
+        raise ValueError(f"unknown method {method!r}")
+    v_s = np.stack(
+        [body_frame(m, counts[:, j, 0], counts[:, j, 1]) for j, m in enumerate(mice)], axis=1
+    )
+    nominal = np.array([[m.mount.x, m.mount.y] for m in mice])
+    res = kimlee(v_s, w, nominal)
+    nan4 = (math.nan,) * 4
+    fits = {
+        m.name: MountFit(
+            float(res.positions[j, 0]),
+            float(res.positions[j, 1]),
+            m.mount.yaw,
+            1.0,
+            nan4,
+            math.nan,
+            res.rank,
+        )
+        for j, m in enumerate(mice)
+    }
+    warnings = []
+    if res.rank < res.unknowns:
+        warnings.append(
+            f"Kim & Lee: S has rank {res.rank} < {res.unknowns} unknowns; the "
+            "minimum-norm solution is reported (as in their example)"
+        )
+    if len(w) < 2 * len(mice) - 2:
+        warnings.append(
+            f"Kim & Lee (49): {len(w)} measurements, they need at least {2 * len(mice) - 2}"
+        )
+    return MountsResult("kimlee", fits, len(w), res.rank, warnings)

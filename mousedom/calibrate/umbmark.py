@@ -1,0 +1,134 @@
+"""UMBmark (Borenstein & Feng, 1994): systematic odometry error from 4 m squares.
+
+The robot drives a square clockwise and counter-clockwise, several times each; each run
+gives the odometry's end position minus the true end position (dx, dy).  For each
+direction the centre of gravity of those errors is (mean dx, mean dy), at distance r
+from the origin; the measure of systematic error is E_max,syst = max(r_cw, r_ccw).
+
+RUNS.csv has the header ``direction,dx,dy`` (more columns are ignored), one run per line,
+direction ``cw`` or ``ccw``, errors in metres.  ``umbmark_row`` makes such a line from a
+run with known truth (``mousedom replay`` uses it).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from mousedom.errors import UserError, located
+
+DIRECTIONS = ("cw", "ccw")
+HEADER = "direction,dx,dy"
+RECOMMENDED_RUNS = 5  # per direction, as Borenstein & Feng do
+
+
+@dataclass(frozen=True)
+class Centre:
+    x: float
+    y: float
+    runs: int
+
+    @property
+    def r(self) -> float:
+        return math.hypot(self.x, self.y)
+
+    def as_json(self) -> dict:
+        return {"x": round(self.x, 6), "y": round(self.y, 6), "r": round(self.r, 6)}
+
+
+@dataclass(frozen=True)
+class UmbResult:
+    cw: Centre
+    ccw: Centre
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def e_max_syst(self) -> float:
+        return max(self.cw.r, self.ccw.r)
+
+    def as_json(self) -> dict:
+        return {
+            "e_max_syst": round(self.e_max_syst, 6),
+            "cw": self.cw.as_json(),
+            "ccw": self.ccw.as_json(),
+        }
+
+
+def umbmark(directions: Sequence[str], errors: np.ndarray) -> UmbResult:
+    """Centres of gravity per direction and E_max,syst from per-run errors (n, 2) metres."""
+    errors = np.asarray(errors, dtype=float).reshape(-1, 2)
+    dirs = np.asarray(directions)
+    if len(dirs) != len(errors):
+        raise ValueError("one direction per run")
+    centres = {}
+    warnings = []
+    for d in DIRECTIONS:
+        sel = errors[dirs == d]
+        if len(sel) == 0:
+            raise ValueError(f"no {d} run: UMBmark needs runs in both directions")
+        if len(sel) < RECOMMENDED_RUNS:
+            warnings.append(
+                f"only {len(sel)} {d} run(s); Borenstein & Feng use "
+                f"{RECOMMENDED_RUNS} per direction"
+            )
+        centres[d] = Centre(float(sel[:, 0].mean()), float(sel[:, 1].mean()), len(sel))
+    return UmbResult(centres["cw"], centres["ccw"], warnings)
+
+
+def umbmark_row(direction: str, final_pose: Sequence[float], true_pose: Sequence[float]) -> str:
+    """One RUNS.csv line (no newline): odometry end position minus true end position."""
+    if direction not in DIRECTIONS:
+        raise ValueError(f"direction must be cw or ccw, got {direction!r}")
+    dx = float(final_pose[0]) - float(true_pose[0])
+    dy = float(final_pose[1]) - float(true_pose[1])
+    return f"{direction},{dx:.6f},{dy:.6f}"
+
+
+def parse_runs(text: str, path: str | None = None) -> tuple[list[str], np.ndarray]:
+    """Parse RUNS.csv text; errors name the file, line and column."""
+    lines = [
+        (i + 1, line)
+        for i, line in enumerate(text.splitlines())
+        if line.strip() and not line.lstrip().startswith("#")
+    ]
+    if not lines:
+        raise UserError(located(path, None, f"empty file: expected the header {HEADER}"))
+    head_no, head = lines[0]
+    names = [c.strip().lower() for c in next(csv.reader(io.StringIO(head)))]
+    missing = [c for c in ("direction", "dx", "dy") if c not in names]
+    if missing:
+        raise UserError(
+            located(
+                path,
+                head_no,
+                f"header must have the columns {HEADER}; "
+                f"missing {', '.join(missing)} (got {head.strip()!r})",
+            )
+        )
+    col = {c: names.index(c) for c in ("direction", "dx", "dy")}
+    directions, errors = [], []
+    for no, line in lines[1:]:
+        row = next(csv.reader(io.StringIO(line)))
+        if len(row) != len(names):
+            raise UserError(located(path, no, f"{len(row)} fields, the header has {len(names)}"))
+        d = row[col["direction"]].strip().lower()
+        if d not in DIRECTIONS:
+            raise UserError(located(path, no, f"must be cw or ccw, got {d!r}", "direction"))
+        values = []
+        for c in ("dx", "dy"):
+            raw = row[col[c]].strip()
+            try:
+                v = float(raw)
+            except ValueError:
+                raise UserError(located(path, no, f"not a number: {raw!r}", c)) from None
+            if not math.isfinite(v):
+                raise UserError(located(path, no, f"not a finite number: {raw!r}", c))
+            values.append(v)
+        directions.append(d)
+        errors.append(values)
+    return directions, np.asarray(errors, dtype=float).reshape(-1, 2)

@@ -1,0 +1,182 @@
+"""What every capture reader gives the replay engine.
+
+A ``Capture`` describes its devices up front and then streams *feeds*: iterators of
+``Batch`` objects, each holding motion reports (and, for the native format, raw serial
+bytes) plus a watermark ``complete``: every report of the feed's devices stamped at or
+before it has been yielded.  A single-device text file is one feed; a libinput record
+file is one feed per device (its devices sit one after another in the file); a native
+file is one feed for all its sources.  The engine advances whichever feed lags, so memory
+stays bounded however long the capture is.
+
+Times stay on the capture's own base (``time_base``): ``epoch`` (CLOCK_REALTIME seconds,
+old evemu), ``relative`` (seconds from the first event) or ``monotonic`` (host
+CLOCK_MONOTONIC, native recordings).  Rebasing epoch times is the engine's job because it
+needs every file given together.
+"""
+
+from __future__ import annotations
+
+import os
+from abc import ABC, abstractmethod
+from collections.abc import Iterator
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+
+from mousedom.events import AssemblerStats
+
+TIME_BASES = ("epoch", "relative", "monotonic")
+# evemu writes CLOCK_REALTIME in old recordings: anything past 1973-03-03 is taken as an
+# epoch time; kernels up that long are not a concern.
+EPOCH_THRESHOLD = 1e8
+
+
+@dataclass
+class DeviceInfo:
+    """One input device of a capture: enough to map it onto a mouse of the config."""
+
+    name: str
+    kind: str = "evdev"  # "evdev" or "serial"
+    bus: int | None = None
+    vendor: int | None = None
+    product: int | None = None
+    version: int | None = None
+    phys: str | None = None
+    uniq: str | None = None
+    mouse: str | None = None  # the config mouse it was recorded as (native captures)
+    rel_xy: bool | None = None  # declares REL_X and REL_Y; None when the capture does not say
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> DeviceInfo:
+        known = {k: d[k] for k in cls.__dataclass_fields__ if k in d}
+        return cls(**known)
+
+
+@dataclass
+class DeviceStats:
+    """What a reader saw of one device; filled in while the capture streams."""
+
+    events: int = 0
+    frames: int = 0
+    reports: int = 0
+    skipped: int = 0  # non-motion events: buttons, wheels, MSC_SCAN ...
+    dropped_frames: int = 0  # frames discarded because of SYN_DROPPED
+    lost_x: int = 0  # counts inside dropped frames
+    lost_y: int = 0
+    unterminated: int = 0  # frames without SYN_REPORT at the end (kept: their counts happened)
+    torn_bytes: int = 0  # unreadable tail of a crashed recording
+    net_x: int = 0
+    net_y: int = 0
+    path_x: int = 0
+    path_y: int = 0
+    first_t: float | None = None
+    last_t: float | None = None
+    serial_bytes: int = 0
+
+    def add_motion(self, t: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> None:
+        n = len(t)
+        if not n:
+            return
+        self.reports += n
+        self.net_x += int(dx.sum())
+        self.net_y += int(dy.sum())
+        self.path_x += int(np.abs(dx).sum())
+        self.path_y += int(np.abs(dy).sum())
+        if self.first_t is None:
+            self.first_t = float(t[0])
+        self.last_t = float(t[-1])
+
+    def take_assembler(self, st: AssemblerStats) -> None:
+        """Copy the frame assembler's counters (they are running totals)."""
+        self.events = st.events
+        self.frames = st.frames
+        self.skipped = st.skipped
+        self.dropped_frames = st.dropped_frames
+        self.lost_x = st.dropped_dx
+        self.lost_y = st.dropped_dy
+        self.unterminated = st.incomplete_frames
+
+    def merge(self, other: DeviceStats) -> None:
+        """Add counters recorded elsewhere (e.g. a native file's notes of its source)."""
+        for name in (
+            "events",
+            "frames",
+            "skipped",
+            "dropped_frames",
+            "lost_x",
+            "lost_y",
+            "unterminated",
+        ):
+            setattr(self, name, getattr(self, name) + getattr(other, name))
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass
+class Motion:
+    """Motion reports of one device (index into ``Capture.devices``), evdev convention."""
+
+    device: int
+    t: np.ndarray  # float64 seconds, non-decreasing
+    dx: np.ndarray  # int64 REL_X sums
+    dy: np.ndarray  # int64 REL_Y sums
+
+
+@dataclass
+class Serial:
+    """Raw bytes read from a serial source, each piece with its host time of arrival."""
+
+    device: int
+    t: np.ndarray  # float64, one per piece
+    data: list[bytes]
+
+
+@dataclass
+class Batch:
+    motion: list[Motion]
+    serial: list[Serial]
+    complete: float  # all reports of the feed's devices stamped <= this have been yielded
+
+
+@dataclass
+class Feed:
+    devices: tuple[int, ...]
+    batches: Iterator[Batch]
+
+
+class Capture(ABC):
+    """A capture file opened for streaming; see the module docstring."""
+
+    format = "capture"
+
+    def __init__(self, path: str) -> None:
+        self.path = path
+        self.devices: list[DeviceInfo] = []
+        self.stats: list[DeviceStats] = []
+        self.time_base = "relative"
+        self.header: dict[str, Any] = {}  # format specific (the native config snapshot)
+        self.warnings: list[str] = []
+        try:
+            self.bytes_total = os.path.getsize(path)
+        except OSError:
+            self.bytes_total = 0
+        self.bytes_done = 0  # how far the feeds have read (for progress bars)
+
+    @abstractmethod
+    def first_time(self) -> float | None:
+        """Time of the earliest event (None for a capture without events)."""
+
+    @abstractmethod
+    def feeds(self) -> list[Feed]:
+        """Fresh iterators over the whole capture (stats are reset)."""
+
+    def reset_stats(self) -> None:
+        self.stats = [DeviceStats() for _ in self.devices]
+        self.warnings = []
+        self.bytes_done = 0

@@ -1,0 +1,382 @@
+"""``libinput record`` captures: YAML, several devices per file, events streamed.
+
+The shape (libinput-record(1), FILE FORMAT)::
+
+    version: 1
+    ndevices: 2
+    libinput: {version: ...}
+    system: {...}
+    devices:
+      - node: /dev/input/event9
+        evdev:
+          name: ...
+          id: [bus, vendor, product, version]
+          codes: {0: [...], 1: [...], 2: [0, 1, 8, ...]}
+        udev: {...}
+        events:
+          - evdev:
+            - [  0,  11879,   2,   0,    -3] # EV_REL / REL_X  -3
+            - [  0,  11879,   0,   0,     0] # ------------ SYN_REPORT (0) ------- +0ms
+          - hid: {...}                       (and libinput entries: ignored)
+      - node: ...                            (the next device, its events after its header)
+
+Devices follow one another, each with its own event list, with times in seconds and
+microseconds since the start of the recording (one time base for all devices).  PyYAML
+reads only the small device headers; the event lists (nearly all of a large file) are
+found by regular expressions and converted with numpy, one device at a time, from its own
+byte range, so devices can be merged by time in bounded memory.  Mice are the devices
+whose codes include EV_REL with REL_X and REL_Y.
+"""
+
+from __future__ import annotations
+
+import re
+import warnings
+from collections.abc import Iterator
+
+import numpy as np
+import yaml
+
+from mousedom.capture.base import Batch, Capture, DeviceInfo, Feed, Motion
+from mousedom.capture.evemu import CaptureError, _open
+from mousedom.errors import located
+from mousedom.events import EV_REL, REL_X, REL_Y, FrameAssembler
+
+KNOWN_VERSIONS = (1,)
+BLOCK_BYTES = 4 << 20
+
+_DEVICE = re.compile(rb"(?m)^[ \t]*- node:")
+_EVENTS = re.compile(rb"(?m)^[ \t]+events:[ \t]*(?:#.*)?$")
+_COMMENT = re.compile(rb"[ \t]*#[^\n]*")
+_ROW = re.compile(rb"(?m)^[ \t]*- \[([^\]\n]*)\][ \t]*$")
+# Lines allowed in an event list besides rows: "- evdev:", "- hid:", keys of hid and
+# libinput entries, blanks (comments are stripped first).
+_OTHER = re.compile(rb"(?m)^(?:[ \t]*- \[[^\]\n]*\][ \t]*|[ \t]*(?:- )?[A-Za-z_][\w-]*:.*|[ \t]*)$")
+
+
+def looks_like_libinput(prefix: bytes) -> bool:
+    head = prefix.lstrip()
+    return (
+        head.startswith(b"# libinput record")
+        or (re.search(rb"(?m)^version:\s*\d", prefix) is not None and b"devices:" in prefix)
+        or re.search(rb"(?m)^ndevices:", prefix) is not None
+    )
+
+
+class _Span:
+    """Byte range of one device: header [start, events) and event list [events, end)."""
+
+    def __init__(self, start: int) -> None:
+        self.start = start
+        self.events: int | None = None
+        self.end: int | None = None
+        self.first_line = 0
+        self.events_line = 0
+
+
+class LibinputCapture(Capture):
+    format = "libinput"
+
+    def __init__(self, path: str, *, block_bytes: int = BLOCK_BYTES) -> None:
+        super().__init__(path)
+        self.block_bytes = block_bytes
+        self.time_base = "relative"
+        self._spans = self._index()
+        with _open(path) as f:
+            top_text = f.read(self._spans[0].start if self._spans else self._size)
+        top = self._yaml(top_text, 1)
+        if not isinstance(top, dict):
+            raise CaptureError(located(path, 1, "not a libinput record file (no top mapping)"))
+        version = top.get("version")
+        if version not in KNOWN_VERSIONS:
+            raise CaptureError(
+                located(
+                    path,
+                    _line_of(top_text, b"version:"),
+                    f"unknown libinput record version {version!r} (this reader knows 1)",
+                )
+            )
+        self.header = {k: v for k, v in top.items() if k != "devices"}
+        for span in self._spans:
+            self.devices.append(self._device(span))
+        if not self.devices:
+            raise CaptureError(located(path, None, "no devices in this libinput recording"))
+        self.reset_stats()
+
+    # ----------------------------------------------------------------- structure
+
+    def _index(self) -> list[_Span]:
+        spans: list[_Span] = []
+        line = 1
+        offset = 0
+        with _open(self.path) as f:
+            carry = b""
+            while True:
+                buf = f.read(self.block_bytes)
+                eof = not buf
+                buf = carry + buf
+                cut = len(buf) if eof else buf.rfind(b"\n") + 1
+                block, carry = buf[:cut], buf[cut:]
+                if eof and not block:
+                    break
+                marks = sorted(
+                    [(m.start(), 0) for m in _DEVICE.finditer(block)]
+                    + [(m.start(), 1) for m in _EVENTS.finditer(block)]
+                )
+                for pos, kind in marks:
+                    at_line = line + block.count(b"\n", 0, pos)
+                    if kind == 0:
+                        if spans:
+                            spans[-1].end = offset + pos
+                        span = _Span(offset + pos)
+                        span.first_line = at_line
+                        spans.append(span)
+                    elif spans and spans[-1].events is None:
+                        nl = block.find(b"\n", pos)
+                        spans[-1].events = offset + (nl + 1 if nl >= 0 else len(block))
+                        spans[-1].events_line = at_line + 1
+                line += block.count(b"\n")
+                offset += len(block)
+                if eof:
+                    break
+        self._size = offset
+        if spans:
+            spans[-1].end = offset
+        for s in spans:
+            if s.events is None:
+                s.events = s.end
+                s.events_line = 0
+        return spans
+
+    def _yaml(self, text: bytes, first_line: int):
+        try:
+            return yaml.safe_load(text)
+        except yaml.MarkedYAMLError as e:
+            mark = e.problem_mark or e.context_mark
+            line = first_line + mark.line if mark else None
+            raise CaptureError(located(self.path, line, f"invalid YAML: {e.problem}")) from None
+        except yaml.YAMLError as e:
+            raise CaptureError(located(self.path, first_line, f"invalid YAML: {e}")) from None
+
+    def _device(self, span: _Span) -> DeviceInfo:
+        with _open(self.path) as f:
+            f.seek(span.start)
+            text = f.read(span.events - span.start)
+        # The header is a one-item YAML list ("- node: ..."): drop its indentation.
+        indent = len(text) - len(text.lstrip(b" \t"))
+        lines = [ln[indent:] if ln[:indent].strip() == b"" else ln for ln in text.split(b"\n")]
+        items = self._yaml(b"\n".join(lines), span.first_line)
+        item = items[0] if isinstance(items, list) and items else None
+        if not isinstance(item, dict):
+            raise CaptureError(located(self.path, span.first_line, "malformed device entry"))
+        evdev = item.get("evdev") or {}
+        if not isinstance(evdev, dict):
+            raise CaptureError(located(self.path, span.first_line, "device evdev: not a mapping"))
+        info = DeviceInfo(name=str(evdev.get("name") or item.get("node") or "device"))
+        ident = evdev.get("id")
+        if isinstance(ident, list) and len(ident) == 4 and all(isinstance(i, int) for i in ident):
+            info.bus, info.vendor, info.product, info.version = ident
+        codes = evdev.get("codes")
+        if isinstance(codes, dict):
+            rel = codes.get(EV_REL) or []
+            info.rel_xy = isinstance(rel, list) and REL_X in rel and REL_Y in rel
+        info.extra["node"] = item.get("node")
+        if span.events_line == 0:
+            self.warnings.append(
+                f"{self.path}:{span.first_line}: device {info.name!r} has no events list"
+            )
+        return info
+
+    # ----------------------------------------------------------------- events
+
+    def first_time(self) -> float | None:
+        first = None
+        for span in self._spans:
+            for block, line in self._blocks(span, limit=1 << 16):
+                ev = self._parse(block, line)
+                if len(ev[0]):
+                    t = float(ev[0][0])
+                    first = t if first is None else min(first, t)
+                    break
+        return first
+
+    def feeds(self) -> list[Feed]:
+        self.reset_stats()
+        return [
+            Feed((i,), self._batches(i))
+            for i, d in enumerate(self.devices)
+            if d.rel_xy is not False
+        ]
+
+    def _blocks(self, span: _Span, limit: int | None = None) -> Iterator[tuple[bytes, int]]:
+        if not span.events_line:
+            return
+        with _open(self.path) as f:
+            f.seek(span.events)
+            left = span.end - span.events
+            line = span.events_line
+            carry = b""
+            size = limit or self.block_bytes
+            while left > 0 or carry:
+                buf = f.read(min(size, left)) if left > 0 else b""
+                left -= len(buf)
+                buf = carry + buf
+                cut = buf.rfind(b"\n") + 1 if left > 0 else len(buf)
+                block, carry = buf[:cut], buf[cut:]
+                if block:
+                    if not limit:
+                        self.bytes_done += len(block)
+                    yield block, line
+                    line += block.count(b"\n")
+                if limit:
+                    return
+
+    def _parse(self, block: bytes, line: int):
+        """(t, type, code, value) arrays of the evdev rows of a block of whole lines."""
+        text = _COMMENT.sub(b"", block) if b"#" in block else block
+        rows = _ROW.findall(text)
+        if len(_OTHER.sub(b"", text).strip()) != 0:
+            self._complain(block, line)
+        n = len(rows)
+        if n == 0:
+            e = np.empty(0, np.int64)
+            return np.empty(0, np.float64), e, e, e
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("error")
+                a = np.fromstring(b",".join(rows), dtype=np.int64, sep=",")
+        except (ValueError, DeprecationWarning):
+            a = None
+        if a is None or len(a) != 5 * n:
+            self._complain(block, line)
+        a = a.reshape(n, 5)
+        if (a[:, :4] < 0).any() or (a[:, 2:4] > 0xFFFF).any() or (a[:, 1] >= 1_000_000).any():
+            self._complain(block, line)
+        return a[:, 0] + a[:, 1] / 1_000_000, a[:, 2], a[:, 3], a[:, 4]
+
+    def _complain(self, block: bytes, line: int) -> None:
+        """Find the first bad line of a block that failed the quick checks, and say so."""
+        for i, raw in enumerate(block.split(b"\n")):
+            text = _COMMENT.sub(b"", raw)
+            m = _ROW.match(text)
+            if m:
+                fields = m.group(1).split(b",")
+                ok = len(fields) == 5
+                try:
+                    vals = [int(x) for x in fields]
+                    ok = ok and min(vals[:4]) >= 0 and vals[1] < 1_000_000
+                    ok = ok and vals[2] <= 0xFFFF and vals[3] <= 0xFFFF
+                except ValueError:
+                    ok = False
+                if not ok:
+                    raise CaptureError(
+                        located(
+                            self.path,
+                            line + i,
+                            "an evdev event must be [sec, usec, type, code, value] "
+                            f"(non-negative integers but the value), got [{_show(m.group(1))}]",
+                        )
+                    )
+            elif not _OTHER.fullmatch(text):
+                raise CaptureError(
+                    located(self.path, line + i, f"unexpected line in events: {_show(raw)}")
+                )
+        raise CaptureError(located(self.path, line, "malformed events"))
+
+    def _batches(self, index: int) -> Iterator[Batch]:
+        stats = self.stats[index]
+        span = self._spans[index]
+        asm = FrameAssembler()
+        last_t = -np.inf
+        for block, line in self._blocks(span):
+            t, typ, code, value = self._parse(block, line)
+            if not len(t):
+                continue
+            if t[0] < last_t or (np.diff(t) < 0).any():
+                self._backwards(block, line, last_t)
+            last_t = float(t[-1])
+            fr = asm.feed(t, typ, code, value)
+            stats.add_motion(fr.t, fr.dx, fr.dy)
+            stats.take_assembler(asm.stats)
+            complete = float(np.nextafter(last_t, -np.inf))
+            yield Batch([Motion(index, fr.t, fr.dx, fr.dy)], [], complete)
+        fr = asm.flush()
+        stats.add_motion(fr.t, fr.dx, fr.dy)
+        stats.take_assembler(asm.stats)
+        if stats.unterminated:
+            self.warnings.append(
+                f"{self.path}: device {self.devices[index].name!r}: the last frame has no "
+                "SYN_REPORT (truncated recording); its counts are kept"
+            )
+        yield Batch([Motion(index, fr.t, fr.dx, fr.dy)], [], np.inf)
+
+    def _backwards(self, block: bytes, line: int, last_t: float) -> None:
+        prev = last_t
+        for i, raw in enumerate(block.split(b"\n")):
+            m = _ROW.match(_COMMENT.sub(b"", raw))
+            if not m:
+                continue
+            sec, usec = (int(x) for x in m.group(1).split(b",")[:2])
+            t = sec + usec / 1_000_000
+            if t < prev:
+                raise CaptureError(
+                    located(
+                        self.path,
+                        line + i,
+                        f"time goes backwards ({t:.6f} after {prev:.6f}); "
+                        "a recording must be in time order",
+                    )
+                )
+            prev = t
+        raise AssertionError("unreachable: no backwards step found")  # pragma: no cover
+
+
+def _line_of(text: bytes, needle: bytes) -> int | None:
+    at = text.find(needle)
+    return None if at < 0 else text.count(b"\n", 0, at) + 1
+
+
+def _show(raw: bytes) -> str:
+    text = raw.decode("utf-8", "replace").strip()
+    return text if len(text) <= 50 else text[:47] + "..."
+
+
+def format_libinput(devices: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]]) -> str:
+    """A ``libinput record`` file holding one mouse per (name, t, dx, dy), for tests."""
+    out = [
+        "# libinput record",
+        "version: 1",
+        f"ndevices: {len(devices)}",
+        "libinput:",
+        "  version: 1.25.0",
+        "system:",
+        '  kernel: "6.8.0"',
+        "devices:",
+    ]
+    for k, (name, t, dx, dy) in enumerate(devices):
+        out += [
+            f"- node: /dev/input/event{k + 5}",
+            "  evdev:",
+            f"    # Name: {name}",
+            f"    name: {name}",
+            f"    id: [3, 1133, {49271 + k}, 273]",
+            "    codes:",
+            "      0: [0, 1, 2] # EV_SYN",
+            "      1: [272, 273, 274] # EV_KEY",
+            "      2: [0, 1, 8, 11] # EV_REL",
+            "    properties: []",
+            "  udev:",
+            "    properties:",
+            "    - ID_INPUT_MOUSE=1",
+            "  events:",
+        ]
+        us = np.round(np.asarray(t, dtype=np.float64) * 1e6).astype(np.int64)
+        sec, usec = np.divmod(us, 1_000_000)
+        for s, u, x, y in zip(sec.tolist(), usec.tolist(), dx.tolist(), dy.tolist(), strict=True):
+            out.append("  - evdev:")
+            if x:
+                out.append(f"    - [{s:3d}, {u:6d},   2,   0, {int(x):5d}] # EV_REL / REL_X")
+            if y:
+                out.append(f"    - [{s:3d}, {u:6d},   2,   1, {int(y):5d}] # EV_REL / REL_Y")
+            out.append(f"    - [{s:3d}, {u:6d},   0,   0,     0] # SYN_REPORT +0ms")
+    return "\n".join(out) + "\n"

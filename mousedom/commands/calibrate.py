@@ -1,0 +1,291 @@
+"""`mousedom calibrate cpi|distance|mounts`: the seeds' calibration procedures.
+
+Input is either captures (``--capture NAME=FILE``, runs split at idle gaps) or the live
+mice of the config (Enter starts and stops each run).  The readable report goes to
+stdout, or with ``--json`` to stderr while stdout carries only the JSON.  ``--write``
+merges the result into the calibration file the config references.  The work is in
+``mousedom.calibrate``; this is argument handling and I/O.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+
+from mousedom.calibrate import calfile, report, session
+from mousedom.calibrate.inputs import load_captures
+from mousedom.calibrate.reference import WheelGeometry, read_reference
+from mousedom.calibrate.runs import need_runs, split_runs
+from mousedom.config import DEFAULT_CONFIG_PATH, Config, load_config
+from mousedom.errors import UserError
+
+
+def _positive(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not (v > 0 and math.isfinite(v)):
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text}")
+    return v
+
+
+def _nonzero(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if v == 0 or not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"must be a non-zero number, got {text}")
+    return v
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--config", default=DEFAULT_CONFIG_PATH, help="rig YAML")
+    common.add_argument(
+        "--capture",
+        action="append",
+        default=[],
+        metavar="NAME=FILE",
+        help="a recording of mouse NAME (repeatable); without it, live mice",
+    )
+    common.add_argument(
+        "--mouse",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="calibrate only this mouse (repeatable)",
+    )
+    common.add_argument(
+        "--gap",
+        type=_positive,
+        default=0.5,
+        metavar="SECONDS",
+        help="idle time that separates runs in captures (default 0.5)",
+    )
+    common.add_argument(
+        "--runs",
+        type=int,
+        default=None,
+        metavar="N",
+        help="live: stop after N runs (default: until q or end of input)",
+    )
+    common.add_argument(
+        "--min-runs", type=int, default=2, metavar="N", help="fewest runs accepted (default 2)"
+    )
+    common.add_argument("--json", action="store_true", help="print JSON on stdout")
+    common.add_argument(
+        "--write", action="store_true", help="store the result in the config's calibration file"
+    )
+
+    p = sub.add_parser("calibrate", help="calibrate CPI, mouse distance or mount positions")
+    what = p.add_subparsers(dest="what", metavar="WHAT", required=True)
+
+    c = what.add_parser("cpi", parents=[common], help="CPI from straight pushes (Bonarini 4.2)")
+    c.add_argument(
+        "--distance", type=_positive, required=True, metavar="METRES", help="length of each push"
+    )
+    c.add_argument(
+        "--axis",
+        choices=("x", "y"),
+        default="y",
+        help="the mouse's own axis pushed along (y: forward/back, default)",
+    )
+    c.set_defaults(func=run_cpi)
+
+    d = what.add_parser(
+        "distance",
+        parents=[common],
+        help="distance between two mice from turns (Bonarini eqs. 18-19)",
+    )
+    d.add_argument(
+        "--angle",
+        type=_nonzero,
+        required=True,
+        metavar="DEGREES",
+        help="the known angle of each turn",
+    )
+    d.add_argument("--mice", metavar="A,B", help="the two mice (default: the only two)")
+    d.set_defaults(func=run_distance)
+
+    m = what.add_parser(
+        "mounts", parents=[common], help="mount positions from a reference motion (Kim & Lee IV)"
+    )
+    m.add_argument(
+        "--reference",
+        required=True,
+        metavar="REF.csv",
+        help="t,vx,vy,omega (body twist) or t,left,right (wheel ticks)",
+    )
+    m.add_argument("--method", choices=("exact", "kimlee"), default="exact")
+    m.add_argument(
+        "--window",
+        type=float,
+        default=0.25,
+        metavar="SECONDS",
+        help="window length inside runs (0: one window per run; default 0.25)",
+    )
+    m.add_argument("--wheel-radius", type=_positive, metavar="METRES")
+    m.add_argument("--ticks-per-rev", type=_positive, metavar="TICKS")
+    m.add_argument("--track", type=_positive, metavar="METRES")
+    m.set_defaults(func=run_mounts)
+
+
+# --------------------------------------------------------------------------- shared steps
+
+
+def _setup(args: argparse.Namespace, names: list[str] | None = None):
+    config = load_config(args.config, need_sources=False)
+    replaying = args.capture or any(m.replay for m in config.mice)
+    if args.write and not config.calibration:
+        raise UserError(
+            f"{args.config}: --write needs a calibration file: add a line such as "
+            "`calibration: rig.calib.yaml` to the config"
+        )
+    wanted = names or args.mouse
+    for n in wanted:
+        if n not in config.names:
+            raise UserError(f"{args.config}: no mouse {n!r} (it has {', '.join(config.names)})")
+    if replaying:
+        recording = load_captures(args.capture, config)
+        if wanted:
+            missing = [n for n in wanted if n not in recording]
+            if missing:
+                raise UserError(f"no --capture for mouse {', '.join(missing)}")
+            recording = {n: recording[n] for n in wanted}
+        runs = split_runs(recording, args.gap)
+    else:
+        recording, runs = _live(config, wanted or list(config.names), args)
+    return config, session.make_session(config, recording, runs)
+
+
+def _live(config: Config, names: list[str], args: argparse.Namespace):
+    from mousedom.calibrate.live import collect_runs
+    from mousedom.sources.evdev import EvdevSource
+
+    sources = []
+    for n in names:
+        m = config.mouse(n)
+        if m.evdev is None:
+            raise UserError(
+                f"mouse {n}: live calibration reads evdev mice; record this one "
+                "with `mousedom record` and give it with --capture"
+            )
+        sources.append(EvdevSource(m))
+    what = {"cpi": "push", "distance": "turn"}.get(args.what, "run")
+    return collect_runs(sources, sys.stdin.fileno(), sys.stderr, args.runs, what)
+
+
+def _emit(
+    args: argparse.Namespace, doc: dict, lines: list[str], s: session.Session, warnings: list[str]
+) -> None:
+    text_out = sys.stderr if args.json else sys.stdout
+    for line in lines:
+        print(line, file=text_out)
+    for note in s.notes:
+        print(f"note: {note}", file=sys.stderr)
+    for w in warnings:
+        print(f"mousedom: warning: {w}", file=sys.stderr)
+    if args.json:
+        print(json.dumps(doc, indent=2))
+
+
+def _store(config: Config, update) -> None:
+    data = calfile.read_calibration(config.calibration)
+    calfile.write_calibration(config.calibration, update(data))
+    load_config(config.path, need_sources=False)  # what was written must load
+    print(f"written to {config.calibration}", file=sys.stderr)
+
+
+# --------------------------------------------------------------------------- subcommands
+
+
+def run_cpi(args: argparse.Namespace) -> int:
+    config, s = _setup(args)
+    need_runs(len(s.runs), args.min_runs, "calibrate cpi", args.gap)
+    results = session.cpi(s, args.distance, args.axis, args.min_runs)
+    warnings = [f"mouse {n}: {w}" for n, r in results.items() for w in r.warnings]
+    doc = {n: r.as_json() for n, r in results.items()}
+    _emit(args, doc, report.cpi_text(results, config, args.distance), s, warnings)
+    if args.write:
+
+        def update(data):
+            for n, r in results.items():
+                m = config.mouse(n)  # the other axis as it stands (calibration applied)
+                cpi = {"x": m.cpi_x, "y": m.cpi_y, args.axis: round(r.cpi, 3)}
+                data = calfile.merge_mouse(data, n, cpi=cpi)
+            return data
+
+        _store(config, update)
+    return 0
+
+
+def run_distance(args: argparse.Namespace) -> int:
+    pair = None
+    if args.mice:
+        pair = [p.strip() for p in args.mice.split(",")]
+        if len(pair) != 2 or not all(pair):
+            raise UserError(f"--mice {args.mice!r}: give two mouse names, e.g. --mice left,right")
+    config, s = _setup(args, pair)
+    need_runs(len(s.runs), args.min_runs, "calibrate distance", args.gap)
+    result = session.distance(s, math.radians(args.angle), args.min_runs)
+    _emit(
+        args,
+        result.as_json(),
+        report.distance_text(result, s.names, args.angle),
+        s,
+        result.warnings,
+    )
+    if args.write:
+        positions = session.spread_mounts(config, s.names, result.distance)
+
+        def update(data):
+            for n, (x, y) in positions.items():
+                data = calfile.merge_mouse(data, n, mount={"x": round(x, 6), "y": round(y, 6)})
+            return calfile.merge_section(data, "distance", {"mice": s.names, **result.as_json()})
+
+        _store(config, update)
+    return 0
+
+
+def _wheel_geometry(args: argparse.Namespace, config: Config) -> WheelGeometry | None:
+    given = [args.wheel_radius, args.ticks_per_rev, args.track]
+    if all(v is not None for v in given):
+        return WheelGeometry(args.wheel_radius, args.wheel_radius, args.track, args.ticks_per_rev)
+    if any(v is not None for v in given):
+        raise UserError("--wheel-radius, --ticks-per-rev and --track go together")
+    if config.wheels:
+        w = config.wheels
+        return WheelGeometry(w.radius_left, w.radius_right, w.track, w.ticks_per_rev)
+    return None
+
+
+def run_mounts(args: argparse.Namespace) -> int:
+    config, s = _setup(args)
+    ref = read_reference(args.reference)  # after a live session: the logger may write it
+    need_runs(len(s.runs), 1, "calibrate mounts", args.gap)
+    geo = _wheel_geometry(args, config)
+    result = session.mounts(s, ref, args.method, geo, args.window)
+    _emit(args, report.mounts_json(result), report.mounts_text(result, config), s, result.warnings)
+    if args.write:
+
+        def update(data):
+            for n, f in result.fits.items():
+                mount = {"x": round(f.x, 6), "y": round(f.y, 6)}
+                values = {"mount": mount}
+                if result.method == "exact":
+                    m = config.mouse(n)
+                    mount["yaw"] = round(math.degrees(f.yaw), 4)
+                    values["scale"] = round(f.scale, 6)
+                    values["cpi"] = {
+                        "x": round(m.cpi_x * f.scale, 3),
+                        "y": round(m.cpi_y * f.scale, 3),
+                    }
+                data = calfile.merge_mouse(data, n, **values)
+            return data
+
+        _store(config, update)
+    return 0

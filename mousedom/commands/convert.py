@@ -1,0 +1,160 @@
+"""``mousedom convert``: evemu / libinput record / native captures -> one native capture.
+
+    mousedom convert --capture NAME=FILE [--capture NAME=FILE ...] -o OUT.mdcap
+                     [--config RIG.yaml] [--no-compress]
+
+NAME becomes the device's mouse name in the native header, so the result replays with
+``--capture OUT.mdcap`` alone.  Inputs are merged by time in bounded memory.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+from pathlib import Path
+
+from mousedom.capture import (
+    Capture,
+    CaptureError,
+    DeviceInfo,
+    NativeWriter,
+    open_capture,
+    parse_capture_arg,
+    time_offset,
+)
+from mousedom.capture.base import TIME_BASES
+from mousedom.errors import UserError
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "convert",
+        help="convert evemu / libinput record captures into one native capture",
+        description="Merge captures (evemu, libinput record, native) into one mousedom "
+        "native capture (see docs/captures.md).",
+    )
+    p.add_argument(
+        "--capture",
+        action="append",
+        default=[],
+        required=True,
+        metavar="NAME=FILE",
+        help="an input; NAME (optional) is the config mouse its device stands for",
+    )
+    p.add_argument("-o", "--output", required=True, metavar="OUT", help="the native capture")
+    p.add_argument("--config", metavar="RIG.yaml", help="store this config in the header")
+    p.add_argument("--no-compress", action="store_true", help="store chunks uncompressed")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    config_text = None
+    if args.config:
+        from mousedom.config import load_config
+
+        load_config(args.config, need_sources=False)  # refuse a broken config early
+        config_text = Path(args.config).read_text()
+    inputs: list[tuple[str | None, Capture]] = []
+    for arg in args.capture:
+        name, path = parse_capture_arg(arg)
+        inputs.append((name, open_capture(path)))
+    out = os.path.abspath(args.output)
+    for _, cap in inputs:
+        if os.path.abspath(cap.path) == out:
+            raise UserError(f"{args.output}: the output would overwrite an input")
+    stats = convert(inputs, args.output, config_text=config_text, compress=not args.no_compress)
+    for w in stats["warnings"]:
+        print(f"mousedom: warning: {w}", file=sys.stderr)
+    print(
+        f"{args.output}: {stats['devices']} devices, {stats['reports']} reports, "
+        f"{os.path.getsize(args.output)} bytes"
+    )
+    return 0
+
+
+def convert(
+    inputs: list[tuple[str | None, Capture]],
+    path: str,
+    *,
+    config_text: str | None = None,
+    compress: bool = True,
+) -> dict:
+    """Write the motion devices of ``inputs`` into one native capture at ``path``."""
+    captures = [c for _, c in inputs]
+    bases = {c.time_base for c in captures}
+    offset, warnings = time_offset(captures)
+    if len(bases) == 1:
+        time_base, offset = bases.pop(), 0.0  # keep the times exactly as recorded
+    else:
+        time_base = "relative"  # epoch files rebased; the others kept
+    assert time_base in TIME_BASES
+    devices: list[DeviceInfo] = []
+    states = []
+    for name, cap in inputs:
+        movers = [i for i, d in enumerate(cap.devices) if d.rel_xy is not False]
+        if not movers:
+            raise CaptureError(f"{cap.path}: no device with REL_X/REL_Y motion")
+        if name is not None and len(movers) > 1:
+            raise CaptureError(
+                f"--capture {name}={cap.path}: the file holds {len(movers)} motion devices; "
+                "give it without NAME= (device names are kept)"
+            )
+        sub = offset if cap.time_base == "epoch" else 0.0
+        index = {}
+        for i in movers:
+            d = cap.devices[i]
+            info = DeviceInfo(**{**d.as_dict(), "mouse": name if name is not None else d.mouse})
+            info.extra = {**d.extra, "converted_from": os.path.basename(cap.path)}
+            index[i] = len(devices)
+            devices.append(info)
+        for feed in cap.feeds():
+            mine = {d: index[d] for d in feed.devices if d in index}
+            if mine:
+                states.append([feed, mine, sub, -math.inf, False, cap])
+    reports = 0
+    # The inputs' first event (not first report) anchors the replay's window grid and the
+    # epoch rebasing: keep it, so that replaying the result gives the very same poses.
+    firsts = [
+        t - (offset if c.time_base == "epoch" else 0.0)
+        for c in captures
+        if (t := c.first_time()) is not None
+    ]
+    meta = {"first_time": min(firsts) if firsts else None}
+    with NativeWriter(
+        path,
+        devices,
+        config_text=config_text,
+        time_base=time_base,
+        compress=compress,
+        meta=meta,
+    ) as w:
+        synced = -math.inf
+        while True:
+            live = [s for s in states if not s[4]]
+            if not live:
+                break
+            st = min(live, key=lambda s: s[3])
+            batch = next(st[0].batches, None)
+            if batch is None:
+                st[4] = True
+                continue
+            for mo in batch.motion:
+                if mo.device in st[1] and len(mo.t):
+                    w.motion(st[1][mo.device], mo.t - st[2] if st[2] else mo.t, mo.dx, mo.dy)
+                    reports += len(mo.t)
+            if batch.complete > -math.inf:
+                st[3] = batch.complete - st[2]
+            marks = [s[3] for s in states if not s[4]]
+            mark = min(marks) if marks else math.inf
+            if math.isfinite(mark) and mark > synced:
+                w.sync(mark)
+                synced = mark
+        for s in states:
+            cap = s[5]
+            for dev, out_dev in s[1].items():
+                w.note(out_dev, cap.stats[dev])
+        w.sync(math.inf)
+    for _, cap in inputs:
+        warnings += cap.warnings
+    return {"devices": len(devices), "reports": reports, "warnings": warnings}

@@ -1,0 +1,154 @@
+"""``mousedom list``: the input devices that can serve as mice, and how to name them."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+
+from mousedom.config import load_config
+from mousedom.discovery import (
+    DeviceInfo,
+    Scan,
+    SystemPaths,
+    is_stream,
+    join_group_hint,
+    match_device,
+    scan,
+)
+from mousedom.errors import UserError
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "list",
+        help="list input devices with REL_X and REL_Y (candidate mice)",
+        description="List every evdev device with REL_X and REL_Y: node, name, phys, uniq, "
+        "vendor:product, /dev/input/by-id and by-path links, MOUSE_DPI from udev, and a "
+        "config rule that names it.",
+    )
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.add_argument(
+        "--config",
+        "-c",
+        metavar="RIG.yaml",
+        help="also say which device each evdev mouse of this config matches; exit 1 if a "
+        "rule matches none or several",
+    )
+    p.add_argument(
+        "--root",
+        metavar="DIR",
+        help="read DIR/dev/input, DIR/sys/class/input and DIR/run/udev/data instead of "
+        "the real ones (containers, tests)",
+    )
+    p.set_defaults(func=run)
+
+
+def suggested_rule(dev: DeviceInfo) -> str:
+    """A config rule for this device: by-path is stable per port, even for twin mice."""
+    if dev.by_path:
+        return f"evdev: {{path: {dev.by_path[0]}}}"
+    if dev.phys:
+        return f"evdev: {{name: {json.dumps(dev.name)}, phys: {json.dumps(dev.phys)}}}"
+    if dev.uniq:
+        return (
+            f"evdev: {{vendor: {dev.vendor:#06x}, product: {dev.product:#06x}, uniq: {dev.uniq}}}"
+        )
+    return f"evdev: {{path: {dev.node}}}"
+
+
+def _text(result: Scan) -> str:
+    where = result.paths.dev_input
+    if not result.present:
+        return (
+            f"no input devices: {where} does not exist on this machine "
+            "(in a container, pass the mice through, e.g. --device /dev/input/eventN)\n"
+        )
+    if not result.devices:
+        return f"no devices with REL_X and REL_Y among {result.nodes} input devices in {where}\n"
+    lines = []
+    locked = [d for d in result.devices if not d.readable]
+    for d in result.devices:
+        lines.append(f"{d.node}  {d.name or '(unknown: cannot open)'}")
+        if d.name:
+            lines.append(f"  id       {d.bus} {d.vendor:04x}:{d.product:04x}")
+            lines.append(f"  phys     {d.phys or '-'}")
+            lines.append(f"  uniq     {d.uniq or '-'}")
+        for link in d.by_id:
+            lines.append(f"  by-id    {link}")
+        for link in d.by_path:
+            lines.append(f"  by-path  {link}")
+        dpi = d.as_dict()["dpi"]
+        if dpi:
+            known = f"{dpi['dpi']} cpi" if dpi["dpi"] else "no default"
+            if dpi["hz"]:
+                known += f" at {dpi['hz']} Hz"
+            lines.append(f"  MOUSE_DPI {dpi['raw']} ({known})")
+        if d.readable:
+            lines.append(f"  config   {suggested_rule(d)}")
+        else:
+            lines.append(f"  cannot open: {join_group_hint(d)}")
+        lines.append("")
+    n = len(result.devices)
+    lines.append(f"{n} device{'s' if n != 1 else ''} with REL_X and REL_Y in {where}")
+    if locked:
+        groups = sorted({d.group or "input" for d in locked})
+        lines.append(f"{len(locked)} cannot be opened by this user: join group {', '.join(groups)}")
+    return "\n".join(lines) + "\n"
+
+
+def config_matches(config_path: str, result: Scan) -> dict[str, dict[str, str | None]]:
+    """For each evdev mouse of the config: the node its rule matches, or why none."""
+    cfg = load_config(config_path)
+    out: dict[str, dict[str, str | None]] = {}
+    for m in cfg.mice:
+        if m.evdev is None:
+            continue
+        rule = m.evdev
+        if rule.path and is_stream(rule.path):
+            out[m.name] = {"node": rule.path, "error": None, "note": "FIFO/pipe stream"}
+            continue
+        resolved = os.path.realpath(rule.path) if rule.path else None
+        try:
+            dev = match_device(rule, result.devices, resolved_path=resolved)
+            out[m.name] = {"node": dev.node, "error": None, "note": None}
+        except UserError as e:
+            out[m.name] = {"node": None, "error": str(e), "note": None}
+    return out
+
+
+def _config_text(config_path: str, matches: dict[str, dict[str, str | None]]) -> str:
+    lines = [f"{config_path}:"]
+    if not matches:
+        lines.append("  no evdev mice in this config")
+    for name, r in matches.items():
+        if r["error"]:
+            lines.append(f"  {name}: {r['error']}")
+        else:
+            note = f" ({r['note']})" if r["note"] else ""
+            lines.append(f"  {name} -> {r['node']}{note}")
+    return "\n".join(lines) + "\n"
+
+
+def run(args: argparse.Namespace) -> int:
+    paths = SystemPaths.under(args.root) if args.root else SystemPaths()
+    result = scan(paths)
+    matches = config_matches(args.config, result) if args.config else None
+    if args.json:
+        doc = {
+            "input_dir": paths.dev_input,
+            "present": result.present,
+            "nodes": result.nodes,
+            "devices": [d.as_dict() for d in result.devices],
+        }
+        if matches is not None:
+            doc["config"] = {"path": args.config, "mice": matches}
+        sys.stdout.write(json.dumps(doc, indent=2) + "\n")
+    else:
+        sys.stdout.write(_text(result))
+        if matches is not None:
+            sys.stdout.write("\n" + _config_text(args.config, matches))
+    if matches and any(r["error"] for r in matches.values()):
+        return 1
+    return 0

@@ -1,0 +1,336 @@
+"""``mousedom record``: every configured source of a rig into one native capture file.
+
+Evdev mice are recorded as their decoded motion reports (t on CLOCK_MONOTONIC, summed
+REL_X/REL_Y per SYN_REPORT frame) plus a NOTE per mouse with what was skipped or dropped;
+serial sources (the ADNS-3080 downsampler) as the raw bytes read from the port, each read
+stamped with its host arrival time, so that replay can parse them with the same code as
+the live daemon (the port is driven by ``AdnsSource``, which also sets K and CPI, through
+its ``on_raw`` hook).  The file is append-only and flushed to the OS at least every
+``FLUSH_S`` seconds: a crash or ``kill -9`` loses at most that much, and the reader reports
+the torn tail.  SIGINT and SIGTERM only set a flag; the loop then drains, writes the notes
+and closes the file.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import os
+import selectors
+import signal
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from mousedom.config import Config, MouseConfig, load_config
+from mousedom.errors import UserError
+from mousedom.sources.base import Source, SourceGone, SourceUnavailable
+
+log = logging.getLogger(__name__)
+
+FLUSH_S = 0.25  # bound on what a kill -9 can lose
+RETRY_S = 0.5  # how often to look for an unplugged device
+TICK_S = 0.05  # longest sleep in select: signals and deadlines are noticed this fast
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "record",
+        help="record every configured source into a native capture file",
+        description="Record the mice (evdev) and serial sensors of a rig config into one "
+        "native capture file, showing events and rates per source on stderr. Stop with "
+        "Ctrl-C (SIGINT) or SIGTERM, or give --duration.",
+    )
+    p.add_argument("--config", "-c", required=True, metavar="RIG.yaml")
+    p.add_argument("-o", "--output", required=True, metavar="FILE")
+    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    p.add_argument(
+        "--status-interval",
+        type=float,
+        default=1.0,
+        metavar="S",
+        help="seconds between status lines on stderr (0: none)",
+    )
+    p.add_argument("--fsync", action="store_true", help="fsync every chunk (power-loss safe)")
+    p.add_argument("--force", action="store_true", help="overwrite FILE if it exists")
+    p.set_defaults(func=run)
+
+
+# --------------------------------------------------------------------------- recording
+
+
+@dataclass
+class Slot:
+    """One configured source and its recording bookkeeping."""
+
+    index: int
+    mouse: MouseConfig
+    source: Source  # EvdevSource or AdnsSource
+    serial: bool = False  # an ADNS-3080 downsampler: its raw bytes are what is recorded
+    connected: bool = True
+    next_retry: float = 0.0
+    reports: int = 0
+    last_reports: int = 0
+    serial_t: list[float] = field(default_factory=list)
+    serial_data: list[bytes] = field(default_factory=list)
+    serial_bytes: int = 0
+
+
+def _make_slot(cfg: Config, index: int, mouse: MouseConfig) -> Slot:
+    where = f"{cfg.path}: mice.{mouse.name}"
+    if mouse.evdev is not None:
+        from mousedom.sources.evdev import EvdevSource
+
+        return Slot(index, mouse, EvdevSource(mouse))
+    if mouse.serial is not None:
+        # The serial source configures the downsampler (K, CPI) as the daemon would, and
+        # hands every chunk it reads to on_raw before decoding: those bytes are recorded.
+        from mousedom.sources.adns import AdnsSource
+
+        slot = Slot(index, mouse, None, serial=True)  # type: ignore[arg-type]
+
+        def on_raw(t: float, data: bytes) -> None:
+            slot.serial_t.append(t)
+            slot.serial_data.append(bytes(data))
+            slot.serial_bytes += len(data)
+
+        slot.source = AdnsSource(mouse, on_raw=on_raw)
+        return slot
+    raise UserError(f"{where}: a replay source cannot be recorded (it is a recording already)")
+
+
+def _fileno(source: Source) -> int:
+    """The fd to wait on, or -1 for ports without one (loop:// ...): those are polled."""
+    try:
+        fd = source.fileno()
+    except Exception:  # pyserial URL handlers differ in what they raise here
+        return -1
+    return fd if isinstance(fd, int) and fd >= 0 else -1
+
+
+def _device_info(slot: Slot):
+    from mousedom.capture.base import DeviceInfo as CaptureDevice
+
+    m, src = slot.mouse, slot.source
+    if slot.serial:
+        return CaptureDevice(
+            name=m.serial.port,
+            kind="serial",
+            mouse=m.name,
+            extra={
+                "port": m.serial.port,
+                "baud": m.serial.baud,
+                "k": m.serial.k,
+                "sensor_cpi": m.serial.sensor_cpi,
+            },
+        )
+    d = src.device
+    return CaptureDevice(
+        name=d.name,
+        kind="evdev",
+        bus=d.bustype or None,
+        vendor=d.vendor or None,
+        product=d.product or None,
+        version=d.version or None,
+        phys=d.phys or None,
+        uniq=d.uniq or None,
+        mouse=m.name,
+        rel_xy=True,
+        extra={
+            "node": d.node,
+            "by_id": list(d.by_id),
+            "by_path": list(d.by_path),
+            "mouse_dpi": d.mouse_dpi,
+            "grabbed": src.grabbed,
+        },
+    )
+
+
+class Recorder:
+    """The selectors loop: sources in, native capture chunks out, status on stderr."""
+
+    def __init__(
+        self, cfg: Config, config_text: str, output: str, *, fsync: bool, stop: list[int]
+    ) -> None:
+        from mousedom.capture.native import NativeWriter
+
+        self.slots = [_make_slot(cfg, i, m) for i, m in enumerate(cfg.mice)]
+        for s in self.slots:
+            try:
+                s.source.open()
+            except SourceUnavailable as e:
+                self.close_sources()
+                raise UserError(f"{cfg.path}: mice.{s.mouse.name}: {e}", exit_code=1) from None
+        try:
+            self.writer = NativeWriter(
+                output,
+                [_device_info(s) for s in self.slots],
+                config_text=config_text,
+                time_base="monotonic",
+                fsync=fsync,
+                meta={"recorder": "mousedom record", "config_path": cfg.path},
+            )
+        except OSError as e:
+            self.close_sources()
+            raise UserError(f"{output}: cannot write: {e.strerror}", exit_code=1) from None
+        self.sel = selectors.DefaultSelector()
+        for s in self.slots:
+            self._register(s)
+        self._stop = stop  # the signal handler appends to it
+
+    def _register(self, s: Slot) -> None:
+        fd = _fileno(s.source)
+        if fd >= 0:
+            self.sel.register(fd, selectors.EVENT_READ, s)
+
+    def _unregister(self, s: Slot) -> None:
+        for key in list(self.sel.get_map().values()):
+            if key.data is s:
+                self.sel.unregister(key.fileobj)
+
+    def _read(self, s: Slot, now: float) -> None:
+        try:
+            for batch in s.source.read(now):  # a serial source's bytes went to on_raw
+                if not s.serial:
+                    self.writer.motion(s.index, batch.t, batch.dx, batch.dy)
+                s.reports += len(batch)
+        except SourceGone as e:
+            self._unregister(s)
+            s.connected, s.next_retry = False, now + RETRY_S
+            print(f"record: {s.mouse.name}: {e}; waiting for it to come back", file=sys.stderr)
+
+    def _retry(self, s: Slot, now: float) -> None:
+        s.next_retry = now + RETRY_S
+        try:
+            s.source.open()
+        except (SourceUnavailable, UserError):
+            return
+        s.connected = True
+        self._register(s)
+        node = getattr(getattr(s.source, "device", None), "node", s.mouse.name)
+        print(f"record: {s.mouse.name}: back ({node})", file=sys.stderr)
+
+    def _flush(self) -> None:
+        for s in self.slots:
+            if s.serial_data:
+                self.writer.serial_many(s.index, s.serial_t, s.serial_data)
+                s.serial_t, s.serial_data = [], []
+        self.writer.flush()
+
+    def status(self, elapsed: float, dt: float) -> str:
+        parts = []
+        for s in self.slots:
+            src = s.source
+            rate = (s.reports - s.last_reports) / dt if dt > 0 else 0.0
+            s.last_reports = s.reports
+            state = "" if s.connected else " (gone)"
+            if s.serial:
+                parts.append(
+                    f"{s.mouse.name} {s.serial_bytes} B {s.reports} reports {rate:.0f} Hz{state}"
+                )
+                continue
+            st = src.assembler.stats
+            extra = f" dropped {st.dropped_frames}" if st.dropped_frames else ""
+            parts.append(
+                f"{s.mouse.name} {st.events} events {s.reports} reports {rate:.0f} Hz{extra}{state}"
+            )
+        return f"record: {elapsed:6.1f} s  " + " | ".join(parts)
+
+    def run(self, duration: float | None, status_every: float) -> None:
+        try:
+            self._loop(duration, status_every)
+        finally:
+            # Whatever happened, what was recorded stays readable and the devices are
+            # released (both are idempotent after a normal finish).
+            self.writer.close()
+            self.close_sources()
+
+    def _loop(self, duration: float | None, status_every: float) -> None:
+        t0 = time.monotonic()
+        last_flush = last_status = t0
+        polled = [s for s in self.slots if _fileno(s.source) < 0]
+        while not self._stop:
+            now = time.monotonic()
+            if duration is not None and now - t0 >= duration:
+                break
+            before = now
+            timeout = TICK_S if not polled else 0.005
+            for key, _ in self.sel.select(timeout):
+                self._read(key.data, time.monotonic())
+            now = time.monotonic()
+            for s in self.slots:
+                if not s.connected and now >= s.next_retry:
+                    self._retry(s, now)
+                elif s.connected and _fileno(s.source) < 0:
+                    self._read(s, now)
+            if now - last_flush >= FLUSH_S:
+                self._flush()
+                # Every fd was drained up to `before`: reports stamped before it are in.
+                self.writer.sync(before)
+                last_flush = now
+            if status_every > 0 and now - last_status >= status_every:
+                print(self.status(now - t0, now - last_status), file=sys.stderr, flush=True)
+                last_status = now
+        self.finish(time.monotonic() - t0)
+
+    def finish(self, elapsed: float) -> None:
+        now = time.monotonic()
+        for s in self.slots:  # one last drain: what arrived before the stop is kept
+            if s.connected:
+                self._read(s, now)
+        self._flush()
+        from mousedom.capture.base import DeviceStats
+
+        for s in self.slots:
+            if s.serial:
+                continue
+            note = DeviceStats()
+            note.take_assembler(s.source.assembler.stats)
+            self.writer.note(s.index, note)
+        self.writer.close()
+        self.close_sources()
+        for s in self.slots:  # the last line gives average rates over the whole run
+            s.last_reports = 0
+        print(self.status(elapsed, elapsed).replace("record:", "record: done", 1), file=sys.stderr)
+
+    def close_sources(self) -> None:
+        for s in self.slots:
+            s.source.close()
+
+
+def run(args: argparse.Namespace) -> int:
+    cfg = load_config(args.config)
+    if os.path.exists(args.output) and not args.force:
+        raise UserError(f"{args.output}: exists; not overwriting a recording (use --force)")
+    config_text = Path(args.config).read_text()
+    if args.duration is not None and not (args.duration > 0 and math.isfinite(args.duration)):
+        raise UserError(f"--duration: must be a positive number of seconds, got {args.duration}")
+    stop = []
+
+    def on_signal(signum: int, frame: object) -> None:
+        stop.append(signum)  # only a flag: the loop notices within TICK_S and closes cleanly
+
+    # Installed before the sources open, so that an early Ctrl-C still closes cleanly.
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+    rec = Recorder(cfg, config_text, args.output, fsync=args.fsync, stop=stop)
+    names = ", ".join(f"{s.mouse.name} ({_describe(s)})" for s in rec.slots)
+    print(f"record: {args.output}: recording {names}", file=sys.stderr, flush=True)
+    try:
+        rec.run(args.duration, args.status_interval)
+    except Exception as e:  # a bug must not end in a traceback; the file is closed already
+        log.debug("record failed", exc_info=True)
+        raise UserError(
+            f"{args.output}: recording stopped by an internal error ({type(e).__name__}: {e}); "
+            "the file holds everything recorded until then. Run with -v for details.",
+            exit_code=1,
+        ) from None
+    return 0
+
+
+def _describe(s: Slot) -> str:
+    if s.serial:
+        return f"serial {s.mouse.serial.port}"
+    return s.source.device.node

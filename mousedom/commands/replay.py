@@ -1,0 +1,214 @@
+"""``mousedom replay``: run captures through the fusion; CSV, summary, plot.
+
+The contract (other tools rely on it)::
+
+    mousedom replay --config RIG.yaml --capture NAME=FILE [--capture NAME=FILE ...]
+                    [-o OUT.csv|-] [--model M] [--integrator I] [--plot OUT.png] [--speed X]
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from typing import TextIO
+
+from mousedom.capture import assign, parse_capture_arg
+from mousedom.config import INTEGRATORS, MODELS, load_config
+from mousedom.errors import UserError
+from mousedom.replay import CsvSink, Replay, Summary
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "replay",
+        help="replay captures through the fusion (CSV of poses, or a summary)",
+        description="Replay evemu, libinput record or native captures through the fusion "
+        "engine.  Without -o a summary is printed.",
+    )
+    p.add_argument("--config", required=True, metavar="RIG.yaml", help="the rig config")
+    p.add_argument(
+        "--capture",
+        action="append",
+        default=[],
+        metavar="NAME=FILE",
+        help="a capture for mouse NAME (repeat per mouse); a multi-device file may be given "
+        "without NAME= and is matched to the config's mice",
+    )
+    p.add_argument("-o", "--output", metavar="OUT.csv", help="write poses as CSV ('-': stdout)")
+    p.add_argument("--model", choices=MODELS, help="override the config's model")
+    p.add_argument("--integrator", choices=INTEGRATORS, help="override the config's integrator")
+    p.add_argument("--plot", metavar="OUT.png", help="draw trajectory and residuals (matplotlib)")
+    p.add_argument(
+        "--speed",
+        type=float,
+        metavar="X",
+        help="pace output at X times real time (default: as fast as possible)",
+    )
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    if args.speed is not None and not (args.speed > 0 and math.isfinite(args.speed)):
+        raise UserError(f"--speed: must be a positive number, got {args.speed}")
+    if args.plot:
+        from mousedom import plot
+
+        plot.require()
+    config = load_config(args.config, need_sources=False)
+    specs = [parse_capture_arg(a) for a in args.capture]
+    if not specs and not any(m.replay for m in config.mice):
+        raise UserError(
+            f"{args.config}: nothing to replay: give --capture NAME=FILE (or replay: in the config)"
+        )
+    assignments = assign(config, specs)
+    replay = Replay(config, assignments, model=args.model, integrator=args.integrator)
+
+    sinks = []
+    out: TextIO | None = None
+    if args.output == "-":
+        out = sys.stdout
+    elif args.output:
+        try:
+            out = open(args.output, "w", newline="")
+        except OSError as e:
+            raise UserError(f"{args.output}: cannot write: {e.strerror}") from None
+    if out is not None:
+        sinks.append(CsvSink(out))
+    collector = None
+    if args.plot:
+        from mousedom.plot import PlotCollector
+
+        collector = PlotCollector()
+        sinks.append(collector)
+
+    def sink(b) -> None:
+        for s in sinks:
+            s(b)
+
+    if args.speed:
+        from mousedom.pacing import Pacer, paced
+
+        sink = paced(sink, Pacer(args.speed), flush=out.flush if out is not None else None)
+
+    bar = ProgressBar(sys.stderr) if sys.stderr.isatty() and not args.speed else None
+    try:
+        summary = replay.run(sink, progress=bar.update if bar else None)
+    finally:
+        if bar:
+            bar.close()
+        if out is not None and out is not sys.stdout:
+            out.close()
+        elif out is sys.stdout:
+            out.flush()
+
+    for w in summary.warnings:
+        print(f"mousedom: warning: {w}", file=sys.stderr)
+    if collector is not None:
+        from mousedom import plot
+
+        plot.save(collector, config.names, args.plot, title=_title(args, replay))
+    if out is None:
+        print(format_summary(summary, replay, args))
+    return check(summary)
+
+
+def check(summary: Summary) -> int:
+    """Every count read must be in the output; anything else is a bug worth an exit code."""
+    for m in summary.mice:
+        net = (m.stats.net_x, m.stats.net_y)
+        if any(abs(a - b) > 1e-6 * max(1.0, abs(b)) for a, b in zip(m.counts_in, net, strict=True)):
+            print(
+                f"mousedom: error: mouse {m.name}: counts read {net} but the fusion took "
+                f"{m.counts_in}",
+                file=sys.stderr,
+            )
+            return 1
+        if any(
+            abs(a - b) > 1e-6 * max(1.0, abs(b))
+            for a, b in zip(m.counts_out, m.counts_in, strict=True)
+        ):
+            print(
+                f"mousedom: error: mouse {m.name}: {m.counts_in} counts in but "
+                f"{m.counts_out} in the poses",
+                file=sys.stderr,
+            )
+            return 1
+    return 0
+
+
+def _title(args, replay: Replay) -> str:
+    model = args.model or replay.config.model
+    integrator = args.integrator or replay.config.integrator
+    return f"{args.config}: model {model}, integrator {integrator}"
+
+
+def format_summary(s: Summary, replay: Replay, args) -> str:
+    cfg = replay.config
+    model = args.model or cfg.model
+    integrator = args.integrator or cfg.integrator
+    lines = [
+        f"replay: {len(s.mice)} mice, model {model}, integrator {integrator}, "
+        f"{cfg.rate_hz:g} Hz windows",
+        f"duration     {s.duration:.3f} s ({s.reports} reports, {s.windows} windows"
+        + (f", {s.not_ok} without enough mice to solve" if s.not_ok else "")
+        + ")",
+        f"path length  {s.path_length:.4f} m",
+    ]
+    if s.final:
+        f = s.final
+        lines.append(
+            f"final pose   x {f['x']:+.4f} m  y {f['y']:+.4f} m  theta {f['theta']:+.4f} rad "
+            f"({math.degrees(f['theta']):+.2f} deg)  at t {f['t']:.3f} s"
+        )
+    else:
+        lines.append("final pose   none (no motion in the captures)")
+    lines.append("")
+    lines.append(
+        f"{'mouse':<12} {'reports':>8} {'rate Hz':>8} {'net x':>8} {'net y':>8} "
+        f"{'path x':>8} {'path y':>8} {'skipped':>8} {'dropped':>8}  file (device)"
+    )
+    for m in s.mice:
+        st = m.stats
+        lines.append(
+            f"{m.name:<12} {st.reports:>8} {m.rate_hz:>8.1f} {st.net_x:>8} {st.net_y:>8} "
+            f"{st.path_x:>8} {st.path_y:>8} {st.skipped:>8} {st.dropped_frames:>8}  "
+            f"{m.file} ({m.device})"
+        )
+        extra = []
+        if st.lost_x or st.lost_y:
+            extra.append(f"{st.lost_x} x / {st.lost_y} y counts lost in dropped frames")
+        if st.unterminated:
+            extra.append(f"{st.unterminated} frame without SYN_REPORT at the end (kept)")
+        if st.torn_bytes:
+            extra.append(f"{st.torn_bytes} bytes of torn tail skipped")
+        if extra:
+            lines.append(" " * 13 + "; ".join(extra))
+    return "\n".join(lines)
+
+
+class ProgressBar:
+    """A one-line bar on a terminal, redrawn at most ten times a second."""
+
+    def __init__(self, out: TextIO, width: int = 40) -> None:
+        self.out, self.width = out, width
+        self.t0 = time.monotonic()
+        self.last = 0.0
+        self.drawn = False
+
+    def update(self, fraction: float) -> None:
+        now = time.monotonic()
+        if now - self.last < 0.1 or now - self.t0 < 0.5:
+            return
+        self.last = now
+        fraction = min(max(fraction, 0.0), 1.0)
+        done = int(self.width * fraction)
+        bar = "#" * done + "-" * (self.width - done)
+        self.out.write(f"\rreplay [{bar}] {100 * fraction:5.1f}%")
+        self.out.flush()
+        self.drawn = True
+
+    def close(self) -> None:
+        if self.drawn:
+            self.out.write("\r" + " " * (self.width + 20) + "\r")
+            self.out.flush()

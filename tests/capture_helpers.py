@@ -1,0 +1,73 @@
+"""Helpers shared by the capture and replay tests."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mousedom.capture import open_capture
+
+REPO = Path(__file__).resolve().parent.parent
+GOLDEN = Path(__file__).resolve().parent / "golden"
+
+# The facts of ../shared/captures/external/SOURCES.md: (file, events, frames, motion
+# frames, net X, net Y, path X, path Y).
+EXTERNAL = [
+    ("evemu-devices__PS2_Generic_Mouse.events", 7147, 2707, 2707, -5424, -929, 10374, 5251),
+    ("evemu-devices__Saitek_Cyborg_RAT5_Mouse.events", 1838, 803, 796, -111, -13, 609, 781),
+    ("evemu-devices__Ultrathin_Touch_Mouse.events", 1109, 406, 349, -319, -7, 1765, 2041),
+    ("evemu-devices__TPPS2_IBM_TrackPoint.events", 2618, 964, 945, -21, -10, 3447, 2750),
+]
+
+
+def external_dir() -> Path:
+    """The shared real recordings.  conftest looks beside the repository; a git worktree
+    sits one level deeper, so walk up until shared/captures/external is found."""
+    env = os.environ.get("MOUSEDOM_EXTERNAL_CAPTURES")
+    candidates = [Path(env)] if env else []
+    candidates += [p / "shared" / "captures" / "external" for p in REPO.parents]
+    for c in candidates:
+        if c.is_dir():
+            return c
+    if os.environ.get("CI"):
+        pytest.fail("shared/captures/external is missing in CI")
+    pytest.skip("shared/captures/external not found beside the repository")
+
+
+def drain(path, **kw):
+    """Open a capture and stream it to the end; returns the capture (stats filled)."""
+    cap = open_capture(str(path), **kw) if kw else open_capture(str(path))
+    motion = {}
+    for feed in cap.feeds():
+        for batch in feed.batches:
+            for m in batch.motion:
+                motion.setdefault(m.device, []).append(m)
+    cap.motion = {
+        d: (
+            np.concatenate([m.t for m in ms]),
+            np.concatenate([m.dx for m in ms]),
+            np.concatenate([m.dy for m in ms]),
+        )
+        for d, ms in motion.items()
+    }
+    return cap
+
+
+ONE_MOUSE_YAML = """\
+rate_hz: {rate}
+model: diff-drive
+mice:
+  {name}:
+    cpi: 800
+    mount: {{x: 0.10, y: 0.0, yaw: 0}}
+    report_hz: 125
+"""
+
+
+def one_mouse_config(tmp_path: Path, name: str = "m", rate: float = 100) -> Path:
+    p = tmp_path / "one.yaml"
+    p.write_text(ONE_MOUSE_YAML.format(name=name, rate=rate))
+    return p

@@ -1,0 +1,177 @@
+"""The serial source over real ptys and a real TCP socket, with the test playing the
+downsampler (the firmware itself plays it in test_firmware_sim.py)."""
+
+from __future__ import annotations
+
+import os
+import select
+import socket
+import time
+import tty
+
+import numpy as np
+import pytest
+
+from mousedom import adns_protocol as P
+from mousedom.adns_decode import packets_to_reports
+from mousedom.config import Mount, MouseConfig, SerialSource
+from mousedom.sources.adns import AdnsSource
+from mousedom.sources.base import SourceGone, SourceUnavailable
+
+
+def mouse(port, k=7, cpi=400):
+    return MouseConfig(
+        "floor", 400.0, 400.0, Mount(), serial=SerialSource(port, k=k, sensor_cpi=cpi)
+    )
+
+
+@pytest.fixture
+def pty():
+    master, slave = os.openpty()
+    tty.setraw(master)
+    path = os.ttyname(slave)
+    yield master, path
+    for fd in (master, slave):
+        try:
+            os.close(fd)
+        except OSError:
+            pass
+
+
+def read_commands(fd, want, timeout=2.0):
+    data, end = b"", time.monotonic() + timeout
+    while time.monotonic() < end:
+        r, _, _ = select.select([fd], [], [], 0.05)
+        if r:
+            data += os.read(fd, 4096)
+            if len(P.parse_commands(data)) >= want:
+                break
+    return P.parse_commands(data)
+
+
+def pump(src, timeout=1.0, until=None):
+    """Read the source like the daemon's selector loop would."""
+    out, end = [], time.monotonic() + timeout
+    while time.monotonic() < end:
+        r, _, _ = select.select([src.fileno()], [], [], 0.05)
+        if r:
+            out += src.read(time.monotonic())
+            if until and until(out):
+                break
+    return out
+
+
+def test_open_sends_settings(pty):
+    master, path = pty
+    src = AdnsSource(mouse(path))
+    src.open()
+    cmds = read_commands(master, 4)
+    assert cmds == [
+        (P.CMD_GET_VERSION, None),
+        (P.CMD_SET_CPI, 400),
+        (P.CMD_SET_K, 7),
+        (P.CMD_GET_STATUS, None),
+    ]
+    assert src.health.connected
+    src.close()
+
+
+def test_packets_become_reports_and_health(pty):
+    master, path = pty
+    raw = []
+    src = AdnsSource(mouse(path), on_raw=lambda t, b: raw.append((t, b)))
+    src.open()
+    read_commands(master, 4)
+    wire = P.encode_packet(
+        P.Status(0, 100, P.STATE_OK, P.REASON_ACK, 0x17, 0x09, 7, 400, 1250, 0, 0, 0)
+    )
+    for i, seq in enumerate([1, 2, 4, 5]):  # seq 3 is lost on the line
+        wire += P.encode_packet(P.Motion(seq, 1000 + 8750 * i, 10, -20, 7, 60 + i, 0))
+    os.write(master, wire)
+    reports = pump(src, until=lambda r: sum(len(x) for x in r) >= 4)
+    t = np.concatenate([r.t for r in reports])
+    dx = np.concatenate([r.dx for r in reports])
+    dy = np.concatenate([r.dy for r in reports])
+    assert len(t) == 4 and dx.sum() == 40 and dy.sum() == 80  # REL_Y = -Delta_Y
+    assert np.all(np.diff(t) >= 0) and t[-1] <= time.monotonic()
+    h = src.health
+    assert h.dropped == 1 and h.extra["lost_seq"] == 1
+    assert h.extra["squal"] == 63 and h.extra["sensor"] == "ok" and h.extra["k"] == 7
+    assert h.error is None
+    # what was recorded replays to the same reports
+    replayed, _ = packets_to_reports(raw, name="floor")
+    np.testing.assert_array_equal(replayed.dx, dx)
+    np.testing.assert_array_equal(replayed.t, t)
+    src.close()
+
+
+def test_settings_resent_after_firmware_restart(pty):
+    master, path = pty
+    src = AdnsSource(mouse(path))
+    src.open()
+    read_commands(master, 4)
+    # the firmware restarted: back to its defaults, K=12 and 1600 CPI
+    os.write(
+        master,
+        P.encode_packet(
+            P.Status(0, 5, P.STATE_OK, P.REASON_BOOT, 0x17, 0x19, 12, 1600, 1250, 0, 0, 0)
+        ),
+    )
+    pump(src, timeout=0.3)
+    assert read_commands(master, 2) == [(P.CMD_SET_CPI, 400), (P.CMD_SET_K, 7)]
+    src.close()
+
+
+def test_missing_sensor_is_an_error_in_health(pty):
+    master, path = pty
+    src = AdnsSource(mouse(path))
+    src.open()
+    os.write(
+        master,
+        P.encode_packet(
+            P.Status(0, 5, P.STATE_NO_SENSOR, P.REASON_BOOT, 0xFF, 0, 7, 400, 1250, 0, 0, 1)
+        ),
+    )
+    pump(src, timeout=0.3)
+    assert "Product_ID read 0xff" in src.health.error
+    assert src.health.extra["sensor"] == "no-sensor"
+    src.close()
+
+
+def test_vanished_device_raises_source_gone(pty):
+    master, path = pty
+    src = AdnsSource(mouse(path))
+    src.open()
+    os.close(master)  # the USB adapter was pulled: the pty hangs up
+    with pytest.raises(SourceGone):
+        for _ in range(20):
+            src.read(time.monotonic())
+            time.sleep(0.01)
+    assert not src.health.connected and src.health.error
+
+
+def test_unavailable_port():
+    src = AdnsSource(mouse("/dev/nonexistent-downsampler"))
+    with pytest.raises(SourceUnavailable, match="nonexistent-downsampler"):
+        src.open()
+    assert not src.health.connected
+
+
+def test_socket_url():
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(1)
+    port = server.getsockname()[1]
+    src = AdnsSource(mouse(f"socket://127.0.0.1:{port}"))
+    src.open()
+    conn, _ = server.accept()
+    conn.settimeout(2)
+    data = b""
+    while len(P.parse_commands(data)) < 4:
+        data += conn.recv(4096)
+    conn.sendall(P.encode_packet(P.Motion(0, 1000, 3, 4, 7, 50, 0)))
+    reports = pump(src, until=lambda r: len(r) > 0)
+    assert reports and reports[0].dx.tolist() == [3] and reports[0].dy.tolist() == [-4]
+    src.close()
+    conn.close()
+    server.close()

@@ -1,0 +1,565 @@
+"""`mousedom calibrate ...` as a real process on captures written to disk."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from conftest import run_mousedom
+
+from mousedom.calibrate.synth import SynthMouse, build_motion, mouse_reports, twist_csv
+from mousedom.capture.base import DeviceInfo
+from mousedom.capture.native import NativeWriter
+from mousedom.sources.base import Reports
+
+EPOCH = 1_700_000_000.0
+
+
+def write_evemu(path: Path, rep: Reports, t0: float = EPOCH) -> Path:
+    """An old-style evemu .events file (E: lines only, epoch times)."""
+    lines = []
+    for t, dx, dy in zip(rep.t, rep.dx, rep.dy, strict=True):
+        stamp = f"{t + t0:.6f}"
+        if dx:
+            lines.append(f"E: {stamp} 0002 0000 {int(dx)}")
+        if dy:
+            lines.append(f"E: {stamp} 0002 0001 {int(dy)}")
+        lines.append(f"E: {stamp} 0000 0000 0")
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def write_native(path: Path, recording: dict[str, Reports]) -> Path:
+    devices = [DeviceInfo(name=f"sim {n}", mouse=n) for n in recording]
+    with NativeWriter(path, devices, time_base="monotonic") as w:
+        for i, rep in enumerate(recording.values()):
+            w.motion(i, rep.t, rep.dx.astype(int), rep.dy.astype(int))
+        w.sync(max(float(r.t[-1]) for r in recording.values() if len(r.t)))
+    return path
+
+
+def write_config(tmp: Path, mice: dict[str, dict], calibration: bool = True, extra: str = ""):
+    doc = {"mice": mice}
+    if calibration:
+        doc["calibration"] = "rig.calib.yaml"
+    text = yaml.safe_dump(doc, sort_keys=False) + extra
+    (tmp / "rig.yaml").write_text(text)
+    return tmp / "rig.yaml"
+
+
+def ok(proc):
+    assert proc.returncode == 0, proc.stderr
+    return proc
+
+
+def fails(proc, *needles):
+    assert proc.returncode == 2, (proc.stdout, proc.stderr)
+    assert "Traceback" not in proc.stderr
+    for n in needles:
+        assert n in proc.stderr, proc.stderr
+    return proc
+
+
+# --------------------------------------------------------------------------- cpi
+
+
+@pytest.fixture
+def cpi_session(tmp_path):
+    """Two mice on one sled, 8 pushes of 20 cm; true CPI 455 and 812 along y."""
+    motion = build_motion([(0.2 * (-1) ** k, 0, 0, 1.2) for k in range(8)])
+    mice = [
+        SynthMouse("left", 0, 0.1, cpi_x=450, cpi_y=455, rel_noise=0.005),
+        SynthMouse("right", 0, -0.1, cpi_x=800, cpi_y=812, rel_noise=0.005, phase=0.3),
+    ]
+    files = {
+        m.name: write_evemu(tmp_path / f"{m.name}.events", mouse_reports(m, motion, i))
+        for i, m in enumerate(mice)
+    }
+    cfg = write_config(
+        tmp_path,
+        {
+            "left": {"cpi": 400, "mount": {"x": 0, "y": 0.1}},
+            "right": {"cpi": 800, "mount": {"x": 0, "y": -0.1}},
+        },
+    )
+    return tmp_path, cfg, files
+
+
+def test_cpi_json_report_and_write(cpi_session):
+    tmp, cfg, files = cpi_session
+    caps = [a for n, f in files.items() for a in ("--capture", f"{n}={f}")]
+    p = ok(
+        run_mousedom("calibrate", "cpi", "--config", str(cfg), *caps, "--distance", "0.2", "--json")
+    )
+    doc = json.loads(p.stdout)
+    assert set(doc) == {"left", "right"}
+    assert set(doc["left"]) == {"axis", "cpi", "stderr", "runs"}
+    assert doc["left"]["axis"] == "y" and doc["left"]["runs"] == 8
+    assert doc["left"]["cpi"] == pytest.approx(455, rel=3e-3)
+    assert doc["right"]["cpi"] == pytest.approx(812, rel=3e-3)
+    assert "left: cpi y = " in p.stderr  # the readable report moves to stderr with --json
+    p = ok(
+        run_mousedom(
+            "calibrate", "cpi", "--config", str(cfg), *caps, "--distance", "0.2", "--write"
+        )
+    )
+    assert "right: cpi y = " in p.stdout and "written to" in p.stderr
+    cal = yaml.safe_load((tmp / "rig.calib.yaml").read_text())
+    assert cal["mice"]["left"]["cpi"]["y"] == pytest.approx(455, rel=3e-3)
+    p = ok(run_mousedom("check-config", "--config", str(cfg), "--no-sources"))
+    assert "left: cpi 400/45" in p.stdout  # x as configured, y calibrated
+
+
+def test_cpi_bad_inputs(cpi_session):
+    tmp, cfg, files = cpi_session
+    left = f"left={files['left']}"
+    fails(
+        run_mousedom(
+            "calibrate",
+            "cpi",
+            "--config",
+            str(cfg),
+            "--capture",
+            left,
+            "--distance",
+            "0.2",
+            "--min-runs",
+            "9",
+        ),
+        "found 8 run(s), need at least 9",
+        "--gap",
+    )
+    fails(
+        run_mousedom(
+            "calibrate",
+            "cpi",
+            "--config",
+            str(cfg),
+            "--capture",
+            f"middle={files['left']}",
+            "--distance",
+            "0.2",
+        ),
+        "no mouse 'middle'",
+        "left, right",
+    )
+    fails(
+        run_mousedom(
+            "calibrate", "cpi", "--config", str(cfg), "--capture", "left", "--distance", "0.2"
+        ),
+        "left: capture file not found",  # FILE alone is allowed: its device names a mouse
+    )
+    fails(
+        run_mousedom(
+            "calibrate",
+            "cpi",
+            "--config",
+            str(cfg),
+            "--capture",
+            f"left={tmp / 'nope.events'}",
+            "--distance",
+            "0.2",
+        ),
+        "nope.events: capture file not found",
+    )
+    # Pushed sideways but calibrated along y: every run is "no counts along y".
+    motion = build_motion([(0, 0.2 * (-1) ** k, 0, 1.2) for k in range(3)])
+    side = write_evemu(tmp / "side.events", mouse_reports(SynthMouse("left", 0, 0), motion))
+    fails(
+        run_mousedom(
+            "calibrate",
+            "cpi",
+            "--config",
+            str(cfg),
+            "--capture",
+            f"left={side}",
+            "--distance",
+            "0.2",
+        ),
+        "mouse left: run 1: no counts along y",
+    )
+    bad = write_config(
+        tmp,
+        {"left": {"cpi": 400, "mount": {}}, "right": {"cpi": 400, "mount": {"x": 0.1}}},
+        calibration=False,
+    )
+    fails(
+        run_mousedom(
+            "calibrate",
+            "cpi",
+            "--config",
+            str(bad),
+            "--capture",
+            left,
+            "--distance",
+            "0.2",
+            "--write",
+        ),
+        "--write needs a calibration file",
+    )
+    fails(
+        run_mousedom(
+            "calibrate", "cpi", "--config", str(bad), "--capture", left, "--distance", "-1"
+        ),
+        "must be a positive number",
+    )
+
+
+def test_a_mouse_that_never_moved_is_named(cpi_session):
+    tmp, cfg, files = cpi_session
+    still = tmp / "still.events"
+    still.write_text(f"E: {EPOCH + 1:.6f} 0000 0000 0\nE: {EPOCH + 2:.6f} 0000 0000 0\n")
+    fails(
+        run_mousedom(
+            "calibrate",
+            "cpi",
+            "--config",
+            str(cfg),
+            "--capture",
+            f"left={files['left']}",
+            "--capture",
+            f"right={still}",
+            "--distance",
+            "0.2",
+        ),
+        "mouse right: no motion in any run",
+    )
+
+
+def test_cpi_warns_when_runs_disagree(tmp_path):
+    # Two short pushes among long ones: not bumps (over 25 % of the median), but 10 % off.
+    motion = build_motion(
+        [
+            (0.2, 0, 0, 1.2),
+            (-0.2, 0, 0, 1.2),
+            (0.18, 0, 0, 1.2),
+            (-0.2, 0, 0, 1.2),
+            (0.003, 0, 0, 0.5),
+        ]
+    )
+    f = write_evemu(tmp_path / "m.events", mouse_reports(SynthMouse("m", 0, 0), motion))
+    cfg = write_config(
+        tmp_path, {"m": {"cpi": 1000, "mount": {}}, "n": {"cpi": 1000, "mount": {"x": 0.1}}}
+    )
+    p = ok(
+        run_mousedom(
+            "calibrate", "cpi", "--config", str(cfg), "--capture", f"m={f}", "--distance", "0.2"
+        )
+    )
+    assert "warning: mouse m: runs disagree by more than 2%" in p.stderr
+    assert "run 3" in p.stderr
+    assert "left out run 5" in p.stderr and "a bump" in p.stderr  # said, not silent
+
+
+def test_cpi_on_a_real_recording(external_captures, tmp_path):
+    """The PS/2 recording was no calibration session, but it must load and split into
+    runs at its pauses exactly as an independent count of its gaps says."""
+    f = external_captures / "evemu-devices__PS2_Generic_Mouse.events"
+    stamps = []
+    frame_moves = False
+    for line in f.read_text().splitlines():
+        _, t, typ, code, value = line.split()
+        if typ == "0002" and int(value):
+            frame_moves = True
+        if typ == "0000" and code == "0000":
+            if frame_moves:
+                stamps.append(float(t))
+            frame_moves = False
+    runs = 1 + int(np.sum(np.diff(stamps) > 0.5))
+    cfg = write_config(
+        tmp_path,
+        {"m": {"cpi": 1000, "mount": {}}, "n": {"cpi": 1000, "mount": {"x": 0.1}}},
+        calibration=False,
+    )
+    p = run_mousedom(
+        "calibrate",
+        "cpi",
+        "--config",
+        str(cfg),
+        "--capture",
+        f"m={f}",
+        "--distance",
+        "0.1",
+        "--json",
+        "--axis",
+        "x",
+        "--min-runs",
+        "2",
+    )
+    assert p.returncode == 0, p.stderr
+    doc = json.loads(p.stdout)
+    left_out = p.stderr.count("left out run")
+    assert doc["m"]["runs"] + left_out == runs
+    assert doc["m"]["cpi"] > 0
+
+
+# --------------------------------------------------------------------------- distance
+
+
+def test_distance_json_and_write(tmp_path):
+    eta = math.radians(90)
+    pivot = (0.0, 0.03)
+    motion = build_motion(
+        [(eta * pivot[1] * s, -eta * pivot[0] * s, eta * s, 2.0) for s in (1, -1, 1, -1)]
+    )
+    mice = [
+        SynthMouse("left", 0.0, 0.135, cpi_x=450, cpi_y=450),
+        SynthMouse("right", 0.0, -0.135, cpi_x=450, cpi_y=450, phase=0.5),
+    ]
+    rec = {m.name: mouse_reports(m, motion, i) for i, m in enumerate(mice)}
+    cap = write_native(tmp_path / "turns.mdcap", rec)
+    cfg = write_config(
+        tmp_path,
+        {
+            "left": {"cpi": 450, "mount": {"x": 0.01, "y": 0.125}},
+            "right": {"cpi": 450, "mount": {"x": 0.01, "y": -0.125}},
+            "rear": {"cpi": 450, "mount": {"x": -0.2, "y": 0}},
+        },
+    )
+    caps = ["--capture", f"left={cap}", "--capture", f"right={cap}"]
+    p = ok(
+        run_mousedom(
+            "calibrate", "distance", "--config", str(cfg), *caps, "--angle", "90", "--json"
+        )
+    )
+    doc = json.loads(p.stdout)
+    assert set(doc) == {"distance", "stderr", "runs"} and doc["runs"] == 4
+    assert doc["distance"] == pytest.approx(0.27, abs=5e-4)
+    ok(
+        run_mousedom(
+            "calibrate", "distance", "--config", str(cfg), *caps, "--angle", "90", "--write"
+        )
+    )
+    cal = yaml.safe_load((tmp_path / "rig.calib.yaml").read_text())
+    assert cal["distance"]["mice"] == ["left", "right"]
+    # Same midpoint (0.01, 0) and direction, 270 mm apart.
+    assert cal["mice"]["left"]["mount"]["y"] == pytest.approx(0.135, abs=3e-4)
+    assert cal["mice"]["right"]["mount"]["x"] == pytest.approx(0.01, abs=1e-9)
+    rear = write_native(tmp_path / "rear.mdcap", {"rear": rec["left"]})
+    three = ["--capture", f"left={cap}", "--capture", f"right={cap}", "--capture", f"rear={rear}"]
+    fails(
+        run_mousedom("calibrate", "distance", "--config", str(cfg), *three, "--angle", "90"),
+        "exactly two mice",
+        "--mice",
+    )
+    fails(
+        run_mousedom("calibrate", "distance", "--config", str(cfg), *caps, "--angle", "0"),
+        "non-zero",
+    )
+    fails(
+        run_mousedom(
+            "calibrate", "distance", "--config", str(cfg), *caps, "--angle", "90", "--mice", "left"
+        ),
+        "give two mouse names",
+    )
+
+
+# --------------------------------------------------------------------------- mounts
+
+
+@pytest.fixture
+def mounts_session(tmp_path):
+    """Three mice whose true mounts are 5 % off the nominal triangle (Kim & Lee's set-up),
+    one with a yaw and a CPI error, and a body-twist reference."""
+    motion = build_motion(
+        [(0.3, 0, 0, 2), (0, 0, 1.5, 2), (0.2, 0, 0.8, 2), (0, 0.1, -1, 2), (-0.2, 0, 0, 2)]
+    )
+    nominal = {"a": (0.15, 0.0), "b": (-0.075, 0.13), "c": (-0.075, -0.13)}
+    true = {
+        "a": (0.1575, 0.0, 0.05, 1020),
+        "b": (-0.07875, 0.1365, 0.0, 1000),
+        "c": (-0.07875, -0.1365, 0.0, 1000),
+    }
+    mice = [
+        SynthMouse(n, x, y, yaw=yaw, cpi_x=cpi, cpi_y=cpi, phase=0.2 * i)
+        for i, (n, (x, y, yaw, cpi)) in enumerate(true.items())
+    ]
+    rec = {m.name: mouse_reports(m, motion, i) for i, m in enumerate(mice)}
+    cap = write_native(tmp_path / "drive.mdcap", rec)
+    ref = tmp_path / "REF.csv"
+    ref.write_text(twist_csv(motion, 100.0))
+    cfg = write_config(
+        tmp_path, {n: {"cpi": 1000, "mount": {"x": x, "y": y}} for n, (x, y) in nominal.items()}
+    )
+    caps = [a for n in nominal for a in ("--capture", f"{n}={cap}")]
+    return tmp_path, cfg, caps, ref, true, motion
+
+
+def test_mounts_exact_json_and_write(mounts_session):
+    tmp, cfg, caps, ref, true, _ = mounts_session
+    p = ok(
+        run_mousedom(
+            "calibrate", "mounts", "--config", str(cfg), *caps, "--reference", str(ref), "--json"
+        )
+    )
+    doc = json.loads(p.stdout)
+    for n, (x, y, yaw, cpi) in true.items():
+        assert set(doc[n]) == {"x", "y", "yaw", "scale"}
+        assert doc[n]["x"] == pytest.approx(x, abs=1e-4)
+        assert doc[n]["y"] == pytest.approx(y, abs=1e-4)
+        assert doc[n]["yaw"] == pytest.approx(math.degrees(yaw), abs=0.05)
+        assert doc[n]["scale"] == pytest.approx(cpi / 1000, rel=5e-4)
+    ok(
+        run_mousedom(
+            "calibrate", "mounts", "--config", str(cfg), *caps, "--reference", str(ref), "--write"
+        )
+    )
+    cal = yaml.safe_load((tmp / "rig.calib.yaml").read_text())
+    assert cal["mice"]["a"]["cpi"]["x"] == pytest.approx(1020, rel=5e-4)
+    assert cal["mice"]["a"]["mount"]["yaw"] == pytest.approx(math.degrees(0.05), abs=0.05)
+
+
+def test_mounts_kimlee_side_by_side(mounts_session):
+    tmp, cfg, caps, ref, true, _ = mounts_session
+    p = ok(
+        run_mousedom(
+            "calibrate",
+            "mounts",
+            "--config",
+            str(cfg),
+            *caps,
+            "--reference",
+            str(ref),
+            "--method",
+            "kimlee",
+            "--json",
+        )
+    )
+    doc = json.loads(p.stdout)
+    assert set(doc) == {"a", "b", "c"}
+    assert doc["b"]["scale"] == 1.0 and doc["b"]["yaw"] == 0.0  # not estimated by Kim & Lee
+    assert "Kim & Lee linearised" in p.stderr and "minimum-norm" in p.stderr
+    exact = json.loads(
+        ok(
+            run_mousedom(
+                "calibrate",
+                "mounts",
+                "--config",
+                str(cfg),
+                *caps,
+                "--reference",
+                str(ref),
+                "--json",
+            )
+        ).stdout
+    )
+
+    def err(d):
+        return max(math.hypot(d[n]["x"] - true[n][0], d[n]["y"] - true[n][1]) for n in true)
+
+    assert err(exact) < 1e-4 < err(doc)
+
+
+def test_mounts_wheel_reference(tmp_path):
+    """A differential drive: wheel ticks through the McGill model are the reference."""
+    r_wheel, track, tpr = 0.03, 0.25, 2048.0
+    motion = build_motion([(0.4, 0, 0, 2), (0, 0, 2.0, 2), (0.3, 0, 1.0, 2)])
+    mice = [SynthMouse("front", 0.12, 0.02), SynthMouse("rear", -0.1, -0.03, phase=0.5)]
+    rec = {m.name: mouse_reports(m, motion, i) for i, m in enumerate(mice)}
+    cap = write_native(tmp_path / "drive.mdcap", rec)
+    t = np.linspace(0, motion.end, 2000)
+    u = motion.integral(t)
+    left = (u[:, 0] - u[:, 2] * track / 2) / r_wheel / (2 * math.pi) * tpr
+    right = (u[:, 0] + u[:, 2] * track / 2) / r_wheel / (2 * math.pi) * tpr
+    ref = tmp_path / "ticks.csv"
+    ref.write_text(
+        "t,left,right\n"
+        + "".join(f"{a:.6f},{b:.3f},{c:.3f}\n" for a, b, c in zip(t, left, right, strict=True))
+    )
+    cfg = write_config(
+        tmp_path,
+        {"front": {"cpi": 1000, "mount": {"x": 0.1}}, "rear": {"cpi": 1000, "mount": {"x": -0.1}}},
+    )
+    caps = ["--capture", f"front={cap}", "--capture", f"rear={cap}"]
+    fails(
+        run_mousedom("calibrate", "mounts", "--config", str(cfg), *caps, "--reference", str(ref)),
+        "needs the wheel geometry",
+    )
+    fails(
+        run_mousedom(
+            "calibrate",
+            "mounts",
+            "--config",
+            str(cfg),
+            *caps,
+            "--reference",
+            str(ref),
+            "--track",
+            "0.25",
+        ),
+        "go together",
+    )
+    p = ok(
+        run_mousedom(
+            "calibrate",
+            "mounts",
+            "--config",
+            str(cfg),
+            *caps,
+            "--reference",
+            str(ref),
+            "--wheel-radius",
+            "0.03",
+            "--ticks-per-rev",
+            "2048",
+            "--track",
+            "0.25",
+            "--json",
+        )
+    )
+    doc = json.loads(p.stdout)
+    assert doc["front"]["x"] == pytest.approx(0.12, abs=2e-4)
+    assert doc["rear"]["y"] == pytest.approx(-0.03, abs=2e-4)
+    # The config's wheels: section serves as well.
+    cfg2 = write_config(
+        tmp_path,
+        {"front": {"cpi": 1000, "mount": {"x": 0.1}}, "rear": {"cpi": 1000, "mount": {"x": -0.1}}},
+        extra="wheels: {radius: 0.03, track: 0.25, ticks_per_rev: 2048}\n",
+    )
+    p = ok(
+        run_mousedom(
+            "calibrate", "mounts", "--config", str(cfg2), *caps, "--reference", str(ref), "--json"
+        )
+    )
+    assert json.loads(p.stdout)["front"]["x"] == pytest.approx(0.12, abs=2e-4)
+
+
+def test_mounts_bad_inputs(mounts_session):
+    tmp, cfg, caps, ref, true, motion = mounts_session
+    bad = tmp / "bad.csv"
+    bad.write_text("time,vx,vy,omega\n0,0,0,0\n")
+    fails(
+        run_mousedom("calibrate", "mounts", "--config", str(cfg), *caps, "--reference", str(bad)),
+        "bad.csv:1: header must be t,vx,vy,omega",
+    )
+    bad.write_text(twist_csv(motion).replace("\n1.", "\n1.x", 1))
+    fails(
+        run_mousedom("calibrate", "mounts", "--config", str(cfg), *caps, "--reference", str(bad)),
+        "bad.csv:",
+        ": t: not a number",
+    )
+    late = tmp / "late.csv"
+    late.write_text(twist_csv(motion, t_offset=100.0))
+    fails(
+        run_mousedom("calibrate", "mounts", "--config", str(cfg), *caps, "--reference", str(late)),
+        "share one time base",
+    )
+    # Kim & Lee's own experiment, a self-rotation: flagged, not solved.
+    spin = build_motion([(0, 0, 2.0, 3), (0, 0, -2.0, 3)])
+    mice = [SynthMouse(n, x, y) for n, (x, y, *_) in true.items()]
+    rec = {m.name: mouse_reports(m, spin, i) for i, m in enumerate(mice)}
+    cap = write_native(tmp / "spin.mdcap", rec)
+    spin_ref = tmp / "spin.csv"
+    spin_ref.write_text(twist_csv(spin))
+    spin_caps = [a for n in true for a in ("--capture", f"{n}={cap}")]
+    fails(
+        run_mousedom(
+            "calibrate", "mounts", "--config", str(cfg), *spin_caps, "--reference", str(spin_ref)
+        ),
+        "rotation about one point",
+        "add a straight drive",
+    )

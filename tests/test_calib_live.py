@@ -1,0 +1,223 @@
+"""Interactive calibration from live mice: a real process, FIFOs as the evdev nodes
+(the evdev source reads a FIFO as a raw input_event stream), Enter on a real stdin pipe."""
+
+from __future__ import annotations
+
+import json
+import os
+import select
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+from conftest import mousedom_env
+
+from mousedom.events import encode_input_events
+
+CPI = 1000
+PUSH = 0.1  # metres: 3937 counts at 1000 cpi
+
+
+def frames(t0: float, counts: list[int]) -> bytes:
+    """One REL_Y report per entry, 8 ms apart, each closed by SYN_REPORT."""
+    n = len(counts)
+    t = np.repeat(t0 + 0.008 * np.arange(n), 2)
+    typ = np.tile([2, 0], n)
+    code = np.tile([1, 0], n)
+    value = np.ravel(np.column_stack([counts, np.zeros(n, int)]))
+    return encode_input_events(t, typ, code, value)
+
+
+class Proc:
+    def __init__(self, args, cwd):
+        self.p = subprocess.Popen(
+            [sys.executable, "-m", "mousedom", *args],
+            cwd=cwd,
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            env=mousedom_env(),
+        )
+        self.err = b""
+
+    def wait_for(self, needle: str, times: int = 1, timeout: float = 15.0) -> None:
+        """Until ``needle`` has appeared ``times`` times on stderr."""
+        end = time.monotonic() + timeout
+        fd = self.p.stderr.fileno()
+        while self.err.count(needle.encode()) < times:
+            left = end - time.monotonic()
+            if left <= 0 or self.p.poll() is not None and not select.select([fd], [], [], 0)[0]:
+                raise AssertionError(f"no {needle!r} in stderr: {self.err.decode()}")
+            if select.select([fd], [], [], min(left, 0.5))[0]:
+                chunk = os.read(fd, 4096)
+                if not chunk and self.p.poll() is not None:
+                    continue
+                self.err += chunk
+
+    def enter(self, text: str = "\n") -> None:
+        self.p.stdin.write(text.encode())
+        self.p.stdin.flush()
+
+
+@pytest.fixture
+def rig(tmp_path):
+    fifos = {}
+    for name in ("left", "right"):
+        fifos[name] = tmp_path / f"{name}.fifo"
+        os.mkfifo(fifos[name])
+    (tmp_path / "rig.yaml").write_text(
+        "calibration: rig.calib.yaml\nmice:\n"
+        f"  left: {{cpi: 800, mount: {{x: 0, y: 0.1}}, evdev: {{path: {fifos['left']}}}}}\n"
+        f"  right: {{cpi: 800, mount: {{x: 0, y: -0.1}}, evdev: {{path: {fifos['right']}}}}}\n"
+    )
+    return tmp_path, fifos
+
+
+def test_live_cpi_runs_with_enter_and_counts_on_fifos(rig):
+    tmp, fifos = rig
+    proc = Proc(
+        [
+            "calibrate",
+            "cpi",
+            "--config",
+            "rig.yaml",
+            "--distance",
+            str(PUSH),
+            "--runs",
+            "3",
+            "--json",
+            "--write",
+        ],
+        tmp,
+    )
+    writers = {}
+    try:
+        proc.wait_for("push 1: press Enter to start")
+        writers = {n: os.open(f, os.O_WRONLY) for n, f in fifos.items()}
+        os.write(writers["left"], frames(10.0, [-5] * 3))  # before the run: shown, not used
+        expected = {"left": [], "right": []}
+        for k in range(3):
+            proc.enter()
+            proc.wait_for("moving... press Enter to stop", times=k + 1)
+            sign = -1 if k % 2 == 0 else 1
+            total = {"left": 3937 + 20 * k, "right": 3937}
+            for name, n in total.items():
+                parts = [sign * 100] * (n // 100) + [sign * (n % 100)]
+                os.write(writers[name], frames(20.0 + 5 * k, parts))
+                expected[name].append(n)
+            proc.enter()
+            proc.wait_for(f"push {k + 1} recorded")
+        out, err = proc.p.communicate(timeout=30)
+        err = proc.err + err
+        assert proc.p.returncode == 0, err.decode()
+    finally:
+        for fd in writers.values():
+            os.close(fd)
+        if proc.p.poll() is None:
+            proc.p.kill()
+    doc = json.loads(out)
+    inches = PUSH / 0.0254
+    for name, counts in expected.items():
+        assert doc[name]["runs"] == 3
+        assert doc[name]["cpi"] == pytest.approx(np.mean(counts) / inches, rel=1e-6)
+    assert "15 counts arrived between runs and were not used" in err.decode()
+    assert (tmp / "rig.calib.yaml").exists()
+
+
+def test_live_quit_early_is_too_few_runs(rig):
+    tmp, fifos = rig
+    proc = Proc(["calibrate", "cpi", "--config", "rig.yaml", "--distance", "0.1"], tmp)
+    try:
+        proc.wait_for("push 1: press Enter")
+        proc.enter("q\n")
+        out, err = proc.p.communicate(timeout=30)
+    finally:
+        if proc.p.poll() is None:
+            proc.p.kill()
+    assert proc.p.returncode == 2
+    assert b"found 0 run(s), need at least 2" in proc.err + err
+    assert b"Traceback" not in proc.err + err
+
+
+def test_live_needs_evdev_mice(tmp_path):
+    (tmp_path / "rig.yaml").write_text(
+        "mice:\n  a: {cpi: 800, mount: {x: 0.1}, serial: {port: /dev/ttyUSB9}}\n"
+        "  b: {cpi: 800, mount: {x: -0.1}, serial: {port: /dev/ttyUSB8}}\n"
+    )
+    p = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "mousedom",
+            "calibrate",
+            "cpi",
+            "--config",
+            "rig.yaml",
+            "--distance",
+            "0.1",
+        ],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        env=mousedom_env(),
+        stdin=subprocess.DEVNULL,
+        timeout=60,
+    )
+    assert p.returncode == 2 and "live calibration reads evdev mice" in p.stderr
+
+
+def test_live_mouse_unplugged_mid_run_is_a_clear_error(rig):
+    tmp, fifos = rig
+    proc = Proc(["calibrate", "cpi", "--config", "rig.yaml", "--distance", "0.1"], tmp)
+    writers = {}
+    try:
+        proc.wait_for("push 1: press Enter")
+        writers = {n: os.open(f, os.O_WRONLY) for n, f in fifos.items()}
+        proc.enter()
+        proc.wait_for("moving... press Enter to stop")
+        os.write(writers["left"], frames(1.0, [-100] * 5))
+        os.close(writers.pop("left"))  # the writer going away is the unplug
+        out, err = proc.p.communicate(timeout=30)
+    finally:
+        for fd in writers.values():
+            os.close(fd)
+        if proc.p.poll() is None:
+            proc.p.kill()
+    text = (proc.err + err).decode()
+    assert proc.p.returncode == 2, text
+    assert "mouse left went away" in text and "Traceback" not in text
+
+
+def test_live_distance_turns(rig):
+    """Two turns of 90 degrees by hand: left mouse backwards, right forwards (CCW)."""
+    tmp, fifos = rig
+    proc = Proc(
+        ["calibrate", "distance", "--config", "rig.yaml", "--angle", "90", "--runs", "2", "--json"],
+        tmp,
+    )
+    writers = {}
+    counts = 4947  # 0.1 m * pi/2 at 800 cpi
+    try:
+        proc.wait_for("turn 1: press Enter to start")
+        writers = {n: os.open(f, os.O_WRONLY) for n, f in fifos.items()}
+        for k in range(2):
+            proc.enter()
+            proc.wait_for("moving... press Enter to stop", times=k + 1)
+            sign = 1 if k == 0 else -1
+            for name, s in (("left", sign), ("right", -sign)):
+                parts = [s * 100] * (counts // 100) + [s * (counts % 100)]
+                os.write(writers[name], frames(30.0 + 5 * k, parts))
+            proc.enter()
+            proc.wait_for(f"turn {k + 1} recorded")
+        out, err = proc.p.communicate(timeout=30)
+        assert proc.p.returncode == 0, (proc.err + err).decode()
+    finally:
+        for fd in writers.values():
+            os.close(fd)
+        if proc.p.poll() is None:
+            proc.p.kill()
+    doc = json.loads(out)
+    assert doc["runs"] == 2
+    assert doc["distance"] == pytest.approx(2 * counts / 800 * 0.0254 / (np.pi / 2), abs=1e-6)

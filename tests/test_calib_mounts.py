@@ -1,0 +1,249 @@
+"""Mount calibration: Kim & Lee section IV (linearised) and the exact per-mouse fit."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from mousedom import sim
+from mousedom.calibrate.mounts import (
+    MountError,
+    exact_mount,
+    exact_system,
+    kimlee,
+    kimlee_system,
+    motion_problem,
+)
+from mousedom.calibrate.runs import run_windows, split_runs, window_counts
+from mousedom.calibrate.synth import SynthMouse, build_motion, mouse_reports, true_window_twist
+from mousedom.units import INCH
+
+
+def kim_lee_example():
+    """Kim & Lee eq. (1) with r = 0.3 m, theta = -pi/6: nominal (51) and true (52)."""
+    r, th = 0.3, -math.pi / 6
+    ang = th + np.arange(3) * 2 * math.pi / 3
+    nominal = np.column_stack([r * np.cos(ang), r * np.sin(ang)])
+    return nominal, 1.05 * nominal
+
+
+def test_kimlee_reproduces_their_example_53():
+    """Kim & Lee section V: eqs. (51)-(52), self-rotation at 1/3 rad/s, M = 10, result (53).
+
+    Noise-free, the stacked system (44)-(46) of a pure rotation has rank 3 < 2N = 6; its
+    minimum-norm least-squares solution is their (53).
+    """
+    nominal, true = kim_lee_example()
+    np.testing.assert_allclose(nominal.ravel() / 0.3, [0.866, -0.5, 0, 1, -0.866, -0.5], atol=6e-4)
+    w = 1 / 3
+    v_m = np.tile([0.0, 0.0, w], (10, 1))
+    v_s = np.tile(np.column_stack([-w * true[:, 1], w * true[:, 0]]), (10, 1, 1))
+    res = kimlee(v_s, v_m, nominal)
+    expected = 0.3 * np.array([0.912, -0.526, 0.000, 1.053, -0.912, -0.526])
+    np.testing.assert_allclose(res.positions.ravel(), expected, atol=0.3 * 0.0006)
+    assert res.rank == 3 and res.unknowns == 6
+    s, b = kimlee_system(v_s, v_m, nominal)
+    assert s.shape == (10 + 2, 6) and b.shape == (12,)  # (45)-(46): M + 2 rows
+
+
+def test_kimlee_system_rows_follow_eqs_38_to_43():
+    """Kim & Lee (35)-(43): S_k dp equals dA^T v_s - dP v_m exactly (both linear in dp)."""
+    rng = np.random.default_rng(3)
+    nominal = rng.normal(size=(3, 2)) * 0.2
+    v_m = rng.normal(size=(1, 3))
+    v_s = rng.normal(size=(1, 3, 2))
+    dp = rng.normal(size=6) * 0.01
+    s_full, b = kimlee_system(v_s, v_m, nominal)
+    from mousedom.geometry import design_matrix
+
+    a_bar = design_matrix(nominal)
+    d_a = design_matrix(nominal + dp.reshape(3, 2)) - a_bar  # (34)
+    d_p = d_a.T @ a_bar + a_bar.T @ d_a  # (25)
+    lhs = d_a.T @ v_s[0].ravel() - d_p @ v_m[0]  # left side of (31)
+    np.testing.assert_allclose(s_full @ dp, lhs, atol=1e-12)
+    np.testing.assert_allclose(b, a_bar.T @ (a_bar @ v_m[0] - v_s[0].ravel()), atol=1e-12)
+
+
+def _windows_for(mice, motion, window=0.25, cpi_conf=1000.0):
+    """Per-mouse mouse-frame readings (configured CPI) and the exact twist per window."""
+    recording = {m.name: mouse_reports(m, motion, seed=i) for i, m in enumerate(mice)}
+    runs = split_runs(recording)
+    edges = run_windows(runs, window, 1 / 125)
+    w = np.concatenate([true_window_twist(motion, e) for e in edges])
+    readings = {}
+    for m in mice:
+        rep = recording[m.name]
+        parts = []
+        for e in edges:
+            dx = window_counts(rep.t, rep.dx, e, 1 / m.rate_hz)
+            dy = window_counts(rep.t, rep.dy, e, 1 / m.rate_hz)
+            parts.append(np.column_stack([-dy, -dx]) * INCH / cpi_conf)
+        readings[m.name] = np.concatenate(parts)
+    return readings, w
+
+
+RICH_MOTION = [(0.3, 0, 0, 2), (0, 0, 1.5, 2), (0.2, 0, 0.8, 2), (0, 0.1, -1, 2), (-0.2, 0, 0, 2)]
+
+
+def test_exact_recovers_position_yaw_scale_noise_free():
+    """Quantised but noise-free counts: positions to 0.1 mm (issue 7), yaw and scale too."""
+    mice = [
+        SynthMouse("a", 0.12, 0.05, yaw=0.2, cpi_x=1030, cpi_y=1030),
+        SynthMouse("b", -0.1, -0.12, yaw=-0.1, cpi_x=990, cpi_y=990, rate_hz=500),
+        SynthMouse("c", 0.0, 0.2, yaw=math.pi, cpi_x=1000, cpi_y=1000, phase=0.4),
+    ]
+    readings, w = _windows_for(mice, build_motion(RICH_MOTION))
+    assert motion_problem(w) is None
+    for m in mice:
+        fit = exact_mount(readings[m.name], w)
+        assert abs(fit.x - m.x) < 1e-4 and abs(fit.y - m.y) < 1e-4
+        assert abs(math.remainder(fit.yaw - m.yaw, 2 * math.pi)) < 1e-3
+        assert fit.scale == pytest.approx(m.cpi_y / 1000.0, rel=2e-4)
+        yaw_deg = fit.as_json()["yaw"]
+        assert abs(math.remainder(yaw_deg - math.degrees(m.yaw), 360)) < 0.06
+
+
+def test_exact_is_exact_on_float_counts():
+    """Without quantisation the fit is exact to rounding: no linearisation anywhere."""
+    rng = np.random.default_rng(5)
+    w = rng.normal(size=(12, 3)) * [0.1, 0.05, 0.5]
+    p, yaw, scale = np.array([0.07, -0.03]), -0.7, 1.12
+    d = np.column_stack([w[:, 0] - w[:, 2] * p[1], w[:, 1] + w[:, 2] * p[0]])
+    c, s = math.cos(-yaw), math.sin(-yaw)
+    m = np.column_stack([c * d[:, 0] - s * d[:, 1], s * d[:, 0] + c * d[:, 1]]) * scale
+    fit = exact_mount(m, w)
+    assert (fit.x, fit.y, fit.yaw, fit.scale) == pytest.approx((0.07, -0.03, -0.7, 1.12), abs=1e-12)
+    a, rhs = exact_system(m, w)
+    assert a.shape == (24, 4) and rhs.shape == (24,)
+
+
+def test_pure_rotation_is_flagged_not_solved():
+    """Kim & Lee's own self-rotation cannot tell scale from position: say so, add motion."""
+    nominal, true = kim_lee_example()
+    w = np.tile([0.0, 0.0, 1 / 3], (10, 1))
+    problem = motion_problem(w)
+    assert "rotation about one point" in problem and "straight" in problem
+    # Rotation about an off-centre point is just as degenerate, and the point is named.
+    c = np.array([0.2, -0.1])
+    w_off = np.column_stack([w[:, 2] * c[1], -w[:, 2] * c[0], w[:, 2]])
+    assert "x=0.200, y=-0.100" in motion_problem(w_off)
+    m = np.column_stack([-w[:, 2] * true[0, 1], w[:, 2] * true[0, 0]])
+    with pytest.raises(MountError):
+        exact_mount(m, w)
+
+
+def test_translation_only_is_flagged():
+    w = np.array([[0.2, 0, 0], [0, 0.1, 0], [-0.2, 0.05, 0]])
+    assert "no rotation" in motion_problem(w)
+    assert "no motion" in motion_problem(np.zeros((3, 3)))
+
+
+def test_exact_beats_kimlee_with_noise_on_the_core_simulator():
+    """mousedom.sim rig with noise, mounts 5 % off nominal: exact within 1 mm, and better
+    than the linearised method (which also cannot see a yaw or CPI error)."""
+    true_pos = {"front": (0.16, 0.01), "left": (-0.07, 0.14), "right": (-0.08, -0.13)}
+    mice = tuple(
+        sim.SimMouse(n, x, y, yaw=0.0, cpi_x=1000, cpi_y=1000, noise=0.3, phase=0.001 * i)
+        for i, (n, (x, y)) in enumerate(true_pos.items())
+    )
+    rig = sim.Rig(mice)
+    traj = sim.sequence(
+        sim.pause(0.5),
+        sim.straight(0.4),
+        sim.pause(0.8),
+        sim.turn(1.5),
+        sim.pause(0.8),
+        sim.arc(0.3, 1.0),
+        sim.pause(0.8),
+        sim.turn(-1.0),
+        sim.pause(0.8),
+        sim.straight(-0.3),
+        sim.pause(0.5),
+    )
+    res = sim.simulate(rig, traj, seed=2)
+    from mousedom.sources.base import Reports
+
+    recording = {n: Reports(n, r.t, r.dx, r.dy) for n, r in res.reports.items()}
+    runs = split_runs(recording)
+    assert len(runs) == 5
+    edges = run_windows(runs, 0.25, 1 / 125)
+    # Exact reference twist per window from the simulator's constant-twist segments.
+    seg_t = res.motion.starts
+    twist = np.array([[s.vx, s.vy, s.omega] for s in res.motion.segments])
+    cum = np.vstack([np.zeros(3), np.cumsum(twist * np.diff(seg_t)[:, None], axis=0)])
+
+    def integral(t):
+        k = np.clip(np.searchsorted(seg_t, t, side="right") - 1, 0, len(twist) - 1)
+        return cum[k] + twist[k] * (np.clip(t, seg_t[0], seg_t[-1]) - seg_t[k])[:, None]
+
+    w = np.concatenate([np.diff(integral(e), axis=0) for e in edges])
+    nominal = np.array([[0.15, 0.0], [-0.075, 0.13], [-0.075, -0.13]])
+    v_s = np.zeros((len(w), 3, 2))
+    errs_exact, errs_kl = [], []
+    for j, m in enumerate(mice):
+        rep = recording[m.name]
+        dx = np.concatenate([window_counts(rep.t, rep.dx, e, 1 / 125) for e in edges])
+        dy = np.concatenate([window_counts(rep.t, rep.dy, e, 1 / 125) for e in edges])
+        reading = np.column_stack([-dy, -dx]) * INCH / 1000
+        v_s[:, j] = reading  # yaw 0: mouse frame = body frame
+        fit = exact_mount(reading, w)
+        errs_exact.append(math.hypot(fit.x - m.x, fit.y - m.y))
+        assert fit.scale == pytest.approx(1.0, abs=2e-3)
+    kl = kimlee(v_s, w, nominal)
+    truth = np.array(list(true_pos.values()))
+    errs_kl = np.hypot(*(kl.positions - truth).T)
+    assert max(errs_exact) < 1e-3
+    assert max(errs_exact) < max(errs_kl)
+
+
+def test_kimlee_rank_is_at_most_three_whatever_the_motion():
+    """Kim & Lee (38)-(40), (45): the third row of every S_k is w_k (p_true - 2 p_nominal)
+    (the translation terms of C1 and C2 cancel), so S has rank <= 3 for any motion; with
+    a common scale error (their example) the minimum-norm answer is still right."""
+    motion = build_motion(RICH_MOTION)
+    edges = np.linspace(0.3, motion.end, 60)
+    w = true_window_twist(motion, edges)
+    nominal, _ = kim_lee_example()
+    for true, exact_expected in (
+        (nominal * 1.05, True),
+        (nominal + [[0.01, 0], [0, 0.01], [-0.005, 0.003]], False),
+    ):
+        v_s = np.stack(
+            [np.column_stack([w[:, 0] - w[:, 2] * p[1], w[:, 1] + w[:, 2] * p[0]]) for p in true],
+            axis=1,
+        )
+        s, _ = kimlee_system(v_s, w, nominal)
+        res = kimlee(v_s, w, nominal)
+        assert np.linalg.matrix_rank(s) <= 3 and res.rank <= 3
+        err = np.max(np.hypot(*(res.positions - true).T))
+        assert (err < 0.0015) == exact_expected
+
+
+@pytest.mark.parametrize("window, tolerance", [(0.25, 5e-4), (0.0, 1e-4)])
+def test_exact_with_a_reference_clock_20_ms_late(window, tolerance):
+    """Runs start and end at rest, and their windows reach into the pauses: a reference
+    lagging the mice by 20 ms costs little with windows and nothing with whole runs."""
+    from mousedom.calibrate import session as sess
+    from mousedom.calibrate.reference import parse_reference
+    from mousedom.calibrate.synth import twist_csv
+    from mousedom.config import parse_config
+
+    motion = build_motion(RICH_MOTION)
+    mice = [
+        SynthMouse("a", 0.12, 0.05, yaw=0.03, cpi_x=1010, cpi_y=1010),
+        SynthMouse("b", -0.1, -0.02, phase=0.5),
+    ]
+    rec = {m.name: mouse_reports(m, motion, i) for i, m in enumerate(mice)}
+    cfg = parse_config(
+        "mice:\n  a: {cpi: 1000, mount: {x: 0.1}}\n  b: {cpi: 1000, mount: {x: -0.1}}\n",
+        "rig.yaml",
+        need_sources=False,
+    )
+    ref = parse_reference(twist_csv(motion, 200.0, t_offset=0.02), "REF.csv")
+    s = sess.make_session(cfg, rec, split_runs(rec))
+    res = sess.mounts(s, ref, "exact", window=window)
+    for m in mice:
+        fit = res.fits[m.name]
+        assert math.hypot(fit.x - m.x, fit.y - m.y) < tolerance

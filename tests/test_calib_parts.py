@@ -1,0 +1,180 @@
+"""Runs, windows, counts conversion, REF.csv and the calibration file."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from mousedom.calibrate import calfile
+from mousedom.calibrate.counts import body_frame, mouse_frame
+from mousedom.calibrate.reference import (
+    WheelGeometry,
+    check_coverage,
+    parse_reference,
+    wheel_twist,
+    window_twist,
+)
+from mousedom.calibrate.runs import cumulative, run_counts, split_runs, window_counts
+from mousedom.calibrate.synth import build_motion, twist_csv
+from mousedom.config import load_config, parse_config
+from mousedom.errors import UserError
+from mousedom.sources.base import Reports
+from mousedom.units import INCH
+
+RIG = """\
+mice:
+  left: {cpi: 400, mount: {x: 0.0, y: 0.1, yaw: 90}}
+  right: {cpi: {x: 400, y: 420}, mount: {x: 0.0, y: -0.1}, flip: true}
+"""
+
+
+def test_split_runs_at_idle_gaps_over_all_mice():
+    a = Reports("a", [0.0, 0.1, 0.2, 2.0, 2.1], [1, 1, 1, 1, 1], [0, 0, 0, 0, 0])
+    b = Reports("b", [0.3, 0.75, 1.0, 5.0], [0, 1, 0, 1], [1, 0, 0, 1])  # 1.0: not motion
+    runs = split_runs({"a": a, "b": b}, gap=0.5)
+    assert [(r.t0, r.t1) for r in runs] == [(0.0, 0.75), (2.0, 2.1), (5.0, 5.0)]
+    assert len(split_runs({"a": a, "b": b}, gap=2.0)) == 2
+    counts = run_counts({"a": a, "b": b}, runs, ["b", "a"])
+    np.testing.assert_array_equal(counts[0], [[1, 1], [3, 0]])
+    np.testing.assert_array_equal(counts[2], [[1, 1], [0, 0]])
+    assert split_runs({"a": Reports("a", [], [], [])}) == []
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.lists(st.tuples(st.floats(0.0005, 0.05), st.integers(-20, 20)), min_size=1, max_size=40),
+    st.lists(st.floats(-0.1, 2.5), min_size=1, max_size=10),
+)
+def test_window_counts_conserve_every_count(steps, cuts):
+    """However the windows are cut, they hold every count exactly once."""
+    t = np.cumsum([s[0] for s in steps])
+    v = np.array([s[1] for s in steps], dtype=float)
+    edges = np.sort(np.concatenate([[-1.0], cuts, [t[-1] + 1]]))
+    w = window_counts(t, v, edges, period=0.008)
+    assert w.sum() == pytest.approx(v.sum(), abs=1e-9)
+    x, y = cumulative(t, v, 0.008)
+    assert np.all(np.diff(x) >= 0)
+
+
+def test_window_counts_split_a_report_in_proportion_to_time():
+    """A report at t = 1.0 covers (0.992, 1.0]; a cut at 0.996 halves it."""
+    w = window_counts(np.array([1.0]), np.array([10.0]), np.array([0.0, 0.996, 2.0]), 0.008)
+    np.testing.assert_allclose(w, [5.0, 5.0])
+    # Equal stamps merge; a report never reaches back past the previous one.
+    w = window_counts(
+        np.array([1.0, 1.0, 1.002]),
+        np.array([2.0, 2.0, 4.0]),
+        np.array([0.0, 1.0, 1.001, 5.0]),
+        0.008,
+    )
+    np.testing.assert_allclose(w, [4.0, 2.0, 2.0])
+
+
+def test_counts_follow_the_evdev_convention():
+    """DESIGN.md: REL_Y + = backwards, REL_X + = right; flip mirrors REL_X; yaw turns."""
+    cfg = parse_config(RIG, "rig.yaml", need_sources=False)
+    left, right = cfg.mouse("left"), cfg.mouse("right")
+    np.testing.assert_allclose(mouse_frame(left, 0, -400), [INCH, 0], atol=1e-15)
+    np.testing.assert_allclose(mouse_frame(left, -400, 0), [0, INCH], atol=1e-15)
+    np.testing.assert_allclose(body_frame(left, 0, -400), [0, INCH], atol=1e-15)  # yaw 90
+    np.testing.assert_allclose(mouse_frame(right, 400, -420), [INCH, INCH], atol=1e-15)
+    np.testing.assert_allclose(body_frame(left, 0, -800, cpi=(400, 800)), [0, INCH], atol=1e-15)
+
+
+def test_reference_twist_integrates_exactly():
+    motion = build_motion([(0.3, 0.0, 0.5, 2.0), (0.0, 0.1, -1.0, 1.5)])
+    ref = parse_reference(twist_csv(motion, rate_hz=50), "REF.csv")
+    assert ref.kind == "twist"
+    edges = np.array([0.0, 0.7, 1.3, 3.0, 5.9])
+    np.testing.assert_allclose(
+        window_twist(ref, edges), np.diff(motion.integral(edges), axis=0), atol=1e-9
+    )
+
+
+def test_reference_wheels_follow_mcgill():
+    """McGill notes: dC = (drho r_R + dlambda r_L) / 2, dtheta = (drho r_R - dlambda r_L) / w."""
+    geo = WheelGeometry(0.03, 0.031, 0.25, 360.0)
+    q = wheel_twist(np.array([1.0]), np.array([2.0]), geo)
+    np.testing.assert_allclose(q, [[(2 * 0.031 + 0.03) / 2, 0.0, (2 * 0.031 - 0.03) / 0.25]])
+    ref = parse_reference("t,left,right\n0,0,0\n1,360,720\n2,360,720\n", "REF.csv")
+    w = window_twist(ref, np.array([0.0, 0.5, 2.0]), geo)
+    two_pi = 2 * math.pi
+    np.testing.assert_allclose(
+        w.sum(axis=0), wheel_twist(np.array([two_pi]), np.array([2 * two_pi]), geo)[0]
+    )
+    with pytest.raises(UserError, match="wheel geometry"):
+        window_twist(ref, np.array([0.0, 1.0]))
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("t,vx,omega\n0,0,0\n", "REF.csv:1: header must be t,vx,vy,omega"),
+        ("# made by hand\nt,left\n0,0\n", "REF.csv:2: header must be"),
+        ("t,vx,vy,omega\n0,0,0,0\n1,0,x,0\n", "REF.csv:3: vy: not a number: 'x'"),
+        ("t,vx,vy,omega\n0,0,0,0\n1,0,0\n", "REF.csv:3: 3 fields, the header has 4"),
+        ("t,vx,vy,omega\n0,0,0,0\n0,0,0,0\n", "REF.csv:3: t: time 0.0 does not increase"),
+        ("t,vx,vy,omega\n0,0,0,nan\n1,0,0,0\n", "REF.csv:2: omega: not a finite number"),
+        ("t,vx,vy,omega\n0,0,0,0\n", "REF.csv: 1 sample(s), need at least 2"),
+        ("", "REF.csv: empty reference file"),
+    ],
+)
+def test_reference_errors_name_file_line_column(text, message):
+    with pytest.raises(UserError) as e:
+        parse_reference(text, "REF.csv")
+    assert message in str(e.value)
+
+
+def test_reference_columns_in_any_order_and_coverage():
+    ref = parse_reference("omega,t,vy,vx\n0.5,0,0,1\n0.5,2,0,1\n", "R")
+    np.testing.assert_allclose(window_twist(ref, np.array([0, 2.0])), [[2.0, 0.0, 1.0]])
+    check_coverage(ref, 0.0, 2.0, 0.01)
+    with pytest.raises(UserError, match="share one time base"):
+        check_coverage(ref, 5.0, 6.0, 0.01)
+
+
+def test_calibration_file_merges_and_the_config_applies_it(tmp_path):
+    cal = tmp_path / "rig.calib.yaml"
+    (tmp_path / "rig.yaml").write_text(RIG + "calibration: rig.calib.yaml\n")
+    assert calfile.read_calibration(str(cal)) == {}
+    data = calfile.merge_mouse({}, "left", cpi={"y": 455.2})
+    data = calfile.merge_mouse(data, "left", cpi={"x": 451.0})
+    data = calfile.merge_mouse(data, "right", mount={"x": 0.01, "y": -0.11, "yaw": 1.5}, scale=1.01)
+    data = calfile.merge_section(data, "distance", {"value": 0.2})
+    calfile.write_calibration(str(cal), data)
+    assert calfile.read_calibration(str(cal)) == data
+    assert cal.read_text().startswith("#")
+    cfg = load_config(tmp_path / "rig.yaml", need_sources=False)
+    assert (cfg.mouse("left").cpi_x, cfg.mouse("left").cpi_y) == (451.0, 455.2)
+    r = cfg.mouse("right")
+    assert (r.mount.x, r.mount.y, math.degrees(r.mount.yaw)) == pytest.approx((0.01, -0.11, 1.5))
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []  # no temp left
+
+
+def test_calibration_file_errors(tmp_path):
+    bad = tmp_path / "c.yaml"
+    bad.write_text("mice: [1, 2\n")
+    with pytest.raises(UserError, match="c.yaml:2: invalid YAML"):
+        calfile.read_calibration(str(bad))
+    bad.write_text("- 1\n")
+    with pytest.raises(UserError, match="must be a mapping"):
+        calfile.read_calibration(str(bad))
+    assert yaml.safe_load(calfile.HEADER) is None
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.text(alphabet="tvxyomegaleftrighdirectionc,.-0123456789e\n #", max_size=200))
+def test_csv_parsers_take_any_text_without_a_traceback(text):
+    """Malformed REF.csv and RUNS.csv: a UserError naming the file, or a result; nothing else."""
+    from mousedom.calibrate.umbmark import parse_runs
+
+    for parse in (parse_reference, parse_runs):
+        try:
+            parse(text, "F.csv")
+        except UserError as e:
+            assert str(e).startswith("F.csv")

@@ -1,0 +1,187 @@
+"""Native capture format: round trips, crash safety, corruption, versions, fuzzing."""
+
+from __future__ import annotations
+
+import json
+import math
+import struct
+import zlib
+
+import numpy as np
+import pytest
+from capture_helpers import drain
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from mousedom.capture import DeviceInfo, DeviceStats, NativeWriter, open_capture
+from mousedom.capture.native import CHUNK, MAGIC, NativeCapture
+from mousedom.errors import UserError
+
+DEVICES = [
+    DeviceInfo(name="left mouse", vendor=0x46D, product=0xC077, mouse="left", rel_xy=True),
+    DeviceInfo(name="right mouse", vendor=0x46D, product=0xC078, mouse="right", rel_xy=True),
+    DeviceInfo(name="adns", kind="serial", mouse="floor", extra={"port": "/dev/ttyUSB0"}),
+]
+
+
+def _reports(seed: int, n: int, t0: float = 0.0):
+    rng = np.random.default_rng(seed)
+    t = t0 + np.cumsum(rng.uniform(0.0005, 0.01, n))
+    return t, rng.integers(-(2**20), 2**20, n), rng.integers(-50, 50, n)
+
+
+def _write(path, compress=True, chunk_reports=700, syncs=True):
+    left = _reports(1, 3000)
+    right = _reports(2, 2500)
+    serial = [(0.01 * k, bytes([k % 256]) * (k % 7 + 1)) for k in range(300)]
+    with NativeWriter(
+        path,
+        DEVICES,
+        config_text="rate_hz: 100\n",
+        time_base="monotonic",
+        compress=compress,
+        chunk_reports=chunk_reports,
+    ) as w:
+        for a in range(0, 3000, 500):
+            w.motion(0, *(x[a : a + 500] for x in left))
+            w.motion(1, *(x[a : a + 500] for x in right))
+            w.serial_many(
+                2,
+                [s[0] for s in serial[a // 10 : a // 10 + 50]],
+                [s[1] for s in serial[a // 10 : a // 10 + 50]],
+            )
+            if syncs:
+                w.sync(min(left[0][min(a + 499, 2999)], right[0][min(a + 499, 2499)]))
+        w.note(0, DeviceStats(skipped=12, dropped_frames=1, lost_x=3))
+    return left, right, serial
+
+
+@pytest.mark.parametrize("compress", [True, False])
+def test_round_trip_every_source(tmp_path, compress):
+    p = tmp_path / "rig.mdcap"
+    left, right, serial = _write(p, compress=compress)
+    cap = drain(p)
+    assert isinstance(cap, NativeCapture)
+    assert [d.name for d in cap.devices] == [d.name for d in DEVICES]
+    assert cap.devices[2].kind == "serial" and cap.devices[2].extra == {"port": "/dev/ttyUSB0"}
+    assert cap.config_text == "rate_hz: 100\n"
+    assert cap.time_base == "monotonic"
+    for dev, want in ((0, left), (1, right)):
+        for got, exp in zip(cap.motion[dev], want, strict=True):
+            np.testing.assert_array_equal(got, exp)
+    assert cap.stats[0].skipped == 12 and cap.stats[0].lost_x == 3
+    assert cap.stats[2].serial_bytes == sum(len(s[1]) for s in serial[:300])
+    assert not cap.warnings
+
+
+def test_serial_chunks_round_trip(tmp_path):
+    p = tmp_path / "s.mdcap"
+    _, _, serial = _write(p)
+    cap = open_capture(p)
+    pieces, times = [], []
+    for f in cap.feeds():
+        for b in f.batches:
+            for s in b.serial:
+                pieces += s.data
+                times += s.t.tolist()
+    assert pieces == [s[1] for s in serial]
+    assert times == [s[0] for s in serial]
+
+
+def test_batches_follow_sync_points(tmp_path):
+    p = tmp_path / "w.mdcap"
+    _write(p)
+    marks = [b.complete for f in open_capture(p).feeds() for b in f.batches]
+    finite = [m for m in marks if math.isfinite(m)]
+    assert len(finite) == 6 and finite == sorted(finite) and marks[-1] == math.inf
+
+
+def test_every_truncation_point_keeps_all_whole_chunks(tmp_path):
+    """A crash can cut the file anywhere: all chunks before the cut stay readable."""
+    p = tmp_path / "full.mdcap"
+    left, right, _ = _write(p, chunk_reports=400)
+    data = p.read_bytes()
+    # Chunk boundaries, to know how many reports each prefix must hold.
+    offsets, counts = [], []
+    cap = open_capture(p)
+    for kind, source, count, payload, off in cap._chunks(check_tail=True):
+        offsets.append(off)
+        counts.append(count if kind == 1 else 0)
+    ends = offsets[1:] + [len(data)]
+    header_end = offsets[0]
+    rng = np.random.default_rng(5)
+    cuts = sorted(set(rng.integers(header_end, len(data), 60).tolist()) | set(ends[:5]))
+    for cut in cuts:
+        q = tmp_path / "cut.mdcap"
+        q.write_bytes(data[:cut])
+        c = drain(q)
+        whole = sum(n for n, e in zip(counts, ends, strict=True) if e <= cut)
+        got = sum(len(m[0]) for m in c.motion.values())
+        assert got == whole, cut
+        torn = cut not in ends
+        assert bool(c.warnings) == torn
+        if torn:
+            assert "unfinished chunk" in c.warnings[0]
+
+
+def test_corrupted_chunk_in_the_middle_is_an_error(tmp_path):
+    p = tmp_path / "c.mdcap"
+    _write(p)
+    data = bytearray(p.read_bytes())
+    cap = open_capture(p)
+    first = next(cap._chunks(check_tail=True))[4]
+    data[first + CHUNK.size + 5] ^= 0xFF  # flip a payload byte of the first chunk
+    p.write_bytes(bytes(data))
+    with pytest.raises(UserError, match=r"byte offset \d+: chunk CRC mismatch.*corrupted"):
+        drain(p)
+
+
+def test_unknown_version_and_bad_header(tmp_path):
+    p = tmp_path / "v.mdcap"
+    body = json.dumps({"devices": [], "time_base": "relative"}).encode()
+    p.write_bytes(
+        MAGIC + struct.pack("<HHI", 2, 0, len(body)) + body + struct.pack("<I", zlib.crc32(body))
+    )
+    with pytest.raises(UserError, match="unknown native capture version 2.0"):
+        open_capture(p)
+    p.write_bytes(MAGIC + struct.pack("<HHI", 1, 0, len(body)) + body + b"\0\0\0\0")
+    with pytest.raises(UserError, match="header CRC mismatch"):
+        open_capture(p)
+    p.write_bytes(MAGIC + b"\1\0")
+    with pytest.raises(UserError, match="header cut short"):
+        open_capture(p)
+
+
+def test_time_going_backwards_is_an_error(tmp_path):
+    p = tmp_path / "b.mdcap"
+    with NativeWriter(p, DEVICES[:1]) as w:
+        w.motion(0, [1.0, 2.0], [1, 1], [0, 0])
+        w.flush()
+        w.motion(0, [1.5], [1], [0])
+    with pytest.raises(UserError, match="time goes backwards"):
+        drain(p)
+
+
+def test_chunk_for_unknown_source(tmp_path):
+    p = tmp_path / "u.mdcap"
+    with NativeWriter(p, DEVICES[:1]) as w:
+        w.motion(0, [1.0], [1], [0])
+        w.flush()
+        w._chunk(1, 7, 1, np.array([2.0]).tobytes() + b"\1\0\0\0\0\0\0\0")
+    with pytest.raises(UserError, match="source 7"):
+        drain(p)
+
+
+@settings(max_examples=200, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(st.binary(max_size=300), st.integers(0, 2000))
+def test_fuzz_damaged_files_never_crash(tmp_path, junk, at):
+    p = tmp_path / "f.mdcap"
+    if not (tmp_path / "base.mdcap").exists():
+        _write(tmp_path / "base.mdcap", chunk_reports=300)
+    base = (tmp_path / "base.mdcap").read_bytes()
+    at = min(at, len(base))
+    p.write_bytes(base[:at] + junk + base[at + len(junk) :])
+    try:
+        drain(p)
+    except UserError as e:
+        assert "f.mdcap" in str(e)

@@ -1,0 +1,312 @@
+"""``mousedom record`` as a real process, with FIFO mice and a pty serial port."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+from conftest import mousedom_env, run_mousedom
+from test_evdev_fakes import motion_bytes
+
+from mousedom.capture.native import NativeCapture
+
+
+def rig(tmp_path: Path, mice: dict[str, str]) -> Path:
+    """A config whose mice are evdev FIFOs (name -> fifo path) or serial ports ('serial:')."""
+    lines = ["rate_hz: 100", "mice:"]
+    for i, (name, where) in enumerate(mice.items()):
+        lines.append(f"  {name}:")
+        lines.append("    cpi: 800")
+        lines.append(f"    mount: {{x: {0.1 * i}, y: {0.05 * (i % 2)}, yaw: 0}}")
+        if where.startswith("serial:"):
+            lines.append(f"    serial: {{port: {where[7:]}, baud: 115200}}")
+        else:
+            lines.append(f"    evdev: {{path: {where}}}")
+    path = tmp_path / "rig.yaml"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def fifos(tmp_path: Path, *names: str) -> dict[str, str]:
+    out = {}
+    for n in names:
+        p = tmp_path / f"{n}.fifo"
+        os.mkfifo(p)
+        out[n] = str(p)
+    return out
+
+
+def start(*args: str) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, "-m", "mousedom", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=mousedom_env(),
+    )
+
+
+def read_capture(path: Path):
+    cap = NativeCapture(str(path))
+    motion: dict[str, list] = {d.mouse: [[], [], []] for d in cap.devices}
+    serial: dict[str, bytes] = {d.mouse: b"" for d in cap.devices}
+    for feed in cap.feeds():
+        for batch in feed.batches:
+            for m in batch.motion:
+                cols = motion[cap.devices[m.device].mouse]
+                cols[0] += m.t.tolist()
+                cols[1] += m.dx.tolist()
+                cols[2] += m.dy.tolist()
+            for s in batch.serial:
+                serial[cap.devices[s.device].mouse] += b"".join(s.data)
+    return cap, motion, serial
+
+
+def frames(n: int, seed: int):
+    rng = np.random.default_rng(seed)
+    return rng.integers(-9, 10, n), rng.integers(-9, 10, n)
+
+
+def test_sigint_closes_cleanly_with_every_count(tmp_path):
+    f = fifos(tmp_path, "left", "right")
+    out = tmp_path / "run.mdcap"
+    p = start(
+        "record", "--config", str(rig(tmp_path, f)), "-o", str(out), "--status-interval", "0.2"
+    )
+    try:
+        ws = {n: os.open(path, os.O_WRONLY) for n, path in f.items()}  # waits for the reader
+        sent = {}
+        for seed, (n, w) in enumerate(ws.items()):
+            dx, dy = frames(500, seed)
+            sent[n] = (dx, dy)
+            t0 = time.monotonic()
+            for lo in range(0, 500, 100):  # several writes, as a mouse would
+                os.write(
+                    w, motion_bytes(t0 + lo * 0.001, dx[lo : lo + 100], dy[lo : lo + 100], dt=0.001)
+                )
+        time.sleep(0.6)
+        p.send_signal(signal.SIGINT)
+        _, err = p.communicate(timeout=20)
+    finally:
+        p.kill()
+    assert p.returncode == 0, err
+    assert "recording left" in err and "right" in err
+    assert "reports" in err and "Hz" in err and "record: done" in err
+    assert "Traceback" not in err
+    cap, motion, _ = read_capture(out)
+    assert cap.warnings == []
+    assert [d.mouse for d in cap.devices] == ["left", "right"]
+    assert cap.header["config"].startswith("rate_hz: 100")
+    for n, (dx, dy) in sent.items():
+        t, gx, gy = motion[n]
+        assert len(t) == 500 and gx == dx.tolist() and gy == dy.tolist()
+        assert np.all(np.diff(t) > 0)
+    assert cap.stats[0].frames == 500  # the NOTE chunk carried the source's counters
+    for w in ws.values():
+        os.close(w)
+
+
+def test_kill9_leaves_a_readable_prefix(tmp_path):
+    f = fifos(tmp_path, "a", "b")
+    out = tmp_path / "crash.mdcap"
+    p = start("record", "--config", str(rig(tmp_path, f)), "-o", str(out), "--status-interval", "0")
+    dxs = {}
+    stop = threading.Event()
+
+    def feed(name: str, path: str, seed: int) -> None:
+        dx, dy = frames(100_000, seed)
+        dxs[name] = dx
+        w = os.open(path, os.O_WRONLY)
+        try:
+            i = 0
+            while not stop.is_set() and i < len(dx):
+                os.write(w, motion_bytes(time.monotonic(), dx[i : i + 8], dy[i : i + 8], dt=1e-6))
+                i += 8
+                time.sleep(0.002)
+        except BrokenPipeError:
+            pass  # the recorder was killed
+        finally:
+            os.close(w)
+
+    threads = [
+        threading.Thread(target=feed, args=(n, path, s)) for s, (n, path) in enumerate(f.items())
+    ]
+    for th in threads:
+        th.start()
+    time.sleep(1.2)
+    p.send_signal(signal.SIGKILL)
+    p.wait(timeout=10)
+    stop.set()
+    for th in threads:
+        th.join()
+    p.stdout.close()
+    p.stderr.close()
+    cap, motion, _ = read_capture(out)  # must not raise: all but the last moments are there
+    total = 0
+    for n, (_, gx, _) in motion.items():
+        k = len(gx)
+        total += k
+        assert gx == dxs[n][:k].tolist()  # a prefix of what was sent, nothing reordered
+    assert total > 100  # ~1 s of recording at ~4000 reports/s per mouse, minus the last 0.25 s
+
+
+def test_duration_unplug_and_reattach(tmp_path):
+    f = fifos(tmp_path, "left", "right")
+    out = tmp_path / "plug.mdcap"
+    p = start(
+        "record",
+        "--config",
+        str(rig(tmp_path, f)),
+        "-o",
+        str(out),
+        "--duration",
+        "2.5",
+        "--status-interval",
+        "0.5",
+    )
+    try:
+        wr = os.open(f["right"], os.O_WRONLY)  # stays plugged the whole time
+        w = os.open(f["left"], os.O_WRONLY)
+        t0 = time.monotonic()
+        os.write(w, motion_bytes(t0, [1, 2, 3], [0, 0, 0]))
+        os.write(wr, motion_bytes(t0, [5], [5]))
+        os.close(w)  # unplug
+        time.sleep(0.3)
+        w = os.open(f["left"], os.O_WRONLY)  # replug: blocks until the recorder reopens
+        os.write(w, motion_bytes(time.monotonic(), [10, 20], [1, 1]))
+        time.sleep(0.3)
+        os.close(w)
+        os.close(wr)
+        _, err = p.communicate(timeout=30)
+    finally:
+        p.kill()
+    assert p.returncode == 0, err
+    assert "left: left: device gone" in err and "waiting for it to come back" in err
+    assert "left: back" in err
+    _, motion, _ = read_capture(out)
+    assert motion["left"][1] == [1, 2, 3, 10, 20]
+    assert motion["right"][1] == [5]
+
+
+def test_serial_bytes_recorded_raw(tmp_path):
+    """A downsampler on a pty: line noise then 20 MOTION packets; the file holds the exact
+    bytes, which decode to the same 20 reports as the bytes that were sent."""
+    from mousedom import adns_protocol as P
+    from mousedom.adns_decode import packets_to_reports
+
+    master, slave = os.openpty()
+    port = os.ttyname(slave)
+    f = fifos(tmp_path, "left")
+    cfg = rig(tmp_path, {"left": f["left"], "adns": f"serial:{port}"})
+    out = tmp_path / "serial.mdcap"
+    p = start("record", "--config", str(cfg), "-o", str(out), "--status-interval", "0.2")
+    packets = [
+        P.encode_packet(
+            P.Motion(
+                seq=i, t_us=10_000 * (i + 1), dx=i, dy=2 * i, frames=12, squal_min=100, flags=0
+            )
+        )
+        for i in range(20)
+    ]
+    payload = b"\x55\xaa noise \x00" + b"".join(packets)
+    try:
+        w = os.open(f["left"], os.O_WRONLY)
+        time.sleep(0.3)  # the port is open once the FIFO is (sources open in order)
+        for i in range(0, len(payload), 37):  # chunks that cut packets anywhere
+            os.write(master, payload[i : i + 37])
+            time.sleep(0.005)
+        time.sleep(0.5)
+        p.send_signal(signal.SIGTERM)
+        _, err = p.communicate(timeout=20)
+    finally:
+        p.kill()
+    assert p.returncode == 0, err
+    assert f"adns (serial {port})" in err and f"adns {len(payload)} B 20 reports" in err
+    cap, _, serial = read_capture(out)
+    assert serial["adns"] == payload
+    assert cap.devices[1].kind == "serial" and cap.devices[1].extra["port"] == port
+    sent, _ = packets_to_reports([(0.0, payload)])
+    got, _ = packets_to_reports([(0.0, serial["adns"])])
+    assert len(got) == len(sent) == 20
+    assert got.dx.tolist() == sent.dx.tolist() and got.dy.tolist() == sent.dy.tolist()
+    assert sorted(abs(v) for v in got.dx.tolist() + got.dy.tolist()) == sorted(
+        list(range(20)) + [2 * i for i in range(20)]
+    )
+    os.close(w)
+    os.close(master)
+    os.close(slave)
+
+
+def test_user_errors(tmp_path):
+    cfg = rig(tmp_path, {"left": str(tmp_path / "nope"), "right": str(tmp_path / "nope2")})
+    r = run_mousedom("record", "--config", str(cfg), "-o", str(tmp_path / "x.mdcap"))
+    assert r.returncode == 1
+    assert "mice.left" in r.stderr and "no input device matches path=" in r.stderr
+    assert "Traceback" not in r.stderr
+    assert not (tmp_path / "x.mdcap").exists()
+    f = fifos(tmp_path, "a", "b")
+    r = run_mousedom(
+        "record", "--config", str(rig(tmp_path, f)), "-o", str(tmp_path / "y"), "--duration", "-1"
+    )
+    assert r.returncode == 2 and "--duration" in r.stderr
+    r = run_mousedom(
+        "record",
+        "--config",
+        str(rig(tmp_path, f)),
+        "-o",
+        str(tmp_path / "no" / "dir" / "y"),
+        "--duration",
+        "0.1",
+    )
+    assert r.returncode == 1 and "cannot write" in r.stderr
+    (tmp_path / "old.mdcap").write_bytes(b"precious")
+    r = run_mousedom("record", "--config", str(rig(tmp_path, f)), "-o", str(tmp_path / "old.mdcap"))
+    assert r.returncode == 2 and "exists" in r.stderr and "--force" in r.stderr
+    assert (tmp_path / "old.mdcap").read_bytes() == b"precious"
+
+
+def test_recording_replays_to_the_motion_that_was_made(tmp_path):
+    """record -> replay: two mice pushed 1000 counts forward at 800 cpi = 31.75 mm."""
+    f = fifos(tmp_path, "left", "right")
+    cfg = rig(tmp_path, f)
+    out = tmp_path / "straight.mdcap"
+    p = start("record", "--config", str(cfg), "-o", str(out), "--status-interval", "0")
+    try:
+        ws = [os.open(path, os.O_WRONLY) for path in f.values()]
+        t0 = time.monotonic()
+        for w in ws:  # forward = -REL_Y (the mouse moves away from its user)
+            os.write(w, motion_bytes(t0, [0] * 100, [-10] * 100, dt=0.008))
+        time.sleep(0.5)
+        p.send_signal(signal.SIGTERM)
+        _, err = p.communicate(timeout=20)
+    finally:
+        p.kill()
+    assert p.returncode == 0, err
+    r = run_mousedom("replay", "--config", str(cfg), "--capture", str(out), "-o", "-")
+    assert r.returncode == 0, r.stderr
+    rows = [line.split(",") for line in r.stdout.strip().splitlines()]
+    header, last = rows[0], rows[-1]
+    x, y, theta = (float(last[header.index(k)]) for k in ("x", "y", "theta"))
+    assert abs(x - 1000 / 800 * 0.0254) < 1e-9
+    assert abs(y) < 1e-12 and abs(theta) < 1e-12
+    for w in ws:
+        os.close(w)
+
+
+def test_a_replay_mouse_cannot_be_recorded(tmp_path):
+    f = fifos(tmp_path, "a")
+    cfg = tmp_path / "rig.yaml"
+    cfg.write_text(
+        "mice:\n"
+        f"  a: {{cpi: 800, mount: {{x: 0, y: 0.1}}, evdev: {{path: {f['a']}}}}}\n"
+        "  b: {cpi: 800, mount: {x: 0, y: -0.1}, replay: old.mdcap}\n"
+    )
+    r = run_mousedom("record", "--config", str(cfg), "-o", str(tmp_path / "z.mdcap"))
+    assert r.returncode == 2 and "mice.b: a replay source cannot be recorded" in r.stderr
+    assert "Traceback" not in r.stderr and not (tmp_path / "z.mdcap").exists()

@@ -1,0 +1,236 @@
+"""The tracker: windows, watermarks, proportional splitting, conservation of counts."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from mousedom import sim
+from mousedom.covariance import CovarianceState, propagate
+from mousedom.tracker import PoseBatch, Tracker
+
+
+def rig3(**kw) -> sim.Rig:
+    return sim.three_mouse_rig(**kw)
+
+
+def poses_until(p: PoseBatch, t: float) -> PoseBatch:
+    sel = p.t <= t
+    return PoseBatch(**{k: v[sel] for k, v in vars(p).items()})
+
+
+def stream(tracker: Tracker, result: sim.SimResult, chunk: float) -> PoseBatch:
+    """Feed reports in time chunks like a live source would, polling after each."""
+    out = []
+    end = result.duration
+    for lo in np.arange(0.0, end + chunk, chunk):
+        hi = lo + chunk
+        for name, r in result.reports.items():
+            sel = (r.t > lo) & (r.t <= hi) if lo > 0 else r.t <= hi
+            tracker.push(name, r.t[sel], r.dx[sel], r.dy[sel])
+        tracker.complete_until(hi)
+        out.append(tracker.poll())
+    out.append(tracker.finish())
+    return PoseBatch.concat(out)
+
+
+@pytest.mark.parametrize("rate_hz", [7.0, 100.0, 333.0, 2000.0])
+def test_exact_recovers_a_constant_twist_arc(rate_hz):
+    """DESIGN 'exact' integrator: without quantization the pose is exact, any window length."""
+    rig = sim.Rig(
+        tuple(
+            sim.SimMouse(n, x, y, yaw, quantize=False, rate_hz=125, phase=ph)
+            for n, x, y, yaw, ph in [
+                ("a", 0.2, 0.0, 0.0, 0.0),
+                ("b", -0.1, 0.15, 30.0, 0.003),
+                ("c", -0.1, -0.15, -60.0, 0.0051),
+            ]
+        ),
+        rate_hz=rate_hz,
+    )
+    res = sim.simulate(rig, sim.arc(0.7, 2.0, 0.25))
+    poses, _ = sim.run_tracker(res)
+    # Windows ending a report period before the motion stops: after that, the last
+    # reports spread motion that had already ended over their whole period.
+    poses = poses_until(poses, res.duration - 1 / 125)
+    assert len(poses) >= rate_hz * 5
+    truth = res.truth(poses.t)
+    assert np.abs(poses.x - truth[:, 0]).max() < 1e-9
+    assert np.abs(poses.y - truth[:, 1]).max() < 1e-9
+    assert np.abs(poses.theta - truth[:, 2]).max() < 1e-9
+
+
+def test_streaming_equals_one_batch():
+    res = sim.simulate(rig3(), sim.sequence(sim.arc(0.5, 1.0), sim.turn(-1.0), sim.straight(0.3)))
+    batch, _ = sim.run_tracker(res)
+    streamed = stream(Tracker(sim.rig_config(res.rig), t0=0.0), res, chunk=0.0137)
+    # Streaming also closes the empty windows that pass after the motion ended.
+    assert len(streamed) > len(batch)
+    assert not streamed.counts[len(batch) :].any()
+    streamed = poses_until(streamed, batch.t[-1] + 1e-9)
+    for key in ("t", "x", "y", "theta", "vx", "omega"):
+        assert np.allclose(getattr(streamed, key), getattr(batch, key), atol=1e-9), key
+    assert np.allclose(streamed.counts, batch.counts, atol=1e-9)
+    assert np.allclose(streamed.cov, batch.cov, atol=1e-12, rtol=1e-9)
+
+
+report_lists = st.lists(
+    st.tuples(
+        st.integers(0, 2),  # mouse
+        st.floats(0.0, 0.5, allow_nan=False),  # time
+        st.integers(-127, 127),
+        st.integers(-127, 127),
+    ),
+    max_size=80,
+)
+
+
+@settings(max_examples=150, deadline=None)
+@given(report_lists, st.lists(st.floats(0.0, 0.6), max_size=6), st.floats(20, 2000))
+def test_no_count_is_ever_lost(reports, cuts, rate_hz):
+    """DESIGN 'Counts are never lost': counts in == counts out, in any feeding order."""
+    cfg = sim.rig_config(sim.Rig(rig3().mice, rate_hz=rate_hz))
+    tracker = Tracker(cfg)
+    cuts = sorted(cuts) + [math.inf]
+    by_mouse = {i: sorted(r[1:] for r in reports if r[0] == i) for i in range(3)}
+    pos = {i: 0 for i in range(3)}
+    windows = []
+    for cut in cuts:
+        for i, rs in by_mouse.items():
+            part = [r for r in rs[pos[i] :] if r[0] <= cut]
+            pos[i] += len(part)
+            if part:
+                t, dx, dy = map(np.array, zip(*part, strict=True))
+                tracker.push(i, t, dx, dy)
+        if cut != math.inf:
+            tracker.complete_until(cut)
+            windows.append(tracker.poll())
+    windows.append(tracker.finish())
+    out = PoseBatch.concat(windows, 3)
+    total_in = np.zeros((3, 2))
+    for i, rs in by_mouse.items():
+        for _, dx, dy in rs:
+            total_in[i] += (dx, dy)
+    assert np.allclose(tracker.counts_in, total_in)
+    assert np.allclose(out.counts.sum(axis=0), total_in, atol=1e-9)
+    assert np.allclose(tracker.counts_out, total_in, atol=1e-9)
+    assert np.all(np.diff(out.t) > 0)
+
+
+def test_split_in_proportion_to_time():
+    cfg = sim.rig_config(sim.Rig(rig3().mice, rate_hz=100.0))  # 10 ms windows
+    tr = Tracker(cfg, t0=0.0)
+    # Mouse 0 reports at 6 ms and 14 ms (8 ms period): the second report spans the edge at
+    # 10 ms and is split 4:4 between the first two windows.
+    tr.push(0, np.array([0.006, 0.014]), np.array([0.0, 0.0]), np.array([-8.0, -8.0]))
+    out = tr.finish()
+    assert out.counts[:, 0, 1] == pytest.approx([-12.0, -4.0])
+
+
+def test_a_silent_mouse_holds_windows_until_declared_complete():
+    cfg = sim.rig_config(rig3())
+    tr = Tracker(cfg, t0=0.0)
+    tr.push("front", np.arange(1, 20) * 0.008, np.zeros(19), -np.ones(19))
+    assert len(tr.poll()) == 0  # left and right have said nothing yet
+    tr.complete_until(0.1)
+    out = tr.poll()
+    # Motion is final up to the last report (0.152) for 'front' and up to 0.1 - 1/125
+    # for the silent ones: windows up to 0.09 close.
+    assert out.t[-1] == pytest.approx(0.09)
+    assert len(out) == 9
+
+
+def test_late_and_backwards_reports_are_kept_and_counted():
+    cfg = sim.rig_config(rig3())
+    tr = Tracker(cfg, t0=0.0)
+    tr.complete_until(0.1)
+    first = tr.poll()
+    tr.push("front", np.array([0.05, 0.12, 0.11]), np.array([1.0, 2.0, 3.0]), np.zeros(3))
+    rest = tr.finish()
+    assert first.counts.sum() == 0
+    assert rest.counts[:, 0, 0].sum() == pytest.approx(6.0)
+    assert tr.stats()["front"] == {"late": 1, "backwards": 1}
+
+
+def test_degraded_operation_keeps_going_with_rank_and_holds_without():
+    res = sim.simulate(rig3(), sim.straight(0.5, 0.25))
+    cfg = sim.rig_config(res.rig)
+    tr = Tracker(cfg, t0=0.0)
+    tr.set_live("left", False, 0.5)
+    tr.set_live("left", True, 1.2)
+    for name, r in res.reports.items():
+        keep = ~((r.t > 0.5) & (r.t < 1.2)) if name == "left" else slice(None)
+        tr.push(name, r.t[keep], r.dx[keep], r.dy[keep])
+    out = tr.finish()
+    assert set(np.unique(out.used)) == {2, 3}
+    assert out.ok.all()
+    assert out.x[-1] == pytest.approx(0.5, abs=5e-4)
+
+    two = sim.Rig(rig3().mice[:2])
+    res2 = sim.simulate(two, sim.straight(0.5, 0.25))
+    tr2 = Tracker(sim.rig_config(two), t0=0.0)
+    tr2.set_live("left", False, 1.0)
+    for name, r in res2.reports.items():
+        keep = r.t < 1.0 if name == "left" else slice(None)
+        tr2.push(name, r.t[keep], r.dx[keep], r.dy[keep])
+    out2 = tr2.finish()
+    held = ~out2.ok
+    assert held.any() and np.all(out2.t[held] > 1.0)
+    # While not updated the pose stays put: no invented motion.
+    assert np.ptp(out2.x[held]) == 0.0
+    assert out2.x[-1] == pytest.approx(0.25, abs=5e-3)
+
+
+def test_reset_and_fix():
+    res = sim.simulate(rig3(), sim.arc(0.5, 1.0))
+    tr = Tracker(sim.rig_config(res.rig), t0=0.0)
+    for name, r in res.reports.items():
+        tr.push(name, r.t, r.dx, r.dy)
+    tr.poll()
+    tr.complete_until(res.duration)
+    tr.poll()
+    assert tr.pose_cov[0, 0] > 0
+    tr.fix(y=1.0)
+    x, y, th = tr.pose
+    assert y == 1.0
+    cov = tr.pose_cov
+    assert cov[1, 1] == 0 and cov[0, 1] == 0 and cov[0, 0] > 0 and cov[2, 2] > 0
+    tr.reset(2.0, 3.0, 0.5)
+    assert tr.pose == (2.0, 3.0, 0.5) and not tr.pose_cov.any()
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.integers(1, 30), st.integers(0, 2**31 - 1))
+def test_batched_covariance_equals_the_recursion(n, seed):
+    """P_k = F_k P_{k-1} F_k^T + G_k, with F_k = S(p_k - p_{k-1}), done by cumulative sums."""
+    rng = np.random.default_rng(seed)
+    positions = np.cumsum(rng.normal(0, 1, (n, 2)), axis=0)
+    a = rng.normal(0, 0.1, (n, 3, 3))
+    noise = a @ np.swapaxes(a, 1, 2)
+    b = rng.normal(0, 0.1, (3, 3))
+    start = CovarianceState(cov=b @ b.T, position=rng.normal(0, 1, 2))
+    got, state = propagate(start, positions, noise)
+    p = start.cov
+    prev = start.position
+    for k in range(n):
+        d = positions[k] - prev
+        f = np.array([[1, 0, -d[1]], [0, 1, d[0]], [0, 0, 1.0]])
+        p = f @ p @ f.T + noise[k]
+        prev = positions[k]
+        assert np.allclose(got[k], p, atol=1e-9)
+    assert np.allclose(state.cov, p) and np.allclose(state.position, positions[-1])
+
+
+def test_umbmark_square_accuracy():
+    """Issue figure: lsq + exact on the 4 m square, 3 mice, 450 CPI, 125 Hz, quantized."""
+    for cw in (True, False):
+        res = sim.simulate(rig3(), sim.umbmark_square(cw=cw))
+        poses, tr = sim.run_tracker(res)
+        truth = res.truth(poses.t[-1])[0]
+        assert math.hypot(poses.x[-1] - truth[0], poses.y[-1] - truth[1]) < 0.002
+        assert abs(math.degrees(poses.theta[-1] - truth[2])) < 0.05
+        assert np.array_equal(tr.counts_out.round(6), tr.counts_in)
