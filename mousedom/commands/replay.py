@@ -179,7 +179,7 @@ def format_summary(s: Summary, replay: Replay, args) -> str:
         if st.lost_x or st.lost_y:
             extra.append(f"{st.lost_x} x / {st.lost_y} y counts lost in dropped frames")
         if st.unterminated:
-            extra.append(f"{st.unterminated} frame without SYN_REPORT at the end (kept)")
+            extra.append(f"{st.unterminated} events without SYN_REPORT at the end (kept)")
         if st.torn_bytes:
             extra.append(f"{st.torn_bytes} bytes of torn tail skipped")
         if extra:
@@ -198,7 +198,7 @@ class ProgressBar:
 
     def update(self, fraction: float) -> None:
         now = time.monotonic()
-        if now - self.last < 0.1 or now - self.t0 < 0.5:
+        if self.drawn and now - self.last < 0.1:
             return
         self.last = now
         fraction = min(max(fraction, 0.0), 1.0)
