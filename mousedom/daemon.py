@@ -49,8 +49,11 @@ STATUS_S = 1.0  # SOURCE broadcast period
 DEFAULT_LATENCY_S = 0.003  # how late a report may reach us after its stamp (silence rule)
 
 
-def make_source(mouse: MouseConfig, clock: Clock = time.monotonic) -> Source:
-    """The backend a mouse's config asks for: evdev, serial ADNS-3080 or replay."""
+def make_source(mouse: MouseConfig, clock: Clock = time.monotonic, loop: bool = False) -> Source:
+    """The backend a mouse's config asks for: evdev, serial ADNS-3080 or replay.
+
+    A replay is paced on ``clock`` (real time) and starts again at its end with ``loop``.
+    """
     try:
         if mouse.evdev is not None:
             from mousedom.sources.evdev import EvdevSource
@@ -63,7 +66,9 @@ def make_source(mouse: MouseConfig, clock: Clock = time.monotonic) -> Source:
         if mouse.replay is not None:
             from mousedom.sources.replay import ReplaySource
 
-            return ReplaySource(mouse, clock=clock)
+            return ReplaySource(
+                mouse.name, mouse.replay, device=mouse.replay_device, loop=loop, clock=clock
+            )
     except ImportError as e:
         raise UserError(f"mice.{mouse.name}: this build has no such source ({e})") from None
     raise UserError(f"mice.{mouse.name}: says nowhere where the mouse comes from")
@@ -85,6 +90,7 @@ class Slot:
     fd: int | None = None
     retry_at: float = 0.0
     latency: float = DEFAULT_LATENCY_S
+    paced: bool = False  # no readable fd: read on the loop's own schedule (replay)
     residual_sq: float = 0.0
     residual_n: int = 0
     residual_rms: float | None = None
@@ -214,7 +220,7 @@ class Daemon:
         last_wake = now
         while not self._stop:
             now = self.clock()
-            deadline = min(next_tick, next_status, next_watchdog)
+            deadline = min(next_tick, next_status, next_watchdog, self._next_due(polled))
             if self.coalesce_s:
                 # Let a few reports pile up per wake: far fewer syscalls at 4 x 1000 Hz,
                 # for at most coalesce_s of extra latency.
@@ -252,6 +258,17 @@ class Daemon:
                 self.notifier.watchdog()
                 next_watchdog = now + (wd_interval or float("inf"))
 
+    @staticmethod
+    def _next_due(polled: list[Slot]) -> float:
+        """When the next report of a paced (fd-less) source is due."""
+        due = float("inf")
+        for slot in polled:
+            if slot.live and slot.paced:
+                nxt = slot.source.next_due()  # type: ignore[attr-defined]
+                if nxt is not None:
+                    due = min(due, nxt)
+        return due
+
     def _shutdown(self) -> None:
         self.notifier.stopping()
         if self.tracker is not None:
@@ -285,7 +302,10 @@ class Daemon:
     def _new_slot(self, index: int, mouse: MouseConfig) -> Slot:
         source = self.source_factory(mouse, self.clock)
         latency = float(getattr(source, "latency", DEFAULT_LATENCY_S))
-        return Slot(index=index, mouse=mouse, source=source, latency=latency)
+        paced = callable(getattr(source, "next_due", None))
+        if paced:
+            latency = 0.0  # a paced source hands over every report due by ``now``
+        return Slot(index=index, mouse=mouse, source=source, latency=latency, paced=paced)
 
     def _try_open(self, slot: Slot, now: float) -> None:
         try:
@@ -298,7 +318,7 @@ class Daemon:
             slot.retry_at = now + RETRY_S
             self.tracker.set_live(slot.index, False, now)
             return
-        slot.fd = fd if fd is not None and fd >= 0 else None
+        slot.fd = fd if fd is not None and fd >= 0 and not slot.paced else None
         if slot.fd is not None:
             self.selector.register(slot.fd, selectors.EVENT_READ, self._reader(slot))
         slot.live = True

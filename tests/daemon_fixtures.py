@@ -146,7 +146,9 @@ def write_rig_config(
 class DaemonProcess:
     """``mousedom run`` as a real child process."""
 
-    def __init__(self, config: Path, socket_path: Path, *args: str, env=None) -> None:
+    def __init__(
+        self, config: Path, socket_path: Path, *args: str, env=None, config_args: bool = True
+    ) -> None:
         environ = dict(os.environ)
         environ["PYTHONPATH"] = str(REPO) + os.pathsep + environ.get("PYTHONPATH", "")
         environ.update(env or {})
@@ -154,7 +156,8 @@ class DaemonProcess:
         self.stderr_path = socket_path.parent.parent / f"{socket_path.stem}.log"
         self._log = open(self.stderr_path, "w")  # noqa: SIM115 - closed in stop()
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "mousedom", "run", "--config", str(config)]
+            [sys.executable, "-m", "mousedom", "run"]
+            + (["--config", str(config)] if config_args else [])
             + ["--socket", str(socket_path), *args],
             stdout=subprocess.DEVNULL,
             stderr=self._log,

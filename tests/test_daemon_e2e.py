@@ -12,6 +12,7 @@ import signal
 import socket
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -221,3 +222,27 @@ def test_pose_tracks_the_simulated_motion(rig_run):
     assert pose["y"] == pytest.approx(truth[1], abs=0.01)
     os.kill(run.daemon.proc.pid, signal.SIGINT)
     assert run.daemon.proc.wait(2) == 0
+
+
+def test_demo_runs_the_bundled_capture_in_real_time(tmp_path):
+    """``mousedom run --demo``: the real daemon on the bundled simulated capture."""
+    from daemon_fixtures import DaemonProcess
+
+    sock = tmp_path / "run" / "demo.sock"
+    daemon = DaemonProcess(Path("unused"), sock, "--demo", config_args=False)
+    try:
+        daemon.wait_socket()
+        c = Conn(sock)
+        banner = c.until("VERSION")
+        assert banner["sensors"] == ["front", "left", "right"]
+        t = time.monotonic()
+        poses = c.poses(1.5)
+        wall = time.monotonic() - t
+        assert len(poses) / wall == pytest.approx(banner["rate_hz"], rel=0.1)
+        assert all(p["updating"] and p["used"] == 3 for p in poses)
+        moved = math.hypot(poses[-1]["x"] - poses[0]["x"], poses[-1]["y"] - poses[0]["y"])
+        turned = abs(poses[-1]["theta"] - poses[0]["theta"])
+        assert moved > 0.05 or turned > 0.05  # the demo rig drives around
+        assert "demo: a simulated rig" in daemon.log()
+    finally:
+        assert daemon.stop() == 0
