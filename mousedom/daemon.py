@@ -120,6 +120,7 @@ class Daemon:
         source_factory: SourceFactory = make_source,
         notifier: Notifier | None = None,
         handle_signals: bool = True,
+        record: str | None = None,
     ) -> None:
         from mousedom.tracker import Tracker  # late: the numeric core loads only when run
 
@@ -138,6 +139,8 @@ class Daemon:
             socket_path, config.server, self.selector, self._on_command, self._on_connect
         )
         self.slots: list[Slot] = []
+        self.record_path = record
+        self.recording: Any = None  # live_record.Recording while --record is on
         self.tracker: Any = None
         self.started = clock()
         self.poses = 0
@@ -204,6 +207,12 @@ class Daemon:
             # Nothing stamped before the start is still to come; this also gives the
             # tracker a finite frontier before the first report (its poll needs one).
             self.tracker.complete_until(now - max(s.latency for s in self.slots))
+            if self.record_path:
+                from mousedom.live_record import Recording
+
+                kinds = [s.source.kind for s in self.slots]
+                self.recording = Recording(self.record_path, self.config, kinds)
+                log.info("recording the sensors' reports to %s", self.record_path)
             self.server.open()
             log.info(
                 "listening on %s; watch it with: mousedom watch --socket %s",
@@ -251,6 +260,8 @@ class Daemon:
             if now >= next_status:
                 next_status = max(next_status + STATUS_S, now)
                 self._broadcast_sources(now)
+                if self.recording is not None:
+                    self.recording.sync(self.tracker.frontier_time)
             if now >= next_watchdog:
                 self.notifier.watchdog()
                 next_watchdog = now + (wd_interval or math.inf)
@@ -324,6 +335,12 @@ class Daemon:
                 self._publish(self.tracker.finish())
             except Exception:  # noqa: BLE001 - shutting down: log, do not mask the exit
                 log.exception("flushing the last poses failed")
+        if self.recording is not None:
+            try:
+                self.recording.close()
+            except OSError as e:
+                log.error("closing the recording failed: %s", e)
+            self.recording = None
         self.server.close()
         for slot in self.slots:
             self._close_slot(slot)
@@ -390,6 +407,8 @@ class Daemon:
         for batch in batches:
             if len(batch):
                 self.tracker.push(slot.index, batch.t, batch.dx, batch.dy)
+                if self.recording is not None:
+                    self.recording.motion(slot.index, batch.t, batch.dx, batch.dy)
 
     def _gone(self, slot: Slot, now: float, why: str) -> None:
         log.warning(
@@ -566,6 +585,10 @@ class Daemon:
                 slots.append(self._new_slot(i, mouse))
         for gone in old.values():
             self._close_slot(gone)
+        if self.recording is not None and new.names != self.recording.names:
+            log.warning("the mice changed: recording %s stops here", self.recording.path)
+            self.recording.close()
+            self.recording = None
         self.config, self.tracker, self.slots = new, tracker, slots
         for slot in slots:
             if slot.live:

@@ -238,12 +238,12 @@ def rig_runner(tmp_path):
     runs a daemon on a three-mouse FIFO rig driving ``trajectory``; stops all at the end."""
     started = []
 
-    def start(trajectory, extra: str = "", rate_hz: float = RATE, env=None):
+    def start(trajectory, extra: str = "", rate_hz: float = RATE, env=None, args=()):
         rig = sim.three_mouse_rig()
         fifos = {m.name: tmp_path / f"{m.name}.fifo" for m in rig.mice}
         mice = {n: FifoMouse(p) for n, p in fifos.items()}
         config = write_rig_config(tmp_path / "rig.yaml", rig, fifos, extra, rate_hz=rate_hz)
-        daemon = DaemonProcess(config, tmp_path / "run" / "mousedom.sock", env=env)
+        daemon = DaemonProcess(config, tmp_path / "run" / "mousedom.sock", *args, env=env)
         daemon.wait_socket()
         for m in mice.values():
             m.attach()

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import signal
 import socket
 import threading
@@ -16,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import run_mousedom
 from daemon_fixtures import RATE, Conn, rig_runner
 
 from mousedom import sim
@@ -207,10 +209,12 @@ def test_sensor_vanishes_and_returns(rig_run):
     assert run.daemon.stop() == 0
 
 
-def test_pose_tracks_the_simulated_motion(rig_run):
-    """The daemon's pose after a quarter turn and a leg matches the simulator's truth."""
+def test_pose_tracks_the_simulated_motion_and_records_it(rig_run, tmp_path):
+    """The pose after a quarter turn and a leg matches the simulator's truth; --record
+    keeps every report, flushed on SIGINT, and replays to the same pose."""
     traj = sim.sequence(sim.turn(math.pi / 2, 1.5), sim.straight(0.2, 0.2))
-    run = rig_run(traj)
+    record = tmp_path / "run.mdcap"
+    run = rig_run(traj, args=("--record", str(record)))
     c = Conn(run.daemon.socket_path)
     c.until("VERSION")
     time.sleep(run.result.duration + 0.4)
@@ -222,6 +226,28 @@ def test_pose_tracks_the_simulated_motion(rig_run):
     assert pose["y"] == pytest.approx(truth[1], abs=0.01)
     os.kill(run.daemon.proc.pid, signal.SIGINT)
     assert run.daemon.proc.wait(2) == 0
+
+    from mousedom.capture import open_capture
+
+    cap = open_capture(str(record))
+    got = {d.mouse: 0 for d in cap.devices}
+    sums = {d.mouse: np.zeros(2) for d in cap.devices}
+    for feed in cap.feeds():
+        for batch in feed.batches:
+            for mo in batch.motion:
+                name = cap.devices[mo.device].mouse
+                got[name] += len(mo.t)
+                sums[name] += (mo.dx.sum(), mo.dy.sum())
+    assert got == run.feeder.sent  # every report that was fed is in the recording
+    for name, rep in run.result.reports.items():
+        assert tuple(sums[name]) == (rep.dx.sum(), rep.dy.sum())
+    out = run_mousedom("replay", "--config", str(run.config), "--capture", str(record))
+    assert out.returncode == 0, out.stderr
+    m = re.search(
+        r"final pose\s+x ([-+.\d]+) m\s+y ([-+.\d]+) m\s+theta ([-+.\d]+) rad", out.stdout
+    )
+    assert m, out.stdout
+    assert [float(v) for v in m.groups()] == pytest.approx(list(truth), abs=2e-3)
 
 
 def test_demo_runs_the_bundled_capture_in_real_time(tmp_path):

@@ -68,6 +68,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="run on the bundled capture of a simulated rig, replayed in real time, looping",
     )
     p.add_argument(
+        "--record",
+        metavar="FILE",
+        help="also write every sensor report to FILE (native capture, for mousedom replay)",
+    )
+    p.add_argument(
         "--verbose", action="store_true", default=argparse.SUPPRESS, help="debug logging"
     )
     p.set_defaults(func=run)
@@ -97,4 +102,4 @@ def run(args: argparse.Namespace) -> int:
             raise
     socket_path = args.socket or config.server.socket or default_socket_path()
     factory = functools.partial(make_source, loop=True) if args.demo else make_source
-    return Daemon(config, socket_path, source_factory=factory).run()
+    return Daemon(config, socket_path, source_factory=factory, record=args.record).run()
