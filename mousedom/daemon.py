@@ -40,6 +40,9 @@ from mousedom.protocol import (
 from mousedom.sdnotify import Notifier, watchdog_interval
 from mousedom.server import Client, Command, Server
 from mousedom.sources.base import Source, SourceGone, SourceUnavailable
+from mousedom.sources.factory import make_source, source_key
+
+__all__ = ["Daemon", "make_source", "plan_wake"]
 
 log = logging.getLogger(__name__)
 
@@ -52,38 +55,30 @@ DEFAULT_LATENCY_S = 0.003  # how late a report may reach us after its stamp (sil
 WAKE_SLACK_S = 0.0001  # after a report's predicted time: pipe and scheduler delays
 
 
+def plan_wake(end: float, mice: list[tuple[float, float, float | None]]) -> tuple[float, float]:
+    """When to read the sources for the window ending at ``end``, and when to give up.
+
+    ``mice`` holds (report period, latency, stamp of the last report read or None) of each
+    live mouse.  Reading every report as it arrives (4 mice at 1000 Hz: 4000 wakes a
+    second) costs far more than the fusion.  A window can close only once every live mouse
+    has reported past its end, and mice report on a steady clock (USB polling), so each
+    one's first report after ``end`` is predictable from its last one: the loop sleeps until
+    the latest prediction (plus a little slack) and reads everything at once.  If a mouse
+    is late it waits on the descriptors, at most until ``give_up``, when the silence rule
+    (no report for a period plus the latency: the mouse did not move) closes the window.
+    """
+    wake = give_up = end
+    for period, latency, last in mice:
+        give_up = max(give_up, end + latency + period)
+        if last is None or last > end:
+            continue
+        # the first report slot strictly after ``end`` on this mouse's own clock
+        wake = max(wake, last + (math.floor((end - last) / period) + 1) * period)
+    return min(wake, give_up) + WAKE_SLACK_S, give_up
+
+
 def _ignore(mask: int) -> None:
     """Selector callback for the sources' selector: the loop reads them itself."""
-
-
-def make_source(mouse: MouseConfig, clock: Clock = time.monotonic, loop: bool = False) -> Source:
-    """The backend a mouse's config asks for: evdev, serial ADNS-3080 or replay.
-
-    A replay is paced on ``clock`` (real time) and starts again at its end with ``loop``.
-    """
-    try:
-        if mouse.evdev is not None:
-            from mousedom.sources.evdev import EvdevSource
-
-            return EvdevSource(mouse)
-        if mouse.serial is not None:
-            from mousedom.sources.adns import AdnsSource
-
-            return AdnsSource(mouse)
-        if mouse.replay is not None:
-            from mousedom.sources.replay import ReplaySource
-
-            return ReplaySource(
-                mouse.name, mouse.replay, device=mouse.replay_device, loop=loop, clock=clock
-            )
-    except ImportError as e:
-        raise UserError(f"mice.{mouse.name}: this build has no such source ({e})") from None
-    raise UserError(f"mice.{mouse.name}: says nowhere where the mouse comes from")
-
-
-def _source_key(mouse: MouseConfig) -> tuple[Any, ...]:
-    """What identifies a mouse's device: when it changes on reload, the source is reopened."""
-    return (mouse.evdev, mouse.serial, mouse.replay, mouse.replay_device)
 
 
 @dataclass
@@ -167,6 +162,8 @@ class Daemon:
         self._wake()
 
     def _wake(self) -> None:
+        if self._wake_w < 0:
+            return  # stopped already
         try:
             os.write(self._wake_w, b"\0")
         except BlockingIOError:
@@ -281,29 +278,15 @@ class Daemon:
         return self.selector.select(0)
 
     def _plan(self) -> tuple[float, float]:
-        """When to look at the sources for the next window, and when to stop waiting.
-
-        Reading every report as it arrives (4 mice at 1000 Hz: 4000 wakes a second) costs
-        far more than the fusion.  A window [T - P, T] can close only once every live mouse
-        has reported past T, and mice report on a steady clock (USB polling), so each
-        one's first report after T is predictable from its last one.  The loop sleeps until
-        the latest of those predictions, reads everything at once, and only if some mouse
-        is late does it wait on the descriptors, until the silence rule (a mouse that has
-        not reported for its period plus its latency did not move) closes the window.
-        """
         end = self.tracker.frontier_time + 1.0 / self.config.rate_hz
-        wake = give_up = end
-        for slot in self.slots:
-            if not slot.live:
-                continue
-            period = 1.0 / slot.mouse.report_hz
-            give_up = max(give_up, end + slot.latency + period)
-            last = slot.source.health.last_t
-            if slot.paced or last is None or last > end:
-                continue
-            # first report slot strictly after ``end``, on this mouse's own clock
-            wake = max(wake, last + (math.floor((end - last) / period) + 1) * period)
-        return min(wake, give_up) + WAKE_SLACK_S, give_up
+        return plan_wake(
+            end,
+            [
+                (1.0 / s.mouse.report_hz, s.latency, None if s.paced else s.source.health.last_t)
+                for s in self.slots
+                if s.live
+            ],
+        )
 
     def _watch_sources(self, on: bool) -> None:
         """Wake on readable sources only while a window is due but not closed yet."""
@@ -321,9 +304,12 @@ class Daemon:
         for slot in self.slots:
             if slot.live and slot.paced:
                 self._read_slot(slot)
-        for slot in self.slots:
-            if slot.live:
-                self.tracker.complete_until(now - slot.latency, mouse=slot.index)
+        live = [slot for slot in self.slots if slot.live]
+        for slot in live:
+            self.tracker.complete_until(now - slot.latency, mouse=slot.index)
+        if not live:
+            # Nothing can report: windows close on time, as "not updated" (the pose holds).
+            self.tracker.complete_until(now)
 
     def _shutdown(self) -> None:
         self.notifier.stopping()
@@ -349,7 +335,8 @@ class Daemon:
         self.selector.close()
         self.src_sel.close()
         os.close(self._wake_r)
-        os.close(self._wake_w)
+        wake_w, self._wake_w = self._wake_w, -1
+        os.close(wake_w)
         self.notifier.close()
         log.info("stopped after %d poses", self.poses)
 
@@ -576,7 +563,7 @@ class Daemon:
         slots = []
         for i, mouse in enumerate(new.mice):
             prev = old.pop(mouse.name, None)
-            if prev is not None and _source_key(prev.mouse) == _source_key(mouse):
+            if prev is not None and source_key(prev.mouse) == source_key(mouse):
                 prev.index, prev.mouse = i, mouse
                 slots.append(prev)
             else:
