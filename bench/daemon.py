@@ -242,6 +242,27 @@ def run_baseline(d: Path, seconds: float) -> dict:
     return {"cpu": (cpu1 - cpu0) / (wall1 - wall0), "lat_ms": lat}
 
 
+def tracker_cost(d: Path, rate_hz: float, windows: int = 2000) -> float:
+    """Seconds of CPU per window that the tracker alone takes for this load (in-process):
+    four pushes of one window's reports, the silence-rule calls and the poll."""
+    from mousedom.config import load_config
+    from mousedom.tracker import Tracker
+
+    config = load_config(write_config(d, [d / f"x{m}" for m in MICE], rate_hz))
+    tracker = Tracker(config, t0=0.0)
+    per = int(REPORT_HZ / rate_hz)
+    ones = np.ones(per)
+    t0 = time.process_time()
+    for w in range(windows):
+        start = w / rate_hz
+        for i in range(len(MICE)):
+            t = start + (i + 0.5) / (len(MICE) * REPORT_HZ) + np.arange(per) / REPORT_HZ
+            tracker.push(i, t, ones, -3 * ones)
+            tracker.complete_until(start + 1 / rate_hz, mouse=i)
+        tracker.poll()
+    return (time.process_time() - t0) / windows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=10.0)
@@ -256,6 +277,7 @@ def main() -> None:
         d = Path(tmp)
         base = run_baseline(d, args.seconds)
         run = run_daemon(d, args.seconds, args.rate_hz)
+        per_window = tracker_cost(d, args.rate_hz)
     lat = run["lat_ms"]
     blat = base["lat_ms"]
     print(f"four mice x {REPORT_HZ:.0f} Hz through FIFOs, {run['reports']} reports, "
@@ -268,6 +290,10 @@ def main() -> None:
     print(
         f"latency beyond window     p50 {np.median(lat):.3f} ms  p99 {np.percentile(lat, 99):.3f}"
         f" ms  max {lat.max():.3f} ms  over {len(lat)} poses (target p99 <= 2 ms)"
+    )
+    print(
+        f"of which the tracker      {per_window * 1e6:.0f} us per window in-process = "
+        f"{100 * per_window * args.rate_hz:.2f} % of one core at {args.rate_hz:g} Hz"
     )
     print(
         f"baseline pipe latency     p50 {np.median(blat):.3f} ms  "
