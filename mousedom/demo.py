@@ -1,9 +1,5 @@
-"""The demo of ``mousedom run --demo``: the bundled capture of a simulated rig.
-
-``mousedom/data/demo-rig.yaml`` describes a three-mouse rig whose mice replay
-``demo-rig.mdcap``; the daemon replays it at real-time pace, in a loop, so that a machine
-without mice shows the real daemon publishing a moving pose.
-"""
+"""The bundled demo rig (``mousedom run --demo``): a config whose mice replay the bundled
+capture of a simulated three-mouse rig (mousedom/data, made by scripts/make_demo.py)."""
 
 from __future__ import annotations
 
@@ -13,8 +9,9 @@ from mousedom.config import Config, load_config
 
 DATA = Path(__file__).resolve().parent / "data"
 DEMO_CONFIG = DATA / "demo-rig.yaml"
+DEMO_CAPTURE = DATA / "demo-rig.mdcap"
 
 
 def demo_config() -> Config:
-    """The demo rig's config, its replay paths resolved inside the installed package."""
+    """The demo rig config; its mice's ``replay:`` entries point at the bundled capture."""
     return load_config(DEMO_CONFIG)
