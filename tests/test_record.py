@@ -310,3 +310,45 @@ def test_a_replay_mouse_cannot_be_recorded(tmp_path):
     r = run_mousedom("record", "--config", str(cfg), "-o", str(tmp_path / "z.mdcap"))
     assert r.returncode == 2 and "mice.b: a replay source cannot be recorded" in r.stderr
     assert "Traceback" not in r.stderr and not (tmp_path / "z.mdcap").exists()
+
+
+def test_an_ambiguous_rule_stops_record_with_the_candidates(tmp_path):
+    """Regression: twin mice matched by name.  One line naming config, mouse and both
+    candidates, exit 1, no file, no traceback (--root points at a fake machine)."""
+    from test_evdev_fakes import add_device
+
+    root = tmp_path / "machine"
+    add_device(root, 1, "Twin", phys="usb-1/input0")
+    add_device(root, 2, "Twin", phys="usb-2/input0")
+    cfg = tmp_path / "rig.yaml"
+    cfg.write_text(
+        "mice:\n"
+        "  a: {cpi: 800, mount: {x: 0, y: 0.1}, evdev: {name: Twin}}\n"
+        "  b: {cpi: 800, mount: {x: 0, y: -0.1}, evdev: {name: Twin, phys: usb-2/input0}}\n"
+    )
+    out = tmp_path / "z.mdcap"
+    r = run_mousedom("record", "--root", str(root), "--config", str(cfg), "-o", str(out))
+    assert r.returncode == 1, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in r.stderr
+    assert f"{cfg}: mice.a: " in lines[0] and "2 devices match name='Twin'" in lines[0]
+    assert "event1" in lines[0] and "event2" in lines[0]
+    assert not out.exists()
+    # Telling them apart fixes it: both FIFO nodes are recorded.
+    cfg.write_text(cfg.read_text().replace("{name: Twin}", "{name: Twin, phys: usb-1/input0}"))
+    r = run_mousedom(
+        "record", "--root", str(root), "--config", str(cfg), "-o", str(out), "--duration", "0.2"
+    )
+    assert r.returncode == 0, r.stderr
+    assert "event1" in r.stderr and "event2" in r.stderr
+
+
+def test_a_missing_root_is_an_error(tmp_path):
+    """Regression: a mistyped --root looked like a machine without mice (list: exit 0)."""
+    f = fifos(tmp_path, "a", "b")
+    cfg = rig(tmp_path, f)
+    for cmd in (["list"], ["record", "--config", str(cfg), "-o", str(tmp_path / "o")]):
+        r = run_mousedom(*cmd, "--root", str(tmp_path / "typo"))
+        assert r.returncode == 2 and f"--root {tmp_path / 'typo'}: no such directory" in r.stderr
+        assert "Traceback" not in r.stderr
+    assert not (tmp_path / "o").exists()

@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from mousedom.config import Config, MouseConfig, load_config
+from mousedom.discovery import SystemPaths, paths_for_root
 from mousedom.errors import UserError
 from mousedom.sources.base import Source, SourceGone, SourceUnavailable
 
@@ -55,6 +56,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--fsync", action="store_true", help="fsync every chunk (power-loss safe)")
     p.add_argument("--force", action="store_true", help="overwrite FILE if it exists")
+    p.add_argument(
+        "--root",
+        metavar="DIR",
+        help="look for evdev mice under DIR/dev/input, DIR/sys/class/input and "
+        "DIR/run/udev/data (as `mousedom list --root`: containers, tests)",
+    )
     p.set_defaults(func=run)
 
 
@@ -78,12 +85,14 @@ class Slot:
     serial_bytes: int = 0
 
 
-def _make_slot(cfg: Config, index: int, mouse: MouseConfig) -> Slot:
+def _make_slot(
+    cfg: Config, index: int, mouse: MouseConfig, paths: SystemPaths | None = None
+) -> Slot:
     where = f"{cfg.path}: mice.{mouse.name}"
     if mouse.evdev is not None:
         from mousedom.sources.evdev import EvdevSource
 
-        return Slot(index, mouse, EvdevSource(mouse))
+        return Slot(index, mouse, EvdevSource(mouse, paths))
     if mouse.serial is not None:
         # The serial source configures the downsampler (K, CPI) as the daemon would, and
         # hands every chunk it reads to on_raw before decoding: those bytes are recorded.
@@ -152,11 +161,18 @@ class Recorder:
     """The selectors loop: sources in, native capture chunks out, status on stderr."""
 
     def __init__(
-        self, cfg: Config, config_text: str, output: str, *, fsync: bool, stop: list[int]
+        self,
+        cfg: Config,
+        config_text: str,
+        output: str,
+        *,
+        fsync: bool,
+        stop: list[int],
+        paths: SystemPaths | None = None,
     ) -> None:
         from mousedom.capture.native import NativeWriter
 
-        self.slots = [_make_slot(cfg, i, m) for i, m in enumerate(cfg.mice)]
+        self.slots = [_make_slot(cfg, i, m, paths) for i, m in enumerate(cfg.mice)]
         for s in self.slots:
             try:
                 s.source.open()
@@ -315,7 +331,8 @@ def run(args: argparse.Namespace) -> int:
     # Installed before the sources open, so that an early Ctrl-C still closes cleanly.
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
-    rec = Recorder(cfg, config_text, args.output, fsync=args.fsync, stop=stop)
+    paths = paths_for_root(args.root)
+    rec = Recorder(cfg, config_text, args.output, fsync=args.fsync, stop=stop, paths=paths)
     names = ", ".join(f"{s.mouse.name} ({_describe(s)})" for s in rec.slots)
     print(f"record: {args.output}: recording {names}", file=sys.stderr, flush=True)
     try:

@@ -81,7 +81,6 @@ class EvdevSource(Source):
         self._stream = False  # reading a FIFO/pipe: no ioctls, poll for hang-up
         self._rest = b""  # bytes of an incomplete record, completed by the next read
         self._gone: str | None = None  # the device went away; raise after handing over data
-        self._attached_once = False
         self.truncated_bytes = 0  # bytes of incomplete records lost at unplug
         self.grabbed = False
         self._device_opener = device_opener or _input_device
@@ -100,7 +99,6 @@ class EvdevSource(Source):
                 self._open_stream(info)
             else:
                 self._open_device(info)
-        self._attached_once = True
         self._update_health()
 
     def _open_stream(self, info: DeviceInfo) -> None:
@@ -122,9 +120,12 @@ class EvdevSource(Source):
                 self.rule, scan(self.paths).devices, resolved_path=resolved, who=self.name
             )
         except AmbiguousDevice as e:
-            if self._attached_once:  # a second look-alike was plugged in: wait, don't die
-                raise SourceUnavailable(str(e)) from None
-            raise
+            # Several devices fit the rule (twin mice, or a look-alike plugged in later).
+            # Sources speak base.py's terms only: "not available now, retry later", with
+            # every candidate in the message.  The daemon keeps running and attaches once
+            # the look-alike is unplugged; `record` and `list --config` stop with this
+            # message (exit 1), which tells the user what to add to the rule.
+            raise SourceUnavailable(str(e)) from None
         except NoDevice as e:
             if (
                 self.rule.path
