@@ -187,7 +187,8 @@ def test_duration_unplug_and_reattach(tmp_path):
     finally:
         p.kill()
     assert p.returncode == 0, err
-    assert "left: left: device gone" in err and "waiting for it to come back" in err
+    # The mouse is named once (regression: "left: left: device gone").
+    assert "record: left: device gone" in err and "waiting for it to come back" in err
     assert "left: back" in err
     _, motion, _ = read_capture(out)
     assert motion["left"][1] == [1, 2, 3, 10, 20]
@@ -351,4 +352,91 @@ def test_a_missing_root_is_an_error(tmp_path):
         r = run_mousedom(*cmd, "--root", str(tmp_path / "typo"))
         assert r.returncode == 2 and f"--root {tmp_path / 'typo'}: no such directory" in r.stderr
         assert "Traceback" not in r.stderr
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_file_that_cannot_grow_stops_with_one_line(tmp_path):
+    """Regression: disk full / quota / ulimit -f mid-run said "internal error" (and a file
+    size limit killed the recorder with SIGXFSZ and no word).  Now: one line naming the
+    file and the OS's reason, exit 1, the file readable up to where it stopped."""
+    import resource
+
+    f = fifos(tmp_path, "a", "b")
+    out = tmp_path / "big.mdcap"
+    limit = 32768
+
+    def small_files() -> None:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+    p = subprocess.Popen(
+        [sys.executable, "-m", "mousedom", "record", "--config", str(rig(tmp_path, f))]
+        + ["-o", str(out), "--status-interval", "0", "--duration", "20"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=mousedom_env(),
+        preexec_fn=small_files,
+    )
+    dx, dy = frames(20_000, 1)
+    try:
+        w = os.open(f["a"], os.O_WRONLY)
+        try:
+            for lo in range(0, len(dx), 50):  # 2500 reports/s: several flushes fit
+                t = time.monotonic()
+                os.write(w, motion_bytes(t, dx[lo : lo + 50], dy[lo : lo + 50], dt=1e-4))
+                time.sleep(0.02)
+        except BrokenPipeError:
+            pass  # the recorder stopped, as it should
+        _, err = p.communicate(timeout=30)
+        os.close(w)
+    finally:
+        p.kill()
+    assert p.returncode == 1, err
+    lines = [x for x in err.splitlines() if not x.startswith("record: ")]
+    assert len(lines) == 1, err
+    assert f"{out}: cannot write: File too large; recording stopped after" in lines[0]
+    assert "internal error" not in err and "Traceback" not in err and "Exception" not in err
+    assert out.stat().st_size <= limit
+    cap, motion, _ = read_capture(out)
+    got = motion["a"][1]
+    assert 0 < len(got) < len(dx) and got == dx[: len(got)].tolist()
+
+
+def test_a_closed_stderr_does_not_stop_the_recording(tmp_path):
+    """Regression: ``record ... 2>&1 | head -2`` ended the recording at the first status
+    line after head exited (EPIPE on stderr -> "internal error", exit 1)."""
+    f = fifos(tmp_path, "a", "b")
+    out = tmp_path / "quiet.mdcap"
+    p = start(
+        "record", "--config", str(rig(tmp_path, f)), "-o", str(out), "--status-interval", "0.05"
+    )
+    dx, dy = frames(300, 2)
+    try:
+        w = os.open(f["a"], os.O_WRONLY)
+        p.stderr.readline()  # "recording a, b"
+        p.stderr.close()  # the reader of our status lines goes away
+        t0 = time.monotonic()
+        for lo in range(0, 300, 30):
+            os.write(w, motion_bytes(t0 + lo * 0.002, dx[lo : lo + 30], dy[lo : lo + 30], 0.002))
+            time.sleep(0.05)  # status lines keep coming (and failing) meanwhile
+        time.sleep(0.3)
+        p.send_signal(signal.SIGINT)
+        p.wait(timeout=20)
+        os.close(w)
+    finally:
+        p.kill()
+    assert p.returncode == 0
+    _, motion, _ = read_capture(out)
+    assert motion["a"][1] == dx.tolist() and motion["a"][2] == dy.tolist()
+
+
+def test_bad_status_interval_and_empty_output(tmp_path):
+    cfg = str(rig(tmp_path, fifos(tmp_path, "a", "b")))
+    for value in ("nan", "-1", "inf"):
+        r = run_mousedom(
+            "record", "--config", cfg, "-o", str(tmp_path / "o"), "--status-interval", value
+        )
+        assert r.returncode == 2 and "--status-interval: must be" in r.stderr, value
+    r = run_mousedom("record", "--config", cfg, "-o", "")
+    assert r.returncode == 2 and "-o/--output: empty file name" in r.stderr
     assert not (tmp_path / "o").exists()
