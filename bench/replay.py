@@ -10,8 +10,8 @@ for ``--minutes`` (60 = the issue's one hour, 14.4 M reports), as one native cap
   from native and from evemu, in this process;
 - baselines measured in the same run: the readers alone (no fusion), and evemu parsed by
   the line-by-line fallback parser instead of the vectorised one (ratio = speed-up);
-- the peak RSS (ru_maxrss) and wall time of ``mousedom replay`` of the whole long capture
-  in a child process, which shows whether memory stays bounded as the capture grows.
+- the peak RSS (VmHWM) and wall time of ``mousedom replay`` of the whole long capture in
+  a child process; compare ``--minutes 2`` with ``--minutes 60`` to see memory bounded.
 """
 
 from __future__ import annotations
@@ -33,8 +33,9 @@ import numpy as np  # noqa: E402
 
 from mousedom import sim  # noqa: E402
 from mousedom.capture import DeviceInfo, NativeWriter, assign, open_capture  # noqa: E402
-from mousedom.capture import evemu as evemu_mod  # noqa: E402
+from mousedom.capture import evemu as evemu_mod  # noqa: E402  (its _fast_events is swapped)
 from mousedom.capture.evemu import format_evemu  # noqa: E402
+from mousedom.capture.libinput import format_libinput  # noqa: E402
 from mousedom.config import parse_config  # noqa: E402
 from mousedom.replay import CsvSink, Replay  # noqa: E402
 
@@ -82,6 +83,7 @@ def generate(directory: Path, minutes: float, evemu_seconds: float) -> tuple[Pat
                     evemu_parts[n].append((t[lim], dx[lim], dy[lim]))
             w.sync(np.nextafter(end, -np.inf))
     evemu_files = []
+    devices_li = []
     for n in NAMES:
         t = np.concatenate([p[0] for p in evemu_parts[n]])
         dx = np.concatenate([p[1] for p in evemu_parts[n]]).astype(np.int64)
@@ -89,6 +91,8 @@ def generate(directory: Path, minutes: float, evemu_seconds: float) -> tuple[Pat
         path = directory / f"{n}.evemu"
         path.write_text(format_evemu(t, dx, dy, name=f"sim {n}", comments=True))
         evemu_files.append(path)
+        devices_li.append((n, t, dx, dy))
+    (directory / "all.yml").write_text(format_libinput(devices_li))
     return cfg, evemu_files, total
 
 
@@ -120,19 +124,33 @@ def median_rate(fn, repeat: int) -> tuple[float, int]:
     return statistics.median(rates), n
 
 
+# The child reports its own high-water mark (VmHWM of its address space).  ru_maxrss from
+# wait4 would also count the pages it shared with this (large) parent before exec.
+CHILD = """
+import sys
+from mousedom.cli import main
+try:
+    code = main(sys.argv[1:])
+finally:
+    hwm = [ln for ln in open("/proc/self/status") if ln.startswith("VmHWM")]
+    print("CHILD-" + hwm[0].strip(), file=sys.stderr)
+raise SystemExit(code)
+"""
+
+
 def child_replay(cfg: Path, native: Path, csv: Path) -> tuple[float, float, int]:
     env = dict(os.environ, PYTHONPATH=str(REPO))
-    cmd = [sys.executable, "-m", "mousedom", "replay", "--config", str(cfg)]
+    cmd = [sys.executable, "-c", CHILD, "replay", "--config", str(cfg)]
     cmd += ["--capture", str(native), "-o", str(csv)]
     t0 = time.perf_counter()
-    proc = subprocess.Popen(cmd, env=env, stderr=subprocess.PIPE)
-    _, status, usage = os.wait4(proc.pid, 0)
+    proc = subprocess.run(cmd, env=env, stderr=subprocess.PIPE, text=True)
     wall = time.perf_counter() - t0
-    err = proc.stderr.read().decode() if proc.stderr else ""
-    if os.waitstatus_to_exitcode(status) != 0:
-        raise SystemExit(f"child replay failed: {err}")
+    if proc.returncode != 0:
+        raise SystemExit(f"child replay failed: {proc.stderr}")
+    hwm = next(ln for ln in proc.stderr.splitlines() if ln.startswith("CHILD-VmHWM"))
+    rss_mb = int(hwm.split()[1]) / 1024.0  # kB
     rows = sum(1 for _ in open(csv)) - 1
-    return wall, usage.ru_maxrss / 1024.0, rows
+    return wall, rss_mb, rows
 
 
 def main() -> None:
@@ -162,7 +180,9 @@ def main() -> None:
         native_specs = [(None, str(short))]
         evemu_specs = list(zip(NAMES, map(str, evemu_files), strict=True))
 
+        libinput_specs = [(None, str(d / "all.yml"))]
         nat, n_nat = median_rate(lambda: replay_once(cfg, native_specs), args.repeat)
+        li, n_li = median_rate(lambda: replay_once(cfg, libinput_specs), args.repeat)
         ev, n_ev = median_rate(lambda: replay_once(cfg, evemu_specs), args.repeat)
         nat_read, _ = median_rate(lambda: read_only(native_specs), args.repeat)
         ev_read, _ = median_rate(lambda: read_only(evemu_specs), args.repeat)
@@ -174,6 +194,7 @@ def main() -> None:
             evemu_mod._fast_events = fast
         print(f"replay end to end, native : {nat:12,.0f} reports/s  ({n_nat} reports)")
         print(f"replay end to end, evemu  : {ev:12,.0f} reports/s  ({n_ev} reports)")
+        print(f"replay end to end, libinput record: {li:12,.0f} reports/s  ({n_li} reports)")
         print(
             f"baseline, native read only: {nat_read:12,.0f} reports/s  (fusion+CSV costs "
             f"{nat_read / nat:.2f}x)"

@@ -21,8 +21,8 @@ from typing import TextIO
 
 import numpy as np
 
-from mousedom.capture import Assignment, Capture, CaptureError, time_offset
-from mousedom.capture.base import DeviceStats
+from mousedom.capture import Assignment, Capture, time_offset
+from mousedom.capture.base import DeviceStats, Serial
 from mousedom.config import Config
 from mousedom.tracker import PoseBatch, Tracker
 
@@ -30,28 +30,37 @@ CSV_COLUMNS = ("t", "x", "y", "theta", "vx", "vy", "omega", "used", "ok")
 _ROW = "%.6f,%.9f,%.9f,%.9f,%.6f,%.6f,%.6f,%d,%d"
 
 
-def serial_decoder(mouse_config, device_info):  # pragma: no cover - until the ADNS lands
-    """Raw serial bytes -> reports, from the firmware engineer's module, when present."""
-    try:
-        from mousedom.sources import adns  # type: ignore[attr-defined]
-    except ImportError:
-        adns = None
-    factory = getattr(adns, "replay_decoder", None) if adns else None
-    if factory is None:
-        raise CaptureError(
-            f"device {device_info.name!r} is an ADNS-3080 serial source, and this build "
-            "cannot decode serial packets yet (mousedom.sources.adns.replay_decoder)"
-        )
-    return factory(mouse_config)
+# Serial packets are mapped from the firmware clock onto host time by a filter that may
+# place a packet a little before the host read that brought it: declare a serial mouse
+# complete only this far behind its feed's watermark.
+SERIAL_MARGIN_S = 0.1
+
+
+def decode_serial(decoder, chunk: Serial, offset: float) -> tuple[np.ndarray, ...]:
+    """Raw serial pieces -> (t, dx, dy) reports through the daemon's own ADNS decoder."""
+    ts, dxs, dys = [], [], []
+    for host_t, data in zip(chunk.t.tolist(), chunk.data, strict=True):
+        reports, _ = decoder.feed(data, host_t - offset)
+        if len(reports):
+            ts.append(reports.t)
+            dxs.append(reports.dx)
+            dys.append(reports.dy)
+    if not ts:
+        e = np.empty(0)
+        return e, e, e
+    return np.concatenate(ts), np.concatenate(dxs), np.concatenate(dys)
 
 
 @dataclass
 class _FeedState:
     feed: object
+    capture: Capture
     mice: dict[int, int]  # device -> mouse index
     offset: float  # seconds subtracted from this feed's times
     watermark: float = -math.inf  # in tracker time
     done: bool = False
+    decoders: dict = field(default_factory=dict)  # serial device -> AdnsDecoder
+    serial: frozenset = frozenset()  # devices that are serial sources
 
 
 @dataclass
@@ -156,7 +165,8 @@ class Replay:
             for feed in cap.feeds():
                 mice = {d: devmap[d] for d in feed.devices if d in devmap}
                 if mice:
-                    states.append(_FeedState(feed, mice, self._offset_of(cap)))
+                    serial = frozenset(d for d in mice if cap.devices[d].kind == "serial")
+                    states.append(_FeedState(feed, cap, mice, self._offset_of(cap), serial=serial))
         ended: list[int] = []
         total = sum(c.bytes_total for c in self.captures) or 1
 
@@ -179,14 +189,25 @@ class Replay:
                 mouse = st.mice.get(mo.device)
                 if mouse is not None and len(mo.t):
                     tracker.push(mouse, mo.t - st.offset if st.offset else mo.t, mo.dx, mo.dy)
-            if batch.serial and any(s.device in st.mice for s in batch.serial):
-                a = next(a for a in self.assignments if a.device == batch.serial[0].device)
-                serial_decoder(self.config.mice[a.mouse], a.capture.devices[a.device])
+            for chunk in batch.serial:
+                mouse = st.mice.get(chunk.device)
+                if mouse is None:
+                    continue
+                dec = st.decoders.get(chunk.device)
+                if dec is None:
+                    from mousedom.adns_decode import AdnsDecoder
+
+                    dec = st.decoders[chunk.device] = AdnsDecoder(name=self.config.names[mouse])
+                t, dx, dy = decode_serial(dec, chunk, st.offset)
+                if len(t):
+                    tracker.push(mouse, t, dx, dy)
+                    st.capture.stats[chunk.device].add_motion(t, dx, dy)
             if batch.complete > -math.inf:
                 st.watermark = batch.complete - st.offset
                 if math.isfinite(st.watermark):
-                    for mouse in st.mice.values():
-                        tracker.complete_until(st.watermark, mouse)
+                    for dev, mouse in st.mice.items():
+                        margin = SERIAL_MARGIN_S if dev in st.serial else 0.0
+                        tracker.complete_until(st.watermark - margin, mouse)
             finite = [s.watermark for s in states if not s.done and math.isfinite(s.watermark)]
             if ended and finite:
                 for mouse in ended:
@@ -195,6 +216,9 @@ class Replay:
             if progress is not None:
                 progress(sum(c.bytes_done for c in self.captures) / total)
         emit(tracker.finish())
+        for st in states:
+            for dev, dec in st.decoders.items():
+                st.capture.stats[dev].dropped_frames += dec.lost  # packets refused or missing
 
         counts_in = tracker.counts_in
         counts_out = tracker.counts_out
@@ -213,6 +237,14 @@ class Replay:
         for c in self.captures:
             summary.warnings += c.warnings
         summary.warnings = self.warnings + summary.warnings
+        for name, st in tracker.stats().items():
+            if st.get("late"):
+                summary.warnings.append(
+                    f"mouse {name}: {st['late']} reports came after their window had closed "
+                    "and were moved into the next one"
+                )
+        if not summary.windows:
+            summary.warnings.append("no motion reports in the captures: no pose to write")
         return summary
 
 

@@ -24,17 +24,14 @@ EXTERNAL = [
 
 
 def external_dir() -> Path:
-    """The shared real recordings.  conftest looks beside the repository; a git worktree
-    sits one level deeper, so walk up until shared/captures/external is found."""
-    env = os.environ.get("MOUSEDOM_EXTERNAL_CAPTURES")
-    candidates = [Path(env)] if env else []
-    candidates += [p / "shared" / "captures" / "external" for p in REPO.parents]
-    for c in candidates:
-        if c.is_dir():
-            return c
+    """The shared real recordings (located by conftest)."""
+    from conftest import EXTERNAL_CAPTURES
+
+    if EXTERNAL_CAPTURES.is_dir():
+        return EXTERNAL_CAPTURES
     if os.environ.get("CI"):
-        pytest.fail("shared/captures/external is missing in CI")
-    pytest.skip("shared/captures/external not found beside the repository")
+        pytest.fail(f"{EXTERNAL_CAPTURES} is missing in CI")
+    pytest.skip(f"{EXTERNAL_CAPTURES} not found beside the repository")
 
 
 def drain(path, **kw):

@@ -25,8 +25,22 @@ if os.environ.get("CI"):
     settings.load_profile("ci")
 
 REPO = Path(__file__).resolve().parent.parent
-SHARED = REPO.parent / "shared"
-EXTERNAL_CAPTURES = SHARED / "captures" / "external"
+
+
+def _find_external_captures() -> Path:
+    """shared/captures/external sits beside the repository (CI: beside the clone); a git
+    worktree may sit deeper, so look upwards; $MOUSEDOM_EXTERNAL_CAPTURES overrides."""
+    if os.environ.get("MOUSEDOM_EXTERNAL_CAPTURES"):
+        return Path(os.environ["MOUSEDOM_EXTERNAL_CAPTURES"])
+    for parent in REPO.parents:
+        candidate = parent / "shared" / "captures" / "external"
+        if candidate.is_dir():
+            return candidate
+    return REPO.parent / "shared" / "captures" / "external"
+
+
+EXTERNAL_CAPTURES = _find_external_captures()
+SHARED = EXTERNAL_CAPTURES.parent.parent
 
 
 def mousedom_env(**extra: str) -> dict[str, str]:

@@ -104,7 +104,7 @@ def test_every_truncation_point_keeps_all_whole_chunks(tmp_path):
     # Chunk boundaries, to know how many reports each prefix must hold.
     offsets, counts = [], []
     cap = open_capture(p)
-    for kind, source, count, payload, off in cap._chunks(check_tail=True):
+    for kind, _source, count, _payload, off in cap._chunks(check_tail=True):
         offsets.append(off)
         counts.append(count if kind == 1 else 0)
     ends = offsets[1:] + [len(data)]

@@ -21,13 +21,14 @@ import numpy as np
 from mousedom.capture.base import (
     Batch,
     Capture,
+    CaptureError,
     DeviceInfo,
     DeviceStats,
     Feed,
     Motion,
     Serial,
 )
-from mousedom.capture.evemu import CaptureError, EvemuCapture
+from mousedom.capture.evemu import EvemuCapture
 from mousedom.capture.libinput import LibinputCapture, looks_like_libinput
 from mousedom.capture.native import NativeCapture, NativeWriter, is_native
 from mousedom.config import Config, EvdevMatch, MouseConfig
@@ -288,11 +289,24 @@ def read_reports(
     stats: dict[str, DeviceStats] = {}
     for cap in captures:
         wanted = {a.device: a.mouse for a in assignments if a.capture is cap}
+        decoders: dict = {}
         for feed in cap.feeds():
             for batch in feed.batches:
                 for mo in batch.motion:
                     if mo.device in wanted:
                         parts[wanted[mo.device]].append(mo)
+                for chunk in batch.serial:
+                    if chunk.device in wanted:
+                        # Raw ADNS-3080 bytes: the daemon's own decoder, on the file's times
+                        # (the epoch offset is applied below, as for motion).
+                        from mousedom.adns_decode import AdnsDecoder
+                        from mousedom.replay import decode_serial
+
+                        name = config.mice[wanted[chunk.device]].name
+                        dec = decoders.setdefault(chunk.device, AdnsDecoder(name=name))
+                        t, dx, dy = decode_serial(dec, chunk, 0.0)
+                        cap.stats[chunk.device].add_motion(t, dx, dy)
+                        parts[wanted[chunk.device]].append(Motion(chunk.device, t, dx, dy))
         for dev, mouse in wanted.items():
             stats[config.mice[mouse].name] = cap.stats[dev]
         warnings += cap.warnings

@@ -24,7 +24,25 @@ from typing import Any
 
 import numpy as np
 
+from mousedom.errors import UserError
 from mousedom.events import AssemblerStats
+
+
+class CaptureError(UserError):
+    """A capture file is malformed; the message names file and line (or byte offset)."""
+
+
+def open_binary(path: str):
+    """Open a capture for reading; a missing or unreadable file is a CaptureError."""
+    try:
+        return open(path, "rb")
+    except FileNotFoundError:
+        raise CaptureError(f"{path}: capture file not found") from None
+    except IsADirectoryError:
+        raise CaptureError(f"{path}: is a directory, not a capture") from None
+    except OSError as e:
+        raise CaptureError(f"{path}: cannot read: {e.strerror}") from None
+
 
 TIME_BASES = ("epoch", "relative", "monotonic")
 # evemu writes CLOCK_REALTIME in old recordings: anything past 1973-03-03 is taken as an
@@ -66,9 +84,10 @@ class DeviceStats:
     reports: int = 0
     skipped: int = 0  # non-motion events: buttons, wheels, MSC_SCAN ...
     dropped_frames: int = 0  # frames discarded because of SYN_DROPPED
+    dropped_events: int = 0  # non-SYN events in those frames
     lost_x: int = 0  # counts inside dropped frames
     lost_y: int = 0
-    unterminated: int = 0  # frames without SYN_REPORT at the end (kept: their counts happened)
+    unterminated: int = 0  # events after the last SYN_REPORT at the end (kept: they happened)
     torn_bytes: int = 0  # unreadable tail of a crashed recording
     net_x: int = 0
     net_y: int = 0
@@ -97,9 +116,10 @@ class DeviceStats:
         self.frames = st.frames
         self.skipped = st.skipped
         self.dropped_frames = st.dropped_frames
+        self.dropped_events = st.dropped_events
         self.lost_x = st.dropped_dx
         self.lost_y = st.dropped_dy
-        self.unterminated = st.incomplete_frames
+        self.unterminated = st.incomplete_events
 
     def merge(self, other: DeviceStats) -> None:
         """Add counters recorded elsewhere (e.g. a native file's notes of its source)."""
@@ -108,6 +128,7 @@ class DeviceStats:
             "frames",
             "skipped",
             "dropped_frames",
+            "dropped_events",
             "lost_x",
             "lost_y",
             "unterminated",

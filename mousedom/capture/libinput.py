@@ -37,8 +37,8 @@ from collections.abc import Iterator
 import numpy as np
 import yaml
 
-from mousedom.capture.base import Batch, Capture, DeviceInfo, Feed, Motion
-from mousedom.capture.evemu import CaptureError, _open
+from mousedom.capture.base import Batch, Capture, CaptureError, DeviceInfo, Feed, Motion
+from mousedom.capture.base import open_binary as _open
 from mousedom.errors import located
 from mousedom.events import EV_REL, REL_X, REL_Y, FrameAssembler
 
@@ -49,6 +49,7 @@ _DEVICE = re.compile(rb"(?m)^[ \t]*- node:")
 _EVENTS = re.compile(rb"(?m)^[ \t]+events:[ \t]*(?:#.*)?$")
 _COMMENT = re.compile(rb"[ \t]*#[^\n]*")
 _ROW = re.compile(rb"(?m)^[ \t]*- \[([^\]\n]*)\][ \t]*$")
+_ROW_C = re.compile(rb"(?m)^[ \t]*- \[([^\]\n]*)\][ \t]*(?:#[^\n]*)?$")  # with a comment
 # Lines allowed in an event list besides rows: "- evdev:", "- hid:", keys of hid and
 # libinput entries, blanks (comments are stripped first).
 _OTHER = re.compile(rb"(?m)^(?:[ \t]*- \[[^\]\n]*\][ \t]*|[ \t]*(?:- )?[A-Za-z_][\w-]*:.*|[ \t]*)$")
@@ -233,10 +234,13 @@ class LibinputCapture(Capture):
 
     def _parse(self, block: bytes, line: int):
         """(t, type, code, value) arrays of the evdev rows of a block of whole lines."""
-        text = _COMMENT.sub(b"", block) if b"#" in block else block
-        rows = _ROW.findall(text)
-        if len(_OTHER.sub(b"", text).strip()) != 0:
-            self._complain(block, line)
+        rows = _ROW_C.findall(block)
+        # Quick check: every line is a row or "- evdev:"; else look at each line closely.
+        if len(rows) + block.count(b"- evdev:") != block.count(b"\n"):
+            text = _COMMENT.sub(b"", block) if b"#" in block else block
+            if len(_OTHER.sub(b"", text).strip()) != 0:
+                self._complain(block, line)
+            rows = _ROW.findall(text)
         n = len(rows)
         if n == 0:
             e = np.empty(0, np.int64)

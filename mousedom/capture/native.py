@@ -38,13 +38,14 @@ from mousedom.capture.base import (
     TIME_BASES,
     Batch,
     Capture,
+    CaptureError,
     DeviceInfo,
     DeviceStats,
     Feed,
     Motion,
     Serial,
 )
-from mousedom.capture.evemu import CaptureError, _open
+from mousedom.capture.base import open_binary as _open
 from mousedom.errors import located
 
 MAGIC = b"MDCAP\r\n\x1a"
@@ -60,6 +61,7 @@ NOTE_FIELDS = (
     "frames",
     "skipped",
     "dropped_frames",
+    "dropped_events",
     "lost_x",
     "lost_y",
     "unterminated",

@@ -143,6 +143,9 @@ def convert(
                 if mo.device in st[1] and len(mo.t):
                     w.motion(st[1][mo.device], mo.t - st[2] if st[2] else mo.t, mo.dx, mo.dy)
                     reports += len(mo.t)
+            for chunk in batch.serial:  # raw ADNS-3080 bytes are kept as they are
+                if chunk.device in st[1]:
+                    w.serial_many(st[1][chunk.device], (chunk.t - st[2]).tolist(), chunk.data)
             if batch.complete > -math.inf:
                 st[3] = batch.complete - st[2]
             marks = [s[3] for s in states if not s[4]]

@@ -45,10 +45,30 @@ def register(subparsers) -> None:
         metavar="X",
         help="pace output at X times real time (default: as fast as possible)",
     )
+    p.add_argument(
+        "--umbmark",
+        choices=("cw", "ccw"),
+        help="the run was a UMBmark square in this direction: emit its RUNS.csv row "
+        "(odometry end position minus the true one)",
+    )
+    p.add_argument(
+        "--true-end",
+        metavar="X,Y",
+        default="0,0",
+        help="with --umbmark: the measured true end position in the odometry frame, "
+        "metres (default 0,0: the square returns to its start)",
+    )
+    p.add_argument(
+        "--umbmark-csv",
+        metavar="RUNS.csv",
+        help="with --umbmark: append the row to this file (created with its header); "
+        "default: print the row on stdout",
+    )
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    true_end = _true_end(args) if args.umbmark else None
     if args.speed is not None and not (args.speed > 0 and math.isfinite(args.speed)):
         raise UserError(f"--speed: must be a positive number, got {args.speed}")
     if args.plot:
@@ -108,9 +128,43 @@ def run(args) -> int:
         from mousedom import plot
 
         plot.save(collector, config.names, args.plot, title=_title(args, replay))
-    if out is None:
+    if args.umbmark:
+        _emit_umbmark(args, summary, true_end)
+    elif out is None:
         print(format_summary(summary, replay, args))
     return check(summary)
+
+
+def _true_end(args) -> tuple[float, float]:
+    try:
+        x, y = (float(v) for v in args.true_end.split(","))
+    except ValueError:
+        raise UserError(f"--true-end: expected X,Y in metres, got {args.true_end!r}") from None
+    if not (math.isfinite(x) and math.isfinite(y)):
+        raise UserError(f"--true-end: expected finite numbers, got {args.true_end!r}")
+    return x, y
+
+
+def _emit_umbmark(args, summary: Summary, true_end: tuple[float, float]) -> None:
+    """One row of `mousedom umbmark`'s RUNS.csv for this run."""
+    from mousedom.calibrate.umbmark import HEADER, umbmark_row
+
+    if not summary.final:
+        raise UserError("--umbmark: the captures hold no motion, so there is no end position")
+    final = (summary.final["x"], summary.final["y"])
+    row = umbmark_row(args.umbmark, final, true_end)
+    if not args.umbmark_csv:
+        print(row)
+        return
+    try:
+        with open(args.umbmark_csv, "a+", newline="") as f:
+            f.seek(0)
+            empty = not f.read(1)
+            f.seek(0, 2)
+            f.write((HEADER + "\n" if empty else "") + row + "\n")
+    except OSError as e:
+        raise UserError(f"{args.umbmark_csv}: cannot append: {e.strerror}") from None
+    print(f"replay: appended {row} to {args.umbmark_csv}", file=sys.stderr)
 
 
 def check(summary: Summary) -> int:
@@ -179,7 +233,7 @@ def format_summary(s: Summary, replay: Replay, args) -> str:
         if st.lost_x or st.lost_y:
             extra.append(f"{st.lost_x} x / {st.lost_y} y counts lost in dropped frames")
         if st.unterminated:
-            extra.append(f"{st.unterminated} frame without SYN_REPORT at the end (kept)")
+            extra.append(f"{st.unterminated} events without SYN_REPORT at the end (kept)")
         if st.torn_bytes:
             extra.append(f"{st.torn_bytes} bytes of torn tail skipped")
         if extra:
@@ -198,7 +252,7 @@ class ProgressBar:
 
     def update(self, fraction: float) -> None:
         now = time.monotonic()
-        if now - self.last < 0.1 or now - self.t0 < 0.5:
+        if self.drawn and now - self.last < 0.1:
             return
         self.last = now
         fraction = min(max(fraction, 0.0), 1.0)

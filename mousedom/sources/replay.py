@@ -12,10 +12,16 @@ c0 + (t - t_first) / speed, where c0 is the clock at ``open()``; that due time i
 stamp, so the tracker sees a live-looking stream.  With ``loop`` the capture starts again
 after its end (one report period later), times continuing.
 
-A replay has no file descriptor that becomes readable.  ``fileno()`` returns the read end
-of a private pipe that never does, so registering it is harmless; the loop must use
-``timeout()`` (or ``next_due()``) as its select timeout and call ``read(now)`` when it
-has passed.
+A replay has no file descriptor that becomes readable: ``fileno()`` returns -1, which
+tells the daemon's loop to poll the source on every tick (``read(now)`` returns what is
+due).  A loop of its own can instead use ``timeout(now)`` (or ``next_due()``) as its
+select timeout.
+
+Several mice replayed from one file stay aligned: every ReplaySource of the same file and
+clock shares one anchor (the clock time at which the first of them opened, and the
+file's first event), and with ``loop`` they all restart after the file's overall last
+report, not their own.  Built from a ``MouseConfig`` (as the daemon does, for mice with
+``replay:`` in the config), a source loops by default.
 """
 
 from __future__ import annotations
@@ -28,30 +34,41 @@ from collections.abc import Callable, Iterator
 import numpy as np
 
 from mousedom.capture import Capture, CaptureError, open_capture
+from mousedom.config import MouseConfig
 from mousedom.sources.base import Reports, Source, SourceGone, SourceUnavailable
+
+# (file, clock) -> (clock time, data time) at which the first replay of that file started.
+_ANCHORS: dict[tuple[str, int], tuple[float, float]] = {}
 
 
 class ReplaySource(Source):
     kind = "replay"
+    latency = 0.0  # reports are handed over once due: nothing older can still arrive
 
     def __init__(
         self,
-        name: str,
-        path: str,
+        name: str | MouseConfig,
+        path: str | None = None,
         device: str | None = None,
         speed: float = 1.0,
-        loop: bool = False,
+        loop: bool | None = None,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
+        if isinstance(name, MouseConfig):
+            mouse = name
+            name, path = mouse.name, path or mouse.replay
+            device = device if device is not None else mouse.replay_device
+            loop = True if loop is None else loop
+        if path is None:
+            raise ValueError("a replay source needs a capture file")
         super().__init__(name)
         if not speed > 0:
             raise ValueError("speed must be positive")
         self.path = path
         self.device = device
         self.speed = float(speed)
-        self.loop = loop
+        self.loop = bool(loop)
         self.clock = clock
-        self._pipe: tuple[int, int] | None = None
         self._capture: Capture | None = None
         self._dev = 0
         self._it: Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
@@ -73,13 +90,34 @@ class ReplaySource(Source):
         cap = open_capture(self.path)
         self._dev = self._pick(cap)
         self._capture = cap
-        self._c0 = self.clock()
-        self._t_first = None
+        first = cap.first_time()
+        key = (os.path.realpath(self.path), id(self.clock))
+        if key not in _ANCHORS or first is None:
+            _ANCHORS[key] = (self.clock(), first if first is not None else math.nan)
+        self._c0, t_first = _ANCHORS[key]
+        self._t_first = None if math.isnan(t_first) else t_first
         self._shift = 0.0
+        self._span = self._overall_span(cap) if self.loop else 0.0
         self.finished = False
         self._restart()
-        if self._pipe is None:
-            self._pipe = os.pipe()
+
+    def _overall_span(self, cap: Capture) -> float:
+        """Data seconds from the file's first event to its last report, any device."""
+        last = -math.inf
+        periods = []
+        for feed in cap.feeds():
+            for batch in feed.batches:
+                for mo in batch.motion:
+                    if len(mo.t):
+                        last = max(last, float(mo.t[-1]))
+                    if len(mo.t) > 1:
+                        periods.append(float(np.median(np.diff(mo.t[:1000]))))
+        # The same gap for every mouse of the file, so that they restart together.
+        periods = [p for p in periods if p > 0]
+        if periods:
+            self._period = min(periods)
+        first = cap.first_time()
+        return last - first if first is not None and math.isfinite(last) else 0.0
 
     def _pick(self, cap: Capture) -> int:
         movers = [i for i, d in enumerate(cap.devices) if d.rel_xy is not False]
@@ -111,18 +149,11 @@ class ReplaySource(Source):
                     yield mo.t, mo.dx, mo.dy
 
     def fileno(self) -> int:
-        if self._pipe is None:
-            self._pipe = os.pipe()
-        return self._pipe[0]
+        return -1  # nothing to select on: poll on every tick, or wait for timeout()
 
     def close(self) -> None:
-        if self._pipe is not None:
-            for fd in self._pipe:
-                try:
-                    os.close(fd)
-                except OSError:
-                    pass
-            self._pipe = None
+        self._capture = None
+        self._it = None
 
     def _read(self, now: float) -> list[Reports]:
         if self._capture is None:
@@ -167,9 +198,6 @@ class ReplaySource(Source):
                 t, dx, dy = part
                 if self._t_first is None:
                     self._t_first = float(t[0])
-                if len(t) > 1:
-                    self._period = float(np.median(np.diff(t[:1000]))) or self._period
-                self._span = max(self._span, float(t[-1]) - self._t_first)
                 self._buf_t, self._buf_dx, self._buf_dy = t, dx, dy
                 return True
             if not self.loop or self._t_first is None:

@@ -1,0 +1,502 @@
+"""``mousedom replay`` and ``mousedom convert`` as a user runs them (real processes)."""
+
+from __future__ import annotations
+
+import io
+import math
+import os
+import pty
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from capture_helpers import EXTERNAL, GOLDEN, drain, external_dir, one_mouse_config
+from conftest import mousedom_env, run_mousedom
+
+from mousedom import sim
+from mousedom.capture import DeviceInfo, NativeWriter, assign, open_capture, read_reports
+from mousedom.capture.evemu import format_evemu
+from mousedom.capture.libinput import format_libinput
+from mousedom.config import parse_config
+from mousedom.replay import CsvSink, Replay, read_csv
+
+PS2 = "evemu-devices__PS2_Generic_Mouse.events"
+
+
+def _ok(proc):
+    assert proc.returncode == 0, proc.stderr
+    assert "Traceback" not in proc.stderr
+    return proc
+
+
+def _fails(proc, *needles):
+    assert proc.returncode != 0
+    assert "Traceback" not in proc.stderr
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("mousedom: error:"), proc.stderr
+    for n in needles:
+        assert n in lines[0], lines[0]
+    return lines[0]
+
+
+# ------------------------------------------------------------------ real recordings
+
+
+@pytest.mark.parametrize("row", EXTERNAL, ids=[r[0].split("__")[1] for r in EXTERNAL])
+def test_every_external_capture_replays(tmp_path, row):
+    name, _, _, motion, net_x, net_y, path_x, path_y = row
+    cfg = one_mouse_config(tmp_path)
+    proc = _ok(
+        run_mousedom("replay", "--config", str(cfg), "--capture", f"m={external_dir() / name}")
+    )
+    out = proc.stdout
+    assert "duration" in out and "path length" in out and "final pose" in out
+    row_m = next(ln.split() for ln in out.splitlines() if ln.startswith("m "))
+    assert row_m[1] == str(motion)
+    assert row_m[3:7] == [str(net_x), str(net_y), str(path_x), str(path_y)]
+
+
+def test_golden_trajectory_ps2_mouse(tmp_path):
+    """Regression: PS/2 mouse replay against tests/golden (MOUSEDOM_REGEN_GOLDEN=1 rewrites)."""
+    cfg = GOLDEN / "ps2_generic_mouse.yaml"
+    out = tmp_path / "ps2.csv"
+    _ok(
+        run_mousedom(
+            "replay", "--config", str(cfg), "--capture", f"m={external_dir() / PS2}", "-o", str(out)
+        )
+    )
+    golden = GOLDEN / "ps2_generic_mouse.csv"
+    if os.environ.get("MOUSEDOM_REGEN_GOLDEN") == "1":
+        golden.write_text(out.read_text())
+    got, want = read_csv(out.read_text()), read_csv(golden.read_text())
+    assert list(got) == list(want)
+    for k in want:
+        np.testing.assert_allclose(got[k], want[k], rtol=0, atol=2e-9, err_msg=k)
+
+
+def test_evemu_to_native_to_replay_gives_identical_poses(tmp_path):
+    cfg = one_mouse_config(tmp_path)
+    for name in (PS2, "evemu-devices__Ultrathin_Touch_Mouse.events"):
+        src = external_dir() / name
+        native = tmp_path / "x.mdcap"
+        _ok(
+            run_mousedom(
+                "convert", "--capture", f"m={src}", "-o", str(native), "--config", str(cfg)
+            )
+        )
+        a = _ok(run_mousedom("replay", "--config", str(cfg), "--capture", f"m={src}", "-o", "-"))
+        b = _ok(run_mousedom("replay", "--config", str(cfg), "--capture", str(native), "-o", "-"))
+        assert a.stdout == b.stdout and a.stdout.count("\n") > 900
+
+
+def test_csv_to_stdout_last_row_holds_every_count(tmp_path):
+    cfg = one_mouse_config(tmp_path)
+    src = external_dir() / PS2
+    proc = _ok(run_mousedom("replay", "--config", str(cfg), "--capture", f"m={src}", "-o", "-"))
+    lines = proc.stdout.splitlines()
+    assert lines[0] == "t,x,y,theta,vx,vy,omega,used,ok"
+    # In process: the windows' counts add up to the capture's net counts.
+    config = parse_config(cfg.read_text(), str(cfg), need_sources=False)
+    batches = []
+    rp = Replay(config, assign(config, [("m", str(src))]))
+    buf = io.StringIO()
+    sink = CsvSink(buf)
+    summary = rp.run(lambda b: (batches.append(b), sink(b)))
+    counts = sum(b.counts.sum(axis=0) for b in batches)
+    assert counts[0].tolist() == [-5424.0, -929.0]
+    assert buf.getvalue() == proc.stdout
+    last = lines[-1].split(",")
+    assert float(last[0]) == pytest.approx(summary.final["t"])
+    assert float(last[3]) == pytest.approx(summary.final["theta"], abs=1e-9)
+    assert float(last[0]) >= summary.duration
+
+
+# ------------------------------------------------------------------ simulated rigs
+
+
+def _sim_native(tmp_path, chunk_reports=2000):
+    rig = sim.three_mouse_rig(cpi=800.0, rate_hz=250.0)
+    traj = sim.sequence(sim.straight(0.5), sim.turn(math.pi / 2), sim.arc(0.4, math.pi / 3))
+    res = sim.simulate(rig, traj, seed=4, t_start=1000.0)
+    cfg = tmp_path / "rig.yaml"
+    cfg.write_text(sim.rig_yaml(rig))
+    devices = [DeviceInfo(name=f"usb {m.name}", mouse=m.name, rel_xy=True) for m in rig.mice]
+    path = tmp_path / "rig.mdcap"
+    with NativeWriter(
+        path,
+        devices,
+        time_base="monotonic",
+        chunk_reports=chunk_reports,
+        config_text=cfg.read_text(),
+    ) as w:
+        step = 0.25
+        end = res.motion.starts[-1]
+        k = 0
+        while k * step <= end - 1000.0 + 1:
+            lo, hi = 1000.0 + k * step, 1000.0 + (k + 1) * step
+            for i, m in enumerate(rig.mice):
+                r = res.reports[m.name]
+                sel = (r.t >= lo) & (r.t < hi)
+                w.motion(i, r.t[sel], r.dx[sel].astype(int), r.dy[sel].astype(int))
+            w.sync(np.nextafter(hi, -np.inf))
+            k += 1
+    return rig, res, cfg, path
+
+
+def test_simulated_rig_native_replay_matches_truth_and_batch_tracker(tmp_path):
+    rig, res, cfg, path = _sim_native(tmp_path)
+    proc = _ok(run_mousedom("replay", "--config", str(cfg), "--capture", str(path), "-o", "-"))
+    data = read_csv(proc.stdout)
+    truth = res.truth(res.motion.starts[-1])[0]
+    final = np.array([data["x"][-1], data["y"][-1], data["theta"][-1]])
+    assert np.hypot(*(final[:2] - truth[:2])) < 0.01  # 1 cm after ~1.3 m of driving
+    assert abs(final[2] - truth[2]) < 0.01
+    # Streaming through the engine equals one batch through the tracker.
+    from mousedom.tracker import Tracker
+
+    tracker = Tracker(sim.rig_config(rig), t0=min(r.t[0] for r in res.reports.values()))
+    for name, r in res.reports.items():
+        tracker.push(name, r.t, r.dx, r.dy)
+    batch = tracker.finish()
+    assert final == pytest.approx([batch.x[-1], batch.y[-1], batch.theta[-1]], abs=1e-6)
+    # Time base: monotonic times are kept as they are.
+    assert data["t"][0] > 1000.0
+
+
+def test_multi_device_file_without_name_maps_by_config(tmp_path):
+    rng = np.random.default_rng(8)
+    n = 300
+    t = np.cumsum(rng.uniform(0.002, 0.01, n))
+    devs = [
+        ("left", t, rng.integers(-5, 5, n), rng.integers(-20, 0, n)),
+        ("right", t + 0.001, rng.integers(-5, 5, n), rng.integers(-20, 0, n)),
+    ]
+    rec = tmp_path / "two.yml"
+    rec.write_text(format_libinput(devs))
+    cfg = tmp_path / "two.yaml"
+    cfg.write_text(
+        "rate_hz: 50\nmice:\n"
+        "  a:\n    cpi: 400\n    mount: {x: 0.0, y: 0.1}\n    evdev: {name: left}\n"
+        "  b:\n    cpi: 400\n    mount: {x: 0.0, y: -0.1}\n    evdev: {name: right}\n"
+    )
+    proc = _ok(run_mousedom("replay", "--config", str(cfg), "--capture", str(rec)))
+    rows = {ln.split()[0]: ln.split() for ln in proc.stdout.splitlines() if ln[:2] in ("a ", "b ")}
+    assert rows["a"][3] == str(int(devs[0][2].sum())) and rows["b"][3] == str(int(devs[1][2].sum()))
+    # Through convert: same poses from the native file.
+    native = tmp_path / "two.mdcap"
+    _ok(run_mousedom("convert", "--capture", str(rec), "-o", str(native)))
+    a = _ok(run_mousedom("replay", "--config", str(cfg), "--capture", str(rec), "-o", "-"))
+    b = _ok(run_mousedom("replay", "--config", str(cfg), "--capture", str(native), "-o", "-"))
+    assert a.stdout == b.stdout
+
+
+def test_epoch_files_are_rebased_together_relative_ones_kept(tmp_path):
+    t = np.arange(1, 201) * 0.01
+    d = np.ones(200, dtype=int)
+    (tmp_path / "a.evemu").write_text(format_evemu(1.7e9 + t, d, -d, version=None))
+    (tmp_path / "b.evemu").write_text(format_evemu(1.7e9 + 0.5 + t, d, -d, version=None))
+    cfg = tmp_path / "r.yaml"
+    cfg.write_text(
+        "rate_hz: 100\nmice:\n  a: {cpi: 400, mount: {x: 0, y: 0.1}}\n"
+        "  b: {cpi: 400, mount: {x: 0, y: -0.1}}\n"
+    )
+    config = parse_config(cfg.read_text(), str(cfg), need_sources=False)
+    reps, stats, warnings = read_reports(
+        config, [("a", str(tmp_path / "a.evemu")), ("b", str(tmp_path / "b.evemu"))]
+    )
+    assert reps["a"].t[0] == pytest.approx(0.0, abs=1e-6)
+    assert reps["b"].t[0] == pytest.approx(0.5, abs=1e-6)
+    assert stats["a"].net_x == 200 and not warnings
+    # A relative file keeps its times.
+    (tmp_path / "c.evemu").write_text(format_evemu(3.0 + t, d, -d))
+    reps, _, warnings = read_reports(
+        config, [("a", str(tmp_path / "c.evemu")), ("b", str(tmp_path / "b.evemu"))]
+    )
+    assert reps["a"].t[0] == pytest.approx(3.01)
+    assert warnings and "cannot be aligned" in warnings[0]
+
+
+# ------------------------------------------------------------------ errors
+
+
+def test_capture_naming_a_mouse_the_config_lacks(tmp_path):
+    cfg = one_mouse_config(tmp_path)
+    _fails(
+        run_mousedom("replay", "--config", str(cfg), "--capture", f"nosuch={external_dir() / PS2}"),
+        "no mouse 'nosuch'",
+        "its mice: m",
+    )
+
+
+def test_config_mouse_without_capture(tmp_path):
+    cfg = tmp_path / "two.yaml"
+    cfg.write_text(
+        "mice:\n  a: {cpi: 400, mount: {x: 0, y: 0.1}}\n  b: {cpi: 400, mount: {x: 0, y: -0.1}}\n"
+    )
+    _fails(
+        run_mousedom("replay", "--config", str(cfg), "--capture", f"a={external_dir() / PS2}"),
+        "no capture for mouse 'b'",
+    )
+
+
+def test_garbage_capture_and_missing_file(tmp_path):
+    cfg = one_mouse_config(tmp_path)
+    bad = tmp_path / "bad.evemu"
+    bad.write_text("E: 1.0 0002 0000 1\nE: 1.0 0000 0000 0\nthis is not evemu\n")
+    _fails(run_mousedom("replay", "--config", str(cfg), "--capture", f"m={bad}"), "bad.evemu:3:")
+    _fails(
+        run_mousedom("replay", "--config", str(cfg), "--capture", f"m={tmp_path}/none.evemu"),
+        "not found",
+    )
+    png = tmp_path / "x.png"
+    png.write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(100))
+    _fails(run_mousedom("replay", "--config", str(cfg), "--capture", f"m={png}"), "x.png")
+    _fails(
+        run_mousedom(
+            "replay",
+            "--config",
+            str(cfg),
+            "--capture",
+            f"m={external_dir() / PS2}",
+            "--speed",
+            "-1",
+        ),
+        "--speed",
+    )
+
+
+def test_truncated_native_replays_with_a_warning(tmp_path):
+    rig, res, cfg, path = _sim_native(tmp_path, chunk_reports=300)
+    data = path.read_bytes()
+    cut = tmp_path / "cut.mdcap"
+    cut.write_bytes(data[: len(data) * 2 // 3 + 7])
+    proc = _ok(run_mousedom("replay", "--config", str(cfg), "--capture", str(cut)))
+    assert "warning" in proc.stderr and "unfinished chunk" in proc.stderr
+    assert "torn tail" in proc.stdout
+
+
+# ------------------------------------------------------------------ plot, speed, progress
+
+
+def test_plot_writes_a_png(tmp_path):
+    cfg = one_mouse_config(tmp_path)
+    png = tmp_path / "p.png"
+    _ok(
+        run_mousedom(
+            "replay",
+            "--config",
+            str(cfg),
+            "--capture",
+            f"m={external_dir() / PS2}",
+            "--plot",
+            str(png),
+        )
+    )
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
+
+
+def test_plot_without_matplotlib_says_how_to_install(tmp_path):
+    fake = tmp_path / "fake"
+    (fake / "matplotlib").mkdir(parents=True)
+    (fake / "matplotlib" / "__init__.py").write_text("raise ImportError('no matplotlib')\n")
+    env = mousedom_env()
+    env["PYTHONPATH"] = str(fake) + os.pathsep + env["PYTHONPATH"]
+    cfg = one_mouse_config(tmp_path)
+    line = _fails(
+        run_mousedom(
+            "replay",
+            "--config",
+            str(cfg),
+            "--capture",
+            f"m={external_dir() / PS2}",
+            "--plot",
+            str(tmp_path / "p.png"),
+            env=env,
+        ),
+        "pip install 'mousedom[plot]'",
+    )
+    assert not (tmp_path / "p.png").exists() and line
+
+
+def test_speed_replays_a_short_capture(tmp_path):
+    t = np.arange(1, 31) * 0.01
+    d = np.ones(30, dtype=int)
+    cap = tmp_path / "s.evemu"
+    cap.write_text(format_evemu(t, d, d))
+    cfg = one_mouse_config(tmp_path)
+    proc = _ok(
+        run_mousedom(
+            "replay", "--config", str(cfg), "--capture", f"m={cap}", "-o", "-", "--speed", "20"
+        )
+    )
+    rows = read_csv(proc.stdout)
+    # Windows of 10 ms from the first event (0.01 s) to the last report (0.30 s).
+    assert len(rows["t"]) == 29 and rows["t"][-1] == pytest.approx(0.30)
+
+
+def test_progress_bar_on_a_terminal_only(tmp_path):
+    cfg = one_mouse_config(tmp_path)
+    args = [
+        sys.executable,
+        "-m",
+        "mousedom",
+        "replay",
+        "--config",
+        str(cfg),
+        "--capture",
+        f"m={external_dir() / PS2}",
+        "-o",
+        str(tmp_path / "o.csv"),
+    ]
+    master, slave = pty.openpty()
+    try:
+        proc = subprocess.run(
+            args, stderr=slave, stdout=subprocess.PIPE, env=mousedom_env(), timeout=60
+        )
+        os.close(slave)
+        seen = b""
+        while True:
+            try:
+                chunk = os.read(master, 4096)
+            except OSError:
+                break
+            if not chunk:
+                break
+            seen += chunk
+    finally:
+        os.close(master)
+    assert proc.returncode == 0
+    assert b"replay [" in seen and b"%" in seen
+    plain = run_mousedom(*args[3:])
+    assert "replay [" not in plain.stderr
+
+
+def test_native_stats_survive_convert(tmp_path):
+    src = external_dir() / "evemu-devices__Saitek_Cyborg_RAT5_Mouse.events"
+    native = tmp_path / "s.mdcap"
+    _ok(run_mousedom("convert", "--capture", f"m={src}", "-o", str(native), "--no-compress"))
+    cap = drain(native)
+    assert cap.stats[0].skipped == 13 and cap.stats[0].net_x == -111
+    assert cap.devices[0].mouse == "m" and cap.devices[0].name == "Saitek Cyborg R.A.T.5 Mouse"
+
+
+def test_serial_adns_bytes_replay_through_the_daemon_decoder(tmp_path):
+    from mousedom import adns_protocol as P
+
+    rng = np.random.default_rng(11)
+    n = 400
+    dx = rng.integers(-30, 30, n)
+    dy = rng.integers(0, 60, n)  # sensor +dy = forward
+    wire = b"".join(
+        P.encode_packet(
+            P.Motion(
+                seq=k,
+                t_us=5000 + 10_000 * k,
+                dx=int(dx[k]),
+                dy=int(dy[k]),
+                frames=12,
+                squal_min=40,
+                flags=0,
+            )
+        )
+        for k in range(n)
+    )
+    # Cut the byte stream anywhere, as reads from a port do; arrival 0.5 to 3 ms after.
+    cuts = np.sort(rng.choice(np.arange(1, len(wire)), 150, replace=False))
+    pieces = np.split(np.frombuffer(wire, np.uint8), cuts)
+    ends = np.cumsum([len(p) for p in pieces])
+    times = []
+    for e in ends:
+        k = wire.count(b"\0", 0, e) - 1  # index of the last complete packet in the read
+        times.append(20.0 + 0.005 + 0.01 * max(k, 0) + 0.0005 + 0.0025 * rng.random())
+    times = np.maximum.accumulate(times)
+    p = tmp_path / "adns.mdcap"
+    dev = DeviceInfo(name="downsampler", kind="serial", mouse="floor")
+    with NativeWriter(p, [dev], time_base="monotonic") as w:
+        w.serial_many(0, times.tolist(), [bytes(x) for x in pieces])
+    cfg = one_mouse_config(tmp_path, name="floor")
+    proc = _ok(run_mousedom("replay", "--config", str(cfg), "--capture", str(p)))
+    row = next(ln.split() for ln in proc.stdout.splitlines() if ln.startswith("floor "))
+    assert row[1] == str(n)
+    # REL_X = Delta_X, REL_Y = -Delta_Y (adns_decode): every count arrives.
+    assert row[3:5] == [str(int(dx.sum())), str(int(-dy.sum()))]
+    assert row[8] == "0"  # no packet lost
+
+
+def test_unknown_devices_and_non_mice(tmp_path):
+    from test_capture_libinput import KEYBOARD
+
+    t = np.array([0.01, 0.02])
+    rec = tmp_path / "kb.yml"
+    rec.write_text(
+        format_libinput([("gaming mouse", t, np.array([1, 1]), np.array([0, 0]))]) + KEYBOARD
+    )
+    cfg = one_mouse_config(tmp_path)
+    # Given without NAME=, the file's mouse matches no mouse of the config.
+    _fails(
+        run_mousedom("replay", "--config", str(cfg), "--capture", str(rec)),
+        "no device ('gaming mouse') matches a mouse",
+        "give it as NAME=",
+    )
+    # Given by name, its one motion device is taken; a keyboard-only file is refused.
+    _ok(run_mousedom("replay", "--config", str(cfg), "--capture", f"m={rec}"))
+    kb_only = tmp_path / "kbonly.yml"
+    kb_only.write_text(
+        rec.read_text().split("- node:")[0] + "- node:" + KEYBOARD.split("- node:")[1]
+    )
+    _fails(
+        run_mousedom("replay", "--config", str(cfg), "--capture", f"m={kb_only}"),
+        "no REL_X/REL_Y motion",
+    )
+
+
+def test_convert_refuses_to_overwrite_its_input_and_ambiguous_names(tmp_path):
+    src = tmp_path / "a.evemu"
+    src.write_text(format_evemu(np.array([1.0]), np.array([1]), np.array([1])))
+    _fails(run_mousedom("convert", "--capture", f"m={src}", "-o", str(src)), "overwrite")
+    two = tmp_path / "two.yml"
+    two.write_text(
+        format_libinput(
+            [
+                ("l", np.array([0.1]), np.array([1]), np.array([0])),
+                ("r", np.array([0.1]), np.array([1]), np.array([0])),
+            ]
+        )
+    )
+    _fails(
+        run_mousedom("convert", "--capture", f"m={two}", "-o", str(tmp_path / "o.mdcap")),
+        "2 motion devices",
+    )
+
+
+def test_a_capture_without_motion_warns(tmp_path):
+    src = tmp_path / "btn.evemu"
+    src.write_text("E: 1.0 0001 0110 1\nE: 1.0 0000 0000 0\n")
+    cfg = one_mouse_config(tmp_path)
+    proc = _ok(run_mousedom("replay", "--config", str(cfg), "--capture", f"m={src}", "-o", "-"))
+    assert proc.stdout == "t,x,y,theta,vx,vy,omega,used,ok\n"
+    assert "no motion reports" in proc.stderr
+
+
+def test_convert_keeps_serial_bytes(tmp_path):
+    p = tmp_path / "in.mdcap"
+    devs = [
+        DeviceInfo(name="m", mouse="m", rel_xy=True),
+        DeviceInfo(name="adns", kind="serial", mouse="floor"),
+    ]
+    with NativeWriter(p, devs) as w:
+        w.motion(0, [1.0, 2.0], [1, 2], [3, 4])
+        w.serial_many(1, [1.5, 1.7], [b"\x01\x02", b"\x00"])
+    out = tmp_path / "out.mdcap"
+    _ok(run_mousedom("convert", "--capture", str(p), "-o", str(out)))
+    cap = open_capture(out)
+    pieces = [
+        (float(t), d)
+        for f in cap.feeds()
+        for b in f.batches
+        for s in b.serial
+        for t, d in zip(s.t, s.data, strict=True)
+    ]
+    assert pieces == [(1.5, b"\x01\x02"), (1.7, b"\x00")]
+    assert [d.kind for d in cap.devices] == ["evdev", "serial"]
