@@ -349,3 +349,22 @@ def test_grab_false_and_busy_and_permission(tmp_path):
     src = EvdevSource(mouse(name="Real Mouse"), paths(tmp_path), device_opener=denied)
     with pytest.raises(SourceUnavailable, match="join group 'root'"):
         src.open()
+
+
+def test_stamps_that_run_backwards_are_moved_forward_and_counted(tmp_path):
+    """Regression: a stream whose stamps run backwards (a FIFO writer, a replug that
+    restarts its clock) went through as is; `record` then wrote a capture that its own
+    reader refuses ("time goes backwards").  Stamps leave the source non-decreasing; the
+    counts are all kept and the moved reports counted."""
+    r, w = os.pipe()
+    src = EvdevSource(mouse(path=f"/proc/self/fd/{r}"))
+    src.open()
+    os.close(r)
+    os.write(w, motion_bytes(10.0, [1, 2, 3], [4, 5, 6], dt=0.01))  # 10.00 .. 10.02
+    os.write(w, motion_bytes(9.0, [7, 8], [9, 10], dt=0.5))  # 9.0, 9.5: behind
+    os.write(w, motion_bytes(10.1, [11], [12]))
+    os.close(w)
+    t, dx, dy, gone = read_all(src)
+    assert gone and dx == [1, 2, 3, 7, 8, 11] and dy == [4, 5, 6, 9, 10, 12]
+    assert t == sorted(t) and t[3] == t[4] == t[2] and t[5] == pytest.approx(10.1)
+    assert src.time_backwards == 2 and src.health.extra["time_backwards"] == 2

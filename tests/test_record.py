@@ -440,3 +440,29 @@ def test_bad_status_interval_and_empty_output(tmp_path):
     r = run_mousedom("record", "--config", cfg, "-o", "")
     assert r.returncode == 2 and "-o/--output: empty file name" in r.stderr
     assert not (tmp_path / "o").exists()
+
+
+def test_a_stream_with_backward_stamps_records_a_replayable_file(tmp_path):
+    """Regression: record wrote the backward stamps and replay refused the whole file."""
+    f = fifos(tmp_path, "a", "b")
+    cfg = rig(tmp_path, f)
+    out = tmp_path / "back.mdcap"
+    p = start("record", "--config", str(cfg), "-o", str(out), "--status-interval", "0")
+    try:
+        w = os.open(f["a"], os.O_WRONLY)
+        t0 = time.monotonic()
+        os.write(w, motion_bytes(t0, [1, 2, 3], [0, 0, 0], dt=0.01))
+        time.sleep(0.3)  # a later read, and a later chunk in the file
+        os.write(w, motion_bytes(t0 - 5, [4, 5], [0, 0], dt=0.01))
+        time.sleep(0.3)
+        p.send_signal(signal.SIGINT)
+        _, err = p.communicate(timeout=20)
+        os.close(w)
+    finally:
+        p.kill()
+    assert p.returncode == 0, err
+    assert "stamped-backwards 2" in err
+    r = run_mousedom("replay", "--config", str(cfg), "--capture", str(out))
+    assert r.returncode == 0, r.stderr
+    _, motion, _ = read_capture(out)
+    assert motion["a"][1] == [1, 2, 3, 4, 5] and motion["a"][0] == sorted(motion["a"][0])

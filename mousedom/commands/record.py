@@ -284,6 +284,8 @@ class Recorder:
                 continue
             st = src.assembler.stats
             extra = f" dropped {st.dropped_frames}" if st.dropped_frames else ""
+            if getattr(src, "time_backwards", 0):
+                extra += f" stamped-backwards {src.time_backwards}"
             parts.append(
                 f"{s.mouse.name} {st.events} events {s.reports} reports {rate:.0f} Hz{extra}{state}"
             )

@@ -82,6 +82,11 @@ class EvdevSource(Source):
         self._rest = b""  # bytes of an incomplete record, completed by the next read
         self._gone: str | None = None  # the device went away; raise after handing over data
         self.truncated_bytes = 0  # bytes of incomplete records lost at unplug
+        # Stamps are made non-decreasing here, at the boundary: the tracker and the capture
+        # format both rely on it.  A kernel clock does not run backwards, but a FIFO
+        # writer's stamps can, and so can a replug that restarts a stream's clock.
+        self._last_t = -np.inf
+        self.time_backwards = 0  # reports stamped before the previous one (moved forward)
         self.grabbed = False
         self._device_opener = device_opener or _input_device
         self._ioctl = ioctl or fcntl.ioctl
@@ -228,7 +233,13 @@ class EvdevSource(Source):
         self._gone = gone  # raised by the next call, after these frames are delivered
         if not len(frames):
             return []
-        return [Reports(self.name, frames.t, frames.dx.astype(np.float64), frames.dy)]
+        t = np.maximum.accumulate(np.concatenate([[self._last_t], frames.t]))[1:]
+        back = int(np.count_nonzero(t > frames.t))
+        if back:
+            self.time_backwards += back
+            self._update_health()
+        self._last_t = float(t[-1])
+        return [Reports(self.name, t, frames.dx.astype(np.float64), frames.dy)]
 
     def _update_health(self) -> None:
         s = self.assembler.stats
@@ -243,6 +254,7 @@ class EvdevSource(Source):
             dropped_counts=[s.dropped_dx, s.dropped_dy],
             incomplete_frames=s.incomplete_frames,
             truncated_bytes=self.truncated_bytes,
+            time_backwards=self.time_backwards,
         )
 
 
