@@ -15,7 +15,9 @@ second and marks it live again when it is back.
 from __future__ import annotations
 
 import logging
+import math
 import os
+import select
 import selectors
 import signal
 import time
@@ -38,6 +40,9 @@ from mousedom.protocol import (
 from mousedom.sdnotify import Notifier, watchdog_interval
 from mousedom.server import Client, Command, Server
 from mousedom.sources.base import Source, SourceGone, SourceUnavailable
+from mousedom.sources.factory import make_source, source_key
+
+__all__ = ["Daemon", "make_source", "plan_wake"]
 
 log = logging.getLogger(__name__)
 
@@ -47,31 +52,33 @@ SourceFactory = Callable[[MouseConfig, Clock], Source]
 RETRY_S = 1.0  # how often a vanished sensor is looked for again
 STATUS_S = 1.0  # SOURCE broadcast period
 DEFAULT_LATENCY_S = 0.003  # how late a report may reach us after its stamp (silence rule)
+WAKE_SLACK_S = 0.0001  # after a report's predicted time: pipe and scheduler delays
 
 
-def make_source(mouse: MouseConfig, clock: Clock = time.monotonic) -> Source:
-    """The backend a mouse's config asks for: evdev, serial ADNS-3080 or replay."""
-    try:
-        if mouse.evdev is not None:
-            from mousedom.sources.evdev import EvdevSource
+def plan_wake(end: float, mice: list[tuple[float, float, float | None]]) -> tuple[float, float]:
+    """When to read the sources for the window ending at ``end``, and when to give up.
 
-            return EvdevSource(mouse)
-        if mouse.serial is not None:
-            from mousedom.sources.adns import AdnsSource
+    ``mice`` holds (report period, latency, stamp of the last report read or None) of each
+    live mouse.  Reading every report as it arrives (4 mice at 1000 Hz: 4000 wakes a
+    second) costs far more than the fusion.  A window can close only once every live mouse
+    has reported past its end, and mice report on a steady clock (USB polling), so each
+    one's first report after ``end`` is predictable from its last one: the loop sleeps until
+    the latest prediction (plus a little slack) and reads everything at once.  If a mouse
+    is late it waits on the descriptors, at most until ``give_up``, when the silence rule
+    (no report for a period plus the latency: the mouse did not move) closes the window.
+    """
+    wake = give_up = end
+    for period, latency, last in mice:
+        give_up = max(give_up, end + latency + period)
+        if last is None or last > end:
+            continue
+        # the first report slot strictly after ``end`` on this mouse's own clock
+        wake = max(wake, last + (math.floor((end - last) / period) + 1) * period)
+    return min(wake, give_up) + WAKE_SLACK_S, give_up
 
-            return AdnsSource(mouse)
-        if mouse.replay is not None:
-            from mousedom.sources.replay import ReplaySource
 
-            return ReplaySource(mouse, clock=clock)
-    except ImportError as e:
-        raise UserError(f"mice.{mouse.name}: this build has no such source ({e})") from None
-    raise UserError(f"mice.{mouse.name}: says nowhere where the mouse comes from")
-
-
-def _source_key(mouse: MouseConfig) -> tuple[Any, ...]:
-    """What identifies a mouse's device: when it changes on reload, the source is reopened."""
-    return (mouse.evdev, mouse.serial, mouse.replay, mouse.replay_device)
+def _ignore(mask: int) -> None:
+    """Selector callback for the sources' selector: the loop reads them itself."""
 
 
 @dataclass
@@ -85,6 +92,7 @@ class Slot:
     fd: int | None = None
     retry_at: float = 0.0
     latency: float = DEFAULT_LATENCY_S
+    paced: bool = False  # no readable fd: read on the loop's own schedule (replay)
     residual_sq: float = 0.0
     residual_n: int = 0
     residual_rms: float | None = None
@@ -107,8 +115,7 @@ class Daemon:
         source_factory: SourceFactory = make_source,
         notifier: Notifier | None = None,
         handle_signals: bool = True,
-        coalesce_s: float = 0.0,
-        on_pose: Callable[[float, float], None] | None = None,
+        record: str | None = None,
     ) -> None:
         from mousedom.tracker import Tracker  # late: the numeric core loads only when run
 
@@ -118,16 +125,22 @@ class Daemon:
         self.source_factory = source_factory
         self.notifier = notifier or Notifier()
         self.handle_signals = handle_signals
-        self.coalesce_s = coalesce_s
-        self.on_pose = on_pose  # bench hook: (pose t, time its line was queued)
         self.selector = selectors.DefaultSelector()
+        # The sources have a selector of their own, watched through the main one only
+        # while a window waits for reports (see _plan).
+        self.src_sel = selectors.DefaultSelector()
+        self._watching = False
         self.server = Server(
             socket_path, config.server, self.selector, self._on_command, self._on_connect
         )
         self.slots: list[Slot] = []
+        self.record_path = record
+        self.recording: Any = None  # live_record.Recording while --record is on
         self.tracker: Any = None
         self.started = clock()
         self.poses = 0
+        self.wakes = 0  # loop iterations: what the reading policy costs (see _plan)
+        self.source_reads = 0
         self.not_updated = 0
         self._stop = False
         self._reload = False
@@ -149,6 +162,8 @@ class Daemon:
         self._wake()
 
     def _wake(self) -> None:
+        if self._wake_w < 0:
+            return  # stopped already
         try:
             os.write(self._wake_w, b"\0")
         except BlockingIOError:
@@ -189,6 +204,12 @@ class Daemon:
             # Nothing stamped before the start is still to come; this also gives the
             # tracker a finite frontier before the first report (its poll needs one).
             self.tracker.complete_until(now - max(s.latency for s in self.slots))
+            if self.record_path:
+                from mousedom.live_record import Recording
+
+                kinds = [s.source.kind for s in self.slots]
+                self.recording = Recording(self.record_path, self.config, kinds)
+                log.info("recording the sensors' reports to %s", self.record_path)
             self.server.open()
             log.info(
                 "listening on %s; watch it with: mousedom watch --socket %s",
@@ -204,25 +225,19 @@ class Daemon:
         return 0
 
     def _loop(self) -> None:
-        tick = 1.0 / self.config.rate_hz
         now = self.clock()
-        next_tick = now + tick
         next_status = now + STATUS_S
         wd_interval = watchdog_interval()
-        next_watchdog = now if wd_interval else float("inf")
-        polled = [s for s in self.slots if s.fd is None]
-        last_wake = now
+        next_watchdog = now if wd_interval else math.inf
         while not self._stop:
             now = self.clock()
-            deadline = min(next_tick, next_status, next_watchdog)
-            if self.coalesce_s:
-                # Let a few reports pile up per wake: far fewer syscalls at 4 x 1000 Hz,
-                # for at most coalesce_s of extra latency.
-                gap = last_wake + self.coalesce_s - now
-                if gap > 0:
-                    time.sleep(gap)
-            events = self.selector.select(max(0.0, deadline - self.clock()))
-            now = last_wake = self.clock()
+            wake_at, give_up = self._plan()
+            watching = now >= wake_at
+            self._watch_sources(watching)
+            retry = min((s.retry_at for s in self.slots if not s.live), default=math.inf)
+            deadline = min(give_up if watching else wake_at, next_status, next_watchdog, retry)
+            events = self._select(deadline)
+            self.wakes += 1
             for key, mask in events:
                 key.data(mask)
             if self._stop:
@@ -230,27 +245,71 @@ class Daemon:
             if self._reload:
                 self._reload = False
                 self._do_reload()
-                tick = 1.0 / self.config.rate_hz
-                polled = [s for s in self.slots if s.fd is None]
+                continue
             now = self.clock()
-            for slot in polled:
-                if slot.live and slot.fd is None:
-                    self._read_slot(slot)
-            if now >= next_tick:
-                next_tick = max(next_tick + tick, now)
+            if now >= wake_at:
+                self._read_sources(now)
+                self._publish(self.tracker.poll())
+            if now >= retry:
                 for slot in self.slots:
-                    if slot.live:
-                        self.tracker.complete_until(now - slot.latency, mouse=slot.index)
-                    elif now >= slot.retry_at:
+                    if not slot.live and now >= slot.retry_at:
                         self._try_open(slot, now)
-                        polled = [s for s in self.slots if s.fd is None]
-            self._publish(self.tracker.poll())
             if now >= next_status:
                 next_status = max(next_status + STATUS_S, now)
                 self._broadcast_sources(now)
+                if self.recording is not None:
+                    self.recording.sync(self.tracker.frontier_time)
             if now >= next_watchdog:
                 self.notifier.watchdog()
-                next_watchdog = now + (wd_interval or float("inf"))
+                next_watchdog = now + (wd_interval or math.inf)
+
+    def _select(self, deadline: float) -> list[tuple[selectors.SelectorKey, int]]:
+        """Wait for events until ``deadline``, to within tens of microseconds.
+
+        epoll's timeout is in whole milliseconds (and selectors rounds it up, sometimes by a
+        millisecond more than asked): waiting for a report due in 1.3 ms would wake up to
+        1.7 ms late.  The epoll descriptor is itself readable when any of its descriptors
+        is, so the wait is a select() on it, whose timeout has microseconds; the events are
+        then collected without waiting.
+        """
+        remaining = deadline - self.clock()
+        if remaining > 0:
+            select.select([self.selector.fileno()], [], [], remaining)
+        return self.selector.select(0)
+
+    def _plan(self) -> tuple[float, float]:
+        end = self.tracker.frontier_time + 1.0 / self.config.rate_hz
+        return plan_wake(
+            end,
+            [
+                (1.0 / s.mouse.report_hz, s.latency, None if s.paced else s.source.health.last_t)
+                for s in self.slots
+                if s.live
+            ],
+        )
+
+    def _watch_sources(self, on: bool) -> None:
+        """Wake on readable sources only while a window is due but not closed yet."""
+        if on == self._watching:
+            return
+        if on:
+            self.selector.register(self.src_sel, selectors.EVENT_READ, _ignore)
+        else:
+            self.selector.unregister(self.src_sel)
+        self._watching = on
+
+    def _read_sources(self, now: float) -> None:
+        for key, _ in self.src_sel.select(0):
+            self._read_slot(key.data)
+        for slot in self.slots:
+            if slot.live and slot.paced:
+                self._read_slot(slot)
+        live = [slot for slot in self.slots if slot.live]
+        for slot in live:
+            self.tracker.complete_until(now - slot.latency, mouse=slot.index)
+        if not live:
+            # Nothing can report: windows close on time, as "not updated" (the pose holds).
+            self.tracker.complete_until(now)
 
     def _shutdown(self) -> None:
         self.notifier.stopping()
@@ -262,14 +321,22 @@ class Daemon:
                 self._publish(self.tracker.finish())
             except Exception:  # noqa: BLE001 - shutting down: log, do not mask the exit
                 log.exception("flushing the last poses failed")
+        if self.recording is not None:
+            try:
+                self.recording.close()
+            except OSError as e:
+                log.error("closing the recording failed: %s", e)
+            self.recording = None
         self.server.close()
         for slot in self.slots:
             self._close_slot(slot)
         if self.handle_signals:
             self._restore_signals()
         self.selector.close()
+        self.src_sel.close()
         os.close(self._wake_r)
-        os.close(self._wake_w)
+        wake_w, self._wake_w = self._wake_w, -1
+        os.close(wake_w)
         self.notifier.close()
         log.info("stopped after %d poses", self.poses)
 
@@ -285,7 +352,10 @@ class Daemon:
     def _new_slot(self, index: int, mouse: MouseConfig) -> Slot:
         source = self.source_factory(mouse, self.clock)
         latency = float(getattr(source, "latency", DEFAULT_LATENCY_S))
-        return Slot(index=index, mouse=mouse, source=source, latency=latency)
+        paced = callable(getattr(source, "next_due", None))
+        if paced:
+            latency = 0.0  # a paced source hands over every report due by ``now``
+        return Slot(index=index, mouse=mouse, source=source, latency=latency, paced=paced)
 
     def _try_open(self, slot: Slot, now: float) -> None:
         try:
@@ -298,20 +368,18 @@ class Daemon:
             slot.retry_at = now + RETRY_S
             self.tracker.set_live(slot.index, False, now)
             return
-        slot.fd = fd if fd is not None and fd >= 0 else None
+        slot.fd = fd if fd is not None and fd >= 0 and not slot.paced else None
         if slot.fd is not None:
-            self.selector.register(slot.fd, selectors.EVENT_READ, self._reader(slot))
+            self.src_sel.register(slot.fd, selectors.EVENT_READ, slot)
         slot.live = True
         slot.announced.pop("error", None)
         self.tracker.set_live(slot.index, True, now)
         log.info("%s: open (%s)", slot.name, slot.source.kind)
         self._sources_changed(now)
 
-    def _reader(self, slot: Slot) -> Callable[[int], None]:
-        return lambda mask: self._read_slot(slot)
-
     def _read_slot(self, slot: Slot) -> None:
         now = self.clock()
+        self.source_reads += 1
         try:
             batches = slot.source.read(now)
         except SourceGone as e:
@@ -326,6 +394,8 @@ class Daemon:
         for batch in batches:
             if len(batch):
                 self.tracker.push(slot.index, batch.t, batch.dx, batch.dy)
+                if self.recording is not None:
+                    self.recording.motion(slot.index, batch.t, batch.dx, batch.dy)
 
     def _gone(self, slot: Slot, now: float, why: str) -> None:
         log.warning(
@@ -339,7 +409,7 @@ class Daemon:
     def _close_slot(self, slot: Slot) -> None:
         if slot.fd is not None:
             try:
-                self.selector.unregister(slot.fd)
+                self.src_sel.unregister(slot.fd)
             except (KeyError, ValueError):
                 pass
             slot.fd = None
@@ -393,8 +463,6 @@ class Daemon:
             self.poses += 1
             self.not_updated += not ok
             self.server.broadcast_pose(float(batch.t[i]), encode(msg), tolerance)
-            if self.on_pose is not None:
-                self.on_pose(float(batch.t[i]), time.monotonic())
 
     def _source_messages(self, now: float) -> list[dict[str, Any]]:
         out = []
@@ -458,6 +526,8 @@ class Daemon:
                 "poses": self.poses,
                 "not_updated": self.not_updated,
                 "dropped_clients": self.server.dropped,
+                "wakes": self.wakes,
+                "source_reads": self.source_reads,
                 "pose": self._pose_now(),
                 "counts_in": np.asarray(self.tracker.counts_in).tolist(),
                 "counts_out": np.asarray(self.tracker.counts_out).tolist(),
@@ -493,7 +563,7 @@ class Daemon:
         slots = []
         for i, mouse in enumerate(new.mice):
             prev = old.pop(mouse.name, None)
-            if prev is not None and _source_key(prev.mouse) == _source_key(mouse):
+            if prev is not None and source_key(prev.mouse) == source_key(mouse):
                 prev.index, prev.mouse = i, mouse
                 slots.append(prev)
             else:
@@ -502,6 +572,10 @@ class Daemon:
                 slots.append(self._new_slot(i, mouse))
         for gone in old.values():
             self._close_slot(gone)
+        if self.recording is not None and new.names != self.recording.names:
+            log.warning("the mice changed: recording %s stops here", self.recording.path)
+            self.recording.close()
+            self.recording = None
         self.config, self.tracker, self.slots = new, tracker, slots
         for slot in slots:
             if slot.live:

@@ -33,7 +33,15 @@ MAX_CLIENT_HZ = 10000.0
 
 
 class ProtocolError(ValueError):
-    """A client line that is not a valid command; the message goes back in an ERROR."""
+    """A client line that is not a valid command; the message goes back in an ERROR.
+
+    ``id`` is the command's id when the line was an object that had one, so that the
+    client can tell which of its commands failed.
+    """
+
+    def __init__(self, message: str, id: Any = None) -> None:
+        super().__init__(message)
+        self.id = id
 
 
 @dataclass(frozen=True)
@@ -113,6 +121,13 @@ def parse_command(line: bytes) -> Command:
         raise ProtocolError(f"invalid JSON at column {e.colno}: {e.msg}") from None
     if not isinstance(obj, dict):
         raise ProtocolError('a command is a JSON object such as {"cmd": "status"}')
+    try:
+        return _command(obj)
+    except ProtocolError as e:
+        raise ProtocolError(str(e), obj.get("id")) from None
+
+
+def _command(obj: dict[str, Any]) -> Command:
     name = obj.get("cmd")
     if not isinstance(name, str):
         raise ProtocolError('missing "cmd" (one of: ' + ", ".join(COMMANDS) + ")")

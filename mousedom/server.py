@@ -290,7 +290,7 @@ class Server:
         try:
             cmd = parse_command(line)
         except ProtocolError as e:
-            return [error_message(str(e))]
+            return [error_message(str(e), e.id)]
         if cmd.name in POSE_MOVING and not client.control:
             log.warning("%r may not %s the pose (server.control_uids/gids)", client, cmd.name)
             return [

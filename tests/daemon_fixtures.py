@@ -19,10 +19,12 @@ from pathlib import Path
 
 import numpy as np
 
+from mousedom import sim
 from mousedom.events import EV_REL, EV_SYN, EVENT_DTYPE, SYN_REPORT
 
 REPO = Path(__file__).resolve().parent.parent
 REL_X, REL_Y = 0, 1
+RATE = 50.0
 
 
 def input_events(t: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> bytes:
@@ -144,7 +146,9 @@ def write_rig_config(
 class DaemonProcess:
     """``mousedom run`` as a real child process."""
 
-    def __init__(self, config: Path, socket_path: Path, *args: str, env=None) -> None:
+    def __init__(
+        self, config: Path, socket_path: Path, *args: str, env=None, config_args: bool = True
+    ) -> None:
         environ = dict(os.environ)
         environ["PYTHONPATH"] = str(REPO) + os.pathsep + environ.get("PYTHONPATH", "")
         environ.update(env or {})
@@ -152,7 +156,8 @@ class DaemonProcess:
         self.stderr_path = socket_path.parent.parent / f"{socket_path.stem}.log"
         self._log = open(self.stderr_path, "w")  # noqa: SIM115 - closed in stop()
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "mousedom", "run", "--config", str(config)]
+            [sys.executable, "-m", "mousedom", "run"]
+            + (["--config", str(config)] if config_args else [])
             + ["--socket", str(socket_path), *args],
             stdout=subprocess.DEVNULL,
             stderr=self._log,
@@ -226,3 +231,32 @@ class Conn:
     def close(self) -> None:
         self.file.close()
         self.sock.close()
+
+
+def rig_runner(tmp_path):
+    """Generator behind the ``rig_run`` fixtures: yields ``start(trajectory, ...)`` that
+    runs a daemon on a three-mouse FIFO rig driving ``trajectory``; stops all at the end."""
+    started = []
+
+    def start(trajectory, extra: str = "", rate_hz: float = RATE, env=None, args=()):
+        rig = sim.three_mouse_rig()
+        fifos = {m.name: tmp_path / f"{m.name}.fifo" for m in rig.mice}
+        mice = {n: FifoMouse(p) for n, p in fifos.items()}
+        config = write_rig_config(tmp_path / "rig.yaml", rig, fifos, extra, rate_hz=rate_hz)
+        daemon = DaemonProcess(config, tmp_path / "run" / "mousedom.sock", *args, env=env)
+        daemon.wait_socket()
+        for m in mice.values():
+            m.attach()
+        result = sim.simulate(rig, trajectory, seed=3)
+        feeder = Feeder(mice, result.reports, time.monotonic() + 0.1)
+        feeder.start()
+        ctx = type("Run", (), {})()
+        ctx.rig, ctx.fifos, ctx.mice, ctx.config = rig, fifos, mice, config
+        ctx.daemon, ctx.feeder, ctx.result, ctx.fifo_paths = daemon, feeder, result, fifos
+        started.append(ctx)
+        return ctx
+
+    yield start
+    for ctx in started:
+        ctx.feeder.stop()
+        ctx.daemon.stop()

@@ -8,47 +8,24 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import signal
 import socket
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
-from daemon_fixtures import Conn, DaemonProcess, Feeder, FifoMouse, write_rig_config
+from conftest import run_mousedom
+from daemon_fixtures import RATE, Conn, rig_runner
 
 from mousedom import sim
-
-RATE = 50.0
 
 
 @pytest.fixture
 def rig_run(tmp_path):
-    """Start a daemon on a three-mouse FIFO rig driving ``trajectory``; yields a context."""
-    started = []
-
-    def start(trajectory, extra: str = "", rate_hz: float = RATE, env=None):
-        rig = sim.three_mouse_rig()
-        fifos = {m.name: tmp_path / f"{m.name}.fifo" for m in rig.mice}
-        mice = {n: FifoMouse(p) for n, p in fifos.items()}
-        config = write_rig_config(tmp_path / "rig.yaml", rig, fifos, extra, rate_hz=rate_hz)
-        daemon = DaemonProcess(config, tmp_path / "run" / "mousedom.sock", env=env)
-        daemon.wait_socket()
-        for m in mice.values():
-            m.attach()
-        result = sim.simulate(rig, trajectory, seed=3)
-        feeder = Feeder(mice, result.reports, time.monotonic() + 0.1)
-        feeder.start()
-        ctx = type("Run", (), {})()
-        ctx.rig, ctx.fifos, ctx.mice, ctx.config = rig, fifos, mice, config
-        ctx.daemon, ctx.feeder, ctx.result, ctx.fifo_paths = daemon, feeder, result, fifos
-        started.append(ctx)
-        return ctx
-
-    yield start
-    for ctx in started:
-        ctx.feeder.stop()
-        ctx.daemon.stop()
+    yield from rig_runner(tmp_path)
 
 
 def _rate(poses: list[dict]) -> float:
@@ -232,10 +209,12 @@ def test_sensor_vanishes_and_returns(rig_run):
     assert run.daemon.stop() == 0
 
 
-def test_pose_tracks_the_simulated_motion(rig_run):
-    """The daemon's pose after a quarter turn and a leg matches the simulator's truth."""
+def test_pose_tracks_the_simulated_motion_and_records_it(rig_run, tmp_path):
+    """The pose after a quarter turn and a leg matches the simulator's truth; --record
+    keeps every report, flushed on SIGINT, and replays to the same pose."""
     traj = sim.sequence(sim.turn(math.pi / 2, 1.5), sim.straight(0.2, 0.2))
-    run = rig_run(traj)
+    record = tmp_path / "run.mdcap"
+    run = rig_run(traj, args=("--record", str(record)))
     c = Conn(run.daemon.socket_path)
     c.until("VERSION")
     time.sleep(run.result.duration + 0.4)
@@ -247,3 +226,49 @@ def test_pose_tracks_the_simulated_motion(rig_run):
     assert pose["y"] == pytest.approx(truth[1], abs=0.01)
     os.kill(run.daemon.proc.pid, signal.SIGINT)
     assert run.daemon.proc.wait(2) == 0
+
+    from mousedom.capture import open_capture
+
+    cap = open_capture(str(record))
+    got = {d.mouse: 0 for d in cap.devices}
+    sums = {d.mouse: np.zeros(2) for d in cap.devices}
+    for feed in cap.feeds():
+        for batch in feed.batches:
+            for mo in batch.motion:
+                name = cap.devices[mo.device].mouse
+                got[name] += len(mo.t)
+                sums[name] += (mo.dx.sum(), mo.dy.sum())
+    assert got == run.feeder.sent  # every report that was fed is in the recording
+    for name, rep in run.result.reports.items():
+        assert tuple(sums[name]) == (rep.dx.sum(), rep.dy.sum())
+    out = run_mousedom("replay", "--config", str(run.config), "--capture", str(record))
+    assert out.returncode == 0, out.stderr
+    m = re.search(
+        r"final pose\s+x ([-+.\d]+) m\s+y ([-+.\d]+) m\s+theta ([-+.\d]+) rad", out.stdout
+    )
+    assert m, out.stdout
+    assert [float(v) for v in m.groups()] == pytest.approx(list(truth), abs=2e-3)
+
+
+def test_demo_runs_the_bundled_capture_in_real_time(tmp_path):
+    """``mousedom run --demo``: the real daemon on the bundled simulated capture."""
+    from daemon_fixtures import DaemonProcess
+
+    sock = tmp_path / "run" / "demo.sock"
+    daemon = DaemonProcess(Path("unused"), sock, "--demo", config_args=False)
+    try:
+        daemon.wait_socket()
+        c = Conn(sock)
+        banner = c.until("VERSION")
+        assert banner["sensors"] == ["front", "left", "right"]
+        t = time.monotonic()
+        poses = c.poses(1.5)
+        wall = time.monotonic() - t
+        assert len(poses) / wall == pytest.approx(banner["rate_hz"], rel=0.1)
+        assert all(p["updating"] and p["used"] == 3 for p in poses)
+        moved = math.hypot(poses[-1]["x"] - poses[0]["x"], poses[-1]["y"] - poses[0]["y"])
+        turned = abs(poses[-1]["theta"] - poses[0]["theta"])
+        assert moved > 0.05 or turned > 0.05  # the demo rig drives around
+        assert "demo: a simulated rig" in daemon.log()
+    finally:
+        assert daemon.stop() == 0

@@ -135,3 +135,12 @@ def test_version_and_error():
     v = version_message(100.0, ["l", "r"], False, "lsq")
     assert v["class"] == "VERSION" and v["proto_major"] == 1 and v["sensors"] == ["l", "r"]
     assert error_message("bad", id=3) == {"class": "ERROR", "message": "bad", "id": 3}
+
+
+def test_errors_keep_the_id_of_a_bad_command():
+    with pytest.raises(ProtocolError) as info:
+        parse_command(b'{"cmd": "fix", "id": 42}')
+    assert info.value.id == 42
+    with pytest.raises(ProtocolError) as info:
+        parse_command(b"[42]")
+    assert info.value.id is None

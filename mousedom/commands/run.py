@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import logging
 import os
 import sys
@@ -67,13 +68,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="run on the bundled capture of a simulated rig, replayed in real time, looping",
     )
     p.add_argument(
+        "--record",
+        metavar="FILE",
+        help="also write every sensor report to FILE (native capture, for mousedom replay)",
+    )
+    p.add_argument(
         "--verbose", action="store_true", default=argparse.SUPPRESS, help="debug logging"
     )
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from mousedom.daemon import Daemon
+    from mousedom.daemon import Daemon, make_source
     from mousedom.server import default_socket_path
 
     configure_logging(bool(getattr(args, "verbose", False)))
@@ -95,4 +101,5 @@ def run(args: argparse.Namespace) -> int:
                 ) from None
             raise
     socket_path = args.socket or config.server.socket or default_socket_path()
-    return Daemon(config, socket_path).run()
+    factory = functools.partial(make_source, loop=True) if args.demo else make_source
+    return Daemon(config, socket_path, source_factory=factory, record=args.record).run()

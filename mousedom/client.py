@@ -1,0 +1,192 @@
+"""A Python client of the daemon's socket: an iterator of poses, and the commands.
+
+    from mousedom.client import Client
+
+    with Client() as c:              # finds the socket like ``mousedom watch`` does
+        c.rate(10)                   # ten poses a second for this client
+        for pose in c:               # blocks; ends when the daemon goes away
+            print(pose.x, pose.y, pose.theta, pose.updating)
+
+Other messages (SOURCE, STATUS) are kept as they pass: ``c.sources`` holds the latest
+SOURCE per sensor.  Commands wait for their OK (or raise ``CommandError`` on ERROR); poses
+that arrive meanwhile are kept for the iterator, none is lost.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import os
+import socket
+from collections import deque
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Any
+
+from mousedom.errors import UserError
+from mousedom.server import SOCKET_NAME, default_socket_path
+
+
+class CommandError(Exception):
+    """The daemon answered a command with ERROR."""
+
+
+@dataclass(frozen=True)
+class Pose:
+    t: float
+    x: float
+    y: float
+    theta: float
+    vx: float
+    vy: float
+    omega: float
+    cov: tuple[tuple[float, ...], ...]
+    used: int
+    updating: bool
+    missing: tuple[str, ...]
+
+    @classmethod
+    def from_message(cls, m: dict[str, Any]) -> Pose:
+        nan = float("nan")
+
+        def num(v: Any) -> float:
+            return nan if v is None else float(v)
+
+        return cls(
+            t=num(m["t"]),
+            x=num(m["x"]),
+            y=num(m["y"]),
+            theta=num(m["theta"]),
+            vx=num(m["vx"]),
+            vy=num(m["vy"]),
+            omega=num(m["omega"]),
+            cov=tuple(tuple(num(c) for c in row) for row in m["cov"]),
+            used=int(m["used"]),
+            updating=bool(m["updating"]),
+            missing=tuple(m.get("missing", ())),
+        )
+
+
+def socket_candidates(environ: dict[str, str] | None = None) -> list[str]:
+    """Where a daemon's socket may be, most likely first (see ``default_socket_path``)."""
+    env = os.environ if environ is None else environ
+    uid = os.getuid()
+    out = [default_socket_path(env, uid), os.path.join("/run/mousedom", SOCKET_NAME)]
+    if env.get("XDG_RUNTIME_DIR"):
+        out.append(os.path.join(env["XDG_RUNTIME_DIR"], "mousedom", SOCKET_NAME))
+    tmp = env.get("TMPDIR") or "/tmp"
+    out.append(os.path.join(tmp, f"mousedom-{uid}", SOCKET_NAME))
+    return list(dict.fromkeys(out))
+
+
+def find_socket(environ: dict[str, str] | None = None) -> str:
+    """The first candidate socket that exists, else the default one."""
+    candidates = socket_candidates(environ)
+    for path in candidates:
+        if os.path.exists(path):
+            return path
+    return candidates[0]
+
+
+class Client:
+    """One connection to the daemon; iterate it for poses."""
+
+    def __init__(self, path: str | None = None, timeout: float | None = None) -> None:
+        self.path = path or find_socket()
+        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM | socket.SOCK_CLOEXEC)
+        try:
+            self.sock.connect(self.path)
+        except OSError as e:
+            self.sock.close()
+            raise UserError(
+                f"{self.path}: cannot connect: {e.strerror} (is the daemon running? "
+                "start it with `mousedom run`, or give --socket)"
+            ) from None
+        self.sock.settimeout(timeout)
+        self._file = self.sock.makefile("rb")
+        self._pending: deque[dict[str, Any]] = deque()
+        self._ids = itertools.count(1)
+        self.sources: dict[str, dict[str, Any]] = {}
+        self.version = self._read()
+        if self.version.get("class") != "VERSION":
+            raise UserError(f"{self.path}: not a mousedom socket (no VERSION banner)")
+
+    def __enter__(self) -> Client:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self._file.close()
+        self.sock.close()
+
+    # ------------------------------------------------------------------ reading
+
+    def _read(self) -> dict[str, Any]:
+        line = self._file.readline()
+        if not line:
+            raise EOFError("the daemon closed the connection")
+        msg = json.loads(line)
+        if msg.get("class") == "SOURCE":
+            self.sources[msg.get("name")] = msg
+        return msg
+
+    def messages(self) -> Iterator[dict[str, Any]]:
+        """Every message as a dict, until the daemon closes the connection."""
+        while True:
+            if self._pending:
+                yield self._pending.popleft()
+                continue
+            try:
+                yield self._read()
+            except EOFError:
+                return
+
+    def __iter__(self) -> Iterator[Pose]:
+        for msg in self.messages():
+            if msg.get("class") == "POSE":
+                yield Pose.from_message(msg)
+
+    # ------------------------------------------------------------------ commands
+
+    def command(self, cmd: str, **args: float) -> dict[str, Any]:
+        """Send one command and return its answer (OK or STATUS); ERROR raises."""
+        ident = next(self._ids)
+        line = json.dumps({"cmd": cmd, "id": ident, **args}) + "\n"
+        self.sock.sendall(line.encode())
+        while True:
+            msg = self._read()
+            cls = msg.get("class")
+            # Commands are answered in order; an ERROR without an id (a line the daemon
+            # could not even read as an object) can only be ours.
+            if (msg.get("id") == ident and cls in ("OK", "STATUS", "ERROR")) or (
+                cls == "ERROR" and "id" not in msg
+            ):
+                if cls == "ERROR":
+                    raise CommandError(msg.get("message", "error"))
+                return msg
+            self._pending.append(msg)
+
+    def reset(self, x: float = 0.0, y: float = 0.0, theta: float = 0.0) -> dict[str, Any]:
+        return self.command("reset", x=x, y=y, theta=theta)
+
+    def fix(
+        self, x: float | None = None, y: float | None = None, theta: float | None = None
+    ) -> dict[str, Any]:
+        given = {k: v for k, v in (("x", x), ("y", y), ("theta", theta)) if v is not None}
+        return self.command("fix", **given)
+
+    def rate(self, hz: float) -> dict[str, Any]:
+        return self.command("rate", hz=hz)
+
+    def status(self) -> dict[str, Any]:
+        return self.command("status")
+
+
+def poses(path: str | None = None, rate_hz: float | None = None) -> Iterator[Pose]:
+    """Poses from the daemon at ``path`` until it goes away."""
+    with Client(path) as c:
+        if rate_hz is not None:
+            c.rate(rate_hz)
+        yield from c

@@ -1,0 +1,43 @@
+"""Which source class reads a configured mouse: evdev, serial ADNS-3080 or replay."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Any
+
+from mousedom.config import MouseConfig
+from mousedom.errors import UserError
+from mousedom.sources.base import Source
+
+Clock = Callable[[], float]
+
+
+def make_source(mouse: MouseConfig, clock: Clock = time.monotonic, loop: bool = False) -> Source:
+    """The backend a mouse's config asks for: evdev, serial ADNS-3080 or replay.
+
+    A replay is paced on ``clock`` (real time) and starts again at its end with ``loop``.
+    """
+    try:
+        if mouse.evdev is not None:
+            from mousedom.sources.evdev import EvdevSource
+
+            return EvdevSource(mouse)
+        if mouse.serial is not None:
+            from mousedom.sources.adns import AdnsSource
+
+            return AdnsSource(mouse)
+        if mouse.replay is not None:
+            from mousedom.sources.replay import ReplaySource
+
+            return ReplaySource(
+                mouse.name, mouse.replay, device=mouse.replay_device, loop=loop, clock=clock
+            )
+    except ImportError as e:
+        raise UserError(f"mice.{mouse.name}: this build has no such source ({e})") from None
+    raise UserError(f"mice.{mouse.name}: says nowhere where the mouse comes from")
+
+
+def source_key(mouse: MouseConfig) -> tuple[Any, ...]:
+    """What identifies a mouse's device: when it changes on reload, the source is reopened."""
+    return (mouse.evdev, mouse.serial, mouse.replay, mouse.replay_device)

@@ -1,0 +1,128 @@
+"""``mousedom.client`` and ``mousedom watch`` against a real daemon; CLI errors of run/watch."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from conftest import mousedom_env, run_mousedom
+from daemon_fixtures import RATE, rig_runner
+
+from mousedom import sim
+from mousedom.client import Client, CommandError, Pose, find_socket, poses, socket_candidates
+from mousedom.errors import UserError
+
+
+@pytest.fixture
+def rig_run(tmp_path):
+    yield from rig_runner(tmp_path)
+
+
+def test_client_iterates_poses_and_sends_commands(rig_run):
+    run = rig_run(sim.straight(1.0, 0.2))
+    with Client(str(run.daemon.socket_path), timeout=5) as c:
+        assert c.version["class"] == "VERSION" and c.version["rate_hz"] == RATE
+        assert c.rate(10)["hz"] == 10
+        got = []
+        for pose in c:
+            assert isinstance(pose, Pose) and len(pose.cov) == 3
+            got.append(pose)
+            if len(got) == 8:
+                break
+        # (poses sent before the rate command took effect come first, at the full rate)
+        gaps = [round(b.t - a.t, 3) for a, b in zip(got, got[1:], strict=False)]
+        assert gaps[-4:] == [0.1] * 4
+        assert c.reset(x=1.0, theta=math.pi / 2)["pose"] == {
+            "x": 1.0,
+            "y": 0.0,
+            "theta": math.pi / 2,
+        }
+        fixed = c.fix(y=-2.0)["pose"]
+        assert fixed["y"] == -2.0 and fixed["theta"] == pytest.approx(math.pi / 2, abs=0.05)
+        status = c.status()
+        assert status["class"] == "STATUS" and status["rate_hz"] == RATE
+        with pytest.raises(CommandError, match="at least one of x, y, theta"):
+            c.fix()
+        with pytest.raises(CommandError, match="hz must be between"):
+            c.rate(-1)
+        # poses that arrived while commands waited for answers are not lost
+        nxt = next(iter(c))
+        assert nxt.t > got[-1].t
+        assert set(c.sources) == {"front", "left", "right"}
+
+
+def test_poses_generator(rig_run):
+    run = rig_run(sim.straight(0.5, 0.2))
+    it = poses(str(run.daemon.socket_path), rate_hz=25)
+    first, second = next(it), next(it)
+    assert second.t - first.t == pytest.approx(0.04, abs=1e-3)
+    it.close()
+
+
+def test_client_without_daemon_is_a_user_error(tmp_path):
+    with pytest.raises(UserError, match="cannot connect.*is the daemon running"):
+        Client(str(tmp_path / "none.sock"))
+
+
+def test_socket_discovery(tmp_path):
+    """The first candidate that exists wins; with none, the default path."""
+    import os
+
+    env = {"XDG_RUNTIME_DIR": str(tmp_path / "xdg"), "TMPDIR": str(tmp_path / "t")}
+    cands = socket_candidates(env)
+    assert len(cands) == len(set(cands))
+    assert str(tmp_path / "t" / f"mousedom-{os.getuid()}" / "mousedom.sock") in cands
+    existing = [p for p in cands if os.path.exists(p)]
+    if existing:  # a daemon runs on this machine: it is found first
+        assert find_socket(env) == existing[0]
+        return
+    assert find_socket(env) == cands[0]
+    os.makedirs(os.path.dirname(cands[-1]))
+    open(cands[-1], "w").close()
+    assert find_socket(env) == cands[-1]
+
+
+def test_watch_prints_poses_and_stops_after_count(rig_run):
+    run = rig_run(sim.straight(1.0, 0.2))
+    out = run_mousedom("watch", "--socket", str(run.daemon.socket_path), "--count", "3", timeout=20)
+    assert out.returncode == 0, out.stderr
+    lines = out.stdout.splitlines()
+    assert lines[0].startswith("mousedom 0.1.0 at ") and "model lsq" in lines[0]
+    pose_lines = [x for x in lines if x.startswith("t ")]
+    assert len(pose_lines) == 3 and "3 used, updating" in pose_lines[0]
+    assert any(x.startswith("source front") for x in lines)
+
+    raw = run_mousedom(
+        "watch", "--socket", str(run.daemon.socket_path), "--count", "2", "--json", timeout=20
+    )
+    assert raw.returncode == 0
+    assert raw.stdout.count('"class": "POSE"') == 2
+
+
+def test_watch_without_daemon_says_so(tmp_path):
+    out = run_mousedom("watch", "--socket", str(tmp_path / "no.sock"))
+    assert out.returncode == 2
+    assert "cannot connect" in out.stderr and "mousedom run" in out.stderr
+    assert "Traceback" not in out.stderr
+
+
+def test_run_config_errors_are_one_line(tmp_path):
+    out = run_mousedom("run", "--config", str(tmp_path / "missing.yaml"))
+    assert out.returncode == 2 and "missing.yaml: config file not found" in out.stderr
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("rate_hz: 100\nmodel: lsq\nmice:\n  a: {cpi: -5}\n")
+    out = run_mousedom("run", "--config", str(bad))
+    assert out.returncode == 2 and f"{bad}:4" in out.stderr and "Traceback" not in out.stderr
+    out = run_mousedom("run", "--demo", "--config", str(bad))
+    assert out.returncode == 2 and "exclude each other" in out.stderr
+
+
+def test_run_without_config_points_at_demo(tmp_path):
+    import os
+
+    if os.path.exists("/etc/mousedom/mousedom.yaml"):
+        pytest.skip("a real config is installed on this machine")
+    out = run_mousedom("run", env=mousedom_env())
+    assert out.returncode == 2
+    assert "/etc/mousedom/mousedom.yaml: config file not found" in out.stderr
+    assert "mousedom run --demo" in out.stderr

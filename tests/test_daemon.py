@@ -1,0 +1,209 @@
+"""The daemon loop in-process: a pipe-backed test source, wake planning, logging, factory."""
+
+from __future__ import annotations
+
+import io
+import logging
+import os
+import struct
+import threading
+import time
+
+import numpy as np
+import pytest
+from daemon_fixtures import Conn
+
+from mousedom.commands.run import JournalFormatter, configure_logging
+from mousedom.config import parse_config
+from mousedom.daemon import WAKE_SLACK_S, Daemon, plan_wake
+from mousedom.errors import UserError
+from mousedom.sources.base import Reports, Source, SourceGone
+from mousedom.sources.factory import make_source
+
+RECORD = struct.Struct("<ddd")  # t, dx, dy
+
+
+class PipeSource(Source):
+    """Reads (t, dx, dy) float64 records from a real pipe; EOF is an unplug."""
+
+    kind = "pipe"
+
+    def __init__(self, name: str) -> None:
+        super().__init__(name)
+        self.r, self.w = os.pipe()
+        os.set_blocking(self.r, False)
+        self.fail_next = False
+        self.open_count = 0
+        self._rest = b""
+
+    def _open(self) -> None:
+        self.open_count += 1
+
+    def fileno(self) -> int:
+        return self.r
+
+    def _read(self, now: float) -> list[Reports]:
+        if self.fail_next:
+            raise RuntimeError("driver bug")
+        try:
+            data = os.read(self.r, 65536)
+        except BlockingIOError:
+            return []
+        if not data:
+            raise SourceGone(f"{self.name}: end of stream")
+        data = self._rest + data
+        n = len(data) // RECORD.size
+        self._rest = data[n * RECORD.size :]
+        rec = np.frombuffer(data[: n * RECORD.size], dtype="<f8").reshape(-1, 3)
+        return [Reports(self.name, rec[:, 0], rec[:, 1], rec[:, 2])]
+
+    def write(self, t, dx, dy) -> None:
+        os.write(self.w, np.column_stack([t, dx, dy]).astype("<f8").tobytes())
+
+
+CONFIG = """
+rate_hz: 50
+model: {model}
+mice:
+{mice}
+"""
+
+
+def _config(model: str, mounts: dict[str, tuple[float, float]]):
+    mice = "\n".join(
+        f"  {n}: {{evdev: {{path: /dev/null}}, cpi: 1000, mount: {{x: {x}, y: {y}}}, "
+        "report_hz: 500}"
+        for n, (x, y) in mounts.items()
+    )
+    return parse_config(CONFIG.format(model=model, mice=mice), "rig.yaml")
+
+
+@pytest.fixture
+def inproc(tmp_path):
+    running = []
+
+    def start(model, mounts):
+        sources = {n: PipeSource(n) for n in mounts}
+        d = Daemon(
+            _config(model, mounts),
+            str(tmp_path / "d.sock"),
+            source_factory=lambda m, clock: sources[m.name],
+            handle_signals=False,
+        )
+        th = threading.Thread(target=d.run)
+        th.start()
+        deadline = time.monotonic() + 5
+        while not os.path.exists(d.server.path):
+            assert time.monotonic() < deadline
+            time.sleep(0.01)
+        running.append((d, th))
+        return d, sources
+
+    yield start
+    for d, th in running:
+        d.request_stop()
+        th.join(5)
+
+
+def test_plan_wake_predicts_the_first_report_after_the_window():
+    end = 10.0
+    mice = [(0.001, 0.003, end - 0.00075 + k * 0.00025) for k in range(4)]
+    wake, give_up = plan_wake(end, mice)
+    # each mouse's next report is its last + 1 ms; the latest is end + 1 ms
+    assert wake == pytest.approx(end + 0.001 + WAKE_SLACK_S)
+    assert give_up == pytest.approx(end + 0.004)
+    # a mouse already past the end and one never seen add nothing to wait for
+    assert plan_wake(end, [(0.001, 0.003, end + 0.0005), (0.008, 0.003, None)])[0] == (
+        pytest.approx(end + WAKE_SLACK_S)
+    )
+    # a mouse silent for long: its slot after the end is still within one period
+    wake, _ = plan_wake(end, [(0.008, 0.003, end - 1.0002)])
+    assert end < wake - WAKE_SLACK_S <= end + 0.008
+    assert plan_wake(end, []) == (end + WAKE_SLACK_S, end)
+
+
+def test_counts_are_conserved_through_the_loop(inproc):
+    d, src = inproc("lsq", {"a": (0.1, 0.0), "b": (-0.1, 0.0)})
+    c = Conn(d.server.path)
+    c.until("VERSION")
+    t0 = time.monotonic()
+    t = t0 + np.arange(1, 301) * 0.002
+    for name in src:
+        src[name].write(t, np.full(300, 1.0), np.full(300, -2.0))  # all at once, stamped ahead
+    time.sleep(0.8)
+    c.send({"cmd": "status"})
+    st = c.until("STATUS")
+    assert st["counts_in"] == [[300.0, -600.0], [300.0, -600.0]]
+    d.request_stop()
+    time.sleep(0.3)
+    # after finish() every count is in some window
+    assert np.allclose(d.tracker.counts_out, d.tracker.counts_in)
+    # both mice moved forward by 600 counts at 1000 CPI: 0.01524 m, no rotation
+    assert d.tracker.pose[0] == pytest.approx(600 / 1000 * 0.0254, abs=1e-9)
+    assert d.tracker.pose[2] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_a_source_that_raises_is_dropped_not_fatal(inproc, caplog):
+    d, src = inproc("lsq", {"a": (0.1, 0.0), "b": (-0.1, 0.0), "c": (0.0, 0.1)})
+    c = Conn(d.server.path)
+    c.until("VERSION")
+    src["c"].fail_next = True
+    now = time.monotonic()
+    for s in src.values():
+        s.write([now], [1.0], [0.0])
+    pose = c.until("POSE", lambda m: m["missing"] == ["c"])
+    assert pose["updating"]
+    assert "c: read failed" in caplog.text
+    src["c"].fail_next = False
+    c.until("POSE", lambda m: m["missing"] == [], limit=200)  # reopened a second later
+    assert src["c"].open_count == 2
+
+
+def test_diff_drive_single_mouse_loses_rank_when_it_goes(inproc):
+    """Hong's model works with one mouse ahead of the axle; without it: not updated."""
+    d, src = inproc("diff-drive", {"nose": (0.2, 0.0)})
+    c = Conn(d.server.path)
+    c.until("VERSION")
+    os.close(src["nose"].w)  # EOF: the mouse is gone
+    # (windows that ended before the loss may still be published as updated)
+    held = c.until("POSE", lambda m: m["missing"] == ["nose"] and not m["updating"], limit=20)
+    more = [c.until("POSE") for _ in range(5)]
+    assert not held["updating"] and not any(m["updating"] for m in more)
+    assert {(m["x"], m["y"], m["theta"]) for m in more} == {(0.0, 0.0, 0.0)}
+    # with no sensor at all the loop still sleeps between windows (it once spun)
+    w0 = d.wakes
+    time.sleep(0.5)
+    assert d.wakes - w0 < 100  # 25 windows at 50 Hz, retries, status
+
+
+def test_journal_formatter_prefixes_each_line_with_its_priority():
+    f = JournalFormatter("%(name)s: %(message)s")
+    rec = logging.LogRecord("mousedom.x", logging.ERROR, __file__, 1, "a\nb", None, None)
+    assert f.format(rec) == "<3>mousedom.x: a\n<3>b"
+    rec = logging.LogRecord("m", logging.INFO, __file__, 1, "ok", None, None)
+    assert f.format(rec) == "<6>m: ok"
+
+
+def test_configure_logging_uses_journal_format_under_systemd():
+    root = logging.getLogger()
+    saved = root.handlers[:], root.level
+    stream = io.StringIO()
+    root.handlers = [logging.StreamHandler(stream)]
+    try:
+        configure_logging(False, {"JOURNAL_STREAM": "8:1234"})
+        logging.getLogger("mousedom.t").warning("careful")
+        configure_logging(True, {})
+        logging.getLogger("mousedom.t").debug("detail")
+    finally:
+        root.handlers, level = saved
+        root.setLevel(level)
+    assert stream.getvalue() == "<4>mousedom.t: careful\nDEBUG mousedom.t: detail\n"
+
+
+def test_make_source_needs_a_source():
+    mouse = _config("lsq", {"a": (0.1, 0.0), "b": (-0.1, 0.0)}).mice[0]
+    from dataclasses import replace
+
+    with pytest.raises(UserError, match="mice.a: says nowhere"):
+        make_source(replace(mouse, evdev=None))
+    assert make_source(mouse).kind == "evdev"

@@ -1,0 +1,95 @@
+"""udev/99-mousedom.rules: well-formed, and it gives what the example config expects.
+
+udev itself is not in this container (no /dev/input, no udevd), so the rules are parsed
+here with the syntax of udev(7); where ``udevadm verify`` exists (systemd >= 254) it
+checks them too.
+"""
+
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+from mousedom.config import load_config
+
+ROOT = Path(__file__).resolve().parent.parent
+RULES = ROOT / "udev" / "99-mousedom.rules"
+EXAMPLE = ROOT / "config" / "mousedom.yaml"
+
+# udev(7): KEY[{attr}] OP "value"; match keys take == and !=, the rest assign.
+TOKEN = re.compile(r'\s*([A-Z_]+)(?:\{([^}]*)\})?\s*(==|!=|\+=|-=|:=|=)\s*"((?:[^"\\]|\\.)*)"\s*')
+MATCH_KEYS = {"ACTION", "KERNEL", "SUBSYSTEM", "SUBSYSTEMS", "ATTRS", "ATTR", "ENV", "TAG"}
+ASSIGN_KEYS = {"SYMLINK", "GROUP", "MODE", "OWNER", "ENV", "TAG", "GOTO", "LABEL", "RUN"}
+
+
+def parse_rules(text: str) -> list[list[tuple[str, str | None, str, str]]]:
+    rules = []
+    for number, line in enumerate(text.splitlines(), 1):
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue
+        tokens, pos = [], 0
+        while pos < len(line):
+            m = TOKEN.match(line, pos)
+            assert m, f"{RULES.name}:{number}: cannot parse at column {pos + 1}: {line[pos:]!r}"
+            key, attr, op, value = m.groups()
+            if op in ("==", "!="):
+                assert key in MATCH_KEYS, f"{RULES.name}:{number}: {key} cannot be matched"
+            else:
+                assert key in ASSIGN_KEYS, f"{RULES.name}:{number}: {key} cannot be assigned"
+            tokens.append((key, attr, op, value))
+            pos = m.end()
+            if pos < len(line):
+                assert line[pos] == ",", f"{RULES.name}:{number}: expected ',' at {pos + 1}"
+                pos += 1
+        rules.append(tokens)
+    return rules
+
+
+def test_rules_parse_and_every_goto_has_its_label():
+    rules = parse_rules(RULES.read_text())
+    labels = {v for r in rules for k, _, _, v in r if k == "LABEL"}
+    gotos = {v for r in rules for k, _, _, v in r if k == "GOTO"}
+    assert gotos <= labels, gotos - labels
+
+
+def test_parser_rejects_broken_rules():
+    import pytest
+
+    for bad in ('KERNEL="event*"', 'SYMLINK=="x"', 'ENV{A}="1" GROUP="input"', "MODE=0640"):
+        with pytest.raises(AssertionError):
+            parse_rules(bad)
+
+
+def test_mice_get_names_groups_and_the_desktop_ignores_them():
+    text = RULES.read_text()
+    rules = parse_rules(text)
+    flat = [t for r in rules for t in r]
+    assert ("ENV", "LIBINPUT_IGNORE_DEVICE", "=", "1") in flat
+    assert ("SYMLINK", None, "+=", "input/mousedom-$env{MOUSEDOM_NAME}") in flat
+    assert ("GROUP", None, "=", "input") in flat
+    assert ("TAG", None, "-=", "uaccess") in flat
+    named = {v for k, a, op, v in flat if k == "ENV" and a == "MOUSEDOM_NAME" and op == "="}
+    serial = [r for r in rules if ("SYMLINK", None, "+=", "mousedom-adns") in r]
+    assert len(serial) == 1 and ("GROUP", None, "=", "dialout") in serial[0]
+
+    # The example config reads exactly the devices that the rules name.
+    config = load_config(EXAMPLE)
+    evdev_paths = {m.evdev.path for m in config.mice if m.evdev}
+    assert evdev_paths == {f"/dev/input/mousedom-{name}" for name in named}
+    ports = {m.serial.port for m in config.mice if m.serial}
+    assert ports == {"/dev/mousedom-adns"}
+
+
+def test_udevadm_verify_where_available():
+    """``udevadm verify`` (systemd >= 254) when this machine has it; parsing above always."""
+    tool = shutil.which("udevadm")
+    parse_rules(RULES.read_text())
+    if tool is None:
+        return
+    help_text = subprocess.run([tool, "--help"], capture_output=True, text=True).stdout
+    if "verify" not in help_text:
+        return
+    out = subprocess.run([tool, "verify", str(RULES)], capture_output=True, text=True)
+    assert out.returncode == 0, out.stdout + out.stderr
