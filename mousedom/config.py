@@ -424,6 +424,8 @@ def _apply_calibration(mice: tuple[MouseConfig, ...], path: Path) -> tuple[Mouse
         raise ConfigError(
             located(str(path), None, f"cannot read calibration: {e.strerror}")
         ) from None
+    except UnicodeDecodeError as e:
+        raise ConfigError(f"{path}: byte offset {e.start}: not UTF-8 text") from None
     doc = _Doc(str(path), text)
     top = _Reader(doc, doc.data, ())
     section = top.sub("mice")

@@ -163,3 +163,10 @@ def test_serial_mouse_report_rate_follows_k():
     assert cfg.mouse("adns").report_hz == pytest.approx(1e6 / (12 * 1250))
     cfg = parse_config(text + "    serial: {port: 'loop://'}\n    report_hz: 50\n", "s.yaml")
     assert cfg.mouse("adns").report_hz == 50
+
+
+def test_binary_calibration_file_is_a_config_error(tmp_path):
+    (tmp_path / "rig.yaml").write_text(GOOD + "calibration: rig.calib.yaml\n")
+    (tmp_path / "rig.calib.yaml").write_bytes(b"mice:\n\x00\xff\xfe")
+    with pytest.raises(ConfigError, match=r"rig.calib.yaml: byte offset 7: not UTF-8"):
+        load_config(tmp_path / "rig.yaml")
