@@ -4,7 +4,9 @@
 # Used by .ci/run; on a developer machine run it once (as root or via sudo).
 set -eu
 
-PACKAGES="gcc-avr avr-libc simavr libsimavr-dev"
+# make, gcc and libc6-dev build and run the host-side unit tests and the simavr harness;
+# a slim CI image may lack them.
+PACKAGES="make gcc libc6-dev binutils-avr gcc-avr avr-libc simavr libsimavr-dev"
 
 missing=""
 for p in $PACKAGES; do

@@ -101,6 +101,20 @@ class DeviceInfo:
         return d
 
 
+def paths_for_root(root: str | None) -> SystemPaths:
+    """The ``--root DIR`` option of ``list`` and ``record``: DIR must exist.
+
+    A mistyped root would otherwise look like a machine without input devices, which
+    ``list`` reports as fine (exit 0): a silent wrong answer.
+    """
+    if root is None:
+        return SystemPaths()
+    if not os.path.isdir(root):
+        why = "not a directory" if os.path.exists(root) else "no such directory"
+        raise UserError(f"--root {root}: {why}")
+    return SystemPaths.under(root)
+
+
 @dataclass
 class Scan:
     """What ``scan()`` found: pointer devices and how many input nodes there were."""

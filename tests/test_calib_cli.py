@@ -230,6 +230,76 @@ def test_a_mouse_that_never_moved_is_named(cpi_session):
     )
 
 
+def test_run_counts_are_validated(cpi_session):
+    """Regression: --min-runs 0/-3 and --runs -3 were accepted; --min-runs 1 printed
+    "stderr": NaN (not JSON) with numpy warnings."""
+    tmp, cfg, files = cpi_session
+    base = ["calibrate", "cpi", "--config", str(cfg), "--capture", f"left={files['left']}"]
+    for flag, value in (("--min-runs", "0"), ("--min-runs", "-3"), ("--runs", "-3")):
+        fails(run_mousedom(*base, "--distance", "0.2", flag, value), flag, "must be 1 or more")
+    fails(run_mousedom(*base, "--distance", "0.2", "--runs", "2.5"), "not a whole number")
+    # Regression: --distance 20 (centimetres) gave cpi 4.5 against 400 configured, silently.
+    p = ok(run_mousedom(*base, "--distance", "20"))
+    assert "mousedom: warning: mouse left: cpi 4.5 is -99% off the configured 400" in p.stderr
+    assert "is --distance right (metres: 20 m = 20000 mm)?" in p.stderr
+    p = ok(run_mousedom(*base, "--distance", "0.2"))  # 455 vs 400: within 25 %, no warning
+    assert "warning" not in p.stderr
+    # One push: no standard error, so no answer, whatever --min-runs says.
+    one = write_evemu(
+        tmp / "one.events",
+        mouse_reports(SynthMouse("left", 0, 0.1, 450, 455), build_motion([(0.2, 0, 0, 1.2)])),
+    )
+    p = fails(
+        run_mousedom(
+            "calibrate", "cpi", "--config", str(cfg), "--capture", f"left={one}",
+            "--distance", "0.2", "--min-runs", "1", "--json",
+        ),
+        "mouse left: 1 run(s), need at least 2 for a standard error",
+    )  # fmt: skip
+    assert p.stdout == "" and "RuntimeWarning" not in p.stderr
+
+
+def test_mounts_window_and_min_runs_are_validated(mounts_session):
+    """Regression: --window nan was a traceback, --window -1 silently meant 0, and mounts
+    ignored --min-runs."""
+    tmp, cfg, caps, ref, _, _ = mounts_session
+    mounts = ["calibrate", "mounts", "--config", str(cfg), *caps, "--reference", str(ref)]
+    for value in ("nan", "-1", "inf", "x"):
+        fails(run_mousedom(*mounts, "--window", value), "--window")
+    # mounts honours --min-runs too (the session has 5 runs).
+    fails(run_mousedom(*mounts, "--min-runs", "6"), "found 5 run(s), need at least 6")
+
+
+def test_runs_not_split_say_so(cpi_session):
+    """Regression: with --gap longer than the pauses, all pushes forth and back are one run
+    whose counts add up to nothing, and the message said the mouse never moved."""
+    tmp, cfg, files = cpi_session
+    fails(
+        run_mousedom(
+            "calibrate", "cpi", "--config", str(cfg), "--capture", f"left={files['left']}",
+            "--distance", "0.2", "--gap", "100", "--min-runs", "1",
+        ),
+        "mouse left: its motion adds up to nothing in every run (runs: 1)",
+        "--gap",
+    )  # fmt: skip
+
+
+def test_cpi_report_shows_a_small_standard_error(tmp_path):
+    """Regression: the readable report rounded the standard error to one decimal, so a
+    noise-free session printed '+- 0.0'; it now has two."""
+    motion = build_motion([(0.2 * (-1) ** k, 0, 0, 1.2) for k in range(6)])
+    rep = mouse_reports(SynthMouse("m", 0, 0, cpi_x=450, cpi_y=455, rel_noise=0.001), motion)
+    f = write_evemu(tmp_path / "m.events", rep)
+    cfg = write_config(
+        tmp_path, {"m": {"cpi": 450, "mount": {"x": 0.1}}}, False, "model: diff-drive\n"
+    )
+    base = ["calibrate", "cpi", "--config", str(cfg), "--capture", f"m={f}", "--distance", "0.2"]
+    doc = json.loads(ok(run_mousedom(*base, "--json")).stdout)["m"]
+    assert 0 < doc["stderr"] < 0.5  # would print as "+- 0.0" or "+- 0.1" before
+    text = ok(run_mousedom(*base)).stdout
+    assert f"m: cpi y = {doc['cpi']:.2f} +- {doc['stderr']:.2f} from 6 pushes" in text
+
+
 def test_cpi_warns_when_runs_disagree(tmp_path):
     # Two short pushes among long ones: not bumps (over 25 % of the median), but 10 % off.
     motion = build_motion(
@@ -350,6 +420,10 @@ def test_distance_json_and_write(tmp_path):
         run_mousedom("calibrate", "distance", "--config", str(cfg), *caps, "--angle", "0"),
         "non-zero",
     )
+    # Regression: the angle in radians (1.5708 for 90 deg) gave D = 15.5 m and no word.
+    p = ok(run_mousedom("calibrate", "distance", "--config", str(cfg), *caps, "--angle", "1.5708"))
+    assert "warning: the distance 15470.1 mm is +5630% off the configured 270.0 mm" in p.stderr
+    assert "is --angle right (in degrees)?" in p.stderr
     fails(
         run_mousedom(
             "calibrate", "distance", "--config", str(cfg), *caps, "--angle", "90", "--mice", "left"
@@ -562,4 +636,55 @@ def test_mounts_bad_inputs(mounts_session):
         ),
         "rotation about one point",
         "add a straight drive",
+    )
+
+
+# --------------------------------------------------------------------------- ADNS captures
+
+
+def write_adns_capture(path: Path, pushes: int, counts: int, drop: int | None = None) -> Path:
+    """A native capture of a downsampler's raw bytes: pushes forth and back of ``counts``
+    along the sensor's Delta_Y, 1 s each, 1 s pauses, one MOTION packet every 15 ms.
+    ``drop``: leave out that packet (a sequence gap)."""
+    from mousedom import adns_protocol as P
+
+    seq, t_us, host = 0, 0, 100.0
+    ts, pieces = [], []
+    for k in range(pushes):
+        per = [counts // 66] * 66
+        per[-1] += counts - sum(per)
+        for moving in (True, False):
+            for i in range(66):
+                seq, t_us, host = seq + 1, t_us + 15000, host + 0.015
+                dy = (-1) ** k * per[i] if moving else 0
+                pk = P.Motion(seq, t_us, 0, dy, 12, 80, P.FLAG_RES1600)
+                if seq != drop:
+                    ts.append(host + 0.002)
+                    pieces.append(P.encode_packet(pk))
+    dev = DeviceInfo(name="downsampler", kind="serial", mouse="floor", rel_xy=True)
+    with NativeWriter(path, [dev]) as w:
+        w.serial_many(0, ts, pieces)
+        w.sync(host + 1)
+    return path
+
+
+def test_cpi_from_an_adns_capture(tmp_path):
+    """Regression: the serial bytes of a recorded downsampler were never decoded, so an
+    ADNS mouse could not be calibrated from a capture ('found 0 run(s)')."""
+    counts = 12598  # 0.2 m at 1600 cpi, to the count
+    cap = write_adns_capture(tmp_path / "adns.mdcap", 6, counts)
+    cfg = write_config(
+        tmp_path,
+        {"floor": {"cpi": 1500, "mount": {"x": 0.1}, "serial": {"port": "/dev/ttyUSB0"}}},
+        extra="model: diff-drive\n",
+    )
+    base = ["calibrate", "cpi", "--config", str(cfg), "--distance", "0.2", "--json"]
+    doc = json.loads(ok(run_mousedom(*base, "--capture", str(cap))).stdout)
+    assert doc["floor"]["runs"] == 6
+    assert doc["floor"]["cpi"] == pytest.approx(counts / (0.2 / 0.0254), abs=1e-3)
+    # A packet lost on the line: its counts are missing, so no answer.
+    lossy = write_adns_capture(tmp_path / "lossy.mdcap", 6, counts, drop=20)
+    fails(
+        run_mousedom(*base, "--capture", str(lossy)),
+        "lossy.mdcap: device 'downsampler' (mouse floor): 1 serial packet(s) lost",
     )

@@ -12,7 +12,7 @@ import time
 
 import numpy as np
 import pytest
-from conftest import mousedom_env
+from conftest import mousedom_env, run_mousedom
 
 from mousedom.events import encode_input_events
 
@@ -221,3 +221,17 @@ def test_live_distance_turns(rig):
     doc = json.loads(out)
     assert doc["runs"] == 2
     assert doc["distance"] == pytest.approx(2 * counts / 800 * 0.0254 / (np.pi / 2), abs=1e-6)
+
+
+def test_live_mouse_not_found_is_named_once(tmp_path):
+    """Regression: the message read 'mouse a: a: no input device matches ...'."""
+    (tmp_path / "rig.yaml").write_text(
+        "mice:\n  a: {cpi: 800, mount: {x: 0.1}, evdev: {name: 'no such mouse 7f3a'}}\n"
+        "  b: {cpi: 800, mount: {x: -0.1}, evdev: {name: 'no such mouse 7f3b'}}\n"
+    )
+    p = run_mousedom(
+        "calibrate", "cpi", "--config", str(tmp_path / "rig.yaml"), "--distance", "0.1",
+        input="",
+    )  # fmt: skip
+    assert p.returncode == 2 and "Traceback" not in p.stderr
+    assert "mousedom: error: mouse a: no input device matches name=" in p.stderr, p.stderr

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+import os
+import stat
 
 import numpy as np
 import pytest
@@ -145,7 +147,7 @@ def test_calibration_file_merges_and_the_config_applies_it(tmp_path):
     data = calfile.merge_mouse({}, "left", cpi={"y": 455.2})
     data = calfile.merge_mouse(data, "left", cpi={"x": 451.0})
     data = calfile.merge_mouse(data, "right", mount={"x": 0.01, "y": -0.11, "yaw": 1.5}, scale=1.01)
-    data = calfile.merge_section(data, "distance", {"value": 0.2})
+    data = calfile.merge_section(data, "distance", {"distance": 0.2})
     calfile.write_calibration(str(cal), data)
     assert calfile.read_calibration(str(cal)) == data
     assert cal.read_text().startswith("#")
@@ -178,3 +180,31 @@ def test_csv_parsers_take_any_text_without_a_traceback(text):
             parse(text, "F.csv")
         except UserError as e:
             assert str(e).startswith("F.csv")
+
+
+def test_calibration_file_is_readable_by_the_daemon(tmp_path):
+    """Regression: the file was written through mkstemp and came out 0600, so a daemon
+    running as another user could not read it.  A new file gets 0666 minus the umask, a
+    replaced one keeps its mode."""
+    cal = tmp_path / "new.calib.yaml"
+    old = os.umask(0o022)
+    try:
+        calfile.write_calibration(str(cal), {"umbmark": {"e_max_syst": 0.1}})
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE(cal.stat().st_mode) == 0o644
+    cal.chmod(0o640)
+    calfile.write_calibration(str(cal), {"umbmark": {"e_max_syst": 0.2}})
+    assert stat.S_IMODE(cal.stat().st_mode) == 0o640
+    assert calfile.read_calibration(str(cal))["umbmark"]["e_max_syst"] == 0.2
+
+
+def test_csv_files_with_a_byte_order_mark_are_read(tmp_path):
+    """Regression: a spreadsheet's CSV starts with U+FEFF, and the header 't,vx,vy,omega'
+    was refused as '\\ufefft,vx,vy,omega'."""
+    from mousedom.calibrate.umbmark import parse_runs
+
+    ref = parse_reference("\ufefft,vx,vy,omega\n0,1,0,0\n1,1,0,0\n", "REF.csv")
+    assert ref.kind == "twist" and len(ref.t) == 2
+    dirs, err = parse_runs("\ufeffdirection,dx,dy\ncw,0.1,0\n", "RUNS.csv")
+    assert dirs == ["cw"] and err.tolist() == [[0.1, 0.0]]

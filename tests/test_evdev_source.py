@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 import struct
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -14,7 +15,7 @@ from hypothesis import strategies as st
 from test_evdev_fakes import add_device, motion_bytes, paths
 
 from mousedom.config import EvdevMatch, Mount, MouseConfig
-from mousedom.discovery import AmbiguousDevice
+from mousedom.errors import UserError
 from mousedom.events import EV_KEY, EV_REL, EV_SYN, REL_X, SYN_DROPPED, encode_input_events
 from mousedom.sources.base import SourceGone, SourceUnavailable
 from mousedom.sources.evdev import CLOCK_MONOTONIC, EVIOCSCLOCKID, EvdevSource
@@ -197,12 +198,62 @@ def test_match_through_a_fake_machine_and_reattach(tmp_path):
         src.open()
 
 
-def test_ambiguous_at_first_open_is_a_user_error(tmp_path):
+def test_ambiguous_at_first_open_is_unavailable_with_the_candidates(tmp_path):
+    """Regression: the first open raised AmbiguousDevice (a UserError), which the daemon
+    does not catch: one ambiguous rule stopped it at start.  Sources speak base.py's
+    terms only, so it is SourceUnavailable with every candidate listed."""
     add_device(tmp_path, 1, "Same")
     add_device(tmp_path, 2, "Same")
     src = EvdevSource(mouse(name="Same"), paths(tmp_path))
-    with pytest.raises(AmbiguousDevice, match="event1.*event2"):
+    with pytest.raises(SourceUnavailable, match="2 devices match.*event1.*event2") as e:
         src.open()
+    assert not isinstance(e.value, UserError)
+    assert not src.health.connected and "event1" in src.health.error
+    # The look-alike goes away: the same source attaches to the one left.
+    os.unlink(tmp_path / "dev/input/event2")
+    src.open()
+    assert src.device.node == str(tmp_path / "dev/input/event1")
+    src.close()
+
+
+def test_daemon_keeps_running_while_a_rule_is_ambiguous(tmp_path):
+    """The daemon (in-process, real socket) starts, reports the ambiguity in the mouse's
+    health, keeps running, and attaches once the look-alike is unplugged."""
+    from mousedom.config import parse_config
+    from mousedom.daemon import Daemon
+
+    add_device(tmp_path, 1, "Same")
+    add_device(tmp_path, 2, "Same")
+    cfg = parse_config(
+        "mice:\n"
+        "  a: {cpi: 800, mount: {x: 0, y: 0.1}, evdev: {name: Same}}\n"
+        "  b: {cpi: 800, mount: {x: 0, y: -0.1}, evdev: {name: Same}}\n",
+        str(tmp_path / "rig.yaml"),
+    )
+    d = Daemon(
+        cfg,
+        str(tmp_path / "sock"),
+        source_factory=lambda m, clock: EvdevSource(m, paths(tmp_path)),
+        handle_signals=False,
+    )
+    result: list = []
+    th = threading.Thread(target=lambda: result.append(d.run()), daemon=True)
+    th.start()
+    try:
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and not getattr(d, "_ready", False):
+            time.sleep(0.02)
+        assert th.is_alive() and d._ready, result
+        errors = [s.source.health.error or "" for s in d.slots]
+        assert all("2 devices match" in e and "event2" in e for e in errors), errors
+        os.unlink(tmp_path / "dev/input/event2")  # unplug the look-alike
+        while time.monotonic() < deadline and not all(s.live for s in d.slots[:1]):
+            time.sleep(0.05)
+        assert d.slots[0].live and d.slots[0].source.device.node.endswith("event1")
+    finally:
+        d.request_stop()
+        th.join(10)
+    assert result == [0]
 
 
 def test_a_node_that_is_not_an_evdev_device(tmp_path):
@@ -298,3 +349,22 @@ def test_grab_false_and_busy_and_permission(tmp_path):
     src = EvdevSource(mouse(name="Real Mouse"), paths(tmp_path), device_opener=denied)
     with pytest.raises(SourceUnavailable, match="join group 'root'"):
         src.open()
+
+
+def test_stamps_that_run_backwards_are_moved_forward_and_counted(tmp_path):
+    """Regression: a stream whose stamps run backwards (a FIFO writer, a replug that
+    restarts its clock) went through as is; `record` then wrote a capture that its own
+    reader refuses ("time goes backwards").  Stamps leave the source non-decreasing; the
+    counts are all kept and the moved reports counted."""
+    r, w = os.pipe()
+    src = EvdevSource(mouse(path=f"/proc/self/fd/{r}"))
+    src.open()
+    os.close(r)
+    os.write(w, motion_bytes(10.0, [1, 2, 3], [4, 5, 6], dt=0.01))  # 10.00 .. 10.02
+    os.write(w, motion_bytes(9.0, [7, 8], [9, 10], dt=0.5))  # 9.0, 9.5: behind
+    os.write(w, motion_bytes(10.1, [11], [12]))
+    os.close(w)
+    t, dx, dy, gone = read_all(src)
+    assert gone and dx == [1, 2, 3, 7, 8, 11] and dy == [4, 5, 6, 9, 10, 12]
+    assert t == sorted(t) and t[3] == t[4] == t[2] and t[5] == pytest.approx(10.1)
+    assert src.time_backwards == 2 and src.health.extra["time_backwards"] == 2

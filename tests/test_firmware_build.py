@@ -39,7 +39,7 @@ def require_toolchain() -> None:
         return
     msg = (
         f"firmware toolchain missing ({', '.join(missing)}): run firmware/install-toolchain.sh "
-        "or apt-get install gcc-avr avr-libc simavr libsimavr-dev"
+        f"or apt-get install {' '.join(missing)}"
     )
     if os.environ.get("MOUSEDOM_REQUIRE_FIRMWARE") == "1" or os.environ.get("CI"):
         pytest.fail(msg)
@@ -120,3 +120,23 @@ def test_missing_toolchain_skips_locally_and_fails_in_ci(monkeypatch):
     monkeypatch.setenv("CI", "true")
     with pytest.raises(pytest.fail.Exception):
         require_toolchain()
+
+
+def test_install_script_installs_every_tool_the_tests_need():
+    """Regression: install-toolchain.sh (what CI runs) left out make and the host gcc that
+    `make test` and the simavr harness need, so a slim CI image failed these tests."""
+    script = (FIRMWARE / "install-toolchain.sh").read_text()
+    listed = re.search(r'^PACKAGES="([^"]*)"', script, re.M)
+    assert listed, "no PACKAGES= line in install-toolchain.sh"
+    needed = set(NEEDS.values()) | set(FILES.values()) | {"libc6-dev"}
+    assert needed <= set(listed.group(1).split()), needed - set(listed.group(1).split())
+
+
+def test_simulator_help(build):
+    """Regression: `adns_sim --help` tried to load a firmware file called --help."""
+    r = make(build, "sim-tools")
+    assert r.returncode == 0, r.stdout + r.stderr
+    r = subprocess.run([str(build / "adns_sim"), "--help"], capture_output=True, text=True)
+    assert r.returncode == 0 and "--seg T:VX:VY" in r.stdout and "SUMMARY" in r.stdout
+    r = subprocess.run([str(build / "adns_sim")], capture_output=True, text=True)
+    assert r.returncode == 2 and r.stderr.startswith("usage: adns_sim FIRMWARE.elf")

@@ -187,7 +187,8 @@ def test_duration_unplug_and_reattach(tmp_path):
     finally:
         p.kill()
     assert p.returncode == 0, err
-    assert "left: left: device gone" in err and "waiting for it to come back" in err
+    # The mouse is named once (regression: "left: left: device gone").
+    assert "record: left: device gone" in err and "waiting for it to come back" in err
     assert "left: back" in err
     _, motion, _ = read_capture(out)
     assert motion["left"][1] == [1, 2, 3, 10, 20]
@@ -310,3 +311,158 @@ def test_a_replay_mouse_cannot_be_recorded(tmp_path):
     r = run_mousedom("record", "--config", str(cfg), "-o", str(tmp_path / "z.mdcap"))
     assert r.returncode == 2 and "mice.b: a replay source cannot be recorded" in r.stderr
     assert "Traceback" not in r.stderr and not (tmp_path / "z.mdcap").exists()
+
+
+def test_an_ambiguous_rule_stops_record_with_the_candidates(tmp_path):
+    """Regression: twin mice matched by name.  One line naming config, mouse and both
+    candidates, exit 1, no file, no traceback (--root points at a fake machine)."""
+    from test_evdev_fakes import add_device
+
+    root = tmp_path / "machine"
+    add_device(root, 1, "Twin", phys="usb-1/input0")
+    add_device(root, 2, "Twin", phys="usb-2/input0")
+    cfg = tmp_path / "rig.yaml"
+    cfg.write_text(
+        "mice:\n"
+        "  a: {cpi: 800, mount: {x: 0, y: 0.1}, evdev: {name: Twin}}\n"
+        "  b: {cpi: 800, mount: {x: 0, y: -0.1}, evdev: {name: Twin, phys: usb-2/input0}}\n"
+    )
+    out = tmp_path / "z.mdcap"
+    r = run_mousedom("record", "--root", str(root), "--config", str(cfg), "-o", str(out))
+    assert r.returncode == 1, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in r.stderr
+    assert f"{cfg}: mice.a: " in lines[0] and "2 devices match name='Twin'" in lines[0]
+    assert "event1" in lines[0] and "event2" in lines[0]
+    assert not out.exists()
+    # Telling them apart fixes it: both FIFO nodes are recorded.
+    cfg.write_text(cfg.read_text().replace("{name: Twin}", "{name: Twin, phys: usb-1/input0}"))
+    r = run_mousedom(
+        "record", "--root", str(root), "--config", str(cfg), "-o", str(out), "--duration", "0.2"
+    )
+    assert r.returncode == 0, r.stderr
+    assert "event1" in r.stderr and "event2" in r.stderr
+
+
+def test_a_missing_root_is_an_error(tmp_path):
+    """Regression: a mistyped --root looked like a machine without mice (list: exit 0)."""
+    f = fifos(tmp_path, "a", "b")
+    cfg = rig(tmp_path, f)
+    for cmd in (["list"], ["record", "--config", str(cfg), "-o", str(tmp_path / "o")]):
+        r = run_mousedom(*cmd, "--root", str(tmp_path / "typo"))
+        assert r.returncode == 2 and f"--root {tmp_path / 'typo'}: no such directory" in r.stderr
+        assert "Traceback" not in r.stderr
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_file_that_cannot_grow_stops_with_one_line(tmp_path):
+    """Regression: disk full / quota / ulimit -f mid-run said "internal error" (and a file
+    size limit killed the recorder with SIGXFSZ and no word).  Now: one line naming the
+    file and the OS's reason, exit 1, the file readable up to where it stopped."""
+    import resource
+
+    f = fifos(tmp_path, "a", "b")
+    out = tmp_path / "big.mdcap"
+    limit = 32768
+
+    def small_files() -> None:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+    p = subprocess.Popen(
+        [sys.executable, "-m", "mousedom", "record", "--config", str(rig(tmp_path, f))]
+        + ["-o", str(out), "--status-interval", "0", "--duration", "20"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=mousedom_env(),
+        preexec_fn=small_files,
+    )
+    dx, dy = frames(20_000, 1)
+    try:
+        w = os.open(f["a"], os.O_WRONLY)
+        try:
+            for lo in range(0, len(dx), 50):  # 2500 reports/s: several flushes fit
+                t = time.monotonic()
+                os.write(w, motion_bytes(t, dx[lo : lo + 50], dy[lo : lo + 50], dt=1e-4))
+                time.sleep(0.02)
+        except BrokenPipeError:
+            pass  # the recorder stopped, as it should
+        _, err = p.communicate(timeout=30)
+        os.close(w)
+    finally:
+        p.kill()
+    assert p.returncode == 1, err
+    lines = [x for x in err.splitlines() if not x.startswith("record: ")]
+    assert len(lines) == 1, err
+    assert f"{out}: cannot write: File too large; recording stopped after" in lines[0]
+    assert "internal error" not in err and "Traceback" not in err and "Exception" not in err
+    assert out.stat().st_size <= limit
+    cap, motion, _ = read_capture(out)
+    got = motion["a"][1]
+    assert 0 < len(got) < len(dx) and got == dx[: len(got)].tolist()
+
+
+def test_a_closed_stderr_does_not_stop_the_recording(tmp_path):
+    """Regression: ``record ... 2>&1 | head -2`` ended the recording at the first status
+    line after head exited (EPIPE on stderr -> "internal error", exit 1)."""
+    f = fifos(tmp_path, "a", "b")
+    out = tmp_path / "quiet.mdcap"
+    p = start(
+        "record", "--config", str(rig(tmp_path, f)), "-o", str(out), "--status-interval", "0.05"
+    )
+    dx, dy = frames(300, 2)
+    try:
+        w = os.open(f["a"], os.O_WRONLY)
+        p.stderr.readline()  # "recording a, b"
+        p.stderr.close()  # the reader of our status lines goes away
+        t0 = time.monotonic()
+        for lo in range(0, 300, 30):
+            os.write(w, motion_bytes(t0 + lo * 0.002, dx[lo : lo + 30], dy[lo : lo + 30], 0.002))
+            time.sleep(0.05)  # status lines keep coming (and failing) meanwhile
+        time.sleep(0.3)
+        p.send_signal(signal.SIGINT)
+        p.wait(timeout=20)
+        os.close(w)
+    finally:
+        p.kill()
+    assert p.returncode == 0
+    _, motion, _ = read_capture(out)
+    assert motion["a"][1] == dx.tolist() and motion["a"][2] == dy.tolist()
+
+
+def test_bad_status_interval_and_empty_output(tmp_path):
+    cfg = str(rig(tmp_path, fifos(tmp_path, "a", "b")))
+    for value in ("nan", "-1", "inf"):
+        r = run_mousedom(
+            "record", "--config", cfg, "-o", str(tmp_path / "o"), "--status-interval", value
+        )
+        assert r.returncode == 2 and "--status-interval: must be" in r.stderr, value
+    r = run_mousedom("record", "--config", cfg, "-o", "")
+    assert r.returncode == 2 and "-o/--output: empty file name" in r.stderr
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_stream_with_backward_stamps_records_a_replayable_file(tmp_path):
+    """Regression: record wrote the backward stamps and replay refused the whole file."""
+    f = fifos(tmp_path, "a", "b")
+    cfg = rig(tmp_path, f)
+    out = tmp_path / "back.mdcap"
+    p = start("record", "--config", str(cfg), "-o", str(out), "--status-interval", "0")
+    try:
+        w = os.open(f["a"], os.O_WRONLY)
+        t0 = time.monotonic()
+        os.write(w, motion_bytes(t0, [1, 2, 3], [0, 0, 0], dt=0.01))
+        time.sleep(0.3)  # a later read, and a later chunk in the file
+        os.write(w, motion_bytes(t0 - 5, [4, 5], [0, 0], dt=0.01))
+        time.sleep(0.3)
+        p.send_signal(signal.SIGINT)
+        _, err = p.communicate(timeout=20)
+        os.close(w)
+    finally:
+        p.kill()
+    assert p.returncode == 0, err
+    assert "stamped-backwards 2" in err
+    r = run_mousedom("replay", "--config", str(cfg), "--capture", str(out))
+    assert r.returncode == 0, r.stderr
+    _, motion, _ = read_capture(out)
+    assert motion["a"][1] == [1, 2, 3, 4, 5] and motion["a"][0] == sorted(motion["a"][0])

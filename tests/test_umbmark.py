@@ -54,6 +54,8 @@ def test_umbmark_row_is_odometry_minus_truth():
         ("direction,dx,dy\ncw,0.1\n", "RUNS.csv:2: 2 fields, the header has 3"),
         ("direction,dx,dy\ncw,inf,0\n", "RUNS.csv:2: dx: not a finite number"),
         ("", "RUNS.csv: empty file"),
+        # regression: a second dx column was silently ignored
+        ("direction,dx,dy,dx\ncw,1,1,3\n", "RUNS.csv:1: column dx appears more than once"),
     ],
 )
 def test_runs_csv_errors_name_line_and_column(text, message):
@@ -121,3 +123,24 @@ def test_umbmark_on_simulated_squares_sees_a_cpi_error():
 
     assert e_max(None) < 0.01
     assert e_max({"left": (450, 459), "right": (450, 450)}) > 0.1
+
+
+def test_cli_reads_a_spreadsheet_csv_with_a_byte_order_mark(tmp_path):
+    """Regression: RUNS.csv saved by a spreadsheet (UTF-8 with BOM, CRLF) was refused."""
+    runs = tmp_path / "runs.csv"
+    runs.write_bytes(b"\xef\xbb\xbf" + RUNS.replace("\n", "\r\n").encode())
+    p = run_mousedom("umbmark", str(runs), "--json")
+    assert p.returncode == 0, p.stderr
+    assert json.loads(p.stdout)["cw"]["x"] == pytest.approx(0.11)
+
+
+def test_cli_binary_input_is_one_line_naming_the_byte(tmp_path):
+    """Regression: binary garbage on stdin was decoded with surrogates and echoed back as
+    a header of mojibake; a file and stdin now both name the first bad byte."""
+    garbage = b"direction,dx,dy\ncw,1,1\n\xff\xfe\x00\x81"
+    p = run_mousedom("umbmark", "-", input=garbage)
+    assert p.returncode == 2 and b"Traceback" not in p.stderr
+    assert p.stderr.strip() == b"mousedom: error: <stdin>: byte offset 23: not UTF-8 text"
+    (tmp_path / "bin.csv").write_bytes(garbage)
+    p = run_mousedom("umbmark", str(tmp_path / "bin.csv"))
+    assert p.returncode == 2 and "bin.csv: byte offset 23: not UTF-8 text" in p.stderr

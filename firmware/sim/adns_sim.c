@@ -257,10 +257,30 @@ static double num(const char *s, const char *what)
     return v;
 }
 
+static const char USAGE[] =
+    "usage: adns_sim FIRMWARE.elf [options]\n"
+    "  --duration S          simulated seconds to run (default 2)\n"
+    "  --fps N               sensor frame rate on the simulated clock (default 6400)\n"
+    "  --seg T:VX:VY         from T seconds on, move at (VX, VY) inches/s in sensor axes\n"
+    "                        (repeatable; before the first segment the sensor stands still)\n"
+    "  --absent-until S      no sensor on the bus until S seconds (then it is powered)\n"
+    "  --unplug-at S         the sensor disappears at S seconds\n"
+    "  --internal-max N      the sensor's internal motion buffer per axis (default 2047)\n"
+    "  --absent-miso V       what MISO reads with no sensor (default 0xff)\n"
+    "  --squal N             SQUAL while tracking (default 80)\n"
+    "  --fast                do not pace the simulation to the wall clock\n"
+    "  --wait-start          print the pty, then wait for a line on stdin before running;\n"
+    "                        at the end, wait for stdin to close before exiting\n"
+    "Prints \"PTY <path>\" when the pty exists and \"SUMMARY <json>\" at the end.\n";
+
 int main(int argc, char **argv)
 {
+    if (argc >= 2 && (!strcmp(argv[1], "-h") || !strcmp(argv[1], "--help"))) {
+        fputs(USAGE, stdout);
+        return 0;
+    }
     if (argc < 2) {
-        fprintf(stderr, "usage: adns_sim FIRMWARE.elf [options]\n");
+        fputs(USAGE, stderr);
         return 2;
     }
     const char *elf = argv[1];

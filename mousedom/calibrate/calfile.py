@@ -4,7 +4,7 @@ Schema (read by ``mousedom.config._apply_calibration``)::
 
     mice:
       left: {cpi: {x: 452.1, y: 455.2}, mount: {x: 0.0, y: 0.135, yaw: 0.0}, scale: 1.0}
-    distance: {mice: [left, right], value: 0.2701, stderr: 0.0002, runs: 4}
+    distance: {mice: [left, right], distance: 0.2701, stderr: 0.0002, runs: 4}
     umbmark: {e_max_syst: 0.114, ...}
 
 Mount yaw is in degrees, like the config.  Top-level keys other than ``mice`` are
@@ -90,6 +90,16 @@ def _plain(value: Any) -> Any:
     return value
 
 
+def _mode_for(target: Path) -> int:
+    """Permission bits for the new file: those of the old one, else 0666 minus the umask."""
+    try:
+        return target.stat().st_mode & 0o7777
+    except OSError:
+        umask = os.umask(0)
+        os.umask(umask)
+        return 0o666 & ~umask
+
+
 def write_calibration(path: str, data: dict[str, Any]) -> None:
     """Replace ``path`` atomically with ``data`` as YAML."""
     target = Path(path)
@@ -100,6 +110,9 @@ def write_calibration(path: str, data: dict[str, Any]) -> None:
     except OSError as e:
         raise UserError(f"{path}: cannot write calibration: {e.strerror}") from None
     try:
+        # mkstemp makes the file 0600: the daemon (often another user) could not read it.
+        # Keep the mode of the file being replaced, or give a new one the umask's default.
+        os.fchmod(fd, _mode_for(target))
         with os.fdopen(fd, "w", encoding="utf-8") as f:
             f.write(text)
             f.flush()

@@ -84,6 +84,7 @@ def calibrate_cpi(
     counts = np.asarray(counts, dtype=float).reshape(-1, 2)
     i = AXES.index(axis)
     along, across = counts[:, i], counts[:, 1 - i]
+    min_runs = max(min_runs, 2)  # one run has no standard error (it would be NaN in JSON)
     if len(counts) < min_runs:
         raise CpiError(f"{len(counts)} run(s), need at least {min_runs} for a standard error")
     still = np.flatnonzero(along == 0)

@@ -63,6 +63,7 @@ def calibrate_distance(
     d2 = np.asarray(d2, dtype=float).reshape(-1, 2)
     if not abs(angle) > 0:
         raise DistanceError("the turn angle must not be zero")
+    min_runs = max(min_runs, 2)  # one run has no standard error (it would be NaN in JSON)
     if len(d1) < min_runs:
         raise DistanceError(f"{len(d1)} run(s), need at least {min_runs} for a standard error")
     diff = d1 - d2

@@ -6,6 +6,11 @@
 the captures' *own* time base: unlike replay, no epoch rebasing here, because
 ``calibrate mounts`` lines the captures up with a reference file recorded on that same
 clock.  Captures that cannot share one time base are refused.
+
+An ADNS-3080 downsampler is recorded as its raw serial bytes; they are decoded here with
+the same parser and clock mapping as the live source and replay
+(``sources.adns.replay_decoder``).  A packet lost or refused on the line means counts
+that are missing from the calibration, so it is an error, not a silent wrong answer.
 """
 
 from __future__ import annotations
@@ -16,13 +21,19 @@ from collections.abc import Sequence
 import numpy as np
 
 from mousedom.capture import Capture, CaptureError, assign, parse_capture_arg
-from mousedom.config import Config
+from mousedom.config import Config, Mount, MouseConfig
 from mousedom.errors import UserError
+from mousedom.sources.adns import replay_decoder
 from mousedom.sources.base import Reports
 
 
-def read_motion(cap: Capture, index: int, name: str) -> Reports:
-    """All motion reports of one device of ``cap``, in time order, times as recorded."""
+def read_motion(cap: Capture, index: int, name: str, mouse: MouseConfig | None = None) -> Reports:
+    """All motion reports of one device of ``cap``, in time order, times as recorded.
+
+    A serial device (ADNS-3080 downsampler) is decoded from its raw bytes.
+    """
+    serial = cap.devices[index].kind == "serial"
+    decoder = replay_decoder(mouse or MouseConfig(name, 1.0, 1.0, Mount())) if serial else None
     ts, dxs, dys = [], [], []
     for feed in cap.feeds():
         if index not in feed.devices:
@@ -33,6 +44,20 @@ def read_motion(cap: Capture, index: int, name: str) -> Reports:
                     ts.append(m.t)
                     dxs.append(m.dx)
                     dys.append(m.dy)
+            for piece in batch.serial if decoder is not None else ():
+                if piece.device == index:
+                    rep = decoder.feed_many(piece.t, piece.data)
+                    ts.append(rep.t)
+                    dxs.append(rep.dx)
+                    dys.append(rep.dy)
+    if decoder is not None and decoder.lost:
+        st = decoder.parser.stats
+        raise UserError(
+            f"{cap.path}: device {cap.devices[index].name!r} (mouse {name}): "
+            f"{decoder.lost} serial packet(s) lost or refused ({st.lost_seq} sequence gaps, "
+            f"{st.crc_errors} CRC errors, {st.bad_frames} bad frames): their counts are "
+            "missing, so a calibration from it would be wrong"
+        )
     if not ts:
         return Reports(name, np.zeros(0), np.zeros(0), np.zeros(0))
     t = np.concatenate(ts)
@@ -51,7 +76,7 @@ def load_captures(specs: Sequence[str], config: Config) -> dict[str, Reports]:
     files: set[str] = set()
     for a in assignments:
         name = config.mice[a.mouse].name
-        recording[name] = read_motion(a.capture, a.device, name)
+        recording[name] = read_motion(a.capture, a.device, name, config.mice[a.mouse])
         bases[name] = a.capture.time_base
         files.add(os.path.realpath(a.capture.path))
     if len(files) > 1 and "relative" in bases.values():

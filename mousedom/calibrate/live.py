@@ -91,7 +91,8 @@ def collect_runs(
         try:
             s.open()
         except SourceUnavailable as e:
-            raise UserError(f"mouse {s.name}: {e}") from None
+            text = str(e).removeprefix(f"{s.name}: ")  # sources name their mouse already
+            raise UserError(f"mouse {s.name}: {text}") from None
     col = _Collector([s.name for s in sources])
     sel = selectors.DefaultSelector()
     for s in sources:

@@ -47,6 +47,7 @@ class WheelGeometry:
 
 def parse_reference(text: str, path: str | None = None) -> Reference:
     """Parse REF.csv text; every error names the file, line and column."""
+    text = text.removeprefix("\ufeff")  # spreadsheets save CSV with a byte-order mark
     rows = [
         (i + 1, line)
         for i, line in enumerate(text.splitlines())

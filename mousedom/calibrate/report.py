@@ -19,7 +19,7 @@ def cpi_text(results: dict[str, CpiResult], config: Config, distance: float) -> 
         m = config.mouse(name)
         before = m.cpi_y if r.axis == "y" else m.cpi_x
         lines.append(
-            f"{name}: cpi {r.axis} = {r.cpi:.1f} +- {r.stderr:.1f} from {r.runs} pushes of "
+            f"{name}: cpi {r.axis} = {r.cpi:.2f} +- {r.stderr:.2f} from {r.runs} pushes of "
             f"{distance * 1000:g} mm (configured {before:g}, {r.cpi / before - 1:+.2%})"
         )
         per = ", ".join(f"{c:.1f}" for c in r.per_run)

@@ -20,12 +20,14 @@ from mousedom.calibrate.cpi import CpiError, CpiResult, calibrate_cpi
 from mousedom.calibrate.distance import DistanceError, DistanceResult, calibrate_distance
 from mousedom.calibrate.mounts import MountError, MountFit, exact_mount, kimlee, motion_problem
 from mousedom.calibrate.reference import Reference, WheelGeometry, check_coverage, window_twist
-from mousedom.calibrate.runs import Run, run_counts, run_windows, window_counts
+from mousedom.calibrate.runs import Run, moving, run_counts, run_windows, window_counts
 from mousedom.config import Config
 from mousedom.errors import UserError
 from mousedom.sources.base import Reports
 
 SMALL_RUN = 0.25  # a run with less motion than this fraction of the median is a bump
+CPI_TOLERANCE = 0.25  # a CPI this far off the configured one is suspicious
+DRAWING_TOLERANCE = 0.1  # a measured distance this far off the config's is suspicious
 PAD = 0.2  # seconds of pause added around each run for the reference (clock offsets)
 
 
@@ -65,6 +67,13 @@ def _no_motion(session: Session, counts: np.ndarray) -> None:
     """Raise when a mouse shows no motion at all: wrong capture or a mouse off the floor."""
     for j, name in enumerate(session.names):
         if not np.any(counts[:, j, :]):
+            if len(moving(session.recording[name])):
+                # It moved, but forth and back inside one run: the runs were not split.
+                raise UserError(
+                    f"mouse {name}: its motion adds up to nothing in every run (runs: "
+                    f"{len(session.runs)}): pushes or turns forth and back must be separated "
+                    "by pauses longer than --gap"
+                )
             raise UserError(
                 f"mouse {name}: no motion in any run (is it on the floor? is this its capture?)"
             )
@@ -86,6 +95,14 @@ def cpi(session: Session, distance: float, axis: str, min_runs: int = 2) -> dict
             out[name] = calibrate_cpi(c[keep], distance, axis, across, min_runs=min_runs)
         except CpiError as e:
             raise UserError(f"mouse {name}: {e}") from None
+        # Far from the configured CPI is most often a --distance in the wrong unit.
+        before = mouse.cpi_y if axis == "y" else mouse.cpi_x
+        off = out[name].cpi / before - 1
+        if abs(off) > CPI_TOLERANCE:
+            out[name].warnings.append(
+                f"cpi {out[name].cpi:.1f} is {off:+.0%} off the configured {before:g}: "
+                f"is --distance right (metres: {distance:g} m = {distance * 1000:g} mm)?"
+            )
     return out
 
 
@@ -106,9 +123,18 @@ def distance(session: Session, angle: float, min_runs: int = 2) -> DistanceResul
     keep = _keep_real_runs(session, np.hypot(*(d1 - d2).T), "distance")
     line = np.array([b.mount.x - a.mount.x, b.mount.y - a.mount.y])
     try:
-        return calibrate_distance(d1[keep], d2[keep], angle, line, min_runs=min_runs)
+        result = calibrate_distance(d1[keep], d2[keep], angle, line, min_runs=min_runs)
     except DistanceError as e:
         raise UserError(f"calibrate distance ({a.name}, {b.name}): {e}") from None
+    # A distance far from the drawing's is most often a wrong --angle (radians given for
+    # degrees, a half turn for a quarter): say so rather than let --write store it quietly.
+    nominal = float(np.hypot(*line))
+    if nominal > 0 and abs(result.distance / nominal - 1) > DRAWING_TOLERANCE:
+        result.warnings.append(
+            f"the distance {result.distance * 1000:.1f} mm is {result.distance / nominal - 1:+.0%} "
+            f"off the configured {nominal * 1000:.1f} mm: is --angle right (in degrees)?"
+        )
+    return result
 
 
 def spread_mounts(config: Config, names: Sequence[str], d: float) -> dict[str, tuple[float, float]]:

@@ -91,6 +91,7 @@ def umbmark_row(direction: str, final_pose: Sequence[float], true_pose: Sequence
 
 def parse_runs(text: str, path: str | None = None) -> tuple[list[str], np.ndarray]:
     """Parse RUNS.csv text; errors name the file, line and column."""
+    text = text.removeprefix("\ufeff")  # spreadsheets save CSV with a byte-order mark
     lines = [
         (i + 1, line)
         for i, line in enumerate(text.splitlines())
@@ -109,6 +110,11 @@ def parse_runs(text: str, path: str | None = None) -> tuple[list[str], np.ndarra
                 f"header must have the columns {HEADER}; "
                 f"missing {', '.join(missing)} (got {head.strip()!r})",
             )
+        )
+    twice = sorted({c for c in ("direction", "dx", "dy") if names.count(c) > 1})
+    if twice:
+        raise UserError(
+            located(path, head_no, f"column {', '.join(twice)} appears more than once", None)
         )
     col = {c: names.index(c) for c in ("direction", "dx", "dy")}
     directions, errors = [], []

@@ -42,9 +42,31 @@ def _nonzero(text: str) -> float:
     return v
 
 
+def _count(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be 1 or more, got {text}")
+    return v
+
+
+def _window(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not (v >= 0 and math.isfinite(v)):
+        raise argparse.ArgumentTypeError(f"must be 0 (one window per run) or more, got {text}")
+    return v
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     common = argparse.ArgumentParser(add_help=False)
-    common.add_argument("--config", default=DEFAULT_CONFIG_PATH, help="rig YAML")
+    common.add_argument(
+        "--config", default=DEFAULT_CONFIG_PATH, help=f"rig YAML (default {DEFAULT_CONFIG_PATH})"
+    )
     common.add_argument(
         "--capture",
         action="append",
@@ -68,13 +90,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     common.add_argument(
         "--runs",
-        type=int,
+        type=_count,
         default=None,
         metavar="N",
         help="live: stop after N runs (default: until q or end of input)",
     )
     common.add_argument(
-        "--min-runs", type=int, default=2, metavar="N", help="fewest runs accepted (default 2)"
+        "--min-runs",
+        type=_count,
+        default=None,
+        metavar="N",
+        help="fewest runs accepted (default 2; mounts 1; a standard error needs 2)",
     )
     common.add_argument("--json", action="store_true", help="print JSON on stdout")
     common.add_argument(
@@ -120,17 +146,30 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="REF.csv",
         help="t,vx,vy,omega (body twist) or t,left,right (wheel ticks)",
     )
-    m.add_argument("--method", choices=("exact", "kimlee"), default="exact")
+    m.add_argument(
+        "--method",
+        choices=("exact", "kimlee"),
+        default="exact",
+        help="exact: position, yaw and CPI scale per mouse (default); kimlee: Kim & Lee's "
+        "linearised positions, as published",
+    )
     m.add_argument(
         "--window",
-        type=float,
+        type=_window,
         default=0.25,
         metavar="SECONDS",
         help="window length inside runs (0: one window per run; default 0.25)",
     )
-    m.add_argument("--wheel-radius", type=_positive, metavar="METRES")
-    m.add_argument("--ticks-per-rev", type=_positive, metavar="TICKS")
-    m.add_argument("--track", type=_positive, metavar="METRES")
+    wheels = "for a t,left,right reference (or the config's wheels: section)"
+    m.add_argument(
+        "--wheel-radius", type=_positive, metavar="METRES", help=f"wheel radius, {wheels}"
+    )
+    m.add_argument(
+        "--ticks-per-rev", type=_positive, metavar="TICKS", help=f"encoder ticks per turn, {wheels}"
+    )
+    m.add_argument(
+        "--track", type=_positive, metavar="METRES", help=f"distance between the wheels, {wheels}"
+    )
     m.set_defaults(func=run_mounts)
 
 
@@ -205,8 +244,9 @@ def _store(config: Config, update) -> None:
 
 def run_cpi(args: argparse.Namespace) -> int:
     config, s = _setup(args)
-    need_runs(len(s.runs), args.min_runs, "calibrate cpi", args.gap)
-    results = session.cpi(s, args.distance, args.axis, args.min_runs)
+    min_runs = args.min_runs or 2
+    need_runs(len(s.runs), min_runs, "calibrate cpi", args.gap)
+    results = session.cpi(s, args.distance, args.axis, min_runs)
     warnings = [f"mouse {n}: {w}" for n, r in results.items() for w in r.warnings]
     doc = {n: r.as_json() for n, r in results.items()}
     _emit(args, doc, report.cpi_text(results, config, args.distance), s, warnings)
@@ -230,8 +270,9 @@ def run_distance(args: argparse.Namespace) -> int:
         if len(pair) != 2 or not all(pair):
             raise UserError(f"--mice {args.mice!r}: give two mouse names, e.g. --mice left,right")
     config, s = _setup(args, pair)
-    need_runs(len(s.runs), args.min_runs, "calibrate distance", args.gap)
-    result = session.distance(s, math.radians(args.angle), args.min_runs)
+    min_runs = args.min_runs or 2
+    need_runs(len(s.runs), min_runs, "calibrate distance", args.gap)
+    result = session.distance(s, math.radians(args.angle), min_runs)
     _emit(
         args,
         result.as_json(),
@@ -266,7 +307,7 @@ def _wheel_geometry(args: argparse.Namespace, config: Config) -> WheelGeometry |
 def run_mounts(args: argparse.Namespace) -> int:
     config, s = _setup(args)
     ref = read_reference(args.reference)  # after a live session: the logger may write it
-    need_runs(len(s.runs), 1, "calibrate mounts", args.gap)
+    need_runs(len(s.runs), args.min_runs or 1, "calibrate mounts", args.gap)
     geo = _wheel_geometry(args, config)
     result = session.mounts(s, ref, args.method, geo, args.window)
     _emit(args, report.mounts_json(result), report.mounts_text(result, config), s, result.warnings)

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 
-from mousedom.config import DEFAULT_CONFIG_PATH, load_config
+from mousedom.config import DEFAULT_CONFIG_PATH, ConfigError, MouseConfig, load_config
+from mousedom.errors import UserError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -17,16 +19,44 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+def _source(m: MouseConfig) -> str:
+    if m.evdev:
+        e = m.evdev
+        keys = ("path", "name", "phys", "uniq", "vendor", "product")
+        match = ", ".join(f"{k} {getattr(e, k)!r}" for k in keys if getattr(e, k) is not None)
+        return f"evdev ({match or 'any'}{'' if e.grab else ', not grabbed'})"
+    if m.serial:
+        s = m.serial
+        return f"serial {s.port} ({s.baud} baud, k {s.k}, sensor {s.sensor_cpi} cpi)"
+    if m.replay:
+        return f"replay {m.replay}" + (f" device {m.replay_device!r}" if m.replay_device else "")
+    return "none"
+
+
 def run(args: argparse.Namespace) -> int:
-    cfg = load_config(args.config, need_sources=not args.no_sources)
+    try:
+        cfg = load_config(args.config, need_sources=not args.no_sources)
+    except ConfigError as e:
+        if args.no_sources:
+            raise
+        # The only problem may be mice without a source: say how to check such a rig.
+        try:
+            load_config(args.config, need_sources=False)
+        except UserError:
+            raise e from None
+        raise UserError(f"{e} (a rig for captures only: add --no-sources)") from None
     print(f"{cfg.path}: {cfg.model} model, {cfg.integrator} integrator, {cfg.rate_hz:g} Hz")
     for m in cfg.mice:
-        source = "evdev" if m.evdev else "serial" if m.serial else "replay" if m.replay else "none"
         print(
             f"  {m.name}: cpi {m.cpi_x:g}/{m.cpi_y:g}, mount ({m.mount.x:g}, {m.mount.y:g}) m, "
             f"yaw {math.degrees(m.mount.yaw):g} deg{', flipped' if m.flip else ''}, "
-            f"source {source}"
+            f"{m.report_hz:g} Hz, source {_source(m)}"
         )
+    missing = [m for m in cfg.mice if m.replay and not os.path.isfile(m.replay)]
+    if missing:  # `mousedom run` would stop on it: not a valid rig yet
+        m = missing[0]
+        raise UserError(f"{cfg.path}: mice.{m.name}.replay: {m.replay}: capture file not found")
     if cfg.calibration:
-        print(f"  calibration: {cfg.calibration}")
+        state = "applied" if os.path.exists(cfg.calibration) else "not written yet"
+        print(f"  calibration: {cfg.calibration} ({state})")
     return 0

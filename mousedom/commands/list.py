@@ -11,10 +11,10 @@ from mousedom.config import load_config
 from mousedom.discovery import (
     DeviceInfo,
     Scan,
-    SystemPaths,
     is_stream,
     join_group_hint,
     match_device,
+    paths_for_root,
     scan,
 )
 from mousedom.errors import UserError
@@ -132,7 +132,7 @@ def _config_text(config_path: str, matches: dict[str, dict[str, str | None]]) ->
 
 
 def run(args: argparse.Namespace) -> int:
-    paths = SystemPaths.under(args.root) if args.root else SystemPaths()
+    paths = paths_for_root(args.root)
     result = scan(paths)
     matches = config_matches(args.config, result) if args.config else None
     if args.json:

@@ -21,10 +21,13 @@ import selectors
 import signal
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from mousedom.config import Config, MouseConfig, load_config
+from mousedom.discovery import SystemPaths, paths_for_root
 from mousedom.errors import UserError
 from mousedom.sources.base import Source, SourceGone, SourceUnavailable
 
@@ -55,6 +58,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--fsync", action="store_true", help="fsync every chunk (power-loss safe)")
     p.add_argument("--force", action="store_true", help="overwrite FILE if it exists")
+    p.add_argument(
+        "--root",
+        metavar="DIR",
+        help="look for evdev mice under DIR/dev/input, DIR/sys/class/input and "
+        "DIR/run/udev/data (as `mousedom list --root`: containers, tests)",
+    )
     p.set_defaults(func=run)
 
 
@@ -78,12 +87,14 @@ class Slot:
     serial_bytes: int = 0
 
 
-def _make_slot(cfg: Config, index: int, mouse: MouseConfig) -> Slot:
+def _make_slot(
+    cfg: Config, index: int, mouse: MouseConfig, paths: SystemPaths | None = None
+) -> Slot:
     where = f"{cfg.path}: mice.{mouse.name}"
     if mouse.evdev is not None:
         from mousedom.sources.evdev import EvdevSource
 
-        return Slot(index, mouse, EvdevSource(mouse))
+        return Slot(index, mouse, EvdevSource(mouse, paths))
     if mouse.serial is not None:
         # The serial source configures the downsampler (K, CPI) as the daemon would, and
         # hands every chunk it reads to on_raw before decoding: those bytes are recorded.
@@ -152,11 +163,18 @@ class Recorder:
     """The selectors loop: sources in, native capture chunks out, status on stderr."""
 
     def __init__(
-        self, cfg: Config, config_text: str, output: str, *, fsync: bool, stop: list[int]
+        self,
+        cfg: Config,
+        config_text: str,
+        output: str,
+        *,
+        fsync: bool,
+        stop: list[int],
+        paths: SystemPaths | None = None,
     ) -> None:
         from mousedom.capture.native import NativeWriter
 
-        self.slots = [_make_slot(cfg, i, m) for i, m in enumerate(cfg.mice)]
+        self.slots = [_make_slot(cfg, i, m, paths) for i, m in enumerate(cfg.mice)]
         for s in self.slots:
             try:
                 s.source.open()
@@ -179,6 +197,8 @@ class Recorder:
         for s in self.slots:
             self._register(s)
         self._stop = stop  # the signal handler appends to it
+        self.output = output
+        self._quiet = False  # stderr went away: no more status lines
 
     def _register(self, s: Slot) -> None:
         fd = _fileno(s.source)
@@ -194,12 +214,13 @@ class Recorder:
         try:
             for batch in s.source.read(now):  # a serial source's bytes went to on_raw
                 if not s.serial:
-                    self.writer.motion(s.index, batch.t, batch.dx, batch.dy)
+                    with self._writing():
+                        self.writer.motion(s.index, batch.t, batch.dx, batch.dy)
                 s.reports += len(batch)
         except SourceGone as e:
             self._unregister(s)
             s.connected, s.next_retry = False, now + RETRY_S
-            print(f"record: {s.mouse.name}: {e}; waiting for it to come back", file=sys.stderr)
+            self.say(f"record: {_without_name(s, e)}; waiting for it to come back")
 
     def _retry(self, s: Slot, now: float) -> None:
         s.next_retry = now + RETRY_S
@@ -210,14 +231,44 @@ class Recorder:
         s.connected = True
         self._register(s)
         node = getattr(getattr(s.source, "device", None), "node", s.mouse.name)
-        print(f"record: {s.mouse.name}: back ({node})", file=sys.stderr)
+        self.say(f"record: {s.mouse.name}: back ({node})")
+
+    def say(self, line: str) -> None:
+        """A status line on stderr.  The recording is the job, the status is decoration: a
+        closed stderr (``record ... 2>&1 | head``, a dropped ssh session) silences it and
+        the recording goes on."""
+        if self._quiet:
+            return
+        try:
+            print(line, file=sys.stderr, flush=True)
+        except OSError:
+            self._quiet = True
+            # Nothing more goes to the dead stream, not even Python's flush at exit.
+            sys.stderr = open(os.devnull, "w")  # noqa: SIM115 (lives until exit)
+
+    @contextmanager
+    def _writing(self) -> Iterator[None]:
+        """Errors writing the capture (disk full, quota, file size limit, I/O error) stop
+        the recording with one line that says so; the sources turn their own errors into
+        SourceGone, so any OSError here is the file's."""
+        try:
+            yield
+        except OSError as e:
+            n = sum(s.reports for s in self.slots)
+            raise UserError(
+                f"{self.output}: cannot write: {e.strerror or e}; recording stopped after "
+                f"{n} reports; the file holds what was written before (a reader skips its "
+                "torn tail)",
+                exit_code=1,
+            ) from None
 
     def _flush(self) -> None:
-        for s in self.slots:
-            if s.serial_data:
-                self.writer.serial_many(s.index, s.serial_t, s.serial_data)
-                s.serial_t, s.serial_data = [], []
-        self.writer.flush()
+        with self._writing():
+            for s in self.slots:
+                if s.serial_data:
+                    self.writer.serial_many(s.index, s.serial_t, s.serial_data)
+                    s.serial_t, s.serial_data = [], []
+            self.writer.flush()
 
     def status(self, elapsed: float, dt: float) -> str:
         parts = []
@@ -233,6 +284,8 @@ class Recorder:
                 continue
             st = src.assembler.stats
             extra = f" dropped {st.dropped_frames}" if st.dropped_frames else ""
+            if getattr(src, "time_backwards", 0):
+                extra += f" stamped-backwards {src.time_backwards}"
             parts.append(
                 f"{s.mouse.name} {st.events} events {s.reports} reports {rate:.0f} Hz{extra}{state}"
             )
@@ -244,8 +297,22 @@ class Recorder:
         finally:
             # Whatever happened, what was recorded stays readable and the devices are
             # released (both are idempotent after a normal finish).
-            self.writer.close()
+            self._close_writer()
             self.close_sources()
+
+    def _close_writer(self) -> None:
+        try:
+            self.writer.close()
+        except OSError:
+            # The file cannot take the last buffered data (the error that stopped us was
+            # reported already).  NativeWriter.close flushes before closing, so close the
+            # file itself: otherwise Python retries the flush at exit and prints a trace.
+            f = getattr(self.writer, "_f", None)
+            if f is not None:
+                try:
+                    f.close()
+                except OSError:
+                    pass
 
     def _loop(self, duration: float | None, status_every: float) -> None:
         t0 = time.monotonic()
@@ -268,10 +335,11 @@ class Recorder:
             if now - last_flush >= FLUSH_S:
                 self._flush()
                 # Every fd was drained up to `before`: reports stamped before it are in.
-                self.writer.sync(before)
+                with self._writing():
+                    self.writer.sync(before)
                 last_flush = now
             if status_every > 0 and now - last_status >= status_every:
-                print(self.status(now - t0, now - last_status), file=sys.stderr, flush=True)
+                self.say(self.status(now - t0, now - last_status))
                 last_status = now
         self.finish(time.monotonic() - t0)
 
@@ -288,12 +356,14 @@ class Recorder:
                 continue
             note = DeviceStats()
             note.take_assembler(s.source.assembler.stats)
-            self.writer.note(s.index, note)
-        self.writer.close()
+            with self._writing():
+                self.writer.note(s.index, note)
+        with self._writing():
+            self.writer.close()
         self.close_sources()
         for s in self.slots:  # the last line gives average rates over the whole run
             s.last_reports = 0
-        print(self.status(elapsed, elapsed).replace("record:", "record: done", 1), file=sys.stderr)
+        self.say(self.status(elapsed, elapsed).replace("record:", "record: done", 1))
 
     def close_sources(self) -> None:
         for s in self.slots:
@@ -301,12 +371,19 @@ class Recorder:
 
 
 def run(args: argparse.Namespace) -> int:
+    if not args.output:
+        raise UserError("-o/--output: empty file name")
     cfg = load_config(args.config)
     if os.path.exists(args.output) and not args.force:
         raise UserError(f"{args.output}: exists; not overwriting a recording (use --force)")
     config_text = Path(args.config).read_text()
     if args.duration is not None and not (args.duration > 0 and math.isfinite(args.duration)):
         raise UserError(f"--duration: must be a positive number of seconds, got {args.duration}")
+    if not (args.status_interval >= 0 and math.isfinite(args.status_interval)):
+        raise UserError(
+            f"--status-interval: must be 0 (no status) or a number of seconds, "
+            f"got {args.status_interval}"
+        )
     stop = []
 
     def on_signal(signum: int, frame: object) -> None:
@@ -315,11 +392,17 @@ def run(args: argparse.Namespace) -> int:
     # Installed before the sources open, so that an early Ctrl-C still closes cleanly.
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
-    rec = Recorder(cfg, config_text, args.output, fsync=args.fsync, stop=stop)
+    # A file size limit (ulimit -f) would kill us with SIGXFSZ and no word; ignored, the
+    # write fails with EFBIG and the user is told (the file stays readable either way).
+    signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+    paths = paths_for_root(args.root)
+    rec = Recorder(cfg, config_text, args.output, fsync=args.fsync, stop=stop, paths=paths)
     names = ", ".join(f"{s.mouse.name} ({_describe(s)})" for s in rec.slots)
-    print(f"record: {args.output}: recording {names}", file=sys.stderr, flush=True)
+    rec.say(f"record: {args.output}: recording {names}")
     try:
         rec.run(args.duration, args.status_interval)
+    except UserError:
+        raise
     except Exception as e:  # a bug must not end in a traceback; the file is closed already
         log.debug("record failed", exc_info=True)
         raise UserError(
@@ -328,6 +411,12 @@ def run(args: argparse.Namespace) -> int:
             exit_code=1,
         ) from None
     return 0
+
+
+def _without_name(s: Slot, e: Exception) -> str:
+    """'left: device gone' (sources put their name first already; don't say it twice)."""
+    text = str(e)
+    return text if text.startswith(f"{s.mouse.name}: ") else f"{s.mouse.name}: {text}"
 
 
 def _describe(s: Slot) -> str:

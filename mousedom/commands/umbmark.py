@@ -32,14 +32,15 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _read(path: str) -> str:
-    if path == "-":
-        return sys.stdin.read()
     try:
-        return Path(path).read_text(encoding="utf-8")
+        # Bytes, decoded here: binary garbage is one clear line whatever the locale.
+        raw = sys.stdin.buffer.read() if path == "-" else Path(path).read_bytes()
+        return raw.decode("utf-8")
     except FileNotFoundError:
         raise UserError(f"{path}: file not found") from None
     except UnicodeDecodeError as e:
-        raise UserError(f"{path}: byte offset {e.start}: not UTF-8 text") from None
+        name = "<stdin>" if path == "-" else path
+        raise UserError(f"{name}: byte offset {e.start}: not UTF-8 text") from None
     except OSError as e:
         raise UserError(f"{path}: cannot read: {e.strerror}") from None
 

@@ -81,8 +81,12 @@ class EvdevSource(Source):
         self._stream = False  # reading a FIFO/pipe: no ioctls, poll for hang-up
         self._rest = b""  # bytes of an incomplete record, completed by the next read
         self._gone: str | None = None  # the device went away; raise after handing over data
-        self._attached_once = False
         self.truncated_bytes = 0  # bytes of incomplete records lost at unplug
+        # Stamps are made non-decreasing here, at the boundary: the tracker and the capture
+        # format both rely on it.  A kernel clock does not run backwards, but a FIFO
+        # writer's stamps can, and so can a replug that restarts a stream's clock.
+        self._last_t = -np.inf
+        self.time_backwards = 0  # reports stamped before the previous one (moved forward)
         self.grabbed = False
         self._device_opener = device_opener or _input_device
         self._ioctl = ioctl or fcntl.ioctl
@@ -100,7 +104,6 @@ class EvdevSource(Source):
                 self._open_stream(info)
             else:
                 self._open_device(info)
-        self._attached_once = True
         self._update_health()
 
     def _open_stream(self, info: DeviceInfo) -> None:
@@ -122,9 +125,12 @@ class EvdevSource(Source):
                 self.rule, scan(self.paths).devices, resolved_path=resolved, who=self.name
             )
         except AmbiguousDevice as e:
-            if self._attached_once:  # a second look-alike was plugged in: wait, don't die
-                raise SourceUnavailable(str(e)) from None
-            raise
+            # Several devices fit the rule (twin mice, or a look-alike plugged in later).
+            # Sources speak base.py's terms only: "not available now, retry later", with
+            # every candidate in the message.  The daemon keeps running and attaches once
+            # the look-alike is unplugged; `record` and `list --config` stop with this
+            # message (exit 1), which tells the user what to add to the rule.
+            raise SourceUnavailable(str(e)) from None
         except NoDevice as e:
             if (
                 self.rule.path
@@ -227,7 +233,13 @@ class EvdevSource(Source):
         self._gone = gone  # raised by the next call, after these frames are delivered
         if not len(frames):
             return []
-        return [Reports(self.name, frames.t, frames.dx.astype(np.float64), frames.dy)]
+        t = np.maximum.accumulate(np.concatenate([[self._last_t], frames.t]))[1:]
+        back = int(np.count_nonzero(t > frames.t))
+        if back:
+            self.time_backwards += back
+            self._update_health()
+        self._last_t = float(t[-1])
+        return [Reports(self.name, t, frames.dx.astype(np.float64), frames.dy)]
 
     def _update_health(self) -> None:
         s = self.assembler.stats
@@ -242,6 +254,7 @@ class EvdevSource(Source):
             dropped_counts=[s.dropped_dx, s.dropped_dy],
             incomplete_frames=s.incomplete_frames,
             truncated_bytes=self.truncated_bytes,
+            time_backwards=self.time_backwards,
         )
 
 

@@ -1,0 +1,82 @@
+"""`mousedom check-config` as a user runs it."""
+
+from __future__ import annotations
+
+from conftest import run_mousedom
+
+
+def write(tmp_path, text: str):
+    path = tmp_path / "rig.yaml"
+    path.write_text(text)
+    return path
+
+
+def test_prints_each_mouse_and_its_source(tmp_path):
+    (tmp_path / "drive.mdcap").write_bytes(b"")  # only its existence is checked here
+    path = write(
+        tmp_path,
+        "model: diff-drive\n"
+        "calibration: rig.calib.yaml\n"
+        "mice:\n"
+        "  floor: {cpi: 1600, mount: {x: 0.1}, serial: {port: /dev/ttyUSB0, k: 8}}\n"
+        "  side: {cpi: {x: 400, y: 410}, mount: {x: -0.1, y: 0.05, yaw: 90}, flip: true,\n"
+        "         replay: {file: drive.mdcap, device: sim b}}\n"
+        "  usb: {cpi: 450, mount: {x: 0, y: -0.1}, evdev: {name: Logitech USB, grab: false}}\n",
+    )
+    p = run_mousedom("check-config", "--config", str(path))
+    assert p.returncode == 0, p.stderr
+    lines = p.stdout.splitlines()
+    assert lines[0] == f"{path}: diff-drive model, exact integrator, 100 Hz"
+    # serial: the report rate follows K (1e6 / (8 * 1250) = 100 Hz)
+    assert lines[1] == (
+        "  floor: cpi 1600/1600, mount (0.1, 0) m, yaw 0 deg, 100 Hz, "
+        "source serial /dev/ttyUSB0 (115200 baud, k 8, sensor 1600 cpi)"
+    )
+    assert lines[2] == (
+        "  side: cpi 400/410, mount (-0.1, 0.05) m, yaw 90 deg, flipped, 125 Hz, "
+        f"source replay {tmp_path / 'drive.mdcap'} device 'sim b'"
+    )
+    assert "source evdev (name 'Logitech USB', not grabbed)" in lines[3]
+    # Regression: nothing said whether the calibration file exists (and so is applied).
+    assert lines[4] == f"  calibration: {tmp_path / 'rig.calib.yaml'} (not written yet)"
+    (tmp_path / "rig.calib.yaml").write_text("mice:\n  usb: {cpi: {x: 451, y: 452}}\n")
+    p = run_mousedom("check-config", "--config", str(path))
+    assert p.returncode == 0, p.stderr
+    assert "usb: cpi 451/452" in p.stdout and "(applied)" in p.stdout
+
+
+def test_a_missing_replay_file_is_an_error(tmp_path):
+    """Regression: check-config passed a rig whose replay capture does not exist."""
+    path = write(
+        tmp_path,
+        "mice:\n"
+        "  a: {cpi: 400, mount: {x: 0.1}, replay: gone.events}\n"
+        "  b: {cpi: 400, mount: {x: -0.1}, replay: gone.events}\n",
+    )
+    p = run_mousedom("check-config", "--config", str(path))
+    assert p.returncode == 2 and "Traceback" not in p.stderr
+    assert f"mice.a.replay: {tmp_path / 'gone.events'}: capture file not found" in p.stderr
+
+
+def test_mice_without_a_source_suggest_no_sources(tmp_path):
+    """Regression: the error did not say that a captures-only rig is checked with
+    --no-sources; with it the rig passes."""
+    path = write(tmp_path, "mice:\n  a: {cpi: 400, mount: {x: 0.1}}\n  b: {cpi: 400, mount: {}}\n")
+    p = run_mousedom("check-config", "--config", str(path))
+    assert p.returncode == 2 and "Traceback" not in p.stderr
+    assert "mice.a: says nowhere where the mouse comes from" in p.stderr
+    assert "add --no-sources" in p.stderr
+    assert run_mousedom("check-config", "--config", str(path), "--no-sources").returncode == 0
+    # Another error is reported as it is, without the hint.
+    write(tmp_path, "mice:\n  a: {cpi: zero, mount: {x: 0.1}}\n")
+    p = run_mousedom("check-config", "--config", str(path))
+    assert p.returncode == 2 and "mice.a.cpi: must be a number" in p.stderr
+    assert "--no-sources" not in p.stderr
+
+
+def test_missing_and_binary_config(tmp_path):
+    p = run_mousedom("check-config", "--config", str(tmp_path / "nope.yaml"))
+    assert p.returncode == 2 and "nope.yaml: config file not found" in p.stderr
+    (tmp_path / "bin.yaml").write_bytes(bytes(range(256)))
+    p = run_mousedom("check-config", "--config", str(tmp_path / "bin.yaml"))
+    assert p.returncode == 2 and "Traceback" not in p.stderr and "not UTF-8" in p.stderr
