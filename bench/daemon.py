@@ -163,10 +163,26 @@ def run_daemon(d: Path, seconds: float, rate_hz: float) -> dict:
 
     th = threading.Thread(target=reader, daemon=True)
     th.start()
+    ctl = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    ctl.connect(str(sock_path))
+    ctl_lines = ctl.makefile("rb")
+    ctl.sendall(b'{"cmd": "rate", "hz": 0}\n')
+
+    def counters() -> tuple[int, int]:
+        ctl.sendall(b'{"cmd": "status"}\n')
+        for line in ctl_lines:
+            msg = json.loads(line)
+            if msg["class"] == "STATUS":
+                return msg["wakes"], msg["source_reads"]
+        raise SystemExit("daemon went away")
+
     time.sleep(1.2)  # warm-up: the feeder starts, windows begin to close
     cpu0, wall0 = cpu_seconds(daemon.pid), time.monotonic()
+    wakes0, reads0 = counters()
     time.sleep(seconds)
+    wakes1, reads1 = counters()
     cpu1, wall1 = cpu_seconds(daemon.pid), time.monotonic()
+    ctl.close()
     feed.wait()
     time.sleep(0.2)
     stop.set()
@@ -197,6 +213,8 @@ def run_daemon(d: Path, seconds: float, rate_hz: float) -> dict:
         "pose_hz": n_poses / (wall1 - wall0),
         "period": period,
         "reports": sum(len(s) for s in stamps),
+        "wakes_hz": (wakes1 - wakes0) / (wall1 - wall0),
+        "reads_hz": (reads1 - reads0) / (wall1 - wall0),
     }
 
 
@@ -283,6 +301,10 @@ def main() -> None:
     print(f"four mice x {REPORT_HZ:.0f} Hz through FIFOs, {run['reports']} reports, "
           f"POSE at {args.rate_hz:g} Hz, {args.seconds:g} s measured")  # fmt: skip
     print(f"POSE rate received        {run['pose_hz']:.1f} Hz")
+    print(
+        f"loop                      {run['wakes_hz']:.0f} wakes/s, "
+        f"{run['reads_hz']:.0f} source reads/s (reports arrive at {len(MICE) * REPORT_HZ:.0f}/s)"
+    )
     print(
         f"daemon CPU                {100 * run['cpu']:.2f} % of one core (target <= 5 %); "
         f"baseline bare reader {100 * base['cpu']:.2f} %; ratio {run['cpu'] / base['cpu']:.2f}"

@@ -1,10 +1,11 @@
 """The daemon: one selectors loop over the sources, the tracker, the server and the signals.
 
-Data flows one way: a readable source fd -> ``Source.read`` -> ``Tracker.push`` -> after
-every wake ``Tracker.poll`` -> POSE lines -> ``Server`` queues.  There is no thread: signal
-handlers only set a flag and wake the loop through ``signal.set_wakeup_fd``; timers
-(silence rule, SOURCE status, watchdog, reattaching vanished sensors) are deadlines checked
-after each ``select``.  The clock is injected (gpiozero style) so tests can drive it.
+Data flows one way: sources -> ``Source.read`` -> ``Tracker.push`` -> ``Tracker.poll`` ->
+POSE lines -> ``Server`` queues.  The sources are read when the next window can close
+(``plan_wake``), not at every report.  There is no thread: signal handlers only set a flag
+and wake the loop through ``signal.set_wakeup_fd``; timers (window wake-ups, SOURCE status,
+watchdog, reattaching vanished sensors) are deadlines checked after each wait.  The clock
+and the source factory are injected (gpiozero style) so tests can swap them.
 
 Degraded operation: a source that raises SourceGone (ENODEV, EOF, serial error) is marked
 not live in the tracker, which then fuses the rest if the model keeps its rank and says
@@ -257,6 +258,7 @@ class Daemon:
             if now >= next_status:
                 next_status = max(next_status + STATUS_S, now)
                 self._broadcast_sources(now)
+                self._update_status()
                 if self.recording is not None:
                     self.recording.sync(self.tracker.frontier_time)
             if now >= next_watchdog:
@@ -418,6 +420,10 @@ class Daemon:
 
     def _sources_changed(self, now: float) -> None:
         self._broadcast_sources(now)
+        self._update_status()
+
+    def _update_status(self) -> None:
+        """systemd's STATUS= line, sent when it changes."""
         if not self._ready:
             return  # READY=1 carries the first STATUS
         status = self._status_line()

@@ -138,10 +138,17 @@ class Server:
         directory = os.path.dirname(self.path) or "."
         try:
             os.makedirs(directory, mode=0o755, exist_ok=True)
+            owner = os.stat(directory).st_uid
         except OSError as e:
             raise UserError(
                 f"{self.path}: cannot create the socket directory: {e.strerror}"
             ) from None
+        if owner not in (os.getuid(), 0):
+            # e.g. /tmp/mousedom-UID made by someone else, who could swap the socket
+            raise UserError(
+                f"{directory}: belongs to uid {owner}, not to this user or root; "
+                "not putting the socket there (give --socket)"
+            )
         gid = None
         if self.settings.group:
             try:

@@ -126,3 +126,65 @@ def test_run_without_config_points_at_demo(tmp_path):
     assert out.returncode == 2
     assert "/etc/mousedom/mousedom.yaml: config file not found" in out.stderr
     assert "mousedom run --demo" in out.stderr
+
+
+def test_watch_on_a_terminal_redraws_in_place(rig_run):
+    """On a real pty, watch redraws one block (clear + home) per pose with sensor health."""
+    import os
+    import pty
+    import subprocess
+    import sys
+
+    run = rig_run(sim.straight(1.0, 0.2))
+    master, slave = pty.openpty()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "mousedom", "watch", "--socket", str(run.daemon.socket_path)]
+        + ["--count", "3"],
+        stdin=slave,
+        stdout=slave,
+        stderr=subprocess.PIPE,
+        env=mousedom_env(),
+    )
+    os.close(slave)
+    out = b""
+    while True:
+        try:
+            chunk = os.read(master, 65536)
+        except OSError:  # EIO: the other side closed
+            break
+        if not chunk:
+            break
+        out += chunk
+    assert proc.wait(20) == 0, proc.stderr.read()
+    os.close(master)
+    text = out.decode()
+    assert text.count("\x1b[H\x1b[J") >= 3
+    last = text.rsplit("\x1b[H\x1b[J", 1)[1]
+    assert "model lsq" in last and "3 used, updating" in last and "sd  x" in last
+    for name in ("front", "left", "right"):
+        assert name in last and "connected" in last
+
+
+def test_run_without_socket_uses_the_runtime_directory_and_says_how_to_watch(tmp_path):
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    env = mousedom_env(RUNTIME_DIRECTORY=str(tmp_path))
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "mousedom", "run", "--demo"],
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
+    sock = tmp_path / "mousedom.sock"
+    deadline = time.monotonic() + 15
+    while not sock.exists():
+        assert proc.poll() is None and time.monotonic() < deadline
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=5)
+    assert proc.returncode == 0
+    assert f"watch it with: mousedom watch --socket {sock}" in err
+    assert not sock.exists()

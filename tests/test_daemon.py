@@ -207,3 +207,58 @@ def test_make_source_needs_a_source():
     with pytest.raises(UserError, match="mice.a: says nowhere"):
         make_source(replace(mouse, evdev=None))
     assert make_source(mouse).kind == "evdev"
+
+
+def test_reload_swaps_changed_mice_and_keeps_the_pose(tmp_path):
+    """SIGHUP's work in-process: a removed mouse is closed, a new one opened, the pose
+    and the unchanged mouse's source stay."""
+    from mousedom.config import load_config
+
+    def write(mice: str) -> None:
+        (tmp_path / "rig.yaml").write_text(f"rate_hz: 50\nmodel: lsq\nmice:\n{mice}")
+
+    line = "  {n}: {{evdev: {{path: /dev/{dev}}}, cpi: 1000, mount: {{x: {x}, y: 0}}}}\n"
+    write(line.format(n="a", dev="null", x=0.1) + line.format(n="b", dev="null", x=-0.1))
+    made: list[PipeSource] = []
+
+    def factory(mouse, clock):
+        made.append(PipeSource(mouse.name))
+        return made[-1]
+
+    d = Daemon(
+        load_config(tmp_path / "rig.yaml"),
+        str(tmp_path / "d.sock"),
+        source_factory=factory,
+        handle_signals=False,
+    )
+    th = threading.Thread(target=d.run)
+    th.start()
+    try:
+        while not os.path.exists(d.server.path):
+            time.sleep(0.01)
+        c = Conn(d.server.path)
+        c.until("VERSION")
+        c.send({"cmd": "reset", "x": 3.0, "y": -1.0})
+        c.until("OK")
+        a_source = d.slots[0].source
+        # b moves to another device and c is new: both need new sources; a stays
+        write(
+            line.format(n="a", dev="null", x=0.1)
+            + line.format(n="b", dev="zero", x=-0.1)
+            + line.format(n="c", dev="null", x=0.0).replace("y: 0", "y: 0.1")
+        )
+        old_tracker = d.tracker
+        d.request_reload()
+        deadline = time.monotonic() + 5
+        while d.tracker is old_tracker and time.monotonic() < deadline:
+            time.sleep(0.01)
+        t_reload = d.tracker.t0
+        pose = c.until("POSE", lambda m: m["t"] > t_reload)  # from the new tracker
+        assert [s.name for s in d.slots] == ["a", "b", "c"]
+        assert d.slots[0].source is a_source
+        assert len(made) == 4  # a, b at start; new b and c on reload
+        assert (pose["x"], pose["y"]) == (3.0, -1.0)
+        assert Conn(d.server.path).read()["sensors"] == ["a", "b", "c"]
+    finally:
+        d.request_stop()
+        th.join(5)

@@ -260,3 +260,14 @@ def test_default_socket_path():
     assert (
         default_socket_path({"TMPDIR": "/var/tmp"}, 1000) == "/var/tmp/mousedom-1000/mousedom.sock"
     )
+
+
+@pytest.mark.skipif(os.getuid() != 0, reason="needs root to make a directory for another uid")
+def test_socket_directory_of_another_user_is_refused(tmp_path):
+    d = tmp_path / "theirs"
+    d.mkdir()
+    os.chown(d, NOBODY, NOBODY)
+    s = Server(str(d / "m.sock"), ServerConfig(), selectors.DefaultSelector(), None, None)
+    with pytest.raises(UserError, match="belongs to uid 65534"):
+        s.open()
+    assert not (d / "m.sock").exists()
