@@ -203,18 +203,20 @@ def rig_yaml(rig: Rig, cpi: dict[str, tuple[float, float]] | None = None) -> str
     """The config a robot would be given for this rig (true values unless ``cpi`` says
     what the robot believes)."""
     lines = [
-        f"rate_hz: {rig.rate_hz!r}",
+        f"rate_hz: {float(rig.rate_hz)!r}",
         f"model: {rig.model}",
         f"integrator: {rig.integrator}",
         "mice:",
     ]
     for m in rig.mice:
-        cx, cy = (cpi or {}).get(m.name, (m.cpi_x, m.cpi_y))
+        cx, cy = (float(v) for v in (cpi or {}).get(m.name, (m.cpi_x, m.cpi_y)))
+        # float(): numpy scalars would print as np.float64(...), which is not YAML.
+        x, y, yaw, rate = float(m.x), float(m.y), float(m.yaw), float(m.rate_hz)
         lines += [
             f"  {m.name}:",
             f"    cpi: {{x: {cx!r}, y: {cy!r}}}",
-            f"    mount: {{x: {m.x!r}, y: {m.y!r}, yaw: {m.yaw!r}}}",
-            f"    report_hz: {m.rate_hz!r}",
+            f"    mount: {{x: {x!r}, y: {y!r}, yaw: {yaw!r}}}",
+            f"    report_hz: {rate!r}",
             f"    flip: {'true' if m.flip else 'false'}",
         ]
     return "\n".join(lines) + "\n"

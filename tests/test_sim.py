@@ -67,3 +67,10 @@ def test_rig_config_round_trips_the_rig():
     cfg = sim.rig_config(r)
     assert cfg.names == ("front", "left", "right")
     assert cfg.mouse("left").mount.y == pytest.approx(r.mice[1].y)
+
+
+def test_rig_config_accepts_numpy_numbers():
+    mice = (sim.SimMouse("a", np.float64(0.15), np.float64(0.0), cpi_x=np.float64(400)),)
+    rig = sim.Rig(mice + (sim.SimMouse("b", 0.0, 0.1),), rate_hz=np.float64(50))
+    cfg = sim.rig_config(rig)
+    assert cfg.mouse("a").mount.x == 0.15 and cfg.rate_hz == 50
