@@ -85,12 +85,12 @@ def run(args) -> int:
     replay = Replay(config, assignments, model=args.model, integrator=args.integrator)
 
     sinks = []
-    out: TextIO | None = None
+    out: _Output | None = None
     if args.output == "-":
-        out = sys.stdout
+        out = _Output(sys.stdout, "<stdout>")
     elif args.output:
         try:
-            out = open(args.output, "w", newline="")
+            out = _Output(open(args.output, "w", newline=""), args.output)
         except OSError as e:
             raise UserError(f"{args.output}: cannot write: {e.strerror}") from None
     if out is not None:
@@ -117,10 +117,8 @@ def run(args) -> int:
     finally:
         if bar:
             bar.close()
-        if out is not None and out is not sys.stdout:
-            out.close()
-        elif out is sys.stdout:
-            out.flush()
+        if out is not None:
+            out.finish()
 
     for w in summary.warnings:
         print(f"mousedom: warning: {w}", file=sys.stderr)
@@ -131,8 +129,56 @@ def run(args) -> int:
     if args.umbmark:
         _emit_umbmark(args, summary, true_end)
     elif out is None:
-        print(format_summary(summary, replay, args))
+        summary_out = _Output(sys.stdout, "<stdout>")
+        summary_out.write(format_summary(summary, replay, args) + "\n")
+        summary_out.flush()
     return check(summary)
+
+
+class _Output:
+    """The CSV destination: a write error (disk full, I/O error) is one line naming it.
+
+    A closed pipe (``| head``) stays a BrokenPipeError: the CLI exits quietly on it.
+    """
+
+    def __init__(self, f: TextIO, name: str) -> None:
+        self.f, self.name = f, name
+
+    def _failed(self, e: OSError) -> UserError:
+        return UserError(f"{self.name}: cannot write: {e.strerror or e}")
+
+    def write(self, text: str) -> int:
+        try:
+            return self.f.write(text)
+        except BrokenPipeError:
+            raise
+        except OSError as e:
+            raise self._failed(e) from None
+
+    def flush(self) -> None:
+        try:
+            self.f.flush()
+        except BrokenPipeError:
+            raise
+        except OSError as e:
+            raise self._failed(e) from None
+
+    def finish(self) -> None:
+        """Flush (stdout) or close (a file); a failure here would lose the last rows."""
+        try:
+            if self.f is sys.stdout:
+                self.f.flush()
+            else:
+                self.f.close()
+        except BrokenPipeError:
+            raise
+        except OSError as e:
+            if self.f is not sys.stdout:
+                try:  # the buffer is gone either way; do not fail again at exit
+                    self.f.close()
+                except OSError:
+                    pass
+            raise self._failed(e) from None
 
 
 def _true_end(args) -> tuple[float, float]:
