@@ -53,3 +53,32 @@ def test_replay_stdout_on_a_full_disk_is_one_line(tmp_path, extra):
         )
     assert proc.returncode != 0
     _one_error_line(proc.stderr, "<stdout>", "cannot write")
+
+
+@needs_dev_full
+def test_convert_to_a_full_disk_or_missing_folder_is_one_line(tmp_path):
+    src = f"m={external_dir() / PS2}"
+    for out in ("/dev/full", str(tmp_path / "no" / "such" / "x.mdcap")):
+        proc = run_mousedom("convert", "--capture", src, "-o", out)
+        assert proc.returncode != 0
+        _one_error_line(proc.stderr, out, "cannot write")
+
+
+def test_convert_that_fails_half_way_leaves_no_short_capture(tmp_path):
+    """A bad line deep in the input: no output file (it would replay as a short run
+    without a word), and an older output of the same name is kept."""
+    lines = (external_dir() / PS2).read_text().splitlines()
+    at = len(lines) // 2
+    lines.insert(at, "garbage")
+    bad = tmp_path / "bad.events"
+    bad.write_text("\n".join(lines) + "\n")
+    (tmp_path / "bad.desc").write_bytes((external_dir() / PS2).with_suffix(".desc").read_bytes())
+    out = tmp_path / "out.mdcap"
+    proc = run_mousedom("convert", "--capture", f"m={bad}", "-o", str(out))
+    assert proc.returncode != 0
+    _one_error_line(proc.stderr, f"bad.events:{at + 1}:")
+    assert not out.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.desc", "bad.events"]
+    out.write_bytes(b"older")
+    proc = run_mousedom("convert", "--capture", f"m={bad}", "-o", str(out))
+    assert proc.returncode != 0 and out.read_bytes() == b"older"

@@ -63,7 +63,7 @@ def run(args) -> int:
     for _, cap in inputs:
         if os.path.abspath(cap.path) == out:
             raise UserError(f"{args.output}: the output would overwrite an input")
-    stats = convert(inputs, args.output, config_text=config_text, compress=not args.no_compress)
+    stats = _convert_into(args.output, inputs, config_text, not args.no_compress)
     for w in stats["warnings"]:
         print(f"mousedom: warning: {w}", file=sys.stderr)
     print(
@@ -71,6 +71,42 @@ def run(args) -> int:
         f"{os.path.getsize(args.output)} bytes"
     )
     return 0
+
+
+def _convert_into(
+    output: str, inputs: list[tuple[str | None, Capture]], config_text: str | None, compress: bool
+) -> dict:
+    """Convert into a temporary file beside ``output`` and rename it on success.
+
+    An input found bad half-way (or a full disk) must not leave a short capture behind
+    that replays without a word, nor clobber an older ``output``.  Special files
+    (/dev/stdout, a FIFO) are written in place.
+    """
+    special = os.path.exists(output) and not os.path.isfile(output)
+    target = output
+    if not special:
+        folder = os.path.dirname(os.path.abspath(output))
+        target = os.path.join(folder, f".{os.path.basename(output)}.{os.getpid()}.part")
+    try:
+        stats = convert(inputs, target, config_text=config_text, compress=compress)
+        if target != output:
+            os.replace(target, output)
+    except OSError as e:
+        _discard(target, output)
+        name = output if e.filename in (None, target, output) else e.filename
+        raise UserError(f"{name}: cannot write: {e.strerror or e}") from None
+    except BaseException:
+        _discard(target, output)
+        raise
+    return stats
+
+
+def _discard(target: str, output: str) -> None:
+    if target != output:
+        try:
+            os.unlink(target)
+        except OSError:
+            pass
 
 
 def convert(
