@@ -55,7 +55,7 @@ def decode_serial(decoder, chunk: Serial, offset: float) -> tuple[np.ndarray, ..
 class _FeedState:
     feed: object
     capture: Capture
-    mice: dict[int, int]  # device -> mouse index
+    mice: dict[int, tuple[int, ...]]  # device -> mouse indices (one file may feed two mice)
     offset: float  # seconds subtracted from this feed's times
     watermark: float = -math.inf  # in tracker time
     done: bool = False
@@ -161,7 +161,10 @@ class Replay:
         summary = Summary(self.config.names)
         states: list[_FeedState] = []
         for cap in self.captures:
-            devmap = {a.device: a.mouse for a in self.assignments if a.capture is cap}
+            devmap: dict[int, tuple[int, ...]] = {}
+            for a in self.assignments:
+                if a.capture is cap:
+                    devmap[a.device] = devmap.get(a.device, ()) + (a.mouse,)
             for feed in cap.feeds():
                 mice = {d: devmap[d] for d in feed.devices if d in devmap}
                 if mice:
@@ -183,31 +186,35 @@ class Replay:
             batch = next(st.feed.batches, None)
             if batch is None:
                 st.done = True
-                ended.extend(st.mice.values())
+                ended.extend(m for mice in st.mice.values() for m in mice)
                 continue
             for mo in batch.motion:
-                mouse = st.mice.get(mo.device)
-                if mouse is not None and len(mo.t):
-                    tracker.push(mouse, mo.t - st.offset if st.offset else mo.t, mo.dx, mo.dy)
+                if len(mo.t):
+                    t = mo.t - st.offset if st.offset else mo.t
+                    for mouse in st.mice.get(mo.device, ()):
+                        tracker.push(mouse, t, mo.dx, mo.dy)
             for chunk in batch.serial:
-                mouse = st.mice.get(chunk.device)
-                if mouse is None:
+                mice = st.mice.get(chunk.device)
+                if not mice:
                     continue
                 dec = st.decoders.get(chunk.device)
                 if dec is None:
                     from mousedom.adns_decode import AdnsDecoder
 
-                    dec = st.decoders[chunk.device] = AdnsDecoder(name=self.config.names[mouse])
+                    name = self.config.names[mice[0]]
+                    dec = st.decoders[chunk.device] = AdnsDecoder(name=name)
                 t, dx, dy = decode_serial(dec, chunk, st.offset)
                 if len(t):
-                    tracker.push(mouse, t, dx, dy)
+                    for mouse in mice:
+                        tracker.push(mouse, t, dx, dy)
                     st.capture.stats[chunk.device].add_motion(t, dx, dy)
             if batch.complete > -math.inf:
                 st.watermark = batch.complete - st.offset
                 if math.isfinite(st.watermark):
-                    for dev, mouse in st.mice.items():
+                    for dev, mice in st.mice.items():
                         margin = SERIAL_MARGIN_S if dev in st.serial else 0.0
-                        tracker.complete_until(st.watermark - margin, mouse)
+                        for mouse in mice:
+                            tracker.complete_until(st.watermark - margin, mouse)
             finite = [s.watermark for s in states if not s.done and math.isfinite(s.watermark)]
             if ended and finite:
                 for mouse in ended:

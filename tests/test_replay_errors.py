@@ -82,3 +82,41 @@ def test_convert_that_fails_half_way_leaves_no_short_capture(tmp_path):
     out.write_bytes(b"older")
     proc = run_mousedom("convert", "--capture", f"m={bad}", "-o", str(out))
     assert proc.returncode != 0 and out.read_bytes() == b"older"
+
+
+TWO_MICE = """\
+rate_hz: 20
+model: lsq
+mice:
+  a: {cpi: 800, mount: {x: 0.10, y: 0.05, yaw: 0}}
+  b: {cpi: 800, mount: {x: -0.10, y: -0.05, yaw: 0}}
+"""
+
+
+def test_one_file_for_two_mice_feeds_both(tmp_path):
+    """--capture a=F --capture b=F is the same as giving b a copy of F (both mice got
+    the file's counts in the summary, but the fusion fed only one of them: exit 1)."""
+    cfg = tmp_path / "two.yaml"
+    cfg.write_text(TWO_MICE)
+    src = external_dir() / "evemu-devices__Ultrathin_Touch_Mouse.events"
+    copy = tmp_path / "copy.events"
+    copy.write_bytes(src.read_bytes())
+    same, copied = tmp_path / "same.csv", tmp_path / "copied.csv"
+    for b, out in ((src, same), (copy, copied)):
+        proc = run_mousedom(
+            "replay", "--config", str(cfg), "--capture", f"a={src}", "--capture", f"b={b}",
+            "-o", str(out),
+        )  # fmt: skip
+        assert proc.returncode == 0, proc.stderr
+    assert same.read_text() == copied.read_text()
+    # Two identical mice moving together never turn: theta stays 0 to the last row.
+    last = same.read_text().splitlines()[-1].split(",")
+    assert float(last[3]) == 0.0 and float(last[1]) != 0.0
+
+    from mousedom.capture import read_reports
+    from mousedom.config import load_config
+
+    reports, stats, _ = read_reports(load_config(str(cfg), need_sources=False),
+                                     [("a", str(src)), ("b", str(src))])  # fmt: skip
+    assert reports["a"].dx.sum() == reports["b"].dx.sum() == -319
+    assert len(reports["a"].t) == len(reports["b"].t) == 349

@@ -288,13 +288,16 @@ def read_reports(
     parts: dict[int, list[Motion]] = {a.mouse: [] for a in assignments}
     stats: dict[str, DeviceStats] = {}
     for cap in captures:
-        wanted = {a.device: a.mouse for a in assignments if a.capture is cap}
+        wanted: dict[int, tuple[int, ...]] = {}  # one device may feed several mice
+        for a in assignments:
+            if a.capture is cap:
+                wanted[a.device] = wanted.get(a.device, ()) + (a.mouse,)
         decoders: dict = {}
         for feed in cap.feeds():
             for batch in feed.batches:
                 for mo in batch.motion:
-                    if mo.device in wanted:
-                        parts[wanted[mo.device]].append(mo)
+                    for mouse in wanted.get(mo.device, ()):
+                        parts[mouse].append(mo)
                 for chunk in batch.serial:
                     if chunk.device in wanted:
                         # Raw ADNS-3080 bytes: the daemon's own decoder, on the file's times
@@ -302,13 +305,15 @@ def read_reports(
                         from mousedom.adns_decode import AdnsDecoder
                         from mousedom.replay import decode_serial
 
-                        name = config.mice[wanted[chunk.device]].name
+                        name = config.mice[wanted[chunk.device][0]].name
                         dec = decoders.setdefault(chunk.device, AdnsDecoder(name=name))
                         t, dx, dy = decode_serial(dec, chunk, 0.0)
                         cap.stats[chunk.device].add_motion(t, dx, dy)
-                        parts[wanted[chunk.device]].append(Motion(chunk.device, t, dx, dy))
-        for dev, mouse in wanted.items():
-            stats[config.mice[mouse].name] = cap.stats[dev]
+                        for mouse in wanted[chunk.device]:
+                            parts[mouse].append(Motion(chunk.device, t, dx, dy))
+        for dev, mice in wanted.items():
+            for mouse in mice:
+                stats[config.mice[mouse].name] = cap.stats[dev]
         warnings += cap.warnings
     out = {}
     for mouse, mos in parts.items():

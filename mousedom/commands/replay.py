@@ -213,14 +213,18 @@ def _emit_umbmark(args, summary: Summary, true_end: tuple[float, float]) -> None
     print(f"replay: appended {row} to {args.umbmark_csv}", file=sys.stderr)
 
 
+def _counts(c) -> str:
+    return "(" + ", ".join(f"{float(v):g}" for v in c) + ")"
+
+
 def check(summary: Summary) -> int:
     """Every count read must be in the output; anything else is a bug worth an exit code."""
     for m in summary.mice:
         net = (m.stats.net_x, m.stats.net_y)
         if any(abs(a - b) > 1e-6 * max(1.0, abs(b)) for a, b in zip(m.counts_in, net, strict=True)):
             print(
-                f"mousedom: error: mouse {m.name}: counts read {net} but the fusion took "
-                f"{m.counts_in}",
+                f"mousedom: error: mouse {m.name}: counts read {_counts(net)} but the fusion "
+                f"took {_counts(m.counts_in)}",
                 file=sys.stderr,
             )
             return 1
@@ -229,8 +233,8 @@ def check(summary: Summary) -> int:
             for a, b in zip(m.counts_out, m.counts_in, strict=True)
         ):
             print(
-                f"mousedom: error: mouse {m.name}: {m.counts_in} counts in but "
-                f"{m.counts_out} in the poses",
+                f"mousedom: error: mouse {m.name}: {_counts(m.counts_in)} counts in but "
+                f"{_counts(m.counts_out)} in the poses",
                 file=sys.stderr,
             )
             return 1
