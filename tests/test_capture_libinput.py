@@ -162,3 +162,37 @@ def test_fuzz_damaged_recordings_never_crash(tmp_path, at, junk):
         drain(p)
     except UserError as e:
         assert "f.yml" in str(e)
+
+
+@pytest.mark.parametrize("value", ["2147483648", "-2147483649", "99999999999999999999999"])
+def test_value_beyond_32_bits_names_the_line(tmp_path, value):
+    """An evdev value is an s32: a bigger one is damage (it was summed into the counts,
+    and past int64 saturated silently)."""
+    p, _, _ = _two_mice(tmp_path, n=20)
+    lines = p.read_text().splitlines()
+    k = next(i for i, ln in enumerate(lines) if ln.startswith("    - [") and i > 40)
+    lines[k] = f"    - [  0,  1000,   2,   0, {value}]"
+    p.write_text("\n".join(lines) + "\n")
+    with pytest.raises(UserError, match=rf"rec.yml:{k + 1}: .*signed 32-bit"):
+        drain(p)
+
+
+def test_values_at_the_32_bit_limits_are_kept(tmp_path):
+    p, _, _ = _two_mice(tmp_path, n=20)
+    lines = p.read_text().splitlines()
+
+    def fields(ln):
+        return [f.strip() for f in ln.split("[")[1].split("]")[0].split(",")]
+
+    ks = [
+        i
+        for i, ln in enumerate(lines)
+        if ln.startswith("    - [") and fields(ln)[2:4] == ["2", "0"]
+    ]
+    for k, v in zip(ks[:2], ("2147483647", "-2147483648"), strict=True):
+        sec, usec = fields(lines[k])[:2]
+        lines[k] = f"    - [{sec}, {usec}, 2, 0, {v}]"
+    p.write_text("\n".join(lines) + "\n")
+    cap = drain(p)
+    dx = cap.motion[0][1]
+    assert dx.max() == 2147483647 and dx.min() == -2147483648

@@ -254,7 +254,13 @@ class LibinputCapture(Capture):
         if a is None or len(a) != 5 * n:
             self._complain(block, line)
         a = a.reshape(n, 5)
-        if (a[:, :4] < 0).any() or (a[:, 2:4] > 0xFFFF).any() or (a[:, 1] >= 1_000_000).any():
+        if (
+            (a[:, :4] < 0).any()
+            or (a[:, 2:4] > 0xFFFF).any()
+            or (a[:, 1] >= 1_000_000).any()
+            or (a[:, 4] < -(2**31)).any()  # an evdev value is a signed 32-bit integer
+            or (a[:, 4] >= 2**31).any()
+        ):
             self._complain(block, line)
         return a[:, 0] + a[:, 1] / 1_000_000, a[:, 2], a[:, 3], a[:, 4]
 
@@ -270,6 +276,7 @@ class LibinputCapture(Capture):
                     vals = [int(x) for x in fields]
                     ok = ok and min(vals[:4]) >= 0 and vals[1] < 1_000_000
                     ok = ok and vals[2] <= 0xFFFF and vals[3] <= 0xFFFF
+                    ok = ok and -(2**31) <= vals[4] < 2**31
                 except ValueError:
                     ok = False
                 if not ok:
@@ -278,7 +285,8 @@ class LibinputCapture(Capture):
                             self.path,
                             line + i,
                             "an evdev event must be [sec, usec, type, code, value] "
-                            f"(non-negative integers but the value), got [{_show(m.group(1))}]",
+                            "(non-negative integers, but the value: a signed 32-bit one), "
+                            f"got [{_show(m.group(1))}]",
                         )
                     )
             elif not _OTHER.fullmatch(text):
