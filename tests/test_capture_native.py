@@ -10,10 +10,11 @@ import zlib
 import numpy as np
 import pytest
 from capture_helpers import drain
+from conftest import run_mousedom
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from mousedom.capture import DeviceInfo, DeviceStats, NativeWriter, open_capture
+from mousedom.capture import CaptureError, DeviceInfo, DeviceStats, NativeWriter, open_capture
 from mousedom.capture.native import CHUNK, MAGIC, NativeCapture
 from mousedom.errors import UserError
 
@@ -185,3 +186,28 @@ def test_fuzz_damaged_files_never_crash(tmp_path, junk, at):
         drain(p)
     except UserError as e:
         assert "f.mdcap" in str(e)
+
+
+def test_counts_beyond_32_bits_are_refused_not_wrapped(tmp_path):
+    """A frame's summed counts can exceed the i4 columns; wrapping them lost 2**32 counts
+    silently (evemu -> convert -> replay gave 3 instead of 4294967299)."""
+    w = NativeWriter(tmp_path / "x.mdcap", [DeviceInfo(name="big", mouse="m", rel_xy=True)])
+    w.motion(0, [0.1, 0.2], np.array([2**31 - 1, -(2**31)]), np.array([0, 0]))  # the limits
+    with pytest.raises(CaptureError, match=r"'big'.*t=0\.300000.*\(4294967294, 0\).*32 bits"):
+        w.motion(0, [0.25, 0.3], np.array([-(2**31), 2**32 - 2]), np.array([0, 0]))
+    w.close()
+    cap = drain(tmp_path / "x.mdcap")
+    assert cap.motion[0][1].tolist() == [2**31 - 1, -(2**31)]
+
+
+def test_convert_refuses_a_frame_beyond_32_bits(tmp_path):
+    ev = tmp_path / "sum.events"
+    ev.write_text(
+        "E: 0.010000 0002 0000 2147483647\nE: 0.010000 0002 0000 2147483647\n"
+        "E: 0.010000 0000 0000 0000\nE: 0.020000 0002 0000 5\nE: 0.020000 0000 0000 0000\n"
+    )
+    out = tmp_path / "sum.mdcap"
+    proc = run_mousedom("convert", "--capture", f"m={ev}", "-o", str(out))
+    assert proc.returncode != 0 and "Traceback" not in proc.stderr
+    assert "sum.events" in proc.stderr and "32 bits" in proc.stderr
+    assert not out.exists()

@@ -123,10 +123,25 @@ class NativeWriter:
         t = np.ascontiguousarray(t, dtype="<f8")
         if not len(t):
             return
-        self._buf[device].append((t, np.asarray(dx, dtype="<i4"), np.asarray(dy, dtype="<i4")))
+        dx, dy = np.asarray(dx), np.asarray(dy)
+        for d in (dx, dy):
+            # A frame's summed counts may exceed the i4 columns: refuse rather than wrap.
+            if d.dtype.itemsize > 4 and len(d) and (d.min() < -(2**31) or d.max() >= 2**31):
+                self._too_big(device, t, dx, dy)
+        self._buf[device].append((t, dx.astype("<i4"), dy.astype("<i4")))
         self._buffered[device] += len(t)
         if self._buffered[device] >= self.chunk_reports:
             self._flush_motion(device)
+
+    def _too_big(self, device: int, t: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> None:
+        big = (dx < -(2**31)) | (dx >= 2**31) | (dy < -(2**31)) | (dy >= 2**31)
+        k = int(np.argmax(big))
+        dev = self.devices[device]
+        src = dev.extra.get("converted_from")
+        raise CaptureError(
+            f"{src or dev.name}: device {dev.name!r}: the report at t={t[k]:.6f} holds "
+            f"({int(dx[k])}, {int(dy[k])}) counts, beyond the native format's signed 32 bits"
+        )
 
     def serial(self, device: int, t: float, data: bytes) -> None:
         """One read() of a serial port: its bytes and host time of arrival."""
