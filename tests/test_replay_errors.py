@@ -120,3 +120,20 @@ def test_one_file_for_two_mice_feeds_both(tmp_path):
                                      [("a", str(src)), ("b", str(src))])  # fmt: skip
     assert reports["a"].dx.sum() == reports["b"].dx.sum() == -319
     assert len(reports["a"].t) == len(reports["b"].t) == 349
+
+
+def test_convert_refuses_two_devices_for_one_mouse(tmp_path):
+    """The same multi-device file twice (or two files named for one mouse) made a capture
+    that `replay` then refused ("mouse given twice"): refuse it when converting."""
+    ext = external_dir()
+    a, b = ext / PS2, ext / "evemu-devices__Saitek_Cyborg_RAT5_Mouse.events"
+    two = tmp_path / "two.mdcap"
+    proc = run_mousedom("convert", "--capture", f"x={a}", "--capture", f"y={b}", "-o", str(two))
+    assert proc.returncode == 0, proc.stderr
+    out = tmp_path / "out.mdcap"
+    for caps in ((f"m={a}", f"m={b}"), (str(two), str(two))):
+        args = [w for c in caps for w in ("--capture", c)]
+        proc = run_mousedom("convert", *args, "-o", str(out))
+        assert proc.returncode != 0
+        _one_error_line(proc.stderr, "recorded twice")
+        assert not out.exists()

@@ -148,6 +148,16 @@ def convert(
             mine = {d: index[d] for d in feed.devices if d in index}
             if mine:
                 states.append([feed, mine, sub, -math.inf, False, cap])
+    seen: dict[str, DeviceInfo] = {}
+    for d in devices:
+        if d.mouse is not None and d.mouse in seen:
+            raise CaptureError(
+                f"mouse {d.mouse!r} would be recorded twice: device {seen[d.mouse].name!r} of "
+                f"{seen[d.mouse].extra['converted_from']} and device {d.name!r} of "
+                f"{d.extra['converted_from']} (the result could not be replayed)"
+            )
+        if d.mouse is not None:
+            seen[d.mouse] = d
     reports = 0
     # The inputs' first event (not first report) anchors the replay's window grid and the
     # epoch rebasing: keep it, so that replaying the result gives the very same poses.
