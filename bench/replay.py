@@ -192,6 +192,7 @@ def main() -> None:
             ev_slow, _ = median_rate(lambda: read_only(evemu_specs), 1)
         finally:
             evemu_mod._fast_events = fast
+        print(f"rates are medians of {args.repeat} runs (line-by-line parser: 1 run)")
         print(f"replay end to end, native : {nat:12,.0f} reports/s  ({n_nat} reports)")
         print(f"replay end to end, evemu  : {ev:12,.0f} reports/s  ({n_ev} reports)")
         print(f"replay end to end, libinput record: {li:12,.0f} reports/s  ({n_li} reports)")
