@@ -137,3 +137,39 @@ def test_convert_refuses_two_devices_for_one_mouse(tmp_path):
         assert proc.returncode != 0
         _one_error_line(proc.stderr, "recorded twice")
         assert not out.exists()
+
+
+def test_identical_mice_in_one_libinput_file_are_told_apart_by_node(tmp_path):
+    """Two mice of one model share their name; libinput record keeps no phys/uniq, so
+    such a recording could not be replayed at all.  replay.device matches the node."""
+    import numpy as np
+
+    from mousedom.capture.libinput import format_libinput
+
+    t = np.arange(1, 51) * 0.01
+    d = np.ones(50, dtype=int)
+    rec = tmp_path / "same.yml"
+    rec.write_text(
+        format_libinput([("Logitech USB Optical Mouse", t, 3 * d, -d),
+                         ("Logitech USB Optical Mouse", t + 0.002, 6 * d, -d)])
+    )  # fmt: skip
+    nodes = [ln.split()[-1] for ln in rec.read_text().splitlines() if ln.startswith("- node:")]
+    assert len(set(nodes)) == 2
+    cfg = tmp_path / "r.yaml"
+    src = "replay: {{file: same.yml, device: {}}}"
+    cfg.write_text(
+        "rate_hz: 20\nmodel: lsq\nmice:\n"
+        f"  a: {{cpi: 800, mount: {{x: 0.1, y: 0.05}}, {src.format(nodes[1])}}}\n"
+        f"  b: {{cpi: 800, mount: {{x: -0.1, y: -0.05}}, {src.format(nodes[0])}}}\n"
+    )
+    proc = run_mousedom("replay", "--config", str(cfg))
+    assert proc.returncode == 0, proc.stderr
+    rows = {ln.split()[0]: ln.split() for ln in proc.stdout.splitlines() if ln[:2] in ("a ", "b ")}
+    assert rows["a"][3] == "300" and rows["b"][3] == "150"
+    # Without it, the message names the nodes to choose from.
+    plain = tmp_path / "plain.yaml"
+    plain.write_text(TWO_MICE)
+    proc = run_mousedom("replay", "--config", str(plain), "--capture", f"a={rec}",
+                        "--capture", f"b={rec}")  # fmt: skip
+    assert proc.returncode != 0
+    _one_error_line(proc.stderr, nodes[0], nodes[1], "replay.device")

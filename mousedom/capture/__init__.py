@@ -136,7 +136,9 @@ def _evdev_matches(match: EvdevMatch, dev: DeviceInfo) -> bool:
 
 def _matches(mouse: MouseConfig, dev: DeviceInfo) -> bool:
     if mouse.replay_device is not None:
-        return dev.name == mouse.replay_device
+        # By name, or by the recorded device node: two identical mice share their name,
+        # and a libinput recording keeps only name, ids and node to tell them apart.
+        return mouse.replay_device in (dev.name, dev.extra.get("node"))
     if dev.mouse is not None:
         return dev.mouse == mouse.name
     if mouse.evdev is not None and _evdev_matches(mouse.evdev, dev):
@@ -149,8 +151,13 @@ def _candidates(capture: Capture) -> list[int]:
     return [i for i, d in enumerate(capture.devices) if d.kind == "serial" or d.rel_xy is not False]
 
 
+def _node(capture: Capture, i: int) -> str:
+    node = capture.devices[i].extra.get("node")
+    return f" ({node})" if node else ""
+
+
 def _describe(capture: Capture, devices: list[int]) -> str:
-    return ", ".join(repr(capture.devices[i].name) for i in devices) or "none"
+    return ", ".join(repr(capture.devices[i].name) + _node(capture, i) for i in devices) or "none"
 
 
 def assign(
@@ -209,7 +216,7 @@ def assign(
                 raise CaptureError(
                     f"--capture {name}={path}: the file holds {len(cands)} motion devices "
                     f"({_describe(cap, cands)}) and {len(hits)} match mouse {name!r}; "
-                    f"name the device in {cfg_name} (mice.{name}.replay.device)"
+                    f"name the device (or its node) in {cfg_name} (mice.{name}.replay.device)"
                 )
             put(mouse, cap, hits[0], "given by name")
         else:
@@ -218,9 +225,9 @@ def assign(
                 hits = [k for k, m in enumerate(config.mice) if _matches(m, cap.devices[i])]
                 if len(hits) > 1:
                     raise CaptureError(
-                        f"{path}: device {cap.devices[i].name!r} matches several mice "
-                        f"({', '.join(config.mice[k].name for k in hits)}); give it as "
-                        "NAME=FILE"
+                        f"{path}: device {cap.devices[i].name!r}{_node(cap, i)} matches several "
+                        f"mice ({', '.join(config.mice[k].name for k in hits)}); set "
+                        "mice.NAME.replay.device to the device's name or node"
                     )
                 if hits:
                     put(hits[0], cap, i, "matched")
