@@ -436,7 +436,7 @@ def test_unknown_devices_and_non_mice(tmp_path):
     # Given without NAME=, the file's mouse matches no mouse of the config.
     _fails(
         run_mousedom("replay", "--config", str(cfg), "--capture", str(rec)),
-        "no device ('gaming mouse') matches a mouse",
+        "no device ('gaming mouse' (/dev/input/event5)) matches a mouse",
         "give it as NAME=",
     )
     # Given by name, its one motion device is taken; a keyboard-only file is refused.
