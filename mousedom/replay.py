@@ -35,6 +35,9 @@ _ROW = "%.6f,%.9f,%.9f,%.9f,%.6f,%.6f,%.6f,%d,%d"
 # complete only this far behind its feed's watermark.
 SERIAL_MARGIN_S = 0.1
 
+# The most windows closed at once (bounded memory however long a pause in the input).
+MAX_WINDOWS = 16384
+
 
 def decode_serial(decoder, chunk: Serial, offset: float) -> tuple[np.ndarray, ...]:
     """Raw serial pieces -> (t, dx, dy) reports through the daemon's own ADNS decoder."""
@@ -172,11 +175,55 @@ class Replay:
                     states.append(_FeedState(feed, cap, mice, self._offset_of(cap), serial=serial))
         ended: list[int] = []
         total = sum(c.bytes_total for c in self.captures) or 1
+        n = len(self.config.mice)
+        # Reports read but not yet pushed, and how far each mouse's input is complete.
+        pending: list[list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = [[] for _ in range(n)]
+        want = [-math.inf] * n
+        last_t = -math.inf
 
         def emit(b: PoseBatch) -> None:
             if len(b):
                 summary.add(b)
                 sink(b)
+
+        def pump() -> None:
+            """Push and close at most MAX_WINDOWS windows at a time.
+
+            The tracker closes every window it can in one batch: after a pause of an hour
+            at 1 kHz that is 3.6 million windows at once (gigabytes).  So reports are
+            handed over, and completeness declared, no further than MAX_WINDOWS windows
+            past the closed frontier.  Reports reach the tracker in the same order and
+            never behind its frontier, so the poses are the very same.
+            """
+            while True:
+                if tracker.t0 is None:
+                    lim = math.inf
+                else:
+                    lim = tracker.frontier_time + MAX_WINDOWS * tracker.period
+                for mouse in range(n):
+                    queue = pending[mouse]
+                    while queue:
+                        t, dx, dy = queue[0]
+                        k = int(np.searchsorted(t, lim, side="right"))
+                        if k == len(t):
+                            tracker.push(mouse, t, dx, dy)
+                            queue.pop(0)
+                            continue
+                        if k:
+                            tracker.push(mouse, t[:k], dx[:k], dy[:k])
+                            queue[0] = (t[k:], dx[k:], dy[k:])
+                        break
+                    if want[mouse] > -math.inf:
+                        tracker.complete_until(min(want[mouse], lim), mouse)
+                b = tracker.poll()
+                emit(b)
+                if not len(b):
+                    return
+
+        def queue(mouse: int, t: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> None:
+            nonlocal last_t
+            pending[mouse].append((np.asarray(t, np.float64), dx, dy))
+            last_t = max(last_t, float(t[-1]))
 
         while True:
             live = [s for s in states if not s.done]
@@ -192,7 +239,7 @@ class Replay:
                 if len(mo.t):
                     t = mo.t - st.offset if st.offset else mo.t
                     for mouse in st.mice.get(mo.device, ()):
-                        tracker.push(mouse, t, mo.dx, mo.dy)
+                        queue(mouse, t, mo.dx, mo.dy)
             for chunk in batch.serial:
                 mice = st.mice.get(chunk.device)
                 if not mice:
@@ -206,7 +253,7 @@ class Replay:
                 t, dx, dy = decode_serial(dec, chunk, st.offset)
                 if len(t):
                     for mouse in mice:
-                        tracker.push(mouse, t, dx, dy)
+                        queue(mouse, t, dx, dy)
                     st.capture.stats[chunk.device].add_motion(t, dx, dy)
             if batch.complete > -math.inf:
                 st.watermark = batch.complete - st.offset
@@ -214,14 +261,22 @@ class Replay:
                     for dev, mice in st.mice.items():
                         margin = SERIAL_MARGIN_S if dev in st.serial else 0.0
                         for mouse in mice:
-                            tracker.complete_until(st.watermark - margin, mouse)
+                            want[mouse] = max(want[mouse], st.watermark - margin)
             finite = [s.watermark for s in states if not s.done and math.isfinite(s.watermark)]
             if ended and finite:
                 for mouse in ended:
-                    tracker.complete_until(min(finite), mouse)
-            emit(tracker.poll())
+                    want[mouse] = max(want[mouse], min(finite))
+            pump()
             if progress is not None:
                 progress(sum(c.bytes_done for c in self.captures) / total)
+        # The end: everything read is complete; close all but the last windows in bounded
+        # steps, then let the tracker close the rest.
+        for mouse in range(n):
+            want[mouse] = max(want[mouse], last_t)
+        pump()
+        for mouse in range(n):
+            for t, dx, dy in pending[mouse]:  # nothing is left; kept so no count can be lost
+                tracker.push(mouse, t, dx, dy)
         emit(tracker.finish())
         for st in states:
             for dev, dec in st.decoders.items():

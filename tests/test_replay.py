@@ -541,3 +541,54 @@ def test_two_epoch_files_stay_aligned_through_replay(tmp_path):
     # And b really started later: windows before 1.25 s after a's start use one mouse's
     # motion only, so the pose turns (a moves, b is still).
     assert abs(out["rel"]["theta"][out["rel"]["t"] < 1.2][-1]) > 1e-3
+
+
+def test_a_long_pause_is_closed_in_bounded_batches_with_the_same_poses(tmp_path):
+    """A rig parked for a while: the tracker closed every window of the pause in one
+    batch (a 1e5 s pause at 20 Hz took 1.5 GB).  The engine now hands it out in batches
+    of at most MAX_WINDOWS, and the poses equal one batch through the tracker."""
+    from mousedom.replay import MAX_WINDOWS
+    from mousedom.tracker import Tracker
+
+    rng = np.random.default_rng(5)
+    n = 400
+    gap = 3.0 * MAX_WINDOWS / 100.0  # three and more batches' worth of empty windows
+
+    def times(pause_at):
+        t = 0.0037 + np.cumsum(rng.uniform(0.004, 0.02, n))
+        t[pause_at:] += gap
+        return np.round(t, 6)  # as evemu writes them
+
+    data = {
+        "a": (times(150), rng.integers(-4, 5, n), rng.integers(-9, 2, n)),
+        "b": (times(150) + 0.001, rng.integers(-4, 5, n), rng.integers(-9, 2, n)),
+    }
+    data["b"][0][300:] += 2.0  # b pauses once more, for 2 s
+    specs = []
+    for name, (t, dx, dy) in data.items():
+        p = tmp_path / f"{name}.evemu"
+        p.write_text(format_evemu(t, dx, dy))
+        specs.append((name, str(p)))
+    cfg = tmp_path / "r.yaml"
+    cfg.write_text(
+        "rate_hz: 100\nmodel: lsq\nmice:\n  a: {cpi: 400, mount: {x: 0.05, y: 0.1}}\n"
+        "  b: {cpi: 400, mount: {x: -0.05, y: -0.1}}\n"
+    )
+    config = parse_config(cfg.read_text(), str(cfg), need_sources=False)
+    rp = Replay(config, assign(config, specs))
+    sizes, batches = [], []
+    summary = rp.run(lambda b: (sizes.append(len(b)), batches.append(b)))
+    assert max(sizes) <= MAX_WINDOWS and sum(sizes) > 3 * MAX_WINDOWS
+    got = type(batches[0]).concat(batches)
+
+    # The reference: the reports as read (a frame without motion is no report), all at once.
+    reports, _, _ = read_reports(config, specs)
+    ref = Tracker(config, t0=min(r.t[0] for r in reports.values()))
+    for name, r in reports.items():
+        ref.push(name, r.t, r.dx, r.dy)
+    want = ref.finish()
+    assert len(got) == len(want) == summary.windows
+    for k in ("t", "x", "y", "theta"):
+        np.testing.assert_allclose(getattr(got, k), getattr(want, k), rtol=0, atol=1e-12)
+    want_counts = [[data[m][1].sum(), data[m][2].sum()] for m in ("a", "b")]
+    np.testing.assert_allclose(got.counts.sum(axis=0), want_counts, rtol=0, atol=1e-6)
