@@ -121,3 +121,23 @@ def test_built_from_a_mouse_config_loops_and_mice_share_one_anchor(tmp_path):
     rt = right.read(clock.now)[0].t
     assert lt.tolist() == pytest.approx([100.0, 100.5, 101.0, 102.5])
     assert rt.tolist() == pytest.approx([100.2, 102.0, 102.7])
+
+
+def test_identical_mice_are_picked_by_their_recorded_node(tmp_path):
+    """The daemon's replay source takes replay.device as `mousedom replay` does: a device
+    name, or the node of two identically named mice."""
+    p = tmp_path / "twins.mdcap"
+    devs = [
+        DeviceInfo(name="USB Mouse", rel_xy=True, extra={"node": "/dev/input/event5"}),
+        DeviceInfo(name="USB Mouse", rel_xy=True, extra={"node": "/dev/input/event6"}),
+    ]
+    with NativeWriter(p, devs) as w:
+        w.motion(0, [1.0, 2.0], [1, 1], [0, 0])
+        w.motion(1, [1.5], [5], [5])
+    clock = Clock()
+    src = ReplaySource("right", str(p), device="/dev/input/event6", clock=clock)
+    src.open()
+    clock.now = 1e6
+    assert src.read(clock.now)[0].dx.tolist() == [5]
+    with pytest.raises(CaptureError, match="which device"):
+        ReplaySource("right", str(p), device="USB Mouse", clock=clock).open()

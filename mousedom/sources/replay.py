@@ -122,7 +122,12 @@ class ReplaySource(Source):
     def _pick(self, cap: Capture) -> int:
         movers = [i for i, d in enumerate(cap.devices) if d.rel_xy is not False]
         if self.device is not None:
-            hits = [i for i in movers if cap.devices[i].name == self.device]
+            # By name or by recorded node (identical mice share a name), as `replay` does.
+            hits = [
+                i
+                for i in movers
+                if self.device in (cap.devices[i].name, cap.devices[i].extra.get("node"))
+            ]
         else:
             hits = [i for i in movers if cap.devices[i].mouse == self.name]
             if not hits:
