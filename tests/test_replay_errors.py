@@ -173,3 +173,26 @@ def test_identical_mice_in_one_libinput_file_are_told_apart_by_node(tmp_path):
                         "--capture", f"b={rec}")  # fmt: skip
     assert proc.returncode != 0
     _one_error_line(proc.stderr, nodes[0], nodes[1], "replay.device")
+
+
+@pytest.mark.parametrize("command", ["replay", "convert"])
+def test_output_naming_an_input_is_refused_and_the_input_kept(tmp_path, command):
+    """replay -o RUN.events truncated the recording before reading it (exit 0, data gone);
+    convert compared paths only, so a .desc companion, the config or a link slipped by."""
+    ext = external_dir()
+    for suffix in (".events", ".desc"):
+        (tmp_path / f"ps2{suffix}").write_bytes((ext / PS2).with_suffix(suffix).read_bytes())
+    (tmp_path / "link.events").symlink_to(tmp_path / "ps2.events")
+    cfg = one_mouse_config(tmp_path)
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    src = f"m={tmp_path / 'ps2.events'}"
+    targets = ["ps2.events", "ps2.desc", "link.events", cfg.name]
+    flags = [("-o",)] if command == "convert" else [("-o",), ("--plot",)]
+    for target in targets:
+        for (flag,) in flags:
+            proc = run_mousedom(
+                command, "--config", str(cfg), "--capture", src, flag, str(tmp_path / target)
+            )
+            assert proc.returncode != 0, (target, flag)
+            _one_error_line(proc.stderr, target)
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before

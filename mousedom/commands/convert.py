@@ -59,10 +59,11 @@ def run(args) -> int:
     for arg in args.capture:
         name, path = parse_capture_arg(arg)
         inputs.append((name, open_capture(path)))
-    out = os.path.abspath(args.output)
-    for _, cap in inputs:
-        if os.path.abspath(cap.path) == out:
-            raise UserError(f"{args.output}: the output would overwrite an input")
+    paths = [cap.path for _, cap in inputs] + [args.config or ""]
+    paths += [d for _, cap in inputs if (d := getattr(cap, "desc_path", None))]
+    for path in paths:
+        if path and _same(args.output, path):
+            raise UserError(f"{args.output}: the output would overwrite an input ({path})")
     stats = _convert_into(args.output, inputs, config_text, not args.no_compress)
     for w in stats["warnings"]:
         print(f"mousedom: warning: {w}", file=sys.stderr)
@@ -71,6 +72,14 @@ def run(args) -> int:
         f"{os.path.getsize(args.output)} bytes"
     )
     return 0
+
+
+def _same(a: str, b: str) -> bool:
+    """The same file (also through a link), or the same path for one not made yet."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return os.path.abspath(a) == os.path.abspath(b)
 
 
 def _convert_into(

@@ -9,6 +9,7 @@ The contract (other tools rely on it)::
 from __future__ import annotations
 
 import math
+import os
 import sys
 import time
 from typing import TextIO
@@ -82,6 +83,9 @@ def run(args) -> int:
             f"{args.config}: nothing to replay: give --capture NAME=FILE (or replay: in the config)"
         )
     assignments = assign(config, specs)
+    inputs = [args.config] + [a.capture.path for a in assignments]
+    inputs += [d for a in assignments if (d := getattr(a.capture, "desc_path", None))]
+    _refuse_overwriting_inputs(args, inputs)
     replay = Replay(config, assignments, model=args.model, integrator=args.integrator)
 
     sinks = []
@@ -133,6 +137,20 @@ def run(args) -> int:
         summary_out.write(format_summary(summary, replay, args) + "\n")
         summary_out.flush()
     return check(summary)
+
+
+def _refuse_overwriting_inputs(args, inputs: list[str]) -> None:
+    """-o or --plot naming an input would truncate it before it is read (data lost)."""
+    for flag, out in (("-o", args.output), ("--plot", args.plot)):
+        if not out or out == "-" or not os.path.exists(out):
+            continue
+        for path in inputs:
+            try:
+                same = os.path.samefile(out, path)
+            except OSError:
+                continue
+            if same:
+                raise UserError(f"{flag} {out}: that is an input ({path}); it would be overwritten")
 
 
 class _Output:
