@@ -196,3 +196,15 @@ def test_output_naming_an_input_is_refused_and_the_input_kept(tmp_path, command)
             assert proc.returncode != 0, (target, flag)
             _one_error_line(proc.stderr, target)
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
+
+
+def test_a_pipe_as_capture_is_refused_before_reading(tmp_path):
+    """`cat run.events | mousedom replay --capture m=/dev/stdin`: the format sniffing ate
+    the first 64 kB, and the reader then complained about 'line 1' of the rest."""
+    fifo = tmp_path / "pipe.events"
+    os.mkfifo(fifo)
+    cfg = one_mouse_config(tmp_path)
+    for cmd in (("replay", "--config", str(cfg)), ("convert", "-o", str(tmp_path / "o.mdcap"))):
+        proc = run_mousedom(*cmd, "--capture", f"m={fifo}", timeout=20)
+        assert proc.returncode != 0
+        _one_error_line(proc.stderr, "pipe.events", "not a regular file")

@@ -14,6 +14,7 @@ Entry points:
 from __future__ import annotations
 
 import os
+import stat
 from dataclasses import dataclass
 
 import numpy as np
@@ -56,6 +57,14 @@ __all__ = [
 def sniff(path: str) -> str:
     """'native', 'libinput' or 'evemu' from the first bytes of the file."""
     try:
+        if os.path.exists(path) and not stat.S_ISREG(os.stat(path).st_mode):
+            if os.path.isdir(path):
+                raise IsADirectoryError
+            # A pipe would lose what the sniffing read: the readers open the file again.
+            raise CaptureError(
+                f"{path}: not a regular file (a pipe?); a capture is read more than once, "
+                "save it to a file first"
+            )
         with open(path, "rb") as f:
             prefix = f.read(65536)
     except FileNotFoundError:
