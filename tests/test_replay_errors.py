@@ -208,3 +208,18 @@ def test_a_pipe_as_capture_is_refused_before_reading(tmp_path):
         proc = run_mousedom(*cmd, "--capture", f"m={fifo}", timeout=20)
         assert proc.returncode != 0
         _one_error_line(proc.stderr, "pipe.events", "not a regular file")
+
+
+@pytest.mark.parametrize(
+    "model, why",
+    [("lsq", "needs at least two mice"), ("bonarini", "takes exactly two mice")],
+)
+def test_model_override_the_rig_cannot_support_is_refused(tmp_path, model, why):
+    """--model skipped the config's own check: lsq on one mouse solved no window and
+    ended at (0, 0, 0) with exit 0; bonarini was a ValueError traceback."""
+    cfg = one_mouse_config(tmp_path)
+    proc = run_mousedom(
+        "replay", "--config", str(cfg), "--capture", f"m={external_dir() / PS2}", "--model", model
+    )
+    assert proc.returncode != 0
+    _one_error_line(proc.stderr, f"--model {model}", why, "one.yaml")

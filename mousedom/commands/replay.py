@@ -77,6 +77,15 @@ def run(args) -> int:
 
         plot.require()
     config = load_config(args.config, need_sources=False)
+    if args.model:
+        # The config checks its own model against its mice; an override must pass too
+        # (lsq on one mouse solved no window and ended at 0,0,0 with exit 0).
+        from mousedom.geometry import rank_problem
+
+        mounts = [(m.mount.x, m.mount.y) for m in config.mice]
+        problem = rank_problem(args.model, mounts, config.names)
+        if problem:
+            raise UserError(f"--model {args.model}: {problem} (in {args.config})")
     specs = [parse_capture_arg(a) for a in args.capture]
     if not specs and not any(m.replay for m in config.mice):
         raise UserError(
