@@ -223,3 +223,22 @@ def test_model_override_the_rig_cannot_support_is_refused(tmp_path, model, why):
     )
     assert proc.returncode != 0
     _one_error_line(proc.stderr, f"--model {model}", why, "one.yaml")
+
+
+def test_umbmark_row_never_lands_in_the_pose_csv_on_stdout(tmp_path):
+    """`--umbmark ccw -o -` printed the RUNS.csv row after the poses: the CSV's last row
+    was no longer the final pose."""
+    from mousedom.demo import DEMO_CONFIG
+
+    proc = run_mousedom("replay", "--config", str(DEMO_CONFIG), "--umbmark", "ccw", "-o", "-")
+    assert proc.returncode != 0 and proc.stdout == ""
+    _one_error_line(proc.stderr, "--umbmark-csv")
+    runs = tmp_path / "runs.csv"
+    proc = run_mousedom(
+        "replay", "--config", str(DEMO_CONFIG), "--umbmark", "ccw", "-o", "-",
+        "--umbmark-csv", str(runs),
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    last = proc.stdout.splitlines()[-1].split(",")
+    assert len(last) == 9 and last[-1] == "1"
+    assert runs.read_text().splitlines()[-1].startswith("ccw,")

@@ -70,6 +70,9 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     true_end = _true_end(args) if args.umbmark else None
+    if args.umbmark and args.output == "-" and not args.umbmark_csv:
+        # Both would go to stdout: the RUNS.csv row would become the pose CSV's last row.
+        raise UserError("--umbmark with -o -: give --umbmark-csv RUNS.csv (stdout holds the poses)")
     if args.speed is not None and not (args.speed > 0 and math.isfinite(args.speed)):
         raise UserError(f"--speed: must be a positive number, got {args.speed}")
     if args.plot:
