@@ -211,3 +211,58 @@ def test_convert_refuses_a_frame_beyond_32_bits(tmp_path):
     assert proc.returncode != 0 and "Traceback" not in proc.stderr
     assert "sum.events" in proc.stderr and "32 bits" in proc.stderr
     assert not out.exists()
+
+
+KILLED_WRITER = r"""
+import sys, time
+import numpy as np
+from mousedom.capture import DeviceInfo, NativeWriter
+
+w = NativeWriter(sys.argv[1], [DeviceInfo(name="m", mouse="m", rel_xy=True)],
+                 time_base="monotonic", chunk_reports=1000)
+k = 0
+while True:  # 100 reports per sync, like a recorder flushing every 100 ms at 1 kHz
+    t = (k + np.arange(100)) * 1e-3
+    w.motion(0, t, (k + np.arange(100)) % 7 - 3, np.ones(100, dtype=np.int64))
+    w.sync(t[-1])
+    k += 100
+    print(k, flush=True)
+    if k >= 20000:
+        time.sleep(60)  # stay alive until killed
+"""
+
+
+def test_a_writer_killed_mid_recording_leaves_every_synced_report(tmp_path):
+    """A real recording process gets SIGKILL: every report it had synced is read back,
+    values intact, and a torn tail (if the kill hit a write) is only warned about."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    from conftest import mousedom_env
+
+    p = tmp_path / "killed.mdcap"
+    proc = subprocess.Popen(
+        [sys.executable, "-c", KILLED_WRITER, str(p)],
+        stdout=subprocess.PIPE,
+        text=True,
+        env=mousedom_env(),
+    )
+    synced = 0
+    for line in proc.stdout:
+        synced = int(line)
+        if synced >= 5000:  # mid-recording
+            break
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait(timeout=30)
+    proc.stdout.close()
+    assert proc.returncode == -signal.SIGKILL
+    cap = drain(p)
+    t, dx, dy = cap.motion[0]
+    assert len(t) >= synced and len(t) % 100 == 0
+    k = np.arange(len(t))
+    np.testing.assert_array_equal(dx, k % 7 - 3)
+    np.testing.assert_array_equal(dy, np.ones(len(t)))
+    np.testing.assert_allclose(t, k * 1e-3, rtol=0, atol=1e-12)
+    assert all("unfinished chunk" in w for w in cap.warnings)
