@@ -274,3 +274,18 @@ def test_fuzz_event_line_soup(tmp_path, lines):
     motion = cap.motion.get(0)
     if motion is not None:
         assert s.net_x == int(motion[1].sum()) and s.net_y == int(motion[2].sum())
+
+
+@pytest.mark.parametrize("text", ["", "\n\n", "  \n"])
+def test_an_empty_file_is_an_error_but_an_empty_events_file_beside_its_desc_is_not(tmp_path, text):
+    """A 0-byte .events replayed to a header-only CSV with exit 0; with its .desc it is a
+    recording in which nothing happened (a warning, as any capture without motion)."""
+    p = tmp_path / "run.events"
+    p.write_text(text)
+    with pytest.raises(UserError, match=r"run\.events: empty file"):
+        open_capture(p)
+    (tmp_path / "run.desc").write_bytes(
+        (external_dir() / "evemu-devices__PS2_Generic_Mouse.desc").read_bytes()
+    )
+    cap = drain(p)
+    assert cap.devices[0].name == "PS/2 Generic Mouse" and cap.stats[0].reports == 0
