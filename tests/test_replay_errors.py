@@ -242,3 +242,29 @@ def test_umbmark_row_never_lands_in_the_pose_csv_on_stdout(tmp_path):
     last = proc.stdout.splitlines()[-1].split(",")
     assert len(last) == 9 and last[-1] == "1"
     assert runs.read_text().splitlines()[-1].startswith("ccw,")
+
+
+def test_mixing_monotonic_and_relative_captures_warns(tmp_path):
+    """A `mousedom record` file (seconds since boot) with a relative evemu file: no
+    warning was given, and the replay ran through hours of empty windows between them."""
+    import numpy as np
+
+    from mousedom.capture import DeviceInfo, NativeWriter
+    from mousedom.capture.evemu import format_evemu
+
+    t = np.arange(1, 21) * 0.01
+    d = np.ones(20, dtype=int)
+    mono = tmp_path / "a.mdcap"
+    with NativeWriter(mono, [DeviceInfo(name="a", mouse="a", rel_xy=True)]) as w:
+        w.motion(0, 50.0 + t, d, -d)  # 50 s after boot
+    rel = tmp_path / "b.evemu"
+    rel.write_text(format_evemu(t, d, -d))
+    cfg = tmp_path / "two.yaml"
+    cfg.write_text(TWO_MICE)
+    proc = run_mousedom(
+        "replay", "--config", str(cfg), "--capture", str(mono), "--capture", f"b={rel}",
+        "-o", str(tmp_path / "o.csv"),
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert "monotonic" in proc.stderr and "cannot be aligned" in proc.stderr
+    assert "a.mdcap (monotonic)" in proc.stderr and "b.evemu (relative)" in proc.stderr

@@ -287,6 +287,14 @@ def time_offset(captures: list[Capture]) -> tuple[float, list[str]]:
             "captures mix epoch (wall clock) and relative/monotonic times; "
             "their events cannot be aligned in time"
         )
+    elif bases == {"monotonic", "relative"}:
+        # Seconds since boot against seconds since a recording's start: as far apart as
+        # the machine had been up, with empty windows all the way between.
+        names = ", ".join(f"{os.path.basename(c.path)} ({c.time_base})" for c in captures)
+        warnings.append(
+            f"captures mix monotonic (since boot) and relative times ({names}); "
+            "their events cannot be aligned in time"
+        )
     return (min(firsts) if firsts else 0.0), warnings
 
 
