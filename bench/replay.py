@@ -2,7 +2,7 @@
 
     /work/venv/bin/python bench/replay.py [--minutes 60] [--evemu-seconds 60] [--repeat 3]
 
-(the defaults: the issue's one hour is measured by default; it takes about 20 s)
+(defaults shown: the issue's one hour is the default run; it takes about 20 s)
 
 Generates, in a temporary directory, a simulated rig of four mice at 1 kHz driving arcs
 for ``--minutes`` (60 = the issue's one hour, 14.4 M reports), as one native capture and
