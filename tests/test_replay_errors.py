@@ -268,3 +268,32 @@ def test_mixing_monotonic_and_relative_captures_warns(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert "monotonic" in proc.stderr and "cannot be aligned" in proc.stderr
     assert "a.mdcap (monotonic)" in proc.stderr and "b.evemu (relative)" in proc.stderr
+
+
+def test_convert_to_stdout_like_replay(tmp_path):
+    """`convert -o -` made a file called '-'; replay's -o - is stdout, so is convert's now
+    (the summary line goes to stderr, so the bytes on stdout are the capture alone)."""
+    src = f"m={external_dir() / PS2}"
+    proc = subprocess.run(
+        [sys.executable, "-m", "mousedom", "convert", "--capture", src, "-o", "-"],
+        capture_output=True, env=mousedom_env(), cwd=tmp_path, timeout=120,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert not (tmp_path / "-").exists()
+    assert b"2707 reports" in proc.stderr
+    piped = tmp_path / "piped.mdcap"
+    piped.write_bytes(proc.stdout)
+    filed = tmp_path / "filed.mdcap"
+    assert run_mousedom("convert", "--capture", src, "-o", str(filed)).returncode == 0
+    cfg = one_mouse_config(tmp_path)
+    a, b = (run_mousedom("replay", "--config", str(cfg), "--capture", str(p), "-o", "-")
+            for p in (piped, filed))  # fmt: skip
+    assert a.returncode == b.returncode == 0 and a.stdout == b.stdout and len(a.stdout) > 1000
+    if os.path.exists("/dev/full"):
+        with open("/dev/full", "wb") as full:
+            proc = subprocess.run(
+                [sys.executable, "-m", "mousedom", "convert", "--capture", src, "-o", "-"],
+                stdout=full, stderr=subprocess.PIPE, text=True, env=mousedom_env(), timeout=120,
+            )  # fmt: skip
+        assert proc.returncode != 0
+        _one_error_line(proc.stderr, "<stdout>", "cannot write")

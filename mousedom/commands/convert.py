@@ -42,7 +42,9 @@ def register(subparsers) -> None:
         metavar="NAME=FILE",
         help="an input; NAME (optional) is the config mouse its device stands for",
     )
-    p.add_argument("-o", "--output", required=True, metavar="OUT", help="the native capture")
+    p.add_argument(
+        "-o", "--output", required=True, metavar="OUT", help="the native capture ('-': stdout)"
+    )
     p.add_argument("--config", metavar="RIG.yaml", help="store this config in the header")
     p.add_argument("--no-compress", action="store_true", help="store chunks uncompressed")
     p.set_defaults(func=run)
@@ -64,12 +66,28 @@ def run(args) -> int:
     for path in paths:
         if path and _same(args.output, path):
             raise UserError(f"{args.output}: the output would overwrite an input ({path})")
-    stats = _convert_into(args.output, inputs, config_text, not args.no_compress)
+    if args.output == "-":
+        # As replay's -o -: the capture goes to stdout (a pipe, e.g. to ssh or gzip).
+        if sys.stdout.isatty():
+            raise UserError("-o -: stdout is a terminal; redirect it, or give a file name")
+        try:
+            stats = convert(
+                inputs, sys.stdout.buffer, config_text=config_text, compress=not args.no_compress
+            )
+        except BrokenPipeError:
+            raise
+        except OSError as e:
+            raise UserError(f"<stdout>: cannot write: {e.strerror or e}") from None
+        size = None
+    else:
+        stats = _convert_into(args.output, inputs, config_text, not args.no_compress)
+        size = os.path.getsize(args.output)
     for w in stats["warnings"]:
         print(f"mousedom: warning: {w}", file=sys.stderr)
     print(
-        f"{args.output}: {stats['devices']} devices, {stats['reports']} reports, "
-        f"{os.path.getsize(args.output)} bytes"
+        f"{args.output}: {stats['devices']} devices, {stats['reports']} reports"
+        + (f", {size} bytes" if size is not None else ""),
+        file=sys.stderr if args.output == "-" else sys.stdout,
     )
     return 0
 
@@ -120,7 +138,7 @@ def _discard(target: str, output: str) -> None:
 
 def convert(
     inputs: list[tuple[str | None, Capture]],
-    path: str,
+    path,
     *,
     config_text: str | None = None,
     compress: bool = True,
