@@ -34,12 +34,14 @@ class PlotCollector:
         self._parts: list[np.ndarray] = []  # rows: t, x, y, residual per mouse ...
         self._n = 0
         self._skip = 0
+        self._last: np.ndarray | None = None
 
     def __call__(self, b: PoseBatch) -> None:
         if not len(b):
             return
         res = np.linalg.norm(b.residual, axis=2)  # (n, N) metres
         rows = np.column_stack([b.t, b.x, b.y, res])
+        self._last = rows[-1]  # the final pose is marked "end": never decimated away
         rows = rows[self._skip :: self.step]
         self._skip = (self._skip - len(b)) % self.step
         self._parts.append(rows)
@@ -50,7 +52,12 @@ class PlotCollector:
             self.step *= 2
 
     def data(self) -> np.ndarray:
-        return np.concatenate(self._parts) if self._parts else np.zeros((0, 3))
+        if not self._parts:
+            return np.zeros((0, 3))
+        data = np.concatenate(self._parts)
+        if data[-1, 0] != self._last[0]:
+            data = np.vstack([data, self._last])
+        return data
 
 
 def save(collector: PlotCollector, names: tuple[str, ...], path: str, title: str = "") -> None:
