@@ -353,6 +353,8 @@ def test_a_missing_root_is_an_error(tmp_path):
         assert r.returncode == 2 and f"--root {tmp_path / 'typo'}: no such directory" in r.stderr
         assert "Traceback" not in r.stderr
     assert not (tmp_path / "o").exists()
+    r = run_mousedom("list", "--root", str(cfg))
+    assert r.returncode == 2 and f"--root {cfg}: not a directory" in r.stderr
 
 
 def test_a_file_that_cannot_grow_stops_with_one_line(tmp_path):
