@@ -135,7 +135,15 @@ def run_daemon(d: Path, seconds: float, rate_hz: float) -> dict:
     sock_path = d / "mousedom.sock"
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     daemon = subprocess.Popen(
-        [sys.executable, "-m", "mousedom", "run", "--config", str(config)]
+        [
+            sys.executable,
+            *os.environ.get("BENCH_DAEMON_PY_ARGS", "").split(),
+            "-m",
+            "mousedom",
+            "run",
+            "--config",
+            str(config),
+        ]
         + ["--socket", str(sock_path)],
         env=env,
         stderr=subprocess.DEVNULL,

@@ -48,6 +48,29 @@ def world_step_noise(theta_before: np.ndarray, jac: np.ndarray, q_cov: np.ndarra
     return m @ q_cov @ np.swapaxes(m, 1, 2)
 
 
+# Up to this many windows the plain recursion is cheaper than the cumulative sums (the
+# daemon closes one window at a time); tests check both paths against each other.
+_SMALL = 4
+
+
+def _propagate_stepwise(
+    state: CovarianceState, positions: np.ndarray, noise: np.ndarray
+) -> tuple[np.ndarray, CovarianceState]:
+    """P_k = S(p_k - p_{k-1}) P_{k-1} S(p_k - p_{k-1})^T + G_k, one window at a time."""
+    out = np.empty((len(positions), 3, 3))
+    p = state.cov
+    prev = state.position
+    s = np.eye(3)
+    for k in range(len(positions)):
+        d = positions[k] - prev
+        s[0, 2], s[1, 2] = -d[1], d[0]
+        p = s @ p @ s.T + noise[k]
+        out[k] = p
+        prev = positions[k]
+    out = 0.5 * (out + np.swapaxes(out, 1, 2))
+    return out, CovarianceState(cov=out[-1].copy(), position=positions[-1].copy())
+
+
 def propagate(
     state: CovarianceState, positions: np.ndarray, noise: np.ndarray
 ) -> tuple[np.ndarray, CovarianceState]:
@@ -59,6 +82,8 @@ def propagate(
     n = len(positions)
     if n == 0:
         return np.zeros((0, 3, 3)), state
+    if n <= _SMALL:
+        return _propagate_stepwise(state, positions, noise)
     # Inputs: the carried covariance (at its position) followed by each window's noise.
     g = np.concatenate([state.cov[None], noise])
     b = _perp(np.concatenate([state.position[None], positions]))

@@ -20,6 +20,7 @@ the window gets ok=False and q = 0, cov = 0: never invent motion.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Iterator
 from dataclasses import dataclass
 
@@ -140,14 +141,10 @@ def _linear(
 ) -> None:
     """Weighted LSQ on the live mice for the windows ``rows``, restricted to q[cols]."""
     idx = np.flatnonzero(live)
-    a = design_matrix(positions[idx])[:, cols]  # (2L, k)
-    w = np.repeat(1.0 / sigma[idx] ** 2, 2)  # per row: x1, y1, x2, ...
-    sv = np.linalg.svd(a * np.sqrt(w)[:, None], compute_uv=False)
-    if len(sv) < len(cols) or not sv[-1] > _RANK_TOL * sv[0]:
+    est = _estimator(positions.tobytes(), sigma.tobytes(), live.tobytes(), tuple(cols))
+    if est is None:
         return  # rank deficient: ok stays False, q and cov stay 0
-    info = a.T @ (w[:, None] * a)
-    c = np.linalg.inv(info)
-    b = c @ (a.T * w)  # (k, 2L)
+    a, b, c = est
     dl = d[rows] if live.all() else d[rows][:, idx]
     m = len(dl)
     dl = dl.reshape(m, 2 * len(idx))
@@ -168,6 +165,28 @@ def _linear(
         residual[rows] = r3
     cov[rows] = c3
     ok[rows] = True
+
+
+@functools.lru_cache(maxsize=256)
+def _estimator(
+    positions: bytes, sigma: bytes, live: bytes, cols: tuple[int, ...]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """(A, B, C) for the live mice: B = (A^T W A)^-1 A^T W, C = (A^T W A)^-1; None if the
+    live mice lack rank.  Cached: a rig has few live patterns, and the daemon solves one
+    window at a time, where a fresh SVD per call would be most of the cost."""
+    p = np.frombuffer(positions).reshape(-1, 2)
+    s = np.frombuffer(sigma)
+    idx = np.flatnonzero(np.frombuffer(live, dtype=bool))
+    a = design_matrix(p[idx])[:, list(cols)]  # (2L, k)
+    w = np.repeat(1.0 / s[idx] ** 2, 2)  # per row: x1, y1, x2, ...
+    sv = np.linalg.svd(a * np.sqrt(w)[:, None], compute_uv=False)
+    if len(sv) < len(cols) or not sv[-1] > _RANK_TOL * sv[0]:
+        return None
+    c = np.linalg.inv(a.T @ (w[:, None] * a))
+    b = c @ (a.T * w)  # (k, 2L)
+    for m in (a, b, c):
+        m.flags.writeable = False
+    return a, b, c
 
 
 # --- Bonarini, Matteucci & Restelli (2004) -----------------------------------------------

@@ -80,12 +80,14 @@ class _Mouse:
 
     def __init__(self, period: float) -> None:
         self.period = period
-        self.last_t = -math.inf  # stamp of the last report pushed
+        self.last_t = -math.inf  # latest stamp pushed (queued or not)
+        self.knot_t = -math.inf  # stamp of the last report turned into knots
+        self.pending: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         self.complete = -math.inf  # all reports stamped <= this have been pushed
-        # Knots of F after the closed frontier, relative to F at the frontier (the anchor).
-        self.kx = np.zeros(0)  # knot times
-        self.fx = np.zeros(0)  # cumulative REL_X at the knots
-        self.fy = np.zeros(0)  # cumulative REL_Y at the knots
+        # Knots of F after the closed frontier, relative to F at the frontier (the anchor):
+        # rows are knot times, cumulative REL_X and cumulative REL_Y (one array: fewer
+        # numpy calls per window, which is what the daemon's CPU use is made of).
+        self.knots = np.zeros((3, 0))
         self.dead: list[list[float]] = []  # [from, to) spans in which the mouse is not live
         self.counts_in = np.zeros(2)
         self.late = 0  # reports stamped behind the closed frontier (moved forward)
@@ -98,8 +100,8 @@ class _Mouse:
     def frontier(self) -> float:
         return max(self.last_t, self.complete - self.period)
 
-    def level(self) -> tuple[float, float]:
-        return (float(self.fx[-1]), float(self.fy[-1])) if len(self.kx) else (0.0, 0.0)
+    def level(self) -> np.ndarray:
+        return self.knots[1:, -1] if self.knots.shape[1] else np.zeros(2)
 
 
 class Tracker:
@@ -145,19 +147,35 @@ class Tracker:
         return (self.t0 or 0.0) + self._closed * self.period
 
     def push(self, mouse: int | str, t: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> None:
-        """Add one mouse's reports (stamps non-decreasing; counts in evdev convention)."""
+        """Add one mouse's reports (stamps non-decreasing; counts in evdev convention).
+
+        Reports are only queued here and turned into knots when windows close, once per
+        mouse per poll: a live source pushes a few reports at a time, and numpy's cost per
+        call, not per element, would otherwise dominate the daemon's CPU use.
+        """
         i = self._index(mouse)
         t = np.asarray(t, dtype=np.float64)
         if t.size == 0:
             return
-        dx = np.asarray(dx, dtype=np.float64)
-        dy = np.asarray(dy, dtype=np.float64)
         m = self._mice[i]
         self._start(t[0])
-        m.counts_in += (dx.sum(), dy.sum())
+        m.pending.append((t, np.asarray(dx, dtype=np.float64), np.asarray(dy, dtype=np.float64)))
+        m.last_t = max(m.last_t, float(t.max()))
+
+    def _ingest(self, m: _Mouse) -> None:
+        """Turn a mouse's queued reports into knots of its cumulative count function."""
+        if not m.pending:
+            return
+        if len(m.pending) == 1:
+            t, dx, dy = m.pending[0]
+        else:
+            t, dx, dy = (np.concatenate(cols) for cols in zip(*m.pending, strict=True))
+        m.pending = []
+        cum = np.cumsum(np.stack([dx, dy]), axis=1)  # (2, n)
+        m.counts_in += cum[:, -1]
 
         # Time must not run backwards: clamp to the running maximum (counted, kept).
-        run_max = np.maximum.accumulate(np.concatenate([[m.last_t], t]))[1:]
+        run_max = np.maximum.accumulate(np.concatenate([[m.knot_t], t]))[1:]
         m.backwards += int(np.count_nonzero(run_max > t))
         t = run_max
         # Reports behind the closed frontier go into the first open window.
@@ -166,17 +184,18 @@ class Tracker:
         if late.any():
             m.late += int(np.count_nonzero(late))
             t = np.maximum(t, edge)
-        prev = np.concatenate([[m.last_t], t[:-1]])
+        prev = np.concatenate([[m.knot_t], t[:-1]])
         start = np.maximum(np.maximum(prev, t - m.period), edge)
 
-        base_x, base_y = m.level()
-        cx = base_x + np.cumsum(dx)
-        cy = base_y + np.cumsum(dy)
         # Knot pairs: F holds its level until the report's span starts, then rises to it.
-        m.kx = np.concatenate([m.kx, np.column_stack([start, t]).ravel()])
-        m.fx = np.concatenate([m.fx, np.column_stack([cx - dx, cx]).ravel()])
-        m.fy = np.concatenate([m.fy, np.column_stack([cy - dy, cy]).ravel()])
-        m.last_t = float(t[-1])
+        cum += m.level()[:, None]
+        new = np.empty((3, 2 * len(t)))
+        new[0, 0::2] = start
+        new[0, 1::2] = t
+        new[1:, 1::2] = cum
+        new[1:, 0::2] = cum - np.stack([dx, dy])
+        m.knots = np.concatenate([m.knots, new], axis=1)
+        m.knot_t = float(t[-1])
 
     def complete_until(self, t: float, mouse: int | str | None = None) -> None:
         """Declare that every report stamped <= t has been pushed (one mouse, or all)."""
@@ -241,9 +260,13 @@ class Tracker:
 
     @property
     def counts_in(self) -> np.ndarray:
+        for m in self._mice:
+            self._ingest(m)
         return np.array([m.counts_in for m in self._mice]).reshape(self.n_mice, 2)
 
     def stats(self) -> dict[str, dict[str, int]]:
+        for m in self._mice:
+            self._ingest(m)
         return {
             name: {"late": self._mice[i].late, "backwards": self._mice[i].backwards}
             for name, i in self._names.items()
@@ -275,7 +298,9 @@ class Tracker:
         return self._close_until(k)
 
     def _pending(self) -> bool:
-        return any(len(m.kx) and (m.fx[-1] != 0 or m.fy[-1] != 0) for m in self._mice)
+        for m in self._mice:
+            self._ingest(m)
+        return any(m.level().any() for m in self._mice)
 
     def _close_until(self, k_new: int) -> PoseBatch:
         k_old = self._closed
@@ -286,13 +311,16 @@ class Tracker:
         counts = np.zeros((n, self.n_mice, 2))
         mask = np.ones((n, self.n_mice), dtype=bool)
         for i, m in enumerate(self._mice):
-            if len(m.kx):
+            self._ingest(m)
+            if m.knots.shape[1]:
                 # F is relative to the closed frontier, so its value there is 0.
-                fx = np.interp(edges[1:], m.kx, m.fx)
-                fy = np.interp(edges[1:], m.kx, m.fy)
-                counts[:, i, 0] = np.diff(fx, prepend=0.0)
-                counts[:, i, 1] = np.diff(fy, prepend=0.0)
-                self._rebase(m, edges[-1], fx[-1], fy[-1])
+                kt, kfx, kfy = m.knots
+                f = counts[:, i]  # a view: (n, 2)
+                f[:, 0] = np.interp(edges[1:], kt, kfx)
+                f[:, 1] = np.interp(edges[1:], kt, kfy)
+                last = f[-1].copy()
+                f[1:] -= f[:-1].copy()  # cumulative -> per window
+                self._rebase(m, edges[-1], last)
             for start, end in m.dead:
                 mask[(edges[:-1] < end) & (edges[1:] > start), i] = False
             m.dead = [span for span in m.dead if span[1] > edges[-1]]
@@ -301,13 +329,15 @@ class Tracker:
         return self._solve(edges[1:], counts, mask)
 
     @staticmethod
-    def _rebase(m: _Mouse, edge: float, fx_edge: float, fy_edge: float) -> None:
+    def _rebase(m: _Mouse, edge: float, level: np.ndarray) -> None:
         # Knots exactly on the edge are kept: a jump there (reports with one stamp) may
         # have been evaluated on either side, and keeping them, relative, loses neither.
-        keep = m.kx >= edge
-        m.kx = np.concatenate([[edge], m.kx[keep]])
-        m.fx = np.concatenate([[0.0], m.fx[keep] - fx_edge])
-        m.fy = np.concatenate([[0.0], m.fy[keep] - fy_edge])
+        kept = m.knots[:, m.knots[0] >= edge]
+        knots = np.empty((3, kept.shape[1] + 1))
+        knots[:, 0] = (edge, 0.0, 0.0)
+        knots[0, 1:] = kept[0]
+        knots[1:, 1:] = kept[1:] - level[:, None]
+        m.knots = knots
 
     def _solve(self, t_end: np.ndarray, counts: np.ndarray, mask: np.ndarray) -> PoseBatch:
         d = np.einsum("nij,knj->kni", self._to_body, counts) if self.n_mice else counts

@@ -234,3 +234,24 @@ def test_umbmark_square_accuracy():
         assert math.hypot(poses.x[-1] - truth[0], poses.y[-1] - truth[1]) < 0.002
         assert abs(math.degrees(poses.theta[-1] - truth[2])) < 0.05
         assert np.array_equal(tr.counts_out.round(6), tr.counts_in)
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.integers(1, 12), st.integers(0, 2**31 - 1))
+def test_small_and_large_batches_of_covariance_agree(n, seed):
+    """The daemon's one-window path (plain recursion) equals the batched cumulative sums."""
+    import mousedom.covariance as covariance
+
+    rng = np.random.default_rng(seed)
+    positions = np.cumsum(rng.normal(0, 1, (n, 2)), axis=0)
+    a = rng.normal(0, 0.1, (n, 3, 3))
+    noise = a @ np.swapaxes(a, 1, 2)
+    start = CovarianceState(cov=np.eye(3) * 0.01, position=np.zeros(2))
+    small, _ = covariance._propagate_stepwise(start, positions, noise)
+    saved = covariance._SMALL
+    covariance._SMALL = 0
+    try:
+        big, _ = covariance.propagate(start, positions, noise)
+    finally:
+        covariance._SMALL = saved
+    assert np.allclose(small, big, atol=1e-10)
