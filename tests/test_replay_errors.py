@@ -297,3 +297,43 @@ def test_convert_to_stdout_like_replay(tmp_path):
             )  # fmt: skip
         assert proc.returncode != 0
         _one_error_line(proc.stderr, "<stdout>", "cannot write")
+
+
+def test_time_base_warning_comes_before_the_replay_not_after(tmp_path):
+    """Captures that cannot be aligned may mean a long run through empty windows; the
+    warning was printed only at the very end.  Here the replay is paced to take 30 s:
+    the warning must be on stderr at once (the process is then stopped by a signal)."""
+    import signal
+
+    import numpy as np
+
+    from mousedom.capture import DeviceInfo, NativeWriter
+    from mousedom.capture.evemu import format_evemu
+
+    t = np.arange(1, 3001) * 0.01  # 30 s of data
+    d = np.ones(3000, dtype=int)
+    mono = tmp_path / "a.mdcap"
+    with NativeWriter(mono, [DeviceInfo(name="a", mouse="a", rel_xy=True)]) as w:
+        w.motion(0, t, d, -d)
+    rel = tmp_path / "b.evemu"  # wall clock times: cannot be aligned with since-boot ones
+    rel.write_text(format_evemu(1.7e9 + t, d, -d, version=None))
+    cfg = tmp_path / "two.yaml"
+    cfg.write_text(TWO_MICE)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "mousedom", "replay", "--config", str(cfg), "--capture",
+         str(mono), "--capture", f"b={rel}", "-o", os.devnull, "--speed", "1"],
+        stderr=subprocess.PIPE, text=True, env=mousedom_env(),
+    )  # fmt: skip
+    try:
+        import selectors
+
+        sel = selectors.DefaultSelector()
+        sel.register(proc.stderr, selectors.EVENT_READ)
+        assert sel.select(timeout=15), "no warning within 15 s of a 30 s replay"
+        line = proc.stderr.readline()
+        assert line.startswith("mousedom: warning:") and "cannot be aligned" in line
+        assert proc.poll() is None  # still replaying
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=30)
+        proc.stderr.close()

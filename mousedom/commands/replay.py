@@ -127,6 +127,11 @@ def run(args) -> int:
 
         sink = paced(sink, Pacer(args.speed), flush=out.flush if out is not None else None)
 
+    # Time-base warnings are known before reading: say them now, not after a long replay
+    # (files days apart run through every empty window between them).
+    early = list(replay.warnings)
+    for w in early:
+        print(f"mousedom: warning: {w}", file=sys.stderr, flush=True)
     bar = ProgressBar(sys.stderr) if sys.stderr.isatty() and not args.speed else None
     try:
         summary = replay.run(sink, progress=bar.update if bar else None)
@@ -136,7 +141,7 @@ def run(args) -> int:
         if out is not None:
             out.finish()
 
-    for w in summary.warnings:
+    for w in summary.warnings[len(early) :]:
         print(f"mousedom: warning: {w}", file=sys.stderr)
     if collector is not None:
         from mousedom import plot
