@@ -201,17 +201,17 @@ class Replay:
                 else:
                     lim = tracker.frontier_time + MAX_WINDOWS * tracker.period
                 for mouse in range(n):
-                    queue = pending[mouse]
-                    while queue:
-                        t, dx, dy = queue[0]
+                    waiting = pending[mouse]
+                    while waiting:
+                        t, dx, dy = waiting[0]
                         k = int(np.searchsorted(t, lim, side="right"))
                         if k == len(t):
                             tracker.push(mouse, t, dx, dy)
-                            queue.pop(0)
+                            waiting.pop(0)
                             continue
                         if k:
                             tracker.push(mouse, t[:k], dx[:k], dy[:k])
-                            queue[0] = (t[k:], dx[k:], dy[k:])
+                            waiting[0] = (t[k:], dx[k:], dy[k:])
                         break
                     if want[mouse] > -math.inf:
                         tracker.complete_until(min(want[mouse], lim), mouse)
