@@ -29,6 +29,7 @@ import numpy as np
 from mousedom import integrate, models
 from mousedom.config import Config
 from mousedom.covariance import CovarianceState, propagate, world_step_noise
+from mousedom.geometry import rank_problem
 from mousedom.units import counts_matrices, sigma_metres
 
 
@@ -117,6 +118,11 @@ class Tracker:
     ) -> None:
         self.config = config
         self.model = model or config.model
+        if model and model != config.model:  # the config was checked at load; an override not
+            problem = rank_problem(model, [(m.mount.x, m.mount.y) for m in config.mice],
+                                   config.names)  # fmt: skip
+            if problem:
+                raise ValueError(f"model {model}: {problem}")
         self.integrator = integrator or config.integrator
         self.period = 1.0 / config.rate_hz
         self.t0 = t0

@@ -50,7 +50,10 @@ def test_clients_rate_commands_and_sigterm(rig_run):
     assert _rate(poses) == pytest.approx(RATE, rel=0.10)
     assert len(poses) / wall == pytest.approx(RATE, rel=0.10)
     assert all(p["updating"] and p["used"] == 3 and p["missing"] == [] for p in poses)
-    assert np.all(np.diff([p["x"] for p in poses[15:]]) > 0)  # driving forward
+    # Driving forward: x never goes back (a window may see no motion when the real-time
+    # feeder is starved on a loaded machine, so equal is allowed), and it does advance.
+    xs = [p["x"] for p in poses[15:]]
+    assert np.all(np.diff(xs) >= 0) and xs[-1] - xs[0] > 0.05 * (len(xs) - 1) / RATE
     assert abs(poses[-1]["vx"] - 0.1) < 0.01 and abs(poses[-1]["omega"]) < 0.05
     slow_poses = slow.poses(1.0)  # queued while the other client was read: 10 Hz by stamps
     assert len(slow_poses) >= 10
