@@ -26,7 +26,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from mousedom import integrate, models
+from mousedom import integrate, models, onewindow
 from mousedom.config import Config
 from mousedom.covariance import CovarianceState, propagate, world_step_noise
 from mousedom.units import counts_matrices, sigma_metres
@@ -126,6 +126,8 @@ class Tracker:
         self._to_body = counts_matrices(config.mice)  # (N,2,2)
         self._positions = np.array([[m.mount.x, m.mount.y] for m in config.mice])
         self._sigma = np.array([sigma_metres(m) for m in config.mice])
+        self._rate = 1.0 / self.period
+        self._linear_cache: dict[bytes, tuple] = {}  # live pattern -> what _solve_one needs
         self._closed = 0  # number of windows closed so far
         self._complete_all = -math.inf
         self._pose = np.zeros(3)
@@ -166,6 +168,9 @@ class Tracker:
         """Turn a mouse's queued reports into knots of its cumulative count function."""
         if not m.pending:
             return
+        if sum(len(p[0]) for p in m.pending) <= self._INGEST_SMALL:
+            self._ingest_small(m)
+            return
         if len(m.pending) == 1:
             t, dx, dy = m.pending[0]
         else:
@@ -196,6 +201,52 @@ class Tracker:
         new[1:, 0::2] = cum - np.stack([dx, dy])
         m.knots = np.concatenate([m.knots, new], axis=1)
         m.knot_t = float(t[-1])
+
+    # Up to this many queued reports, _ingest runs on Python floats (the daemon's few reports
+    # per window); tests set it to 0 to compare it with the array path.
+    _INGEST_SMALL = 64
+
+    def _ingest_small(self, m: _Mouse) -> None:
+        """_ingest, report by report: the same operations in the same order on floats."""
+        pending, m.pending = m.pending, []
+        t, dx, dy = [], [], []
+        for pt, pdx, pdy in pending:
+            t += pt.tolist()
+            dx += pdx.tolist()
+            dy += pdy.tolist()
+        edge = self.frontier_time
+        period = m.period
+        if m.knots.shape[1]:
+            lx, ly = m.knots[1:, -1].tolist()
+        else:
+            lx = ly = 0.0
+        run = prev = m.knot_t
+        cx = cy = None
+        backwards = late = 0
+        kt: list[float] = []
+        kx: list[float] = []
+        ky: list[float] = []
+        for ti, a, b in zip(t, dx, dy, strict=True):
+            cx, cy = (a, b) if cx is None else (cx + a, cy + b)
+            if run > ti:
+                backwards += 1
+            else:
+                run = ti
+            ti = run
+            if ti < edge:
+                late += 1
+                ti = edge
+            start = max(max(prev, ti - period), edge)
+            x, y = cx + lx, cy + ly
+            kt += (start, ti)
+            kx += (x - a, x)
+            ky += (y - b, y)
+            prev = ti
+        m.counts_in += (cx, cy)
+        m.backwards += backwards
+        m.late += late
+        m.knots = np.concatenate([m.knots, np.array((kt, kx, ky))], axis=1)
+        m.knot_t = prev
 
     def complete_until(self, t: float, mouse: int | str | None = None) -> None:
         """Declare that every report stamped <= t has been pushed (one mouse, or all)."""
@@ -339,7 +390,13 @@ class Tracker:
         knots[1:, 1:] = kept[1:] - level[:, None]
         m.knots = knots
 
+    # Up to this many windows per poll, _solve_one (floats, no validation) is used; tests set
+    # it to 0 to compare it with the array path.
+    _SMALL = 1
+
     def _solve(self, t_end: np.ndarray, counts: np.ndarray, mask: np.ndarray) -> PoseBatch:
+        if len(t_end) <= self._SMALL and self.model != "bonarini" and self.n_mice:
+            return self._solve_one(t_end, counts, mask)
         d = np.einsum("nij,knj->kni", self._to_body, counts) if self.n_mice else counts
         sol = models.solve(self.model, d, self._positions, self._sigma, mask)
         q = np.where(sol.ok[:, None], sol.q, 0.0)
@@ -362,5 +419,63 @@ class Tracker:
             used=sol.used,
             ok=sol.ok,
             residual=sol.residual,
+            counts=counts,
+        )
+
+    def _linear_plan(self, live: np.ndarray) -> tuple:
+        """(estimator or None, live index or None, q covariance 3x3, q columns) per pattern."""
+        key = live.tobytes()
+        plan = self._linear_cache.get(key)
+        if plan is None:
+            cols = (0, 1, 2) if self.model == "lsq" else (0, 2)
+            est = None
+            if live.any():
+                est = models._estimator(self._positions.tobytes(), self._sigma.tobytes(), key, cols)
+            c3 = np.zeros((3, 3))
+            if est is not None:
+                c3[np.ix_(cols, cols)] = est[2]
+            plan = (est, None if live.all() else np.flatnonzero(live), c3, cols)
+            self._linear_cache[key] = plan
+        return plan
+
+    def _solve_one(self, t_end: np.ndarray, counts: np.ndarray, mask: np.ndarray) -> PoseBatch:
+        """_solve for one window of a linear model (see mousedom.onewindow)."""
+        live = mask[0]
+        est, idx, c3, cols = self._linear_plan(live)
+        d = np.einsum("nij,nj->ni", self._to_body, counts[0])
+        residual = np.zeros((1, self.n_mice, 2))
+        q = [0.0, 0.0, 0.0]
+        ok = est is not None
+        if ok:
+            qk, res = onewindow.linear(d, idx, est)
+            for c, v in zip(cols, qk.tolist(), strict=True):
+                q[c] = v
+            if idx is None:
+                residual[0] = res
+            else:
+                residual[0, idx] = res
+        ux, uy, a = q
+        sx, sy = onewindow.body_step(ux, uy, a, self.integrator)
+        x0, y0, th0 = self._pose.tolist()
+        cb, sb = math.cos(th0), math.sin(th0)
+        x, y, th = x0 + (cb * sx - sb * sy), y0 + (sb * sx + cb * sy), th0 + a
+        g = onewindow.noise(th0, ux, uy, a, c3)
+        prev = self._cov.position.tolist()
+        cov = onewindow.propagate(self._cov.cov, prev, (x, y), g)
+        self._cov = CovarianceState(cov=cov.copy(), position=np.array([x, y]))
+        self._pose = np.array([x, y, th])
+        rate = self._rate
+        return PoseBatch(
+            t=t_end,
+            x=np.array([x]),
+            y=np.array([y]),
+            theta=np.array([th]),
+            vx=np.array([ux * rate]),
+            vy=np.array([uy * rate]),
+            omega=np.array([a * rate]),
+            cov=cov[None],
+            used=np.array([int(live.sum())]),
+            ok=np.array([ok]),
+            residual=residual,
             counts=counts,
         )
