@@ -202,8 +202,6 @@ class EvdevSource(Source):
             raise SourceGone(f"{self.name}: not open")
         chunks = [self._rest] if self._rest else []
         gone = None
-        if self._stream and not _ready(self._fd):
-            return []
         for _ in range(MAX_READS):
             try:
                 data = os.read(self._fd, READ_EVENTS * EVENT_SIZE)
@@ -215,6 +213,11 @@ class EvdevSource(Source):
                 gone = f"{self.name}: device gone ({e.strerror or e})"
                 break
             if not data:
+                if self._stream and not chunks and not _ready(self._fd):
+                    # A FIFO whose writer has not connected yet reads as EOF too; only
+                    # POLLHUP (a writer came and went) is the unplug.  Checked here, on
+                    # EOF, rather than before every read: the poll is a syscall per read.
+                    return []
                 gone = f"{self.name}: device gone (end of stream)"
                 break
             chunks.append(data)
