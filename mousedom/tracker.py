@@ -221,13 +221,15 @@ class Tracker:
         else:
             lx = ly = 0.0
         run = prev = m.knot_t
-        cx = cy = None
+        cx, cy = dx[0], dy[0]  # np.cumsum starts from the first value, not from 0 + it
         backwards = late = 0
         kt: list[float] = []
         kx: list[float] = []
         ky: list[float] = []
-        for ti, a, b in zip(t, dx, dy, strict=True):
-            cx, cy = (a, b) if cx is None else (cx + a, cy + b)
+        for k, (ti, a, b) in enumerate(zip(t, dx, dy, strict=True)):
+            if k:
+                cx += a
+                cy += b
             if run > ti:
                 backwards += 1
             else:
@@ -236,7 +238,12 @@ class Tracker:
             if ti < edge:
                 late += 1
                 ti = edge
-            start = max(max(prev, ti - period), edge)
+            # max(max(prev, ti - period), edge), without the builtin's call cost
+            start = ti - period
+            if prev > start:
+                start = prev
+            if edge > start:
+                start = edge
             x, y = cx + lx, cy + ly
             kt += (start, ti)
             kx += (x - a, x)

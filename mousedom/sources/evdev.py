@@ -88,6 +88,7 @@ class EvdevSource(Source):
         self._last_t = -np.inf
         self.time_backwards = 0  # reports stamped before the previous one (moved forward)
         self.grabbed = False
+        self._health_key: tuple | None = None
         self._device_opener = device_opener or _input_device
         self._ioctl = ioctl or fcntl.ioctl
 
@@ -236,8 +237,7 @@ class EvdevSource(Source):
         self._gone = gone  # raised by the next call, after these frames are delivered
         if not len(frames):
             return []
-        t = np.maximum.accumulate(np.concatenate([[self._last_t], frames.t]))[1:]
-        back = int(np.count_nonzero(t > frames.t))
+        t, back = _clamp_forward(frames.t, self._last_t)
         if back:
             self.time_backwards += back
             self._update_health()
@@ -246,6 +246,15 @@ class EvdevSource(Source):
 
     def _update_health(self) -> None:
         s = self.assembler.stats
+        # Called on every read: rebuild the status only when something in it changed.
+        key = (
+            s.dropped_frames, s.skipped, s.syn_dropped, s.dropped_dx, s.dropped_dy,
+            s.incomplete_frames, self.truncated_bytes, self.time_backwards, self.device,
+            self.grabbed, self._stream,
+        )  # fmt: skip
+        if key == self._health_key:
+            return
+        self._health_key = key
         self.health.dropped = s.dropped_frames
         self.health.skipped = s.skipped
         self.health.extra.update(
@@ -259,6 +268,24 @@ class EvdevSource(Source):
             truncated_bytes=self.truncated_bytes,
             time_backwards=self.time_backwards,
         )
+
+
+def _clamp_forward(t: np.ndarray, last: float) -> tuple[np.ndarray, int]:
+    """Stamps made non-decreasing (each at least the previous one, starting from ``last``),
+    and how many were moved.  A live read holds a few stamps, in order: checked on floats,
+    and the array is only rebuilt when one did run backwards."""
+    if len(t) <= 64:
+        values = t.tolist()
+        run, back = last, 0
+        for v in values:
+            if v < run:
+                back += 1
+            else:
+                run = v
+        if not back:
+            return t, 0
+    out = np.maximum.accumulate(np.concatenate([[last], t]))[1:]
+    return out, int(np.count_nonzero(out > t))
 
 
 def _input_device(node: str) -> Any:
