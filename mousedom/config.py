@@ -154,9 +154,20 @@ class _Doc:
     def _index(self, node: yaml.Node, prefix: tuple[str, ...]) -> None:
         self.lines.setdefault(prefix, node.start_mark.line + 1)
         if isinstance(node, yaml.MappingNode):
+            seen: set[str] = set()
             for key_node, value_node in node.value:
                 key = str(key_node.value)
-                self.lines[prefix + (key,)] = key_node.start_mark.line + 1
+                line = key_node.start_mark.line + 1
+                if key in seen:
+                    # YAML keeps the last of two equal keys; a second `left:` silently
+                    # replacing the first mouse would be a wrong answer later.
+                    first = self.lines[prefix + (key,)]
+                    where = ".".join(prefix + (key,))
+                    raise ConfigError(
+                        located(self.path, line, f"given twice (first on line {first})", where)
+                    )
+                seen.add(key)
+                self.lines[prefix + (key,)] = line
                 self._index(value_node, prefix + (key,))
         elif isinstance(node, yaml.SequenceNode):
             for i, item in enumerate(node.value):

@@ -85,8 +85,11 @@ def propagate(
     if n <= _SMALL:
         return _propagate_stepwise(state, positions, noise)
     # Inputs: the carried covariance (at its position) followed by each window's noise.
+    # Only position differences matter: work relative to the carried position, or far
+    # from the origin (map coordinates) the expanded sums cancel catastrophically.
+    rel = positions - state.position
     g = np.concatenate([state.cov[None], noise])
-    b = _perp(np.concatenate([state.position[None], positions]))
+    b = _perp(np.concatenate([np.zeros((1, 2)), rel]))
     gpp = g[:, :2, :2]
     gpt = g[:, :2, 2]
     gtt = g[:, 2, 2]
@@ -97,7 +100,7 @@ def propagate(
     s5 = np.cumsum(gtt[:, None] * b, axis=0)[1:]
     s6 = np.cumsum(gtt[:, None, None] * b[:, :, None] * b[:, None, :], axis=0)[1:]
     # Row 0 is the carried input, so every window's cumulative sum includes it.
-    a = _perp(positions)
+    a = _perp(rel)
     pp = (
         s1
         + outer(a, s2)

@@ -157,11 +157,19 @@ class Tracker:
         """
         i = self._index(mouse)
         t = np.asarray(t, dtype=np.float64)
+        dx = np.asarray(dx, dtype=np.float64)
+        dy = np.asarray(dy, dtype=np.float64)
+        if not (t.ndim == 1 and t.shape == dx.shape == dy.shape):
+            raise ValueError(f"push: t, dx, dy must be 1-D of one length, got "
+                             f"{t.shape}, {dx.shape}, {dy.shape}")  # fmt: skip
         if t.size == 0:
             return
+        # One sum each is NaN or inf if any element is: cheaper than isfinite per element.
+        if not math.isfinite(t.sum() + dx.sum() + dy.sum()):
+            raise ValueError("push: times and counts must be finite numbers")
         m = self._mice[i]
         self._start(t[0])
-        m.pending.append((t, np.asarray(dx, dtype=np.float64), np.asarray(dy, dtype=np.float64)))
+        m.pending.append((t, dx, dy))
         m.last_t = max(m.last_t, float(t.max()))
 
     def _ingest(self, m: _Mouse) -> None:
@@ -340,7 +348,21 @@ class Tracker:
         )
         if not math.isfinite(target):
             return PoseBatch.empty(self.n_mice)
-        return self._close_until(math.floor((target - self.t0) / self.period + 1e-9))
+        return self._close_until(self._windows_ending_by(target))
+
+    def _edge(self, k: int) -> float:
+        """End of window k-1: computed exactly as _close_until computes its edges."""
+        return self.t0 + self.period * k
+
+    def _windows_ending_by(self, t: float) -> int:
+        """The largest k with edge(k) <= t: no rounding tolerance, so whether a window may
+        close never depends on how its end was rounded (batch and stream agree)."""
+        k = math.floor((t - self.t0) / self.period)
+        while self._edge(k + 1) <= t:
+            k += 1
+        while k > 0 and self._edge(k) > t:
+            k -= 1
+        return k
 
     def finish(self) -> PoseBatch:
         """End of a finite input: close every window up to the last report."""
@@ -349,11 +371,15 @@ class Tracker:
         last = max([m.last_t for m in self._mice] + [self._complete_all])
         if last == -math.inf:
             return PoseBatch.empty(self.n_mice)
-        k = math.ceil((last - self.t0) / self.period - 1e-9)
-        if self._pending():
-            # Counts moved onto the closed frontier itself still need one more window.
-            k = max(k, self._closed + 1)
-        return self._close_until(k)
+        k = self._windows_ending_by(last)
+        if self._edge(k) < last:
+            k += 1  # the window that holds the last stamp
+        out = [self._close_until(k)]
+        while self._pending():
+            # Counts that jump exactly on the last edge (or were moved onto the closed
+            # frontier) still need one more window.
+            out.append(self._close_until(self._closed + 1))
+        return PoseBatch.concat(out, self.n_mice)
 
     def _pending(self) -> bool:
         for m in self._mice:

@@ -170,3 +170,13 @@ def test_binary_calibration_file_is_a_config_error(tmp_path):
     (tmp_path / "rig.calib.yaml").write_bytes(b"mice:\n\x00\xff\xfe")
     with pytest.raises(ConfigError, match=r"rig.calib.yaml: byte offset 7: not UTF-8"):
         load_config(tmp_path / "rig.yaml")
+
+
+def test_a_key_given_twice_is_an_error():
+    text = GOOD + "  left:\n    cpi: 800\n    mount: {x: 0, y: 0}\n    replay: x\n"
+    with pytest.raises(
+        ConfigError, match=r"rig.yaml:13: mice.left: given twice \(first on line 5\)"
+    ):
+        parse_config(text, "rig.yaml")
+    with pytest.raises(ConfigError, match=r"rig.yaml:4: rate_hz: given twice \(first on line 1\)"):
+        parse_config(GOOD.replace("mice:", "rate_hz: 50\nmice:"), "rig.yaml")

@@ -353,6 +353,8 @@ def test_a_missing_root_is_an_error(tmp_path):
         assert r.returncode == 2 and f"--root {tmp_path / 'typo'}: no such directory" in r.stderr
         assert "Traceback" not in r.stderr
     assert not (tmp_path / "o").exists()
+    r = run_mousedom("list", "--root", str(cfg))
+    assert r.returncode == 2 and f"--root {cfg}: not a directory" in r.stderr
 
 
 def test_a_file_that_cannot_grow_stops_with_one_line(tmp_path):
@@ -466,3 +468,24 @@ def test_a_stream_with_backward_stamps_records_a_replayable_file(tmp_path):
     assert r.returncode == 0, r.stderr
     _, motion, _ = read_capture(out)
     assert motion["a"][1] == [1, 2, 3, 4, 5] and motion["a"][0] == sorted(motion["a"][0])
+
+
+def test_outputs_that_would_destroy_inputs_are_refused(tmp_path):
+    """Regressions: with --force, -o CONFIG overwrote the rig config, -o FIFO recorded
+    the recorder's own bytes as mouse events, and two mice on one FIFO split its
+    reports between them silently."""
+    f = fifos(tmp_path, "a", "b")
+    cfg = rig(tmp_path, f)
+    text = cfg.read_text()
+    r = run_mousedom("record", "--config", str(cfg), "-o", str(cfg), "--force")
+    assert r.returncode == 2 and "is the config file" in r.stderr
+    assert cfg.read_text() == text
+    r = run_mousedom("record", "--config", str(cfg), "-o", f["a"], "--force", "--duration", "0.2")
+    assert r.returncode == 1 and f"{f['a']}: is the device of mice.a" in r.stderr, r.stderr
+    dup = rig(tmp_path, {"a": f["a"], "b": f["a"]})
+    out = tmp_path / "dup.mdcap"
+    r = run_mousedom("record", "--config", str(dup), "-o", str(out), "--duration", "0.2")
+    assert r.returncode == 1 and "mice.a and mice.b both read" in r.stderr, r.stderr
+    assert not out.exists() and "Traceback" not in r.stderr
+    p = run_mousedom("list", "--config", str(dup))
+    assert p.returncode == 1 and "b: matches" in p.stdout and "the same device as a" in p.stdout

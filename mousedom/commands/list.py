@@ -115,6 +115,18 @@ def config_matches(config_path: str, result: Scan) -> dict[str, dict[str, str | 
             out[m.name] = {"node": dev.node, "error": None, "note": None}
         except UserError as e:
             out[m.name] = {"node": None, "error": str(e), "note": None}
+    # Two rules naming one device would split its reports between two mice (or count
+    # them twice): as wrong as a rule that matches nothing.
+    first: dict[str, str] = {}
+    for name, r in out.items():
+        node = r["node"]
+        if node is None:
+            continue
+        key = os.path.realpath(node)
+        if key in first:
+            r["error"] = f"matches {node}, the same device as {first[key]}"
+        else:
+            first[key] = name
     return out
 
 

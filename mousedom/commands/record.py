@@ -182,6 +182,11 @@ class Recorder:
                 self.close_sources()
                 raise UserError(f"{cfg.path}: mice.{s.mouse.name}: {e}", exit_code=1) from None
         try:
+            _check_distinct(cfg, self.slots, output)
+        except UserError:
+            self.close_sources()
+            raise
+        try:
             self.writer = NativeWriter(
                 output,
                 [_device_info(s) for s in self.slots],
@@ -374,6 +379,8 @@ def run(args: argparse.Namespace) -> int:
     if not args.output:
         raise UserError("-o/--output: empty file name")
     cfg = load_config(args.config)
+    if _same_file(args.output, args.config):
+        raise UserError(f"{args.output}: is the config file {args.config}; not overwriting it")
     if os.path.exists(args.output) and not args.force:
         raise UserError(f"{args.output}: exists; not overwriting a recording (use --force)")
     config_text = Path(args.config).read_text()
@@ -411,6 +418,37 @@ def run(args: argparse.Namespace) -> int:
             exit_code=1,
         ) from None
     return 0
+
+
+def _same_file(a: str, b: str) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def _node(s: Slot) -> str:
+    if s.serial:
+        return s.mouse.serial.port
+    return s.source.device.node
+
+
+def _check_distinct(cfg: Config, slots: list[Slot], output: str) -> None:
+    """Two mice reading one device would split its reports between them (a FIFO) or
+    record it twice; the output being a source would record its own bytes."""
+    for i, a in enumerate(slots):
+        for b in slots[i + 1 :]:
+            if _same_file(_node(a), _node(b)):
+                raise UserError(
+                    f"{cfg.path}: mice.{a.mouse.name} and mice.{b.mouse.name} both read "
+                    f"{_node(a)}: give each mouse its own device",
+                    exit_code=1,
+                )
+        if _same_file(output, _node(a)):
+            raise UserError(
+                f"{output}: is the device of mice.{a.mouse.name}; not recording into it",
+                exit_code=1,
+            )
 
 
 def _without_name(s: Slot, e: Exception) -> str:
