@@ -82,7 +82,7 @@ class _Mouse:
         self.period = period
         self.last_t = -math.inf  # latest stamp pushed (queued or not)
         self.knot_t = -math.inf  # stamp of the last report turned into knots
-        self.pending: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        self.pending: list[tuple] = []  # (t, dx, dy): float lists (small pushes) or arrays
         self.complete = -math.inf  # all reports stamped <= this have been pushed
         # Knots of F after the closed frontier, relative to F at the frontier (the anchor):
         # rows are knot times, cumulative REL_X and cumulative REL_Y (one array: fewer
@@ -164,10 +164,19 @@ class Tracker:
                              f"{t.shape}, {dx.shape}, {dy.shape}")  # fmt: skip
         if t.size == 0:
             return
+        m = self._mice[i]
+        if t.size <= self._INGEST_SMALL:
+            # A live read's few reports: queued as floats, which _ingest_small wants.
+            tl, xl, yl = t.tolist(), dx.tolist(), dy.tolist()
+            if not math.isfinite(sum(tl) + sum(xl) + sum(yl)):
+                raise ValueError("push: times and counts must be finite numbers")
+            self._start(tl[0])
+            m.pending.append((tl, xl, yl))
+            m.last_t = max(m.last_t, max(tl))
+            return
         # One sum each is NaN or inf if any element is: cheaper than isfinite per element.
         if not math.isfinite(t.sum() + dx.sum() + dy.sum()):
             raise ValueError("push: times and counts must be finite numbers")
-        m = self._mice[i]
         self._start(t[0])
         m.pending.append((t, dx, dy))
         m.last_t = max(m.last_t, float(t.max()))
@@ -180,7 +189,7 @@ class Tracker:
             self._ingest_small(m)
             return
         if len(m.pending) == 1:
-            t, dx, dy = m.pending[0]
+            t, dx, dy = (np.asarray(c, dtype=np.float64) for c in m.pending[0])
         else:
             t, dx, dy = (np.concatenate(cols) for cols in zip(*m.pending, strict=True))
         m.pending = []
@@ -218,10 +227,10 @@ class Tracker:
         """_ingest, report by report: the same operations in the same order on floats."""
         pending, m.pending = m.pending, []
         t, dx, dy = [], [], []
-        for pt, pdx, pdy in pending:
-            t += pt.tolist()
-            dx += pdx.tolist()
-            dy += pdy.tolist()
+        for pt, pdx, pdy in pending:  # lists from push, or arrays of a larger push
+            t += pt if isinstance(pt, list) else pt.tolist()
+            dx += pdx if isinstance(pdx, list) else pdx.tolist()
+            dy += pdy if isinstance(pdy, list) else pdy.tolist()
         edge = self.frontier_time
         period = m.period
         if m.knots.shape[1]:
