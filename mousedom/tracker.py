@@ -403,6 +403,7 @@ class Tracker:
         edges = self.t0 + self.period * np.arange(k_old, k_new + 1)
         counts = np.zeros((n, self.n_mice, 2))
         mask = np.ones((n, self.n_mice), dtype=bool)
+        end_t = float(edges[-1])
         for i, m in enumerate(self._mice):
             self._ingest(m)
             if m.knots.shape[1]:
@@ -412,11 +413,13 @@ class Tracker:
                 f[:, 0] = np.interp(edges[1:], kt, kfx)
                 f[:, 1] = np.interp(edges[1:], kt, kfy)
                 last = f[-1].copy()
-                f[1:] -= f[:-1].copy()  # cumulative -> per window
-                self._rebase(m, edges[-1], last)
-            for start, end in m.dead:
-                mask[(edges[:-1] < end) & (edges[1:] > start), i] = False
-            m.dead = [span for span in m.dead if span[1] > edges[-1]]
+                if n > 1:
+                    f[1:] -= f[:-1].copy()  # cumulative -> per window
+                self._rebase(m, end_t, last)
+            if m.dead:
+                for start, end in m.dead:
+                    mask[(edges[:-1] < end) & (edges[1:] > start), i] = False
+                m.dead = [span for span in m.dead if span[1] > end_t]
         self._closed = k_new
         self.counts_out += counts.sum(axis=0)
         return self._solve(edges[1:], counts, mask)
@@ -425,7 +428,8 @@ class Tracker:
     def _rebase(m: _Mouse, edge: float, level: np.ndarray) -> None:
         # Knots exactly on the edge are kept: a jump there (reports with one stamp) may
         # have been evaluated on either side, and keeping them, relative, loses neither.
-        kept = m.knots[:, m.knots[0] >= edge]
+        # Knot times never decrease (see _ingest), so "time >= edge" is a tail: a slice.
+        kept = m.knots[:, np.searchsorted(m.knots[0], edge) :]
         knots = np.empty((3, kept.shape[1] + 1))
         knots[:, 0] = (edge, 0.0, 0.0)
         knots[0, 1:] = kept[0]

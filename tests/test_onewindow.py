@@ -54,6 +54,8 @@ def run(model: str, integrator: str, reports, deaths, small: int, rate_hz: float
         # now and then far ahead: several windows close and later reports are "late"
         tracker.complete_until(hi if k % 7 else hi + 0.03)
         out.append(tracker.poll())
+        for m in tracker._mice:  # _rebase relies on it (a slice, not a mask)
+            assert (np.diff(m.knots[0]) >= 0).all(), "knot times must never decrease"
     out.append(tracker.finish())
     out.append(tracker.stats())
     out.append(tracker.counts_in)
