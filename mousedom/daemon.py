@@ -276,7 +276,9 @@ class Daemon:
         """
         remaining = deadline - self.clock()
         if remaining > 0:
-            select.select([self.selector.fileno()], [], [], remaining)
+            ready, _, _ = select.select([self.selector.fileno()], [], [], remaining)
+            if not ready:
+                return []  # timed out (the usual wake-up): nothing to collect
         return self.selector.select(0)
 
     def _plan(self) -> tuple[float, float]:
