@@ -32,9 +32,9 @@ from mousedom.config import Config, MouseConfig, load_config
 from mousedom.errors import UserError
 from mousedom.protocol import (
     encode,
+    encode_pose,
     error_message,
     ok_message,
-    pose_message,
     source_message,
     version_message,
 )
@@ -276,7 +276,9 @@ class Daemon:
         """
         remaining = deadline - self.clock()
         if remaining > 0:
-            select.select([self.selector.fileno()], [], [], remaining)
+            ready, _, _ = select.select([self.selector.fileno()], [], [], remaining)
+            if not ready:
+                return []  # timed out (the usual wake-up): nothing to collect
         return self.selector.select(0)
 
     def _plan(self) -> tuple[float, float]:
@@ -445,30 +447,37 @@ class Daemon:
         n = len(batch)
         if not n:
             return
-        missing = [s.name for s in self.slots if not s.live]
+        missing = tuple(s.name for s in self.slots if not s.live)
         tolerance = 0.5 / self.config.rate_hz
-        res = np.asarray(batch.residual, dtype=float)
-        if res.size:
-            sq = np.nansum(res**2, axis=2)  # (n, N): squared norm per window per mouse
-            valid = np.isfinite(res).all(axis=2) & np.asarray(batch.ok)[:, None]
-            for slot in self.slots:
-                if slot.index < sq.shape[1]:
-                    slot.residual_sq += float(sq[valid[:, slot.index], slot.index].sum())
-                    slot.residual_n += int(valid[:, slot.index].sum())
+        # Python floats from here on: one tolist() per field instead of numpy scalars
+        # and a dict per pose (the daemon publishes every window; see encode_pose).
+        ok = batch.ok.tolist()
+        res = batch.residual.tolist()  # (n, N, 2)
+        for slot in self.slots:
+            j = slot.index
+            for i in range(n):
+                if not ok[i] or j >= len(res[i]):
+                    continue
+                rx, ry = res[i][j]
+                if rx - rx == 0.0 and ry - ry == 0.0:  # both finite
+                    slot.residual_sq += rx * rx + ry * ry
+                    slot.residual_n += 1
+        t, x, y, theta = (a.tolist() for a in (batch.t, batch.x, batch.y, batch.theta))
+        vx, vy, omega = (a.tolist() for a in (batch.vx, batch.vy, batch.omega))
+        cov, used = batch.cov.tolist(), batch.used.tolist()
         for i in range(n):
-            ok = bool(batch.ok[i])
-            msg = pose_message(
-                batch.t[i],
-                (batch.x[i], batch.y[i], batch.theta[i]),
-                (batch.vx[i], batch.vy[i], batch.omega[i]),
-                batch.cov[i],
-                batch.used[i],
-                ok,
+            line = encode_pose(
+                t[i],
+                (x[i], y[i], theta[i]),
+                (vx[i], vy[i], omega[i]),
+                cov[i],
+                used[i],
+                ok[i],
                 missing,
             )
             self.poses += 1
-            self.not_updated += not ok
-            self.server.broadcast_pose(float(batch.t[i]), encode(msg), tolerance)
+            self.not_updated += not ok[i]
+            self.server.broadcast_pose(t[i], line, tolerance)
 
     def _source_messages(self, now: float) -> list[dict[str, Any]]:
         out = []

@@ -306,18 +306,19 @@ class FrameAssembler:
         dx, dy = self._open_dx, self._open_dy
         motion, dropped, open_events = self._open_motion, self._open_dropped, self._open_events
         nonsyn = self._open_nonsyn
+        last_end = -1  # index of the chunk's last SYN_REPORT
         for i, (k, va) in enumerate(zip(key, value, strict=True)):
-            open_events += 1
-            if k & 0xFFFF != EV_SYN:
-                nonsyn += 1
+            # Branches ordered by frequency; EV_REL and EV_SYN kinds need no type test.
             if k == KEY_REL_X:
                 dx += va
                 st.rel_x_in += va
                 motion = True
+                nonsyn += 1
             elif k == KEY_REL_Y:
                 dy += va
                 st.rel_y_in += va
                 motion = True
+                nonsyn += 1
             elif k == KEY_SYN_REPORT:
                 st.frames += 1
                 if dropped:
@@ -329,13 +330,18 @@ class FrameAssembler:
                     ends.append(i)
                     out_dx.append(dx)
                     out_dy.append(dy)
-                dx = dy = open_events = nonsyn = 0
+                dx = dy = nonsyn = 0
                 motion = dropped = False
+                last_end = i
             elif k == KEY_SYN_DROPPED:
                 st.syn_dropped += 1
                 dropped = True
             else:
                 st.skipped += 1
+                if k & 0xFFFF != EV_SYN:
+                    nonsyn += 1
+        # events of the open frame: those after the last SYN_REPORT (plus the carried ones)
+        open_events = len(key) - 1 - last_end if last_end >= 0 else open_events + len(key)
         self._open_dx, self._open_dy = dx, dy
         self._open_motion, self._open_dropped = motion, dropped
         self._open_nonsyn = nonsyn

@@ -26,7 +26,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from mousedom import integrate, models
+from mousedom import integrate, models, onewindow
 from mousedom.config import Config
 from mousedom.covariance import CovarianceState, propagate, world_step_noise
 from mousedom.geometry import rank_problem
@@ -83,7 +83,7 @@ class _Mouse:
         self.period = period
         self.last_t = -math.inf  # latest stamp pushed (queued or not)
         self.knot_t = -math.inf  # stamp of the last report turned into knots
-        self.pending: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        self.pending: list[tuple] = []  # (t, dx, dy): float lists (small pushes) or arrays
         self.complete = -math.inf  # all reports stamped <= this have been pushed
         # Knots of F after the closed frontier, relative to F at the frontier (the anchor):
         # rows are knot times, cumulative REL_X and cumulative REL_Y (one array: fewer
@@ -132,6 +132,8 @@ class Tracker:
         self._to_body = counts_matrices(config.mice)  # (N,2,2)
         self._positions = np.array([[m.mount.x, m.mount.y] for m in config.mice])
         self._sigma = np.array([sigma_metres(m) for m in config.mice])
+        self._rate = 1.0 / self.period
+        self._linear_cache: dict[bytes, tuple] = {}  # live pattern -> what _solve_one needs
         self._closed = 0  # number of windows closed so far
         self._complete_all = -math.inf
         self._pose = np.zeros(3)
@@ -168,10 +170,19 @@ class Tracker:
                              f"{t.shape}, {dx.shape}, {dy.shape}")  # fmt: skip
         if t.size == 0:
             return
+        m = self._mice[i]
+        if t.size <= self._INGEST_SMALL:
+            # A live read's few reports: queued as floats, which _ingest_small wants.
+            tl, xl, yl = t.tolist(), dx.tolist(), dy.tolist()
+            if not math.isfinite(sum(tl) + sum(xl) + sum(yl)):
+                raise ValueError("push: times and counts must be finite numbers")
+            self._start(tl[0])
+            m.pending.append((tl, xl, yl))
+            m.last_t = max(m.last_t, max(tl))
+            return
         # One sum each is NaN or inf if any element is: cheaper than isfinite per element.
         if not math.isfinite(t.sum() + dx.sum() + dy.sum()):
             raise ValueError("push: times and counts must be finite numbers")
-        m = self._mice[i]
         self._start(t[0])
         m.pending.append((t, dx, dy))
         m.last_t = max(m.last_t, float(t.max()))
@@ -180,8 +191,11 @@ class Tracker:
         """Turn a mouse's queued reports into knots of its cumulative count function."""
         if not m.pending:
             return
+        if sum(len(p[0]) for p in m.pending) <= self._INGEST_SMALL:
+            self._ingest_small(m)
+            return
         if len(m.pending) == 1:
-            t, dx, dy = m.pending[0]
+            t, dx, dy = (np.asarray(c, dtype=np.float64) for c in m.pending[0])
         else:
             t, dx, dy = (np.concatenate(cols) for cols in zip(*m.pending, strict=True))
         m.pending = []
@@ -210,6 +224,59 @@ class Tracker:
         new[1:, 0::2] = cum - np.stack([dx, dy])
         m.knots = np.concatenate([m.knots, new], axis=1)
         m.knot_t = float(t[-1])
+
+    # Up to this many queued reports, _ingest runs on Python floats (the daemon's few reports
+    # per window); tests set it to 0 to compare it with the array path.
+    _INGEST_SMALL = 64
+
+    def _ingest_small(self, m: _Mouse) -> None:
+        """_ingest, report by report: the same operations in the same order on floats."""
+        pending, m.pending = m.pending, []
+        t, dx, dy = [], [], []
+        for pt, pdx, pdy in pending:  # lists from push, or arrays of a larger push
+            t += pt if isinstance(pt, list) else pt.tolist()
+            dx += pdx if isinstance(pdx, list) else pdx.tolist()
+            dy += pdy if isinstance(pdy, list) else pdy.tolist()
+        edge = self.frontier_time
+        period = m.period
+        if m.knots.shape[1]:
+            lx, ly = m.knots[1:, -1].tolist()
+        else:
+            lx = ly = 0.0
+        run = prev = m.knot_t
+        cx, cy = dx[0], dy[0]  # np.cumsum starts from the first value, not from 0 + it
+        backwards = late = 0
+        kt: list[float] = []
+        kx: list[float] = []
+        ky: list[float] = []
+        for k, (ti, a, b) in enumerate(zip(t, dx, dy, strict=True)):
+            if k:
+                cx += a
+                cy += b
+            if run > ti:
+                backwards += 1
+            else:
+                run = ti
+            ti = run
+            if ti < edge:
+                late += 1
+                ti = edge
+            # max(max(prev, ti - period), edge), without the builtin's call cost
+            start = ti - period
+            if prev > start:
+                start = prev
+            if edge > start:
+                start = edge
+            x, y = cx + lx, cy + ly
+            kt += (start, ti)
+            kx += (x - a, x)
+            ky += (y - b, y)
+            prev = ti
+        m.counts_in += (cx, cy)
+        m.backwards += backwards
+        m.late += late
+        m.knots = np.concatenate([m.knots, np.array((kt, kx, ky))], axis=1)
+        m.knot_t = prev
 
     def complete_until(self, t: float, mouse: int | str | None = None) -> None:
         """Declare that every report stamped <= t has been pushed (one mouse, or all)."""
@@ -342,6 +409,7 @@ class Tracker:
         edges = self.t0 + self.period * np.arange(k_old, k_new + 1)
         counts = np.zeros((n, self.n_mice, 2))
         mask = np.ones((n, self.n_mice), dtype=bool)
+        end_t = float(edges[-1])
         for i, m in enumerate(self._mice):
             self._ingest(m)
             if m.knots.shape[1]:
@@ -351,11 +419,13 @@ class Tracker:
                 f[:, 0] = np.interp(edges[1:], kt, kfx)
                 f[:, 1] = np.interp(edges[1:], kt, kfy)
                 last = f[-1].copy()
-                f[1:] -= f[:-1].copy()  # cumulative -> per window
-                self._rebase(m, edges[-1], last)
-            for start, end in m.dead:
-                mask[(edges[:-1] < end) & (edges[1:] > start), i] = False
-            m.dead = [span for span in m.dead if span[1] > edges[-1]]
+                if n > 1:
+                    f[1:] -= f[:-1].copy()  # cumulative -> per window
+                self._rebase(m, end_t, last)
+            if m.dead:
+                for start, end in m.dead:
+                    mask[(edges[:-1] < end) & (edges[1:] > start), i] = False
+                m.dead = [span for span in m.dead if span[1] > end_t]
         self._closed = k_new
         self.counts_out += counts.sum(axis=0)
         return self._solve(edges[1:], counts, mask)
@@ -364,14 +434,21 @@ class Tracker:
     def _rebase(m: _Mouse, edge: float, level: np.ndarray) -> None:
         # Knots exactly on the edge are kept: a jump there (reports with one stamp) may
         # have been evaluated on either side, and keeping them, relative, loses neither.
-        kept = m.knots[:, m.knots[0] >= edge]
+        # Knot times never decrease (see _ingest), so "time >= edge" is a tail: a slice.
+        kept = m.knots[:, np.searchsorted(m.knots[0], edge) :]
         knots = np.empty((3, kept.shape[1] + 1))
         knots[:, 0] = (edge, 0.0, 0.0)
         knots[0, 1:] = kept[0]
         knots[1:, 1:] = kept[1:] - level[:, None]
         m.knots = knots
 
+    # Up to this many windows per poll, _solve_one (floats, no validation) is used; tests set
+    # it to 0 to compare it with the array path.
+    _SMALL = 1
+
     def _solve(self, t_end: np.ndarray, counts: np.ndarray, mask: np.ndarray) -> PoseBatch:
+        if len(t_end) <= self._SMALL and self.model != "bonarini" and self.n_mice:
+            return self._solve_one(t_end, counts, mask)
         d = np.einsum("nij,knj->kni", self._to_body, counts) if self.n_mice else counts
         sol = models.solve(self.model, d, self._positions, self._sigma, mask)
         q = np.where(sol.ok[:, None], sol.q, 0.0)
@@ -394,5 +471,63 @@ class Tracker:
             used=sol.used,
             ok=sol.ok,
             residual=sol.residual,
+            counts=counts,
+        )
+
+    def _linear_plan(self, live: np.ndarray) -> tuple:
+        """(estimator or None, live index or None, q covariance 3x3, q columns) per pattern."""
+        key = live.tobytes()
+        plan = self._linear_cache.get(key)
+        if plan is None:
+            cols = (0, 1, 2) if self.model == "lsq" else (0, 2)
+            est = None
+            if live.any():
+                est = models._estimator(self._positions.tobytes(), self._sigma.tobytes(), key, cols)
+            c3 = np.zeros((3, 3))
+            if est is not None:
+                c3[np.ix_(cols, cols)] = est[2]
+            plan = (est, None if live.all() else np.flatnonzero(live), c3, cols)
+            self._linear_cache[key] = plan
+        return plan
+
+    def _solve_one(self, t_end: np.ndarray, counts: np.ndarray, mask: np.ndarray) -> PoseBatch:
+        """_solve for one window of a linear model (see mousedom.onewindow)."""
+        live = mask[0]
+        est, idx, c3, cols = self._linear_plan(live)
+        d = np.einsum("nij,nj->ni", self._to_body, counts[0])
+        residual = np.zeros((1, self.n_mice, 2))
+        q = [0.0, 0.0, 0.0]
+        ok = est is not None
+        if ok:
+            qk, res = onewindow.linear(d, idx, est)
+            for c, v in zip(cols, qk.tolist(), strict=True):
+                q[c] = v
+            if idx is None:
+                residual[0] = res
+            else:
+                residual[0, idx] = res
+        ux, uy, a = q
+        sx, sy = onewindow.body_step(ux, uy, a, self.integrator)
+        x0, y0, th0 = self._pose.tolist()
+        cb, sb = math.cos(th0), math.sin(th0)
+        x, y, th = x0 + (cb * sx - sb * sy), y0 + (sb * sx + cb * sy), th0 + a
+        g = onewindow.noise(th0, ux, uy, a, c3)
+        prev = self._cov.position.tolist()
+        cov = onewindow.propagate(self._cov.cov, prev, (x, y), g)
+        self._cov = CovarianceState(cov=cov.copy(), position=np.array([x, y]))
+        self._pose = np.array([x, y, th])
+        rate = self._rate
+        return PoseBatch(
+            t=t_end,
+            x=np.array([x]),
+            y=np.array([y]),
+            theta=np.array([th]),
+            vx=np.array([ux * rate]),
+            vy=np.array([uy * rate]),
+            omega=np.array([a * rate]),
+            cov=cov[None],
+            used=np.array([int(live.sum())]),
+            ok=np.array([ok]),
+            residual=residual,
             counts=counts,
         )

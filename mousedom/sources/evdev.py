@@ -88,6 +88,7 @@ class EvdevSource(Source):
         self._last_t = -np.inf
         self.time_backwards = 0  # reports stamped before the previous one (moved forward)
         self.grabbed = False
+        self._health_key: tuple | None = None
         self._device_opener = device_opener or _input_device
         self._ioctl = ioctl or fcntl.ioctl
 
@@ -202,8 +203,6 @@ class EvdevSource(Source):
             raise SourceGone(f"{self.name}: not open")
         chunks = [self._rest] if self._rest else []
         gone = None
-        if self._stream and not _ready(self._fd):
-            return []
         for _ in range(MAX_READS):
             try:
                 data = os.read(self._fd, READ_EVENTS * EVENT_SIZE)
@@ -215,6 +214,11 @@ class EvdevSource(Source):
                 gone = f"{self.name}: device gone ({e.strerror or e})"
                 break
             if not data:
+                if self._stream and not chunks and not _ready(self._fd):
+                    # A FIFO whose writer has not connected yet reads as EOF too; only
+                    # POLLHUP (a writer came and went) is the unplug.  Checked here, on
+                    # EOF, rather than before every read: the poll is a syscall per read.
+                    return []
                 gone = f"{self.name}: device gone (end of stream)"
                 break
             chunks.append(data)
@@ -233,8 +237,7 @@ class EvdevSource(Source):
         self._gone = gone  # raised by the next call, after these frames are delivered
         if not len(frames):
             return []
-        t = np.maximum.accumulate(np.concatenate([[self._last_t], frames.t]))[1:]
-        back = int(np.count_nonzero(t > frames.t))
+        t, back = _clamp_forward(frames.t, self._last_t)
         if back:
             self.time_backwards += back
             self._update_health()
@@ -243,6 +246,15 @@ class EvdevSource(Source):
 
     def _update_health(self) -> None:
         s = self.assembler.stats
+        # Called on every read: rebuild the status only when something in it changed.
+        key = (
+            s.dropped_frames, s.skipped, s.syn_dropped, s.dropped_dx, s.dropped_dy,
+            s.incomplete_frames, self.truncated_bytes, self.time_backwards, self.device,
+            self.grabbed, self._stream,
+        )  # fmt: skip
+        if key == self._health_key:
+            return
+        self._health_key = key
         self.health.dropped = s.dropped_frames
         self.health.skipped = s.skipped
         self.health.extra.update(
@@ -256,6 +268,24 @@ class EvdevSource(Source):
             truncated_bytes=self.truncated_bytes,
             time_backwards=self.time_backwards,
         )
+
+
+def _clamp_forward(t: np.ndarray, last: float) -> tuple[np.ndarray, int]:
+    """Stamps made non-decreasing (each at least the previous one, starting from ``last``),
+    and how many were moved.  A live read holds a few stamps, in order: checked on floats,
+    and the array is only rebuilt when one did run backwards."""
+    if len(t) <= 64:
+        values = t.tolist()
+        run, back = last, 0
+        for v in values:
+            if v < run:
+                back += 1
+            else:
+                run = v
+        if not back:
+            return t, 0
+    out = np.maximum.accumulate(np.concatenate([[last], t]))[1:]
+    return out, int(np.count_nonzero(out > t))
 
 
 def _input_device(node: str) -> Any:

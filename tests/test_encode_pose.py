@@ -1,0 +1,38 @@
+"""protocol.encode_pose (the daemon's per-window POSE line) equals encode(pose_message(...))."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from mousedom.protocol import encode, encode_pose, pose_message
+
+# every float, NaN and the infinities included (they must become null)
+anyfloat = st.floats(allow_nan=True, allow_infinity=True)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.floats(-1e9, 1e9, allow_nan=False),
+    st.tuples(anyfloat, anyfloat, anyfloat),
+    st.tuples(anyfloat, anyfloat, anyfloat),
+    st.lists(st.lists(anyfloat, min_size=3, max_size=3), min_size=3, max_size=3),
+    st.integers(0, 64),
+    st.booleans(),
+    st.lists(st.text(max_size=12), max_size=4),
+)
+def test_encode_pose_is_byte_identical(t, pose, twist, cov, used, updating, missing):
+    want = encode(pose_message(t, pose, twist, np.array(cov), used, updating, missing))
+    got = encode_pose(t, pose, twist, cov, used, updating, tuple(missing))
+    assert got == want
+    json.loads(got)  # and it is strict JSON
+
+
+def test_encode_pose_takes_numpy_scalars():
+    cov = np.eye(3).tolist()
+    args = (np.float64(1.5), (np.float64(0.1), 0.2, 0.3), (0.0, -0.0, np.inf), cov, np.int64(3))
+    want = encode(pose_message(*args, True, ["rear"]))
+    assert encode_pose(*args, True, ("rear",)) == want
