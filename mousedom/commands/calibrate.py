@@ -24,44 +24,26 @@ from mousedom.config import DEFAULT_CONFIG_PATH, Config, load_config
 from mousedom.errors import UserError
 
 
-def _positive(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (v > 0 and math.isfinite(v)):
-        raise argparse.ArgumentTypeError(f"must be a positive number, got {text}")
-    return v
+def _argument(convert, ok, requirement: str, kind: str = "number"):
+    """An argparse type: ``convert`` the text, then check ``ok``; messages say what is
+    wanted (argparse prefixes them with the option's name)."""
+
+    def parse(text: str):
+        try:
+            v = convert(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not a {kind}: {text!r}") from None
+        if not ok(v):
+            raise argparse.ArgumentTypeError(f"must be {requirement}, got {text}")
+        return v
+
+    return parse
 
 
-def _nonzero(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if v == 0 or not math.isfinite(v):
-        raise argparse.ArgumentTypeError(f"must be a non-zero number, got {text}")
-    return v
-
-
-def _count(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"must be 1 or more, got {text}")
-    return v
-
-
-def _window(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (v >= 0 and math.isfinite(v)):
-        raise argparse.ArgumentTypeError(f"must be 0 (one window per run) or more, got {text}")
-    return v
+_positive = _argument(float, lambda v: v > 0 and math.isfinite(v), "a positive number")
+_nonzero = _argument(float, lambda v: v != 0 and math.isfinite(v), "a non-zero number")
+_count = _argument(int, lambda v: v >= 1, "1 or more", kind="whole number")
+_window = _argument(float, lambda v: v >= 0 and math.isfinite(v), "0 (one window per run) or more")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
