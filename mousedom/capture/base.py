@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from mousedom.errors import UserError
-from mousedom.events import AssemblerStats
+from mousedom.events import AssemblerStats, FrameAssembler
 
 
 class CaptureError(UserError):
@@ -163,6 +163,39 @@ class Batch:
     motion: list[Motion]
     serial: list[Serial]
     complete: float  # all reports of the feed's devices stamped <= this have been yielded
+
+
+class FrameBatcher:
+    """One device's events -> motion Batches, keeping its DeviceStats up to date.
+
+    The text readers (evemu, libinput record) parse events in blocks; this is the part they
+    share: grouping into frames (events.FrameAssembler), counting, and the end of input.
+    """
+
+    def __init__(self, device: int, stats: DeviceStats) -> None:
+        self.device, self.stats = device, stats
+        self.asm = FrameAssembler()
+
+    def _motion(self, frames) -> Motion:
+        self.stats.add_motion(frames.t, frames.dx, frames.dy)
+        self.stats.take_assembler(self.asm.stats)
+        return Motion(self.device, frames.t, frames.dx, frames.dy)
+
+    def batch(self, t: np.ndarray, typ: np.ndarray, code: np.ndarray, value: np.ndarray) -> Batch:
+        """A block of events (non-decreasing times): everything stamped before its last
+        time is complete (a frame may still be open at that time)."""
+        motion = self._motion(self.asm.feed(t, typ, code, value))
+        return Batch([motion], [], float(np.nextafter(float(t[-1]), -np.inf)))
+
+    def last(self, warnings: list[str], what: str) -> Batch:
+        """End of input; a last frame without SYN_REPORT is kept and warned about."""
+        motion = self._motion(self.asm.flush())
+        if self.stats.unterminated:
+            warnings.append(
+                f"{what}: the last frame has no SYN_REPORT (truncated recording); "
+                "its counts are kept"
+            )
+        return Batch([motion], [], np.inf)
 
 
 @dataclass

@@ -37,7 +37,7 @@ from mousedom.capture.base import (
     CaptureError,
     DeviceInfo,
     Feed,
-    Motion,
+    FrameBatcher,
 )
 from mousedom.capture.base import open_binary as _open
 from mousedom.capture.evemu_lines import Events as _Events  # noqa: F401 (tests use it)
@@ -46,7 +46,7 @@ from mousedom.capture.evemu_lines import _show, event_line
 from mousedom.capture.evemu_lines import fast_events as _fast_events
 from mousedom.capture.evemu_lines import slow_events as _slow_events
 from mousedom.errors import located
-from mousedom.events import EV_REL, REL_X, REL_Y, FrameAssembler
+from mousedom.events import EV_REL, REL_X, REL_Y
 
 KNOWN_VERSIONS = ("1.0", "1.1", "1.2", "1.3")
 HEADER_TAGS = (b"N", b"I", b"P", b"B", b"A", b"L", b"S")
@@ -210,7 +210,7 @@ class EvemuCapture(Capture):
 
     def _batches(self) -> Iterator[Batch]:
         stats = self.stats[0]
-        asm = FrameAssembler()
+        frames = FrameBatcher(0, stats)
         last_t = -np.inf
         for block, first_line, at_eof in self._blocks():
             ev = None if at_eof else _fast_events(block, first_line)
@@ -227,19 +227,8 @@ class EvemuCapture(Capture):
                 continue
             self._check_time(ev, last_t)
             last_t = float(ev.t[-1])
-            fr = asm.feed(ev.t, ev.typ, ev.code, ev.value)
-            stats.add_motion(fr.t, fr.dx, fr.dy)
-            stats.take_assembler(asm.stats)
-            yield Batch([Motion(0, fr.t, fr.dx, fr.dy)], [], float(np.nextafter(last_t, -np.inf)))
-        fr = asm.flush()
-        stats.add_motion(fr.t, fr.dx, fr.dy)
-        stats.take_assembler(asm.stats)
-        if stats.unterminated:
-            self.warnings.append(
-                f"{self.path}: the last frame has no SYN_REPORT (truncated recording); "
-                "its counts are kept"
-            )
-        yield Batch([Motion(0, fr.t, fr.dx, fr.dy)], [], np.inf)
+            yield frames.batch(ev.t, ev.typ, ev.code, ev.value)
+        yield frames.last(self.warnings, self.path)
 
     def _check_time(self, ev: _Events, last_t: float) -> None:
         t = ev.t

@@ -37,10 +37,17 @@ from collections.abc import Iterator
 import numpy as np
 import yaml
 
-from mousedom.capture.base import Batch, Capture, CaptureError, DeviceInfo, Feed, Motion
+from mousedom.capture.base import (
+    Batch,
+    Capture,
+    CaptureError,
+    DeviceInfo,
+    Feed,
+    FrameBatcher,
+)
 from mousedom.capture.base import open_binary as _open
 from mousedom.errors import located
-from mousedom.events import EV_REL, REL_X, REL_Y, FrameAssembler
+from mousedom.events import EV_REL, REL_X, REL_Y
 
 KNOWN_VERSIONS = (1,)
 BLOCK_BYTES = 4 << 20
@@ -298,7 +305,7 @@ class LibinputCapture(Capture):
     def _batches(self, index: int) -> Iterator[Batch]:
         stats = self.stats[index]
         span = self._spans[index]
-        asm = FrameAssembler()
+        frames = FrameBatcher(index, stats)
         last_t = -np.inf
         for block, line in self._blocks(span):
             t, typ, code, value = self._parse(block, line)
@@ -307,20 +314,8 @@ class LibinputCapture(Capture):
             if t[0] < last_t or (np.diff(t) < 0).any():
                 self._backwards(block, line, last_t)
             last_t = float(t[-1])
-            fr = asm.feed(t, typ, code, value)
-            stats.add_motion(fr.t, fr.dx, fr.dy)
-            stats.take_assembler(asm.stats)
-            complete = float(np.nextafter(last_t, -np.inf))
-            yield Batch([Motion(index, fr.t, fr.dx, fr.dy)], [], complete)
-        fr = asm.flush()
-        stats.add_motion(fr.t, fr.dx, fr.dy)
-        stats.take_assembler(asm.stats)
-        if stats.unterminated:
-            self.warnings.append(
-                f"{self.path}: device {self.devices[index].name!r}: the last frame has no "
-                "SYN_REPORT (truncated recording); its counts are kept"
-            )
-        yield Batch([Motion(index, fr.t, fr.dx, fr.dy)], [], np.inf)
+            yield frames.batch(t, typ, code, value)
+        yield frames.last(self.warnings, f"{self.path}: device {self.devices[index].name!r}")
 
     def _backwards(self, block: bytes, line: int, last_t: float) -> None:
         prev = last_t
