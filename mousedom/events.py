@@ -23,8 +23,10 @@ rather than vanishing: ``counts in == counts out + dropped counts`` always holds
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import struct
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from itertools import repeat
 from typing import Any
 
 import numpy as np
@@ -37,6 +39,10 @@ EVENT_DTYPE = np.dtype(
 )
 EVENT_SIZE = EVENT_DTYPE.itemsize
 assert EVENT_SIZE == 24
+# The same record for the struct module, with type and code read as one u32 key (below):
+# iter_unpack makes one (sec, usec, key, value) tuple per record, in C.
+EVENT_STRUCT = struct.Struct("<qqIi")
+assert EVENT_STRUCT.size == EVENT_SIZE
 
 # Chunks up to this many events take a plain loop: for small chunks numpy's fixed cost
 # per call is more than the loop's (bench/decode.py prints per-read figures).
@@ -132,6 +138,17 @@ class AssemblerStats:
         return dict(self.__dict__)
 
 
+def _as_frames(lists: tuple[list[float], list[int], list[int]]) -> MotionFrames:
+    t, dx, dy = lists
+    if not t:
+        return MotionFrames()
+    return MotionFrames(
+        np.array(t, dtype=np.float64),
+        np.array(dx, dtype=np.int64),
+        np.array(dy, dtype=np.int64),
+    )
+
+
 class FrameAssembler:
     """Streaming SYN_REPORT frame assembler (vectorised per chunk; state between chunks).
 
@@ -174,13 +191,40 @@ class FrameAssembler:
         sec, usec = events["sec"], events["usec"]
         if 0 < len(events) <= self.small_chunk:
             # Python floats: the same IEEE operations as numpy's, so the same times.
-            secs, usecs = sec.tolist(), usec.tolist()
-            return self._feed_loop(
+            records = zip(
+                sec.tolist(),
+                usec.tolist(),
                 words[4::6].tolist(),
                 words[5::6].view("<i4").tolist(),
-                lambda i: secs[i] + usecs[i] * 1e-6,
+                strict=True,
             )
+            return _as_frames(self._feed_loop(records, len(events)))
         return self._feed(words[4::6], words[5::6].view("<i4"), lambda i: sec[i] + usec[i] * 1e-6)
+
+    def feed_bytes(
+        self, buf: bytes | bytearray | memoryview
+    ) -> tuple[list[float], list[int], list[int], bytes]:
+        """The live source's path for one small read: raw bytes in, Python lists out.
+
+        Returns the motion frames closed in ``buf`` as three lists (times, REL_X sums,
+        REL_Y sums) and the bytes of a trailing incomplete record (prepend them to the next
+        read), with the same rules, statistics and times as ``decode_input_events`` +
+        ``feed_events``: ``struct.iter_unpack`` makes the per-record tuples in C, and
+        neither numpy's fixed cost per call (~1 us, several calls) nor arrays the caller
+        would convert back to lists are paid.  Meant for reads of up to a few hundred
+        records; bulk input takes ``feed_events``.
+        """
+        n = len(buf) // EVENT_SIZE
+        end = n * EVENT_SIZE
+        if end == len(buf):
+            rest = b""
+        else:
+            rest = bytes(buf[end:])
+            buf = memoryview(buf)[:end]
+        if not n:
+            return [], [], [], rest
+        t, dx, dy = self._feed_loop(EVENT_STRUCT.iter_unpack(buf), n)
+        return t, dx, dy, rest
 
     def feed(
         self, t: np.ndarray, type: np.ndarray, code: np.ndarray, value: np.ndarray
@@ -190,17 +234,21 @@ class FrameAssembler:
         if not (len(type) == len(code) == len(value) == len(t)):
             raise ValueError("t, type, code and value must have the same length")
         key = np.asarray(type).astype(np.uint32) | (np.asarray(code).astype(np.uint32) << 16)
-        return self._feed(key, np.asarray(value, dtype=np.int64), t.__getitem__)
+        value = np.asarray(value, dtype=np.int64)
+        if 0 < len(t) <= self.small_chunk:
+            # x + -0.0 is x, bit for bit (even for -0.0): the loop's ``sec + usec * 1e-6``
+            # then hands back each t unchanged.
+            records = zip(t.tolist(), repeat(-0.0), key.tolist(), value.tolist(), strict=False)
+            return _as_frames(self._feed_loop(records, len(t)))
+        return self._feed(key, value, t.__getitem__)
 
     def _feed(
         self, key: np.ndarray, value: np.ndarray, time_at: Callable[[Any], np.ndarray]
     ) -> MotionFrames:
-        """``key`` = type | code << 16 per event (one compare per event kind)."""
+        """``key`` = type | code << 16 per event (one compare per event kind); numpy."""
         n = len(key)
         if n == 0:
             return MotionFrames()
-        if n <= self.small_chunk:
-            return self._feed_loop(key.tolist(), value.tolist(), lambda i: float(time_at(i)))
         if n > self.block:
             # Blocks that stay in cache, with the open frame carried between them as
             # between chunks: big temporaries would cost page faults and memory traffic.
@@ -290,72 +338,82 @@ class FrameAssembler:
         return MotionFrames(time_at(idx), dx[keep], dy[keep])
 
     def _feed_loop(
-        self, key: list[int], value: list[int], time_of: Callable[[int], float]
-    ) -> MotionFrames:
+        self, records: Iterable[tuple[Any, Any, int, int]], n: int
+    ) -> tuple[list[float], list[int], list[int]]:
         """The same rules event by event, for the few events of one live read.
 
-        numpy costs ~25 us per call whatever the size, which is more than a plain loop
-        over the 3 to 30 events a live mouse delivers per wake-up; the property tests check
-        that both paths give identical frames and statistics.
+        ``records`` yields ``n`` tuples (sec, usec, key, value), key = type | code << 16;
+        a frame's time is ``sec + usec * 1e-6``, the IEEE operations numpy does.  numpy
+        costs ~25 us per call whatever the size, which is more than this loop over the 3
+        to 30 events a live mouse delivers per wake-up; the property tests check that both
+        paths give identical frames and statistics.
+
+        Per common event the loop does one compare chain and two additions; everything
+        else is derived once per call.  The open frame is held as counts: ``m`` motion
+        events, ``other`` other non-SYN events, ``synx`` SYN events that are not
+        SYN_REPORT (its event count is their sum, its non-SYN count ``m + other``).
         """
         st = self.stats
-        st.events += len(key)
-        ends: list[int] = []
+        st.events += n
+        out_t: list[float] = []
         out_dx: list[int] = []
         out_dy: list[int] = []
-        dx, dy = self._open_dx, self._open_dy
-        motion, dropped, open_events = self._open_motion, self._open_dropped, self._open_events
-        nonsyn = self._open_nonsyn
-        last_end = -1  # index of the chunk's last SYN_REPORT
-        for i, (k, va) in enumerate(zip(key, value, strict=True)):
-            # Branches ordered by frequency; EV_REL and EV_SYN kinds need no type test.
+        dx0, dy0 = dx, dy = self._open_dx, self._open_dy
+        dropped = self._open_dropped
+        # The carried frame's counts in this form (only m > 0 and m + other are used).
+        m = 1 if self._open_motion else 0
+        other = self._open_nonsyn - m
+        synx = self._open_events - self._open_nonsyn
+        frames = skipped = lost_x = lost_y = 0
+        sec = usec = 0
+        for sec, usec, k, v in records:
+            # Branches ordered by frequency.
             if k == KEY_REL_X:
-                dx += va
-                st.rel_x_in += va
-                motion = True
-                nonsyn += 1
+                dx += v
+                m += 1
             elif k == KEY_REL_Y:
-                dy += va
-                st.rel_y_in += va
-                motion = True
-                nonsyn += 1
+                dy += v
+                m += 1
             elif k == KEY_SYN_REPORT:
-                st.frames += 1
+                frames += 1
                 if dropped:
                     st.dropped_frames += 1
-                    st.dropped_dx += dx
-                    st.dropped_dy += dy
-                    st.dropped_events += nonsyn
-                elif motion:
-                    ends.append(i)
+                    lost_x += dx
+                    lost_y += dy
+                    st.dropped_events += m + other
+                    dropped = False
+                elif m:
+                    out_t.append(sec + usec * 1e-6)
                     out_dx.append(dx)
                     out_dy.append(dy)
-                dx = dy = nonsyn = 0
-                motion = dropped = False
-                last_end = i
+                dx = dy = m = other = synx = 0
             elif k == KEY_SYN_DROPPED:
                 st.syn_dropped += 1
                 dropped = True
+                synx += 1
             else:
-                st.skipped += 1
+                skipped += 1
                 if k & 0xFFFF != EV_SYN:
-                    nonsyn += 1
-        # events of the open frame: those after the last SYN_REPORT (plus the carried ones)
-        open_events = len(key) - 1 - last_end if last_end >= 0 else open_events + len(key)
+                    other += 1
+                else:
+                    synx += 1
+        st.frames += frames
+        st.skipped += skipped
+        st.motion_frames += len(out_t)
+        if lost_x or lost_y:
+            st.dropped_dx += lost_x
+            st.dropped_dy += lost_y
+        # Every REL_X count fed lands in exactly one place: a frame handed out, a dropped
+        # frame, or the open frame (whose sum went from dx0 to dx).
+        st.rel_x_in += sum(out_dx) + lost_x + dx - dx0
+        st.rel_y_in += sum(out_dy) + lost_y + dy - dy0
         self._open_dx, self._open_dy = dx, dy
-        self._open_motion, self._open_dropped = motion, dropped
-        self._open_nonsyn = nonsyn
-        if open_events:  # the chunk's last event belongs to the open frame
-            self._open_t = time_of(len(key) - 1)
-        self._open_events = open_events
-        st.motion_frames += len(ends)
-        if not ends:
-            return MotionFrames()
-        return MotionFrames(
-            np.array([time_of(i) for i in ends], dtype=np.float64),
-            np.array(out_dx, dtype=np.int64),
-            np.array(out_dy, dtype=np.int64),
-        )
+        self._open_motion, self._open_dropped = m > 0, dropped
+        self._open_nonsyn = m + other
+        self._open_events = m + other + synx
+        if self._open_events:  # then the last record belongs to the open frame
+            self._open_t = sec + usec * 1e-6
+        return out_t, out_dx, out_dy
 
     def flush(self) -> MotionFrames:
         """End of a finite input: close the open frame, if any, and count it incomplete.

@@ -51,6 +51,10 @@ EVIOCSCLOCKID = (1 << 30) | (4 << 16) | (ord("E") << 8) | 0xA0
 CLOCK_MONOTONIC = 1
 READ_EVENTS = 1024  # records per os.read: 24 KiB, ~1 s of an 8 kHz mouse's frames
 MAX_READS = 16  # per read() call, so that one busy source cannot starve the others
+# Reads up to this size (what a live mouse delivers per wake-up) take the assembler's
+# pure-Python path; past ~300 records numpy's fixed cost per call pays off
+# (bench/readpath.py prints both).
+SMALL_READ = 256 * EVENT_SIZE
 
 
 class EvdevSource(Source):
@@ -88,6 +92,7 @@ class EvdevSource(Source):
         self._last_t = -np.inf
         self.time_backwards = 0  # reports stamped before the previous one (moved forward)
         self.grabbed = False
+        self.small_read = SMALL_READ  # tests set 0 to force the bulk path
         self._health_key: tuple | None = None
         self._device_opener = device_opener or _input_device
         self._ioctl = ioctl or fcntl.ioctl
@@ -224,7 +229,10 @@ class EvdevSource(Source):
             chunks.append(data)
             if len(data) < READ_EVENTS * EVENT_SIZE:
                 break
-        events, self._rest = decode_input_events(b"".join(chunks))
+        buf = b"".join(chunks)  # one chunk (the usual case): that same object, no copy
+        if gone is None and len(buf) <= self.small_read:
+            return self._small(buf)
+        events, self._rest = decode_input_events(buf)
         frames = self.assembler.feed_events(events)
         if gone is not None:
             # The frame being assembled will never get its SYN_REPORT: keep its counts.
@@ -243,6 +251,21 @@ class EvdevSource(Source):
             self._update_health()
         self._last_t = float(t[-1])
         return [Reports(self.name, t, frames.dx.astype(np.float64), frames.dy)]
+
+    def _small(self, buf: bytes) -> list[Reports]:
+        """A live read of a few frames: the same results as the bulk path below (the
+        property tests compare them), from Python lists with no numpy call but the
+        Reports' arrays."""
+        t, dx, dy, self._rest = self.assembler.feed_bytes(buf)
+        if not t:
+            self._update_health()
+            return []
+        back = _clamp_list(t, self._last_t)
+        if back:
+            self.time_backwards += back
+        self._update_health()
+        self._last_t = t[-1]
+        return [Reports(self.name, t, dx, dy)]
 
     def _update_health(self) -> None:
         s = self.assembler.stats
@@ -286,6 +309,26 @@ def _clamp_forward(t: np.ndarray, last: float) -> tuple[np.ndarray, int]:
             return t, 0
     out = np.maximum.accumulate(np.concatenate([[last], t]))[1:]
     return out, int(np.count_nonzero(out > t))
+
+
+def _clamp_list(t: list[float], last: float) -> int:
+    """``_clamp_forward`` in place on a list: each stamp raised to at least the previous
+    one (starting from ``last``); returns how many were moved."""
+    run = last
+    for v in t:
+        if v < run:
+            break
+        run = v
+    else:
+        return 0  # in order (the usual case): nothing written
+    run, back = last, 0
+    for i, v in enumerate(t):
+        if v < run:
+            t[i] = run
+            back += 1
+        else:
+            run = v
+    return back
 
 
 def _input_device(node: str) -> Any:
