@@ -28,6 +28,7 @@ import numpy as np
 
 from mousedom import integrate, models, onewindow
 from mousedom.config import Config
+from mousedom.countfunction import CountFunction
 from mousedom.covariance import CovarianceState, propagate, world_step_noise
 from mousedom.geometry import rank_problem
 from mousedom.units import counts_matrices, sigma_metres
@@ -76,35 +77,6 @@ class PoseBatch:
         return {k: float(getattr(self, k)[-1]) for k in ("t", "x", "y", "theta")}
 
 
-class _Mouse:
-    """Per-mouse state: the not-yet-closed part of its cumulative count function."""
-
-    def __init__(self, period: float) -> None:
-        self.period = period
-        self.last_t = -math.inf  # latest stamp pushed (queued or not)
-        self.knot_t = -math.inf  # stamp of the last report turned into knots
-        self.pending: list[tuple] = []  # (t, dx, dy): float lists (small pushes) or arrays
-        self.complete = -math.inf  # all reports stamped <= this have been pushed
-        # Knots of F after the closed frontier, relative to F at the frontier (the anchor):
-        # rows are knot times, cumulative REL_X and cumulative REL_Y (one array: fewer
-        # numpy calls per window, which is what the daemon's CPU use is made of).
-        self.knots = np.zeros((3, 0))
-        self.dead: list[list[float]] = []  # [from, to) spans in which the mouse is not live
-        self.counts_in = np.zeros(2)
-        self.late = 0  # reports stamped behind the closed frontier (moved forward)
-        self.backwards = 0  # reports stamped before the previous one (clamped)
-
-    @property
-    def live(self) -> bool:
-        return not self.dead or self.dead[-1][1] != math.inf
-
-    def frontier(self) -> float:
-        return max(self.last_t, self.complete - self.period)
-
-    def level(self) -> np.ndarray:
-        return self.knots[1:, -1] if self.knots.shape[1] else np.zeros(2)
-
-
 class Tracker:
     """Fuses the reports of a rig's mice into poses.  See the module docstring."""
 
@@ -127,9 +99,10 @@ class Tracker:
         self.period = 1.0 / config.rate_hz
         self.t0 = t0
         self.n_mice = len(config.mice)
-        self._mice = [_Mouse(1.0 / m.report_hz) for m in config.mice]
+        self._mice = [CountFunction(1.0 / m.report_hz) for m in config.mice]
         self._names = {m.name: i for i, m in enumerate(config.mice)}
         self._to_body = counts_matrices(config.mice)  # (N,2,2)
+        self._to_body_rows = self._to_body.tolist()  # the same, for the one-window path
         self._positions = np.array([[m.mount.x, m.mount.y] for m in config.mice])
         self._sigma = np.array([sigma_metres(m) for m in config.mice])
         self._rate = 1.0 / self.period
@@ -187,96 +160,20 @@ class Tracker:
         m.pending.append((t, dx, dy))
         m.last_t = max(m.last_t, float(t.max()))
 
-    def _ingest(self, m: _Mouse) -> None:
-        """Turn a mouse's queued reports into knots of its cumulative count function."""
+    def _ingest(self, m: CountFunction) -> None:
+        """Turn a mouse's queued reports into knots (floats for a few, arrays for many)."""
         if not m.pending:
             return
-        if sum(len(p[0]) for p in m.pending) <= self._INGEST_SMALL:
-            self._ingest_small(m)
-            return
-        if len(m.pending) == 1:
-            t, dx, dy = (np.asarray(c, dtype=np.float64) for c in m.pending[0])
+        if m.queued() <= self._INGEST_SMALL and m.n_knots() <= self._KNOTS_SMALL:
+            m.ingest_small(self.frontier_time)
         else:
-            t, dx, dy = (np.concatenate(cols) for cols in zip(*m.pending, strict=True))
-        m.pending = []
-        cum = np.cumsum(np.stack([dx, dy]), axis=1)  # (2, n)
-        m.counts_in += cum[:, -1]
+            m.ingest(self.frontier_time)
 
-        # Time must not run backwards: clamp to the running maximum (counted, kept).
-        run_max = np.maximum.accumulate(np.concatenate([[m.knot_t], t]))[1:]
-        m.backwards += int(np.count_nonzero(run_max > t))
-        t = run_max
-        # Reports behind the closed frontier go into the first open window.
-        edge = self.frontier_time
-        late = t < edge
-        if late.any():
-            m.late += int(np.count_nonzero(late))
-            t = np.maximum(t, edge)
-        prev = np.concatenate([[m.knot_t], t[:-1]])
-        start = np.maximum(np.maximum(prev, t - m.period), edge)
-
-        # Knot pairs: F holds its level until the report's span starts, then rises to it.
-        cum += m.level()[:, None]
-        new = np.empty((3, 2 * len(t)))
-        new[0, 0::2] = start
-        new[0, 1::2] = t
-        new[1:, 1::2] = cum
-        new[1:, 0::2] = cum - np.stack([dx, dy])
-        m.knots = np.concatenate([m.knots, new], axis=1)
-        m.knot_t = float(t[-1])
-
-    # Up to this many queued reports, _ingest runs on Python floats (the daemon's few reports
-    # per window); tests set it to 0 to compare it with the array path.
+    # Up to this many queued reports (and knots already held), reports become knots on
+    # Python floats and lists (the daemon's few reports per window); tests set it to 0 to
+    # compare with the array path.
     _INGEST_SMALL = 64
-
-    def _ingest_small(self, m: _Mouse) -> None:
-        """_ingest, report by report: the same operations in the same order on floats."""
-        pending, m.pending = m.pending, []
-        t, dx, dy = [], [], []
-        for pt, pdx, pdy in pending:  # lists from push, or arrays of a larger push
-            t += pt if isinstance(pt, list) else pt.tolist()
-            dx += pdx if isinstance(pdx, list) else pdx.tolist()
-            dy += pdy if isinstance(pdy, list) else pdy.tolist()
-        edge = self.frontier_time
-        period = m.period
-        if m.knots.shape[1]:
-            lx, ly = m.knots[1:, -1].tolist()
-        else:
-            lx = ly = 0.0
-        run = prev = m.knot_t
-        cx, cy = dx[0], dy[0]  # np.cumsum starts from the first value, not from 0 + it
-        backwards = late = 0
-        kt: list[float] = []
-        kx: list[float] = []
-        ky: list[float] = []
-        for k, (ti, a, b) in enumerate(zip(t, dx, dy, strict=True)):
-            if k:
-                cx += a
-                cy += b
-            if run > ti:
-                backwards += 1
-            else:
-                run = ti
-            ti = run
-            if ti < edge:
-                late += 1
-                ti = edge
-            # max(max(prev, ti - period), edge), without the builtin's call cost
-            start = ti - period
-            if prev > start:
-                start = prev
-            if edge > start:
-                start = edge
-            x, y = cx + lx, cy + ly
-            kt += (start, ti)
-            kx += (x - a, x)
-            ky += (y - b, y)
-            prev = ti
-        m.counts_in += (cx, cy)
-        m.backwards += backwards
-        m.late += late
-        m.knots = np.concatenate([m.knots, np.array((kt, kx, ky))], axis=1)
-        m.knot_t = prev
+    _KNOTS_SMALL = 256
 
     def complete_until(self, t: float, mouse: int | str | None = None) -> None:
         """Declare that every report stamped <= t has been pushed (one mouse, or all)."""
@@ -405,23 +302,21 @@ class Tracker:
         k_old = self._closed
         if k_new <= k_old:
             return PoseBatch.empty(self.n_mice)
+        for m in self._mice:
+            self._ingest(m)
+        if (
+            k_new - k_old <= self._SMALL
+            and self.n_mice
+            and all(m.n_knots() <= self._KNOTS_SMALL for m in self._mice)
+        ):
+            return self._close_one()
         n = k_new - k_old
         edges = self.t0 + self.period * np.arange(k_old, k_new + 1)
         counts = np.zeros((n, self.n_mice, 2))
         mask = np.ones((n, self.n_mice), dtype=bool)
         end_t = float(edges[-1])
         for i, m in enumerate(self._mice):
-            self._ingest(m)
-            if m.knots.shape[1]:
-                # F is relative to the closed frontier, so its value there is 0.
-                kt, kfx, kfy = m.knots
-                f = counts[:, i]  # a view: (n, 2)
-                f[:, 0] = np.interp(edges[1:], kt, kfx)
-                f[:, 1] = np.interp(edges[1:], kt, kfy)
-                last = f[-1].copy()
-                if n > 1:
-                    f[1:] -= f[:-1].copy()  # cumulative -> per window
-                self._rebase(m, end_t, last)
+            counts[:, i] = m.close(edges)
             if m.dead:
                 for start, end in m.dead:
                     mask[(edges[:-1] < end) & (edges[1:] > start), i] = False
@@ -430,20 +325,20 @@ class Tracker:
         self.counts_out += counts.sum(axis=0)
         return self._solve(edges[1:], counts, mask)
 
-    @staticmethod
-    def _rebase(m: _Mouse, edge: float, level: np.ndarray) -> None:
-        # Knots exactly on the edge are kept: a jump there (reports with one stamp) may
-        # have been evaluated on either side, and keeping them, relative, loses neither.
-        # Knot times never decrease (see _ingest), so "time >= edge" is a tail: a slice.
-        kept = m.knots[:, np.searchsorted(m.knots[0], edge) :]
-        knots = np.empty((3, kept.shape[1] + 1))
-        knots[:, 0] = (edge, 0.0, 0.0)
-        knots[0, 1:] = kept[0]
-        knots[1:, 1:] = kept[1:] - level[:, None]
-        m.knots = knots
+    def _close_one(self) -> PoseBatch:
+        """_close_until for the next window on Python floats: the daemon's case."""
+        k = self._closed
+        start, end = self._edge(k), self._edge(k + 1)
+        counts = [m.close_one(end) for m in self._mice]
+        live = tuple([m.live_in(start, end) for m in self._mice])
+        self._closed = k + 1
+        self.counts_out += counts
+        if self.model == "bonarini":  # numerical linearisation: the array path
+            return self._solve(np.array([end]), np.array([counts]), np.array([live]))
+        return self._solve_one(end, counts, live)
 
-    # Up to this many windows per poll, _solve_one (floats, no validation) is used; tests set
-    # it to 0 to compare it with the array path.
+    # Up to this many windows per poll, _close_one (floats, no validation) is used; tests
+    # set it to 0 to compare it with the array path.
     _SMALL = 1
 
     def _solve(self, t_end: np.ndarray, counts: np.ndarray, mask: np.ndarray) -> PoseBatch:
@@ -474,38 +369,42 @@ class Tracker:
             counts=counts,
         )
 
-    def _linear_plan(self, live: np.ndarray) -> tuple:
-        """(estimator or None, live index or None, q covariance 3x3, q columns) per pattern."""
-        key = live.tobytes()
-        plan = self._linear_cache.get(key)
+    def _linear_plan(self, live: tuple[bool, ...]) -> tuple:
+        """What _solve_one needs per pattern of live mice, as Python floats: (A rows, B rows,
+        live indices, q covariance 3x3 array, q columns); A and B are None without rank."""
+        plan = self._linear_cache.get(live)
         if plan is None:
             cols = (0, 1, 2) if self.model == "lsq" else (0, 2)
+            key = np.array(live, dtype=bool).tobytes()
             est = None
-            if live.any():
+            if any(live):
                 est = models._estimator(self._positions.tobytes(), self._sigma.tobytes(), key, cols)
             c3 = np.zeros((3, 3))
+            a_rows = b_rows = None
             if est is not None:
                 c3[np.ix_(cols, cols)] = est[2]
-            plan = (est, None if live.all() else np.flatnonzero(live), c3, cols)
-            self._linear_cache[key] = plan
+                a_rows, b_rows = est[0].tolist(), est[1].tolist()
+            c3 = c3.tolist()
+            idx = [i for i, v in enumerate(live) if v]
+            plan = (a_rows, b_rows, idx, c3, cols)
+            self._linear_cache[live] = plan
         return plan
 
-    def _solve_one(self, t_end: np.ndarray, counts: np.ndarray, mask: np.ndarray) -> PoseBatch:
+    def _solve_one(
+        self, t_end: float, counts: list[tuple[float, float]], live: tuple[bool, ...]
+    ) -> PoseBatch:
         """_solve for one window of a linear model (see mousedom.onewindow)."""
-        live = mask[0]
-        est, idx, c3, cols = self._linear_plan(live)
-        d = np.einsum("nij,nj->ni", self._to_body, counts[0])
-        residual = np.zeros((1, self.n_mice, 2))
+        a_rows, b_rows, idx, c3, cols = self._linear_plan(live)
+        residual = [[0.0, 0.0] for _ in range(self.n_mice)]
         q = [0.0, 0.0, 0.0]
-        ok = est is not None
+        ok = b_rows is not None
         if ok:
-            qk, res = onewindow.linear(d, idx, est)
-            for c, v in zip(cols, qk.tolist(), strict=True):
+            d = onewindow.body_counts(self._to_body_rows, counts, idx)
+            qk, res = onewindow.linear(d, a_rows, b_rows)
+            for c, v in zip(cols, qk, strict=True):
                 q[c] = v
-            if idx is None:
-                residual[0] = res
-            else:
-                residual[0, idx] = res
+            for k, i in enumerate(idx):
+                residual[i] = res[2 * k : 2 * k + 2]
         ux, uy, a = q
         sx, sy = onewindow.body_step(ux, uy, a, self.integrator)
         x0, y0, th0 = self._pose.tolist()
@@ -513,21 +412,21 @@ class Tracker:
         x, y, th = x0 + (cb * sx - sb * sy), y0 + (sb * sx + cb * sy), th0 + a
         g = onewindow.noise(th0, ux, uy, a, c3)
         prev = self._cov.position.tolist()
-        cov = onewindow.propagate(self._cov.cov, prev, (x, y), g)
-        self._cov = CovarianceState(cov=cov.copy(), position=np.array([x, y]))
+        cov = np.array(onewindow.propagate(self._cov.cov.tolist(), prev, (x, y), g))
+        self._cov = CovarianceState(cov=cov, position=np.array([x, y]))
         self._pose = np.array([x, y, th])
         rate = self._rate
         return PoseBatch(
-            t=t_end,
+            t=np.array([t_end]),
             x=np.array([x]),
             y=np.array([y]),
             theta=np.array([th]),
             vx=np.array([ux * rate]),
             vy=np.array([uy * rate]),
             omega=np.array([a * rate]),
-            cov=cov[None],
-            used=np.array([int(live.sum())]),
+            cov=cov[None].copy(),
+            used=np.array([len(idx)]),
             ok=np.array([ok]),
-            residual=residual,
-            counts=counts,
+            residual=np.array([residual]),
+            counts=np.array([counts]),
         )
