@@ -135,6 +135,15 @@ class Tracker:
         call, not per element, would otherwise dominate the daemon's CPU use.
         """
         i = self._index(mouse)
+        if type(t) is list and type(dx) is list and type(dy) is list:
+            # A live read's few reports, already Python floats: no numpy at all.
+            if not len(t) == len(dx) == len(dy):
+                raise ValueError(f"push: t, dx, dy must be of one length, got "
+                                 f"{len(t)}, {len(dx)}, {len(dy)}")  # fmt: skip
+            if t and len(t) <= self._INGEST_SMALL:
+                self._queue_small(self._mice[i], [float(v) for v in t],
+                                  [float(v) for v in dx], [float(v) for v in dy])  # fmt: skip
+                return
         t = np.asarray(t, dtype=np.float64)
         dx = np.asarray(dx, dtype=np.float64)
         dy = np.asarray(dy, dtype=np.float64)
@@ -145,13 +154,8 @@ class Tracker:
             return
         m = self._mice[i]
         if t.size <= self._INGEST_SMALL:
-            # A live read's few reports: queued as floats, which _ingest_small wants.
-            tl, xl, yl = t.tolist(), dx.tolist(), dy.tolist()
-            if not math.isfinite(sum(tl) + sum(xl) + sum(yl)):
-                raise ValueError("push: times and counts must be finite numbers")
-            self._start(tl[0])
-            m.pending.append((tl, xl, yl))
-            m.last_t = max(m.last_t, max(tl))
+            # A live read's few reports: queued as floats, which ingest_small wants.
+            self._queue_small(m, t.tolist(), dx.tolist(), dy.tolist())
             return
         # One sum each is NaN or inf if any element is: cheaper than isfinite per element.
         if not math.isfinite(t.sum() + dx.sum() + dy.sum()):
@@ -159,6 +163,16 @@ class Tracker:
         self._start(t[0])
         m.pending.append((t, dx, dy))
         m.last_t = max(m.last_t, float(t.max()))
+
+    def _queue_small(self, m: CountFunction, t: list, dx: list, dy: list) -> None:
+        # One sum each is NaN or inf if any element is: cheaper than a test per element.
+        if not math.isfinite(sum(t) + sum(dx) + sum(dy)):
+            raise ValueError("push: times and counts must be finite numbers")
+        self._start(t[0])
+        m.pending.append((t, dx, dy))
+        last = max(t)
+        if last > m.last_t:
+            m.last_t = last
 
     def _ingest(self, m: CountFunction) -> None:
         """Turn a mouse's queued reports into knots (floats for a few, arrays for many)."""
