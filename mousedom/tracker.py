@@ -22,7 +22,6 @@ once) and the daemon (a few at a time) run exactly the same code.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -31,50 +30,8 @@ from mousedom.config import Config
 from mousedom.countfunction import CountFunction
 from mousedom.covariance import CovarianceState, propagate, world_step_noise
 from mousedom.geometry import rank_problem
+from mousedom.posebatch import Pose, PoseBatch
 from mousedom.units import counts_matrices, sigma_metres
-
-
-@dataclass
-class PoseBatch:
-    """Poses after consecutive windows; every field's first axis is the window."""
-
-    t: np.ndarray  # window end times
-    x: np.ndarray
-    y: np.ndarray
-    theta: np.ndarray
-    vx: np.ndarray  # body-frame twist over the window (m/s, m/s, rad/s)
-    vy: np.ndarray
-    omega: np.ndarray
-    cov: np.ndarray  # (n,3,3) covariance of (x, y, theta)
-    used: np.ndarray  # number of sensors used
-    ok: np.ndarray  # False: the live mice could not determine the motion; pose held
-    residual: np.ndarray  # (n,N,2) metres, body frame: d - A q
-    counts: np.ndarray  # (n,N,2) counts (REL_X, REL_Y) that fell into the window
-
-    def __len__(self) -> int:
-        return len(self.t)
-
-    @classmethod
-    def empty(cls, n_mice: int) -> PoseBatch:
-        z = np.zeros(0)
-        return cls(
-            t=z, x=z, y=z, theta=z, vx=z, vy=z, omega=z,
-            cov=np.zeros((0, 3, 3)), used=np.zeros(0, dtype=int), ok=np.zeros(0, dtype=bool),
-            residual=np.zeros((0, n_mice, 2)), counts=np.zeros((0, n_mice, 2)),
-        )  # fmt: skip
-
-    @classmethod
-    def concat(cls, batches: list[PoseBatch], n_mice: int | None = None) -> PoseBatch:
-        batches = [b for b in batches if len(b)]
-        if not batches:
-            return cls.empty(n_mice or 0)
-        return cls(
-            **{f.name: np.concatenate([getattr(b, f.name) for b in batches]) for f in fields(cls)}
-        )
-
-    def last(self) -> dict[str, float]:
-        """The final pose as plain floats (for summaries)."""
-        return {k: float(getattr(self, k)[-1]) for k in ("t", "x", "y", "theta")}
 
 
 class Tracker:
@@ -109,8 +66,11 @@ class Tracker:
         self._linear_cache: dict[bytes, tuple] = {}  # live pattern -> what _solve_one needs
         self._closed = 0  # number of windows closed so far
         self._complete_all = -math.inf
-        self._pose = np.zeros(3)
-        self._cov = CovarianceState()
+        # The carried state as Python floats (the one-window path's currency; the array
+        # path converts on entry and exit): pose, its covariance and where that is taken.
+        self._pose = [0.0, 0.0, 0.0]
+        self._cov = [[0.0] * 3 for _ in range(3)]
+        self._cov_at = [0.0, 0.0]
         self.counts_out = np.zeros((self.n_mice, 2))
 
     # ------------------------------------------------------------------ inputs
@@ -223,16 +183,18 @@ class Tracker:
 
     @property
     def pose(self) -> tuple[float, float, float]:
-        return float(self._pose[0]), float(self._pose[1]), float(self._pose[2])
+        x, y, theta = self._pose
+        return x, y, theta
 
     @property
     def pose_cov(self) -> np.ndarray:
-        return self._cov.cov.copy()
+        return np.array(self._cov)
 
     def reset(self, x: float = 0.0, y: float = 0.0, theta: float = 0.0) -> None:
         """Start the odometry frame again at the given pose, with zero uncertainty."""
-        self._pose = np.array([x, y, theta], dtype=float)
-        self._cov = CovarianceState(position=self._pose[:2].copy())
+        self._pose = [float(x), float(y), float(theta)]
+        self._cov = [[0.0] * 3 for _ in range(3)]
+        self._cov_at = self._pose[:2]
 
     def fix(self, x: float | None = None, y: float | None = None, theta: float | None = None):
         """Absolute fix of some coordinates only (McGill's grid-line correction).
@@ -240,13 +202,14 @@ class Tracker:
         The fixed coordinates take the given values and lose their uncertainty; the
         others, and their correlations with each other, are kept.
         """
-        cov = self._cov.cov.copy()
+        cov = np.array(self._cov)
         for k, v in enumerate((x, y, theta)):
             if v is not None:
                 self._pose[k] = float(v)
                 cov[k, :] = 0.0
                 cov[:, k] = 0.0
-        self._cov = CovarianceState(cov=cov, position=self._pose[:2].copy())
+        self._cov = cov.tolist()
+        self._cov_at = self._pose[:2]
 
     # ------------------------------------------------------------------ outputs
 
@@ -362,11 +325,13 @@ class Tracker:
         sol = models.solve(self.model, d, self._positions, self._sigma, mask)
         q = np.where(sol.ok[:, None], sol.q, 0.0)
         steps = integrate.body_step(q, self.integrator)
-        poses = integrate.compose(self._pose, steps)
+        poses = integrate.compose(np.array(self._pose), steps)
         theta_before = np.concatenate([[self._pose[2]], poses[:-1, 2]])
         noise = world_step_noise(theta_before, integrate.step_jacobian(q), sol.cov)
-        cov, self._cov = propagate(self._cov, poses[:, :2], noise)
-        self._pose = poses[-1].copy()
+        state = CovarianceState(cov=np.array(self._cov), position=np.array(self._cov_at))
+        cov, state = propagate(state, poses[:, :2], noise)
+        self._cov, self._cov_at = state.cov.tolist(), state.position.tolist()
+        self._pose = poses[-1].tolist()
         rate = 1.0 / self.period
         return PoseBatch(
             t=t_end,
@@ -421,26 +386,13 @@ class Tracker:
                 residual[i] = res[2 * k : 2 * k + 2]
         ux, uy, a = q
         sx, sy = onewindow.body_step(ux, uy, a, self.integrator)
-        x0, y0, th0 = self._pose.tolist()
+        x0, y0, th0 = self._pose
         cb, sb = math.cos(th0), math.sin(th0)
         x, y, th = x0 + (cb * sx - sb * sy), y0 + (sb * sx + cb * sy), th0 + a
         g = onewindow.noise(th0, ux, uy, a, c3)
-        prev = self._cov.position.tolist()
-        cov = np.array(onewindow.propagate(self._cov.cov.tolist(), prev, (x, y), g))
-        self._cov = CovarianceState(cov=cov, position=np.array([x, y]))
-        self._pose = np.array([x, y, th])
+        cov = onewindow.propagate(self._cov, self._cov_at, (x, y), g)
+        self._pose, self._cov, self._cov_at = [x, y, th], cov, [x, y]
         rate = self._rate
-        return PoseBatch(
-            t=np.array([t_end]),
-            x=np.array([x]),
-            y=np.array([y]),
-            theta=np.array([th]),
-            vx=np.array([ux * rate]),
-            vy=np.array([uy * rate]),
-            omega=np.array([a * rate]),
-            cov=cov[None].copy(),
-            used=np.array([len(idx)]),
-            ok=np.array([ok]),
-            residual=np.array([residual]),
-            counts=np.array([counts]),
-        )
+        pose = Pose(t_end, x, y, th, ux * rate, uy * rate, a * rate, cov, len(idx), ok,
+                    residual, counts)  # fmt: skip
+        return PoseBatch.from_rows([pose])
