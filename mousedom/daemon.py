@@ -30,6 +30,7 @@ import numpy as np
 
 from mousedom.config import Config, MouseConfig, load_config
 from mousedom.errors import UserError
+from mousedom.posebatch import PoseBatch
 from mousedom.protocol import (
     encode,
     encode_pose,
@@ -443,41 +444,31 @@ class Daemon:
 
     # ------------------------------------------------------------------ output
 
-    def _publish(self, batch: Any) -> None:
-        n = len(batch)
-        if not n:
+    def _publish(self, batch: PoseBatch) -> None:
+        if not len(batch):
             return
         missing = tuple(s.name for s in self.slots if not s.live)
         tolerance = 0.5 / self.config.rate_hz
-        # Python floats from here on: one tolist() per field instead of numpy scalars
-        # and a dict per pose (the daemon publishes every window; see encode_pose).
-        ok = batch.ok.tolist()
-        res = batch.residual.tolist()  # (n, N, 2)
-        for slot in self.slots:
-            j = slot.index
-            for i in range(n):
-                if not ok[i] or j >= len(res[i]):
-                    continue
-                rx, ry = res[i][j]
-                if rx - rx == 0.0 and ry - ry == 0.0:  # both finite
-                    slot.residual_sq += rx * rx + ry * ry
-                    slot.residual_n += 1
-        t, x, y, theta = (a.tolist() for a in (batch.t, batch.x, batch.y, batch.theta))
-        vx, vy, omega = (a.tolist() for a in (batch.vx, batch.vy, batch.omega))
-        cov, used = batch.cov.tolist(), batch.used.tolist()
-        for i in range(n):
+        # Rows of Python values (the one-window path makes them without numpy) and a POSE
+        # line without a dict and json.dumps: the daemon publishes every window.
+        for pose in batch.rows():
+            if pose.ok:
+                for slot, (rx, ry) in zip(self.slots, pose.residual, strict=False):
+                    if rx - rx == 0.0 and ry - ry == 0.0:  # both finite
+                        slot.residual_sq += rx * rx + ry * ry
+                        slot.residual_n += 1
             line = encode_pose(
-                t[i],
-                (x[i], y[i], theta[i]),
-                (vx[i], vy[i], omega[i]),
-                cov[i],
-                used[i],
-                ok[i],
+                pose.t,
+                (pose.x, pose.y, pose.theta),
+                (pose.vx, pose.vy, pose.omega),
+                pose.cov,
+                pose.used,
+                pose.ok,
                 missing,
             )
             self.poses += 1
-            self.not_updated += not ok[i]
-            self.server.broadcast_pose(t[i], line, tolerance)
+            self.not_updated += not pose.ok
+            self.server.broadcast_pose(pose.t, line, tolerance)
 
     def _source_messages(self, now: float) -> list[dict[str, Any]]:
         out = []

@@ -13,8 +13,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
 from mousedom import integrate
 
 _SINC = [float(c) for c in integrate._SINC_COEF]
@@ -60,36 +58,91 @@ def body_step(ux: float, uy: float, a: float, method: str) -> tuple[float, float
     return ux * s - uy * c, ux * c + uy * s
 
 
-def noise(theta_before: float, ux: float, uy: float, a: float, q_cov: np.ndarray) -> np.ndarray:
-    """covariance.world_step_noise with integrate.step_jacobian, for one window (3x3)."""
+Matrix3 = list[list[float]]
+
+
+def _mul(a: Matrix3, b: Matrix3) -> Matrix3:
+    """a @ b for 3x3 row lists."""
+    (b00, b01, b02), (b10, b11, b12), (b20, b21, b22) = b
+    return [
+        [r0 * b00 + r1 * b10 + r2 * b20, r0 * b01 + r1 * b11 + r2 * b21,
+         r0 * b02 + r1 * b12 + r2 * b22]
+        for r0, r1, r2 in a
+    ]  # fmt: skip
+
+
+def _mul_t(a: Matrix3, b: Matrix3) -> Matrix3:
+    """a @ b.T for 3x3 row lists."""
+    (b00, b01, b02), (b10, b11, b12), (b20, b21, b22) = b
+    return [
+        [r0 * b00 + r1 * b01 + r2 * b02, r0 * b10 + r1 * b11 + r2 * b12,
+         r0 * b20 + r1 * b21 + r2 * b22]
+        for r0, r1, r2 in a
+    ]  # fmt: skip
+
+
+def noise(theta_before: float, ux: float, uy: float, a: float, q_cov: Matrix3) -> Matrix3:
+    """covariance.world_step_noise with integrate.step_jacobian, for one window (3x3):
+    G = M Q M^T with M = blockdiag(R(theta_before), 1) @ d step / d q."""
     h = 0.5 * a
     sn, dsn = sinc(h), dsinc(h)
     ch, sh = math.cos(h), math.sin(h)
     s, c = sn * ch, sn * sh
     ds = 0.5 * (dsn * ch - sn * sh)
     dc = 0.5 * (dsn * sh + sn * ch)
-    jac = np.array([[s, -c, ux * ds - uy * dc], [c, s, ux * dc + uy * ds], [0.0, 0.0, 1.0]])
+    j02, j12 = ux * ds - uy * dc, ux * dc + uy * ds  # the step's derivative by dtheta
     ct, st = math.cos(theta_before), math.sin(theta_before)
-    rot = np.array([[ct, -st, 0.0], [st, ct, 0.0], [0.0, 0.0, 1.0]])
-    m = rot @ jac
-    return m @ q_cov @ m.T
+    m = [
+        [ct * s - st * c, -ct * c - st * s, ct * j02 - st * j12],
+        [st * s + ct * c, -st * c + ct * s, st * j02 + ct * j12],
+        [0.0, 0.0, 1.0],
+    ]
+    return _mul_t(_mul(m, q_cov), m)
 
 
 def propagate(
-    cov: np.ndarray, prev: tuple[float, float], pos: tuple[float, float], g: np.ndarray
-) -> np.ndarray:
-    """covariance._propagate_stepwise for one window: the symmetrised new covariance."""
-    s = np.array([[1.0, 0.0, prev[1] - pos[1]], [0.0, 1.0, pos[0] - prev[0]], [0.0, 0.0, 1.0]])
-    p = s @ cov @ s.T + g
-    return 0.5 * (p + p.T)
+    cov: Matrix3, prev: tuple[float, float], pos: tuple[float, float], g: Matrix3
+) -> Matrix3:
+    """covariance._propagate_stepwise for one window: S P S^T + G, symmetrised, where
+    S = [[1, 0, -dy], [0, 1, dx], [0, 0, 1]] moves the covariance's reference point by
+    (dx, dy) from ``prev`` to ``pos``."""
+    u, v = prev[1] - pos[1], pos[0] - prev[0]  # S's third column
+    c0, c1, c2 = cov
+    sp = [  # S P: rows 0 and 1 take u (or v) times row 2
+        [c0[0] + u * c2[0], c0[1] + u * c2[1], c0[2] + u * c2[2]],
+        [c1[0] + v * c2[0], c1[1] + v * c2[1], c1[2] + v * c2[2]],
+        c2,
+    ]
+    p = [
+        [r[0] + r[2] * u + gr[0], r[1] + r[2] * v + gr[1], r[2] + gr[2]]
+        for r, gr in zip(sp, g, strict=True)
+    ]
+    return [[0.5 * (p[i][j] + p[j][i]) for j in range(3)] for i in range(3)]
+
+
+def body_counts(
+    to_body: list[list[list[float]]], counts: list[tuple[float, float]], live: list[int]
+) -> list[float]:
+    """The live mice's counts in body-frame metres, flattened (x1, y1, x2, ...): einsum
+    "nij,nj->ni" of the tracker's array path (two products and one sum per entry, which
+    floating-point addition gives the same whatever the order)."""
+    d: list[float] = []
+    for i in live:
+        (m00, m01), (m10, m11) = to_body[i]
+        cx, cy = counts[i]
+        d += (m00 * cx + m01 * cy, m10 * cx + m11 * cy)
+    return d
 
 
 def linear(
-    d: np.ndarray, live: np.ndarray, est: tuple[np.ndarray, np.ndarray, np.ndarray]
-) -> tuple[np.ndarray, np.ndarray]:
-    """models._linear for one window: (q restricted to the model's columns, residual of
-    the live mice (L, 2)).  ``d`` is (N, 2), ``est`` the cached (A, B, C)."""
-    a, b, _ = est
-    dl = (d if live is None else d[live]).reshape(-1)
-    qk = b @ dl
-    return qk, (dl - a @ qk).reshape(-1, 2)
+    d: list[float], a_rows: list[list[float]], b_rows: list[list[float]]
+) -> tuple[list[float], list[float]]:
+    """models._linear for one window: q restricted to the model's columns (B d) and the
+    residual d - A q of the live mice, flattened like ``d``.  A and B are the cached
+    estimator's matrices as row lists."""
+    qk = [sum([b * v for b, v in zip(row, d, strict=True)]) for row in b_rows]
+    res = [
+        v - sum([a * u for a, u in zip(row, qk, strict=True)])
+        for v, row in zip(d, a_rows, strict=True)
+    ]
+    return qk, res

@@ -22,87 +22,16 @@ once) and the daemon (a few at a time) run exactly the same code.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
 
 import numpy as np
 
 from mousedom import integrate, models, onewindow
 from mousedom.config import Config
+from mousedom.countfunction import CountFunction
 from mousedom.covariance import CovarianceState, propagate, world_step_noise
 from mousedom.geometry import rank_problem
+from mousedom.posebatch import Pose, PoseBatch
 from mousedom.units import counts_matrices, sigma_metres
-
-
-@dataclass
-class PoseBatch:
-    """Poses after consecutive windows; every field's first axis is the window."""
-
-    t: np.ndarray  # window end times
-    x: np.ndarray
-    y: np.ndarray
-    theta: np.ndarray
-    vx: np.ndarray  # body-frame twist over the window (m/s, m/s, rad/s)
-    vy: np.ndarray
-    omega: np.ndarray
-    cov: np.ndarray  # (n,3,3) covariance of (x, y, theta)
-    used: np.ndarray  # number of sensors used
-    ok: np.ndarray  # False: the live mice could not determine the motion; pose held
-    residual: np.ndarray  # (n,N,2) metres, body frame: d - A q
-    counts: np.ndarray  # (n,N,2) counts (REL_X, REL_Y) that fell into the window
-
-    def __len__(self) -> int:
-        return len(self.t)
-
-    @classmethod
-    def empty(cls, n_mice: int) -> PoseBatch:
-        z = np.zeros(0)
-        return cls(
-            t=z, x=z, y=z, theta=z, vx=z, vy=z, omega=z,
-            cov=np.zeros((0, 3, 3)), used=np.zeros(0, dtype=int), ok=np.zeros(0, dtype=bool),
-            residual=np.zeros((0, n_mice, 2)), counts=np.zeros((0, n_mice, 2)),
-        )  # fmt: skip
-
-    @classmethod
-    def concat(cls, batches: list[PoseBatch], n_mice: int | None = None) -> PoseBatch:
-        batches = [b for b in batches if len(b)]
-        if not batches:
-            return cls.empty(n_mice or 0)
-        return cls(
-            **{f.name: np.concatenate([getattr(b, f.name) for b in batches]) for f in fields(cls)}
-        )
-
-    def last(self) -> dict[str, float]:
-        """The final pose as plain floats (for summaries)."""
-        return {k: float(getattr(self, k)[-1]) for k in ("t", "x", "y", "theta")}
-
-
-class _Mouse:
-    """Per-mouse state: the not-yet-closed part of its cumulative count function."""
-
-    def __init__(self, period: float) -> None:
-        self.period = period
-        self.last_t = -math.inf  # latest stamp pushed (queued or not)
-        self.knot_t = -math.inf  # stamp of the last report turned into knots
-        self.pending: list[tuple] = []  # (t, dx, dy): float lists (small pushes) or arrays
-        self.complete = -math.inf  # all reports stamped <= this have been pushed
-        # Knots of F after the closed frontier, relative to F at the frontier (the anchor):
-        # rows are knot times, cumulative REL_X and cumulative REL_Y (one array: fewer
-        # numpy calls per window, which is what the daemon's CPU use is made of).
-        self.knots = np.zeros((3, 0))
-        self.dead: list[list[float]] = []  # [from, to) spans in which the mouse is not live
-        self.counts_in = np.zeros(2)
-        self.late = 0  # reports stamped behind the closed frontier (moved forward)
-        self.backwards = 0  # reports stamped before the previous one (clamped)
-
-    @property
-    def live(self) -> bool:
-        return not self.dead or self.dead[-1][1] != math.inf
-
-    def frontier(self) -> float:
-        return max(self.last_t, self.complete - self.period)
-
-    def level(self) -> np.ndarray:
-        return self.knots[1:, -1] if self.knots.shape[1] else np.zeros(2)
 
 
 class Tracker:
@@ -127,17 +56,21 @@ class Tracker:
         self.period = 1.0 / config.rate_hz
         self.t0 = t0
         self.n_mice = len(config.mice)
-        self._mice = [_Mouse(1.0 / m.report_hz) for m in config.mice]
+        self._mice = [CountFunction(1.0 / m.report_hz) for m in config.mice]
         self._names = {m.name: i for i, m in enumerate(config.mice)}
         self._to_body = counts_matrices(config.mice)  # (N,2,2)
+        self._to_body_rows = self._to_body.tolist()  # the same, for the one-window path
         self._positions = np.array([[m.mount.x, m.mount.y] for m in config.mice])
         self._sigma = np.array([sigma_metres(m) for m in config.mice])
         self._rate = 1.0 / self.period
         self._linear_cache: dict[bytes, tuple] = {}  # live pattern -> what _solve_one needs
         self._closed = 0  # number of windows closed so far
         self._complete_all = -math.inf
-        self._pose = np.zeros(3)
-        self._cov = CovarianceState()
+        # The carried state as Python floats (the one-window path's currency; the array
+        # path converts on entry and exit): pose, its covariance and where that is taken.
+        self._pose = [0.0, 0.0, 0.0]
+        self._cov = [[0.0] * 3 for _ in range(3)]
+        self._cov_at = [0.0, 0.0]
         self.counts_out = np.zeros((self.n_mice, 2))
 
     # ------------------------------------------------------------------ inputs
@@ -162,6 +95,15 @@ class Tracker:
         call, not per element, would otherwise dominate the daemon's CPU use.
         """
         i = self._index(mouse)
+        if type(t) is list and type(dx) is list and type(dy) is list:
+            # A live read's few reports, already Python floats: no numpy at all.
+            if not len(t) == len(dx) == len(dy):
+                raise ValueError(f"push: t, dx, dy must be of one length, got "
+                                 f"{len(t)}, {len(dx)}, {len(dy)}")  # fmt: skip
+            if t and len(t) <= self._INGEST_SMALL:
+                self._queue_small(self._mice[i], [float(v) for v in t],
+                                  [float(v) for v in dx], [float(v) for v in dy])  # fmt: skip
+                return
         t = np.asarray(t, dtype=np.float64)
         dx = np.asarray(dx, dtype=np.float64)
         dy = np.asarray(dy, dtype=np.float64)
@@ -172,13 +114,8 @@ class Tracker:
             return
         m = self._mice[i]
         if t.size <= self._INGEST_SMALL:
-            # A live read's few reports: queued as floats, which _ingest_small wants.
-            tl, xl, yl = t.tolist(), dx.tolist(), dy.tolist()
-            if not math.isfinite(sum(tl) + sum(xl) + sum(yl)):
-                raise ValueError("push: times and counts must be finite numbers")
-            self._start(tl[0])
-            m.pending.append((tl, xl, yl))
-            m.last_t = max(m.last_t, max(tl))
+            # A live read's few reports: queued as floats, which ingest_small wants.
+            self._queue_small(m, t.tolist(), dx.tolist(), dy.tolist())
             return
         # One sum each is NaN or inf if any element is: cheaper than isfinite per element.
         if not math.isfinite(t.sum() + dx.sum() + dy.sum()):
@@ -187,96 +124,30 @@ class Tracker:
         m.pending.append((t, dx, dy))
         m.last_t = max(m.last_t, float(t.max()))
 
-    def _ingest(self, m: _Mouse) -> None:
-        """Turn a mouse's queued reports into knots of its cumulative count function."""
+    def _queue_small(self, m: CountFunction, t: list, dx: list, dy: list) -> None:
+        # One sum each is NaN or inf if any element is: cheaper than a test per element.
+        if not math.isfinite(sum(t) + sum(dx) + sum(dy)):
+            raise ValueError("push: times and counts must be finite numbers")
+        self._start(t[0])
+        m.pending.append((t, dx, dy))
+        last = max(t)
+        if last > m.last_t:
+            m.last_t = last
+
+    def _ingest(self, m: CountFunction) -> None:
+        """Turn a mouse's queued reports into knots (floats for a few, arrays for many)."""
         if not m.pending:
             return
-        if sum(len(p[0]) for p in m.pending) <= self._INGEST_SMALL:
-            self._ingest_small(m)
-            return
-        if len(m.pending) == 1:
-            t, dx, dy = (np.asarray(c, dtype=np.float64) for c in m.pending[0])
+        if m.queued() <= self._INGEST_SMALL and m.n_knots() <= self._KNOTS_SMALL:
+            m.ingest_small(self.frontier_time)
         else:
-            t, dx, dy = (np.concatenate(cols) for cols in zip(*m.pending, strict=True))
-        m.pending = []
-        cum = np.cumsum(np.stack([dx, dy]), axis=1)  # (2, n)
-        m.counts_in += cum[:, -1]
+            m.ingest(self.frontier_time)
 
-        # Time must not run backwards: clamp to the running maximum (counted, kept).
-        run_max = np.maximum.accumulate(np.concatenate([[m.knot_t], t]))[1:]
-        m.backwards += int(np.count_nonzero(run_max > t))
-        t = run_max
-        # Reports behind the closed frontier go into the first open window.
-        edge = self.frontier_time
-        late = t < edge
-        if late.any():
-            m.late += int(np.count_nonzero(late))
-            t = np.maximum(t, edge)
-        prev = np.concatenate([[m.knot_t], t[:-1]])
-        start = np.maximum(np.maximum(prev, t - m.period), edge)
-
-        # Knot pairs: F holds its level until the report's span starts, then rises to it.
-        cum += m.level()[:, None]
-        new = np.empty((3, 2 * len(t)))
-        new[0, 0::2] = start
-        new[0, 1::2] = t
-        new[1:, 1::2] = cum
-        new[1:, 0::2] = cum - np.stack([dx, dy])
-        m.knots = np.concatenate([m.knots, new], axis=1)
-        m.knot_t = float(t[-1])
-
-    # Up to this many queued reports, _ingest runs on Python floats (the daemon's few reports
-    # per window); tests set it to 0 to compare it with the array path.
+    # Up to this many queued reports (and knots already held), reports become knots on
+    # Python floats and lists (the daemon's few reports per window); tests set it to 0 to
+    # compare with the array path.
     _INGEST_SMALL = 64
-
-    def _ingest_small(self, m: _Mouse) -> None:
-        """_ingest, report by report: the same operations in the same order on floats."""
-        pending, m.pending = m.pending, []
-        t, dx, dy = [], [], []
-        for pt, pdx, pdy in pending:  # lists from push, or arrays of a larger push
-            t += pt if isinstance(pt, list) else pt.tolist()
-            dx += pdx if isinstance(pdx, list) else pdx.tolist()
-            dy += pdy if isinstance(pdy, list) else pdy.tolist()
-        edge = self.frontier_time
-        period = m.period
-        if m.knots.shape[1]:
-            lx, ly = m.knots[1:, -1].tolist()
-        else:
-            lx = ly = 0.0
-        run = prev = m.knot_t
-        cx, cy = dx[0], dy[0]  # np.cumsum starts from the first value, not from 0 + it
-        backwards = late = 0
-        kt: list[float] = []
-        kx: list[float] = []
-        ky: list[float] = []
-        for k, (ti, a, b) in enumerate(zip(t, dx, dy, strict=True)):
-            if k:
-                cx += a
-                cy += b
-            if run > ti:
-                backwards += 1
-            else:
-                run = ti
-            ti = run
-            if ti < edge:
-                late += 1
-                ti = edge
-            # max(max(prev, ti - period), edge), without the builtin's call cost
-            start = ti - period
-            if prev > start:
-                start = prev
-            if edge > start:
-                start = edge
-            x, y = cx + lx, cy + ly
-            kt += (start, ti)
-            kx += (x - a, x)
-            ky += (y - b, y)
-            prev = ti
-        m.counts_in += (cx, cy)
-        m.backwards += backwards
-        m.late += late
-        m.knots = np.concatenate([m.knots, np.array((kt, kx, ky))], axis=1)
-        m.knot_t = prev
+    _KNOTS_SMALL = 256
 
     def complete_until(self, t: float, mouse: int | str | None = None) -> None:
         """Declare that every report stamped <= t has been pushed (one mouse, or all)."""
@@ -312,16 +183,18 @@ class Tracker:
 
     @property
     def pose(self) -> tuple[float, float, float]:
-        return float(self._pose[0]), float(self._pose[1]), float(self._pose[2])
+        x, y, theta = self._pose
+        return x, y, theta
 
     @property
     def pose_cov(self) -> np.ndarray:
-        return self._cov.cov.copy()
+        return np.array(self._cov)
 
     def reset(self, x: float = 0.0, y: float = 0.0, theta: float = 0.0) -> None:
         """Start the odometry frame again at the given pose, with zero uncertainty."""
-        self._pose = np.array([x, y, theta], dtype=float)
-        self._cov = CovarianceState(position=self._pose[:2].copy())
+        self._pose = [float(x), float(y), float(theta)]
+        self._cov = [[0.0] * 3 for _ in range(3)]
+        self._cov_at = self._pose[:2]
 
     def fix(self, x: float | None = None, y: float | None = None, theta: float | None = None):
         """Absolute fix of some coordinates only (McGill's grid-line correction).
@@ -329,13 +202,14 @@ class Tracker:
         The fixed coordinates take the given values and lose their uncertainty; the
         others, and their correlations with each other, are kept.
         """
-        cov = self._cov.cov.copy()
+        cov = np.array(self._cov)
         for k, v in enumerate((x, y, theta)):
             if v is not None:
                 self._pose[k] = float(v)
                 cov[k, :] = 0.0
                 cov[:, k] = 0.0
-        self._cov = CovarianceState(cov=cov, position=self._pose[:2].copy())
+        self._cov = cov.tolist()
+        self._cov_at = self._pose[:2]
 
     # ------------------------------------------------------------------ outputs
 
@@ -405,23 +279,21 @@ class Tracker:
         k_old = self._closed
         if k_new <= k_old:
             return PoseBatch.empty(self.n_mice)
+        for m in self._mice:
+            self._ingest(m)
+        if (
+            k_new - k_old <= self._SMALL
+            and self.n_mice
+            and all(m.n_knots() <= self._KNOTS_SMALL for m in self._mice)
+        ):
+            return self._close_one()
         n = k_new - k_old
         edges = self.t0 + self.period * np.arange(k_old, k_new + 1)
         counts = np.zeros((n, self.n_mice, 2))
         mask = np.ones((n, self.n_mice), dtype=bool)
         end_t = float(edges[-1])
         for i, m in enumerate(self._mice):
-            self._ingest(m)
-            if m.knots.shape[1]:
-                # F is relative to the closed frontier, so its value there is 0.
-                kt, kfx, kfy = m.knots
-                f = counts[:, i]  # a view: (n, 2)
-                f[:, 0] = np.interp(edges[1:], kt, kfx)
-                f[:, 1] = np.interp(edges[1:], kt, kfy)
-                last = f[-1].copy()
-                if n > 1:
-                    f[1:] -= f[:-1].copy()  # cumulative -> per window
-                self._rebase(m, end_t, last)
+            counts[:, i] = m.close(edges)
             if m.dead:
                 for start, end in m.dead:
                     mask[(edges[:-1] < end) & (edges[1:] > start), i] = False
@@ -430,20 +302,20 @@ class Tracker:
         self.counts_out += counts.sum(axis=0)
         return self._solve(edges[1:], counts, mask)
 
-    @staticmethod
-    def _rebase(m: _Mouse, edge: float, level: np.ndarray) -> None:
-        # Knots exactly on the edge are kept: a jump there (reports with one stamp) may
-        # have been evaluated on either side, and keeping them, relative, loses neither.
-        # Knot times never decrease (see _ingest), so "time >= edge" is a tail: a slice.
-        kept = m.knots[:, np.searchsorted(m.knots[0], edge) :]
-        knots = np.empty((3, kept.shape[1] + 1))
-        knots[:, 0] = (edge, 0.0, 0.0)
-        knots[0, 1:] = kept[0]
-        knots[1:, 1:] = kept[1:] - level[:, None]
-        m.knots = knots
+    def _close_one(self) -> PoseBatch:
+        """_close_until for the next window on Python floats: the daemon's case."""
+        k = self._closed
+        start, end = self._edge(k), self._edge(k + 1)
+        counts = [m.close_one(end) for m in self._mice]
+        live = tuple([m.live_in(start, end) for m in self._mice])
+        self._closed = k + 1
+        self.counts_out += counts
+        if self.model == "bonarini":  # numerical linearisation: the array path
+            return self._solve(np.array([end]), np.array([counts]), np.array([live]))
+        return self._solve_one(end, counts, live)
 
-    # Up to this many windows per poll, _solve_one (floats, no validation) is used; tests set
-    # it to 0 to compare it with the array path.
+    # Up to this many windows per poll, _close_one (floats, no validation) is used; tests
+    # set it to 0 to compare it with the array path.
     _SMALL = 1
 
     def _solve(self, t_end: np.ndarray, counts: np.ndarray, mask: np.ndarray) -> PoseBatch:
@@ -453,11 +325,13 @@ class Tracker:
         sol = models.solve(self.model, d, self._positions, self._sigma, mask)
         q = np.where(sol.ok[:, None], sol.q, 0.0)
         steps = integrate.body_step(q, self.integrator)
-        poses = integrate.compose(self._pose, steps)
+        poses = integrate.compose(np.array(self._pose), steps)
         theta_before = np.concatenate([[self._pose[2]], poses[:-1, 2]])
         noise = world_step_noise(theta_before, integrate.step_jacobian(q), sol.cov)
-        cov, self._cov = propagate(self._cov, poses[:, :2], noise)
-        self._pose = poses[-1].copy()
+        state = CovarianceState(cov=np.array(self._cov), position=np.array(self._cov_at))
+        cov, state = propagate(state, poses[:, :2], noise)
+        self._cov, self._cov_at = state.cov.tolist(), state.position.tolist()
+        self._pose = poses[-1].tolist()
         rate = 1.0 / self.period
         return PoseBatch(
             t=t_end,
@@ -474,60 +348,51 @@ class Tracker:
             counts=counts,
         )
 
-    def _linear_plan(self, live: np.ndarray) -> tuple:
-        """(estimator or None, live index or None, q covariance 3x3, q columns) per pattern."""
-        key = live.tobytes()
-        plan = self._linear_cache.get(key)
+    def _linear_plan(self, live: tuple[bool, ...]) -> tuple:
+        """What _solve_one needs per pattern of live mice, as Python floats: (A rows, B rows,
+        live indices, q covariance 3x3 array, q columns); A and B are None without rank."""
+        plan = self._linear_cache.get(live)
         if plan is None:
             cols = (0, 1, 2) if self.model == "lsq" else (0, 2)
+            key = np.array(live, dtype=bool).tobytes()
             est = None
-            if live.any():
+            if any(live):
                 est = models._estimator(self._positions.tobytes(), self._sigma.tobytes(), key, cols)
             c3 = np.zeros((3, 3))
+            a_rows = b_rows = None
             if est is not None:
                 c3[np.ix_(cols, cols)] = est[2]
-            plan = (est, None if live.all() else np.flatnonzero(live), c3, cols)
-            self._linear_cache[key] = plan
+                a_rows, b_rows = est[0].tolist(), est[1].tolist()
+            c3 = c3.tolist()
+            idx = [i for i, v in enumerate(live) if v]
+            plan = (a_rows, b_rows, idx, c3, cols)
+            self._linear_cache[live] = plan
         return plan
 
-    def _solve_one(self, t_end: np.ndarray, counts: np.ndarray, mask: np.ndarray) -> PoseBatch:
+    def _solve_one(
+        self, t_end: float, counts: list[tuple[float, float]], live: tuple[bool, ...]
+    ) -> PoseBatch:
         """_solve for one window of a linear model (see mousedom.onewindow)."""
-        live = mask[0]
-        est, idx, c3, cols = self._linear_plan(live)
-        d = np.einsum("nij,nj->ni", self._to_body, counts[0])
-        residual = np.zeros((1, self.n_mice, 2))
+        a_rows, b_rows, idx, c3, cols = self._linear_plan(live)
+        residual = [[0.0, 0.0] for _ in range(self.n_mice)]
         q = [0.0, 0.0, 0.0]
-        ok = est is not None
+        ok = b_rows is not None
         if ok:
-            qk, res = onewindow.linear(d, idx, est)
-            for c, v in zip(cols, qk.tolist(), strict=True):
+            d = onewindow.body_counts(self._to_body_rows, counts, idx)
+            qk, res = onewindow.linear(d, a_rows, b_rows)
+            for c, v in zip(cols, qk, strict=True):
                 q[c] = v
-            if idx is None:
-                residual[0] = res
-            else:
-                residual[0, idx] = res
+            for k, i in enumerate(idx):
+                residual[i] = res[2 * k : 2 * k + 2]
         ux, uy, a = q
         sx, sy = onewindow.body_step(ux, uy, a, self.integrator)
-        x0, y0, th0 = self._pose.tolist()
+        x0, y0, th0 = self._pose
         cb, sb = math.cos(th0), math.sin(th0)
         x, y, th = x0 + (cb * sx - sb * sy), y0 + (sb * sx + cb * sy), th0 + a
         g = onewindow.noise(th0, ux, uy, a, c3)
-        prev = self._cov.position.tolist()
-        cov = onewindow.propagate(self._cov.cov, prev, (x, y), g)
-        self._cov = CovarianceState(cov=cov.copy(), position=np.array([x, y]))
-        self._pose = np.array([x, y, th])
+        cov = onewindow.propagate(self._cov, self._cov_at, (x, y), g)
+        self._pose, self._cov, self._cov_at = [x, y, th], cov, [x, y]
         rate = self._rate
-        return PoseBatch(
-            t=t_end,
-            x=np.array([x]),
-            y=np.array([y]),
-            theta=np.array([th]),
-            vx=np.array([ux * rate]),
-            vy=np.array([uy * rate]),
-            omega=np.array([a * rate]),
-            cov=cov[None],
-            used=np.array([int(live.sum())]),
-            ok=np.array([ok]),
-            residual=residual,
-            counts=counts,
-        )
+        pose = Pose(t_end, x, y, th, ux * rate, uy * rate, a * rate, cov, len(idx), ok,
+                    residual, counts)  # fmt: skip
+        return PoseBatch.from_rows([pose])

@@ -31,6 +31,22 @@ def test_encode_pose_is_byte_identical(t, pose, twist, cov, used, updating, miss
     json.loads(got)  # and it is strict JSON
 
 
+finite = st.floats(allow_nan=False, allow_infinity=False)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.floats(-1e9, 1e9, allow_nan=False),
+    st.tuples(finite, finite, finite),
+    st.tuples(finite, finite, finite),
+    st.lists(st.lists(finite, min_size=3, max_size=3), min_size=3, max_size=3),
+)
+def test_encode_pose_all_finite_path_is_byte_identical(t, pose, twist, cov):
+    """The usual POSE, every value a finite float (rare among the draws above)."""
+    want = encode(pose_message(t, pose, twist, np.array(cov), 3, True, ["a"]))
+    assert encode_pose(t, pose, twist, cov, 3, True, ("a",)) == want
+
+
 def test_encode_pose_takes_numpy_scalars():
     cov = np.eye(3).tolist()
     args = (np.float64(1.5), (np.float64(0.1), 0.2, 0.3), (0.0, -0.0, np.inf), cov, np.int64(3))

@@ -316,10 +316,41 @@ def test_covariance_does_not_depend_on_where_the_frame_starts():
         ([float("inf")], [1.0], [1.0], "finite"),
     ],
 )
-def test_push_refuses_malformed_input_at_once(t, dx, dy, words):
+@pytest.mark.parametrize("as_lists", [False, True])
+def test_push_refuses_malformed_input_at_once(t, dx, dy, words, as_lists):
+    """Arrays, or Python lists (a live source's few reports, queued without numpy)."""
     tr = Tracker(sim.rig_config(rig3()), t0=0.0)
     with pytest.raises(ValueError, match=words):
-        tr.push(0, np.array(t), np.array(dx), np.array(dy))
+        if as_lists:
+            tr.push(0, t, dx, dy)
+        else:
+            tr.push(0, np.array(t), np.array(dx), np.array(dy))
     tr.push(0, np.array([0.01]), np.array([1.0]), np.array([0.0]))
     tr.finish()
     assert tr.counts_out[0, 0] == pytest.approx(1.0)
+
+
+def test_pushing_lists_equals_pushing_arrays():
+    """The list fast path of push (ints and floats) feeds the same windows as arrays."""
+    res = sim.simulate(rig3(), sim.arc(0.3, 0.4, 0.12), seed=3)  # 1 s of motion
+
+    def run(as_lists):
+        tr = Tracker(sim.rig_config(res.rig), t0=0.0)
+        out = []
+        for lo in np.arange(0.0, 1.2, 0.01):
+            for name, r in res.reports.items():
+                sel = (r.t > lo) & (r.t <= lo + 0.01)
+                t, dx, dy = r.t[sel], r.dx[sel], r.dy[sel]
+                if as_lists:
+                    t, dx, dy = t.tolist(), dx.astype(int).tolist(), dy.astype(int).tolist()
+                tr.push(name, t, dx, dy)
+            tr.complete_until(lo + 0.01)
+            out.append(tr.poll())
+        out.append(tr.finish())
+        return PoseBatch.concat(out, 3), tr.counts_in
+
+    (a, a_in), (b, b_in) = run(False), run(True)
+    assert len(a) > 90
+    assert np.array_equal(a_in, b_in)
+    for key in ("t", "x", "y", "theta", "cov", "counts", "residual"):
+        assert np.array_equal(getattr(a, key), getattr(b, key)), key

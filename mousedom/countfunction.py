@@ -1,0 +1,222 @@
+"""One mouse's cumulative count function F(t), the tracker's per-mouse state.
+
+A report stamped t covers the motion since the mouse's previous report, but never more
+than one report period P back.  F is flat between reports and rises linearly over each
+report's span, so a window's counts are F(end) - F(start).  Only the part of F after the
+closed frontier is kept, as knots relative to F there (the anchor): the knots' times,
+cumulative REL_X and cumulative REL_Y.
+
+Two representations, converted on demand: three Python lists while the knots are few (the
+daemon carries about one window's worth, and numpy's cost per call would be most of its
+work), one (3, K) array when they are many (replay closes millions of windows per call).
+Both paths do the same IEEE operations in the same order, so they give the same counts
+(tests/test_onewindow.py holds them equal).
+"""
+
+from __future__ import annotations
+
+import math
+from bisect import bisect_left, bisect_right
+
+import numpy as np
+
+
+class CountFunction:
+    """The not-yet-closed part of one mouse's cumulative count function."""
+
+    def __init__(self, period: float) -> None:
+        self.period = period
+        self.last_t = -math.inf  # latest stamp pushed (queued or not)
+        self.knot_t = -math.inf  # stamp of the last report turned into knots
+        self.pending: list[tuple] = []  # (t, dx, dy): float lists (small pushes) or arrays
+        self.complete = -math.inf  # all reports stamped <= this have been pushed
+        self.knots: tuple[list[float], list[float], list[float]] | np.ndarray = ([], [], [])
+        self.dead: list[list[float]] = []  # [from, to) spans in which the mouse is not live
+        self.counts_in = [0.0, 0.0]  # REL_X, REL_Y pushed (floats: added to per read)
+        self.late = 0  # reports stamped behind the closed frontier (moved forward)
+        self.backwards = 0  # reports stamped before the previous one (clamped)
+
+    @property
+    def live(self) -> bool:
+        return not self.dead or self.dead[-1][1] != math.inf
+
+    def frontier(self) -> float:
+        return max(self.last_t, self.complete - self.period)
+
+    # ------------------------------------------------------------------ knots
+
+    def n_knots(self) -> int:
+        return len(self.knots[0])
+
+    def knot_array(self) -> np.ndarray:
+        if type(self.knots) is tuple:
+            self.knots = np.array(self.knots, dtype=np.float64).reshape(3, -1)
+        return self.knots
+
+    def knot_lists(self) -> tuple[list[float], list[float], list[float]]:
+        if type(self.knots) is not tuple:
+            kt, kx, ky = self.knots.tolist()
+            self.knots = (kt, kx, ky)
+        return self.knots
+
+    def level(self) -> np.ndarray:
+        """F at the last knot, relative to the anchor (0 before any knot)."""
+        k = self.knots
+        if not len(k[0]):
+            return np.zeros(2)
+        return np.array([k[1][-1], k[2][-1]], dtype=np.float64)
+
+    def queued(self) -> int:
+        return sum(len(p[0]) for p in self.pending)
+
+    # ------------------------------------------------------------------ reports -> knots
+
+    def ingest(self, edge: float) -> None:
+        """Turn the queued reports into knots (arrays); ``edge`` is the closed frontier."""
+        if not self.pending:
+            return
+        if len(self.pending) == 1:
+            t, dx, dy = (np.asarray(c, dtype=np.float64) for c in self.pending[0])
+        else:
+            t, dx, dy = (np.concatenate(cols) for cols in zip(*self.pending, strict=True))
+        self.pending = []
+        cum = np.cumsum(np.stack([dx, dy]), axis=1)  # (2, n)
+        cx, cy = cum[:, -1].tolist()
+        self.counts_in[0] += cx
+        self.counts_in[1] += cy
+
+        # Time must not run backwards: clamp to the running maximum (counted, kept).
+        run_max = np.maximum.accumulate(np.concatenate([[self.knot_t], t]))[1:]
+        self.backwards += int(np.count_nonzero(run_max > t))
+        t = run_max
+        # Reports behind the closed frontier go into the first open window.
+        late = t < edge
+        if late.any():
+            self.late += int(np.count_nonzero(late))
+            t = np.maximum(t, edge)
+        prev = np.concatenate([[self.knot_t], t[:-1]])
+        start = np.maximum(np.maximum(prev, t - self.period), edge)
+
+        # Knot pairs: F holds its level until the report's span starts, then rises to it.
+        cum += self.level()[:, None]
+        new = np.empty((3, 2 * len(t)))
+        new[0, 0::2] = start
+        new[0, 1::2] = t
+        new[1:, 1::2] = cum
+        new[1:, 0::2] = cum - np.stack([dx, dy])
+        self.knots = np.concatenate([self.knot_array(), new], axis=1)
+        self.knot_t = float(t[-1])
+
+    def ingest_small(self, edge: float) -> None:
+        """``ingest`` report by report: the same operations in the same order on floats."""
+        pending, self.pending = self.pending, []
+        t, dx, dy = [], [], []
+        for pt, pdx, pdy in pending:  # lists from push, or arrays of a larger push
+            t += pt if isinstance(pt, list) else pt.tolist()
+            dx += pdx if isinstance(pdx, list) else pdx.tolist()
+            dy += pdy if isinstance(pdy, list) else pdy.tolist()
+        period = self.period
+        kt, kx, ky = self.knot_lists()
+        lx, ly = (kx[-1], ky[-1]) if kt else (0.0, 0.0)
+        run = prev = self.knot_t
+        cx, cy = dx[0], dy[0]  # np.cumsum starts from the first value, not from 0 + it
+        backwards = late = 0
+        for k, (ti, a, b) in enumerate(zip(t, dx, dy, strict=True)):
+            if k:
+                cx += a
+                cy += b
+            if run > ti:
+                backwards += 1
+            else:
+                run = ti
+            ti = run
+            if ti < edge:
+                late += 1
+                ti = edge
+            # max(max(prev, ti - period), edge), without the builtin's call cost
+            start = ti - period
+            if prev > start:
+                start = prev
+            if edge > start:
+                start = edge
+            x, y = cx + lx, cy + ly
+            kt += (start, ti)
+            kx += (x - a, x)
+            ky += (y - b, y)
+            prev = ti
+        self.counts_in[0] += cx
+        self.counts_in[1] += cy
+        self.backwards += backwards
+        self.late += late
+        self.knot_t = prev
+
+    # ------------------------------------------------------------------ closing windows
+
+    def close(self, edges: np.ndarray) -> np.ndarray:
+        """Counts (n, 2) of the windows between consecutive ``edges`` (arrays), after which
+        the anchor moves to the last edge.  The first edge is the current anchor."""
+        counts = np.zeros((len(edges) - 1, 2))
+        if self.n_knots():
+            # F is relative to the closed frontier, so its value there is 0.
+            kt, kfx, kfy = self.knot_array()
+            counts[:, 0] = np.interp(edges[1:], kt, kfx)
+            counts[:, 1] = np.interp(edges[1:], kt, kfy)
+            last = counts[-1].copy()
+            if len(counts) > 1:
+                counts[1:] -= counts[:-1].copy()  # cumulative -> per window
+            self._rebase(float(edges[-1]), last)
+        return counts
+
+    def _rebase(self, edge: float, level: np.ndarray) -> None:
+        # Knots exactly on the edge are kept: a jump there (reports with one stamp) may
+        # have been evaluated on either side, and keeping them, relative, loses neither.
+        # Knot times never decrease (see ingest), so "time >= edge" is a tail: a slice.
+        k = self.knots
+        kept = k[:, np.searchsorted(k[0], edge) :]
+        knots = np.empty((3, kept.shape[1] + 1))
+        knots[:, 0] = (edge, 0.0, 0.0)
+        knots[0, 1:] = kept[0]
+        knots[1:, 1:] = kept[1:] - level[:, None]
+        self.knots = knots
+
+    def close_one(self, end: float) -> tuple[float, float]:
+        """``close`` for one window ending at ``end``, on the knot lists."""
+        kt, kx, ky = self.knot_lists()
+        if not kt:
+            return 0.0, 0.0
+        fx, fy = interp_at(end, kt, kx), interp_at(end, kt, ky)
+        j = bisect_left(kt, end)
+        self.knots = (
+            [end, *kt[j:]],
+            [0.0, *[v - fx for v in kx[j:]]],
+            [0.0, *[v - fy for v in ky[j:]]],
+        )
+        return fx, fy
+
+    def live_in(self, start: float, end: float) -> bool:
+        """Whether the mouse was live over all of [start, end]; forgets dead spans that
+        end by ``end`` (the windows are closed in order)."""
+        if not self.dead:
+            return True
+        live = True
+        for a, b in self.dead:
+            if start < b and end > a:
+                live = False
+        self.dead = [span for span in self.dead if span[1] > end]
+        return live
+
+
+def interp_at(x: float, xp: list[float], fp: list[float]) -> float:
+    """np.interp(x, xp, fp) for one point of non-decreasing ``xp``, with numpy's operations
+    (numpy/_core/src/multiarray/compiled_base.c): the segment is the last j with
+    xp[j] <= x, a point on a knot takes that knot's value, else the slope formula."""
+    if x > xp[-1]:
+        return fp[-1]
+    if x < xp[0]:
+        return fp[0]
+    j = bisect_right(xp, x) - 1
+    if j == len(xp) - 1 or xp[j] == x:
+        return fp[j]
+    # xp[j] < x < xp[j + 1], all finite: the result is finite (numpy's NaN repair is moot)
+    slope = (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j])
+    return slope * (x - xp[j]) + fp[j]

@@ -1,0 +1,105 @@
+"""The tracker's output: poses after consecutive windows, as arrays or as rows of floats.
+
+Replay closes millions of windows per call and wants arrays; the daemon closes one per
+call and writes it out as JSON, for which numpy arrays are only a detour (building a dozen
+one-element arrays and converting them back cost more than the maths).  So a batch is
+made either from arrays (``PoseBatch(...)``) or from rows of Python values
+(``PoseBatch.from_rows``), and offers both views: the fields, built from the rows on first
+access, and ``rows()``, made from the arrays when asked.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from typing import Any, NamedTuple
+
+import numpy as np
+
+
+class Pose(NamedTuple):
+    """One window's pose, in Python floats, ints, bools and lists."""
+
+    t: float
+    x: float
+    y: float
+    theta: float
+    vx: float
+    vy: float
+    omega: float
+    cov: list[list[float]]  # 3x3
+    used: int
+    ok: bool
+    residual: list[list[float]]  # N x 2
+    counts: list[list[float]] | list[tuple[float, float]]  # N x 2
+
+
+_DTYPES = {"used": int, "ok": bool}
+
+
+@dataclass
+class PoseBatch:
+    """Poses after consecutive windows; every field's first axis is the window."""
+
+    t: np.ndarray  # window end times
+    x: np.ndarray
+    y: np.ndarray
+    theta: np.ndarray
+    vx: np.ndarray  # body-frame twist over the window (m/s, m/s, rad/s)
+    vy: np.ndarray
+    omega: np.ndarray
+    cov: np.ndarray  # (n,3,3) covariance of (x, y, theta)
+    used: np.ndarray  # number of sensors used
+    ok: np.ndarray  # False: the live mice could not determine the motion; pose held
+    residual: np.ndarray  # (n,N,2) metres, body frame: d - A q
+    counts: np.ndarray  # (n,N,2) counts (REL_X, REL_Y) that fell into the window
+
+    @classmethod
+    def from_rows(cls, rows: list[Pose]) -> PoseBatch:
+        """A batch of at least one row whose arrays are built only if a field is read."""
+        batch = cls.__new__(cls)
+        batch.__dict__["_rows"] = rows
+        return batch
+
+    def __getattr__(self, name: str) -> Any:
+        # Only called for attributes not set: the fields of a batch made from rows.
+        rows = self.__dict__.get("_rows")
+        if rows is None or name not in Pose._fields:
+            raise AttributeError(name)
+        for k, column in zip(Pose._fields, zip(*rows, strict=True), strict=True):
+            self.__dict__[k] = np.array(column, dtype=_DTYPES.get(k, np.float64))
+        del self.__dict__["_rows"]
+        return self.__dict__[name]
+
+    def rows(self) -> list[Pose]:
+        """The poses as Python values (the rows it was made from, or the arrays' values)."""
+        rows = self.__dict__.get("_rows")
+        if rows is not None:
+            return rows
+        columns = [getattr(self, k).tolist() for k in Pose._fields]
+        return [Pose(*values) for values in zip(*columns, strict=True)]
+
+    def __len__(self) -> int:
+        rows = self.__dict__.get("_rows")
+        return len(rows) if rows is not None else len(self.t)
+
+    @classmethod
+    def empty(cls, n_mice: int) -> PoseBatch:
+        z = np.zeros(0)
+        return cls(
+            t=z, x=z, y=z, theta=z, vx=z, vy=z, omega=z,
+            cov=np.zeros((0, 3, 3)), used=np.zeros(0, dtype=int), ok=np.zeros(0, dtype=bool),
+            residual=np.zeros((0, n_mice, 2)), counts=np.zeros((0, n_mice, 2)),
+        )  # fmt: skip
+
+    @classmethod
+    def concat(cls, batches: list[PoseBatch], n_mice: int | None = None) -> PoseBatch:
+        batches = [b for b in batches if len(b)]
+        if not batches:
+            return cls.empty(n_mice or 0)
+        return cls(
+            **{f.name: np.concatenate([getattr(b, f.name) for b in batches]) for f in fields(cls)}
+        )
+
+    def last(self) -> dict[str, float]:
+        """The final pose as plain floats (for summaries)."""
+        return {k: float(getattr(self, k)[-1]) for k in ("t", "x", "y", "theta")}
