@@ -398,7 +398,8 @@ class Daemon:
             return
         for batch in batches:
             if len(batch):
-                self.tracker.push(slot.index, batch.t, batch.dx, batch.dy)
+                # As the source holds them: a live read's lists go on without numpy.
+                self.tracker.push(slot.index, *batch.columns())
                 if self.recording is not None:
                     self.recording.motion(slot.index, batch.t, batch.dx, batch.dy)
 

@@ -27,7 +27,7 @@ from mousedom.events import (
     FrameAssembler,
     decode_input_events,
 )
-from mousedom.sources.base import SourceGone
+from mousedom.sources.base import Reports, SourceGone
 from mousedom.sources.evdev import SMALL_READ, EvdevSource, _clamp_forward, _clamp_list
 
 KINDS = [
@@ -235,3 +235,20 @@ def test_small_reads_do_not_touch_numpy_assembly():
     finally:
         os.close(w)
         src.close()
+
+
+def test_reports_from_lists_keep_the_lists_and_give_float64_arrays():
+    """The list form hands its lists on untouched (``columns``) and still honours the
+    array contract (``t``, ``dx``, ``dy`` float64 arrays) for every other consumer."""
+    t, dx, dy = [1.0, 1.5], [3, -2], [0, 7]
+    r = Reports.from_lists("m", t, dx, dy)
+    cols = r.columns()
+    assert cols[0] is t and cols[1] is dx and cols[2] is dy
+    assert len(r) == 2 and r.last_t() == 1.5 and r.mouse == "m"
+    assert r.t.dtype == r.dx.dtype == r.dy.dtype == np.float64
+    assert r.t.tolist() == t and r.dx.tolist() == [3.0, -2.0] and r.dy.tolist() == [0.0, 7.0]
+    assert r.dx is r.dx  # made once
+    a = Reports("m", np.array([2.0]), np.array([1], dtype=np.int64), [4])
+    assert a.dx.dtype == a.dy.dtype == np.float64 and a.last_t() == 2.0
+    assert all(isinstance(c, np.ndarray) for c in a.columns())
+    assert "Reports('m'" in repr(r)

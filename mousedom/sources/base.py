@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 
 class SourceUnavailable(Exception):
@@ -24,27 +25,72 @@ class SourceGone(Exception):
     """The device went away while open (ENODEV, EOF, serial error)."""
 
 
-@dataclass
 class Reports:
     """Motion reports of one sensor, in evdev convention, stamped on host CLOCK_MONOTONIC.
 
     ``dx`` is REL_X (+ = the sensor moved to its right), ``dy`` is REL_Y (+ = it moved
-    backwards).  Counts are float64 so that sources may carry split or scaled counts, but
-    live sources deliver integers.
+    backwards).  ``t``, ``dx`` and ``dy`` are float64 arrays of one length: counts are
+    float so that sources may carry split or scaled counts, but live sources deliver
+    integers.
+
+    A live read's few reports may be built ``from_lists``: they are then kept as the
+    Python lists the source made, handed on as such by ``columns()`` (``Tracker.push``
+    queues lists without numpy), and the arrays are only made if someone asks for them.
     """
 
-    mouse: str
-    t: np.ndarray
-    dx: np.ndarray
-    dy: np.ndarray
+    __slots__ = ("mouse", "_t", "_dx", "_dy", "_lists")
 
-    def __post_init__(self) -> None:
-        self.t = np.asarray(self.t, dtype=np.float64)
-        self.dx = np.asarray(self.dx, dtype=np.float64)
-        self.dy = np.asarray(self.dy, dtype=np.float64)
+    def __init__(self, mouse: str, t: ArrayLike, dx: ArrayLike, dy: ArrayLike) -> None:
+        self.mouse = mouse
+        self._t = np.asarray(t, dtype=np.float64)
+        self._dx = np.asarray(dx, dtype=np.float64)
+        self._dy = np.asarray(dy, dtype=np.float64)
+        self._lists: tuple[list[float], list[float], list[float]] | None = None
+
+    @classmethod
+    def from_lists(cls, mouse: str, t: list[float], dx: list[float], dy: list[float]) -> Reports:
+        """Reports from three lists of one length: t floats, dx and dy numbers (ints or
+        floats).  The lists are kept, not copied: the caller hands them over."""
+        r = cls.__new__(cls)
+        r.mouse = mouse
+        r._t = r._dx = r._dy = None
+        r._lists = (t, dx, dy)
+        return r
+
+    @property
+    def t(self) -> np.ndarray:
+        if self._t is None:
+            self._t = np.array(self._lists[0], dtype=np.float64)
+        return self._t
+
+    @property
+    def dx(self) -> np.ndarray:
+        if self._dx is None:
+            self._dx = np.array(self._lists[1], dtype=np.float64)
+        return self._dx
+
+    @property
+    def dy(self) -> np.ndarray:
+        if self._dy is None:
+            self._dy = np.array(self._lists[2], dtype=np.float64)
+        return self._dy
+
+    def columns(self) -> tuple[Any, Any, Any]:
+        """(t, dx, dy) as they are held: the lists of ``from_lists``, else the arrays.
+        For ``Tracker.push``, which takes either, with no conversion on the way."""
+        if self._lists is not None:
+            return self._lists
+        return self._t, self._dx, self._dy
+
+    def last_t(self) -> float:
+        """The last report's stamp (the batch must not be empty)."""
+        return float(self.columns()[0][-1])
 
     def __len__(self) -> int:
-        return len(self.t)
+        return len(self.columns()[0])
+
+    def __repr__(self) -> str:
+        return f"Reports({self.mouse!r}, t={self.t!r}, dx={self.dx!r}, dy={self.dy!r})"
 
 
 @dataclass
@@ -117,7 +163,7 @@ class Source(ABC):
         if not n:
             return
         self.health.reports += n
-        self.health.last_t = float(batch.t[-1])
+        self.health.last_t = batch.last_t()
         # Report rate over a sliding ~1 s span: cheap and good enough for status.
         if self._rate_t0 is None or now - self._rate_t0 > 1.0:
             if self._rate_t0 is not None and now > self._rate_t0:

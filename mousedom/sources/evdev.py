@@ -254,8 +254,8 @@ class EvdevSource(Source):
 
     def _small(self, buf: bytes) -> list[Reports]:
         """A live read of a few frames: the same results as the bulk path below (the
-        property tests compare them), from Python lists with no numpy call but the
-        Reports' arrays."""
+        property tests compare them), on Python lists without a numpy call; the lists go
+        to the tracker as they are (``Reports.from_lists``)."""
         t, dx, dy, self._rest = self.assembler.feed_bytes(buf)
         if not t:
             self._update_health()
@@ -265,7 +265,7 @@ class EvdevSource(Source):
             self.time_backwards += back
         self._update_health()
         self._last_t = t[-1]
-        return [Reports(self.name, t, dx, dy)]
+        return [Reports.from_lists(self.name, t, dx, dy)]
 
     def _update_health(self) -> None:
         s = self.assembler.stats
