@@ -366,6 +366,7 @@ class Daemon:
         try:
             slot.source.open()
             fd = slot.source.fileno()
+            self._refuse_shared_device(slot)
         except SourceUnavailable as e:
             if slot.retry_at == 0.0 or slot.source.health.error != slot.announced.get("error"):
                 log.warning("%s: not available: %s (retrying every %gs)", slot.name, e, RETRY_S)
@@ -381,6 +382,23 @@ class Daemon:
         self.tracker.set_live(slot.index, True, now)
         log.info("%s: open (%s)", slot.name, slot.source.kind)
         self._sources_changed(now)
+
+    def _refuse_shared_device(self, slot: Slot) -> None:
+        """Two mice whose rules resolve to one device would each read a share of its
+        reports (or, FIFOs apart, count them twice): the later one is not opened."""
+        device = slot.source.identity()
+        if device is None:
+            return
+        for other in self.slots:
+            if other is not slot and other.live and other.source.identity() == device:
+                slot.source.close()
+                why = (
+                    f"{slot.name}: {device} is already open as {other.name}: one device "
+                    "cannot be two mice (make the rules in the config narrower)"
+                )
+                slot.source.health.connected = False
+                slot.source.health.error = why
+                raise SourceUnavailable(why)
 
     def _read_slot(self, slot: Slot) -> None:
         now = self.clock()

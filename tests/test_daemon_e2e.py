@@ -275,3 +275,33 @@ def test_demo_runs_the_bundled_capture_in_real_time(tmp_path):
         assert "demo: a simulated rig" in daemon.log()
     finally:
         assert daemon.stop() == 0
+
+
+def test_two_mice_on_one_device_the_second_is_refused(tmp_path):
+    """Two rules resolving to one device would split (or double) its counts: the daemon
+    opens the first, keeps the second out with a message naming both, and goes on."""
+    from daemon_fixtures import DaemonProcess, FifoMouse, write_rig_config
+
+    rig = sim.three_mouse_rig()
+    names = [m.name for m in rig.mice]  # front, left, right
+    fifos = {n: tmp_path / f"{n}.fifo" for n in names}
+    mice = {n: FifoMouse(p) for n, p in fifos.items() if n != "right"}
+    link = tmp_path / "also-left"
+    link.symlink_to(fifos["left"])  # the same FIFO by another name
+    fifos["right"] = link
+    config = write_rig_config(tmp_path / "rig.yaml", rig, fifos)
+    daemon = DaemonProcess(config, tmp_path / "run" / "mousedom.sock")
+    try:
+        daemon.wait_socket()
+        for m in mice.values():
+            m.attach()
+        c = Conn(daemon.socket_path)
+        status = c.until("SOURCE", lambda m: m["name"] == "right")
+        assert not status["live"]
+        assert f"{fifos['left']} is already open as left" in status["error"]
+        pose = c.until("POSE", lambda m: m["missing"] == ["right"])
+        assert pose["used"] == 2 and pose["updating"]
+        assert "right:" in daemon.log() and "already open as left" in daemon.log()
+        c.close()
+    finally:
+        assert daemon.stop() == 0

@@ -10,6 +10,7 @@ module only moves bytes.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from typing import Any
 
@@ -67,6 +68,12 @@ class AdnsSource(Source):
         if self._port is None:
             raise SourceGone("not open")
         return self._port.fileno()
+
+    def identity(self) -> str | None:
+        if self._port is None:
+            return None
+        port = self.settings.port
+        return port if "://" in port else os.path.realpath(port)
 
     def _read(self, now: float) -> list[Reports]:
         if self._port is None:

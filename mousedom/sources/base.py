@@ -180,5 +180,10 @@ class Source(ABC):
     @abstractmethod
     def _read(self, now: float) -> list[Reports]: ...
 
+    def identity(self) -> str | None:
+        """The device this source has open, symlinks followed (None: not a device that
+        two sources could share).  The daemon refuses a second mouse on the same one."""
+        return None
+
     def close(self) -> None:  # noqa: B027 (an optional hook, not abstract)
         """Release the device; safe to call twice."""

@@ -184,6 +184,11 @@ class EvdevSource(Source):
     def fileno(self) -> int:
         return self._fd
 
+    def identity(self) -> str | None:
+        if self._fd < 0 or self.device is None:
+            return None
+        return os.path.realpath(self.device.node)
+
     def close(self) -> None:
         if self._dev is not None:
             try:
