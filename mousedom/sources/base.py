@@ -82,10 +82,6 @@ class Reports:
             return self._lists
         return self._t, self._dx, self._dy
 
-    def last_t(self) -> float:
-        """The last report's stamp (the batch must not be empty)."""
-        return float(self.columns()[0][-1])
-
     def __len__(self) -> int:
         return len(self.columns()[0])
 
@@ -159,15 +155,18 @@ class Source(ABC):
         return batches
 
     def _count(self, batch: Reports, now: float) -> None:
-        n = len(batch)
+        t = batch.columns()[0]
+        n = len(t)
         if not n:
             return
-        self.health.reports += n
-        self.health.last_t = batch.last_t()
+        health = self.health
+        health.reports += n
+        health.last_t = float(t[-1])
         # Report rate over a sliding ~1 s span: cheap and good enough for status.
-        if self._rate_t0 is None or now - self._rate_t0 > 1.0:
-            if self._rate_t0 is not None and now > self._rate_t0:
-                self.health.rate_hz = self._rate_n / (now - self._rate_t0)
+        t0 = self._rate_t0
+        if t0 is None or now - t0 > 1.0:
+            if t0 is not None and now > t0:
+                health.rate_hz = self._rate_n / (now - t0)
             self._rate_t0, self._rate_n = now, 0
         self._rate_n += n
 

@@ -50,6 +50,7 @@ log = logging.getLogger(__name__)
 EVIOCSCLOCKID = (1 << 30) | (4 << 16) | (ord("E") << 8) | 0xA0
 CLOCK_MONOTONIC = 1
 READ_EVENTS = 1024  # records per os.read: 24 KiB, ~1 s of an 8 kHz mouse's frames
+READ_BYTES = READ_EVENTS * EVENT_SIZE
 MAX_READS = 16  # per read() call, so that one busy source cannot starve the others
 # Reads up to this size (what a live mouse delivers per wake-up) take the assembler's
 # pure-Python path; past ~300 records numpy's fixed cost per call pays off
@@ -209,13 +210,14 @@ class EvdevSource(Source):
     def _read(self, now: float) -> list[Reports]:
         if self._gone is not None:
             raise SourceGone(self._gone)
-        if self._fd < 0:
+        fd = self._fd
+        if fd < 0:
             raise SourceGone(f"{self.name}: not open")
         chunks = [self._rest] if self._rest else []
         gone = None
         for _ in range(MAX_READS):
             try:
-                data = os.read(self._fd, READ_EVENTS * EVENT_SIZE)
+                data = os.read(fd, READ_BYTES)
             except BlockingIOError:
                 break
             except OSError as e:
@@ -224,7 +226,7 @@ class EvdevSource(Source):
                 gone = f"{self.name}: device gone ({e.strerror or e})"
                 break
             if not data:
-                if self._stream and not chunks and not _ready(self._fd):
+                if self._stream and not chunks and not _ready(fd):
                     # A FIFO whose writer has not connected yet reads as EOF too; only
                     # POLLHUP (a writer came and went) is the unplug.  Checked here, on
                     # EOF, rather than before every read: the poll is a syscall per read.
@@ -232,7 +234,7 @@ class EvdevSource(Source):
                 gone = f"{self.name}: device gone (end of stream)"
                 break
             chunks.append(data)
-            if len(data) < READ_EVENTS * EVENT_SIZE:
+            if len(data) < READ_BYTES:
                 break
         buf = b"".join(chunks)  # one chunk (the usual case): that same object, no copy
         if gone is None and len(buf) <= self.small_read:
