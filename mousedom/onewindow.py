@@ -12,6 +12,7 @@ rank loss).
 from __future__ import annotations
 
 import math
+from operator import mul
 
 from mousedom import integrate
 
@@ -140,9 +141,6 @@ def linear(
     """models._linear for one window: q restricted to the model's columns (B d) and the
     residual d - A q of the live mice, flattened like ``d``.  A and B are the cached
     estimator's matrices as row lists."""
-    qk = [sum([b * v for b, v in zip(row, d, strict=True)]) for row in b_rows]
-    res = [
-        v - sum([a * u for a, u in zip(row, qk, strict=True)])
-        for v, row in zip(d, a_rows, strict=True)
-    ]
-    return qk, res
+    # map(mul) rather than comprehensions: no frame per dot product (Python 3.11)
+    qk = [sum(map(mul, row, d)) for row in b_rows]
+    return qk, [v - sum(map(mul, row, qk)) for v, row in zip(d, a_rows, strict=True)]

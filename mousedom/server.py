@@ -76,6 +76,7 @@ class Client:
         self.queue: deque[bytes] = deque()
         self.queue_limit = settings.queue_lines
         self.partial = b""  # the unsent tail of the line being written
+        self.want_write = False  # registered for EVENT_WRITE (a tail is waiting)
         self.period = 0.0  # seconds between POSEs for this client; 0: every pose
         self.paused = False  # rate 0: no POSE at all
         self.next_t: float | None = None
@@ -319,10 +320,13 @@ class Server:
             self.dropped += 1
             self.drop(client, f"queue full ({client.queue_limit} lines): client not reading")
             return
-        was_idle = not client.queue and not client.partial
-        client.queue.append(line)
-        if was_idle:
+        if not client.queue and not client.partial:
+            # Nothing waiting (the usual case): the line goes out now, without the queue.
+            client.partial = line
+            client.lines_out += 1
             self._flush(client)
+            return
+        client.queue.append(line)
 
     def broadcast(self, line: bytes) -> None:
         for client in list(self.clients.values()):
@@ -359,10 +363,12 @@ class Server:
         self._want_write(client, bool(client.partial or client.queue))
 
     def _want_write(self, client: Client, want: bool) -> None:
+        if want == client.want_write:
+            return
         events = selectors.EVENT_READ | (selectors.EVENT_WRITE if want else 0)
         key = self.selector.get_key(client.sock)
-        if key.events != events:
-            self.selector.modify(client.sock, events, key.data)
+        self.selector.modify(client.sock, events, key.data)
+        client.want_write = want
 
     def drop(self, client: Client, reason: str | None) -> None:
         if self.clients.pop(client.fd, None) is None:
