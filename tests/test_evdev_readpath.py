@@ -252,3 +252,15 @@ def test_reports_from_lists_keep_the_lists_and_give_float64_arrays():
     assert a.dx.dtype == a.dy.dtype == np.float64 and len(a) == 1
     assert all(isinstance(c, np.ndarray) for c in a.columns())
     assert "Reports('m'" in repr(r)
+
+
+def test_feed_small_path_keeps_times_bit_for_bit():
+    """``feed`` (times given as floats) runs the shared loop as ``t + -0.0 * 1e-6``:
+    that is t itself, sign of zero included, as the numpy path hands it out."""
+    t = np.array([-0.0, -0.0, 1e-300, 1e-300, 7.1, 7.1])
+    ty = np.array([EV_REL, EV_SYN, EV_REL, EV_SYN, EV_REL, EV_SYN])
+    co = np.array([REL_X, SYN_REPORT, REL_Y, SYN_REPORT, REL_X, SYN_REPORT])
+    va = np.array([1, 0, 2, 0, 3, 0])
+    loop, vec = FrameAssembler(10**9).feed(t, ty, co, va), FrameAssembler(0).feed(t, ty, co, va)
+    assert loop.t.tobytes() == vec.t.tobytes() == t[1::2].tobytes()
+    assert np.signbit(loop.t[0])
