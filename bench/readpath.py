@@ -1,7 +1,7 @@
 """Cost of one live evdev read, as the daemon makes it: the small path vs the bulk numpy
 path vs a bare reader, on the same pipe, in one run.
 
-    /work/venv/bin/python bench/readpath.py [--reads 20000] [--frames 10]
+    /work/venv/bin/python bench/readpath.py [--reads 20000] [--frames 10] [--sweep 2000]
 
 Each read finds ``frames`` mouse reports (REL_X, REL_Y, SYN_REPORT: 72 bytes each; 10
 frames = 720 bytes, what a 1 kHz mouse leaves between two 100 Hz wake-ups) in a real
@@ -17,7 +17,8 @@ pipe.  The write is not timed; the read is, with ``time.perf_counter_ns``:
 
 "read" figures stop after ``EvdevSource.read``; "read+push" include the hand-over to the
 tracker, as ``Daemon._read_slot`` does it.  The paths take turns read by read, so that
-they share the machine's noise; medians over all reads.
+they share the machine's noise; medians over all reads.  Then a sweep over read sizes
+shows where the bulk path gets cheaper (``SMALL_READ`` in mousedom/sources/evdev.py).
 """
 
 from __future__ import annotations
@@ -116,6 +117,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--reads", type=int, default=20_000)
     ap.add_argument("--frames", type=int, default=10, help="mouse reports per read")
+    ap.add_argument(
+        "--sweep", type=int, default=2000, metavar="READS", help="reads per size (0: no sweep)"
+    )
     a = ap.parse_args()
     lanes = [
         Lane("bare poll + os.read", None, False),
@@ -141,6 +145,24 @@ def main() -> None:
     b_read, s_read = lanes[1].median_us(), lanes[2].median_us()
     b_push, s_push = lanes[3].median_us(), lanes[4].median_us()
     print(f"small vs bulk: read x{b_read / s_read:.2f} cheaper, read + push x{b_push / s_push:.2f}")
+    if a.sweep:
+        sweep(rng, a.sweep)
+
+
+def sweep(rng: np.random.Generator, reads: int) -> None:
+    """Where the small path stops paying: bigger reads, both paths (``SMALL_READ``)."""
+    print(f"read only, by read size (median of {reads} reads each): small vs bulk")
+    for frames in (1, 10, 30, 60, 85, 100, 150, 341):
+        bulk, small = Lane("bulk", 0, False), Lane("small", 24 * 1024, False)
+        for k in range(reads):
+            chunk = frames_bytes(k * frames * 0.001, frames, rng)
+            for lane in (bulk, small):
+                lane.once(chunk, (k + 1) * frames * 0.001)
+        b, sm = bulk.median_us(), small.median_us()
+        print(
+            f"  {frames * 3:5d} events ({frames * 72:6d} bytes): small {sm:7.2f} us, "
+            f"bulk {b:7.2f} us   small/bulk {sm / b:5.2f}"
+        )
 
 
 if __name__ == "__main__":
