@@ -9,7 +9,7 @@ import os
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from mousedom.config import EvdevMatch, Mount, MouseConfig
@@ -50,7 +50,20 @@ value = st.integers(-50, 50) | st.integers(-(2**31), 2**31 - 1)
 stamp = st.tuples(st.integers(0, 3), st.integers(0, 999_999)) | st.tuples(
     st.integers(0, 2**40), st.integers(0, 999_999)
 )
-records = st.lists(st.tuples(stamp, kind, value), max_size=120)
+# Any events in any order, or mouse-like frames: a few events and (mostly) a SYN_REPORT,
+# all with the frame's stamp, which often runs backwards from one frame to the next.
+loose = st.lists(st.tuples(stamp, kind, value), max_size=120)
+frame = st.tuples(
+    stamp, st.lists(st.tuples(kind, value), max_size=4), st.sampled_from([True] * 5 + [False])
+)
+framed = st.lists(frame, max_size=30).map(
+    lambda frames: [
+        row
+        for ts, events, report in frames
+        for row in [(ts, k, v) for k, v in events] + ([(ts, (EV_SYN, SYN_REPORT), 0)] * report)
+    ]
+)
+records = loose | framed
 
 
 def to_bytes(rows) -> bytes:
@@ -176,8 +189,19 @@ def state(src: EvdevSource):
     )
 
 
-@settings(max_examples=60, deadline=None)
+BACK_ACROSS_READS = [  # two frames in the first read, then one stamped between them
+    ((3, 0), (EV_REL, REL_X), 1),
+    ((3, 0), (EV_SYN, SYN_REPORT), 0),
+    ((4, 0), (EV_REL, REL_Y), 2),
+    ((4, 0), (EV_SYN, SYN_REPORT), 0),
+    ((3, 500_000), (EV_REL, REL_X), 3),
+    ((3, 500_000), (EV_SYN, SYN_REPORT), 0),
+]
+
+
+@settings(max_examples=100, deadline=None)
 @given(records, st.lists(st.integers(0, 24 * 120), max_size=8), st.booleans())
+@example(BACK_ACROSS_READS, [96], False)
 def test_source_small_reads_equal_the_bulk_path_through_pipes(rows, offsets, tail):
     """Two sources on real pipes, one on the small path and one forced onto the bulk path,
     get the same writes (cut anywhere, stamps running backwards, SYN_DROPPED, other event
