@@ -1,10 +1,13 @@
-"""A live mouse over evdev: raw input_event bytes from the node, decoded in bulk.
+"""A live mouse over evdev: raw input_event bytes from the node, decoded in the source.
 
 ``open()`` finds the device the config rule names (``mousedom.discovery``), opens it with
 python-evdev, grabs it (EVIOCGRAB, unless ``grab: false``) so that the robot's mice do not
 move a cursor, and switches its timestamps to CLOCK_MONOTONIC (EVIOCSCLOCKID, which
 python-evdev does not wrap).  The hot path is ``os.read`` of up to ``READ_EVENTS`` records
-at a time and one ``np.frombuffer``: no Python object per event.
+at a time, then, for the few frames of a live read (up to ``SMALL_READ``), one Python loop
+over ``struct.iter_unpack`` (``FrameAssembler.feed_bytes``) whose lists go to the tracker
+as they are; bigger reads are decoded in bulk (one ``np.frombuffer``, no Python object per
+event).  Both give the same results (tests/test_evdev_readpath.py; docs/readpath.md).
 
 Unplugging shows at once: the kernel wakes the reader and ``read`` fails with ENODEV
 (or returns EOF); the source closes the frame it was assembling (its counts are kept,
