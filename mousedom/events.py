@@ -13,6 +13,10 @@ Two steps:
    partial frame at the end of a chunk as a few running sums, so a frame may straddle
    any number of reads and the result does not depend on where the chunks were cut.
 
+A live read of a few frames skips both numpy steps: ``FrameAssembler.feed_bytes`` runs
+the same rules in one Python loop straight over the bytes (``struct.iter_unpack``) and
+returns Python lists, because numpy's fixed cost per call is most of a small read's cost.
+
 The kernel's SYN_DROPPED rule (Documentation/input/event-codes.rst): the client's
 buffer overflowed, so the frame being assembled is incomplete; discard it and every
 event up to and including the next SYN_REPORT.  Both halves are the one frame (from the
