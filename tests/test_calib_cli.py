@@ -329,6 +329,12 @@ def test_cpi_warns_when_runs_disagree(tmp_path):
     assert "warning: mouse m: runs disagree by more than 2%" in p.stderr
     assert "run 3" in p.stderr
     assert "left out run 5" in p.stderr and "a bump" in p.stderr  # said, not silent
+    # Such a mean is not stored by --write unless --force says so.
+    base = ["calibrate", "cpi", "--config", str(cfg), "--capture", f"m={f}", "--distance", "0.2"]
+    fails(run_mousedom(*base, "--write"), "not written: the runs disagree", "--force")
+    assert not (tmp_path / "rig.calib.yaml").exists()
+    ok(run_mousedom(*base, "--write", "--force"))
+    assert "m:" in (tmp_path / "rig.calib.yaml").read_text()
 
 
 def test_cpi_on_a_real_recording(external_captures, tmp_path):

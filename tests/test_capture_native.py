@@ -188,6 +188,19 @@ def test_fuzz_damaged_files_never_crash(tmp_path, junk, at):
         assert "f.mdcap" in str(e)
 
 
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), -float("inf")])
+def test_non_finite_times_are_refused_by_the_writer_too(tmp_path, bad):
+    """The reader refuses a chunk with a non-finite time; the writer must not make one
+    (the file would hold a chunk no one can read back)."""
+    w = NativeWriter(tmp_path / "x.mdcap", [DeviceInfo(name="odd", mouse="m", rel_xy=True)])
+    w.motion(0, [0.1], np.array([1]), np.array([2]))
+    with pytest.raises(CaptureError, match=r"'odd': report 1 of a batch has time"):
+        w.motion(0, [0.2, bad], np.array([1, 1]), np.array([0, 0]))
+    w.close()
+    cap = drain(tmp_path / "x.mdcap")
+    assert cap.motion[0][0].tolist() == [0.1]
+
+
 def test_counts_beyond_32_bits_are_refused_not_wrapped(tmp_path):
     """A frame's summed counts can exceed the i4 columns; wrapping them lost 2**32 counts
     silently (evemu -> convert -> replay gave 3 instead of 4294967299)."""

@@ -30,7 +30,8 @@ class CpiResult:
     runs: int
     per_run: np.ndarray  # CPI of each run
     skew_deg: np.ndarray  # angle between each push and the mouse's axis
-    warnings: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)  # the runs disagree: not stored
+    hints: list[str] = field(default_factory=list)  # far from the config: said, stored
 
     def as_json(self) -> dict:
         return {

@@ -27,7 +27,8 @@ class DistanceResult:
     runs: int
     per_run: np.ndarray
     along: np.ndarray  # per-run |component of d1 - d2 along the joining line| / |d1 - d2|
-    warnings: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)  # the runs disagree: not stored
+    hints: list[str] = field(default_factory=list)  # far from the config: said, stored
 
     def as_json(self) -> dict:
         return {

@@ -99,7 +99,7 @@ def cpi(session: Session, distance: float, axis: str, min_runs: int = 2) -> dict
         before = mouse.cpi_y if axis == "y" else mouse.cpi_x
         off = out[name].cpi / before - 1
         if abs(off) > CPI_TOLERANCE:
-            out[name].warnings.append(
+            out[name].hints.append(
                 f"cpi {out[name].cpi:.1f} is {off:+.0%} off the configured {before:g}: "
                 f"is --distance right (metres: {distance:g} m = {distance * 1000:g} mm)?"
             )
@@ -130,7 +130,7 @@ def distance(session: Session, angle: float, min_runs: int = 2) -> DistanceResul
     # degrees, a half turn for a quarter): say so rather than let --write store it quietly.
     nominal = float(np.hypot(*line))
     if nominal > 0 and abs(result.distance / nominal - 1) > DRAWING_TOLERANCE:
-        result.warnings.append(
+        result.hints.append(
             f"the distance {result.distance * 1000:.1f} mm is {result.distance / nominal - 1:+.0%} "
             f"off the configured {nominal * 1000:.1f} mm: is --angle right (in degrees)?"
         )

@@ -123,6 +123,12 @@ class NativeWriter:
         t = np.ascontiguousarray(t, dtype="<f8")
         if not len(t):
             return
+        if not np.isfinite(t.sum()):  # the reader refuses them: never write them
+            k = int(np.argmax(~np.isfinite(t)))
+            raise CaptureError(
+                f"device {self.devices[device].name!r}: report {k} of a batch has time "
+                f"{t[k]!r}: the native format holds finite times only"
+            )
         dx, dy = np.asarray(dx), np.asarray(dy)
         for d in (dx, dy):
             # A frame's summed counts may exceed the i4 columns: refuse rather than wrap.

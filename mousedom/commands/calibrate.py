@@ -104,6 +104,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         default="y",
         help="the mouse's own axis pushed along (y: forward/back, default)",
     )
+    c.add_argument("--force", action="store_true", help=FORCE_HELP)
     c.set_defaults(func=run_cpi)
 
     d = what.add_parser(
@@ -119,6 +120,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="the known angle of each turn",
     )
     d.add_argument("--mice", metavar="A,B", help="the two mice (default: the only two)")
+    d.add_argument("--force", action="store_true", help=FORCE_HELP)
     d.set_defaults(func=run_distance)
 
     m = what.add_parser(
@@ -216,6 +218,20 @@ def _emit(
         print(json.dumps(doc, indent=2))
 
 
+FORCE_HELP = "with --write: store the result even though its runs disagree"
+
+
+def _refuse_doubtful(config: Config, warnings: list[str], force: bool) -> None:
+    """Runs that disagree (or mice that slipped apart) make a mean no one should trust:
+    said, and not stored unless --force.  A result merely far from the configured value
+    is stored with its warning: the configured value may be the rough guess."""
+    if warnings and not force:
+        raise UserError(
+            f"{config.calibration}: not written: the runs disagree (warnings above); "
+            "repeat them, or pass --force to store the mean anyway"
+        )
+
+
 def _store(config: Config, update) -> None:
     path = config.calibration
     try:
@@ -246,9 +262,11 @@ def run_cpi(args: argparse.Namespace) -> int:
     need_runs(len(s.runs), min_runs, "calibrate cpi", args.gap)
     results = session.cpi(s, args.distance, args.axis, min_runs)
     warnings = [f"mouse {n}: {w}" for n, r in results.items() for w in r.warnings]
+    hints = [f"mouse {n}: {w}" for n, r in results.items() for w in r.hints]
     doc = {n: r.as_json() for n, r in results.items()}
-    _emit(args, doc, report.cpi_text(results, config, args.distance), s, warnings)
+    _emit(args, doc, report.cpi_text(results, config, args.distance), s, warnings + hints)
     if args.write:
+        _refuse_doubtful(config, warnings, args.force)
 
         def update(data):
             for n, r in results.items():
@@ -276,9 +294,10 @@ def run_distance(args: argparse.Namespace) -> int:
         result.as_json(),
         report.distance_text(result, s.names, args.angle),
         s,
-        result.warnings,
+        result.warnings + result.hints,
     )
     if args.write:
+        _refuse_doubtful(config, result.warnings, args.force)
         positions = session.spread_mounts(config, s.names, result.distance)
 
         def update(data):
