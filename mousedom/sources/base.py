@@ -45,10 +45,10 @@ class Reports:
         self._t = np.asarray(t, dtype=np.float64)
         self._dx = np.asarray(dx, dtype=np.float64)
         self._dy = np.asarray(dy, dtype=np.float64)
-        self._lists: tuple[list[float], list[float], list[float]] | None = None
+        self._lists: tuple[list[float], list[Any], list[Any]] | None = None
 
     @classmethod
-    def from_lists(cls, mouse: str, t: list[float], dx: list[float], dy: list[float]) -> Reports:
+    def from_lists(cls, mouse: str, t: list[float], dx: list[Any], dy: list[Any]) -> Reports:
         """Reports from three lists of one length: t floats, dx and dy numbers (ints or
         floats).  The lists are kept, not copied: the caller hands them over."""
         r = cls.__new__(cls)
