@@ -96,13 +96,14 @@ class Tracker:
         """
         i = self._index(mouse)
         if type(t) is list and type(dx) is list and type(dy) is list:
-            # A live read's few reports, already Python floats: no numpy at all.
+            # A live read's few reports as Python numbers (float times, int counts from
+            # evdev): queued as copies, no numpy at all.  Ints add up exactly as the
+            # array path's float64 do (counts are far below 2**53).
             if not len(t) == len(dx) == len(dy):
                 raise ValueError(f"push: t, dx, dy must be of one length, got "
                                  f"{len(t)}, {len(dx)}, {len(dy)}")  # fmt: skip
             if t and len(t) <= self._INGEST_SMALL:
-                self._queue_small(self._mice[i], [float(v) for v in t],
-                                  [float(v) for v in dx], [float(v) for v in dy])  # fmt: skip
+                self._queue_small(self._mice[i], t[:], dx[:], dy[:])
                 return
         t = np.asarray(t, dtype=np.float64)
         dx = np.asarray(dx, dtype=np.float64)
@@ -126,7 +127,11 @@ class Tracker:
 
     def _queue_small(self, m: CountFunction, t: list, dx: list, dy: list) -> None:
         # One sum each is NaN or inf if any element is: cheaper than a test per element.
-        if not math.isfinite(sum(t) + sum(dx) + sum(dy)):
+        try:
+            finite = math.isfinite(sum(t) + sum(dx) + sum(dy))
+        except TypeError:
+            finite = False  # not real numbers (str, None, complex...)
+        if not finite:
             raise ValueError("push: times and counts must be finite numbers")
         self._start(t[0])
         m.pending.append((t, dx, dy))

@@ -354,3 +354,15 @@ def test_pushing_lists_equals_pushing_arrays():
     assert np.array_equal(a_in, b_in)
     for key in ("t", "x", "y", "theta", "cov", "counts", "residual"):
         assert np.array_equal(getattr(a, key), getattr(b, key)), key
+
+
+@pytest.mark.parametrize("bad", ["1", None, 1j])
+def test_push_of_lists_refuses_what_is_not_a_real_number(bad):
+    """Lists are queued without numpy's conversion: anything else than real numbers is a
+    ValueError at once, not a TypeError later inside a window."""
+    tr = Tracker(sim.rig_config(rig3()), t0=0.0)
+    with pytest.raises(ValueError, match="finite numbers"):
+        tr.push(0, [0.01, 0.02], [1, bad], [0, 0])
+    tr.push(0, [0.01], [1], [0])
+    tr.finish()
+    assert tr.counts_out[0].tolist() == [1.0, 0.0]
