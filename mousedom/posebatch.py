@@ -16,7 +16,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 
-class Pose(NamedTuple):
+class PoseRow(NamedTuple):
     """One window's pose, in Python floats, ints, bools and lists."""
 
     t: float
@@ -54,7 +54,7 @@ class PoseBatch:
     counts: np.ndarray  # (n,N,2) counts (REL_X, REL_Y) that fell into the window
 
     @classmethod
-    def from_rows(cls, rows: list[Pose]) -> PoseBatch:
+    def from_rows(cls, rows: list[PoseRow]) -> PoseBatch:
         """A batch of at least one row whose arrays are built only if a field is read."""
         batch = cls.__new__(cls)
         batch.__dict__["_rows"] = rows
@@ -63,20 +63,20 @@ class PoseBatch:
     def __getattr__(self, name: str) -> Any:
         # Only called for attributes not set: the fields of a batch made from rows.
         rows = self.__dict__.get("_rows")
-        if rows is None or name not in Pose._fields:
+        if rows is None or name not in PoseRow._fields:
             raise AttributeError(name)
-        for k, column in zip(Pose._fields, zip(*rows, strict=True), strict=True):
+        for k, column in zip(PoseRow._fields, zip(*rows, strict=True), strict=True):
             self.__dict__[k] = np.array(column, dtype=_DTYPES.get(k, np.float64))
         del self.__dict__["_rows"]
         return self.__dict__[name]
 
-    def rows(self) -> list[Pose]:
+    def rows(self) -> list[PoseRow]:
         """The poses as Python values (the rows it was made from, or the arrays' values)."""
         rows = self.__dict__.get("_rows")
         if rows is not None:
             return rows
-        columns = [getattr(self, k).tolist() for k in Pose._fields]
-        return [Pose(*values) for values in zip(*columns, strict=True)]
+        columns = [getattr(self, k).tolist() for k in PoseRow._fields]
+        return [PoseRow(*values) for values in zip(*columns, strict=True)]
 
     def __len__(self) -> int:
         rows = self.__dict__.get("_rows")

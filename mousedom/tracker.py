@@ -30,7 +30,7 @@ from mousedom.config import Config
 from mousedom.countfunction import CountFunction
 from mousedom.covariance import CovarianceState, propagate, world_step_noise
 from mousedom.geometry import rank_problem
-from mousedom.posebatch import Pose, PoseBatch
+from mousedom.posebatch import PoseBatch, PoseRow
 from mousedom.units import counts_matrices, sigma_metres
 
 
@@ -398,6 +398,6 @@ class Tracker:
         cov = onewindow.propagate(self._cov, self._cov_at, (x, y), g)
         self._pose, self._cov, self._cov_at = [x, y, th], cov, [x, y]
         rate = self._rate
-        pose = Pose(t_end, x, y, th, ux * rate, uy * rate, a * rate, cov, len(idx), ok,
+        pose = PoseRow(t_end, x, y, th, ux * rate, uy * rate, a * rate, cov, len(idx), ok,
                     residual, counts)  # fmt: skip
         return PoseBatch.from_rows([pose])

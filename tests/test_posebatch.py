@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from mousedom.posebatch import Pose, PoseBatch
+from mousedom.posebatch import PoseBatch, PoseRow
 
 
-def _row(k: int) -> Pose:
+def _row(k: int) -> PoseRow:
     cov = [[1e-6 * (k + 1), 2e-9, 0.0], [2e-9, 3e-6, 1e-9], [0.0, 1e-9, 4e-5]]
     res = [[1e-5 * k, -2e-5], [0.0, 0.0]]
-    return Pose(0.01 * k, 0.1 * k, -0.2, 0.3, 1.0, 0.0, -0.5, cov, 2 - k % 2, k % 3 != 0,
+    return PoseRow(0.01 * k, 0.1 * k, -0.2, 0.3, 1.0, 0.0, -0.5, cov, 2 - k % 2, k % 3 != 0,
                 res, [(k, -3.0), (0.5, 2.0)])  # fmt: skip
 
 
@@ -24,7 +24,7 @@ def test_rows_become_arrays_of_the_array_layout_on_first_read():
     assert batch.ok.tolist() == [False, True, True]
     assert np.array_equal(batch.counts[1], [[1.0, -3.0], [0.5, 2.0]])
     # once materialised it is an ordinary batch: rows() from the arrays give the same values
-    assert batch.rows() == [Pose(*[np.asarray(v).tolist() for v in r]) for r in rows]
+    assert batch.rows() == [PoseRow(*[np.asarray(v).tolist() for v in r]) for r in rows]
     assert "_rows" not in vars(batch)
     arrays = PoseBatch(**vars(batch))
     joined = PoseBatch.concat([arrays, PoseBatch.from_rows([_row(7)])])
