@@ -51,6 +51,11 @@ def write_config(tmp: Path, mice: dict[str, dict], calibration: bool = True, ext
     return tmp / "rig.yaml"
 
 
+def calib(what: str, cfg: Path, *args: str):
+    """``mousedom calibrate WHAT --config CFG ARGS...`` as a real process."""
+    return run_mousedom("calibrate", what, "--config", str(cfg), *args)
+
+
 def ok(proc):
     assert proc.returncode == 0, proc.stderr
     return proc
@@ -92,9 +97,7 @@ def cpi_session(tmp_path):
 def test_cpi_json_report_and_write(cpi_session):
     tmp, cfg, files = cpi_session
     caps = [a for n, f in files.items() for a in ("--capture", f"{n}={f}")]
-    p = ok(
-        run_mousedom("calibrate", "cpi", "--config", str(cfg), *caps, "--distance", "0.2", "--json")
-    )
+    p = ok(calib("cpi", cfg, *caps, "--distance", "0.2", "--json"))
     doc = json.loads(p.stdout)
     assert set(doc) == {"left", "right"}
     assert set(doc["left"]) == {"axis", "cpi", "stderr", "runs"}
@@ -102,11 +105,7 @@ def test_cpi_json_report_and_write(cpi_session):
     assert doc["left"]["cpi"] == pytest.approx(455, rel=3e-3)
     assert doc["right"]["cpi"] == pytest.approx(812, rel=3e-3)
     assert "left: cpi y = " in p.stderr  # the readable report moves to stderr with --json
-    p = ok(
-        run_mousedom(
-            "calibrate", "cpi", "--config", str(cfg), *caps, "--distance", "0.2", "--write"
-        )
-    )
+    p = ok(calib("cpi", cfg, *caps, "--distance", "0.2", "--write"))
     assert "right: cpi y = " in p.stdout and "written to" in p.stderr
     cal = yaml.safe_load((tmp / "rig.calib.yaml").read_text())
     assert cal["mice"]["left"]["cpi"]["y"] == pytest.approx(455, rel=3e-3)
@@ -118,11 +117,9 @@ def test_cpi_bad_inputs(cpi_session):
     tmp, cfg, files = cpi_session
     left = f"left={files['left']}"
     fails(
-        run_mousedom(
-            "calibrate",
+        calib(
             "cpi",
-            "--config",
-            str(cfg),
+            cfg,
             "--capture",
             left,
             "--distance",
@@ -134,11 +131,9 @@ def test_cpi_bad_inputs(cpi_session):
         "--gap",
     )
     fails(
-        run_mousedom(
-            "calibrate",
+        calib(
             "cpi",
-            "--config",
-            str(cfg),
+            cfg,
             "--capture",
             f"middle={files['left']}",
             "--distance",
@@ -148,17 +143,13 @@ def test_cpi_bad_inputs(cpi_session):
         "left, right",
     )
     fails(
-        run_mousedom(
-            "calibrate", "cpi", "--config", str(cfg), "--capture", "left", "--distance", "0.2"
-        ),
+        calib("cpi", cfg, "--capture", "left", "--distance", "0.2"),
         "left: capture file not found",  # FILE alone is allowed: its device names a mouse
     )
     fails(
-        run_mousedom(
-            "calibrate",
+        calib(
             "cpi",
-            "--config",
-            str(cfg),
+            cfg,
             "--capture",
             f"left={tmp / 'nope.events'}",
             "--distance",
@@ -170,11 +161,9 @@ def test_cpi_bad_inputs(cpi_session):
     motion = build_motion([(0, 0.2 * (-1) ** k, 0, 1.2) for k in range(3)])
     side = write_evemu(tmp / "side.events", mouse_reports(SynthMouse("left", 0, 0), motion))
     fails(
-        run_mousedom(
-            "calibrate",
+        calib(
             "cpi",
-            "--config",
-            str(cfg),
+            cfg,
             "--capture",
             f"left={side}",
             "--distance",
@@ -214,11 +203,9 @@ def test_a_mouse_that_never_moved_is_named(cpi_session):
     still = tmp / "still.events"
     still.write_text(f"E: {EPOCH + 1:.6f} 0000 0000 0\nE: {EPOCH + 2:.6f} 0000 0000 0\n")
     fails(
-        run_mousedom(
-            "calibrate",
+        calib(
             "cpi",
-            "--config",
-            str(cfg),
+            cfg,
             "--capture",
             f"left={files['left']}",
             "--capture",
@@ -250,8 +237,7 @@ def test_run_counts_are_validated(cpi_session):
         mouse_reports(SynthMouse("left", 0, 0.1, 450, 455), build_motion([(0.2, 0, 0, 1.2)])),
     )
     p = fails(
-        run_mousedom(
-            "calibrate", "cpi", "--config", str(cfg), "--capture", f"left={one}",
+        calib("cpi", cfg, "--capture", f"left={one}",
             "--distance", "0.2", "--min-runs", "1", "--json",
         ),
         "mouse left: 1 run(s), need at least 2 for a standard error",
@@ -281,8 +267,7 @@ def test_runs_not_split_say_so(cpi_session):
     whose counts add up to nothing, and the message said the mouse never moved."""
     tmp, cfg, files = cpi_session
     fails(
-        run_mousedom(
-            "calibrate", "cpi", "--config", str(cfg), "--capture", f"left={files['left']}",
+        calib("cpi", cfg, "--capture", f"left={files['left']}",
             "--distance", "0.2", "--gap", "100", "--min-runs", "1",
         ),
         "mouse left: its motion adds up to nothing in every run (runs: 1)",
@@ -321,11 +306,7 @@ def test_cpi_warns_when_runs_disagree(tmp_path):
     cfg = write_config(
         tmp_path, {"m": {"cpi": 1000, "mount": {}}, "n": {"cpi": 1000, "mount": {"x": 0.1}}}
     )
-    p = ok(
-        run_mousedom(
-            "calibrate", "cpi", "--config", str(cfg), "--capture", f"m={f}", "--distance", "0.2"
-        )
-    )
+    p = ok(calib("cpi", cfg, "--capture", f"m={f}", "--distance", "0.2"))
     assert "warning: mouse m: runs disagree by more than 2%" in p.stderr
     assert "run 3" in p.stderr
     assert "left out run 5" in p.stderr and "a bump" in p.stderr  # said, not silent
@@ -357,11 +338,9 @@ def test_cpi_on_a_real_recording(external_captures, tmp_path):
         {"m": {"cpi": 1000, "mount": {}}, "n": {"cpi": 1000, "mount": {"x": 0.1}}},
         calibration=False,
     )
-    p = run_mousedom(
-        "calibrate",
+    p = calib(
         "cpi",
-        "--config",
-        str(cfg),
+        cfg,
         "--capture",
         f"m={f}",
         "--distance",
@@ -403,19 +382,11 @@ def test_distance_json_and_write(tmp_path):
         },
     )
     caps = ["--capture", f"left={cap}", "--capture", f"right={cap}"]
-    p = ok(
-        run_mousedom(
-            "calibrate", "distance", "--config", str(cfg), *caps, "--angle", "90", "--json"
-        )
-    )
+    p = ok(calib("distance", cfg, *caps, "--angle", "90", "--json"))
     doc = json.loads(p.stdout)
     assert set(doc) == {"distance", "stderr", "runs"} and doc["runs"] == 4
     assert doc["distance"] == pytest.approx(0.27, abs=5e-4)
-    ok(
-        run_mousedom(
-            "calibrate", "distance", "--config", str(cfg), *caps, "--angle", "90", "--write"
-        )
-    )
+    ok(calib("distance", cfg, *caps, "--angle", "90", "--write"))
     cal = yaml.safe_load((tmp_path / "rig.calib.yaml").read_text())
     assert cal["distance"]["mice"] == ["left", "right"]
     # Same midpoint (0.01, 0) and direction, 270 mm apart.
@@ -424,22 +395,20 @@ def test_distance_json_and_write(tmp_path):
     rear = write_native(tmp_path / "rear.mdcap", {"rear": rec["left"]})
     three = ["--capture", f"left={cap}", "--capture", f"right={cap}", "--capture", f"rear={rear}"]
     fails(
-        run_mousedom("calibrate", "distance", "--config", str(cfg), *three, "--angle", "90"),
+        calib("distance", cfg, *three, "--angle", "90"),
         "exactly two mice",
         "--mice",
     )
     fails(
-        run_mousedom("calibrate", "distance", "--config", str(cfg), *caps, "--angle", "0"),
+        calib("distance", cfg, *caps, "--angle", "0"),
         "non-zero",
     )
     # Regression: the angle in radians (1.5708 for 90 deg) gave D = 15.5 m and no word.
-    p = ok(run_mousedom("calibrate", "distance", "--config", str(cfg), *caps, "--angle", "1.5708"))
+    p = ok(calib("distance", cfg, *caps, "--angle", "1.5708"))
     assert "warning: the distance 15470.1 mm is +5630% off the configured 270.0 mm" in p.stderr
     assert "is --angle right (in degrees)?" in p.stderr
     fails(
-        run_mousedom(
-            "calibrate", "distance", "--config", str(cfg), *caps, "--angle", "90", "--mice", "left"
-        ),
+        calib("distance", cfg, *caps, "--angle", "90", "--mice", "left"),
         "give two mouse names",
     )
 
@@ -477,11 +446,7 @@ def mounts_session(tmp_path):
 
 def test_mounts_exact_json_and_write(mounts_session):
     tmp, cfg, caps, ref, true, _ = mounts_session
-    p = ok(
-        run_mousedom(
-            "calibrate", "mounts", "--config", str(cfg), *caps, "--reference", str(ref), "--json"
-        )
-    )
+    p = ok(calib("mounts", cfg, *caps, "--reference", str(ref), "--json"))
     doc = json.loads(p.stdout)
     for n, (x, y, yaw, cpi) in true.items():
         assert set(doc[n]) == {"x", "y", "yaw", "scale"}
@@ -489,11 +454,7 @@ def test_mounts_exact_json_and_write(mounts_session):
         assert doc[n]["y"] == pytest.approx(y, abs=1e-4)
         assert doc[n]["yaw"] == pytest.approx(math.degrees(yaw), abs=0.05)
         assert doc[n]["scale"] == pytest.approx(cpi / 1000, rel=5e-4)
-    ok(
-        run_mousedom(
-            "calibrate", "mounts", "--config", str(cfg), *caps, "--reference", str(ref), "--write"
-        )
-    )
+    ok(calib("mounts", cfg, *caps, "--reference", str(ref), "--write"))
     cal = yaml.safe_load((tmp / "rig.calib.yaml").read_text())
     assert cal["mice"]["a"]["cpi"]["x"] == pytest.approx(1020, rel=5e-4)
     assert cal["mice"]["a"]["mount"]["yaw"] == pytest.approx(math.degrees(0.05), abs=0.05)
@@ -502,11 +463,9 @@ def test_mounts_exact_json_and_write(mounts_session):
 def test_mounts_kimlee_side_by_side(mounts_session):
     tmp, cfg, caps, ref, true, _ = mounts_session
     p = ok(
-        run_mousedom(
-            "calibrate",
+        calib(
             "mounts",
-            "--config",
-            str(cfg),
+            cfg,
             *caps,
             "--reference",
             str(ref),
@@ -521,11 +480,9 @@ def test_mounts_kimlee_side_by_side(mounts_session):
     assert "Kim & Lee linearised" in p.stderr and "minimum-norm" in p.stderr
     exact = json.loads(
         ok(
-            run_mousedom(
-                "calibrate",
+            calib(
                 "mounts",
-                "--config",
-                str(cfg),
+                cfg,
                 *caps,
                 "--reference",
                 str(ref),
@@ -562,15 +519,13 @@ def test_mounts_wheel_reference(tmp_path):
     )
     caps = ["--capture", f"front={cap}", "--capture", f"rear={cap}"]
     fails(
-        run_mousedom("calibrate", "mounts", "--config", str(cfg), *caps, "--reference", str(ref)),
+        calib("mounts", cfg, *caps, "--reference", str(ref)),
         "needs the wheel geometry",
     )
     fails(
-        run_mousedom(
-            "calibrate",
+        calib(
             "mounts",
-            "--config",
-            str(cfg),
+            cfg,
             *caps,
             "--reference",
             str(ref),
@@ -580,11 +535,9 @@ def test_mounts_wheel_reference(tmp_path):
         "go together",
     )
     p = ok(
-        run_mousedom(
-            "calibrate",
+        calib(
             "mounts",
-            "--config",
-            str(cfg),
+            cfg,
             *caps,
             "--reference",
             str(ref),
@@ -619,19 +572,19 @@ def test_mounts_bad_inputs(mounts_session):
     bad = tmp / "bad.csv"
     bad.write_text("time,vx,vy,omega\n0,0,0,0\n")
     fails(
-        run_mousedom("calibrate", "mounts", "--config", str(cfg), *caps, "--reference", str(bad)),
+        calib("mounts", cfg, *caps, "--reference", str(bad)),
         "bad.csv:1: header must be t,vx,vy,omega",
     )
     bad.write_text(twist_csv(motion).replace("\n1.", "\n1.x", 1))
     fails(
-        run_mousedom("calibrate", "mounts", "--config", str(cfg), *caps, "--reference", str(bad)),
+        calib("mounts", cfg, *caps, "--reference", str(bad)),
         "bad.csv:",
         ": t: not a number",
     )
     late = tmp / "late.csv"
     late.write_text(twist_csv(motion, t_offset=100.0))
     fails(
-        run_mousedom("calibrate", "mounts", "--config", str(cfg), *caps, "--reference", str(late)),
+        calib("mounts", cfg, *caps, "--reference", str(late)),
         "share one time base",
     )
     # Kim & Lee's own experiment, a self-rotation: flagged, not solved.
@@ -643,9 +596,7 @@ def test_mounts_bad_inputs(mounts_session):
     spin_ref.write_text(twist_csv(spin))
     spin_caps = [a for n in true for a in ("--capture", f"{n}={cap}")]
     fails(
-        run_mousedom(
-            "calibrate", "mounts", "--config", str(cfg), *spin_caps, "--reference", str(spin_ref)
-        ),
+        calib("mounts", cfg, *spin_caps, "--reference", str(spin_ref)),
         "rotation about one point",
         "add a straight drive",
     )
@@ -738,8 +689,7 @@ def test_distance_write_with_mice_at_one_point(tmp_path):
         extra="model: diff-drive\n",
     )
     p = fails(
-        run_mousedom(
-            "calibrate", "distance", "--config", str(cfg), "--capture", str(cap),
+        calib("distance", cfg, "--capture", str(cap),
             "--angle", "90", "--write",
         ),
         "mice left and right sit at one point in the config",
