@@ -305,18 +305,8 @@ class EvdevSource(Source):
 
 def _clamp_forward(t: np.ndarray, last: float) -> tuple[np.ndarray, int]:
     """Stamps made non-decreasing (each at least the previous one, starting from ``last``),
-    and how many were moved.  A live read holds a few stamps, in order: checked on floats,
-    and the array is only rebuilt when one did run backwards."""
-    if len(t) <= 64:
-        values = t.tolist()
-        run, back = last, 0
-        for v in values:
-            if v < run:
-                back += 1
-            else:
-                run = v
-        if not back:
-            return t, 0
+    and how many were moved: the bulk path's clamp (a live read's few stamps take
+    ``_clamp_list``)."""
     out = np.maximum.accumulate(np.concatenate([[last], t]))[1:]
     return out, int(np.count_nonzero(out > t))
 
