@@ -63,7 +63,7 @@ class Tracker:
         self._positions = np.array([[m.mount.x, m.mount.y] for m in config.mice])
         self._sigma = np.array([sigma_metres(m) for m in config.mice])
         self._rate = 1.0 / self.period
-        self._linear_cache: dict[bytes, tuple] = {}  # live pattern -> what _solve_one needs
+        self._linear_cache: dict[tuple[bool, ...], tuple] = {}  # live mice -> _solve_one's plan
         self._closed = 0  # number of windows closed so far
         self._complete_all = -math.inf
         # The carried state as Python floats (the one-window path's currency; the array
@@ -324,8 +324,6 @@ class Tracker:
     _SMALL = 1
 
     def _solve(self, t_end: np.ndarray, counts: np.ndarray, mask: np.ndarray) -> PoseBatch:
-        if len(t_end) <= self._SMALL and self.model != "bonarini" and self.n_mice:
-            return self._solve_one(t_end, counts, mask)
         d = np.einsum("nij,knj->kni", self._to_body, counts) if self.n_mice else counts
         sol = models.solve(self.model, d, self._positions, self._sigma, mask)
         q = np.where(sol.ok[:, None], sol.q, 0.0)

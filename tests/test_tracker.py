@@ -366,3 +366,26 @@ def test_push_of_lists_refuses_what_is_not_a_real_number(bad):
     tr.push(0, [0.01], [1], [0])
     tr.finish()
     assert tr.counts_out[0].tolist() == [1.0, 0.0]
+
+
+def test_one_window_with_a_mouse_far_ahead_takes_the_array_path():
+    """Regression: one window closing while a mouse had hundreds of reports queued ahead
+    (too many knots for the float path) went to the float solver with arrays and raised
+    TypeError (unhashable).  It must give what the array path gives."""
+
+    def run(small):
+        cfg = sim.rig_config(rig3())
+        tr = Tracker(cfg, t0=0.0)
+        tr._SMALL = small
+        t = np.arange(1, 400) / 1000.0  # 0.4 s of mouse 0 at once: ~800 knots
+        tr.push(0, t, np.ones_like(t), -np.ones_like(t))
+        for i in (1, 2):  # the others have just passed the first window's end
+            tr.push(i, [0.0101], [1], [0])
+        first = tr.poll()
+        return first, tr.finish()
+
+    (a, a_end), (b, b_end) = run(1), run(0)
+    assert len(a) == len(b) == 1
+    for key in ("t", "x", "y", "theta", "cov", "counts", "residual", "used", "ok"):
+        assert np.array_equal(getattr(a, key), getattr(b, key)), key
+        assert np.array_equal(getattr(a_end, key), getattr(b_end, key)), key
