@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from mousedom.posebatch import PoseBatch, PoseRow
 
@@ -33,10 +34,6 @@ def test_rows_become_arrays_of_the_array_layout_on_first_read():
 
 def test_unknown_attributes_still_raise():
     batch = PoseBatch.from_rows([_row(1)])
-    try:
+    with pytest.raises(AttributeError):
         batch.nope  # noqa: B018
-    except AttributeError:
-        pass
-    else:
-        raise AssertionError("no AttributeError")
     assert batch.last() == {"t": 0.01, "x": 0.1, "y": -0.2, "theta": 0.3}
