@@ -2,15 +2,13 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
-import pytest
+from conftest import external_dir  # noqa: F401  (re-exported: the capture tests import it from here)
 
 from mousedom.capture import open_capture
 
-REPO = Path(__file__).resolve().parent.parent
 GOLDEN = Path(__file__).resolve().parent / "golden"
 
 # The facts of ../shared/captures/external/SOURCES.md: (file, events, frames, motion
@@ -21,17 +19,6 @@ EXTERNAL = [
     ("evemu-devices__Ultrathin_Touch_Mouse.events", 1109, 406, 349, -319, -7, 1765, 2041),
     ("evemu-devices__TPPS2_IBM_TrackPoint.events", 2618, 964, 945, -21, -10, 3447, 2750),
 ]
-
-
-def external_dir() -> Path:
-    """The shared real recordings (located by conftest)."""
-    from conftest import EXTERNAL_CAPTURES
-
-    if EXTERNAL_CAPTURES.is_dir():
-        return EXTERNAL_CAPTURES
-    if os.environ.get("CI"):
-        pytest.fail(f"{EXTERNAL_CAPTURES} is missing in CI")
-    pytest.skip(f"{EXTERNAL_CAPTURES} not found beside the repository")
 
 
 def drain(path, **kw):
