@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from conftest import external_dir  # noqa: F401  (re-exported: the capture tests import it from here)
+from conftest import external_dir, run_mousedom
 
 from mousedom.capture import open_capture
 
@@ -19,6 +19,7 @@ EXTERNAL = [
     ("evemu-devices__Ultrathin_Touch_Mouse.events", 1109, 406, 349, -319, -7, 1765, 2041),
     ("evemu-devices__TPPS2_IBM_TrackPoint.events", 2618, 964, 945, -21, -10, 3447, 2750),
 ]
+PS2 = EXTERNAL[0][0]
 
 
 def drain(path, **kw):
@@ -55,3 +56,10 @@ def one_mouse_config(tmp_path: Path, name: str = "m", rate: float = 100) -> Path
     p = tmp_path / "one.yaml"
     p.write_text(ONE_MOUSE_YAML.format(name=name, rate=rate))
     return p
+
+
+def replay_ps2(cfg: Path, *extra: str, **kw):
+    """``mousedom replay --config CFG --capture m=<the PS/2 recording> EXTRA``, finished."""
+    return run_mousedom(
+        "replay", "--config", str(cfg), "--capture", f"m={external_dir() / PS2}", *extra, **kw
+    )
