@@ -107,10 +107,9 @@ def throughput(seconds: float, repeats: int) -> None:
     def chunked() -> None:
         tr = Tracker(cfg, t0=0.0)
         chunk = 1.0
-        t_all = {k: r.t for k, r in result.reports.items()}
         for lo in np.arange(0.0, result.duration + chunk, chunk):
             for name, r in result.reports.items():
-                a, b = np.searchsorted(t_all[name], [lo, lo + chunk], side="right")
+                a, b = np.searchsorted(r.t, [lo, lo + chunk], side="right")
                 tr.push(name, r.t[a:b], r.dx[a:b], r.dy[a:b])
             tr.complete_until(lo + chunk)
             tr.poll()
