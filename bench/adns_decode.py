@@ -10,13 +10,13 @@ Prints medians of 5 runs and ratios to the baseline.
 
 from __future__ import annotations
 
-import statistics
 import struct
 import sys
-import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from timing import median_time  # noqa: E402  (bench/timing.py)
 
 from mousedom import adns_protocol as P  # noqa: E402
 from mousedom.adns_decode import packets_to_reports  # noqa: E402
@@ -31,15 +31,6 @@ def stream() -> bytes:
         P.encode_packet(P.Motion(i % 65536, i * 15000 % (1 << 32), i % 50 - 25, 7, 12, 80, 0x10))
         for i in range(N)
     )
-
-
-def median_time(fn) -> float:
-    times = []
-    for _ in range(RUNS):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
 
 
 def main() -> None:
@@ -67,17 +58,17 @@ def main() -> None:
         for i in range(N):
             s.update(i * 0.015, 100 + i * 0.015 + (i * 7919 % 13) * 1e-4)
 
-    base = median_time(baseline)
+    base = median_time(baseline, RUNS)
     print(f"packets: {N}, bytes: {len(wire)}, chunks of 64 bytes: {len(chunks)}")
     print(f"baseline split+unpack: {base * 1e3:8.2f} ms  {N / base:12.0f} packets/s")
     for name, fn in [("parser", parser), ("replay", replay), ("clocksync", clock)]:
-        t = median_time(fn)
+        t = median_time(fn, RUNS)
         print(
             f"{name:22s}: {t * 1e3:8.2f} ms  {N / t:12.0f} packets/s  "
             f"{t / base:6.1f}x baseline  {t / N * 1e6:6.2f} us/packet"
         )
     live = 1e6 / (12 * 1250)
-    t = median_time(replay)
+    t = median_time(replay, RUNS)
     print(f"live rate at K=12: {live:.1f} packets/s -> {live * t / N * 100:.3f} % of one core")
 
 

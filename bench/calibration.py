@@ -70,6 +70,11 @@ def line(label, ours, base, unit, scale=1.0):
     )
 
 
+def trials_line(label, runs, unit, scale=1.0):
+    """line() for trials that each return (ours, baseline, ...)."""
+    line(label, [r[0] for r in runs], [r[1] for r in runs], unit, scale)
+
+
 def verdict(what, errors, target, unit):
     """Issue 7's target against the median and the 90th percentile of the errors."""
     med, p90 = statistics.median(errors), pct(errors, 90)
@@ -223,34 +228,16 @@ def main() -> None:
     )
     cpi_runs = [cpi_trial(rng) for _ in range(args.trials)]
     print("1. CPI, 10 pushes of 20 cm, up to 3 deg askew (target < 0.3 %):")
-    line(
-        "CPI error, % (baseline: Bonarini mean)",
-        [c[0] for c in cpi_runs],
-        [c[1] for c in cpi_runs],
-        "%",
-        100,
-    )
+    trials_line("CPI error, % (baseline: Bonarini mean)", cpi_runs, "%", 100)
     verdict("CPI", [abs(c[0]) * 100 for c in cpi_runs], 0.3, "%")
 
     dist_runs = [distance_trial(rng, (c[2], c[2])) for c in cpi_runs]
     print("2. distance 270 mm, 4 turns of 90 deg, pivot off-centre (target < 0.5 mm):")
-    line(
-        "distance error, mm (baseline: eq. 19)",
-        [d[0] for d in dist_runs],
-        [d[1] for d in dist_runs],
-        "mm",
-        1000,
-    )
+    trials_line("distance error, mm (baseline: eq. 19)", dist_runs, "mm", 1000)
     verdict("distance", [abs(d[0]) * 1000 for d in dist_runs], 0.5, "mm")
     beyond = [distance_trial(rng, (c[2], c[2]), beyond=True) for c in cpi_runs]
     print("   the same with the pivot 50 mm beyond the left mouse (eq. 19 assumes it between):")
-    line(
-        "distance error, mm (baseline: eq. 19)",
-        [d[0] for d in beyond],
-        [d[1] for d in beyond],
-        "mm",
-        1000,
-    )
+    trials_line("distance error, mm (baseline: eq. 19)", beyond, "mm", 1000)
 
     for positions_only, what in (
         (True, "5 mm off the drawing (yaw, CPI right)"),

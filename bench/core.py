@@ -14,14 +14,14 @@ from __future__ import annotations
 
 import argparse
 import math
-import statistics
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from timing import median_time  # noqa: E402  (bench/timing.py)
 
 from mousedom import integrate, models, sim  # noqa: E402
 from mousedom.tracker import Tracker  # noqa: E402
@@ -107,10 +107,9 @@ def throughput(seconds: float, repeats: int) -> None:
     def chunked() -> None:
         tr = Tracker(cfg, t0=0.0)
         chunk = 1.0
-        t_all = {k: r.t for k, r in result.reports.items()}
         for lo in np.arange(0.0, result.duration + chunk, chunk):
             for name, r in result.reports.items():
-                a, b = np.searchsorted(t_all[name], [lo, lo + chunk], side="right")
+                a, b = np.searchsorted(r.t, [lo, lo + chunk], side="right")
                 tr.push(name, r.t[a:b], r.dx[a:b], r.dy[a:b])
             tr.complete_until(lo + chunk)
             tr.poll()
@@ -129,12 +128,7 @@ def throughput(seconds: float, repeats: int) -> None:
         ("tracker, one batch", one_batch),
         ("tracker, 1 s chunks", chunked),
     ):
-        times = []
-        for _ in range(repeats):
-            t = time.perf_counter()
-            fn()
-            times.append(time.perf_counter() - t)
-        rates[label] = n / statistics.median(times)
+        rates[label] = n / median_time(fn, repeats)
     base = rates["baseline (naive bucketing)"]
     for label, rate in rates.items():
         print(f"  {label:28} {rate / 1e6:7.2f} M reports/s  ({rate / base:5.2f} x baseline)")

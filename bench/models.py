@@ -10,26 +10,17 @@ d @ B^T that any linear model must at least do.  No assertions: figures only.
 from __future__ import annotations
 
 import argparse
-import statistics
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from timing import median_time  # noqa: E402  (bench/timing.py)
+
 from mousedom import integrate, models  # noqa: E402
 from mousedom.geometry import design_matrix  # noqa: E402
-
-
-def median_time(fn, repeat: int = 5) -> float:
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
 
 
 def main() -> None:

@@ -2,15 +2,13 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
-import pytest
+from conftest import external_dir, run_mousedom
 
 from mousedom.capture import open_capture
 
-REPO = Path(__file__).resolve().parent.parent
 GOLDEN = Path(__file__).resolve().parent / "golden"
 
 # The facts of ../shared/captures/external/SOURCES.md: (file, events, frames, motion
@@ -21,17 +19,7 @@ EXTERNAL = [
     ("evemu-devices__Ultrathin_Touch_Mouse.events", 1109, 406, 349, -319, -7, 1765, 2041),
     ("evemu-devices__TPPS2_IBM_TrackPoint.events", 2618, 964, 945, -21, -10, 3447, 2750),
 ]
-
-
-def external_dir() -> Path:
-    """The shared real recordings (located by conftest)."""
-    from conftest import EXTERNAL_CAPTURES
-
-    if EXTERNAL_CAPTURES.is_dir():
-        return EXTERNAL_CAPTURES
-    if os.environ.get("CI"):
-        pytest.fail(f"{EXTERNAL_CAPTURES} is missing in CI")
-    pytest.skip(f"{EXTERNAL_CAPTURES} not found beside the repository")
+PS2 = EXTERNAL[0][0]
 
 
 def drain(path, **kw):
@@ -68,3 +56,10 @@ def one_mouse_config(tmp_path: Path, name: str = "m", rate: float = 100) -> Path
     p = tmp_path / "one.yaml"
     p.write_text(ONE_MOUSE_YAML.format(name=name, rate=rate))
     return p
+
+
+def replay_ps2(cfg: Path, *extra: str, **kw):
+    """``mousedom replay --config CFG --capture m=<the PS/2 recording> EXTRA``, finished."""
+    return run_mousedom(
+        "replay", "--config", str(cfg), "--capture", f"m={external_dir() / PS2}", *extra, **kw
+    )

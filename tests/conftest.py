@@ -66,11 +66,17 @@ def run_mousedom(
     )
 
 
-@pytest.fixture
-def external_captures() -> Path:
-    """The real recordings of ../shared/captures/external; CI always has them."""
+def external_dir() -> Path:
+    """The real recordings of ../shared/captures/external: CI always has them (missing there
+    is a failure); elsewhere a missing folder skips the test."""
     if not EXTERNAL_CAPTURES.is_dir():
         if os.environ.get("CI"):
             pytest.fail(f"{EXTERNAL_CAPTURES} is missing in CI")
         pytest.skip(f"{EXTERNAL_CAPTURES} not present (it sits beside the repo as shared/)")
     return EXTERNAL_CAPTURES
+
+
+@pytest.fixture
+def external_captures() -> Path:
+    """external_dir() as a fixture."""
+    return external_dir()

@@ -18,27 +18,12 @@ import time
 from pathlib import Path
 
 import numpy as np
+from test_evdev_fakes import report_bytes
 
 from mousedom import sim
-from mousedom.events import EV_REL, EV_SYN, EVENT_DTYPE, SYN_REPORT
 
 REPO = Path(__file__).resolve().parent.parent
-REL_X, REL_Y = 0, 1
 RATE = 50.0
-
-
-def input_events(t: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> bytes:
-    """Reports -> REL_X, REL_Y, SYN_REPORT records (3 per report), stamped t."""
-    n = len(t)
-    ev = np.zeros((n, 3), dtype=EVENT_DTYPE)
-    usec_total = np.round(np.asarray(t) * 1e6).astype(np.int64)
-    ev["sec"] = (usec_total // 1_000_000)[:, None]
-    ev["usec"] = (usec_total % 1_000_000)[:, None]
-    ev["type"] = [EV_REL, EV_REL, EV_SYN]
-    ev["code"] = [REL_X, REL_Y, SYN_REPORT]
-    ev["value"][:, 0] = dx
-    ev["value"][:, 1] = dy
-    return ev.tobytes()
 
 
 class FifoMouse:
@@ -112,7 +97,7 @@ class Feeder(threading.Thread):
                         done = False
                     if j > i:
                         if mouse.fd is not None:
-                            mouse.write(input_events(times[i:j], rep.dx[i:j], rep.dy[i:j]))
+                            mouse.write(report_bytes(times[i:j], rep.dx[i:j], rep.dy[i:j]))
                             self.sent[name] += j - i
                         cursor[name] = j
             if done:

@@ -13,6 +13,7 @@ from conftest import run_mousedom
 
 from mousedom.calibrate.synth import SynthMouse, build_motion, mouse_reports, twist_csv
 from mousedom.capture.base import DeviceInfo
+from mousedom.capture.evemu import format_evemu
 from mousedom.capture.native import NativeWriter
 from mousedom.sources.base import Reports
 
@@ -21,15 +22,7 @@ EPOCH = 1_700_000_000.0
 
 def write_evemu(path: Path, rep: Reports, t0: float = EPOCH) -> Path:
     """An old-style evemu .events file (E: lines only, epoch times)."""
-    lines = []
-    for t, dx, dy in zip(rep.t, rep.dx, rep.dy, strict=True):
-        stamp = f"{t + t0:.6f}"
-        if dx:
-            lines.append(f"E: {stamp} 0002 0000 {int(dx)}")
-        if dy:
-            lines.append(f"E: {stamp} 0002 0001 {int(dy)}")
-        lines.append(f"E: {stamp} 0000 0000 0")
-    path.write_text("\n".join(lines) + "\n")
+    path.write_text(format_evemu(np.asarray(rep.t) + t0, rep.dx, rep.dy, version=None))
     return path
 
 

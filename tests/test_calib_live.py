@@ -60,6 +60,13 @@ class Proc:
         self.p.stdin.write(text.encode())
         self.p.stdin.flush()
 
+    def end(self, writers: dict[str, int] | None = None) -> None:
+        """Teardown: close the mice's FIFO writers, kill the process if it is still up."""
+        for fd in (writers or {}).values():
+            os.close(fd)
+        if self.p.poll() is None:
+            self.p.kill()
+
 
 @pytest.fixture
 def rig(tmp_path):
@@ -113,10 +120,7 @@ def test_live_cpi_runs_with_enter_and_counts_on_fifos(rig):
         err = proc.err + err
         assert proc.p.returncode == 0, err.decode()
     finally:
-        for fd in writers.values():
-            os.close(fd)
-        if proc.p.poll() is None:
-            proc.p.kill()
+        proc.end(writers)
     doc = json.loads(out)
     inches = PUSH / 0.0254
     for name, counts in expected.items():
@@ -134,8 +138,7 @@ def test_live_quit_early_is_too_few_runs(rig):
         proc.enter("q\n")
         out, err = proc.p.communicate(timeout=30)
     finally:
-        if proc.p.poll() is None:
-            proc.p.kill()
+        proc.end()
     assert proc.p.returncode == 2
     assert b"found 0 run(s), need at least 2" in proc.err + err
     assert b"Traceback" not in proc.err + err
@@ -181,10 +184,7 @@ def test_live_mouse_unplugged_mid_run_is_a_clear_error(rig):
         os.close(writers.pop("left"))  # the writer going away is the unplug
         out, err = proc.p.communicate(timeout=30)
     finally:
-        for fd in writers.values():
-            os.close(fd)
-        if proc.p.poll() is None:
-            proc.p.kill()
+        proc.end(writers)
     text = (proc.err + err).decode()
     assert proc.p.returncode == 2, text
     assert "mouse left went away" in text and "Traceback" not in text
@@ -214,10 +214,7 @@ def test_live_distance_turns(rig):
         out, err = proc.p.communicate(timeout=30)
         assert proc.p.returncode == 0, (proc.err + err).decode()
     finally:
-        for fd in writers.values():
-            os.close(fd)
-        if proc.p.poll() is None:
-            proc.p.kill()
+        proc.end(writers)
     doc = json.loads(out)
     assert doc["runs"] == 2
     assert doc["distance"] == pytest.approx(2 * counts / 800 * 0.0254 / (np.pi / 2), abs=1e-6)

@@ -72,11 +72,19 @@ def paths(root: Path) -> SystemPaths:
     return SystemPaths.under(str(root))
 
 
+def report_bytes(t, dx, dy) -> bytes:
+    """Reports -> REL_X, REL_Y, SYN_REPORT records (3 per report), all three stamped t."""
+    n = len(t)
+    return encode_input_events(
+        np.repeat(np.asarray(t, dtype=np.float64), 3),
+        np.tile([EV_REL, EV_REL, EV_SYN], n),
+        np.tile([REL_X, REL_Y, SYN_REPORT], n),
+        np.column_stack([dx, dy, np.zeros(n, dtype=np.int64)]).astype(np.int64).ravel(),
+    )
+
+
 def motion_bytes(t0: float, dxs, dys, dt: float = 0.008) -> bytes:
-    """One SYN_REPORT frame per (dx, dy), REL_X then REL_Y then SYN_REPORT."""
-    rows = []
-    for i, (dx, dy) in enumerate(zip(dxs, dys, strict=True)):
-        t = t0 + i * dt
-        rows += [(t, EV_REL, REL_X, dx), (t, EV_REL, REL_Y, dy), (t, EV_SYN, SYN_REPORT, 0)]
-    a = np.array(rows, dtype=np.float64).reshape(-1, 4)
-    return encode_input_events(a[:, 0], a[:, 1], a[:, 2], a[:, 3].astype(np.int64))
+    """One SYN_REPORT frame per (dx, dy), ``dt`` apart from ``t0``."""
+    if len(dxs) != len(dys):
+        raise ValueError(f"{len(dxs)} dx values, {len(dys)} dy values")
+    return report_bytes(t0 + np.arange(len(dxs)) * dt, dxs, dys)

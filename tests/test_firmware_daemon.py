@@ -9,12 +9,12 @@ test_firmware_build.py."""
 from __future__ import annotations
 
 import os
-import subprocess
 import time
 
 import pytest
 from daemon_fixtures import Conn, DaemonProcess
 from test_firmware_build import make, require_toolchain  # tests/ is on sys.path
+from test_firmware_sim import start_sim, stop_sim
 
 
 @pytest.fixture(scope="module")
@@ -27,13 +27,7 @@ def build(tmp_path_factory):
 
 
 def test_daemon_tracks_the_simulated_sensor(build, tmp_path):
-    sim = subprocess.Popen(
-        [str(build / "adns_sim"), str(build / "downsampler.elf"), "--wait-start"]
-        + ["--duration", "1.6", "--seg", "0.5:0:2", "--seg", "1.0:0:0"],
-        stdin=subprocess.PIPE,
-        stdout=subprocess.PIPE,
-        bufsize=0,
-    )
+    sim = start_sim(build, "--duration", "1.6", "--seg", "0.5:0:2", "--seg", "1.0:0:0")
     daemon = conn = None
     try:
         pty = None
@@ -80,12 +74,4 @@ def test_daemon_tracks_the_simulated_sensor(build, tmp_path):
             conn.close()
         if daemon is not None:
             daemon.stop()
-        try:
-            sim.stdin.close()
-        except OSError:
-            pass
-        try:
-            sim.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            sim.kill()
-            sim.wait()
+        stop_sim(sim, timeout=10)

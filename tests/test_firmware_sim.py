@@ -61,13 +61,32 @@ class SimRun:
         return [p for p in self.packets if isinstance(p, P.Status)]
 
 
-def run_sim(build: Path, *args: str, k: int = 12, cpi: int = 1600, timeout: float = 60) -> SimRun:
-    proc = subprocess.Popen(
+def start_sim(build: Path, *args: str) -> subprocess.Popen:
+    """The firmware in simavr beside the ADNS-3080 model; it prints "PTY <path>" and waits
+    for "go" on its stdin."""
+    return subprocess.Popen(
         [str(build / "adns_sim"), str(build / "downsampler.elf"), "--wait-start", *args],
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
         bufsize=0,
     )
+
+
+def stop_sim(proc: subprocess.Popen, timeout: float) -> None:
+    """Close its stdin (the simulator's cue to end) and reap it, killed if it lingers."""
+    try:
+        proc.stdin.close()
+    except OSError:
+        pass
+    try:
+        proc.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+
+
+def run_sim(build: Path, *args: str, k: int = 12, cpi: int = 1600, timeout: float = 60) -> SimRun:
+    proc = start_sim(build, *args)
     lines: list[str] = []
     pending = b""
 
@@ -115,15 +134,7 @@ def run_sim(build: Path, *args: str, k: int = 12, cpi: int = 1600, timeout: floa
                             summary = json.loads(x[len("SUMMARY ") :])
         assert summary is not None, "the simulation did not finish:\n" + "\n".join(lines)
     finally:
-        try:
-            proc.stdin.close()
-        except OSError:
-            pass
-        try:
-            proc.wait(timeout=5)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        stop_sim(proc, timeout=5)
     run = SimRun(summary=summary, source=src, raw=raw)
     run.t = np.concatenate([r.t for r in reports]) if reports else np.zeros(0)
     run.dx = np.concatenate([r.dx for r in reports]) if reports else np.zeros(0)

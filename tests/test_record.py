@@ -52,6 +52,12 @@ def start(*args: str) -> subprocess.Popen:
     )
 
 
+def stop(p: subprocess.Popen, sig: int) -> str:
+    """Signal a running recorder and wait for it to end; its stderr."""
+    p.send_signal(sig)
+    return p.communicate(timeout=20)[1]
+
+
 def read_capture(path: Path):
     cap = NativeCapture(str(path))
     motion: dict[str, list] = {d.mouse: [[], [], []] for d in cap.devices}
@@ -91,8 +97,7 @@ def test_sigint_closes_cleanly_with_every_count(tmp_path):
                     w, motion_bytes(t0 + lo * 0.001, dx[lo : lo + 100], dy[lo : lo + 100], dt=0.001)
                 )
         time.sleep(0.6)
-        p.send_signal(signal.SIGINT)
-        _, err = p.communicate(timeout=20)
+        err = stop(p, signal.SIGINT)
     finally:
         p.kill()
     assert p.returncode == 0, err
@@ -223,8 +228,7 @@ def test_serial_bytes_recorded_raw(tmp_path):
             os.write(master, payload[i : i + 37])
             time.sleep(0.005)
         time.sleep(0.5)
-        p.send_signal(signal.SIGTERM)
-        _, err = p.communicate(timeout=20)
+        err = stop(p, signal.SIGTERM)
     finally:
         p.kill()
     assert p.returncode == 0, err
@@ -284,8 +288,7 @@ def test_recording_replays_to_the_motion_that_was_made(tmp_path):
         for w in ws:  # forward = -REL_Y (the mouse moves away from its user)
             os.write(w, motion_bytes(t0, [0] * 100, [-10] * 100, dt=0.008))
         time.sleep(0.5)
-        p.send_signal(signal.SIGTERM)
-        _, err = p.communicate(timeout=20)
+        err = stop(p, signal.SIGTERM)
     finally:
         p.kill()
     assert p.returncode == 0, err
@@ -457,8 +460,7 @@ def test_a_stream_with_backward_stamps_records_a_replayable_file(tmp_path):
         time.sleep(0.3)  # a later read, and a later chunk in the file
         os.write(w, motion_bytes(t0 - 5, [4, 5], [0, 0], dt=0.01))
         time.sleep(0.3)
-        p.send_signal(signal.SIGINT)
-        _, err = p.communicate(timeout=20)
+        err = stop(p, signal.SIGINT)
         os.close(w)
     finally:
         p.kill()

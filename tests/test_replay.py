@@ -11,7 +11,15 @@ import sys
 
 import numpy as np
 import pytest
-from capture_helpers import EXTERNAL, GOLDEN, drain, external_dir, one_mouse_config
+from capture_helpers import (
+    EXTERNAL,
+    GOLDEN,
+    PS2,
+    drain,
+    external_dir,
+    one_mouse_config,
+    replay_ps2,
+)
 from conftest import mousedom_env, run_mousedom
 
 from mousedom import sim
@@ -20,8 +28,6 @@ from mousedom.capture.evemu import format_evemu
 from mousedom.capture.libinput import format_libinput
 from mousedom.config import parse_config
 from mousedom.replay import CsvSink, Replay, read_csv
-
-PS2 = "evemu-devices__PS2_Generic_Mouse.events"
 
 
 def _ok(proc):
@@ -61,11 +67,7 @@ def test_golden_trajectory_ps2_mouse(tmp_path):
     """Regression: PS/2 mouse replay against tests/golden (MOUSEDOM_REGEN_GOLDEN=1 rewrites)."""
     cfg = GOLDEN / "ps2_generic_mouse.yaml"
     out = tmp_path / "ps2.csv"
-    _ok(
-        run_mousedom(
-            "replay", "--config", str(cfg), "--capture", f"m={external_dir() / PS2}", "-o", str(out)
-        )
-    )
+    _ok(replay_ps2(cfg, "-o", str(out)))
     golden = GOLDEN / "ps2_generic_mouse.csv"
     if os.environ.get("MOUSEDOM_REGEN_GOLDEN") == "1":
         golden.write_text(out.read_text())
@@ -253,12 +255,8 @@ def test_garbage_capture_and_missing_file(tmp_path):
     png.write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(100))
     _fails(run_mousedom("replay", "--config", str(cfg), "--capture", f"m={png}"), "x.png")
     _fails(
-        run_mousedom(
-            "replay",
-            "--config",
-            str(cfg),
-            "--capture",
-            f"m={external_dir() / PS2}",
+        replay_ps2(
+            cfg,
             "--speed",
             "-1",
         ),
@@ -283,12 +281,8 @@ def test_plot_writes_a_png(tmp_path):
     cfg = one_mouse_config(tmp_path)
     png = tmp_path / "p.png"
     _ok(
-        run_mousedom(
-            "replay",
-            "--config",
-            str(cfg),
-            "--capture",
-            f"m={external_dir() / PS2}",
+        replay_ps2(
+            cfg,
             "--plot",
             str(png),
         )
@@ -304,12 +298,8 @@ def test_plot_without_matplotlib_says_how_to_install(tmp_path):
     env["PYTHONPATH"] = str(fake) + os.pathsep + env["PYTHONPATH"]
     cfg = one_mouse_config(tmp_path)
     line = _fails(
-        run_mousedom(
-            "replay",
-            "--config",
-            str(cfg),
-            "--capture",
-            f"m={external_dir() / PS2}",
+        replay_ps2(
+            cfg,
             "--plot",
             str(tmp_path / "p.png"),
             env=env,

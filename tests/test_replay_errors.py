@@ -8,10 +8,8 @@ import subprocess
 import sys
 
 import pytest
-from capture_helpers import external_dir, one_mouse_config
+from capture_helpers import PS2, external_dir, one_mouse_config, replay_ps2
 from conftest import mousedom_env, run_mousedom
-
-PS2 = "evemu-devices__PS2_Generic_Mouse.events"
 
 needs_dev_full = pytest.mark.skipif(
     not os.path.exists("/dev/full") and not os.environ.get("CI"), reason="no /dev/full"
@@ -30,9 +28,7 @@ def _one_error_line(stderr: str, *needles: str) -> str:
 @needs_dev_full
 def test_replay_csv_to_a_full_disk_is_one_line(tmp_path):
     cfg = one_mouse_config(tmp_path, rate=1000)
-    proc = run_mousedom(
-        "replay", "--config", str(cfg), "--capture", f"m={external_dir() / PS2}", "-o", "/dev/full"
-    )
+    proc = replay_ps2(cfg, "-o", "/dev/full")
     assert proc.returncode != 0
     _one_error_line(proc.stderr, "/dev/full", "cannot write")
 
@@ -218,9 +214,7 @@ def test_model_override_the_rig_cannot_support_is_refused(tmp_path, model, why):
     """--model skipped the config's own check: lsq on one mouse solved no window and
     ended at (0, 0, 0) with exit 0; bonarini was a ValueError traceback."""
     cfg = one_mouse_config(tmp_path)
-    proc = run_mousedom(
-        "replay", "--config", str(cfg), "--capture", f"m={external_dir() / PS2}", "--model", model
-    )
+    proc = replay_ps2(cfg, "--model", model)
     assert proc.returncode != 0
     _one_error_line(proc.stderr, f"--model {model}", why, "one.yaml")
 
