@@ -75,6 +75,19 @@ class DeviceInfo:
         return cls(**known)
 
 
+# The counters a converted source carries along (native NOTE chunks) and that add up.
+SOURCE_COUNTERS = (
+    "events",
+    "frames",
+    "skipped",
+    "dropped_frames",
+    "dropped_events",
+    "lost_x",
+    "lost_y",
+    "unterminated",
+)
+
+
 @dataclass
 class DeviceStats:
     """What a reader saw of one device; filled in while the capture streams."""
@@ -123,16 +136,7 @@ class DeviceStats:
 
     def merge(self, other: DeviceStats) -> None:
         """Add counters recorded elsewhere (e.g. a native file's notes of its source)."""
-        for name in (
-            "events",
-            "frames",
-            "skipped",
-            "dropped_frames",
-            "dropped_events",
-            "lost_x",
-            "lost_y",
-            "unterminated",
-        ):
+        for name in SOURCE_COUNTERS:
             setattr(self, name, getattr(self, name) + getattr(other, name))
 
     def as_dict(self) -> dict[str, Any]:

@@ -35,6 +35,7 @@ from typing import Any, BinaryIO
 import numpy as np
 
 from mousedom.capture.base import (
+    SOURCE_COUNTERS,
     TIME_BASES,
     Batch,
     Capture,
@@ -56,16 +57,7 @@ MOTION, SERIAL, NOTE, SYNC = 1, 2, 3, 4
 KINDS = (MOTION, SERIAL, NOTE, SYNC)
 ZLIB = 1
 MAX_CHUNK = 64 << 20  # larger payloads are corruption, not data
-NOTE_FIELDS = (
-    "events",
-    "frames",
-    "skipped",
-    "dropped_frames",
-    "dropped_events",
-    "lost_x",
-    "lost_y",
-    "unterminated",
-)
+NOTE_FIELDS = SOURCE_COUNTERS
 
 
 # --------------------------------------------------------------------------- writer
