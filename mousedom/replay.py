@@ -21,7 +21,7 @@ from typing import TextIO
 
 import numpy as np
 
-from mousedom.capture import Assignment, Capture, time_offset
+from mousedom.capture import Assignment, Capture, captures_of, mice_by_device, time_offset
 from mousedom.capture.base import DeviceStats, Serial
 from mousedom.config import Config
 from mousedom.tracker import PoseBatch, Tracker
@@ -139,10 +139,7 @@ class Replay:
     ) -> None:
         self.config = config
         self.assignments = assignments
-        self.captures: list[Capture] = []
-        for a in assignments:
-            if all(a.capture is not c for c in self.captures):
-                self.captures.append(a.capture)
+        self.captures = captures_of(assignments)
         self.offset, warnings = time_offset(self.captures)
         self.warnings = list(warnings)
         firsts = [
@@ -164,10 +161,7 @@ class Replay:
         summary = Summary(self.config.names)
         states: list[_FeedState] = []
         for cap in self.captures:
-            devmap: dict[int, tuple[int, ...]] = {}
-            for a in self.assignments:
-                if a.capture is cap:
-                    devmap[a.device] = devmap.get(a.device, ()) + (a.mouse,)
+            devmap = mice_by_device(self.assignments, cap)
             for feed in cap.feeds():
                 mice = {d: devmap[d] for d in feed.devices if d in devmap}
                 if mice:
