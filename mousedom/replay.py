@@ -22,7 +22,7 @@ from typing import TextIO
 import numpy as np
 
 from mousedom.capture import Assignment, Capture, captures_of, mice_by_device, time_offset
-from mousedom.capture.base import DeviceStats, Serial
+from mousedom.capture.base import DeviceStats
 from mousedom.config import Config
 from mousedom.tracker import PoseBatch, Tracker
 
@@ -37,21 +37,6 @@ SERIAL_MARGIN_S = 0.1
 
 # The most windows closed at once (bounded memory however long a pause in the input).
 MAX_WINDOWS = 16384
-
-
-def decode_serial(decoder, chunk: Serial, offset: float) -> tuple[np.ndarray, ...]:
-    """Raw serial pieces -> (t, dx, dy) reports through the daemon's own ADNS decoder."""
-    ts, dxs, dys = [], [], []
-    for host_t, data in zip(chunk.t.tolist(), chunk.data, strict=True):
-        reports, _ = decoder.feed(data, host_t - offset)
-        if len(reports):
-            ts.append(reports.t)
-            dxs.append(reports.dx)
-            dys.append(reports.dy)
-    if not ts:
-        e = np.empty(0)
-        return e, e, e
-    return np.concatenate(ts), np.concatenate(dxs), np.concatenate(dys)
 
 
 @dataclass
@@ -240,11 +225,11 @@ class Replay:
                     continue
                 dec = st.decoders.get(chunk.device)
                 if dec is None:
-                    from mousedom.adns_decode import AdnsDecoder
+                    from mousedom.sources.adns import replay_decoder
 
-                    name = self.config.names[mice[0]]
-                    dec = st.decoders[chunk.device] = AdnsDecoder(name=name)
-                t, dx, dy = decode_serial(dec, chunk, st.offset)
+                    dec = st.decoders[chunk.device] = replay_decoder(self.config.mice[mice[0]])
+                r = dec.feed_many(chunk.t - st.offset, chunk.data)
+                t, dx, dy = r.t, r.dx, r.dy
                 if len(t):
                     for mouse in mice:
                         queue(mouse, t, dx, dy)

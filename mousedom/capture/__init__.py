@@ -325,14 +325,14 @@ def read_reports(
                     if chunk.device in wanted:
                         # Raw ADNS-3080 bytes: the daemon's own decoder, on the file's times
                         # (the epoch offset is applied below, as for motion).
-                        from mousedom.adns_decode import AdnsDecoder
-                        from mousedom.replay import decode_serial
+                        from mousedom.sources.adns import replay_decoder
 
-                        name = config.mice[wanted[chunk.device][0]].name
                         dec = decoders.get(chunk.device)
                         if dec is None:  # not setdefault: that would build one per chunk
-                            dec = decoders[chunk.device] = AdnsDecoder(name=name)
-                        t, dx, dy = decode_serial(dec, chunk, 0.0)
+                            mouse = config.mice[wanted[chunk.device][0]]
+                            dec = decoders[chunk.device] = replay_decoder(mouse)
+                        r = dec.feed_many(chunk.t, chunk.data)
+                        t, dx, dy = r.t, r.dx, r.dy
                         cap.stats[chunk.device].add_motion(t, dx, dy)
                         for mouse in wanted[chunk.device]:
                             parts[mouse].append(Motion(chunk.device, t, dx, dy))
