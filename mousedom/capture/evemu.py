@@ -23,7 +23,6 @@ fails the quick checks is parsed again line by line to name the exact line at fa
 
 from __future__ import annotations
 
-import os
 import re
 from collections.abc import Iterator
 from pathlib import Path
@@ -154,7 +153,7 @@ class EvemuCapture(Capture):
                 head.append(raw)
                 self._body_offset += len(raw)
         self._body_line = len(head) + 1
-        if not desc_path and not b"".join(head).strip() and self._body_offset == self._size():
+        if not desc_path and not b"".join(head).strip() and self._body_offset == self.bytes_total:
             # Nothing at all, not even a header: a recording that never started, or the
             # wrong file; replaying it would print a CSV without a pose and exit 0.
             raise CaptureError(f"{self.path}: empty file (no evemu header and no events)")
@@ -163,9 +162,6 @@ class EvemuCapture(Capture):
         self.reset_stats()
         t0 = self.first_time()
         self.time_base = "epoch" if t0 is not None and t0 > EPOCH_THRESHOLD else "relative"
-
-    def _size(self) -> int:
-        return os.path.getsize(self.path)
 
     def first_time(self) -> float | None:
         with _open(self.path) as f:
