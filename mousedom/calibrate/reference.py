@@ -22,6 +22,7 @@ import numpy as np
 
 from mousedom import models
 from mousedom.calibrate.csvtext import content_lines, fields, finite, header_names
+from mousedom.config import WheelsConfig
 from mousedom.errors import UserError, located
 
 TWIST = ("t", "vx", "vy", "omega")
@@ -36,12 +37,8 @@ class Reference:
     path: str | None = None
 
 
-@dataclass(frozen=True)
-class WheelGeometry:
-    radius_left: float
-    radius_right: float
-    track: float
-    ticks_per_rev: float
+# The config's wheels: section has exactly these fields; one class, not two to keep in step.
+WheelGeometry = WheelsConfig
 
 
 def parse_reference(text: str, path: str | None = None) -> Reference:

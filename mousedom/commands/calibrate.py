@@ -315,10 +315,7 @@ def _wheel_geometry(args: argparse.Namespace, config: Config) -> WheelGeometry |
         return WheelGeometry(args.wheel_radius, args.wheel_radius, args.track, args.ticks_per_rev)
     if any(v is not None for v in given):
         raise UserError("--wheel-radius, --ticks-per-rev and --track go together")
-    if config.wheels:
-        w = config.wheels
-        return WheelGeometry(w.radius_left, w.radius_right, w.track, w.ticks_per_rev)
-    return None
+    return config.wheels  # None when the config has no wheels: section
 
 
 def run_mounts(args: argparse.Namespace) -> int:
