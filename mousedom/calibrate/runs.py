@@ -106,7 +106,21 @@ def window_counts(
     t: np.ndarray, values: np.ndarray, edges: np.ndarray, period: float
 ) -> np.ndarray:
     """Counts per window (edges[k], edges[k+1]], each report spread over its span."""
+    return _windows(*cumulative(t, values, period), edges)
+
+
+def runs_window_counts(
+    t: np.ndarray, values: np.ndarray, edges: Sequence[np.ndarray], period: float
+) -> np.ndarray:
+    """``window_counts`` for every run's edges, concatenated; the cumulative sum of the
+    whole recording is built once, not once per run."""
     x, y = cumulative(t, values, period)
+    if not len(edges):
+        return np.zeros(0)
+    return np.concatenate([_windows(x, y, e) for e in edges])
+
+
+def _windows(x: np.ndarray, y: np.ndarray, edges: np.ndarray) -> np.ndarray:
     at = np.interp(np.asarray(edges, dtype=float), x, y, left=0.0, right=y[-1])
     return np.diff(at)
 
