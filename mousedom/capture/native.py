@@ -203,7 +203,7 @@ class NativeWriter:
             if len(packed) < len(payload):
                 payload, flags = packed, ZLIB
         head = CHUNK.pack(CHUNK_MAGIC, kind, flags, source, count, len(payload), 0)[:16]
-        crc = zlib.crc32(payload, zlib.crc32(head))
+        crc = _chunk_crc(head, payload)
         self._f.write(head + struct.pack("<I", crc) + payload)
         self._f.flush()
         if self.fsync:
@@ -242,10 +242,7 @@ class NativeCapture(Capture):
         if self._first is False:
             first = None
             for kind, _source, count, payload, _ in self._chunks(check_tail=False):
-                if kind == MOTION and count:
-                    t = np.frombuffer(payload, "<f8", count)
-                    first = float(t[0]) if first is None else min(first, float(t[0]))
-                elif kind == SERIAL and count:
+                if kind in (MOTION, SERIAL) and count:  # both start with the f8 times
                     t = np.frombuffer(payload, "<f8", count)
                     first = float(t[0]) if first is None else min(first, float(t[0]))
                 elif kind == SYNC and first is not None:
@@ -332,7 +329,7 @@ class NativeCapture(Capture):
                     payload = reader.read(size)
                     if len(payload) < size:
                         bad = "chunk cut short"
-                    elif zlib.crc32(payload, zlib.crc32(head[:16])) != crc:
+                    elif _chunk_crc(head, payload) != crc:
                         bad = "chunk CRC mismatch"
                 if bad is not None:
                     if check_tail:
@@ -362,7 +359,7 @@ class NativeCapture(Capture):
             if len(head) == CHUNK.size and _check_chunk_head(head) is None:
                 *_, size_, crc = CHUNK.unpack(head)
                 payload = rest[at + CHUNK.size : at + CHUNK.size + size_]
-                if len(payload) == size_ and zlib.crc32(payload, zlib.crc32(head[:16])) == crc:
+                if len(payload) == size_ and _chunk_crc(head, payload) == crc:
                     raise CaptureError(
                         located(
                             self.path,
@@ -380,6 +377,11 @@ class NativeCapture(Capture):
             f"{self.path}: byte offset {offset}: {why}; the last {torn} bytes are an "
             "unfinished chunk (recording interrupted) and were skipped"
         )
+
+
+def _chunk_crc(head: bytes, payload: bytes) -> int:
+    """CRC-32 over the first 16 bytes of the chunk header and the payload as stored."""
+    return zlib.crc32(payload, zlib.crc32(head[:16]))
 
 
 def _check_chunk_head(head: bytes) -> str | None:
