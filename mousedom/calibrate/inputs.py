@@ -18,8 +18,7 @@ from __future__ import annotations
 import os
 from collections.abc import Sequence
 
-import numpy as np
-
+from mousedom.calibrate.runs import in_time_order
 from mousedom.capture import Capture, CaptureError, assign, parse_capture_arg
 from mousedom.config import Config, Mount, MouseConfig
 from mousedom.errors import UserError
@@ -58,11 +57,7 @@ def read_motion(cap: Capture, index: int, name: str, mouse: MouseConfig | None =
             f"{st.crc_errors} CRC errors, {st.bad_frames} bad frames): their counts are "
             "missing, so a calibration from it would be wrong"
         )
-    if not ts:
-        return Reports(name, np.zeros(0), np.zeros(0), np.zeros(0))
-    t = np.concatenate(ts)
-    order = np.argsort(t, kind="stable")
-    return Reports(name, t[order], np.concatenate(dxs)[order], np.concatenate(dys)[order])
+    return in_time_order(name, ts, dxs, dys)
 
 
 def load_captures(specs: Sequence[str], config: Config) -> dict[str, Reports]:

@@ -33,6 +33,17 @@ class Run:
         return self.t1 - self.t0
 
 
+def in_time_order(
+    name: str, ts: Sequence[np.ndarray], dxs: Sequence[np.ndarray], dys: Sequence[np.ndarray]
+) -> Reports:
+    """Pieces of one mouse's reports as one ``Reports``, stably sorted by stamp."""
+    if not ts:
+        return Reports(name, np.zeros(0), np.zeros(0), np.zeros(0))
+    t = np.concatenate(ts)
+    order = np.argsort(t, kind="stable")
+    return Reports(name, t[order], np.concatenate(dxs)[order], np.concatenate(dys)[order])
+
+
 def moving(rep: Reports) -> np.ndarray:
     """Stamps of the reports of ``rep`` that carry motion."""
     keep = (np.asarray(rep.dx) != 0) | (np.asarray(rep.dy) != 0)
