@@ -75,6 +75,13 @@ class DeviceInfo:
         return cls(**known)
 
 
+def sec_usec(t: np.ndarray) -> tuple[list[int], list[int]]:
+    """Seconds to the (sec, usec) pairs the text formats write, rounded to the microsecond."""
+    us = np.round(np.asarray(t, dtype=np.float64) * 1e6).astype(np.int64)
+    sec, usec = np.divmod(us, 1_000_000)
+    return sec.tolist(), usec.tolist()
+
+
 # The counters a converted source carries along (native NOTE chunks) and that add up.
 SOURCE_COUNTERS = (
     "events",

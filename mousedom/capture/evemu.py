@@ -37,6 +37,7 @@ from mousedom.capture.base import (
     DeviceInfo,
     Feed,
     FrameBatcher,
+    sec_usec,
 )
 from mousedom.capture.base import open_binary as _open
 from mousedom.capture.evemu_lines import Events as _Events  # noqa: F401 (tests use it)
@@ -286,12 +287,11 @@ def format_evemu(
             "B: 01 00 00 07 00 00 00 00 00",
             "B: 02 03 01 00 00 00 00 00 00",
         ]
-    us = np.round(np.asarray(t, dtype=np.float64) * 1e6).astype(np.int64)
-    sec, usec = np.divmod(us, 1_000_000)
+    sec, usec = sec_usec(t)
     cx = "\t# EV_REL / REL_X" if comments else ""
     cy = "\t# EV_REL / REL_Y" if comments else ""
     cs = "\t# ------------ SYN_REPORT (0) ----------" if comments else ""
-    for s, u, x, y in zip(sec.tolist(), usec.tolist(), dx.tolist(), dy.tolist(), strict=True):
+    for s, u, x, y in zip(sec, usec, dx.tolist(), dy.tolist(), strict=True):
         stamp = f"E: {s}.{u:06d}"
         if x:
             lines.append(f"{stamp} 0002 0000 {int(x):04d}{cx}")
