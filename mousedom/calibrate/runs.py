@@ -150,6 +150,16 @@ def run_windows(runs: Sequence[Run], window: float, margin: float) -> list[np.nd
     return out
 
 
+def run_spread(per_run: np.ndarray, tolerance: float) -> tuple[float, float, np.ndarray]:
+    """Mean, standard error of the mean, and the indices of the runs whose value is off
+    the mean by more than ``tolerance`` (relative): what CPI and distance report."""
+    per_run = np.asarray(per_run, dtype=float)
+    mean = float(np.mean(per_run))
+    stderr = float(np.std(per_run, ddof=1) / np.sqrt(len(per_run)))
+    off = np.flatnonzero(np.abs(per_run - mean) / mean > tolerance)
+    return mean, stderr, off
+
+
 def need_runs(found: int, needed: int, what: str, gap: float) -> None:
     """Raise a UserError when fewer than ``needed`` runs were found."""
     if found < needed:
