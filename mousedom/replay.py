@@ -22,7 +22,7 @@ from typing import TextIO
 import numpy as np
 
 from mousedom.capture import Assignment, Capture, captures_of, mice_by_device, time_offset
-from mousedom.capture.base import DeviceStats
+from mousedom.capture.base import DeviceStats, lagging_first
 from mousedom.config import Config
 from mousedom.tracker import PoseBatch, Tracker
 
@@ -204,14 +204,8 @@ class Replay:
             pending[mouse].append((np.asarray(t, np.float64), dx, dy))
             last_t = max(last_t, float(t[-1]))
 
-        while True:
-            live = [s for s in states if not s.done]
-            if not live:
-                break
-            st = min(live, key=lambda s: s.watermark)
-            batch = next(st.feed.batches, None)
+        for st, batch in lagging_first(states):
             if batch is None:
-                st.done = True
                 ended.extend(m for mice in st.mice.values() for m in mice)
                 continue
             for mo in batch.motion:

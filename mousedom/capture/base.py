@@ -215,6 +215,22 @@ class Feed:
     batches: Iterator[Batch]
 
 
+def lagging_first(states: list) -> Iterator[tuple[Any, Batch | None]]:
+    """Merge feeds by time: yield ``(state, batch)`` always from the state whose
+    ``watermark`` lags most among those not ``done``.  A state whose feed has ended is
+    marked done and yielded once with ``None``.  The caller moves ``state.watermark``
+    (``state.feed`` is a ``Feed``); so memory holds about one batch per feed."""
+    while True:
+        live = [s for s in states if not s.done]
+        if not live:
+            return
+        st = min(live, key=lambda s: s.watermark)
+        batch = next(st.feed.batches, None)
+        if batch is None:
+            st.done = True
+        yield st, batch
+
+
 class Capture(ABC):
     """A capture file opened for streaming; see the module docstring."""
 

@@ -25,7 +25,7 @@ from mousedom.capture import (
     parse_capture_arg,
     time_offset,
 )
-from mousedom.capture.base import TIME_BASES
+from mousedom.capture.base import TIME_BASES, lagging_first
 from mousedom.errors import UserError
 
 
@@ -217,14 +217,8 @@ def convert(
         meta=meta,
     ) as w:
         synced = -math.inf
-        while True:
-            live = [s for s in states if not s.done]
-            if not live:
-                break
-            st = min(live, key=lambda s: s.watermark)
-            batch = next(st.feed.batches, None)
+        for st, batch in lagging_first(states):
             if batch is None:
-                st.done = True
                 continue
             for mo in batch.motion:
                 if mo.device in st.out and len(mo.t):
