@@ -220,8 +220,7 @@ def decode_body(body: bytes, host_t: float | None = None) -> Packet:
     """Check and unpack one decoded body; ValueError (with the reason) when it is bad."""
     if len(body) < 3:
         raise ValueError("frame too short")
-    got = body[-2] | (body[-1] << 8)
-    if crc16(body[:-2]) != got:
+    if not _crc_ok(body):
         raise _CrcError("CRC mismatch")
     ptype, payload = body[0], body[1:-2]
     if ptype not in _LAYOUT:
@@ -236,6 +235,11 @@ def decode_body(body: bytes, host_t: float | None = None) -> Packet:
 
 class _CrcError(ValueError):
     pass
+
+
+def _crc_ok(body: bytes) -> bool:
+    """The last two bytes of a decoded body are the CRC of the rest, little-endian."""
+    return crc16(body[:-2]) == body[-2] | (body[-1] << 8)
 
 
 def _check_values(p: Packet) -> None:
@@ -354,7 +358,7 @@ def parse_commands(data: bytes) -> list[tuple[int, int | None]]:
             body = cobs_decode(chunk)
         except ValueError:
             continue
-        if len(body) < 3 or crc16(body[:-2]) != body[-2] | (body[-1] << 8):
+        if len(body) < 3 or not _crc_ok(body):
             continue
         cmd, args = body[0], body[1:-2]
         if cmd == CMD_SET_K and len(args) == 1:

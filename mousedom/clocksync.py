@@ -109,10 +109,6 @@ class ClockSync:
         self._last_out = out
         return out
 
-    def to_host(self, f: float) -> float:
-        """Map without adding an observation (for times between packets)."""
-        return f + self.offset(f)
-
     def _fit(self) -> None:
         pts = [(b.f, b.off) for b in self._buckets]
         if len(pts) < 2 or pts[-1][0] - pts[0][0] < self.min_span:

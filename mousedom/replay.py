@@ -21,8 +21,8 @@ from typing import TextIO
 
 import numpy as np
 
-from mousedom.capture import Assignment, Capture, time_offset
-from mousedom.capture.base import DeviceStats, Serial
+from mousedom.capture import Assignment, Capture, captures_of, mice_by_device, time_offset
+from mousedom.capture.base import DeviceStats, lagging_first
 from mousedom.config import Config
 from mousedom.tracker import PoseBatch, Tracker
 
@@ -37,21 +37,6 @@ SERIAL_MARGIN_S = 0.1
 
 # The most windows closed at once (bounded memory however long a pause in the input).
 MAX_WINDOWS = 16384
-
-
-def decode_serial(decoder, chunk: Serial, offset: float) -> tuple[np.ndarray, ...]:
-    """Raw serial pieces -> (t, dx, dy) reports through the daemon's own ADNS decoder."""
-    ts, dxs, dys = [], [], []
-    for host_t, data in zip(chunk.t.tolist(), chunk.data, strict=True):
-        reports, _ = decoder.feed(data, host_t - offset)
-        if len(reports):
-            ts.append(reports.t)
-            dxs.append(reports.dx)
-            dys.append(reports.dy)
-    if not ts:
-        e = np.empty(0)
-        return e, e, e
-    return np.concatenate(ts), np.concatenate(dxs), np.concatenate(dys)
 
 
 @dataclass
@@ -139,10 +124,7 @@ class Replay:
     ) -> None:
         self.config = config
         self.assignments = assignments
-        self.captures: list[Capture] = []
-        for a in assignments:
-            if all(a.capture is not c for c in self.captures):
-                self.captures.append(a.capture)
+        self.captures = captures_of(assignments)
         self.offset, warnings = time_offset(self.captures)
         self.warnings = list(warnings)
         firsts = [
@@ -164,10 +146,7 @@ class Replay:
         summary = Summary(self.config.names)
         states: list[_FeedState] = []
         for cap in self.captures:
-            devmap: dict[int, tuple[int, ...]] = {}
-            for a in self.assignments:
-                if a.capture is cap:
-                    devmap[a.device] = devmap.get(a.device, ()) + (a.mouse,)
+            devmap = mice_by_device(self.assignments, cap)
             for feed in cap.feeds():
                 mice = {d: devmap[d] for d in feed.devices if d in devmap}
                 if mice:
@@ -225,14 +204,8 @@ class Replay:
             pending[mouse].append((np.asarray(t, np.float64), dx, dy))
             last_t = max(last_t, float(t[-1]))
 
-        while True:
-            live = [s for s in states if not s.done]
-            if not live:
-                break
-            st = min(live, key=lambda s: s.watermark)
-            batch = next(st.feed.batches, None)
+        for st, batch in lagging_first(states):
             if batch is None:
-                st.done = True
                 ended.extend(m for mice in st.mice.values() for m in mice)
                 continue
             for mo in batch.motion:
@@ -246,11 +219,11 @@ class Replay:
                     continue
                 dec = st.decoders.get(chunk.device)
                 if dec is None:
-                    from mousedom.adns_decode import AdnsDecoder
+                    from mousedom.sources.adns import replay_decoder
 
-                    name = self.config.names[mice[0]]
-                    dec = st.decoders[chunk.device] = AdnsDecoder(name=name)
-                t, dx, dy = decode_serial(dec, chunk, st.offset)
+                    dec = st.decoders[chunk.device] = replay_decoder(self.config.mice[mice[0]])
+                r = dec.feed_many(chunk.t - st.offset, chunk.data)
+                t, dx, dy = r.t, r.dx, r.dy
                 if len(t):
                     for mouse in mice:
                         queue(mouse, t, dx, dy)

@@ -11,6 +11,7 @@ CLI layers are ``mousedom/commands/calibrate.py`` and ``mousedom/commands/umbmar
 - ``mounts``: Kim & Lee section IV (linearised), and an exact per-mouse fit.
 - ``reference``: the REF.csv reader (body twist or wheel ticks, McGill model).
 - ``umbmark``: Borenstein & Feng's UMBmark figures.
+- ``csvtext``: what the REF.csv and RUNS.csv readers share (lines, fields, finite numbers).
 - ``synth``: exact synthetic rigs for the tests and the benchmark.
 - ``inputs``: ``--capture`` arguments to per-mouse reports (via ``mousedom.capture``).
 - ``live``: interactive runs from live mice (Enter starts and stops a run).

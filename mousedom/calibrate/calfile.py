@@ -17,12 +17,15 @@ from __future__ import annotations
 
 import copy
 import os
+import sys
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import yaml
 
+from mousedom.config import Config, load_config
 from mousedom.errors import UserError
 
 HEADER = "# mousedom calibration: written by `mousedom calibrate ... --write`; edits are kept\n"
@@ -129,3 +132,27 @@ def replace_bytes(path: str, raw: bytes) -> None:
         except OSError:
             pass
         raise UserError(f"{path}: cannot write calibration: {e.strerror}") from None
+
+
+def store(config: Config, update: Callable[[dict[str, Any]], dict[str, Any]]) -> None:
+    """Merge a result into the config's calibration file (``update`` maps the old data to
+    the new), and check that the config still loads with it; if not, put the old file back.
+    """
+    path = config.calibration
+    try:
+        old: bytes | None = Path(path).read_bytes()
+    except OSError:
+        old = None  # not written yet (read_calibration says why if it is unreadable)
+    data = read_calibration(path)
+    write_calibration(path, update(data))
+    try:
+        load_config(config.path, need_sources=False)  # what was written must load
+    except UserError as e:
+        # Put the old file back: a daemon reloading on SIGHUP, or starting, must not
+        # meet a calibration that this command knows to be broken.
+        if old is None:
+            os.unlink(path)
+        else:
+            replace_bytes(path, old)
+        raise UserError(f"{path}: not written, the result does not load: {e}") from None
+    print(f"written to {path}", file=sys.stderr)

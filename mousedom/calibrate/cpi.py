@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from mousedom.calibrate.runs import run_spread
 from mousedom.units import INCH
 
 AXES = ("x", "y")
@@ -101,12 +102,10 @@ def calibrate_cpi(
             f"run {k + 1}: the push was {np.degrees(skew[k]):.0f} deg off the mouse's {axis} "
             "axis (more than 15): wrong --axis, or the mouse sits askew on the track"
         )
-    mean = float(np.mean(per_run))
-    stderr = float(np.std(per_run, ddof=1) / np.sqrt(len(per_run)))
+    mean, stderr, off = run_spread(per_run, tolerance)
     warnings = []
-    dev = np.abs(per_run - mean) / mean
-    if np.any(dev > tolerance):
-        bad = ", ".join(f"run {k + 1}: {per_run[k]:.1f}" for k in np.flatnonzero(dev > tolerance))
+    if len(off):
+        bad = ", ".join(f"run {k + 1}: {per_run[k]:.1f}" for k in off)
         warnings.append(
             f"runs disagree by more than {tolerance:.0%} (mean {mean:.1f}; {bad}): "
             "check the track length and that the mouse stays on the floor"

@@ -19,6 +19,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from mousedom.calibrate.runs import run_spread
+
 
 @dataclass(frozen=True)
 class DistanceResult:
@@ -77,8 +79,7 @@ def calibrate_distance(
         k = int(np.argmax(norm == 0)) + 1
         raise DistanceError(f"run {k}: both mice moved alike: that was no turn")
     per_run = norm / abs(angle)
-    mean = float(np.mean(per_run))
-    stderr = float(np.std(per_run, ddof=1) / np.sqrt(len(per_run)))
+    mean, stderr, off = run_spread(per_run, tolerance)
     warnings = []
     if line is not None and np.hypot(*line) > 0:
         u = np.asarray(line, dtype=float) / np.hypot(*line)
@@ -90,11 +91,8 @@ def calibrate_distance(
             f"the mice moved apart along their joining line by up to {np.nanmax(along):.1%} of "
             "the turn: a mouse slipped or lost the floor, or the mount yaws are wrong"
         )
-    dev = np.abs(per_run - mean) / mean
-    if np.any(dev > tolerance):
-        bad = ", ".join(
-            f"run {k + 1}: {per_run[k] * 1000:.1f} mm" for k in np.flatnonzero(dev > tolerance)
-        )
+    if len(off):
+        bad = ", ".join(f"run {k + 1}: {per_run[k] * 1000:.1f} mm" for k in off)
         warnings.append(
             f"runs disagree by more than {tolerance:.0%} (mean {mean * 1000:.1f} mm; {bad}): "
             "check the angle of each turn"

@@ -18,51 +18,52 @@ from __future__ import annotations
 import os
 from collections.abc import Sequence
 
-import numpy as np
-
-from mousedom.capture import Capture, CaptureError, assign, parse_capture_arg
-from mousedom.config import Config, Mount, MouseConfig
+from mousedom.calibrate.runs import in_time_order
+from mousedom.capture import Capture, CaptureError, assign, captures_of, parse_capture_arg
+from mousedom.config import Config, MouseConfig
 from mousedom.errors import UserError
 from mousedom.sources.adns import replay_decoder
 from mousedom.sources.base import Reports
 
 
-def read_motion(cap: Capture, index: int, name: str, mouse: MouseConfig | None = None) -> Reports:
-    """All motion reports of one device of ``cap``, in time order, times as recorded.
+def read_motion(cap: Capture, wanted: Sequence[tuple[int, MouseConfig]]) -> dict[str, Reports]:
+    """All motion reports of the ``wanted`` (device index, mouse) pairs of ``cap``, per
+    mouse name, in time order, times as recorded; the file is read once for all of them.
 
     A serial device (ADNS-3080 downsampler) is decoded from its raw bytes.
     """
-    serial = cap.devices[index].kind == "serial"
-    decoder = replay_decoder(mouse or MouseConfig(name, 1.0, 1.0, Mount())) if serial else None
-    ts, dxs, dys = [], [], []
+    decoders = {m.name: replay_decoder(m) for i, m in wanted if cap.devices[i].kind == "serial"}
+    parts: dict[str, tuple[list, list, list]] = {m.name: ([], [], []) for _, m in wanted}
     for feed in cap.feeds():
-        if index not in feed.devices:
+        mine = [(i, m.name) for i, m in wanted if i in feed.devices]
+        if not mine:
             continue
         for batch in feed.batches:
-            for m in batch.motion:
-                if m.device == index:
-                    ts.append(m.t)
-                    dxs.append(m.dx)
-                    dys.append(m.dy)
-            for piece in batch.serial if decoder is not None else ():
-                if piece.device == index:
-                    rep = decoder.feed_many(piece.t, piece.data)
-                    ts.append(rep.t)
-                    dxs.append(rep.dx)
-                    dys.append(rep.dy)
-    if decoder is not None and decoder.lost:
-        st = decoder.parser.stats
-        raise UserError(
-            f"{cap.path}: device {cap.devices[index].name!r} (mouse {name}): "
-            f"{decoder.lost} serial packet(s) lost or refused ({st.lost_seq} sequence gaps, "
-            f"{st.crc_errors} CRC errors, {st.bad_frames} bad frames): their counts are "
-            "missing, so a calibration from it would be wrong"
-        )
-    if not ts:
-        return Reports(name, np.zeros(0), np.zeros(0), np.zeros(0))
-    t = np.concatenate(ts)
-    order = np.argsort(t, kind="stable")
-    return Reports(name, t[order], np.concatenate(dxs)[order], np.concatenate(dys)[order])
+            for index, name in mine:
+                ts, dxs, dys = parts[name]
+                for mo in batch.motion:
+                    if mo.device == index:
+                        ts.append(mo.t)
+                        dxs.append(mo.dx)
+                        dys.append(mo.dy)
+                decoder = decoders.get(name)
+                for piece in batch.serial if decoder is not None else ():
+                    if piece.device == index:
+                        rep = decoder.feed_many(piece.t, piece.data)
+                        ts.append(rep.t)
+                        dxs.append(rep.dx)
+                        dys.append(rep.dy)
+    for index, m in wanted:
+        decoder = decoders.get(m.name)
+        if decoder is not None and decoder.lost:
+            st = decoder.parser.stats
+            raise UserError(
+                f"{cap.path}: device {cap.devices[index].name!r} (mouse {m.name}): "
+                f"{decoder.lost} serial packet(s) lost or refused ({st.lost_seq} sequence "
+                f"gaps, {st.crc_errors} CRC errors, {st.bad_frames} bad frames): their counts "
+                "are missing, so a calibration from it would be wrong"
+            )
+    return {name: in_time_order(name, *lists) for name, lists in parts.items()}
 
 
 def load_captures(specs: Sequence[str], config: Config) -> dict[str, Reports]:
@@ -71,12 +72,16 @@ def load_captures(specs: Sequence[str], config: Config) -> dict[str, Reports]:
         assignments = assign(config, [parse_capture_arg(s) for s in specs], require_all=False)
     except CaptureError as e:
         raise UserError(str(e)) from None
+    read: dict[str, Reports] = {}
+    for cap in captures_of(assignments):
+        wanted = [(a.device, config.mice[a.mouse]) for a in assignments if a.capture is cap]
+        read.update(read_motion(cap, wanted))
     recording: dict[str, Reports] = {}
     bases: dict[str, str] = {}
     files: set[str] = set()
     for a in assignments:
         name = config.mice[a.mouse].name
-        recording[name] = read_motion(a.capture, a.device, name, config.mice[a.mouse])
+        recording[name] = read[name]
         bases[name] = a.capture.time_base
         files.add(os.path.realpath(a.capture.path))
     if len(files) > 1 and "relative" in bases.values():

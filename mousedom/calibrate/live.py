@@ -18,7 +18,7 @@ from typing import TextIO
 
 import numpy as np
 
-from mousedom.calibrate.runs import Run
+from mousedom.calibrate.runs import Run, in_time_order
 from mousedom.errors import UserError
 from mousedom.sources.base import Reports, Source, SourceGone, SourceUnavailable
 
@@ -59,20 +59,10 @@ class _Collector:
         return True
 
     def recording(self) -> dict[str, Reports]:
-        out = {}
-        for n, parts in self.parts.items():
-            if parts:
-                t = np.concatenate([p.t for p in parts])
-                order = np.argsort(t, kind="stable")
-                out[n] = Reports(
-                    n,
-                    t[order],
-                    np.concatenate([p.dx for p in parts])[order],
-                    np.concatenate([p.dy for p in parts])[order],
-                )
-            else:
-                out[n] = Reports(n, np.zeros(0), np.zeros(0), np.zeros(0))
-        return out
+        return {
+            n: in_time_order(n, [p.t for p in ps], [p.dx for p in ps], [p.dy for p in ps])
+            for n, ps in self.parts.items()
+        }
 
     def status(self) -> str:
         return "  ".join(f"{n}: x {c[0]:+.0f} y {c[1]:+.0f}" for n, c in self.current.items())

@@ -15,14 +15,14 @@ exactly what the mice integrate.  The reference and the captures share one time 
 
 from __future__ import annotations
 
-import csv
-import io
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from mousedom import models
+from mousedom.calibrate.csvtext import content_lines, fields, finite, header_names
+from mousedom.config import WheelsConfig
 from mousedom.errors import UserError, located
 
 TWIST = ("t", "vx", "vy", "omega")
@@ -37,22 +37,13 @@ class Reference:
     path: str | None = None
 
 
-@dataclass(frozen=True)
-class WheelGeometry:
-    radius_left: float
-    radius_right: float
-    track: float
-    ticks_per_rev: float
+# The config's wheels: section has exactly these fields; one class, not two to keep in step.
+WheelGeometry = WheelsConfig
 
 
 def parse_reference(text: str, path: str | None = None) -> Reference:
     """Parse REF.csv text; every error names the file, line and column."""
-    text = text.removeprefix("\ufeff")  # spreadsheets save CSV with a byte-order mark
-    rows = [
-        (i + 1, line)
-        for i, line in enumerate(text.splitlines())
-        if line.strip() and not line.lstrip().startswith("#")
-    ]
+    rows = content_lines(text)
     if not rows:
         raise UserError(
             located(
@@ -60,7 +51,7 @@ def parse_reference(text: str, path: str | None = None) -> Reference:
             )
         )
     head_no, head = rows[0]
-    names = [c.strip().lower() for c in next(csv.reader(io.StringIO(head)))]
+    names = header_names(head)
     if set(names) == set(TWIST) and len(names) == 4:
         kind, cols = "twist", TWIST
     elif set(names) == set(WHEELS) and len(names) == 3:
@@ -77,18 +68,11 @@ def parse_reference(text: str, path: str | None = None) -> Reference:
     order = [names.index(c) for c in cols]
     data = np.empty((len(rows) - 1, len(cols)))
     for k, (no, line) in enumerate(rows[1:]):
-        fields = next(csv.reader(io.StringIO(line)))
-        if len(fields) != len(names):
-            raise UserError(located(path, no, f"{len(fields)} fields, the header has {len(names)}"))
+        row = fields(line)
+        if len(row) != len(names):
+            raise UserError(located(path, no, f"{len(row)} fields, the header has {len(names)}"))
         for j, c in enumerate(cols):
-            raw = fields[order[j]].strip()
-            try:
-                v = float(raw)
-            except ValueError:
-                raise UserError(located(path, no, f"not a number: {raw!r}", c)) from None
-            if not math.isfinite(v):
-                raise UserError(located(path, no, f"not a finite number: {raw!r}", c))
-            data[k, j] = v
+            data[k, j] = finite(row[order[j]], path, no, c)
         if k and data[k, 0] <= data[k - 1, 0]:
             raise UserError(
                 located(

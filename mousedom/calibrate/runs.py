@@ -33,6 +33,17 @@ class Run:
         return self.t1 - self.t0
 
 
+def in_time_order(
+    name: str, ts: Sequence[np.ndarray], dxs: Sequence[np.ndarray], dys: Sequence[np.ndarray]
+) -> Reports:
+    """Pieces of one mouse's reports as one ``Reports``, stably sorted by stamp."""
+    if not ts:
+        return Reports(name, np.zeros(0), np.zeros(0), np.zeros(0))
+    t = np.concatenate(ts)
+    order = np.argsort(t, kind="stable")
+    return Reports(name, t[order], np.concatenate(dxs)[order], np.concatenate(dys)[order])
+
+
 def moving(rep: Reports) -> np.ndarray:
     """Stamps of the reports of ``rep`` that carry motion."""
     keep = (np.asarray(rep.dx) != 0) | (np.asarray(rep.dy) != 0)
@@ -106,7 +117,21 @@ def window_counts(
     t: np.ndarray, values: np.ndarray, edges: np.ndarray, period: float
 ) -> np.ndarray:
     """Counts per window (edges[k], edges[k+1]], each report spread over its span."""
+    return _windows(*cumulative(t, values, period), edges)
+
+
+def runs_window_counts(
+    t: np.ndarray, values: np.ndarray, edges: Sequence[np.ndarray], period: float
+) -> np.ndarray:
+    """``window_counts`` for every run's edges, concatenated; the cumulative sum of the
+    whole recording is built once, not once per run."""
     x, y = cumulative(t, values, period)
+    if not len(edges):
+        return np.zeros(0)
+    return np.concatenate([_windows(x, y, e) for e in edges])
+
+
+def _windows(x: np.ndarray, y: np.ndarray, edges: np.ndarray) -> np.ndarray:
     at = np.interp(np.asarray(edges, dtype=float), x, y, left=0.0, right=y[-1])
     return np.diff(at)
 
@@ -123,6 +148,16 @@ def run_windows(runs: Sequence[Run], window: float, margin: float) -> list[np.nd
         n = 1 if window <= 0 else max(1, int(round((b - a) / window)))
         out.append(np.linspace(a, b, n + 1))
     return out
+
+
+def run_spread(per_run: np.ndarray, tolerance: float) -> tuple[float, float, np.ndarray]:
+    """Mean, standard error of the mean, and the indices of the runs whose value is off
+    the mean by more than ``tolerance`` (relative): what CPI and distance report."""
+    per_run = np.asarray(per_run, dtype=float)
+    mean = float(np.mean(per_run))
+    stderr = float(np.std(per_run, ddof=1) / np.sqrt(len(per_run)))
+    off = np.flatnonzero(np.abs(per_run - mean) / mean > tolerance)
+    return mean, stderr, off
 
 
 def need_runs(found: int, needed: int, what: str, gap: float) -> None:

@@ -20,7 +20,7 @@ from mousedom.calibrate.cpi import CpiError, CpiResult, calibrate_cpi
 from mousedom.calibrate.distance import DistanceError, DistanceResult, calibrate_distance
 from mousedom.calibrate.mounts import MountError, MountFit, exact_mount, kimlee, motion_problem
 from mousedom.calibrate.reference import Reference, WheelGeometry, check_coverage, window_twist
-from mousedom.calibrate.runs import Run, moving, run_counts, run_windows, window_counts
+from mousedom.calibrate.runs import Run, moving, run_counts, run_windows, runs_window_counts
 from mousedom.config import Config
 from mousedom.errors import UserError
 from mousedom.sources.base import Reports
@@ -199,9 +199,7 @@ def mounts(
     for j, m in enumerate(mice):
         rep = session.recording[m.name]
         for axis, values in enumerate((rep.dx, rep.dy)):
-            counts[:, j, axis] = np.concatenate(
-                [window_counts(rep.t, values, e, 1.0 / m.report_hz) for e in edges]
-            )
+            counts[:, j, axis] = runs_window_counts(rep.t, values, edges, 1.0 / m.report_hz)
     _no_motion(session, counts)
     size = max([0.05] + [math.hypot(m.mount.x, m.mount.y) for m in mice])
     problem = motion_problem(w, size)

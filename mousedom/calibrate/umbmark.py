@@ -12,14 +12,13 @@ run with known truth (``mousedom replay`` uses it).
 
 from __future__ import annotations
 
-import csv
-import io
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from mousedom.calibrate.csvtext import content_lines, fields, finite, header_names
 from mousedom.errors import UserError, located
 
 DIRECTIONS = ("cw", "ccw")
@@ -91,16 +90,11 @@ def umbmark_row(direction: str, final_pose: Sequence[float], true_pose: Sequence
 
 def parse_runs(text: str, path: str | None = None) -> tuple[list[str], np.ndarray]:
     """Parse RUNS.csv text; errors name the file, line and column."""
-    text = text.removeprefix("\ufeff")  # spreadsheets save CSV with a byte-order mark
-    lines = [
-        (i + 1, line)
-        for i, line in enumerate(text.splitlines())
-        if line.strip() and not line.lstrip().startswith("#")
-    ]
+    lines = content_lines(text)
     if not lines:
         raise UserError(located(path, None, f"empty file: expected the header {HEADER}"))
     head_no, head = lines[0]
-    names = [c.strip().lower() for c in next(csv.reader(io.StringIO(head)))]
+    names = header_names(head)
     missing = [c for c in ("direction", "dx", "dy") if c not in names]
     if missing:
         raise UserError(
@@ -119,22 +113,12 @@ def parse_runs(text: str, path: str | None = None) -> tuple[list[str], np.ndarra
     col = {c: names.index(c) for c in ("direction", "dx", "dy")}
     directions, errors = [], []
     for no, line in lines[1:]:
-        row = next(csv.reader(io.StringIO(line)))
+        row = fields(line)
         if len(row) != len(names):
             raise UserError(located(path, no, f"{len(row)} fields, the header has {len(names)}"))
         d = row[col["direction"]].strip().lower()
         if d not in DIRECTIONS:
             raise UserError(located(path, no, f"must be cw or ccw, got {d!r}", "direction"))
-        values = []
-        for c in ("dx", "dy"):
-            raw = row[col[c]].strip()
-            try:
-                v = float(raw)
-            except ValueError:
-                raise UserError(located(path, no, f"not a number: {raw!r}", c)) from None
-            if not math.isfinite(v):
-                raise UserError(located(path, no, f"not a finite number: {raw!r}", c))
-            values.append(v)
         directions.append(d)
-        errors.append(values)
+        errors.append([finite(row[col[c]], path, no, c) for c in ("dx", "dy")])
     return directions, np.asarray(errors, dtype=float).reshape(-1, 2)

@@ -47,6 +47,8 @@ __all__ = [
     "NativeWriter",
     "Serial",
     "assign",
+    "captures_of",
+    "mice_by_device",
     "open_capture",
     "parse_capture_arg",
     "read_reports",
@@ -307,15 +309,12 @@ def read_reports(
     need all the data at once (calibration); replay streams instead.
     """
     assignments = assign(config, specs, require_all=require_all)
-    captures = _unique([a.capture for a in assignments])
+    captures = captures_of(assignments)
     offset, warnings = time_offset(captures)
     parts: dict[int, list[Motion]] = {a.mouse: [] for a in assignments}
     stats: dict[str, DeviceStats] = {}
     for cap in captures:
-        wanted: dict[int, tuple[int, ...]] = {}  # one device may feed several mice
-        for a in assignments:
-            if a.capture is cap:
-                wanted[a.device] = wanted.get(a.device, ()) + (a.mouse,)
+        wanted = mice_by_device(assignments, cap)
         decoders: dict = {}
         for feed in cap.feeds():
             for batch in feed.batches:
@@ -326,12 +325,14 @@ def read_reports(
                     if chunk.device in wanted:
                         # Raw ADNS-3080 bytes: the daemon's own decoder, on the file's times
                         # (the epoch offset is applied below, as for motion).
-                        from mousedom.adns_decode import AdnsDecoder
-                        from mousedom.replay import decode_serial
+                        from mousedom.sources.adns import replay_decoder
 
-                        name = config.mice[wanted[chunk.device][0]].name
-                        dec = decoders.setdefault(chunk.device, AdnsDecoder(name=name))
-                        t, dx, dy = decode_serial(dec, chunk, 0.0)
+                        dec = decoders.get(chunk.device)
+                        if dec is None:  # not setdefault: that would build one per chunk
+                            mouse = config.mice[wanted[chunk.device][0]]
+                            dec = decoders[chunk.device] = replay_decoder(mouse)
+                        r = dec.feed_many(chunk.t, chunk.data)
+                        t, dx, dy = r.t, r.dx, r.dy
                         cap.stats[chunk.device].add_motion(t, dx, dy)
                         for mouse in wanted[chunk.device]:
                             parts[mouse].append(Motion(chunk.device, t, dx, dy))
@@ -354,9 +355,19 @@ def _capture_of(assignments: list[Assignment], mouse: int) -> Capture:
     return next(a.capture for a in assignments if a.mouse == mouse)
 
 
-def _unique(captures: list[Capture]) -> list[Capture]:
+def captures_of(assignments: list[Assignment]) -> list[Capture]:
+    """The opened captures, each once, in the order of the assignments."""
     seen: list[Capture] = []
-    for c in captures:
-        if all(c is not s for s in seen):
-            seen.append(c)
+    for a in assignments:
+        if all(a.capture is not s for s in seen):
+            seen.append(a.capture)
     return seen
+
+
+def mice_by_device(assignments: list[Assignment], capture: Capture) -> dict[int, tuple[int, ...]]:
+    """Device index -> the mice it feeds, for one capture (one device may feed several)."""
+    out: dict[int, tuple[int, ...]] = {}
+    for a in assignments:
+        if a.capture is capture:
+            out[a.device] = out.get(a.device, ()) + (a.mouse,)
+    return out

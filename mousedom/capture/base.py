@@ -75,6 +75,26 @@ class DeviceInfo:
         return cls(**known)
 
 
+def sec_usec(t: np.ndarray) -> tuple[list[int], list[int]]:
+    """Seconds to the (sec, usec) pairs the text formats write, rounded to the microsecond."""
+    us = np.round(np.asarray(t, dtype=np.float64) * 1e6).astype(np.int64)
+    sec, usec = np.divmod(us, 1_000_000)
+    return sec.tolist(), usec.tolist()
+
+
+# The counters a converted source carries along (native NOTE chunks) and that add up.
+SOURCE_COUNTERS = (
+    "events",
+    "frames",
+    "skipped",
+    "dropped_frames",
+    "dropped_events",
+    "lost_x",
+    "lost_y",
+    "unterminated",
+)
+
+
 @dataclass
 class DeviceStats:
     """What a reader saw of one device; filled in while the capture streams."""
@@ -123,16 +143,7 @@ class DeviceStats:
 
     def merge(self, other: DeviceStats) -> None:
         """Add counters recorded elsewhere (e.g. a native file's notes of its source)."""
-        for name in (
-            "events",
-            "frames",
-            "skipped",
-            "dropped_frames",
-            "dropped_events",
-            "lost_x",
-            "lost_y",
-            "unterminated",
-        ):
+        for name in SOURCE_COUNTERS:
             setattr(self, name, getattr(self, name) + getattr(other, name))
 
     def as_dict(self) -> dict[str, Any]:
@@ -202,6 +213,22 @@ class FrameBatcher:
 class Feed:
     devices: tuple[int, ...]
     batches: Iterator[Batch]
+
+
+def lagging_first(states: list) -> Iterator[tuple[Any, Batch | None]]:
+    """Merge feeds by time: yield ``(state, batch)`` always from the state whose
+    ``watermark`` lags most among those not ``done``.  A state whose feed has ended is
+    marked done and yielded once with ``None``.  The caller moves ``state.watermark``
+    (``state.feed`` is a ``Feed``); so memory holds about one batch per feed."""
+    while True:
+        live = [s for s in states if not s.done]
+        if not live:
+            return
+        st = min(live, key=lambda s: s.watermark)
+        batch = next(st.feed.batches, None)
+        if batch is None:
+            st.done = True
+        yield st, batch
 
 
 class Capture(ABC):

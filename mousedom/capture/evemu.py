@@ -23,7 +23,6 @@ fails the quick checks is parsed again line by line to name the exact line at fa
 
 from __future__ import annotations
 
-import os
 import re
 from collections.abc import Iterator
 from pathlib import Path
@@ -38,6 +37,7 @@ from mousedom.capture.base import (
     DeviceInfo,
     Feed,
     FrameBatcher,
+    sec_usec,
 )
 from mousedom.capture.base import open_binary as _open
 from mousedom.capture.evemu_lines import Events as _Events  # noqa: F401 (tests use it)
@@ -154,7 +154,7 @@ class EvemuCapture(Capture):
                 head.append(raw)
                 self._body_offset += len(raw)
         self._body_line = len(head) + 1
-        if not desc_path and not b"".join(head).strip() and self._body_offset == self._size():
+        if not desc_path and not b"".join(head).strip() and self._body_offset == self.bytes_total:
             # Nothing at all, not even a header: a recording that never started, or the
             # wrong file; replaying it would print a CSV without a pose and exit 0.
             raise CaptureError(f"{self.path}: empty file (no evemu header and no events)")
@@ -163,9 +163,6 @@ class EvemuCapture(Capture):
         self.reset_stats()
         t0 = self.first_time()
         self.time_base = "epoch" if t0 is not None and t0 > EPOCH_THRESHOLD else "relative"
-
-    def _size(self) -> int:
-        return os.path.getsize(self.path)
 
     def first_time(self) -> float | None:
         with _open(self.path) as f:
@@ -290,12 +287,11 @@ def format_evemu(
             "B: 01 00 00 07 00 00 00 00 00",
             "B: 02 03 01 00 00 00 00 00 00",
         ]
-    us = np.round(np.asarray(t, dtype=np.float64) * 1e6).astype(np.int64)
-    sec, usec = np.divmod(us, 1_000_000)
+    sec, usec = sec_usec(t)
     cx = "\t# EV_REL / REL_X" if comments else ""
     cy = "\t# EV_REL / REL_Y" if comments else ""
     cs = "\t# ------------ SYN_REPORT (0) ----------" if comments else ""
-    for s, u, x, y in zip(sec.tolist(), usec.tolist(), dx.tolist(), dy.tolist(), strict=True):
+    for s, u, x, y in zip(sec, usec, dx.tolist(), dy.tolist(), strict=True):
         stamp = f"E: {s}.{u:06d}"
         if x:
             lines.append(f"{stamp} 0002 0000 {int(x):04d}{cx}")

@@ -44,6 +44,7 @@ from mousedom.capture.base import (
     DeviceInfo,
     Feed,
     FrameBatcher,
+    sec_usec,
 )
 from mousedom.capture.base import open_binary as _open
 from mousedom.errors import located
@@ -377,9 +378,8 @@ def format_libinput(devices: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]
             "    - ID_INPUT_MOUSE=1",
             "  events:",
         ]
-        us = np.round(np.asarray(t, dtype=np.float64) * 1e6).astype(np.int64)
-        sec, usec = np.divmod(us, 1_000_000)
-        for s, u, x, y in zip(sec.tolist(), usec.tolist(), dx.tolist(), dy.tolist(), strict=True):
+        sec, usec = sec_usec(t)
+        for s, u, x, y in zip(sec, usec, dx.tolist(), dy.tolist(), strict=True):
             out.append("  - evdev:")
             if x:
                 out.append(f"    - [{s:3d}, {u:6d},   2,   0, {int(x):5d}] # EV_REL / REL_X")

@@ -35,6 +35,7 @@ from typing import Any, BinaryIO
 import numpy as np
 
 from mousedom.capture.base import (
+    SOURCE_COUNTERS,
     TIME_BASES,
     Batch,
     Capture,
@@ -56,16 +57,7 @@ MOTION, SERIAL, NOTE, SYNC = 1, 2, 3, 4
 KINDS = (MOTION, SERIAL, NOTE, SYNC)
 ZLIB = 1
 MAX_CHUNK = 64 << 20  # larger payloads are corruption, not data
-NOTE_FIELDS = (
-    "events",
-    "frames",
-    "skipped",
-    "dropped_frames",
-    "dropped_events",
-    "lost_x",
-    "lost_y",
-    "unterminated",
-)
+NOTE_FIELDS = SOURCE_COUNTERS
 
 
 # --------------------------------------------------------------------------- writer
@@ -211,7 +203,7 @@ class NativeWriter:
             if len(packed) < len(payload):
                 payload, flags = packed, ZLIB
         head = CHUNK.pack(CHUNK_MAGIC, kind, flags, source, count, len(payload), 0)[:16]
-        crc = zlib.crc32(payload, zlib.crc32(head))
+        crc = _chunk_crc(head, payload)
         self._f.write(head + struct.pack("<I", crc) + payload)
         self._f.flush()
         if self.fsync:
@@ -250,10 +242,7 @@ class NativeCapture(Capture):
         if self._first is False:
             first = None
             for kind, _source, count, payload, _ in self._chunks(check_tail=False):
-                if kind == MOTION and count:
-                    t = np.frombuffer(payload, "<f8", count)
-                    first = float(t[0]) if first is None else min(first, float(t[0]))
-                elif kind == SERIAL and count:
+                if kind in (MOTION, SERIAL) and count:  # both start with the f8 times
                     t = np.frombuffer(payload, "<f8", count)
                     first = float(t[0]) if first is None else min(first, float(t[0]))
                 elif kind == SYNC and first is not None:
@@ -340,7 +329,7 @@ class NativeCapture(Capture):
                     payload = reader.read(size)
                     if len(payload) < size:
                         bad = "chunk cut short"
-                    elif zlib.crc32(payload, zlib.crc32(head[:16])) != crc:
+                    elif _chunk_crc(head, payload) != crc:
                         bad = "chunk CRC mismatch"
                 if bad is not None:
                     if check_tail:
@@ -370,7 +359,7 @@ class NativeCapture(Capture):
             if len(head) == CHUNK.size and _check_chunk_head(head) is None:
                 *_, size_, crc = CHUNK.unpack(head)
                 payload = rest[at + CHUNK.size : at + CHUNK.size + size_]
-                if len(payload) == size_ and zlib.crc32(payload, zlib.crc32(head[:16])) == crc:
+                if len(payload) == size_ and _chunk_crc(head, payload) == crc:
                     raise CaptureError(
                         located(
                             self.path,
@@ -388,6 +377,11 @@ class NativeCapture(Capture):
             f"{self.path}: byte offset {offset}: {why}; the last {torn} bytes are an "
             "unfinished chunk (recording interrupted) and were skipped"
         )
+
+
+def _chunk_crc(head: bytes, payload: bytes) -> int:
+    """CRC-32 over the first 16 bytes of the chunk header and the payload as stored."""
+    return zlib.crc32(payload, zlib.crc32(head[:16]))
 
 
 def _check_chunk_head(head: bytes) -> str | None:

@@ -12,9 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import sys
-from pathlib import Path
 
 from mousedom.calibrate import calfile, report, session
 from mousedom.calibrate.inputs import load_captures
@@ -232,27 +230,6 @@ def _refuse_doubtful(config: Config, warnings: list[str], force: bool) -> None:
         )
 
 
-def _store(config: Config, update) -> None:
-    path = config.calibration
-    try:
-        old: bytes | None = Path(path).read_bytes()
-    except OSError:
-        old = None  # not written yet (read_calibration says why if it is unreadable)
-    data = calfile.read_calibration(path)
-    calfile.write_calibration(path, update(data))
-    try:
-        load_config(config.path, need_sources=False)  # what was written must load
-    except UserError as e:
-        # Put the old file back: a daemon reloading on SIGHUP, or starting, must not
-        # meet a calibration that this command knows to be broken.
-        if old is None:
-            os.unlink(path)
-        else:
-            calfile.replace_bytes(path, old)
-        raise UserError(f"{path}: not written, the result does not load: {e}") from None
-    print(f"written to {path}", file=sys.stderr)
-
-
 # --------------------------------------------------------------------------- subcommands
 
 
@@ -275,7 +252,7 @@ def run_cpi(args: argparse.Namespace) -> int:
                 data = calfile.merge_mouse(data, n, cpi=cpi)
             return data
 
-        _store(config, update)
+        calfile.store(config, update)
     return 0
 
 
@@ -305,7 +282,7 @@ def run_distance(args: argparse.Namespace) -> int:
                 data = calfile.merge_mouse(data, n, mount={"x": round(x, 6), "y": round(y, 6)})
             return calfile.merge_section(data, "distance", {"mice": s.names, **result.as_json()})
 
-        _store(config, update)
+        calfile.store(config, update)
     return 0
 
 
@@ -315,10 +292,7 @@ def _wheel_geometry(args: argparse.Namespace, config: Config) -> WheelGeometry |
         return WheelGeometry(args.wheel_radius, args.wheel_radius, args.track, args.ticks_per_rev)
     if any(v is not None for v in given):
         raise UserError("--wheel-radius, --ticks-per-rev and --track go together")
-    if config.wheels:
-        w = config.wheels
-        return WheelGeometry(w.radius_left, w.radius_right, w.track, w.ticks_per_rev)
-    return None
+    return config.wheels  # None when the config has no wheels: section
 
 
 def run_mounts(args: argparse.Namespace) -> int:
@@ -345,5 +319,5 @@ def run_mounts(args: argparse.Namespace) -> int:
                 data = calfile.merge_mouse(data, n, **values)
             return data
 
-        _store(config, update)
+        calfile.store(config, update)
     return 0

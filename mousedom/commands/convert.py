@@ -12,18 +12,20 @@ from __future__ import annotations
 import math
 import os
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 from mousedom.capture import (
     Capture,
     CaptureError,
     DeviceInfo,
+    Feed,
     NativeWriter,
     open_capture,
     parse_capture_arg,
     time_offset,
 )
-from mousedom.capture.base import TIME_BASES
+from mousedom.capture.base import TIME_BASES, lagging_first
 from mousedom.errors import UserError
 
 
@@ -136,6 +138,18 @@ def _discard(target: str, output: str) -> None:
             pass
 
 
+@dataclass
+class _Input:
+    """One feed being merged: its devices' indices in the output, its time shift."""
+
+    feed: Feed
+    out: dict[int, int]  # device in the capture -> device in the output
+    sub: float  # seconds subtracted (epoch files rebased)
+    capture: Capture
+    watermark: float = -math.inf  # everything before it has been written
+    done: bool = False
+
+
 def convert(
     inputs: list[tuple[str | None, Capture]],
     path,
@@ -153,7 +167,7 @@ def convert(
         time_base = "relative"  # epoch files rebased; the others kept
     assert time_base in TIME_BASES
     devices: list[DeviceInfo] = []
-    states = []
+    states: list[_Input] = []
     for name, cap in inputs:
         movers = [i for i, d in enumerate(cap.devices) if d.rel_xy is not False]
         if not movers:
@@ -174,7 +188,7 @@ def convert(
         for feed in cap.feeds():
             mine = {d: index[d] for d in feed.devices if d in index}
             if mine:
-                states.append([feed, mine, sub, -math.inf, False, cap])
+                states.append(_Input(feed, mine, sub, cap))
     seen: dict[str, DeviceInfo] = {}
     for d in devices:
         if d.mouse is not None and d.mouse in seen:
@@ -203,33 +217,27 @@ def convert(
         meta=meta,
     ) as w:
         synced = -math.inf
-        while True:
-            live = [s for s in states if not s[4]]
-            if not live:
-                break
-            st = min(live, key=lambda s: s[3])
-            batch = next(st[0].batches, None)
+        for st, batch in lagging_first(states):
             if batch is None:
-                st[4] = True
                 continue
             for mo in batch.motion:
-                if mo.device in st[1] and len(mo.t):
-                    w.motion(st[1][mo.device], mo.t - st[2] if st[2] else mo.t, mo.dx, mo.dy)
+                if mo.device in st.out and len(mo.t):
+                    t = mo.t - st.sub if st.sub else mo.t
+                    w.motion(st.out[mo.device], t, mo.dx, mo.dy)
                     reports += len(mo.t)
             for chunk in batch.serial:  # raw ADNS-3080 bytes are kept as they are
-                if chunk.device in st[1]:
-                    w.serial_many(st[1][chunk.device], (chunk.t - st[2]).tolist(), chunk.data)
+                if chunk.device in st.out:
+                    w.serial_many(st.out[chunk.device], (chunk.t - st.sub).tolist(), chunk.data)
             if batch.complete > -math.inf:
-                st[3] = batch.complete - st[2]
-            marks = [s[3] for s in states if not s[4]]
+                st.watermark = batch.complete - st.sub
+            marks = [s.watermark for s in states if not s.done]
             mark = min(marks) if marks else math.inf
             if math.isfinite(mark) and mark > synced:
                 w.sync(mark)
                 synced = mark
         for s in states:
-            cap = s[5]
-            for dev, out_dev in s[1].items():
-                w.note(out_dev, cap.stats[dev])
+            for dev, out_dev in s.out.items():
+                w.note(out_dev, s.capture.stats[dev])
         w.sync(math.inf)
     for _, cap in inputs:
         warnings += cap.warnings

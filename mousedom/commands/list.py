@@ -14,6 +14,7 @@ from mousedom.discovery import (
     is_stream,
     join_group_hint,
     match_device,
+    parse_mouse_dpi,
     paths_for_root,
     scan,
 )
@@ -79,7 +80,7 @@ def _text(result: Scan) -> str:
             lines.append(f"  by-id    {link}")
         for link in d.by_path:
             lines.append(f"  by-path  {link}")
-        dpi = d.as_dict()["dpi"]
+        dpi = parse_mouse_dpi(d.mouse_dpi)
         if dpi:
             known = f"{dpi['dpi']} cpi" if dpi["dpi"] else "no default"
             if dpi["hz"]:

@@ -79,6 +79,7 @@ class Slot:
     source: Source  # EvdevSource or AdnsSource
     serial: bool = False  # an ADNS-3080 downsampler: its raw bytes are what is recorded
     connected: bool = True
+    polled: bool = False  # no fd to select on (loop:// ports): read on every loop turn
     next_retry: float = 0.0
     reports: int = 0
     last_reports: int = 0
@@ -207,7 +208,8 @@ class Recorder:
 
     def _register(self, s: Slot) -> None:
         fd = _fileno(s.source)
-        if fd >= 0:
+        s.polled = fd < 0
+        if not s.polled:
             self.sel.register(fd, selectors.EVENT_READ, s)
 
     def _unregister(self, s: Slot) -> None:
@@ -322,7 +324,7 @@ class Recorder:
     def _loop(self, duration: float | None, status_every: float) -> None:
         t0 = time.monotonic()
         last_flush = last_status = t0
-        polled = [s for s in self.slots if _fileno(s.source) < 0]
+        polled = any(s.polled for s in self.slots)
         while not self._stop:
             now = time.monotonic()
             if duration is not None and now - t0 >= duration:
@@ -335,7 +337,7 @@ class Recorder:
             for s in self.slots:
                 if not s.connected and now >= s.next_retry:
                     self._retry(s, now)
-                elif s.connected and _fileno(s.source) < 0:
+                elif s.connected and s.polled:
                     self._read(s, now)
             if now - last_flush >= FLUSH_S:
                 self._flush()
@@ -458,6 +460,4 @@ def _without_name(s: Slot, e: Exception) -> str:
 
 
 def _describe(s: Slot) -> str:
-    if s.serial:
-        return f"serial {s.mouse.serial.port}"
-    return s.source.device.node
+    return f"serial {_node(s)}" if s.serial else _node(s)

@@ -252,21 +252,23 @@ def _counts(c) -> str:
     return "(" + ", ".join(f"{float(v):g}" for v in c) + ")"
 
 
+def _differ(got, want) -> bool:
+    """Count pairs that differ by more than float rounding (the tracker sums floats)."""
+    return any(abs(a - b) > 1e-6 * max(1.0, abs(b)) for a, b in zip(got, want, strict=True))
+
+
 def check(summary: Summary) -> int:
     """Every count read must be in the output; anything else is a bug worth an exit code."""
     for m in summary.mice:
         net = (m.stats.net_x, m.stats.net_y)
-        if any(abs(a - b) > 1e-6 * max(1.0, abs(b)) for a, b in zip(m.counts_in, net, strict=True)):
+        if _differ(m.counts_in, net):
             print(
                 f"mousedom: error: mouse {m.name}: counts read {_counts(net)} but the fusion "
                 f"took {_counts(m.counts_in)}",
                 file=sys.stderr,
             )
             return 1
-        if any(
-            abs(a - b) > 1e-6 * max(1.0, abs(b))
-            for a, b in zip(m.counts_out, m.counts_in, strict=True)
-        ):
+        if _differ(m.counts_out, m.counts_in):
             print(
                 f"mousedom: error: mouse {m.name}: {_counts(m.counts_in)} counts in but "
                 f"{_counts(m.counts_out)} in the poses",
@@ -276,16 +278,19 @@ def check(summary: Summary) -> int:
     return 0
 
 
+def _model_integrator(args, replay: Replay) -> tuple[str, str]:
+    """What the replay ran with: the command line's overrides, else the config's."""
+    return args.model or replay.config.model, args.integrator or replay.config.integrator
+
+
 def _title(args, replay: Replay) -> str:
-    model = args.model or replay.config.model
-    integrator = args.integrator or replay.config.integrator
+    model, integrator = _model_integrator(args, replay)
     return f"{args.config}: model {model}, integrator {integrator}"
 
 
 def format_summary(s: Summary, replay: Replay, args) -> str:
     cfg = replay.config
-    model = args.model or cfg.model
-    integrator = args.integrator or cfg.integrator
+    model, integrator = _model_integrator(args, replay)
     lines = [
         f"replay: {len(s.mice)} mice, model {model}, integrator {integrator}, "
         f"{cfg.rate_hz:g} Hz windows",

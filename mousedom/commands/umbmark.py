@@ -70,9 +70,5 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(result.as_json(), indent=2))
     if config is not None:
-        data = calfile.read_calibration(config.calibration)
-        calfile.write_calibration(
-            config.calibration, calfile.merge_section(data, "umbmark", result.as_json())
-        )
-        print(f"written to {config.calibration}", file=sys.stderr)
+        calfile.store(config, lambda data: calfile.merge_section(data, "umbmark", result.as_json()))
     return 0
