@@ -28,19 +28,15 @@ REPO = Path(__file__).resolve().parent.parent
 
 
 def _find_external_captures() -> Path:
-    """shared/captures/external sits beside the repository (CI: beside the clone); a git
-    worktree may sit deeper, so look upwards; $MOUSEDOM_EXTERNAL_CAPTURES overrides."""
+    """The real recordings: a byte-exact copy of ../shared/captures/external is kept in
+    tests/data/external (492 KB, MIT-licensed, provenance in its SOURCES.md), so that a
+    clone anywhere tests against them; $MOUSEDOM_EXTERNAL_CAPTURES points elsewhere."""
     if os.environ.get("MOUSEDOM_EXTERNAL_CAPTURES"):
         return Path(os.environ["MOUSEDOM_EXTERNAL_CAPTURES"])
-    for parent in REPO.parents:
-        candidate = parent / "shared" / "captures" / "external"
-        if candidate.is_dir():
-            return candidate
-    return REPO.parent / "shared" / "captures" / "external"
+    return REPO / "tests" / "data" / "external"
 
 
 EXTERNAL_CAPTURES = _find_external_captures()
-SHARED = EXTERNAL_CAPTURES.parent.parent
 
 
 def mousedom_env(**extra: str) -> dict[str, str]:
@@ -67,12 +63,12 @@ def run_mousedom(
 
 
 def external_dir() -> Path:
-    """The real recordings of ../shared/captures/external: CI always has them (missing there
-    is a failure); elsewhere a missing folder skips the test."""
+    """The real recordings: CI always has them (missing there is a failure); elsewhere a
+    $MOUSEDOM_EXTERNAL_CAPTURES that names no folder skips the test."""
     if not EXTERNAL_CAPTURES.is_dir():
         if os.environ.get("CI"):
             pytest.fail(f"{EXTERNAL_CAPTURES} is missing in CI")
-        pytest.skip(f"{EXTERNAL_CAPTURES} not present (it sits beside the repo as shared/)")
+        pytest.skip(f"{EXTERNAL_CAPTURES} not present ($MOUSEDOM_EXTERNAL_CAPTURES)")
     return EXTERNAL_CAPTURES
 
 
