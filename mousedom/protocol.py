@@ -31,6 +31,10 @@ COMMANDS: dict[str, tuple[str, ...]] = {
 }
 POSE_MOVING = frozenset({"reset", "fix"})
 MAX_CLIENT_HZ = 10000.0
+# A command is one flat object: any nesting is a mistake, and deep nesting is an attack on
+# the recursive JSON parser.  An id is echoed back, so it must be something we can encode.
+MAX_DEPTH = 8
+MAX_ID_CHARS = 128
 
 
 class ProtocolError(ValueError):
@@ -115,20 +119,70 @@ def parse_command(line: bytes) -> Command:
         text = line.decode("utf-8")
     except UnicodeDecodeError as e:
         raise ProtocolError(f"byte offset {e.start}: not UTF-8") from None
+    too_deep = _nesting_beyond(text, MAX_DEPTH)
+    if too_deep is not None:
+        raise ProtocolError(f"column {too_deep}: nested deeper than {MAX_DEPTH} levels")
     try:
         # Python's json accepts NaN/Infinity; the protocol is strict JSON.
         obj = json.loads(text, parse_constant=_reject_constant)
     except json.JSONDecodeError as e:
         raise ProtocolError(f"invalid JSON at column {e.colno}: {e.msg}") from None
+    except (RecursionError, ValueError) as e:  # e.g. an integer of more than 4300 digits
+        raise ProtocolError(f"invalid JSON: {str(e)[:80]}") from None
     if not isinstance(obj, dict):
         raise ProtocolError('a command is a JSON object such as {"cmd": "status"}')
+    cmd_id = _valid_id(obj.get("id"))
     try:
-        return _command(obj)
+        return _command(obj, cmd_id)
     except ProtocolError as e:
-        raise ProtocolError(str(e), obj.get("id")) from None
+        raise ProtocolError(str(e), cmd_id) from None
 
 
-def _command(obj: dict[str, Any]) -> Command:
+def _nesting_beyond(text: str, limit: int) -> int | None:
+    """Column (1-based) where brackets outside strings nest deeper than ``limit``, or None.
+
+    Checked before json.loads, whose recursion a line of 2000 "[" would exhaust."""
+    if text.count("[") + text.count("{") <= limit:
+        return None
+    depth = 0
+    in_string = escaped = False
+    for i, ch in enumerate(text):
+        if in_string:
+            if escaped:
+                escaped = False
+            elif ch == "\\":
+                escaped = True
+            elif ch == '"':
+                in_string = False
+        elif ch == '"':
+            in_string = True
+        elif ch in "[{":
+            depth += 1
+            if depth > limit:
+                return i + 1
+        elif ch in "]}":
+            depth -= 1
+    return None
+
+
+def _valid_id(value: Any) -> Any:
+    """The command's id if it can be echoed back as it came (a short string, a finite
+    number, true/false or null); anything else is refused without echoing it."""
+    if value is None or isinstance(value, bool):
+        return value
+    if isinstance(value, str) and len(value) <= MAX_ID_CHARS:
+        return value
+    if isinstance(value, int) and abs(value) < 2**63:
+        return value
+    if isinstance(value, float) and math.isfinite(value):
+        return value
+    raise ProtocolError(
+        f"id must be a string of at most {MAX_ID_CHARS} characters, a finite number, "
+        "true, false or null"
+    )
+
+
+def _command(obj: dict[str, Any], cmd_id: Any = None) -> Command:
     name = obj.get("cmd")
     if not isinstance(name, str):
         raise ProtocolError('missing "cmd" (one of: ' + ", ".join(COMMANDS) + ")")
@@ -150,7 +204,7 @@ def _command(obj: dict[str, Any]) -> Command:
             raise ProtocolError("rate: needs hz (poses per second; 0 stops POSE)")
         if not 0 <= args["hz"] <= MAX_CLIENT_HZ:
             raise ProtocolError(f"rate: hz must be between 0 and {MAX_CLIENT_HZ:g}")
-    return Command(name=name, args=args, id=obj.get("id"))
+    return Command(name=name, args=args, id=cmd_id)
 
 
 def _reject_constant(name: str) -> Any:

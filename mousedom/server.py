@@ -261,17 +261,29 @@ class Server:
             self.clients[client.fd] = client
             self.selector.register(sock, selectors.EVENT_READ, self._make_handler(client))
             log.debug("connected %r (control=%s)", client, client.control)
-            for msg in self.on_connect(client):
-                self.send(client, encode(msg))
+            try:
+                for msg in self.on_connect(client):
+                    self.send(client, encode(msg))
+            except Exception as e:  # noqa: BLE001 - as in handle(): only this client goes
+                self._fail(client, e)
 
     def _make_handler(self, client: Client) -> Callable[[int], None]:
         def handle(events: int) -> None:
-            if events & selectors.EVENT_WRITE and client.fd in self.clients:
-                self._flush(client)
-            if events & selectors.EVENT_READ and client.fd in self.clients:
-                self._read(client)
+            try:
+                if events & selectors.EVENT_WRITE and client.fd in self.clients:
+                    self._flush(client)
+                if events & selectors.EVENT_READ and client.fd in self.clients:
+                    self._read(client)
+            except Exception as e:  # noqa: BLE001 - one client must never stop the daemon
+                self._fail(client, e)
 
         return handle
+
+    def _fail(self, client: Client, error: Exception) -> None:
+        """What a client's line or connection broke is logged, and only that client goes."""
+        log.error("%r: %s: %s (dropping this client)", client, type(error).__name__, error,
+                  exc_info=error)  # fmt: skip
+        self.drop(client, f"internal error: {type(error).__name__}")
 
     def _read(self, client: Client) -> None:
         try:

@@ -150,12 +150,24 @@ class DaemonProcess:
         )
 
     def wait_socket(self, timeout: float = 15.0) -> None:
+        """Wait until the daemon accepts connections: the socket file exists a moment
+        before ``listen`` (bind, then owner and mode, then listen), so its existence alone
+        is not readiness."""
         deadline = time.monotonic() + timeout
-        while not self.socket_path.exists():
+        while True:
             if self.proc.poll() is not None:
                 raise AssertionError(f"daemon exited {self.proc.returncode}: {self.log()}")
+            if self.socket_path.exists():
+                probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+                try:
+                    probe.connect(str(self.socket_path))
+                    return
+                except OSError:
+                    pass
+                finally:
+                    probe.close()
             if time.monotonic() > deadline:
-                raise AssertionError(f"no socket after {timeout}s: {self.log()}")
+                raise AssertionError(f"no listening socket after {timeout}s: {self.log()}")
             time.sleep(0.02)
 
     def log(self) -> str:

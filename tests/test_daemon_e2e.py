@@ -305,3 +305,24 @@ def test_two_mice_on_one_device_the_second_is_refused(tmp_path):
         c.close()
     finally:
         assert daemon.stop() == 0
+
+
+def test_hostile_lines_from_any_client_never_stop_the_daemon(rig_run):
+    """Lines that once killed the daemon (issue 11): an id that cannot be echoed as JSON
+    (1e999 parses to inf), 2000 "[" (recursion in the JSON parser), a 5000-digit integer.
+    Each gets an ERROR; the daemon, this client and the other clients go on."""
+    run = rig_run(sim.straight(1.0, 0.1))
+    sock = run.daemon.socket_path
+    bystander, attacker = Conn(sock), Conn(sock)
+    bystander.until("VERSION")
+    attacker.until("VERSION")
+    attacker.send(b'{"cmd":"status","id":1e999}\n')
+    assert "id must be" in attacker.until("ERROR")["message"]
+    attacker.send(b"[" * 2000 + b"\n")
+    assert "nested deeper" in attacker.until("ERROR")["message"]
+    attacker.send(b'{"cmd":"status","id":' + b"9" * 5000 + b"}\n")
+    assert attacker.until("ERROR")["class"] == "ERROR"
+    attacker.send({"cmd": "status", "id": "still here"})
+    assert attacker.until("STATUS")["id"] == "still here"
+    assert len(bystander.poses(0.3)) >= 5
+    assert run.daemon.proc.poll() is None

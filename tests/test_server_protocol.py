@@ -10,6 +10,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from mousedom.protocol import (
+    COMMANDS,
     LineBuffer,
     ProtocolError,
     TooLong,
@@ -144,3 +145,41 @@ def test_errors_keep_the_id_of_a_bad_command():
     with pytest.raises(ProtocolError) as info:
         parse_command(b"[42]")
     assert info.value.id is None
+
+
+@pytest.mark.parametrize(
+    "line, words",
+    [
+        (b'{"cmd":"status","id":1e999}', "id must be"),
+        (b'{"cmd":"status","id":[1,2]}', "id must be"),
+        (b'{"cmd":"status","id":"' + b"x" * 200 + b'"}', "id must be"),
+        (b"[" * 2000, "nested deeper than 8"),
+        (b'{"cmd":' + b"{" * 50 + b"}" * 50 + b"}", "nested deeper than 8"),
+        (b'{"cmd":"status","id":' + b"9" * 5000 + b"}", "invalid JSON"),
+    ],
+)
+def test_lines_that_once_crashed_the_daemon_are_protocol_errors(line, words):
+    """Issue 11: each of these raised something other than ProtocolError (or built a
+    reply that could not be encoded).  Now each is a ProtocolError whose ERROR encodes."""
+    with pytest.raises(ProtocolError, match=words) as info:
+        parse_command(line)
+    assert json.loads(encode(error_message(str(info.value), info.value.id)))["class"] == "ERROR"
+
+
+def test_brackets_inside_strings_do_not_count_as_nesting():
+    cmd = parse_command(b'{"cmd":"status","id":"' + b"[" * 100 + b'"}')
+    assert cmd.id == "[" * 100
+
+
+@given(st.binary(max_size=300))
+def test_any_bytes_give_a_command_or_an_error_that_encodes(data):
+    """Whatever a client sends, the answer is a Command of a known name with finite
+    arguments, or a ProtocolError whose ERROR reply (id included) is valid JSON."""
+    try:
+        cmd = parse_command(data)
+    except ProtocolError as e:
+        assert json.loads(encode(error_message(str(e), e.id)))["message"]
+        return
+    assert cmd.name in COMMANDS
+    assert all(math.isfinite(v) for v in cmd.args.values())
+    json.dumps({"id": cmd.id}, allow_nan=False)
