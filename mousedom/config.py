@@ -21,6 +21,7 @@ from typing import Any
 
 import yaml
 
+from mousedom import safeyaml
 from mousedom.errors import UserError, located
 
 MODELS = ("lsq", "diff-drive", "bonarini")
@@ -136,9 +137,8 @@ class _Doc:
         self.path = path
         self.lines: dict[tuple[str, ...], int] = {}
         try:
-            loader = yaml.SafeLoader(text)
+            node, loader = safeyaml.compose(text)
             try:
-                node = loader.get_single_node()
                 self.data = loader.construct_document(node) if node is not None else None
             finally:
                 loader.dispose()
@@ -428,7 +428,7 @@ def _wheels(r: _Reader) -> WheelsConfig:
 
 def _apply_calibration(mice: tuple[MouseConfig, ...], path: Path) -> tuple[MouseConfig, ...]:
     try:
-        text = path.read_text()
+        text = safeyaml.read_text(path)
     except FileNotFoundError:
         return mice
     except OSError as e:
@@ -513,7 +513,7 @@ def load_config(path: str | os.PathLike[str], *, need_sources: bool = True) -> C
     """Read a config file; every problem is a ConfigError naming file, line and key."""
     p = str(path)
     try:
-        text = Path(p).read_text()
+        text = safeyaml.read_text(p)  # bounded: a reload must not swallow a 10 GB file
     except FileNotFoundError:
         raise ConfigError(f"{p}: config file not found") from None
     except IsADirectoryError:

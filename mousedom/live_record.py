@@ -49,6 +49,7 @@ class Recording:
                 config_text=text,
                 time_base="monotonic",
                 meta={"recorder": "mousedom run --record", "config_path": config.path},
+                inputs=(config.path, config.calibration),
             )
         except OSError as e:
             raise UserError(f"{path}: cannot write the recording: {e.strerror}") from None

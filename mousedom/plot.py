@@ -6,9 +6,12 @@ for it before a long replay starts, so a missing extra costs no time.
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
 from mousedom.errors import UserError
+from mousedom.safewrite import replace_file
 from mousedom.tracker import PoseBatch
 
 INSTALL_HINT = (
@@ -91,9 +94,11 @@ def save(collector: PlotCollector, names: tuple[str, ...], path: str, title: str
     if title:
         fig.suptitle(title)
     fig.tight_layout()
+    kind = os.path.splitext(path)[1].lstrip(".").lower() or "png"
     try:
-        fig.savefig(path, dpi=110)
-    except OSError as e:
-        raise UserError(f"{path}: cannot write the plot: {e.strerror}") from None
+        # A temporary file beside the target, renamed over it: no link followed.
+        replace_file(path, lambda tmp: fig.savefig(tmp, dpi=110, format=kind))
+    except ValueError as e:  # a file ending matplotlib cannot write
+        raise UserError(f"{path}: cannot write the plot: {e}") from None
     finally:
         plt.close(fig)

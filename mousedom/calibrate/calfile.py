@@ -18,13 +18,13 @@ from __future__ import annotations
 import copy
 import os
 import sys
-import tempfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import yaml
 
+from mousedom import safewrite, safeyaml
 from mousedom.config import Config, load_config
 from mousedom.errors import UserError
 
@@ -34,7 +34,7 @@ HEADER = "# mousedom calibration: written by `mousedom calibrate ... --write`; e
 def read_calibration(path: str) -> dict[str, Any]:
     """The calibration file as a dict; {} when it does not exist yet."""
     try:
-        text = Path(path).read_text(encoding="utf-8")
+        text = safeyaml.read_text(path)
     except FileNotFoundError:
         return {}
     except OSError as e:
@@ -42,7 +42,7 @@ def read_calibration(path: str) -> dict[str, Any]:
     except UnicodeDecodeError as e:
         raise UserError(f"{path}: byte offset {e.start}: not UTF-8 text") from None
     try:
-        data = yaml.safe_load(text)
+        data = safeyaml.load(text)
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f"{path}:{mark.line + 1}" if mark else path
@@ -93,45 +93,16 @@ def _plain(value: Any) -> Any:
     return value
 
 
-def _mode_for(target: Path) -> int:
-    """Permission bits for the new file: those of the old one, else 0666 minus the umask."""
-    try:
-        return target.stat().st_mode & 0o7777
-    except OSError:
-        umask = os.umask(0)
-        os.umask(umask)
-        return 0o666 & ~umask
-
-
-def write_calibration(path: str, data: dict[str, Any]) -> None:
+def write_calibration(path: str, data: dict[str, Any], inputs: tuple[str | None, ...] = ()) -> None:
     """Replace ``path`` atomically with ``data`` as YAML."""
     text = HEADER + yaml.safe_dump(_plain(data), sort_keys=False, default_flow_style=None)
-    replace_bytes(path, text.encode("utf-8"))
+    replace_bytes(path, text.encode("utf-8"), inputs)
 
 
-def replace_bytes(path: str, raw: bytes) -> None:
-    """Replace ``path`` atomically with ``raw`` (also to put an old file back)."""
-    target = Path(path)
-    try:
-        target.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
-    except OSError as e:
-        raise UserError(f"{path}: cannot write calibration: {e.strerror}") from None
-    try:
-        # mkstemp makes the file 0600: the daemon (often another user) could not read it.
-        # Keep the mode of the file being replaced, or give a new one the umask's default.
-        os.fchmod(fd, _mode_for(target))
-        with os.fdopen(fd, "wb") as f:
-            f.write(raw)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, target)
-    except OSError as e:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise UserError(f"{path}: cannot write calibration: {e.strerror}") from None
+def replace_bytes(path: str, raw: bytes, inputs: tuple[str | None, ...] = ()) -> None:
+    """Replace ``path`` atomically with ``raw`` (also to put an old file back); never
+    through a link, never onto one of ``inputs`` (the config itself)."""
+    safewrite.replace_bytes(path, raw, inputs, make_folder=True)
 
 
 def store(config: Config, update: Callable[[dict[str, Any]], dict[str, Any]]) -> None:
@@ -144,7 +115,7 @@ def store(config: Config, update: Callable[[dict[str, Any]], dict[str, Any]]) ->
     except OSError:
         old = None  # not written yet (read_calibration says why if it is unreadable)
     data = read_calibration(path)
-    write_calibration(path, update(data))
+    write_calibration(path, update(data), (config.path,))
     try:
         load_config(config.path, need_sources=False)  # what was written must load
     except UserError as e:
@@ -153,6 +124,6 @@ def store(config: Config, update: Callable[[dict[str, Any]], dict[str, Any]]) ->
         if old is None:
             os.unlink(path)
         else:
-            replace_bytes(path, old)
+            replace_bytes(path, old, (config.path,))
         raise UserError(f"{path}: not written, the result does not load: {e}") from None
     print(f"written to {path}", file=sys.stderr)

@@ -37,6 +37,7 @@ from collections.abc import Iterator
 import numpy as np
 import yaml
 
+from mousedom import safeyaml
 from mousedom.capture.base import (
     Batch,
     Capture,
@@ -159,7 +160,7 @@ class LibinputCapture(Capture):
 
     def _yaml(self, text: bytes, first_line: int):
         try:
-            return yaml.safe_load(text)
+            return safeyaml.load(text)
         except yaml.MarkedYAMLError as e:
             mark = e.problem_mark or e.context_mark
             line = first_line + mark.line if mark else None

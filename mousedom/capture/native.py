@@ -48,6 +48,7 @@ from mousedom.capture.base import (
 )
 from mousedom.capture.base import open_binary as _open
 from mousedom.errors import located
+from mousedom.safewrite import open_stream
 
 MAGIC = b"MDCAP\r\n\x1a"
 VERSION = (1, 0)
@@ -82,11 +83,13 @@ class NativeWriter:
         chunk_reports: int = 65536,
         fsync: bool = False,
         meta: dict[str, Any] | None = None,
+        inputs: tuple[str | None, ...] = (),
     ) -> None:
         if time_base not in TIME_BASES:
             raise ValueError(f"time_base must be one of {TIME_BASES}")
         if isinstance(file, (str, os.PathLike)):
-            self._f: BinaryIO = open(file, "wb")
+            # No link followed, none of ``inputs`` (config, captures) clobbered.
+            self._f: BinaryIO = open_stream(str(file), inputs)
             self._own = True
         else:
             self._f, self._own = file, False

@@ -27,6 +27,7 @@ from mousedom.capture import (
 )
 from mousedom.capture.base import TIME_BASES, lagging_first
 from mousedom.errors import UserError
+from mousedom.safewrite import open_stream, replace_file
 
 
 def register(subparsers) -> None:
@@ -82,7 +83,7 @@ def run(args) -> int:
             raise UserError(f"<stdout>: cannot write: {e.strerror or e}") from None
         size = None
     else:
-        stats = _convert_into(args.output, inputs, config_text, not args.no_compress)
+        stats = _convert_into(args.output, inputs, config_text, not args.no_compress, paths)
         size = os.path.getsize(args.output)
     for w in stats["warnings"]:
         print(f"mousedom: warning: {w}", file=sys.stderr)
@@ -103,39 +104,33 @@ def _same(a: str, b: str) -> bool:
 
 
 def _convert_into(
-    output: str, inputs: list[tuple[str | None, Capture]], config_text: str | None, compress: bool
+    output: str,
+    inputs: list[tuple[str | None, Capture]],
+    config_text: str | None,
+    compress: bool,
+    protect: list[str],
 ) -> dict:
-    """Convert into a temporary file beside ``output`` and rename it on success.
+    """Convert into a fresh temporary file beside ``output`` and rename it on success.
 
     An input found bad half-way (or a full disk) must not leave a short capture behind
-    that replays without a word, nor clobber an older ``output``.  Special files
-    (/dev/stdout, a FIFO) are written in place.
+    that replays without a word, nor clobber an older ``output``; the temporary file's
+    name is unpredictable and made with O_EXCL (safewrite), so a planted link cannot
+    redirect it.  A pipe or device (/dev/stdout, a FIFO) is written in place.
     """
-    special = os.path.exists(output) and not os.path.isfile(output)
-    target = output
-    if not special:
-        folder = os.path.dirname(os.path.abspath(output))
-        target = os.path.join(folder, f".{os.path.basename(output)}.{os.getpid()}.part")
-    try:
-        stats = convert(inputs, target, config_text=config_text, compress=compress)
-        if target != output:
-            os.replace(target, output)
-    except OSError as e:
-        _discard(target, output)
-        name = output if e.filename in (None, target, output) else e.filename
-        raise UserError(f"{name}: cannot write: {e.strerror or e}") from None
-    except BaseException:
-        _discard(target, output)
-        raise
-    return stats
+    stats: dict = {}
 
+    def write(target: str) -> None:
+        stats.update(convert(inputs, target, config_text=config_text, compress=compress))
 
-def _discard(target: str, output: str) -> None:
-    if target != output:
+    if os.path.exists(output) and not os.path.isfile(output):
         try:
-            os.unlink(target)
-        except OSError:
-            pass
+            with open_stream(output, protect) as f:
+                stats.update(convert(inputs, f, config_text=config_text, compress=compress))
+        except OSError as e:  # also from the close's last flush
+            raise UserError(f"{output}: cannot write: {e.strerror or e}") from None
+        return stats
+    replace_file(output, write, protect)
+    return stats
 
 
 @dataclass

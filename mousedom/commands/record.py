@@ -195,7 +195,11 @@ class Recorder:
                 time_base="monotonic",
                 fsync=fsync,
                 meta={"recorder": "mousedom record", "config_path": cfg.path},
+                inputs=(cfg.path, cfg.calibration),
             )
+        except UserError as e:  # the output refused (a link, an input) or unwritable
+            self.close_sources()
+            raise UserError(str(e), exit_code=1) from None
         except OSError as e:
             self.close_sources()
             raise UserError(f"{output}: cannot write: {e.strerror}", exit_code=1) from None

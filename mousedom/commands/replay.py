@@ -18,6 +18,7 @@ from mousedom.capture import assign, parse_capture_arg
 from mousedom.config import INTEGRATORS, MODELS, load_config
 from mousedom.errors import UserError
 from mousedom.replay import CsvSink, Replay, Summary
+from mousedom.safewrite import open_stream
 
 
 def register(subparsers) -> None:
@@ -105,10 +106,7 @@ def run(args) -> int:
     if args.output == "-":
         out = _Output(sys.stdout, "<stdout>")
     elif args.output:
-        try:
-            out = _Output(open(args.output, "w", newline=""), args.output)
-        except OSError as e:
-            raise UserError(f"{args.output}: cannot write: {e.strerror}") from None
+        out = _Output(open_stream(args.output, inputs, text=True), args.output)
     if out is not None:
         sinks.append(CsvSink(out))
     collector = None
@@ -237,11 +235,10 @@ def _emit_umbmark(args, summary: Summary, true_end: tuple[float, float]) -> None
     if not args.umbmark_csv:
         print(row)
         return
+    inputs = [args.config, *(path for _, path in map(parse_capture_arg, args.capture))]
     try:
-        with open(args.umbmark_csv, "a+", newline="") as f:
-            f.seek(0)
-            empty = not f.read(1)
-            f.seek(0, 2)
+        with open_stream(args.umbmark_csv, inputs, append=True, text=True) as f:
+            empty = os.fstat(f.fileno()).st_size == 0
             f.write((HEADER + "\n" if empty else "") + row + "\n")
     except OSError as e:
         raise UserError(f"{args.umbmark_csv}: cannot append: {e.strerror}") from None

@@ -1,0 +1,149 @@
+"""Writers never follow a link, never clobber an input, and say which (issue 11, item 4).
+
+Unit tests of mousedom.safewrite, then the commands that once followed links or
+overwrote their own config, run as real processes."""
+
+from __future__ import annotations
+
+import os
+import stat
+import subprocess
+import sys
+
+import pytest
+from capture_helpers import PS2, external_dir, one_mouse_config
+from conftest import run_mousedom
+
+from mousedom.errors import UserError
+from mousedom.safewrite import open_stream, replace_bytes, replace_file
+
+
+def _one_error(stderr: str, *needles: str) -> None:
+    assert "Traceback" not in stderr, stderr
+    lines = [ln for ln in stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("mousedom: error:"), stderr
+    for n in needles:
+        assert n in lines[0], lines[0]
+
+
+def test_stream_through_a_link_to_a_file_is_refused_and_the_target_kept(tmp_path):
+    target = tmp_path / "precious.txt"
+    target.write_text("keep me")
+    link = tmp_path / "out.csv"
+    link.symlink_to(target)
+    with pytest.raises(UserError, match="symbolic link"):
+        open_stream(str(link))
+    assert target.read_text() == "keep me"
+
+
+def test_stream_through_a_dangling_link_creates_nothing(tmp_path):
+    link = tmp_path / "out.mdcap"
+    link.symlink_to(tmp_path / "elsewhere")
+    with pytest.raises(UserError, match="symbolic link"):
+        open_stream(str(link))
+    assert not (tmp_path / "elsewhere").exists()
+
+
+def test_stream_onto_an_input_by_another_name_is_refused_before_truncation(tmp_path):
+    config = tmp_path / "rig.yaml"
+    config.write_text("rate_hz: 100\n")
+    hard = tmp_path / "hard.yaml"
+    os.link(config, hard)
+    for out in (config, hard):
+        with pytest.raises(UserError, match="is the input"):
+            open_stream(str(out), [str(config)])
+    assert config.read_text() == "rate_hz: 100\n"
+
+
+def test_stream_to_a_new_file_an_old_file_and_a_device(tmp_path):
+    new = tmp_path / "new.csv"
+    with open_stream(str(new), text=True) as f:
+        f.write("a\n")
+    with open_stream(str(new), text=True) as f:  # an old output is truncated
+        f.write("b\n")
+    assert new.read_text() == "b\n"
+    with open_stream(str(new), append=True, text=True) as f:
+        f.write("c\n")
+    assert new.read_text() == "b\nc\n"
+    with open_stream("/dev/null") as f:  # a device is written as it is
+        f.write(b"x")
+
+
+def test_whole_file_replaces_atomically_and_refuses_links_and_inputs(tmp_path):
+    out = tmp_path / "cal.yaml"
+    out.write_text("old")
+    out.chmod(0o640)
+    replace_bytes(str(out), b"new")
+    assert out.read_text() == "new" and stat.S_IMODE(out.stat().st_mode) == 0o640
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cal.yaml"]  # no temporary left
+
+    def broken(tmp: str) -> None:
+        with open(tmp, "wb") as f:
+            f.write(b"half")
+        raise OSError(28, "No space left on device")
+
+    with pytest.raises(UserError, match="No space left"):
+        replace_file(str(out), broken)
+    assert out.read_text() == "new" and sorted(p.name for p in tmp_path.iterdir()) == ["cal.yaml"]
+
+    link = tmp_path / "link.yaml"
+    link.symlink_to(out)
+    with pytest.raises(UserError, match="symbolic link"):
+        replace_bytes(str(link), b"x")
+    with pytest.raises(UserError, match="is the input"):
+        replace_bytes(str(out), b"x", [str(out)])
+    assert out.read_text() == "new" and link.is_symlink()
+
+
+def _rig(tmp_path):
+    return one_mouse_config(tmp_path, rate=1000)
+
+
+def test_replay_outputs_refuse_links(tmp_path):
+    cfg = _rig(tmp_path)
+    target = tmp_path / "victim"
+    target.write_text("keep")
+    cap = f"m={external_dir() / PS2}"
+    for flag, name in (("-o", "out.csv"), ("--plot", "out.png"), ("--umbmark-csv", "runs.csv")):
+        link = tmp_path / name
+        link.symlink_to(target)
+        extra = ["--umbmark", "cw", "--true-end", "0,0"] if flag == "--umbmark-csv" else []
+        proc = run_mousedom(
+            "replay", "--config", str(cfg), "--capture", cap, flag, str(link), *extra
+        )
+        assert proc.returncode != 0, (flag, proc.stderr)
+        _one_error(proc.stderr, str(link), "symbolic link")
+        assert target.read_text() == "keep"
+        link.unlink()
+
+
+def test_convert_refuses_a_link_and_leaves_no_temporary(tmp_path):
+    target = tmp_path / "victim"
+    target.write_text("keep")
+    link = tmp_path / "out.mdcap"
+    link.symlink_to(target)
+    proc = run_mousedom("convert", "--capture", f"m={external_dir() / PS2}", "-o", str(link))
+    assert proc.returncode != 0
+    _one_error(proc.stderr, "symbolic link")
+    assert target.read_text() == "keep"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.mdcap", "victim"]
+
+
+def test_run_record_onto_the_running_config_is_refused(tmp_path):
+    """`run --record rig.yaml` overwrote the running config; now it stops with one line
+    before anything is written."""
+    cfg = tmp_path / "rig.yaml"
+    cfg.write_text(
+        "rate_hz: 50\nmodel: diff-drive\nmice:\n  m:\n    cpi: 400\n"
+        "    mount: {x: 0.1, y: 0.0, yaw: 0}\n"
+        f"    replay: {{file: {external_dir() / PS2}}}\n"
+    )
+    before = cfg.read_bytes()
+    proc = subprocess.run(
+        [sys.executable, "-m", "mousedom", "run", "--config", str(cfg), "--record", str(cfg),
+         "--socket", str(tmp_path / "s.sock")],
+        capture_output=True, text=True, timeout=30, env={**os.environ, "PYTHONPATH": os.getcwd()},
+    )  # fmt: skip
+    assert proc.returncode != 0
+    assert "is the input" in proc.stderr and "Traceback" not in proc.stderr
+    assert cfg.read_bytes() == before
