@@ -141,6 +141,7 @@ class Daemon:
         self.tracker: Any = None
         self.started = clock()
         self.poses = 0
+        self.last_pose_t = -math.inf  # POSE times never step back, across reloads too
         self.wakes = 0  # loop iterations: what the reading policy costs (see _plan)
         self.source_reads = 0
         self.not_updated = 0
@@ -261,7 +262,7 @@ class Daemon:
                 self._broadcast_sources(now)
                 self._update_status()
                 if self.recording is not None:
-                    self.recording.sync(self.tracker.frontier_time)
+                    self._record(self.recording.sync, self.tracker.frontier_time)
             if now >= next_watchdog:
                 self.notifier.watchdog()
                 next_watchdog = now + (wd_interval or math.inf)
@@ -327,10 +328,7 @@ class Daemon:
             except Exception:  # noqa: BLE001 - shutting down: log, do not mask the exit
                 log.exception("flushing the last poses failed")
         if self.recording is not None:
-            try:
-                self.recording.close()
-            except OSError as e:
-                log.error("closing the recording failed: %s", e)
+            self._record(self.recording.close)
             self.recording = None
         self.server.close()
         for slot in self.slots:
@@ -419,7 +417,24 @@ class Daemon:
                 # As the source holds them: a live read's lists go on without numpy.
                 self.tracker.push(slot.index, *batch.columns())
                 if self.recording is not None:
-                    self.recording.motion(slot.index, batch.t, batch.dx, batch.dy)
+                    self._record(self.recording.motion, slot.index, batch.t, batch.dx, batch.dy)
+
+    def _record(self, write: Callable[..., None], *args: Any) -> None:
+        """A recording that cannot be written (full disk, file size limit) stops, logged;
+        the fusion, which robots rely on, goes on."""
+        try:
+            write(*args)
+        except (OSError, UserError) as e:
+            log.error(
+                "recording %s stopped: %s; the daemon goes on without it",
+                self.recording.path,
+                getattr(e, "strerror", None) or e,
+            )
+            try:
+                self.recording.close()
+            except (OSError, UserError):
+                pass  # the file keeps what reached it (all but the torn last chunk)
+            self.recording = None
 
     def _gone(self, slot: Slot, now: float, why: str) -> None:
         log.warning(
@@ -486,6 +501,7 @@ class Daemon:
                 missing,
             )
             self.poses += 1
+            self.last_pose_t = pose.t
             self.not_updated += not pose.ok
             self.server.broadcast_pose(pose.t, line, tolerance)
 
@@ -571,7 +587,9 @@ class Daemon:
             if not path:
                 raise UserError("the running config was not read from a file")
             new = load_config(path)
-        except UserError as e:
+        except Exception as e:  # noqa: BLE001 - whatever a reload meets, the old config runs on
+            if not isinstance(e, UserError):
+                log.exception("reload of %s failed unexpectedly", path)
             log.error("reload failed, keeping the running config: %s", e)
             self.notifier.notify(READY=1, STATUS=f"reload failed: {e}")
             return
@@ -581,7 +599,9 @@ class Daemon:
                 self._read_slot(slot)
         self._publish(self.tracker.finish())
         pose = self._pose_now()
-        tracker = self._tracker_class(new, t0=now)
+        # finish() may have closed a window ending after now (the one holding the last
+        # report): the new grid starts after it, or POSE t would step back once.
+        tracker = self._tracker_class(new, t0=max(now, self.last_pose_t))
         tracker.reset(**pose)
         tracker.complete_until(now)  # what came before now went to the old tracker
         old = {s.name: s for s in self.slots}
@@ -599,7 +619,7 @@ class Daemon:
             self._close_slot(gone)
         if self.recording is not None and new.names != self.recording.names:
             log.warning("the mice changed: recording %s stops here", self.recording.path)
-            self.recording.close()
+            self._record(self.recording.close)
             self.recording = None
         self.config, self.tracker, self.slots = new, tracker, slots
         for slot in slots:

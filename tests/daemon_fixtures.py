@@ -132,7 +132,13 @@ class DaemonProcess:
     """``mousedom run`` as a real child process."""
 
     def __init__(
-        self, config: Path, socket_path: Path, *args: str, env=None, config_args: bool = True
+        self,
+        config: Path,
+        socket_path: Path,
+        *args: str,
+        env=None,
+        config_args: bool = True,
+        preexec=None,
     ) -> None:
         environ = dict(os.environ)
         environ["PYTHONPATH"] = str(REPO) + os.pathsep + environ.get("PYTHONPATH", "")
@@ -147,6 +153,7 @@ class DaemonProcess:
             stdout=subprocess.DEVNULL,
             stderr=self._log,
             env=environ,
+            preexec_fn=preexec,
         )
 
     def wait_socket(self, timeout: float = 15.0) -> None:
@@ -235,12 +242,14 @@ def rig_runner(tmp_path):
     runs a daemon on a three-mouse FIFO rig driving ``trajectory``; stops all at the end."""
     started = []
 
-    def start(trajectory, extra: str = "", rate_hz: float = RATE, env=None, args=()):
+    def start(trajectory, extra: str = "", rate_hz: float = RATE, env=None, args=(), preexec=None):
         rig = sim.three_mouse_rig()
         fifos = {m.name: tmp_path / f"{m.name}.fifo" for m in rig.mice}
         mice = {n: FifoMouse(p) for n, p in fifos.items()}
         config = write_rig_config(tmp_path / "rig.yaml", rig, fifos, extra, rate_hz=rate_hz)
-        daemon = DaemonProcess(config, tmp_path / "run" / "mousedom.sock", *args, env=env)
+        daemon = DaemonProcess(
+            config, tmp_path / "run" / "mousedom.sock", *args, env=env, preexec=preexec
+        )
         daemon.wait_socket()
         for m in mice.values():
             m.attach()

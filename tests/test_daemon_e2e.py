@@ -326,3 +326,74 @@ def test_hostile_lines_from_any_client_never_stop_the_daemon(rig_run):
     assert attacker.until("STATUS")["id"] == "still here"
     assert len(bystander.poses(0.3)) >= 5
     assert run.daemon.proc.poll() is None
+
+
+def _alias_bomb(levels: int = 8) -> str:
+    text = "a0: &a0 [x, x, x, x, x, x, x, x, x]\n"
+    for i in range(1, levels + 1):
+        text += f"a{i}: &a{i} [" + ", ".join([f"*a{i - 1}"] * 9) + "]\n"
+    return text
+
+
+def test_hostile_reloads_keep_the_running_config_and_sigterm_works(rig_run):
+    """Issue 11: SIGHUP with a deeply nested config exited (RecursionError); with an alias
+    bomb the daemon published nothing and ignored SIGTERM.  Now each reload is refused with
+    file and line, the pose goes on, and SIGTERM still stops the daemon at once."""
+    run = rig_run(sim.straight(1.0, 0.1))
+    c = Conn(run.daemon.socket_path)
+    c.until("VERSION")
+    good = run.config.read_text()
+    for bad, words in (
+        ("x: " + "[" * 3000 + "]" * 3000 + "\n", "nest"),
+        (_alias_bomb(), "aliases expand"),
+        ("x: " + "9" * 5000 + "\n", "integer of 5000"),
+    ):
+        run.config.write_text(good + bad)
+        run.daemon.signal(signal.SIGHUP)
+        deadline = time.monotonic() + 5
+        while "reload failed" not in run.daemon.log() and time.monotonic() < deadline:
+            c.poses(0.1)
+        log = run.daemon.log()
+        assert "reload failed, keeping the running config" in log and words in log, log
+        assert f"{run.config}:" in log
+        assert len(c.poses(0.3)) >= 5 and run.daemon.proc.poll() is None
+        run.daemon.stderr_path.write_text("")  # the next round reads only its own lines
+    t = time.monotonic()
+    run.daemon.signal(signal.SIGTERM)
+    assert run.daemon.proc.wait(5) == 0 and time.monotonic() - t < 1.0
+
+
+def test_a_reload_that_changes_the_rate_never_steps_pose_time_back(rig_run):
+    run = rig_run(sim.straight(2.0, 0.1))
+    c = Conn(run.daemon.socket_path)
+    c.until("VERSION")
+    text = run.config.read_text()
+    times = [p["t"] for p in c.poses(0.3)]
+    for rate in (200.0, 10.0, 100.0):  # up, down and up again
+        run.config.write_text(text.replace(f"rate_hz: {RATE!r}", f"rate_hz: {rate!r}"))
+        run.daemon.signal(signal.SIGHUP)
+        times += [p["t"] for p in c.poses(0.4)]
+    assert "reloaded" in run.daemon.log()
+    assert np.all(np.diff(times) > 0), np.diff(times).min()
+
+
+def test_a_recording_that_cannot_grow_stops_and_the_daemon_goes_on(rig_run, tmp_path):
+    """`run --record` on a full disk exited rc 1 with a traceback; now the recording stops
+    with one logged line and the pose goes on (a file size limit stands in for the disk)."""
+    import resource
+
+    def small_files() -> None:
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (20_000, 20_000))
+
+    out = tmp_path / "run.mdcap"
+    run = rig_run(sim.straight(3.0, 0.1), args=("--record", str(out)), preexec=small_files)
+    c = Conn(run.daemon.socket_path)
+    c.until("VERSION")
+    deadline = time.monotonic() + 10
+    while "recording" not in run.daemon.log() or "stopped" not in run.daemon.log():
+        assert time.monotonic() < deadline, run.daemon.log()
+        c.poses(0.2)
+    assert "File too large" in run.daemon.log() and "Traceback" not in run.daemon.log()
+    assert len(c.poses(0.5)) >= 10 and run.daemon.proc.poll() is None
+    assert 0 < out.stat().st_size <= 20_000
