@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import os
 import stat
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -29,9 +30,10 @@ from mousedom.capture.base import (
     Motion,
     Serial,
 )
-from mousedom.capture.evemu import EvemuCapture
+from mousedom.capture.evemu import EvemuCapture, companion
 from mousedom.capture.libinput import LibinputCapture, looks_like_libinput
 from mousedom.capture.native import NativeCapture, NativeWriter, is_native
+from mousedom.capture.plain import BOM, compression, discard, plain_copy
 from mousedom.config import Config, EvdevMatch, MouseConfig
 from mousedom.sources.base import Reports
 
@@ -56,8 +58,9 @@ __all__ = [
 ]
 
 
-def sniff(path: str) -> str:
-    """'native', 'libinput' or 'evemu' from the first bytes of the file."""
+def sniff(path: str, data_path: str | None = None) -> str:
+    """'native', 'libinput' or 'evemu' from the first bytes of the file (of its plain copy
+    ``data_path`` when it has one)."""
     try:
         if os.path.exists(path) and not stat.S_ISREG(os.stat(path).st_mode):
             if os.path.isdir(path):
@@ -67,7 +70,7 @@ def sniff(path: str) -> str:
                 f"{path}: not a regular file (a pipe?); a capture is read more than once, "
                 "save it to a file first"
             )
-        with open(path, "rb") as f:
+        with open(data_path or path, "rb") as f:
             prefix = f.read(65536)
     except FileNotFoundError:
         if path.endswith(".desc") or path.endswith(".events"):
@@ -77,6 +80,9 @@ def sniff(path: str) -> str:
         raise CaptureError(f"{path}: is a directory, not a capture") from None
     except OSError as e:
         raise CaptureError(f"{path}: cannot read: {e.strerror}") from None
+    if data_path is None and compression(prefix):
+        return "compressed"  # open_capture sniffs again, on the decompressed copy
+    prefix = prefix.removeprefix(BOM)
     if is_native(prefix):
         return "native"
     if looks_like_libinput(prefix):
@@ -99,13 +105,31 @@ def sniff(path: str) -> str:
 
 
 def open_capture(path: str | os.PathLike[str]) -> Capture:
+    """Open a capture for streaming: any of the three formats, compressed (gzip, xz,
+    bzip2) or not, with any line endings (see ``capture.plain``)."""
     p = str(path)
-    kind = sniff(p)
-    if kind == "native":
-        return NativeCapture(p)
-    if kind == "libinput":
-        return LibinputCapture(p)
-    return EvemuCapture(p)
+    sniff(p)  # a missing, special or unknown file is refused before any copy is made
+    if p.endswith(".desc"):
+        p = companion(p)[0]  # an old evemu pair: the events file is what is read
+    if not os.path.exists(p):
+        return EvemuCapture(p)  # its companion logic gives the better message
+    try:
+        copy, warning = plain_copy(p)
+    except OSError as e:
+        raise CaptureError(f"{p}: cannot read: {e.strerror}") from None
+    try:
+        kind = sniff(p, copy)
+        reader = {"native": NativeCapture, "libinput": LibinputCapture}.get(kind, EvemuCapture)
+        cap = reader(p, data_path=copy)
+    except BaseException:
+        discard(copy)
+        raise
+    if copy:
+        weakref.finalize(cap, discard, copy)  # the copy goes with the capture
+    if warning:
+        cap.open_warnings.append(warning)
+        cap.warnings.append(warning)
+    return cap
 
 
 # --------------------------------------------------------------------------- --capture
@@ -217,12 +241,19 @@ def assign(
                     f"(its mice: {', '.join(config.names)})"
                 )
             mouse = config.index(name)
+            wanted = config.mice[mouse].replay_device
+            if wanted is not None and not any(_matches(config.mice[mouse], d) for d in cap.devices):
+                raise CaptureError(
+                    f"--capture {name}={path}: {cfg_name} names device {wanted!r} for mouse "
+                    f"{name!r} (mice.{name}.replay.device), and the file holds "
+                    f"{_describe(cap, cands)}"
+                )
             if len(cap.devices) == 1:
                 put(mouse, cap, 0, "given by name")
                 continue
             hits = [i for i in cands if _matches(config.mice[mouse], cap.devices[i])]
-            if len(cands) == 1 and not hits:
-                hits = cands
+            if len(cands) == 1 and not hits and config.mice[mouse].replay_device is None:
+                hits = cands  # the only mover, and no device named that it could contradict
             if len(hits) != 1:
                 raise CaptureError(
                     f"--capture {name}={path}: the file holds {len(cands)} motion devices "
@@ -255,8 +286,13 @@ def assign(
         cap = get(m.replay)
         cands = _candidates(cap)
         hits = [i for i in cands if _matches(m, cap.devices[i])]
-        if not hits and len(cands) == 1:
-            hits = cands
+        if not hits and len(cands) == 1 and m.replay_device is None:
+            hits = cands  # the only mover, and no device named that it could contradict
+        if not hits and m.replay_device is not None:
+            raise CaptureError(
+                f"{m.replay}: mice.{m.name}.replay.device: no device {m.replay_device!r} in "
+                f"this file (it holds {_describe(cap, cands)})"
+            )
         if len(hits) != 1:
             raise CaptureError(
                 f"{m.replay}: mice.{m.name}.replay: {len(hits)} devices match "

@@ -236,15 +236,19 @@ class Capture(ABC):
 
     format = "capture"
 
-    def __init__(self, path: str) -> None:
-        self.path = path
+    def __init__(self, path: str, data_path: str | None = None) -> None:
+        self.path = path  # what messages name: the user's file
+        # What is read: the file itself, or its plain copy (capture.plain: decompressed,
+        # line endings repaired), which has the same lines.
+        self.data_path = data_path or path
+        self.open_warnings: list[str] = []  # said once per feeds(), e.g. a cut-off .gz
         self.devices: list[DeviceInfo] = []
         self.stats: list[DeviceStats] = []
         self.time_base = "relative"
         self.header: dict[str, Any] = {}  # format specific (the native config snapshot)
         self.warnings: list[str] = []
         try:
-            self.bytes_total = os.path.getsize(path)
+            self.bytes_total = os.path.getsize(self.data_path)
         except OSError:
             self.bytes_total = 0
         self.bytes_done = 0  # how far the feeds have read (for progress bars)
@@ -259,5 +263,5 @@ class Capture(ABC):
 
     def reset_stats(self) -> None:
         self.stats = [DeviceStats() for _ in self.devices]
-        self.warnings = []
+        self.warnings = list(self.open_warnings)
         self.bytes_done = 0

@@ -8,7 +8,7 @@ The format, as evemu writes it::
     I: <bus> <vendor> <product> <version>          (hex)
     P: <property bytes>                            (hex)
     B: <type> <8 bitmask bytes>                    (hex, several lines per type)
-    A: <code> <min> <max> <fuzz> <flat> [<res>]     (decimal)
+    A: <code> <min> <max> <fuzz> <flat> [<res>]     (code hex, the rest decimal)
     E: <sec>.<usec> <type> <code> <value>[\\t# comment]   (type, code hex; value decimal)
 
 Times are absolute (CLOCK_REALTIME, old recordings) or relative to the first event.
@@ -102,7 +102,11 @@ def _parse_header(path: str, lines: list[bytes], first_line: int, info: DeviceIn
             elif tag == b"P":
                 [int(x, 16) for x in rest.split()]
             elif tag == b"A":
-                [int(x) for x in rest.split()]
+                # evemu writes "A: %02x %d %d %d %d %d": the axis code in hex, then
+                # min, max, fuzz, flat (and resolution) in decimal.
+                code, *limits = rest.split()
+                int(code, 16)
+                [int(x) for x in limits]
         except ValueError:
             raise CaptureError(
                 located(path, lineno, f"malformed {tag.decode()}: line: {_show(line)}")
@@ -133,9 +137,11 @@ def companion(path: str) -> tuple[str, str | None]:
 class EvemuCapture(Capture):
     format = "evemu"
 
-    def __init__(self, path: str, *, block_bytes: int = BLOCK_BYTES) -> None:
+    def __init__(
+        self, path: str, *, block_bytes: int = BLOCK_BYTES, data_path: str | None = None
+    ) -> None:
         events_path, desc_path = companion(path)
-        super().__init__(events_path)
+        super().__init__(events_path, data_path)
         self.desc_path = desc_path
         self.block_bytes = block_bytes
         info = DeviceInfo(name=Path(events_path).stem)
@@ -145,7 +151,7 @@ class EvemuCapture(Capture):
             if body_at < len(lines):
                 raise CaptureError(located(desc_path, body_at + 1, "events in a .desc file"))
             _parse_header(desc_path, lines, 1, info)
-        with _open(self.path) as f:
+        with _open(self.data_path) as f:
             head: list[bytes] = []
             self._body_offset = 0
             for raw in f:
@@ -165,7 +171,7 @@ class EvemuCapture(Capture):
         self.time_base = "epoch" if t0 is not None and t0 > EPOCH_THRESHOLD else "relative"
 
     def first_time(self) -> float | None:
-        with _open(self.path) as f:
+        with _open(self.data_path) as f:
             f.seek(self._body_offset)
             for i, raw in enumerate(f):
                 line = raw.split(b"#", 1)[0].strip()
@@ -186,7 +192,7 @@ class EvemuCapture(Capture):
 
     def _blocks(self) -> Iterator[tuple[bytes, int, bool]]:
         """(block of whole lines, number of its first line, at end of file)."""
-        with _open(self.path) as f:
+        with _open(self.data_path) as f:
             f.seek(self._body_offset)
             line = self._body_line
             carry = b""

@@ -182,6 +182,10 @@ def event_line(line: bytes) -> tuple[float, int, int, int]:
     sec, dot, usec = fields[1].partition(b".")
     if not sec.isdigit() or (dot and not usec.isdigit()):
         raise ValueError("bad time (want seconds.microseconds)")
+    if len(sec.lstrip(b"0")) > 12 or len(usec) > 9:
+        # Beyond any clock (12 digits: 31,000 years) and beyond float64's exactness; what
+        # the fast path refuses too, so both paths agree.
+        raise ValueError("time out of range (at most 12 digits of seconds, 9 of fraction)")
     t = int(sec) + (int(usec) / 10 ** len(usec) if usec else 0.0)
     if len(usec) == 6:
         t = int(sec) + int(usec) / 1_000_000

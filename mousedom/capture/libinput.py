@@ -52,6 +52,9 @@ from mousedom.errors import located
 from mousedom.events import EV_REL, REL_X, REL_Y
 
 KNOWN_VERSIONS = (1,)
+# Seconds since the start of a recording: a century is far past any real one, and keeps
+# every time exact in float64 and the window arithmetic bounded.
+MAX_SECONDS = 3_155_760_000
 BLOCK_BYTES = 4 << 20
 
 _DEVICE = re.compile(rb"(?m)^[ \t]*- node:")
@@ -61,7 +64,17 @@ _ROW = re.compile(rb"(?m)^[ \t]*- \[([^\]\n]*)\][ \t]*$")
 _ROW_C = re.compile(rb"(?m)^[ \t]*- \[([^\]\n]*)\][ \t]*(?:#[^\n]*)?$")  # with a comment
 # Lines allowed in an event list besides rows: "- evdev:", "- hid:", keys of hid and
 # libinput entries, blanks (comments are stripped first).
-_OTHER = re.compile(rb"(?m)^(?:[ \t]*- \[[^\]\n]*\][ \t]*|[ \t]*(?:- )?[A-Za-z_][\w-]*:.*|[ \t]*)$")
+# An ``evdev:`` key with anything after it is not "other": it holds events (flow style).
+_OTHER = re.compile(
+    rb"(?m)^(?:[ \t]*- \[[^\]\n]*\][ \t]*"
+    rb"|[ \t]*(?:- )?(?!evdev:[ \t]*[^ \t\n])[A-Za-z_][\w-]*:.*|[ \t]*)$"
+)
+# Flow style, as YAML allows and other writers produce: ``- evdev: [[0, 10, 2, 0, 1], ...]``.
+_FLOW_HINT = re.compile(rb"evdev:[ \t]*\[")
+_FLOW = re.compile(rb"(?m)^[ \t]*- evdev:[ \t]*\[(.*)\][ \t]*$")
+_FLOW_ROW = re.compile(rb"\[([^\[\]\n]*)\]")
+# A top-level key after the devices began: a second recording appended (``cat a.yml b.yml``).
+_TOP = re.compile(rb"(?m)^(?:version|ndevices|libinput|system|devices):")
 
 
 def looks_like_libinput(prefix: bytes) -> bool:
@@ -87,12 +100,14 @@ class _Span:
 class LibinputCapture(Capture):
     format = "libinput"
 
-    def __init__(self, path: str, *, block_bytes: int = BLOCK_BYTES) -> None:
-        super().__init__(path)
+    def __init__(
+        self, path: str, *, block_bytes: int = BLOCK_BYTES, data_path: str | None = None
+    ) -> None:
+        super().__init__(path, data_path)
         self.block_bytes = block_bytes
         self.time_base = "relative"
         self._spans = self._index()
-        with _open(path) as f:
+        with _open(self.data_path) as f:
             top_text = f.read(self._spans[0].start if self._spans else self._size)
         top = self._yaml(top_text, 1)
         if not isinstance(top, dict):
@@ -119,7 +134,7 @@ class LibinputCapture(Capture):
         spans: list[_Span] = []
         line = 1
         offset = 0
-        with _open(self.path) as f:
+        with _open(self.data_path) as f:
             carry = b""
             while True:
                 buf = f.read(self.block_bytes)
@@ -132,9 +147,22 @@ class LibinputCapture(Capture):
                 marks = sorted(
                     [(m.start(), 0) for m in _DEVICE.finditer(block)]
                     + [(m.start(), 1) for m in _EVENTS.finditer(block)]
+                    + [(m.start(), 2) for m in _TOP.finditer(block)]
                 )
                 for pos, kind in marks:
                     at_line = line + block.count(b"\n", 0, pos)
+                    if kind == 2:
+                        if spans:
+                            raise CaptureError(
+                                located(
+                                    self.path,
+                                    at_line,
+                                    "a second recording starts here (files joined with cat?); "
+                                    "their times have no common base: give each file its "
+                                    "own --capture",
+                                )
+                            )
+                        continue
                     if kind == 0:
                         if spans:
                             spans[-1].end = offset + pos
@@ -169,7 +197,7 @@ class LibinputCapture(Capture):
             raise CaptureError(located(self.path, first_line, f"invalid YAML: {e}")) from None
 
     def _device(self, span: _Span) -> DeviceInfo:
-        with _open(self.path) as f:
+        with _open(self.data_path) as f:
             f.seek(span.start)
             text = f.read(span.events - span.start)
         # The header is a one-item YAML list ("- node: ..."): drop its indentation.
@@ -221,7 +249,7 @@ class LibinputCapture(Capture):
     def _blocks(self, span: _Span, limit: int | None = None) -> Iterator[tuple[bytes, int]]:
         if not span.events_line:
             return
-        with _open(self.path) as f:
+        with _open(self.data_path) as f:
             f.seek(span.events)
             left = span.end - span.events
             line = span.events_line
@@ -244,9 +272,12 @@ class LibinputCapture(Capture):
     def _parse(self, block: bytes, line: int):
         """(t, type, code, value) arrays of the evdev rows of a block of whole lines."""
         rows = _ROW_C.findall(block)
+        flow = _FLOW_HINT.search(block) is not None
         # Quick check: every line is a row or "- evdev:"; else look at each line closely.
-        if len(rows) + block.count(b"- evdev:") != block.count(b"\n"):
+        if flow or len(rows) + block.count(b"- evdev:") != block.count(b"\n"):
             text = _COMMENT.sub(b"", block) if b"#" in block else block
+            if flow:
+                text = _FLOW.sub(_flow_rows, text)
             if len(_OTHER.sub(b"", text).strip()) != 0:
                 self._complain(block, line)
             rows = _ROW.findall(text)
@@ -265,6 +296,7 @@ class LibinputCapture(Capture):
         a = a.reshape(n, 5)
         if (
             (a[:, :4] < 0).any()
+            or (a[:, 0] >= MAX_SECONDS).any()
             or (a[:, 2:4] > 0xFFFF).any()
             or (a[:, 1] >= 1_000_000).any()
             or (a[:, 4] < -(2**31)).any()  # an evdev value is a signed 32-bit integer
@@ -278,26 +310,23 @@ class LibinputCapture(Capture):
         for i, raw in enumerate(block.split(b"\n")):
             text = _COMMENT.sub(b"", raw)
             m = _ROW.match(text)
-            if m:
-                fields = m.group(1).split(b",")
-                ok = len(fields) == 5
-                try:
-                    vals = [int(x) for x in fields]
-                    ok = ok and min(vals[:4]) >= 0 and vals[1] < 1_000_000
-                    ok = ok and vals[2] <= 0xFFFF and vals[3] <= 0xFFFF
-                    ok = ok and -(2**31) <= vals[4] < 2**31
-                except ValueError:
-                    ok = False
-                if not ok:
+            flow = _FLOW.match(text)
+            if m or flow:
+                if flow and _FLOW_ROW.sub(b"", flow.group(1)).replace(b",", b"").strip():
                     raise CaptureError(
-                        located(
-                            self.path,
-                            line + i,
-                            "an evdev event must be [sec, usec, type, code, value] "
-                            "(non-negative integers, but the value: a signed 32-bit one), "
-                            f"got [{_show(m.group(1))}]",
-                        )
+                        located(self.path, line + i, f"malformed evdev event list: {_show(raw)}")
                     )
+                for row in [m.group(1)] if m else _FLOW_ROW.findall(flow.group(1)):
+                    if not _row_ok(row):
+                        raise CaptureError(
+                            located(
+                                self.path,
+                                line + i,
+                                "an evdev event must be [sec, usec, type, code, value] "
+                                "(non-negative integers, but the value: a signed 32-bit "
+                                f"one), got [{_show(row)}]",
+                            )
+                        )
             elif not _OTHER.fullmatch(text):
                 raise CaptureError(
                     located(self.path, line + i, f"unexpected line in events: {_show(raw)}")
@@ -309,7 +338,10 @@ class LibinputCapture(Capture):
         span = self._spans[index]
         frames = FrameBatcher(index, stats)
         last_t = -np.inf
+        at_end = span.end == self._size
         for block, line in self._blocks(span):
+            if at_end and not block.endswith(b"\n"):
+                block = self._cut_torn_tail(block, line, stats)
             t, typ, code, value = self._parse(block, line)
             if not len(t):
                 continue
@@ -318,6 +350,19 @@ class LibinputCapture(Capture):
             last_t = float(t[-1])
             yield frames.batch(t, typ, code, value)
         yield frames.last(self.warnings, f"{self.path}: device {self.devices[index].name!r}")
+
+    def _cut_torn_tail(self, block: bytes, line: int, stats) -> bytes:
+        """The file's last line without a newline: a recording cut off mid-row (crash, full
+        disk) loses that row only, with a warning, as in evemu; a whole row is kept."""
+        head, nl, tail = block.rpartition(b"\n")
+        text = _COMMENT.sub(b"", tail)
+        m = _ROW.match(text)
+        if not tail.strip() or (m and _row_ok(m.group(1))) or _OTHER.fullmatch(text):
+            return block
+        stats.torn_bytes += len(tail)
+        at = line + head.count(b"\n") + bool(nl)
+        self.warnings.append(f"{self.path}:{at}: last line cut off (truncated recording); skipped")
+        return head + nl
 
     def _backwards(self, block: bytes, line: int, last_t: float) -> None:
         prev = last_t
@@ -338,6 +383,33 @@ class LibinputCapture(Capture):
                 )
             prev = t
         raise AssertionError("unreachable: no backwards step found")  # pragma: no cover
+
+
+def _row_ok(row: bytes) -> bool:
+    fields = row.split(b",")
+    if len(fields) != 5:
+        return False
+    try:
+        vals = [int(x) for x in fields]
+    except ValueError:
+        return False
+    return (
+        min(vals[:4]) >= 0
+        and vals[0] < MAX_SECONDS
+        and vals[1] < 1_000_000
+        and vals[2] <= 0xFFFF
+        and vals[3] <= 0xFFFF
+        and -(2**31) <= vals[4] < 2**31
+    )
+
+
+def _flow_rows(m: re.Match) -> bytes:
+    """A flow-style event list -> the same rows in block style, one per line (only the
+    rows are read from this text; messages come from the original lines)."""
+    inner = m.group(1)
+    if _FLOW_ROW.sub(b"", inner).replace(b",", b"").strip():
+        return m.group(0)  # not plain rows: _OTHER refuses it, _complain names the line
+    return b"\n".join(b"- [" + r + b"]" for r in _FLOW_ROW.findall(inner))
 
 
 def _line_of(text: bytes, needle: bytes) -> int | None:

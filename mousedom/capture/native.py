@@ -223,9 +223,9 @@ def is_native(prefix: bytes) -> bool:
 class NativeCapture(Capture):
     format = "native"
 
-    def __init__(self, path: str) -> None:
-        super().__init__(path)
-        with _open(path) as f:
+    def __init__(self, path: str, data_path: str | None = None) -> None:
+        super().__init__(path, data_path)
+        with _open(self.data_path) as f:
             self.header, self._body_offset = _read_header(path, f)
         h = self.header
         try:
@@ -317,7 +317,7 @@ class NativeCapture(Capture):
 
     def _chunks(self, *, check_tail: bool) -> Iterator[tuple[int, int, int, bytes, int]]:
         """(kind, source, count, payload, offset) of each whole chunk, in file order."""
-        with _open(self.path) as f:
+        with _open(self.data_path) as f:
             f.seek(self._body_offset)
             reader = f
             offset = self._body_offset
@@ -352,8 +352,8 @@ class NativeCapture(Capture):
 
     def _bad_chunk(self, offset: int, why: str) -> None:
         """A torn tail is a warning; a bad chunk with good ones after it is an error."""
-        size = os.path.getsize(self.path)
-        with _open(self.path) as f:
+        size = os.path.getsize(self.data_path)
+        with _open(self.data_path) as f:
             f.seek(offset + 1)
             rest = f.read()
         at = rest.find(CHUNK_MAGIC)
