@@ -38,6 +38,13 @@ SERIAL_MARGIN_S = 0.1
 # The most windows closed at once (bounded memory however long a pause in the input).
 MAX_WINDOWS = 16384
 
+# A stretch this long in which no mouse reports is skipped, not windowed through: a
+# corrupted stamp (a relative file whose second event is 1.3e9 s later) or a recording
+# paused overnight would otherwise cost time in proportion to the span, not the reports.
+# The CSV has no rows for a skipped gap, the pose is held across it, and a warning names
+# it.  (Mice report only while they move, so shorter pauses are windowed as usual.)
+MAX_GAP_S = 60.0
+
 
 @dataclass
 class _FeedState:
@@ -159,11 +166,33 @@ class Replay:
         pending: list[list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = [[] for _ in range(n)]
         want = [-math.inf] * n
         last_t = -math.inf
+        pushed_t = -math.inf  # the latest report handed to the tracker
 
         def emit(b: PoseBatch) -> None:
             if len(b):
                 summary.add(b)
                 sink(b)
+
+        longest_period = max((1.0 / m.report_hz for m in self.config.mice), default=0.0)
+
+        def skip_gap() -> bool:
+            """Skip a long gap before the next report (see MAX_GAP_S); True if it did."""
+            firsts = [float(waiting[0][0][0]) for waiting in pending if waiting]
+            if not firsts or tracker.t0 is None or min(firsts) - pushed_t <= MAX_GAP_S:
+                return False
+            # Every report stamped before min(want) has been read: none hides in the gap.
+            until = min(min(firsts), min(want)) - longest_period
+            if until <= tracker.frontier_time:
+                return False
+            span = tracker.skip_quiet(until)
+            if span is None:
+                return False
+            self.warnings.append(
+                f"no mouse reported from t={span[0]:.6f} to t={span[1]:.6f} "
+                f"({span[1] - span[0]:.6g} s): that gap was skipped, not windowed "
+                "(no rows for it; the pose is held across it)"
+            )
+            return True
 
         def pump() -> None:
             """Push and close at most MAX_WINDOWS windows at a time.
@@ -174,16 +203,22 @@ class Replay:
             past the closed frontier.  Reports reach the tracker in the same order and
             never behind its frontier, so the poses are the very same.
             """
+            nonlocal pushed_t
             while True:
                 if tracker.t0 is None:
                     lim = math.inf
                 else:
                     lim = tracker.frontier_time + MAX_WINDOWS * tracker.period
+                    # Not more than a gap's worth past the last report: a longer gap is
+                    # skipped (skip_gap), not windowed through.
+                    lim = min(lim, max(pushed_t, tracker.frontier_time) + MAX_GAP_S)
                 for mouse in range(n):
                     waiting = pending[mouse]
                     while waiting:
                         t, dx, dy = waiting[0]
                         k = int(np.searchsorted(t, lim, side="right"))
+                        if k:
+                            pushed_t = max(pushed_t, float(t[k - 1]))
                         if k == len(t):
                             tracker.push(mouse, t, dx, dy)
                             waiting.pop(0)
@@ -196,6 +231,8 @@ class Replay:
                         tracker.complete_until(min(want[mouse], lim), mouse)
                 b = tracker.poll()
                 emit(b)
+                if skip_gap():
+                    continue
                 if not len(b):
                     return
 

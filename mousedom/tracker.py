@@ -250,13 +250,53 @@ class Tracker:
 
     def _windows_ending_by(self, t: float) -> int:
         """The largest k with edge(k) <= t: no rounding tolerance, so whether a window may
-        close never depends on how its end was rounded (batch and stream agree)."""
+        close never depends on how its end was rounded (batch and stream agree).
+
+        The division is off by at most a step or two; where floats cannot tell edge k from
+        edge k + 1 any more (times near 1e300 once looped here for ever), that is an input
+        no window grid can hold, and it is refused."""
         k = math.floor((t - self.t0) / self.period)
-        while self._edge(k + 1) <= t:
-            k += 1
-        while k > 0 and self._edge(k) > t:
-            k -= 1
-        return k
+        for _ in range(8):
+            if self._edge(k + 1) <= t:
+                k += 1
+            elif k > 0 and self._edge(k) > t:
+                k -= 1
+            else:
+                return k
+        raise ValueError(
+            f"time {t!r} is beyond what a window grid of {self.period!r} s from {self.t0!r} "
+            "can resolve"
+        )
+
+    def skip_quiet(self, until: float) -> tuple[float, float] | None:
+        """Close the windows up to the last edge at or before ``until`` without solving
+        them, when they are known to be empty: every mouse has all its counts closed, and
+        the caller knows that no report will cover any time before ``until`` (the next
+        report's own span, one period before its stamp, included).  Returns the skipped
+        span (start, end), or None when nothing can be skipped.
+
+        Replay uses this for a gap in time (a corrupted stamp, a recording paused for a
+        day), so that its cost follows the reports, not the time span.  The pose and its
+        covariance are held across the gap, as a windowed run of empty windows would hold
+        the pose (its covariance would grow a little per window)."""
+        if self.t0 is None:
+            return None
+        k = self._windows_ending_by(until)
+        if k <= self._closed + 1:
+            return None
+        start = self.frontier_time
+        for m in self._mice:
+            if m.pending:
+                self._ingest(m)
+            kt, kx, ky = m.knots if type(m.knots) is tuple else m.knots.tolist()
+            if any(kx) or any(ky) or (kt and kt[-1] > start):
+                return None  # counts still to close, or reports ahead of the frontier
+        self._closed = k
+        end = self.frontier_time
+        for m in self._mice:
+            m.knots = ([], [], [])
+            m.dead = [span for span in m.dead if span[1] > end]
+        return start, end
 
     def finish(self) -> PoseBatch:
         """End of a finite input: close every window up to the last report."""

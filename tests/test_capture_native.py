@@ -279,3 +279,75 @@ def test_a_writer_killed_mid_recording_leaves_every_synced_report(tmp_path):
     np.testing.assert_array_equal(dy, np.ones(len(t)))
     np.testing.assert_allclose(t, k * 1e-3, rtol=0, atol=1e-12)
     assert all("unfinished chunk" in w for w in cap.warnings)
+
+
+def _raw_chunk(kind: int, source: int, count: int, payload: bytes) -> bytes:
+    from mousedom.capture.native import _chunk_crc
+
+    head = CHUNK.pack(b"MDCK", kind, 0, source, count, len(payload), 0)[:16]
+    return head + struct.pack("<I", _chunk_crc(head, payload)) + payload
+
+
+def _with_chunk(tmp_path, chunk: bytes):
+    p = tmp_path / "h.mdcap"
+    with NativeWriter(p, DEVICES[:1]) as w:
+        w.motion(0, [1.0], [1], [0])
+        w.flush()
+        w._f.write(chunk)
+    return p
+
+
+@pytest.mark.parametrize(
+    "chunk, words",
+    [
+        # MOTION whose count claims more reports than its payload holds (first_time read
+        # past the payload: ValueError from numpy).
+        (lambda: _raw_chunk(1, 0, 1000, np.array([2.0]).tobytes() + bytes(8)), "1000 reports"),
+        (lambda: _raw_chunk(3, 0, 0, b'{"skipped": 1e999}'), "malformed note"),
+        (lambda: _raw_chunk(3, 0, 0, b'{"skipped": -4}'), "malformed note"),
+        (lambda: _raw_chunk(3, 0, 0, b"[" * 5000), "malformed note"),
+        (lambda: _raw_chunk(4, 0, 1, struct.pack("<d", 1e300)), "malformed sync"),
+        (lambda: _raw_chunk(1, 0, 1, struct.pack("<dii", 1e300, 1, 0)), "out of range"),
+        (lambda: _raw_chunk(2, 0, 1, struct.pack("<dI", float("nan"), 1) + b"x"), "out of range"),
+    ],
+    ids=[
+        "count>payload",
+        "note-1e999",
+        "note-negative",
+        "note-deep",
+        "sync-1e300",
+        "motion-1e300",
+        "serial-nan",
+    ],  # fmt: skip
+)
+def test_hostile_chunks_are_one_clear_error(tmp_path, chunk, words):
+    """Issue 11 item 5: each of these raised a traceback (or looped for ever in the
+    window search); each is now a CaptureError naming the file and the byte offset."""
+    p = _with_chunk(tmp_path, chunk())
+    with pytest.raises(CaptureError, match=rf"h.mdcap: byte offset \d+: .*{words}"):
+        cap = open_capture(p)
+        cap.first_time()
+        drain(p)
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), 1e300])
+def test_first_time_in_the_header_must_be_a_time(tmp_path, bad):
+    p = tmp_path / "f.mdcap"
+    with NativeWriter(p, DEVICES[:1], meta={"first_time": bad}) as w:
+        w.motion(0, [1.0], [1], [0])
+    with pytest.raises(CaptureError, match="first_time"):
+        open_capture(p).first_time()
+
+
+def test_the_writer_refuses_what_the_reader_refuses(tmp_path):
+    w = NativeWriter(tmp_path / "w.mdcap", DEVICES)
+    for call in (
+        lambda: w.motion(0, [1e300], [1], [1]),
+        lambda: w.serial_many(2, [float("nan")], [b"x"]),
+        lambda: w.sync(float("nan")),
+    ):
+        with pytest.raises(CaptureError, match="time"):
+            call()
+    w.sync(float("inf"))  # the end of a recording is a valid sync
+    w.close()
+    drain(tmp_path / "w.mdcap")

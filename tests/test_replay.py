@@ -542,7 +542,9 @@ def test_a_long_pause_is_closed_in_bounded_batches_with_the_same_poses(tmp_path)
 
     rng = np.random.default_rng(5)
     n = 400
-    gap = 3.0 * MAX_WINDOWS / 100.0  # three and more batches' worth of empty windows
+    # Three and more batches' worth of empty windows at 1 kHz, shorter than a gap that
+    # replay skips (MAX_GAP_S).
+    gap = 3.0 * MAX_WINDOWS / 1000.0
 
     def times(pause_at):
         t = 0.0037 + np.cumsum(rng.uniform(0.004, 0.02, n))
@@ -561,7 +563,7 @@ def test_a_long_pause_is_closed_in_bounded_batches_with_the_same_poses(tmp_path)
         specs.append((name, str(p)))
     cfg = tmp_path / "r.yaml"
     cfg.write_text(
-        "rate_hz: 100\nmodel: lsq\nmice:\n  a: {cpi: 400, mount: {x: 0.05, y: 0.1}}\n"
+        "rate_hz: 1000\nmodel: lsq\nmice:\n  a: {cpi: 400, mount: {x: 0.05, y: 0.1}}\n"
         "  b: {cpi: 400, mount: {x: -0.05, y: -0.1}}\n"
     )
     config = parse_config(cfg.read_text(), str(cfg), need_sources=False)

@@ -144,3 +144,18 @@ def test_cli_binary_input_is_one_line_naming_the_byte(tmp_path):
     (tmp_path / "bin.csv").write_bytes(garbage)
     p = run_mousedom("umbmark", str(tmp_path / "bin.csv"))
     assert p.returncode == 2 and "bin.csv: byte offset 23: not UTF-8 text" in p.stderr
+
+
+@pytest.mark.parametrize("where", ["header", "row"])
+def test_a_field_past_the_csv_limit_is_one_error_with_its_line(where):
+    """A field over csv's 131072-character limit raised _csv.Error (issue 11, item 5)."""
+    from mousedom.calibrate.reference import parse_reference
+    from mousedom.calibrate.umbmark import parse_runs
+
+    huge = "9" * 200_000
+    runs = f"direction,dx,dy\ncw,{huge},0\n" if where == "row" else f"direction,dx,{huge}\n"
+    with pytest.raises(UserError, match=r"RUNS.csv:\d: not a CSV line"):
+        parse_runs(runs, "RUNS.csv")
+    ref = f"t,vx,vy,omega\n0,{huge},0,0\n" if where == "row" else f"t,{huge}\n"
+    with pytest.raises(UserError, match=r"REF.csv:\d: not a CSV line"):
+        parse_reference(ref, "REF.csv")

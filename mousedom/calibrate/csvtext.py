@@ -24,14 +24,18 @@ def content_lines(text: str) -> list[tuple[int, str]]:
     ]
 
 
-def fields(line: str) -> list[str]:
-    """The CSV fields of one line (quoted commas are kept inside their field)."""
-    return next(csv.reader(io.StringIO(line)))
+def fields(line: str, path: str | None = None, lineno: int | None = None) -> list[str]:
+    """The CSV fields of one line (quoted commas are kept inside their field); a line the
+    csv module refuses (a field over its 131072-character limit, a NUL) is a UserError."""
+    try:
+        return next(csv.reader(io.StringIO(line)), [])
+    except csv.Error as e:
+        raise UserError(located(path, lineno, f"not a CSV line: {e}")) from None
 
 
-def header_names(line: str) -> list[str]:
+def header_names(line: str, path: str | None = None, lineno: int | None = None) -> list[str]:
     """Column names of a header line, stripped and lower-cased."""
-    return [c.strip().lower() for c in fields(line)]
+    return [c.strip().lower() for c in fields(line, path, lineno)]
 
 
 def finite(raw: str, path: str | None, line: int, column: str) -> float:

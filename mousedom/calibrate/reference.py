@@ -51,7 +51,7 @@ def parse_reference(text: str, path: str | None = None) -> Reference:
             )
         )
     head_no, head = rows[0]
-    names = header_names(head)
+    names = header_names(head, path, head_no)
     if set(names) == set(TWIST) and len(names) == 4:
         kind, cols = "twist", TWIST
     elif set(names) == set(WHEELS) and len(names) == 3:
@@ -68,7 +68,7 @@ def parse_reference(text: str, path: str | None = None) -> Reference:
     order = [names.index(c) for c in cols]
     data = np.empty((len(rows) - 1, len(cols)))
     for k, (no, line) in enumerate(rows[1:]):
-        row = fields(line)
+        row = fields(line, path, no)
         if len(row) != len(names):
             raise UserError(located(path, no, f"{len(row)} fields, the header has {len(names)}"))
         for j, c in enumerate(cols):

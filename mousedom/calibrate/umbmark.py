@@ -94,7 +94,7 @@ def parse_runs(text: str, path: str | None = None) -> tuple[list[str], np.ndarra
     if not lines:
         raise UserError(located(path, None, f"empty file: expected the header {HEADER}"))
     head_no, head = lines[0]
-    names = header_names(head)
+    names = header_names(head, path, head_no)
     missing = [c for c in ("direction", "dx", "dy") if c not in names]
     if missing:
         raise UserError(
@@ -113,7 +113,7 @@ def parse_runs(text: str, path: str | None = None) -> tuple[list[str], np.ndarra
     col = {c: names.index(c) for c in ("direction", "dx", "dy")}
     directions, errors = [], []
     for no, line in lines[1:]:
-        row = fields(line)
+        row = fields(line, path, no)
         if len(row) != len(names):
             raise UserError(located(path, no, f"{len(row)} fields, the header has {len(names)}"))
         d = row[col["direction"]].strip().lower()

@@ -45,6 +45,10 @@ def open_binary(path: str):
 
 
 TIME_BASES = ("epoch", "relative", "monotonic")
+# No capture time may reach this (in seconds, any base): 317 years of uptime or of a
+# recording, past 2286 on the wall clock.  Beyond it float64 seconds lose the microsecond,
+# and window grids their meaning.
+MAX_TIME_S = 1e10
 # evemu writes CLOCK_REALTIME in old recordings: anything past 1973-03-03 is taken as an
 # epoch time; kernels up that long are not a concern.
 EPOCH_THRESHOLD = 1e8

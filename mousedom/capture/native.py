@@ -35,6 +35,7 @@ from typing import Any, BinaryIO
 import numpy as np
 
 from mousedom.capture.base import (
+    MAX_TIME_S,
     SOURCE_COUNTERS,
     TIME_BASES,
     Batch,
@@ -118,11 +119,12 @@ class NativeWriter:
         t = np.ascontiguousarray(t, dtype="<f8")
         if not len(t):
             return
-        if not np.isfinite(t.sum()):  # the reader refuses them: never write them
-            k = int(np.argmax(~np.isfinite(t)))
+        bad = ~(np.abs(t) < MAX_TIME_S)
+        if bad.any():  # the reader refuses them: never write them
+            k = int(np.argmax(bad))
             raise CaptureError(
                 f"device {self.devices[device].name!r}: report {k} of a batch has time "
-                f"{t[k]!r}: the native format holds finite times only"
+                f"{t[k]!r}: the native format holds finite times below {MAX_TIME_S:g} s only"
             )
         dx, dy = np.asarray(dx), np.asarray(dy)
         for d in (dx, dy):
@@ -151,6 +153,12 @@ class NativeWriter:
     def serial_many(self, device: int, ts: list[float], pieces: list[bytes]) -> None:
         if not pieces:
             return
+        for t in ts:
+            if not _plausible_time(t):
+                raise CaptureError(
+                    f"device {self.devices[device].name!r}: serial read at time {t!r}: "
+                    f"the native format holds finite times below {MAX_TIME_S:g} s only"
+                )
         head = np.asarray(ts, dtype="<f8").tobytes()
         head += np.asarray([len(p) for p in pieces], dtype="<u4").tobytes()
         self._chunk(SERIAL, device, len(pieces), head + b"".join(pieces))
@@ -161,6 +169,8 @@ class NativeWriter:
         self._chunk(NOTE, device, 1, json.dumps(body, sort_keys=True).encode())
 
     def sync(self, complete: float) -> None:
+        if not _plausible_time(complete) and complete != np.inf:
+            raise CaptureError(f"sync at time {complete!r}: not a time the reader accepts")
         self.flush()
         self._chunk(SYNC, 0, 1, struct.pack("<d", complete))
 
@@ -240,14 +250,30 @@ class NativeCapture(Capture):
         self._first: float | None | bool = False
 
     def first_time(self) -> float | None:
-        if self._first is False and isinstance(self.header.get("first_time"), (int, float)):
-            self._first = float(self.header["first_time"])
+        stated = self.header.get("first_time")
+        if self._first is False and isinstance(stated, (int, float)):
+            if not _plausible_time(stated):
+                raise CaptureError(
+                    located(self.path, None, f"header: first_time {stated!r} is not a time")
+                )
+            self._first = float(stated)
         if self._first is False:
             first = None
-            for kind, _source, count, payload, _ in self._chunks(check_tail=False):
+            for kind, _source, count, payload, offset in self._chunks(check_tail=False):
                 if kind in (MOTION, SERIAL) and count:  # both start with the f8 times
-                    t = np.frombuffer(payload, "<f8", count)
-                    first = float(t[0]) if first is None else min(first, float(t[0]))
+                    if len(payload) < 8 * count:
+                        raise CaptureError(
+                            located(self.path, None, f"byte offset {offset}: chunk of "
+                                    f"{count} reports holds only {len(payload)} bytes")
+                        )  # fmt: skip
+                    t0 = float(np.frombuffer(payload, "<f8", 1)[0])
+                    if not _plausible_time(t0):
+                        raise CaptureError(
+                            located(
+                                self.path, None, f"byte offset {offset}: time {t0!r} out of range"
+                            )
+                        )
+                    first = t0 if first is None else min(first, t0)
                 elif kind == SYNC and first is not None:
                     break  # everything before the first sync point has been seen
             self._first = first
@@ -297,14 +323,14 @@ class NativeCapture(Capture):
             elif kind == NOTE:
                 try:
                     note = json.loads(payload)
-                    st.merge(DeviceStats(**{k: int(note.get(k, 0)) for k in NOTE_FIELDS}))
-                except (ValueError, TypeError, AttributeError):
+                    st.merge(DeviceStats(**{k: _counter(note.get(k, 0)) for k in NOTE_FIELDS}))
+                except (ValueError, TypeError, AttributeError, RecursionError):
                     raise CaptureError(
                         located(self.path, None, f"byte offset {offset}: malformed note")
                     ) from None
             elif kind == SYNC:
                 (w,) = struct.unpack("<d", payload[:8]) if len(payload) == 8 else (np.nan,)
-                if not np.isfinite(w) and w != np.inf:
+                if not _plausible_time(w) and w != np.inf:
                     raise CaptureError(
                         located(self.path, None, f"byte offset {offset}: malformed sync")
                     )
@@ -440,15 +466,28 @@ def _motion_columns(path: str, payload: bytes, count: int, offset: int):
     t = np.frombuffer(payload, "<f8", count)
     dx = np.frombuffer(payload, "<i4", count, 8 * count).astype(np.int64)
     dy = np.frombuffer(payload, "<i4", count, 12 * count).astype(np.int64)
-    if not np.isfinite(t).all():
-        raise CaptureError(located(path, None, f"byte offset {offset}: non-finite time"))
+    if not (np.abs(t) < MAX_TIME_S).all():  # NaN fails this too
+        raise CaptureError(located(path, None, f"byte offset {offset}: time out of range"))
     return t, dx, dy
+
+
+def _plausible_time(t: float) -> bool:
+    return bool(abs(t) < MAX_TIME_S)  # False for NaN and inf
+
+
+def _counter(v) -> int:
+    """A NOTE counter: a non-negative integer that floats hold exactly (ValueError else)."""
+    if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v < 2**53:
+        raise ValueError(f"not a counter: {v!r}")
+    return v
 
 
 def _serial_pieces(path: str, payload: bytes, count: int, offset: int):
     if len(payload) < 12 * count:
         raise CaptureError(located(path, None, f"byte offset {offset}: serial chunk too short"))
     t = np.frombuffer(payload, "<f8", count)
+    if not (np.abs(t) < MAX_TIME_S).all():  # NaN fails this too
+        raise CaptureError(located(path, None, f"byte offset {offset}: serial time out of range"))
     lens = np.frombuffer(payload, "<u4", count, 8 * count).astype(np.int64)
     if 12 * count + int(lens.sum()) != len(payload):
         raise CaptureError(
