@@ -217,6 +217,8 @@ class _Reader:
         v = self.raw(key, default)
         if v is None:
             raise self.err(key, "is required")
+        if isinstance(v, int) and not isinstance(v, bool) and abs(v) > 1e300:
+            raise self.err(key, f"must be a number of sensible size, got {_show(v)}")
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
             raise self.err(key, f"must be a number, got {_show(v)}")
         if positive and v <= 0:
@@ -242,6 +244,8 @@ class _Reader:
         v = self.raw(key, default)
         if v is not None and not isinstance(v, str):
             raise self.err(key, f"must be a string, got {_show(v)}")
+        if v is not None and "\0" in v:  # no path, name or group holds one
+            raise self.err(key, f"must not contain a NUL character, got {_show(v)}")
         return v
 
     def boolean(self, key: str, default: bool) -> bool:

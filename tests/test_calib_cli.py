@@ -689,3 +689,24 @@ def test_distance_write_with_mice_at_one_point(tmp_path):
     )  # fmt: skip
     assert "RuntimeWarning" not in p.stderr
     assert not (tmp_path / "rig.calib.yaml").exists()
+
+
+def test_separate_relative_files_follow_one_rule_in_calibrate_and_replay(cpi_session):
+    """Issue 11 item 7: replay fused separate relative-time files as if they shared t = 0
+    without a word, and calibration refused the same files.  One rule now: they are
+    aligned at their t = 0, and both commands say so in the same warning."""
+    tmp, cfg, files = cpi_session
+    rel = {}
+    for name, path in files.items():
+        lines = [ln.split(" ", 2) for ln in path.read_text().splitlines()]
+        t0 = float(lines[0][1])
+        rel[name] = tmp / f"{name}.rel.events"
+        rel[name].write_text("".join(f"E: {float(t) - t0:.6f} {rest}\n" for _, t, rest in lines))
+    caps = [f"--capture={n}={p}" for n, p in rel.items()]
+    cal = ok(calib("cpi", cfg, "--distance", "0.2", "--axis", "y", "--json", *caps))
+    rep = ok(run_mousedom("replay", "--config", str(cfg), *caps))
+    for proc in (cal, rep):
+        warned = [ln for ln in proc.stderr.splitlines() if "aligned at their t = 0" in ln]
+        assert len(warned) == 1 and "left.rel.events, right.rel.events" in warned[0], proc.stderr
+    result = json.loads(cal.stdout)
+    assert result["left"]["cpi"] == pytest.approx(455, rel=3e-3)  # as with absolute times

@@ -15,11 +15,17 @@ that are missing from the calibration, so it is an error, not a silent wrong ans
 
 from __future__ import annotations
 
-import os
 from collections.abc import Sequence
 
 from mousedom.calibrate.runs import in_time_order
-from mousedom.capture import Capture, CaptureError, assign, captures_of, parse_capture_arg
+from mousedom.capture import (
+    Capture,
+    CaptureError,
+    assign,
+    captures_of,
+    parse_capture_arg,
+    relative_alignment_warning,
+)
 from mousedom.config import Config, MouseConfig
 from mousedom.errors import UserError
 from mousedom.sources.adns import replay_decoder
@@ -66,8 +72,9 @@ def read_motion(cap: Capture, wanted: Sequence[tuple[int, MouseConfig]]) -> dict
     return {name: in_time_order(name, *lists) for name, lists in parts.items()}
 
 
-def load_captures(specs: Sequence[str], config: Config) -> dict[str, Reports]:
-    """Per-mouse reports of the mice that have a capture (``--capture`` or ``replay:``)."""
+def load_captures(specs: Sequence[str], config: Config) -> tuple[dict[str, Reports], list[str]]:
+    """Per-mouse reports of the mice that have a capture (``--capture`` or ``replay:``),
+    and warnings (separate files with relative times: the rule replay applies too)."""
     try:
         assignments = assign(config, [parse_capture_arg(s) for s in specs], require_all=False)
     except CaptureError as e:
@@ -78,20 +85,12 @@ def load_captures(specs: Sequence[str], config: Config) -> dict[str, Reports]:
         read.update(read_motion(cap, wanted))
     recording: dict[str, Reports] = {}
     bases: dict[str, str] = {}
-    files: set[str] = set()
     for a in assignments:
         name = config.mice[a.mouse].name
         recording[name] = read[name]
         bases[name] = a.capture.time_base
-        files.add(os.path.realpath(a.capture.path))
-    if len(files) > 1 and "relative" in bases.values():
-        rel = ", ".join(n for n, b in bases.items() if b == "relative")
-        raise UserError(
-            f"the captures of {rel} have times relative to their own first event, so "
-            "separate files cannot be aligned: record the mice together (one libinput "
-            "record or native file) or with absolute times"
-        )
     if len(set(bases.values())) > 1:
         listing = ", ".join(f"{n}: {b}" for n, b in bases.items())
         raise UserError(f"the captures do not share one time base ({listing})")
-    return recording
+    aligned = relative_alignment_warning(captures_of(assignments))
+    return recording, [aligned] if aligned else []

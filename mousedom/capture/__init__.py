@@ -54,6 +54,7 @@ __all__ = [
     "open_capture",
     "parse_capture_arg",
     "read_reports",
+    "relative_alignment_warning",
     "time_offset",
 ]
 
@@ -310,6 +311,20 @@ def assign(
     return [result[k] for k in sorted(result)]
 
 
+def relative_alignment_warning(captures: list[Capture]) -> str | None:
+    """The one rule for separate files with relative times, in replay and calibration
+    alike: each file's t = 0 is taken as the same instant, and this warning says so."""
+    files = {os.path.realpath(c.path): c for c in captures if c.time_base == "relative"}
+    if len(files) < 2:
+        return None
+    names = ", ".join(sorted(os.path.basename(c.path) for c in files.values()))
+    return (
+        f"{names}: times relative to each recording's own start; they are aligned at "
+        "their t = 0, which is right only if the recordings started together (to be sure, "
+        "record the mice into one file: `mousedom record`, or one `libinput record`)"
+    )
+
+
 def time_offset(captures: list[Capture]) -> tuple[float, list[str]]:
     """Seconds to subtract from epoch-stamped captures (0 for the others), and warnings.
 
@@ -333,6 +348,9 @@ def time_offset(captures: list[Capture]) -> tuple[float, list[str]]:
             f"captures mix monotonic (since boot) and relative times ({names}); "
             "their events cannot be aligned in time"
         )
+    aligned = relative_alignment_warning(captures)
+    if aligned and bases == {"relative"}:
+        warnings.append(aligned)
     return (min(firsts) if firsts else 0.0), warnings
 
 

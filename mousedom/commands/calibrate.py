@@ -173,7 +173,9 @@ def _setup(args: argparse.Namespace, names: list[str] | None = None):
         if n not in config.names:
             raise UserError(f"{args.config}: no mouse {n!r} (it has {', '.join(config.names)})")
     if replaying:
-        recording = load_captures(args.capture, config)
+        recording, warnings = load_captures(args.capture, config)
+        for w in warnings:  # before a long calibration, as replay says it before replaying
+            print(f"mousedom: warning: {w}", file=sys.stderr)
         if wanted:
             missing = [n for n in wanted if n not in recording]
             if missing:
