@@ -66,14 +66,16 @@ class ClockSync:
             raise ValueError("window and bucket must be positive, window >= bucket")
         self.window, self.bucket = window, bucket
         self.min_span, self.max_drift = min_span, max_drift
+        self._last_out: float | None = None
         self.reset()
 
     def reset(self) -> None:
-        """Forget everything (the firmware restarted: its clock began again)."""
+        """Forget the fit (the firmware restarted: its clock began again).  The last output
+        stays the floor: host times never step back, not even by the rounding of a fresh
+        single-point fit (which once gave an output 1e-13 s before the previous one)."""
         self._buckets: deque[_Bucket] = deque()
         self._a = 0.0  # offset at f = 0
         self._b = 0.0  # drift (host seconds gained per firmware second)
-        self._last_out: float | None = None
         self.samples = 0
 
     @property

@@ -78,3 +78,24 @@ def test_firmware_clock_unwraps_32_bits():
     assert c.unwrap(5) == pytest.approx((WRAP + 5) * 1e-6)  # wrapped, not rebooted
     assert not c.is_backwards(6)
     assert c.is_backwards(4)  # a small step back is a reboot, not a wrap
+
+
+@settings(max_examples=200)
+@given(
+    st.floats(0.0, 1e5),
+    st.floats(1e-6, 1e-2),
+    st.floats(0.0, 50.0),
+    st.floats(1e-4, 1e-2),
+)
+def test_a_firmware_reboot_never_steps_host_time_back(f_before, delay, f_after, gap):
+    """Issue 11 item 8: after a reboot (reset) the fresh fit of one point could map a
+    packet 1e-13 s before the last output.  The output is a floor across resets."""
+    sync = ClockSync()
+    host = 1000.0 + f_before
+    outs = [sync.update(f_before + k * 0.01, host + k * 0.01 + delay) for k in range(50)]
+    sync.reset()  # the firmware restarted: its clock begins again near 0
+    arrival = host + 49 * 0.01 + delay + gap
+    outs.append(sync.update(f_after, arrival))
+    outs.append(sync.update(f_after + 0.01, arrival + 0.01))
+    assert all(b >= a for a, b in zip(outs, outs[1:]))
+    assert outs[-2] <= arrival  # never after the packet's arrival
