@@ -85,7 +85,7 @@ def test_firmware_clock_unwraps_32_bits():
     st.floats(0.0, 1e5),
     st.floats(1e-6, 1e-2),
     st.floats(0.0, 50.0),
-    st.floats(1e-4, 1e-2),
+    st.sampled_from([0.0, 1e-9, 1e-4, 1e-2]),  # 0: the next packet came in the same read
 )
 def test_a_firmware_reboot_never_steps_host_time_back(f_before, delay, f_after, gap):
     """Issue 11 item 8: after a reboot (reset) the fresh fit of one point could map a
@@ -99,3 +99,15 @@ def test_a_firmware_reboot_never_steps_host_time_back(f_before, delay, f_after, 
     outs.append(sync.update(f_after + 0.01, arrival + 0.01))
     assert all(b >= a for a, b in zip(outs, outs[1:]))
     assert outs[-2] <= arrival  # never after the packet's arrival
+
+
+@settings(max_examples=500)
+@given(st.floats(0.0, 4295.0), st.floats(0.0, 4295.0), st.floats(1.0, 1e6))
+def test_a_reboot_between_two_packets_of_one_read_keeps_their_order(f1, f2, host):
+    """Two packets that came in one read share their arrival time; if the firmware
+    rebooted between them, the second one's fresh fit rounds differently (f + (h - f) is
+    not always h), and must still not be placed before the first."""
+    sync = ClockSync()
+    first = sync.update(f1, host)
+    sync.reset()
+    assert sync.update(f2, host) >= first
