@@ -108,9 +108,13 @@ class LineBuffer:
 def _number(name: str, key: str, value: Any) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ProtocolError(f"{name}: {key} must be a number, got {json.dumps(value)[:40]}")
-    if not math.isfinite(value):
+    try:
+        v = float(value)  # an integer of 400 digits does not fit a float
+    except OverflowError:
+        v = math.inf
+    if not math.isfinite(v):
         raise ProtocolError(f"{name}: {key} must be finite")
-    return float(value)
+    return v
 
 
 def parse_command(line: bytes) -> Command:

@@ -81,6 +81,20 @@ def check(text: str, *, max_bytes: int = MAX_BYTES) -> None:
             problem=f"{len(text)} characters of YAML (at most {max_bytes})",
             problem_mark=yaml.Mark("<text>", 0, 0, 0, None, None),
         )
+    try:
+        _measure(text)
+    except yaml.reader.ReaderError as e:
+        # Not a MarkedYAMLError: say it with a line, as every other YAML error is said.
+        line = text.count("\n", 0, e.position)
+        raise LimitError(
+            problem=f"character #x{e.character:04x} is not allowed in YAML "
+            "(a control character)",
+            problem_mark=yaml.Mark("<text>", e.position, line, 0, None, None),
+        ) from None
+
+
+def _measure(text: str) -> None:
+    """One pass over the parser's events: depth, alias expansion and cycles."""
     depth = 0
     sizes: dict[str, int] = {}  # anchor -> nodes it stands for, aliases expanded
     open_counts: list[tuple[int, str | None]] = []  # (nodes so far, anchor) per open level

@@ -367,21 +367,23 @@ class LibinputCapture(Capture):
     def _backwards(self, block: bytes, line: int, last_t: float) -> None:
         prev = last_t
         for i, raw in enumerate(block.split(b"\n")):
-            m = _ROW.match(_COMMENT.sub(b"", raw))
-            if not m:
-                continue
-            sec, usec = (int(x) for x in m.group(1).split(b",")[:2])
-            t = sec + usec / 1_000_000
-            if t < prev:
-                raise CaptureError(
-                    located(
-                        self.path,
-                        line + i,
-                        f"time goes backwards ({t:.6f} after {prev:.6f}); "
-                        "a recording must be in time order",
+            text = _COMMENT.sub(b"", raw)
+            m = _ROW.match(text)
+            flow = None if m else _FLOW.match(text)
+            rows = [m.group(1)] if m else _FLOW_ROW.findall(flow.group(1)) if flow else []
+            for row in rows:
+                sec, usec = (int(x) for x in row.split(b",")[:2])
+                t = sec + usec / 1_000_000
+                if t < prev:
+                    raise CaptureError(
+                        located(
+                            self.path,
+                            line + i,
+                            f"time goes backwards ({t:.6f} after {prev:.6f}); "
+                            "a recording must be in time order",
+                        )
                     )
-                )
-            prev = t
+                prev = t
         raise AssertionError("unreachable: no backwards step found")  # pragma: no cover
 
 
