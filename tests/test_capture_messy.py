@@ -209,7 +209,14 @@ def test_evemu_absurd_numbers_are_one_clear_error(tmp_path, line, words):
 
 
 @pytest.mark.parametrize(
-    "row", ["[99999999999, 0, 2, 0, 1]", "[0, 0, 2, 0, " + "9" * 5000 + "]", "[-1, 0, 2, 0, 1]"]
+    "row",
+    [
+        "[99999999999, 0, 2, 0, 1]",
+        "[0, 0, 2, 0, " + "9" * 5000 + "]",
+        "[-1, 0, 2, 0, 1]",
+        "[0, 10000, 2, 0, ]",  # numpy's fromstring reads a blank field as 0: a silent REL_X 0
+        "[1, , 2, 0, 5]",
+    ],
 )
 def test_libinput_absurd_numbers_are_one_clear_error(tmp_path, row):
     lines = format_libinput([("a", *_reports(5))]).splitlines()

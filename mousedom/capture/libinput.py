@@ -70,6 +70,7 @@ _OTHER = re.compile(
     rb"|[ \t]*(?:- )?(?!evdev:[ \t]*[^ \t\n])[A-Za-z_][\w-]*:.*|[ \t]*)$"
 )
 # Flow style, as YAML allows and other writers produce: ``- evdev: [[0, 10, 2, 0, 1], ...]``.
+_EMPTY_FIELD = re.compile(rb"(?:^|,)[ \t]*(?:,|$)")
 _FLOW_HINT = re.compile(rb"evdev:[ \t]*\[")
 _FLOW = re.compile(rb"(?m)^[ \t]*- evdev:[ \t]*\[(.*)\][ \t]*$")
 _FLOW_ROW = re.compile(rb"\[([^\[\]\n]*)\]")
@@ -285,10 +286,13 @@ class LibinputCapture(Capture):
         if n == 0:
             e = np.empty(0, np.int64)
             return np.empty(0, np.float64), e, e, e
+        joined = b",".join(rows)
         try:
+            if _EMPTY_FIELD.search(joined):
+                raise ValueError  # numpy reads a blank field as 0: "[1, , 0, 0, 5]"
             with warnings.catch_warnings():
                 warnings.simplefilter("error")
-                a = np.fromstring(b",".join(rows), dtype=np.int64, sep=",")
+                a = np.fromstring(joined, dtype=np.int64, sep=",")
         except (ValueError, DeprecationWarning):
             a = None
         if a is None or len(a) != 5 * n:
