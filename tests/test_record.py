@@ -491,3 +491,24 @@ def test_outputs_that_would_destroy_inputs_are_refused(tmp_path):
     assert not out.exists() and "Traceback" not in r.stderr
     p = run_mousedom("list", "--config", str(dup))
     assert p.returncode == 1 and "b: matches" in p.stdout and "the same device as a" in p.stdout
+
+
+def test_record_through_a_link_writes_nothing_anywhere(tmp_path):
+    """Issue 11 item 4: `record -o` through a dangling link created its target; through a
+    link to a file it truncated that file (with --force).  Both are refused."""
+    f = fifos(tmp_path, "a", "b")
+    cfg = rig(tmp_path, f)
+    target = tmp_path / "elsewhere.mdcap"
+    dangling = tmp_path / "dangling.mdcap"
+    dangling.symlink_to(target)
+    r = run_mousedom("record", "--config", str(cfg), "-o", str(dangling), "--duration", "0.1")
+    assert r.returncode != 0 and "symbolic link" in r.stderr and "Traceback" not in r.stderr
+    assert not target.exists()
+    target.write_bytes(b"precious")
+    linked = tmp_path / "linked.mdcap"
+    linked.symlink_to(target)
+    r = run_mousedom(
+        "record", "--config", str(cfg), "-o", str(linked), "--duration", "0.1", "--force"
+    )
+    assert r.returncode != 0 and "symbolic link" in r.stderr
+    assert target.read_bytes() == b"precious"
