@@ -18,9 +18,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from timing import median_time  # noqa: E402  (bench/timing.py)
 
-from mousedom import adns_protocol as P  # noqa: E402
-from mousedom.adns_decode import packets_to_reports  # noqa: E402
-from mousedom.clocksync import ClockSync  # noqa: E402
+from mousedom.sources import adns_protocol as P  # noqa: E402
+from mousedom.sources.adns_decode import packets_to_reports  # noqa: E402
+from mousedom.sources.clocksync import ClockSync  # noqa: E402
 
 N = 20000
 RUNS = 5

@@ -35,7 +35,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from mousedom.events import EV_REL, EV_SYN, EVENT_DTYPE, SYN_REPORT  # noqa: E402
+from mousedom.sources.events import EV_REL, EV_SYN, EVENT_DTYPE, SYN_REPORT  # noqa: E402
 
 MICE = ("front", "left", "rear", "right")
 REPORT_HZ = 1000.0
@@ -272,7 +272,7 @@ def tracker_cost(d: Path, rate_hz: float, windows: int = 2000) -> float:
     """Seconds of CPU per window that the tracker alone takes for this load (in-process):
     four pushes of one window's reports, the silence-rule calls and the poll."""
     from mousedom.config import load_config
-    from mousedom.tracker import Tracker
+    from mousedom.fusion.tracker import Tracker
 
     config = load_config(write_config(d, [d / f"x{m}" for m in MICE], rate_hz))
     tracker = Tracker(config, t0=0.0)

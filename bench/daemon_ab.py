@@ -94,8 +94,9 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=8.0)
     ap.add_argument("--rounds", type=int, default=3)
     args = ap.parse_args()
-    if not (args.other / "mousedom" / "daemon.py").exists():
-        raise SystemExit(f"{args.other}: not a mousedom checkout (no mousedom/daemon.py)")
+    # Either layout: before and after mousedom/service/ (a build to compare may be older).
+    if not any((args.other / "mousedom" / p).exists() for p in ("daemon.py", "service/daemon.py")):
+        raise SystemExit(f"{args.other}: not a mousedom checkout (no mousedom daemon)")
     builds = {"A": ROOT, "B": args.other.resolve()}
     runs = []
     for r in range(args.rounds):

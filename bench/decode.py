@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from evdev import InputEvent  # noqa: E402
 
-from mousedom.events import (  # noqa: E402
+from mousedom.sources.events import (  # noqa: E402
     EV_REL,
     EV_SYN,
     REL_X,

@@ -35,9 +35,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from mousedom import sim  # noqa: E402
+from mousedom.fusion import sim  # noqa: E402
 from mousedom.config import EvdevMatch, Mount, MouseConfig  # noqa: E402
-from mousedom.events import (  # noqa: E402
+from mousedom.fusion.tracker import Tracker  # noqa: E402
+from mousedom.sources.evdev import EvdevSource  # noqa: E402
+from mousedom.sources.events import (  # noqa: E402
     EV_REL,
     EV_SYN,
     REL_X,
@@ -45,8 +47,6 @@ from mousedom.events import (  # noqa: E402
     SYN_REPORT,
     encode_input_events,
 )
-from mousedom.sources.evdev import EvdevSource  # noqa: E402
-from mousedom.tracker import Tracker  # noqa: E402
 
 READ_BYTES = 24 * 1024
 

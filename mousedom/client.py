@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from mousedom.errors import UserError
-from mousedom.server import SOCKET_NAME, default_socket_path
+from mousedom.service.server import SOCKET_NAME, default_socket_path
 
 
 class CommandError(Exception):

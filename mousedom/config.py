@@ -496,7 +496,7 @@ def parse_config(text: str, path: str | None = None, *, need_sources: bool = Tru
                     "says nowhere where the mouse comes from (evdev, serial or replay)",
                 )
 
-    from mousedom.geometry import rank_problem  # late import: geometry is numeric
+    from mousedom.fusion.geometry import rank_problem  # late import: geometry is numeric
 
     problem = rank_problem(model, [(m.mount.x, m.mount.y) for m in mice], [m.name for m in mice])
     if problem:

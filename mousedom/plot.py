@@ -11,8 +11,8 @@ import os
 import numpy as np
 
 from mousedom.errors import UserError
+from mousedom.fusion.tracker import PoseBatch
 from mousedom.safewrite import replace_file
-from mousedom.tracker import PoseBatch
 
 INSTALL_HINT = (
     "--plot needs matplotlib, which is not installed: "

@@ -87,8 +87,7 @@ def check(text: str, *, max_bytes: int = MAX_BYTES) -> None:
         # Not a MarkedYAMLError: say it with a line, as every other YAML error is said.
         line = text.count("\n", 0, e.position)
         raise LimitError(
-            problem=f"character #x{e.character:04x} is not allowed in YAML "
-            "(a control character)",
+            problem=f"character #x{e.character:04x} is not allowed in YAML (a control character)",
             problem_mark=yaml.Mark("<text>", e.position, line, 0, None, None),
         ) from None
 

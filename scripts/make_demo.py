@@ -1,6 +1,6 @@
 """Regenerate the bundled demo: mousedom/data/demo-rig.yaml and demo-rig.mdcap.
 
-A simulated three-mouse rig (mousedom.sim.three_mouse_rig: 800 CPI, 125 Hz, mice on a
+A simulated three-mouse rig (mousedom.fusion.sim.three_mouse_rig: 800 CPI, 125 Hz, mice on a
 triangle round the body origin) drives Borenstein's UMBmark square (1 m sides,
 counter-clockwise), with a little sensor noise, and is written as a native capture with
 the rig config in its header.  ``mousedom run --demo`` replays it in real time, looping;
@@ -21,7 +21,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from mousedom import sim  # noqa: E402
+from mousedom.fusion import sim  # noqa: E402
 from mousedom.capture import DeviceInfo, NativeWriter  # noqa: E402
 
 NAME = "demo-rig"
@@ -72,7 +72,7 @@ def main() -> None:
         devices,
         config_text=config.read_text(),
         time_base="relative",
-        meta={"first_time": 0.0, "source": "scripts/make_demo.py (mousedom.sim)"},
+        meta={"first_time": 0.0, "source": "scripts/make_demo.py (mousedom.fusion.sim)"},
     ) as w:
         k = 0
         while k * STEP <= end + 1.0:

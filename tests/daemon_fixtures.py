@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 from test_evdev_fakes import report_bytes
 
-from mousedom import sim
+from mousedom.fusion import sim
 
 REPO = Path(__file__).resolve().parent.parent
 RATE = 50.0
@@ -112,7 +112,7 @@ class Feeder(threading.Thread):
 def write_rig_config(
     path: Path, rig, fifos: dict[str, Path], extra: str = "", rate_hz: float | None = None
 ) -> Path:
-    from mousedom.sim import rig_yaml
+    from mousedom.fusion.sim import rig_yaml
 
     text = rig_yaml(rig)
     if rate_hz is not None:

@@ -258,7 +258,7 @@ def _run_capture(case: Case, tmp: str) -> str:
 
 
 def _adns_valid(rng: random.Random) -> Case:
-    from mousedom import adns_protocol as P
+    from mousedom.sources import adns_protocol as P
 
     stream = b""
     sx = sy = 0
@@ -272,7 +272,7 @@ def _adns_valid(rng: random.Random) -> Case:
 
 
 def _run_adns(case: Case, tmp: str) -> str:
-    from mousedom.adns_decode import AdnsDecoder
+    from mousedom.sources.adns_decode import AdnsDecoder
 
     dec = AdnsDecoder(name="fuzz")
     rng = random.Random(len(case.data))
@@ -384,7 +384,7 @@ def _protocol_valid(rng: random.Random) -> Case:
 
 
 def _run_protocol(case: Case, tmp: str) -> str:
-    from mousedom.protocol import (
+    from mousedom.service.protocol import (
         LineBuffer,
         ProtocolError,
         TooLong,

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mousedom.clocksync import WRAP, ClockSync, FirmwareClock
+from mousedom.sources.clocksync import WRAP, ClockSync, FirmwareClock
 
 
 def run(sync, f, host):

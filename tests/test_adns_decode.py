@@ -8,8 +8,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mousedom import adns_protocol as P
-from mousedom.adns_decode import AdnsDecoder, kim_lee_velocity, packets_to_reports
+from mousedom.sources import adns_protocol as P
+from mousedom.sources.adns_decode import AdnsDecoder, kim_lee_velocity, packets_to_reports
 
 
 def motion(seq, t_us, dx, dy, flags=P.FLAG_RES1600, frames=12):

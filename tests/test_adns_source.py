@@ -12,10 +12,10 @@ import tty
 import numpy as np
 import pytest
 
-from mousedom import adns_protocol as P
-from mousedom.adns_decode import packets_to_reports
 from mousedom.config import Mount, MouseConfig, SerialSource
+from mousedom.sources import adns_protocol as P
 from mousedom.sources.adns import AdnsSource
+from mousedom.sources.adns_decode import packets_to_reports
 from mousedom.sources.base import SourceGone, SourceUnavailable
 
 

@@ -602,7 +602,7 @@ def write_adns_capture(path: Path, pushes: int, counts: int, drop: int | None = 
     """A native capture of a downsampler's raw bytes: pushes forth and back of ``counts``
     along the sensor's Delta_Y, 1 s each, 1 s pauses, one MOTION packet every 15 ms.
     ``drop``: leave out that packet (a sequence gap)."""
-    from mousedom import adns_protocol as P
+    from mousedom.sources import adns_protocol as P
 
     seq, t_us, host = 0, 0, 100.0
     ts, pieces = [], []

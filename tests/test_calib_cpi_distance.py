@@ -7,13 +7,13 @@ import math
 import numpy as np
 import pytest
 
-from mousedom import sim
 from mousedom.calibrate.cpi import CpiError, calibrate_cpi, cpi_per_run
 from mousedom.calibrate.distance import DistanceError, bonarini_distance, calibrate_distance
 from mousedom.calibrate.runs import run_counts, split_runs
 from mousedom.calibrate.synth import SynthMouse, build_motion, mouse_reports
+from mousedom.fusion import sim
+from mousedom.fusion.units import INCH
 from mousedom.sources.base import Reports
-from mousedom.units import INCH
 
 
 def pushes(n: int, length: float, skew: float = 0.0, seconds: float = 1.5):
@@ -129,7 +129,7 @@ def test_distance_from_simulated_turns_with_noise():
 
 
 def test_distance_on_the_core_simulator():
-    """mousedom.sim: turn on the spot of a rig whose mice are off the body origin."""
+    """mousedom.fusion.sim: turn on the spot of a rig whose mice are off the body origin."""
     mice = (
         sim.SimMouse("a", 0.05, 0.1, cpi_x=800, cpi_y=800),
         sim.SimMouse("b", 0.05, -0.15, yaw=180.0, cpi_x=800, cpi_y=800, phase=0.003),
@@ -172,7 +172,7 @@ def test_distance_refuses_bad_runs():
 
 
 def test_cpi_on_the_core_simulator_with_noise():
-    """mousedom.sim: 10 pushes of 20 cm forth and back, 0.5 count noise per report."""
+    """mousedom.fusion.sim: 10 pushes of 20 cm forth and back, 0.5 count noise per report."""
     m = sim.SimMouse("m", 0.0, 0.0, cpi_x=455.0, cpi_y=455.0, noise=0.5)
     legs = [sim.straight(0.2 * (-1) ** k, 0.25) + sim.pause(0.8) for k in range(10)]
     res = sim.simulate(sim.Rig((m,)), sim.sequence(sim.pause(0.5), *legs), seed=4)

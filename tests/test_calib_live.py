@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from conftest import mousedom_env, run_mousedom
 
-from mousedom.events import encode_input_events
+from mousedom.sources.events import encode_input_events
 
 CPI = 1000
 PUSH = 0.1  # metres: 3937 counts at 1000 cpi

@@ -7,7 +7,6 @@ import math
 import numpy as np
 import pytest
 
-from mousedom import sim
 from mousedom.calibrate.mounts import (
     MountError,
     exact_mount,
@@ -18,7 +17,8 @@ from mousedom.calibrate.mounts import (
 )
 from mousedom.calibrate.runs import run_windows, split_runs, window_counts
 from mousedom.calibrate.synth import SynthMouse, build_motion, mouse_reports, true_window_twist
-from mousedom.units import INCH
+from mousedom.fusion import sim
+from mousedom.fusion.units import INCH
 
 
 def kim_lee_example():
@@ -56,7 +56,7 @@ def test_kimlee_system_rows_follow_eqs_38_to_43():
     v_s = rng.normal(size=(1, 3, 2))
     dp = rng.normal(size=6) * 0.01
     s_full, b = kimlee_system(v_s, v_m, nominal)
-    from mousedom.geometry import design_matrix
+    from mousedom.fusion.geometry import design_matrix
 
     a_bar = design_matrix(nominal)
     d_a = design_matrix(nominal + dp.reshape(3, 2)) - a_bar  # (34)
@@ -141,7 +141,7 @@ def test_translation_only_is_flagged():
 
 
 def test_exact_beats_kimlee_with_noise_on_the_core_simulator():
-    """mousedom.sim rig with noise, mounts 5 % off nominal: exact within 1 mm, and better
+    """mousedom.fusion.sim rig with noise, mounts 5 % off nominal: exact within 1 mm, and better
     than the linearised method (which also cannot see a yaw or CPI error)."""
     true_pos = {"front": (0.16, 0.01), "left": (-0.07, 0.14), "right": (-0.08, -0.13)}
     mice = tuple(

@@ -25,8 +25,8 @@ from mousedom.calibrate.runs import cumulative, run_counts, split_runs, window_c
 from mousedom.calibrate.synth import build_motion, twist_csv
 from mousedom.config import load_config, parse_config
 from mousedom.errors import UserError
+from mousedom.fusion.units import INCH
 from mousedom.sources.base import Reports
-from mousedom.units import INCH
 
 RIG = """\
 mice:

@@ -21,8 +21,8 @@ from conftest import external_dir, run_mousedom
 from mousedom.capture import CaptureError, assign, open_capture
 from mousedom.capture.evemu import format_evemu
 from mousedom.capture.libinput import format_libinput
+from mousedom.capture.replay import Replay
 from mousedom.config import load_config
-from mousedom.replay import Replay
 
 ULTRATHIN = EXTERNAL[2]  # single-file evemu 1.2 with a header and an A: line
 

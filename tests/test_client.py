@@ -8,9 +8,9 @@ import pytest
 from conftest import mousedom_env, run_mousedom
 from daemon_fixtures import RATE, rig_runner
 
-from mousedom import sim
 from mousedom.client import Client, CommandError, Pose, find_socket, poses, socket_candidates
 from mousedom.errors import UserError
+from mousedom.fusion import sim
 
 
 @pytest.fixture

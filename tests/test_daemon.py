@@ -15,10 +15,10 @@ from daemon_fixtures import Conn
 
 from mousedom.commands.run import JournalFormatter, configure_logging
 from mousedom.config import parse_config
-from mousedom.daemon import WAKE_SLACK_S, Daemon, plan_wake
 from mousedom.errors import UserError
+from mousedom.service.daemon import WAKE_SLACK_S, Daemon, plan_wake
+from mousedom.service.factory import make_source
 from mousedom.sources.base import Reports, Source, SourceGone
-from mousedom.sources.factory import make_source
 
 RECORD = struct.Struct("<ddd")  # t, dx, dy
 

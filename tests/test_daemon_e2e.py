@@ -20,7 +20,7 @@ import pytest
 from conftest import run_mousedom
 from daemon_fixtures import RATE, Conn, rig_runner
 
-from mousedom import sim
+from mousedom.fusion import sim
 
 
 @pytest.fixture

@@ -6,7 +6,8 @@ import pytest
 from test_evdev_fakes import add_device, paths
 
 from mousedom.config import EvdevMatch
-from mousedom.discovery import (
+from mousedom.errors import UserError
+from mousedom.sources.discovery import (
     AmbiguousDevice,
     DeviceInfo,
     NoDevice,
@@ -17,7 +18,6 @@ from mousedom.discovery import (
     parse_udev_db,
     scan,
 )
-from mousedom.errors import UserError
 
 
 def test_parse_mouse_dpi_hwdb_forms():

@@ -8,7 +8,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mousedom.protocol import encode, encode_pose, pose_message
+from mousedom.service.protocol import encode, encode_pose, pose_message
 
 # every float, NaN and the infinities included (they must become null)
 anyfloat = st.floats(allow_nan=True, allow_infinity=True)

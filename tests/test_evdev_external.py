@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from mousedom.config import EvdevMatch, Mount, MouseConfig
-from mousedom.events import EVENT_DTYPE
 from mousedom.sources.base import SourceGone
 from mousedom.sources.evdev import EvdevSource
+from mousedom.sources.events import EVENT_DTYPE
 
 # file: (motion frames, net X, net Y, all frames) from SOURCES.md
 FACTS = {

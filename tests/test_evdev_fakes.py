@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from mousedom.discovery import SystemPaths
-from mousedom.events import EV_REL, EV_SYN, REL_X, REL_Y, SYN_REPORT, encode_input_events
+from mousedom.sources.discovery import SystemPaths
+from mousedom.sources.events import EV_REL, EV_SYN, REL_X, REL_Y, SYN_REPORT, encode_input_events
 
 
 def add_device(

@@ -13,7 +13,9 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from mousedom.config import EvdevMatch, Mount, MouseConfig
-from mousedom.events import (
+from mousedom.sources.base import Reports, SourceGone
+from mousedom.sources.evdev import SMALL_READ, EvdevSource, _clamp_forward, _clamp_list
+from mousedom.sources.events import (
     EV_KEY,
     EV_MSC,
     EV_REL,
@@ -27,8 +29,6 @@ from mousedom.events import (
     FrameAssembler,
     decode_input_events,
 )
-from mousedom.sources.base import Reports, SourceGone
-from mousedom.sources.evdev import SMALL_READ, EvdevSource, _clamp_forward, _clamp_list
 
 KINDS = [
     (EV_REL, REL_X),

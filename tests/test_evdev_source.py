@@ -16,9 +16,9 @@ from test_evdev_fakes import add_device, motion_bytes, paths
 
 from mousedom.config import EvdevMatch, Mount, MouseConfig
 from mousedom.errors import UserError
-from mousedom.events import EV_KEY, EV_REL, EV_SYN, REL_X, SYN_DROPPED, encode_input_events
 from mousedom.sources.base import SourceGone, SourceUnavailable
 from mousedom.sources.evdev import CLOCK_MONOTONIC, EVIOCSCLOCKID, EvdevSource
+from mousedom.sources.events import EV_KEY, EV_REL, EV_SYN, REL_X, SYN_DROPPED, encode_input_events
 
 
 def mouse(**match) -> MouseConfig:
@@ -220,7 +220,7 @@ def test_daemon_keeps_running_while_a_rule_is_ambiguous(tmp_path):
     """The daemon (in-process, real socket) starts, reports the ambiguity in the mouse's
     health, keeps running, and attaches once the look-alike is unplugged."""
     from mousedom.config import parse_config
-    from mousedom.daemon import Daemon
+    from mousedom.service.daemon import Daemon
 
     add_device(tmp_path, 1, "Same")
     add_device(tmp_path, 2, "Same")

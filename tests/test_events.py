@@ -1,4 +1,4 @@
-"""The shared input_event decoder and SYN_REPORT frame assembler (mousedom/events.py)."""
+"""The shared input_event decoder and SYN_REPORT frame assembler (mousedom/sources/events.py)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mousedom.events import (
+from mousedom.sources.events import (
     EV_KEY,
     EV_MSC,
     EV_REL,

@@ -25,10 +25,10 @@ import numpy as np
 import pytest
 from test_firmware_build import make, require_toolchain  # tests/ is on sys.path
 
-from mousedom import adns_protocol as P
-from mousedom.adns_decode import packets_to_reports
 from mousedom.config import Mount, MouseConfig, SerialSource
+from mousedom.sources import adns_protocol as P
 from mousedom.sources.adns import AdnsSource
+from mousedom.sources.adns_decode import packets_to_reports
 
 POLL_US = 1250
 

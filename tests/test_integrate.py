@@ -1,4 +1,4 @@
-"""Integrators and pose composition (mousedom.integrate)."""
+"""Integrators and pose composition (mousedom.fusion.integrate)."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from mousedom import integrate
-from mousedom.integrate import INTEGRATORS, body_step, compose, inverse_exact, step_jacobian
+from mousedom.fusion import integrate
+from mousedom.fusion.integrate import INTEGRATORS, body_step, compose, inverse_exact, step_jacobian
 
 EPS = np.finfo(float).eps
 

@@ -90,7 +90,7 @@ def test_list_unreadable_device_names_the_group():
             code = (
                 "import os, sys\n"
                 "from mousedom.cli import build_parser, main\n"
-                "import mousedom.commands.list, mousedom.discovery, json, grp, stat\n"
+                "import mousedom.commands.list, mousedom.sources.discovery, json, grp, stat\n"
                 "build_parser()\n"
                 "os.setgid(65534); os.setuid(65534)\n"
                 f"sys.exit(main(['list', '--root', {str(root)!r}]))\n"

@@ -1,4 +1,4 @@
-"""Motion models (mousedom.models): lsq, diff-drive, bonarini, wheels; masks; exactness."""
+"""Motion models (mousedom.fusion.models): lsq, diff-drive, bonarini, wheels; masks; exactness."""
 
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mousedom import models
-from mousedom.geometry import design_matrix
-from mousedom.integrate import INTEGRATORS, body_step, compose
+from mousedom.fusion import models
+from mousedom.fusion.geometry import design_matrix
+from mousedom.fusion.integrate import INTEGRATORS, body_step, compose
 
 
 def rigid(q: np.ndarray, positions: np.ndarray) -> np.ndarray:

@@ -1,4 +1,5 @@
-"""The daemon's one-window path (mousedom.onewindow, Tracker._solve_one) equals the array path."""
+"""The daemon's one-window path (mousedom.fusion.onewindow, Tracker._solve_one) equals the
+array path."""
 
 from __future__ import annotations
 
@@ -7,8 +8,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mousedom import covariance, integrate, onewindow, sim
-from mousedom.tracker import PoseBatch, Tracker
+from mousedom.fusion import covariance, integrate, onewindow, sim
+from mousedom.fusion.tracker import PoseBatch, Tracker
 
 floats = st.floats(-8.0, 8.0, allow_nan=False)
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mousedom.posebatch import PoseBatch, PoseRow
+from mousedom.fusion.posebatch import PoseBatch, PoseRow
 
 
 def _row(k: int) -> PoseRow:

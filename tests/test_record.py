@@ -203,8 +203,8 @@ def test_duration_unplug_and_reattach(tmp_path):
 def test_serial_bytes_recorded_raw(tmp_path):
     """A downsampler on a pty: line noise then 20 MOTION packets; the file holds the exact
     bytes, which decode to the same 20 reports as the bytes that were sent."""
-    from mousedom import adns_protocol as P
-    from mousedom.adns_decode import packets_to_reports
+    from mousedom.sources import adns_protocol as P
+    from mousedom.sources.adns_decode import packets_to_reports
 
     master, slave = os.openpty()
     port = os.ttyname(slave)

@@ -22,12 +22,12 @@ from capture_helpers import (
 )
 from conftest import mousedom_env, run_mousedom
 
-from mousedom import sim
 from mousedom.capture import DeviceInfo, NativeWriter, assign, open_capture, read_reports
 from mousedom.capture.evemu import format_evemu
 from mousedom.capture.libinput import format_libinput
+from mousedom.capture.replay import CsvSink, Replay, read_csv
 from mousedom.config import parse_config
-from mousedom.replay import CsvSink, Replay, read_csv
+from mousedom.fusion import sim
 
 
 def _ok(proc):
@@ -155,7 +155,7 @@ def test_simulated_rig_native_replay_matches_truth_and_batch_tracker(tmp_path):
     assert np.hypot(*(final[:2] - truth[:2])) < 0.01  # 1 cm after ~1.3 m of driving
     assert abs(final[2] - truth[2]) < 0.01
     # Streaming through the engine equals one batch through the tracker.
-    from mousedom.tracker import Tracker
+    from mousedom.fusion.tracker import Tracker
 
     tracker = Tracker(sim.rig_config(rig), t0=min(r.t[0] for r in res.reports.values()))
     for name, r in res.reports.items():
@@ -372,7 +372,7 @@ def test_native_stats_survive_convert(tmp_path):
 
 
 def test_serial_adns_bytes_replay_through_the_daemon_decoder(tmp_path):
-    from mousedom import adns_protocol as P
+    from mousedom.sources import adns_protocol as P
 
     rng = np.random.default_rng(11)
     n = 400
@@ -537,8 +537,8 @@ def test_a_long_pause_is_closed_in_bounded_batches_with_the_same_poses(tmp_path)
     """A rig parked for a while: the tracker closed every window of the pause in one
     batch (a 1e5 s pause at 20 Hz took 1.5 GB).  The engine now hands it out in batches
     of at most MAX_WINDOWS, and the poses equal one batch through the tracker."""
-    from mousedom.replay import MAX_WINDOWS
-    from mousedom.tracker import Tracker
+    from mousedom.capture.replay import MAX_WINDOWS
+    from mousedom.fusion.tracker import Tracker
 
     rng = np.random.default_rng(5)
     n = 400

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from conftest import run_mousedom
 
+from mousedom.capture.replay import read_csv
 from mousedom.demo import DEMO_CAPTURE, DEMO_CONFIG, demo_config
-from mousedom.replay import read_csv
 
 
 def test_demo_files_are_small_and_the_config_loads():

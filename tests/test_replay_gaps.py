@@ -15,9 +15,9 @@ from conftest import run_mousedom
 
 from mousedom.capture import assign
 from mousedom.capture.evemu import format_evemu
+from mousedom.capture.replay import MAX_GAP_S, Replay
 from mousedom.config import parse_config
-from mousedom.replay import MAX_GAP_S, Replay
-from mousedom.tracker import Tracker
+from mousedom.fusion.tracker import Tracker
 
 RIG = (
     "rate_hz: {rate}\nmodel: lsq\nmice:\n  a: {{cpi: 400, mount: {{x: 0.05, y: 0.1}}}}\n"

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mousedom.pacing import Pacer, paced
-from mousedom.tracker import PoseBatch
+from mousedom.capture.pacing import Pacer, paced
+from mousedom.fusion.tracker import PoseBatch
 
 
 class FakeClock:

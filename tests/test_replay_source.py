@@ -7,8 +7,8 @@ import pytest
 
 from mousedom.capture import CaptureError, DeviceInfo, NativeWriter
 from mousedom.capture.evemu import format_evemu
+from mousedom.capture.source import ReplaySource
 from mousedom.sources.base import SourceUnavailable
-from mousedom.sources.replay import ReplaySource
 
 
 class Clock:

@@ -8,8 +8,8 @@ import math
 import pytest
 from conftest import run_mousedom
 
-from mousedom import sim
 from mousedom.capture.evemu import format_evemu
+from mousedom.fusion import sim
 
 
 def write_run(tmp_path, cw: bool, rig: sim.Rig) -> list[str]:

@@ -7,7 +7,7 @@ import socket
 
 import pytest
 
-from mousedom.sdnotify import Notifier, watchdog_interval
+from mousedom.service.sdnotify import Notifier, watchdog_interval
 
 
 @pytest.fixture

@@ -13,9 +13,9 @@ import pytest
 from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 
-from mousedom import models
-from mousedom.geometry import design_matrix
-from mousedom.integrate import body_step, compose
+from mousedom.fusion import models
+from mousedom.fusion.geometry import design_matrix
+from mousedom.fusion.integrate import body_step, compose
 
 
 def rigid(q: np.ndarray, positions: np.ndarray) -> np.ndarray:

@@ -14,8 +14,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mousedom import models
-from mousedom.integrate import body_step, compose
+from mousedom.fusion import models
+from mousedom.fusion.integrate import body_step, compose
 
 
 def ratios(method: str, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -11,8 +11,8 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mousedom import models
-from mousedom.geometry import design_matrix
+from mousedom.fusion import models
+from mousedom.fusion.geometry import design_matrix
 
 
 def polygon(n: int, r: float, theta: float) -> np.ndarray:

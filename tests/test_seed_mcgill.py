@@ -14,8 +14,8 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mousedom import models
-from mousedom.integrate import body_step, compose, sinc
+from mousedom.fusion import models
+from mousedom.fusion.integrate import body_step, compose, sinc
 
 
 @settings(max_examples=200, deadline=None)

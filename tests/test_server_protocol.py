@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from mousedom.protocol import (
+from mousedom.service.protocol import (
     COMMANDS,
     LineBuffer,
     ProtocolError,

@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from mousedom import sim
-from mousedom.units import INCH
+from mousedom.fusion import sim
+from mousedom.fusion.units import INCH
 
 
 def rig(**kw) -> sim.Rig:

@@ -9,9 +9,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mousedom import sim
-from mousedom.covariance import CovarianceState, propagate
-from mousedom.tracker import PoseBatch, Tracker
+from mousedom.fusion import sim
+from mousedom.fusion.covariance import CovarianceState, propagate
+from mousedom.fusion.tracker import PoseBatch, Tracker
 
 
 def rig3(**kw) -> sim.Rig:
@@ -247,7 +247,7 @@ def test_umbmark_square_accuracy():
 @given(st.integers(1, 12), st.integers(0, 2**31 - 1))
 def test_small_and_large_batches_of_covariance_agree(n, seed):
     """The daemon's one-window path (plain recursion) equals the batched cumulative sums."""
-    import mousedom.covariance as covariance
+    import mousedom.fusion.covariance as covariance
 
     rng = np.random.default_rng(seed)
     positions = np.cumsum(rng.normal(0, 1, (n, 2)), axis=0)

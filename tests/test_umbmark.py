@@ -10,9 +10,9 @@ import pytest
 import yaml
 from conftest import run_mousedom
 
-from mousedom import sim
 from mousedom.calibrate.umbmark import parse_runs, umbmark, umbmark_row
 from mousedom.errors import UserError
+from mousedom.fusion import sim
 
 RUNS = """direction,dx,dy
 cw,0.10,0.02

@@ -10,7 +10,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from mousedom.config import Mount, MouseConfig
-from mousedom.units import INCH, body_to_counts, counts_to_body
+from mousedom.fusion.units import INCH, body_to_counts, counts_to_body
 
 
 def mouse(yaw_deg=0.0, cpi=(400.0, 800.0), flip=False) -> MouseConfig:

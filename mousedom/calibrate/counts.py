@@ -1,6 +1,6 @@
 """Counts to metres, in the mouse's own frame and in the body frame.
 
-The conversion itself is ``mousedom.units`` (one convention for the whole program); this
+The conversion itself is ``mousedom.fusion.units`` (one convention for the whole program); this
 adds the mouse's own frame (forward, left), which the exact mount fit needs because it
 estimates the mount yaw itself, and a CPI override for freshly calibrated values.
 """
@@ -12,7 +12,7 @@ from dataclasses import replace
 import numpy as np
 
 from mousedom.config import MouseConfig
-from mousedom.units import INCH, counts_to_body
+from mousedom.fusion.units import INCH, counts_to_body
 
 __all__ = ["INCH", "body_frame", "mouse_frame", "rotate"]
 

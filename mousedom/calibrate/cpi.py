@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mousedom.calibrate.runs import run_spread
-from mousedom.units import INCH
+from mousedom.fusion.units import INCH
 
 AXES = ("x", "y")
 MAX_SKEW = np.radians(15.0)  # beyond this a push is along the wrong axis, not askew

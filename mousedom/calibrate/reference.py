@@ -20,10 +20,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mousedom import models
 from mousedom.calibrate.csvtext import content_lines, fields, finite, header_names
 from mousedom.config import WheelsConfig
 from mousedom.errors import UserError, located
+from mousedom.fusion import models
 
 TWIST = ("t", "vx", "vy", "omega")
 WHEELS = ("t", "left", "right")

@@ -4,7 +4,7 @@ The twist is piecewise linear in time (moves ramp up and down, pauses between th
 its integral is known in closed form.  A mouse at p integrates the body-frame velocity of
 its point, (U_x - Θ p_y, U_y + Θ p_x), which is exact for any twist; its counts are that,
 turned into the mouse's frame, times its true CPI, with optional noise, quantised so that
-no count is lost.  ``mousedom.sim`` is the general simulator; this one is small and exact
+no count is lost.  ``mousedom.fusion.sim`` is the general simulator; this one is small and exact
 for what calibration needs (the reference twist, per-window truth).
 """
 
@@ -16,8 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from mousedom.calibrate.counts import rotate
+from mousedom.fusion.units import INCH
 from mousedom.sources.base import Reports
-from mousedom.units import INCH
 
 
 @dataclass(frozen=True)

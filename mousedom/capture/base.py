@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from mousedom.errors import UserError
-from mousedom.events import AssemblerStats, FrameAssembler
+from mousedom.sources.events import AssemblerStats, FrameAssembler
 
 
 class CaptureError(UserError):

@@ -46,7 +46,7 @@ from mousedom.capture.evemu_lines import _show, event_line
 from mousedom.capture.evemu_lines import fast_events as _fast_events
 from mousedom.capture.evemu_lines import slow_events as _slow_events
 from mousedom.errors import located
-from mousedom.events import EV_REL, REL_X, REL_Y
+from mousedom.sources.events import EV_REL, REL_X, REL_Y
 
 KNOWN_VERSIONS = ("1.0", "1.1", "1.2", "1.3")
 HEADER_TAGS = (b"N", b"I", b"P", b"B", b"A", b"L", b"S")

@@ -49,7 +49,7 @@ from mousedom.capture.base import (
 )
 from mousedom.capture.base import open_binary as _open
 from mousedom.errors import located
-from mousedom.events import EV_REL, REL_X, REL_Y
+from mousedom.sources.events import EV_REL, REL_X, REL_Y
 
 KNOWN_VERSIONS = (1,)
 # Seconds since the start of a recording: a century is far past any real one, and keeps

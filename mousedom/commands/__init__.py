@@ -1,0 +1,1 @@
+"""One module per ``mousedom`` subcommand, each a thin layer over the packages below."""

@@ -8,7 +8,8 @@ import os
 import sys
 
 from mousedom.config import load_config
-from mousedom.discovery import (
+from mousedom.errors import UserError
+from mousedom.sources.discovery import (
     DeviceInfo,
     Scan,
     is_stream,
@@ -18,7 +19,6 @@ from mousedom.discovery import (
     paths_for_root,
     scan,
 )
-from mousedom.errors import UserError
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

@@ -27,9 +27,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from mousedom.config import Config, MouseConfig, load_config
-from mousedom.discovery import SystemPaths, paths_for_root
 from mousedom.errors import UserError
 from mousedom.sources.base import Source, SourceGone, SourceUnavailable
+from mousedom.sources.discovery import SystemPaths, paths_for_root
 
 log = logging.getLogger(__name__)
 

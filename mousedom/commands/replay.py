@@ -15,9 +15,9 @@ import time
 from typing import TextIO
 
 from mousedom.capture import assign, parse_capture_arg
+from mousedom.capture.replay import CsvSink, Replay, Summary
 from mousedom.config import INTEGRATORS, MODELS, load_config
 from mousedom.errors import UserError
-from mousedom.replay import CsvSink, Replay, Summary
 from mousedom.safewrite import open_stream
 
 
@@ -84,7 +84,7 @@ def run(args) -> int:
     if args.model:
         # The config checks its own model against its mice; an override must pass too
         # (lsq on one mouse solved no window and ended at 0,0,0 with exit 0).
-        from mousedom.geometry import rank_problem
+        from mousedom.fusion.geometry import rank_problem
 
         mounts = [(m.mount.x, m.mount.y) for m in config.mice]
         problem = rank_problem(args.model, mounts, config.names)
@@ -121,7 +121,7 @@ def run(args) -> int:
             s(b)
 
     if args.speed:
-        from mousedom.pacing import Pacer, paced
+        from mousedom.capture.pacing import Pacer, paced
 
         sink = paced(sink, Pacer(args.speed), flush=out.flush if out is not None else None)
 

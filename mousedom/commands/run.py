@@ -79,8 +79,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mousedom.daemon import Daemon, make_source
-    from mousedom.server import default_socket_path
+    from mousedom.service.daemon import Daemon, make_source
+    from mousedom.service.server import default_socket_path
 
     configure_logging(bool(getattr(args, "verbose", False)))
     if args.demo:

@@ -16,9 +16,9 @@ from typing import Any
 
 import serial
 
-from mousedom import adns_protocol as P
-from mousedom.adns_decode import AdnsDecoder
 from mousedom.config import MouseConfig
+from mousedom.sources import adns_protocol as P
+from mousedom.sources.adns_decode import AdnsDecoder
 from mousedom.sources.base import Reports, Source, SourceGone, SourceUnavailable
 
 

@@ -1,6 +1,6 @@
 """A live mouse over evdev: raw input_event bytes from the node, decoded in the source.
 
-``open()`` finds the device the config rule names (``mousedom.discovery``), opens it with
+``open()`` finds the device the config rule names (``mousedom.sources.discovery``), opens it with
 python-evdev, grabs it (EVIOCGRAB, unless ``grab: false``) so that the robot's mice do not
 move a cursor, and switches its timestamps to CLOCK_MONOTONIC (EVIOCSCLOCKID, which
 python-evdev does not wrap).  The hot path is ``os.read`` of up to ``READ_EVENTS`` records
@@ -34,7 +34,8 @@ from typing import Any
 import numpy as np
 
 from mousedom.config import EvdevMatch, MouseConfig
-from mousedom.discovery import (
+from mousedom.sources.base import Reports, Source, SourceGone, SourceUnavailable
+from mousedom.sources.discovery import (
     AmbiguousDevice,
     DeviceInfo,
     NoDevice,
@@ -44,8 +45,7 @@ from mousedom.discovery import (
     match_device,
     scan,
 )
-from mousedom.events import EVENT_SIZE, FrameAssembler, MotionFrames, decode_input_events
-from mousedom.sources.base import Reports, Source, SourceGone, SourceUnavailable
+from mousedom.sources.events import EVENT_SIZE, FrameAssembler, MotionFrames, decode_input_events
 
 log = logging.getLogger(__name__)
 

@@ -28,7 +28,7 @@ def make_source(mouse: MouseConfig, clock: Clock = time.monotonic, loop: bool = 
 
             return AdnsSource(mouse)
         if mouse.replay is not None:
-            from mousedom.sources.replay import ReplaySource
+            from mousedom.capture.source import ReplaySource
 
             return ReplaySource(
                 mouse.name, mouse.replay, device=mouse.replay_device, loop=loop, clock=clock

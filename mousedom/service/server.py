@@ -3,8 +3,8 @@
 The server never blocks the fusion.  Every socket is non-blocking; what a client cannot take
 right now waits in its own queue of at most ``queue_lines`` lines, and a client whose queue
 is full is dropped (a stalled reader is not worth one late pose for the others).  Commands
-are parsed by ``mousedom.protocol``; the ones that move the pose are allowed only to the uids
-and gids of ``server.control_uids/control_gids`` (and the daemon's own uid), read from the
+are parsed by ``mousedom.service.protocol``; the ones that move the pose are allowed only to
+the uids and gids of ``server.control_uids/control_gids`` (and the daemon's own uid), read from the
 peer with SO_PEERCRED.  The daemon owns the selector and calls ``Server.handle_event`` for
 the keys it registered; the daemon applies commands through the ``on_command`` callback.
 """
@@ -25,7 +25,7 @@ from typing import Any
 
 from mousedom.config import ServerConfig
 from mousedom.errors import UserError
-from mousedom.protocol import (
+from mousedom.service.protocol import (
     POSE_MOVING,
     Command,
     LineBuffer,

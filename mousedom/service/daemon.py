@@ -30,8 +30,9 @@ import numpy as np
 
 from mousedom.config import Config, MouseConfig, load_config
 from mousedom.errors import UserError
-from mousedom.posebatch import PoseBatch
-from mousedom.protocol import (
+from mousedom.fusion.posebatch import PoseBatch
+from mousedom.service.factory import make_source, source_key
+from mousedom.service.protocol import (
     encode,
     encode_pose,
     error_message,
@@ -39,10 +40,9 @@ from mousedom.protocol import (
     source_message,
     version_message,
 )
-from mousedom.sdnotify import Notifier, watchdog_interval
-from mousedom.server import Client, Command, Server
+from mousedom.service.sdnotify import Notifier, watchdog_interval
+from mousedom.service.server import Client, Command, Server
 from mousedom.sources.base import Source, SourceGone, SourceUnavailable
-from mousedom.sources.factory import make_source, source_key
 
 __all__ = ["Daemon", "make_source", "plan_wake"]
 
@@ -119,7 +119,7 @@ class Daemon:
         handle_signals: bool = True,
         record: str | None = None,
     ) -> None:
-        from mousedom.tracker import Tracker  # late: the numeric core loads only when run
+        from mousedom.fusion.tracker import Tracker  # late: the numeric core loads only when run
 
         self._tracker_class = Tracker
         self.config = config
@@ -208,7 +208,7 @@ class Daemon:
             # tracker a finite frontier before the first report (its poll needs one).
             self.tracker.complete_until(now - max(s.latency for s in self.slots))
             if self.record_path:
-                from mousedom.live_record import Recording
+                from mousedom.service.live_record import Recording
 
                 kinds = [s.source.kind for s in self.slots]
                 self.recording = Recording(self.record_path, self.config, kinds)

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mousedom.config import Config, parse_config
-from mousedom.units import INCH
+from mousedom.fusion.units import INCH
 
 # ---------------------------------------------------------------------------- trajectories
 
@@ -309,7 +309,7 @@ def simulate(
 
 def run_tracker(result: SimResult, config: Config | None = None, **tracker_kw):
     """Feed a simulation through a Tracker in one batch; returns the PoseBatch."""
-    from mousedom.tracker import Tracker
+    from mousedom.fusion.tracker import Tracker
 
     cfg = config or rig_config(result.rig)
     tracker = Tracker(cfg, t0=float(result.motion.starts[0]), **tracker_kw)

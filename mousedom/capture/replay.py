@@ -7,7 +7,7 @@ sink.  So however long the input, only about one block per feed plus the tracker
 windows are in memory.  A mouse whose file ended is declared complete up to the slowest
 live feed, so that it does not hold the others back.
 
-No clock and no pacing here: ``mousedom.pacing`` wraps the sink when a user asks for
+No clock and no pacing here: ``mousedom.capture.pacing`` wraps the sink when a user asks for
 ``--speed``.  Poses are written by ``CsvSink``; ``Summary`` collects what the summary
 and the plot need while the batches stream past.
 """
@@ -24,7 +24,7 @@ import numpy as np
 from mousedom.capture import Assignment, Capture, captures_of, mice_by_device, time_offset
 from mousedom.capture.base import DeviceStats, lagging_first
 from mousedom.config import Config
-from mousedom.tracker import PoseBatch, Tracker
+from mousedom.fusion.tracker import PoseBatch, Tracker
 
 CSV_COLUMNS = ("t", "x", "y", "theta", "vx", "vy", "omega", "used", "ok")
 _ROW = "%.6f,%.9f,%.9f,%.9f,%.6f,%.6f,%.6f,%d,%d"

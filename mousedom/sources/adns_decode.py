@@ -20,9 +20,9 @@ from typing import Any
 
 import numpy as np
 
-from mousedom import adns_protocol as P
-from mousedom.clocksync import ClockSync, FirmwareClock
+from mousedom.sources import adns_protocol as P
 from mousedom.sources.base import Reports
+from mousedom.sources.clocksync import ClockSync, FirmwareClock
 
 DEFAULT_POLL_US = 1250  # the firmware's poll period until it tells its own
 

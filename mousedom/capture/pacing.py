@@ -11,7 +11,7 @@ import time
 from collections.abc import Callable
 from dataclasses import fields
 
-from mousedom.tracker import PoseBatch
+from mousedom.fusion.tracker import PoseBatch
 
 
 class Pacer:

@@ -26,8 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mousedom import integrate
-from mousedom.geometry import design_matrix
+from mousedom.fusion import integrate
+from mousedom.fusion.geometry import design_matrix
 
 MODELS = ("lsq", "diff-drive", "bonarini")
 

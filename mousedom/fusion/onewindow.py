@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 from operator import mul
 
-from mousedom import integrate
+from mousedom.fusion import integrate
 
 _SINC = [float(c) for c in integrate._SINC_COEF]
 _DSINC = [float(c) for c in integrate._DSINC_COEF]

@@ -25,13 +25,13 @@ import math
 
 import numpy as np
 
-from mousedom import integrate, models, onewindow
 from mousedom.config import Config
-from mousedom.countfunction import CountFunction
-from mousedom.covariance import CovarianceState, propagate, world_step_noise
-from mousedom.geometry import rank_problem
-from mousedom.posebatch import PoseBatch, PoseRow
-from mousedom.units import counts_matrices, sigma_metres
+from mousedom.fusion import integrate, models, onewindow
+from mousedom.fusion.countfunction import CountFunction
+from mousedom.fusion.covariance import CovarianceState, propagate, world_step_noise
+from mousedom.fusion.geometry import rank_problem
+from mousedom.fusion.posebatch import PoseBatch, PoseRow
+from mousedom.fusion.units import counts_matrices, sigma_metres
 
 
 class Tracker:
@@ -415,7 +415,7 @@ class Tracker:
     def _solve_one(
         self, t_end: float, counts: list[tuple[float, float]], live: tuple[bool, ...]
     ) -> PoseBatch:
-        """_solve for one window of a linear model (see mousedom.onewindow)."""
+        """_solve for one window of a linear model (see mousedom.fusion.onewindow)."""
         a_rows, b_rows, idx, c3, cols = self._linear_plan(live)
         residual = [[0.0, 0.0] for _ in range(self.n_mice)]
         q = [0.0, 0.0, 0.0]
