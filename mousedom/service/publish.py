@@ -1,0 +1,72 @@
+"""What the daemon sends: POSE lines for every closed window, SOURCE health messages.
+
+A mixin of ``Daemon``: it uses ``self.slots``, ``self.server``, ``self.tracker`` and
+``self.config``, and keeps the POSE counters ``self.poses``, ``self.last_pose_t`` and
+``self.not_updated``.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from mousedom.fusion.posebatch import PoseBatch
+from mousedom.service.protocol import encode, encode_pose, source_message
+
+
+class Publisher:
+    """POSE and SOURCE out to the socket's clients (see the module docstring)."""
+
+    def _publish(self, batch: PoseBatch) -> None:
+        if not len(batch):
+            return
+        missing = tuple(s.name for s in self.slots if not s.live)
+        tolerance = 0.5 / self.config.rate_hz
+        # Rows of Python values (the one-window path makes them without numpy) and a POSE
+        # line without a dict and json.dumps: the daemon publishes every window.
+        for pose in batch.rows():
+            if pose.ok:
+                for slot, (rx, ry) in zip(self.slots, pose.residual, strict=False):
+                    if rx - rx == 0.0 and ry - ry == 0.0:  # both finite
+                        slot.residual_sq += rx * rx + ry * ry
+                        slot.residual_n += 1
+            line = encode_pose(
+                pose.t,
+                (pose.x, pose.y, pose.theta),
+                (pose.vx, pose.vy, pose.omega),
+                pose.cov,
+                pose.used,
+                pose.ok,
+                missing,
+            )
+            self.poses += 1
+            self.last_pose_t = pose.t
+            self.not_updated += not pose.ok
+            self.server.broadcast_pose(pose.t, line, tolerance)
+
+    def _source_messages(self, now: float) -> list[dict[str, Any]]:
+        out = []
+        for slot in self.slots:
+            h = slot.source.health
+            if slot.residual_n:
+                slot.residual_rms = (slot.residual_sq / slot.residual_n) ** 0.5
+                slot.residual_sq, slot.residual_n = 0.0, 0
+            out.append(
+                source_message(
+                    h.as_dict(),
+                    live=slot.live,
+                    age=None if h.last_t is None else round(now - h.last_t, 6),
+                    residual=slot.residual_rms,
+                    excluded=not slot.live,
+                )
+            )
+        return out
+
+    def _broadcast_sources(self, now: float) -> None:
+        if not self.server.clients:
+            return
+        for msg in self._source_messages(now):
+            self.server.broadcast(encode(msg))
+
+    def _pose_now(self) -> dict[str, float]:
+        x, y, theta = (float(v) for v in self.tracker.pose)
+        return {"x": x, "y": y, "theta": theta}
