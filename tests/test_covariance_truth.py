@@ -1,0 +1,84 @@
+"""The pose covariance is true, not just present: a Monte Carlo consistency test.
+
+Several hundred noisy runs of one simulated rig and path (exact truth from the
+simulator), through the tracker's array path (one batch) and its one-window path (the
+daemon's: one window per poll).  For a consistent estimator, the normalised estimation
+error squared of the end pose, NEES = e^T P^-1 e with e = estimate - truth, is chi-square
+with 3 degrees of freedom: its mean over N runs is 3 with a standard error of sqrt(6/N).
+A covariance that is optimistic (too small) pushes the mean up, a pessimistic one down.
+
+The rig and path are chosen to make the covariance's structure matter, not just its
+size: the mice sit far ahead of the body origin (their sideways motion and the turn are
+strongly correlated, so the twist's covariance is far from isotropic), the output rate is
+low and the turn fast (0.8 rad per window), so rotating a window's noise by the heading
+before the window or after it changes the result; the deliberate bug that did just that
+passed the whole suite before this test (issue 17).  The simulator's noise (counts per
+report, one report per window) is the config's ``sigma``, so the model is exactly right.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from mousedom.config import parse_config
+from mousedom.fusion import sim
+from mousedom.fusion.tracker import Tracker
+
+RUNS = 300
+RATE = 5.0  # output rate and report rate: one report per window, on the window's end
+SIGMA = 2.0  # counts per report and axis
+
+
+def _rig() -> tuple[sim.Rig, object]:
+    mice = tuple(
+        sim.SimMouse(name, x, y, rate_hz=RATE, noise=SIGMA, quantize=False)
+        for name, x, y in (("a", 0.5, 0.05), ("b", 0.5, -0.05), ("c", 0.45, 0.0))
+    )
+    rig = sim.Rig(mice, rate_hz=RATE)
+    text = sim.rig_yaml(rig).replace("    flip: false", f"    flip: false\n    sigma: {SIGMA}")
+    return rig, parse_config(text, "<monte carlo>", need_sources=False)
+
+
+def _one_window_at_a_time(tracker: Tracker, reports: dict) -> None:
+    """Reports in time order, each pushed as a live read would (lists) and polled."""
+    merged = sorted(
+        (t, name, dx, dy)
+        for name, r in reports.items()
+        for t, dx, dy in zip(r.t.tolist(), r.dx.tolist(), r.dy.tolist(), strict=True)
+    )
+    for t, name, dx, dy in merged:
+        tracker.push(name, [t], [dx], [dy])
+        tracker.poll()
+
+
+def _nees(path: str) -> np.ndarray:
+    rig, config = _rig()
+    trajectory = sim.arc(0.1, 6.0, 0.4)  # 4 rad/s: 0.8 rad per window
+    values = []
+    for seed in range(RUNS):
+        result = sim.simulate(rig, trajectory, seed=seed)
+        tracker = Tracker(config, t0=0.0)
+        if path == "array":
+            for name, r in result.reports.items():
+                tracker.push(name, r.t, r.dx, r.dy)
+        else:
+            _one_window_at_a_time(tracker, result.reports)
+        last = tracker.finish()
+        t_end = float(last.t[-1]) if len(last) else tracker.frontier_time
+        truth = result.truth(np.array([t_end]))[0]
+        e = np.asarray(tracker.pose) - truth
+        e[2] = (e[2] + math.pi) % (2 * math.pi) - math.pi
+        values.append(float(e @ np.linalg.solve(np.asarray(tracker.pose_cov), e)))
+    return np.asarray(values)
+
+
+@pytest.mark.parametrize("path", ["array", "one-window"])
+def test_end_pose_nees_averages_three(path):
+    nees = _nees(path)
+    band = 3 * math.sqrt(6 / RUNS)  # three standard errors of the mean of chi2(3)
+    assert abs(nees.mean() - 3.0) < band, (nees.mean(), band)
+    # and its spread is a chi-square's, not a covariance right only on average
+    assert np.var(nees) == pytest.approx(6.0, rel=0.4)
