@@ -289,3 +289,26 @@ def test_an_empty_file_is_an_error_but_an_empty_events_file_beside_its_desc_is_n
     )
     cap = drain(p)
     assert cap.devices[0].name == "PS/2 Generic Mouse" and cap.stats[0].reports == 0
+
+
+@pytest.mark.parametrize(
+    "line, want",
+    [
+        (b"E: 1.000005 0002 0000 -13", (1.000005, 2, 0, -13)),
+        (b"E: 1.000005 0002 0001 -013", (1.000005, 2, 1, -13)),  # evemu pads: minus thirteen
+        (b"E: 0.5 0002 0001 +7", (0.5, 2, 1, 7)),
+        (b"E: 12.000000 0000 0000 0000", (12.0, 0, 0, 0)),
+        (b"E: 3.250000 0002 0008 -1", (3.25, 2, 8, -1)),
+    ],
+)
+def test_event_lines_by_hand_both_parsers(line, want):
+    """Hand-written lines with their meaning spelled out: the careful parser and the
+    vectorised one each give it (a parser taking abs(value) was caught only by the two
+    agreeing with each other)."""
+    from mousedom.capture.evemu_lines import event_line, fast_events
+
+    assert event_line(line) == pytest.approx(want, abs=1e-12)
+    fast = fast_events(line + b"\n", 1)
+    if fast is not None:  # "+7" and short fractions take the careful path
+        got = (float(fast.t[0]), int(fast.typ[0]), int(fast.code[0]), int(fast.value[0]))
+        assert got == pytest.approx(want, abs=1e-12)

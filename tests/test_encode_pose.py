@@ -52,3 +52,31 @@ def test_encode_pose_takes_numpy_scalars():
     args = (np.float64(1.5), (np.float64(0.1), 0.2, 0.3), (0.0, -0.0, np.inf), cov, np.int64(3))
     want = encode(pose_message(*args, True, ["rear"]))
     assert encode_pose(*args, True, ("rear",)) == want
+
+
+def test_every_field_lands_where_the_protocol_says():
+    """Against the input itself, not the other encoder: distinct values everywhere, so a
+    swapped row, column or field cannot pass (both encoders swapping the covariance's x
+    and y rows once passed every test but one end-to-end check of cov[0][0])."""
+    cov = [[1.0, 2.0, 3.0], [4.0, 5.0, 6.0], [7.0, 8.0, 9.0]]
+    for line in (
+        encode_pose(12.5, (0.1, 0.2, 0.3), (0.4, 0.5, 0.6), cov, 3, True, ("rear",)),
+        encode(
+            pose_message(12.5, (0.1, 0.2, 0.3), (0.4, 0.5, 0.6), np.array(cov), 3, True, ["rear"])
+        ),  # fmt: skip
+    ):
+        msg = json.loads(line)
+        assert msg == {
+            "class": "POSE",
+            "t": 12.5,
+            "x": 0.1,
+            "y": 0.2,
+            "theta": 0.3,
+            "vx": 0.4,
+            "vy": 0.5,
+            "omega": 0.6,
+            "cov": cov,
+            "used": 3,
+            "updating": True,
+            "missing": ["rear"],
+        }

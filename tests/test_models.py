@@ -13,9 +13,15 @@ from mousedom.fusion.integrate import INTEGRATORS, body_step, compose
 
 
 def rigid(q: np.ndarray, positions: np.ndarray) -> np.ndarray:
-    """Noise-free readings (n, N, 2) of mice at ``positions`` for twist increments q (n, 3)."""
-    positions = np.asarray(positions, dtype=float)
-    return (np.atleast_2d(q) @ design_matrix(positions).T).reshape(len(np.atleast_2d(q)), -1, 2)
+    """Noise-free readings (n, N, 2) of mice at ``positions`` for twist increments q (n, 3).
+
+    Rigid-body motion written out (Kim & Lee eq. (3)-(6), DESIGN.md): a point p of a body
+    that moves by (u_x, u_y) and turns by dtheta moves by (u_x - dtheta p_y, u_y + dtheta
+    p_x), not through the code's own design_matrix (a sign error there would pass)."""
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    p = np.asarray(positions, dtype=float).reshape(-1, 2)
+    ux, uy, dth = q[:, 0:1], q[:, 1:2], q[:, 2:3]
+    return np.stack([ux - dth * p[None, :, 1], uy + dth * p[None, :, 0]], axis=-1)
 
 
 def arc_pose(twist: np.ndarray, t: float) -> np.ndarray:
@@ -54,7 +60,9 @@ def test_lsq_weights_and_covariance():
     sigma = np.array([1e-5, 2e-5, 4e-5, 1e-4])
     d = RNG.normal(scale=1e-3, size=(30, 4, 2))
     sol = models.solve("lsq", d, pos, sigma)
-    a = design_matrix(pos)
+    # A of eq. (6) written out: rows (1, 0, -p_iy) and (0, 1, p_ix) per mouse.
+    a = np.array([row for x, y in pos for row in ([1.0, 0.0, -y], [0.0, 1.0, x])])
+    np.testing.assert_array_equal(design_matrix(pos), a)
     w = np.diag(np.repeat(sigma**-2.0, 2))
     info = a.T @ w @ a
     want = np.linalg.solve(info, a.T @ w @ d.reshape(30, 8).T).T

@@ -12,7 +12,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mousedom.fusion import models
-from mousedom.fusion.geometry import design_matrix
 
 
 def polygon(n: int, r: float, theta: float) -> np.ndarray:
@@ -97,7 +96,9 @@ def test_section_v_example_geometry_and_position_error():
     actual = 1.05 * nominal  # eq. (52)
     omega = 1.0 / 3.0
     dt = 0.01
-    readings = (design_matrix(actual) @ np.array([0, 0, omega * dt])).reshape(1, 3, 2)
+    # Self-rotation by omega dt about the origin: each mouse moves perpendicular to its
+    # position vector, d_i = omega dt (-p_iy, p_ix) (eq. (3) with v_b = 0), written out.
+    readings = (omega * dt * np.stack([-actual[:, 1], actual[:, 0]], axis=1)).reshape(1, 3, 2)
     with_nominal = models.solve("lsq", readings, nominal, 1.0)
     with_actual = models.solve("lsq", readings, actual, 1.0)
     np.testing.assert_allclose(with_actual.q[0], [0, 0, omega * dt], atol=1e-15)
