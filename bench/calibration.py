@@ -34,7 +34,6 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from mousedom.fusion import sim  # noqa: E402
 from mousedom.calibrate import session  # noqa: E402
 from mousedom.calibrate.cpi import calibrate_cpi  # noqa: E402
 from mousedom.calibrate.distance import bonarini_distance, calibrate_distance  # noqa: E402
@@ -50,6 +49,7 @@ from mousedom.calibrate.synth import (  # noqa: E402
 )
 from mousedom.calibrate.umbmark import umbmark, umbmark_row  # noqa: E402
 from mousedom.config import parse_config  # noqa: E402
+from mousedom.fusion import sim  # noqa: E402
 from mousedom.fusion.units import INCH  # noqa: E402
 
 REL, ABS = 0.02, 0.5  # per-report noise

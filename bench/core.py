@@ -23,8 +23,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from timing import median_time  # noqa: E402  (bench/timing.py)
 
-from mousedom.fusion import sim  # noqa: E402
-from mousedom.fusion import integrate, models
+from mousedom.fusion import (
+    integrate,
+    models,
+    sim,  # noqa: E402
+)
 from mousedom.fusion.tracker import Tracker  # noqa: E402
 from mousedom.fusion.units import counts_matrices, sigma_metres  # noqa: E402
 

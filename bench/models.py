@@ -19,8 +19,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from timing import median_time  # noqa: E402  (bench/timing.py)
 
-from mousedom.fusion import models  # noqa: E402
-from mousedom.fusion import integrate
+from mousedom.fusion import (
+    integrate,
+    models,  # noqa: E402
+)
 from mousedom.fusion.geometry import design_matrix  # noqa: E402
 
 

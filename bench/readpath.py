@@ -35,8 +35,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from mousedom.fusion import sim  # noqa: E402
 from mousedom.config import EvdevMatch, Mount, MouseConfig  # noqa: E402
+from mousedom.fusion import sim  # noqa: E402
 from mousedom.fusion.tracker import Tracker  # noqa: E402
 from mousedom.sources.evdev import EvdevSource  # noqa: E402
 from mousedom.sources.events import (  # noqa: E402

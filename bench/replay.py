@@ -33,13 +33,13 @@ sys.path.insert(0, str(REPO))
 
 import numpy as np  # noqa: E402
 
-from mousedom.fusion import sim  # noqa: E402
 from mousedom.capture import DeviceInfo, NativeWriter, assign, open_capture  # noqa: E402
 from mousedom.capture import evemu as evemu_mod  # noqa: E402  (its _fast_events is swapped)
 from mousedom.capture.evemu import format_evemu  # noqa: E402
 from mousedom.capture.libinput import format_libinput  # noqa: E402
 from mousedom.capture.replay import CsvSink, Replay  # noqa: E402
 from mousedom.config import parse_config  # noqa: E402
+from mousedom.fusion import sim  # noqa: E402
 
 NAMES = ("fl", "fr", "rl", "rr")
 PIECE = 60.0  # seconds simulated at a time (bounded memory while generating)

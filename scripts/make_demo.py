@@ -21,8 +21,8 @@ import numpy as np
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from mousedom.fusion import sim  # noqa: E402
 from mousedom.capture import DeviceInfo, NativeWriter  # noqa: E402
+from mousedom.fusion import sim  # noqa: E402
 
 NAME = "demo-rig"
 STEP = 0.5  # seconds of data per sync point

@@ -262,3 +262,63 @@ def test_reload_swaps_changed_mice_and_keeps_the_pose(tmp_path):
     finally:
         d.request_stop()
         th.join(5)
+
+
+def test_reload_that_removes_a_mouse_closes_it_and_stops_the_recording(tmp_path):
+    """The reload paths the older test's name promised but never ran (issue 17): a mouse
+    removed from the config has its source closed, and a --record whose mice changed is
+    stopped, closed and readable with what it held."""
+    from mousedom.capture import open_capture
+    from mousedom.config import load_config
+
+    line = "  {n}: {{evdev: {{path: /dev/null}}, cpi: 1000, mount: {{x: {x}, y: {y}}}}}\n"
+    rig = tmp_path / "rig.yaml"
+    three = line.format(n="a", x=0.1, y=0) + line.format(n="b", x=-0.1, y=0)
+    three += line.format(n="c", x=0.0, y=0.1)
+    rig.write_text("rate_hz: 50\nmodel: lsq\nmice:\n" + three)
+    made: dict[str, PipeSource] = {}
+    closed: list[str] = []
+
+    class Closing(PipeSource):
+        def close(self) -> None:
+            closed.append(self.name)
+            super().close()
+
+    def factory(mouse, clock):
+        made[mouse.name] = Closing(mouse.name)
+        return made[mouse.name]
+
+    out = tmp_path / "run.mdcap"
+    d = Daemon(load_config(rig), str(tmp_path / "d.sock"), source_factory=factory,
+               handle_signals=False, record=str(out))  # fmt: skip
+    th = threading.Thread(target=d.run)
+    th.start()
+    try:
+        while d.recording is None or not os.path.exists(d.server.path):
+            time.sleep(0.01)
+        now = time.monotonic()
+        made["b"].write([now], [5.0], [-7.0])
+        deadline = time.monotonic() + 5
+        while d.recording.reports == 0 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        rig.write_text(
+            "rate_hz: 50\nmodel: lsq\nmice:\n" + line.format(n="a", x=0.1, y=0)
+            + line.format(n="c", x=0.0, y=0.1)
+        )  # fmt: skip
+        old = d.tracker
+        d.request_reload()
+        while d.tracker is old and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert [s.name for s in d.slots] == ["a", "c"]
+        assert closed == ["b"]  # b alone: a and c kept their sources
+        assert d.recording is None  # the mice changed: the recording stopped
+    finally:
+        d.request_stop()
+        th.join(5)
+    cap = open_capture(out)
+    assert [dev.mouse for dev in cap.devices] == ["a", "b", "c"]
+    for feed in cap.feeds():
+        for _ in feed.batches:
+            pass
+    b = cap.stats[1]
+    assert (b.net_x, b.net_y) == (5, -7)

@@ -271,3 +271,32 @@ def test_socket_directory_of_another_user_is_refused(tmp_path):
     with pytest.raises(UserError, match="belongs to uid 65534"):
         s.open()
     assert not (d / "m.sock").exists()
+
+
+def test_a_client_rate_keeps_its_phase_and_restarts_after_falling_behind():
+    """rate 10 Hz on a 50 Hz POSE stream: every fifth pose at a steady phase; after a
+    pause (rate 0, then 10 again, or a gap in poses) the phase restarts at the next pose
+    instead of sending a burst to catch up (issue 17, item 7)."""
+    import socket as _socket
+
+    from mousedom.config import ServerConfig
+    from mousedom.service.server import Client
+
+    a, b = _socket.socketpair(_socket.AF_UNIX, _socket.SOCK_STREAM)
+    try:
+        c = Client(a, ServerConfig(), control=False)
+        c.set_rate(10.0)
+        times = [round(0.02 * k, 6) for k in range(1, 26)]
+        sent = [t for t in times if c.wants_pose(t, 0.01)]
+        assert sent == pytest.approx([0.02, 0.12, 0.22, 0.32, 0.42])
+        # the poses stop for 3 s (a stalled fusion, a paused rate): no catch-up burst
+        later = [round(3.5 + 0.02 * k, 6) for k in range(0, 11)]
+        resent = [t for t in later if c.wants_pose(t, 0.01)]
+        assert resent == pytest.approx([3.5, 3.6, 3.7])
+        c.set_rate(0)
+        assert not any(c.wants_pose(4.0 + 0.02 * k, 0.01) for k in range(10))
+        c.set_rate(10.0)
+        assert c.wants_pose(5.0, 0.01) and not c.wants_pose(5.02, 0.01)
+    finally:
+        a.close()
+        b.close()

@@ -389,3 +389,47 @@ def test_one_window_with_a_mouse_far_ahead_takes_the_array_path():
     for key in ("t", "x", "y", "theta", "cov", "counts", "residual", "used", "ok"):
         assert np.array_equal(getattr(a, key), getattr(b, key)), key
         assert np.array_equal(getattr(a_end, key), getattr(b_end, key)), key
+
+
+def test_a_model_override_the_mice_cannot_support_is_refused():
+    """--model on the tracker is checked like the config's own model (issue 17, item 7)."""
+    from mousedom.config import parse_config
+    from mousedom.fusion.tracker import Tracker
+
+    one = parse_config(
+        "model: diff-drive\nmice:\n  m: {cpi: 400, mount: {x: 0.1, y: 0}}\n", need_sources=False
+    )
+    with pytest.raises(ValueError, match="model lsq: needs at least two mice"):
+        Tracker(one, model="lsq")
+    Tracker(one, model="diff-drive")  # the config's own model is fine
+
+
+def test_bonarini_on_the_one_window_path_equals_the_array_path():
+    """The daemon closes one window per poll; bonarini (a numerical model) then takes the
+    array solver for that window: the poses equal one batch's."""
+    from mousedom.fusion import sim
+    from mousedom.fusion.tracker import Tracker
+
+    rig = sim.Rig(
+        (sim.SimMouse("l", 0.0, 0.1, rate_hz=125.0), sim.SimMouse("r", 0.0, -0.1, rate_hz=125.0,
+                                                                   phase=0.003)),
+        model="bonarini",
+    )  # fmt: skip
+    result = sim.simulate(rig, sim.sequence(sim.straight(0.2), sim.arc(0.3, 1.0)), seed=1)
+    batch, _ = sim.run_tracker(result)
+    config = sim.rig_config(rig)
+    live = Tracker(config, t0=float(result.motion.starts[0]))
+    merged = sorted(
+        (t, name, dx, dy)
+        for name, r in result.reports.items()
+        for t, dx, dy in zip(r.t.tolist(), r.dx.tolist(), r.dy.tolist(), strict=True)
+    )
+    rows = []
+    for t, name, dx, dy in merged:
+        live.push(name, [t], [dx], [dy])
+        rows += live.poll().rows()
+    rows += live.finish().rows()
+    assert len(rows) == len(batch)
+    got = np.array([[r.x, r.y, r.theta] for r in rows])
+    want = np.column_stack([batch.x, batch.y, batch.theta])
+    np.testing.assert_allclose(got, want, atol=1e-12)

@@ -1,0 +1,235 @@
+#!/usr/bin/env python3
+"""Deliberate bugs, one at a time, against the tests that claim to catch them.
+
+    python scripts/mutants.py [--only NAME ...] [--list]
+
+Each mutant replaces one exact piece of source text (it must occur exactly once) in a
+fresh copy of the checkout, then runs the tests named for it there (``pytest -x -q``).
+"caught" means those tests failed ("hung": they did not finish in TIMEOUT_S, which is how
+a bug that makes the work grow without bound shows); "MISSED" means they passed with the
+bug in: a test that does not do its job.  Before the mutants, the same tests run on the
+unmutated copy and must pass, or the table would mean nothing.  Exit status 1 if any
+mutant is missed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+@dataclass(frozen=True)
+class Mutant:
+    name: str
+    path: str
+    old: str
+    new: str
+    tests: tuple[str, ...]
+    why: str
+
+
+MUTANTS = [
+    Mutant(
+        "cov-heading-after-array",
+        "mousedom/fusion/tracker.py",
+        "theta_before = np.concatenate([[self._pose[2]], poses[:-1, 2]])",
+        "theta_before = poses[:, 2]",
+        ("tests/test_covariance_truth.py",),
+        "window noise rotated by the heading after the window (array path)",
+    ),
+    Mutant(
+        "cov-heading-after-one-window",
+        "mousedom/fusion/tracker.py",
+        "g = onewindow.noise(th0, ux, uy, a, c3)",
+        "g = onewindow.noise(th, ux, uy, a, c3)",
+        ("tests/test_covariance_truth.py",),
+        "window noise rotated by the heading after the window (one-window path)",
+    ),
+    Mutant(
+        "interp-bisect-left",
+        "mousedom/fusion/countfunction.py",
+        "j = bisect_right(xp, x) - 1",
+        "j = bisect_left(xp, x) - 1",
+        ("tests/test_window_rules.py",),
+        "repeated knots on a window edge evaluated on the wrong side",
+    ),
+    Mutant(
+        "two-periods-back-array",
+        "mousedom/fusion/countfunction.py",
+        "start = np.maximum(np.maximum(prev, t - self.period), edge)",
+        "start = np.maximum(np.maximum(prev, t - 2 * self.period), edge)",
+        ("tests/test_window_rules.py",),
+        "a report reaches two report periods back (array ingest)",
+    ),
+    Mutant(
+        "two-periods-back-list",
+        "mousedom/fusion/countfunction.py",
+        "            start = ti - period\n",
+        "            start = ti - 2 * period\n",
+        ("tests/test_window_rules.py",),
+        "a report reaches two report periods back (list ingest)",
+    ),
+    Mutant(
+        "pose-line-cov-rows-swapped",
+        "mousedom/service/protocol.py",
+        "    c0, c1, c2 = cov\n",
+        "    c1, c0, c2 = cov\n",
+        ("tests/test_encode_pose.py",),
+        "encode_pose writes the covariance's x and y rows swapped",
+    ),
+    Mutant(
+        "pose-message-cov-rows-swapped",
+        "mousedom/service/protocol.py",
+        '"cov": [[_finite(c) for c in row] for row in cov],',
+        '"cov": [[_finite(c) for c in row] for row in (cov[1], cov[0], cov[2])],',
+        ("tests/test_encode_pose.py",),
+        "pose_message writes the covariance's x and y rows swapped",
+    ),
+    Mutant(
+        "evemu-abs-value",
+        "mousedom/capture/evemu_lines.py",
+        "va = int(fields[4], 10)",
+        "va = abs(int(fields[4], 10))",
+        ("tests/test_capture_evemu.py",),
+        "the careful evemu line parser drops the value's sign",
+    ),
+    Mutant(
+        "evemu-fast-sign",
+        "mousedom/capture/evemu_lines.py",
+        "value = np.where(neg, -value, value)",
+        "value = np.where(neg, value, value)",
+        ("tests/test_capture_evemu.py",),
+        "the vectorised evemu parser drops the value's sign",
+    ),
+    Mutant(
+        "clamp-list-does-not-write",
+        "mousedom/sources/evdev.py",
+        "            t[i] = run\n",
+        "            pass\n",
+        ("tests/test_evdev_clamp.py",),
+        "the live read's clamp counts a stamp moved but leaves it behind",
+    ),
+    Mutant(
+        "design-matrix-sign",
+        "mousedom/fusion/geometry.py",
+        "a[0::2, 2] = -p[:, 1]",
+        "a[0::2, 2] = p[:, 1]",
+        ("tests/test_models.py", "tests/test_seed_kimlee.py"),
+        "Kim & Lee eq. (6) with the sign of -p_y dtheta flipped",
+    ),
+    Mutant(
+        "protocol-id-unchecked",
+        "mousedom/service/protocol.py",
+        '    cmd_id = _valid_id(obj.get("id"))\n',
+        '    cmd_id = obj.get("id")\n',
+        ("tests/test_server_protocol.py",),
+        "an id that cannot be echoed as JSON (1e999) reaches the reply",
+    ),
+    Mutant(
+        "yaml-alias-unbounded",
+        "mousedom/safeyaml.py",
+        "        if size > MAX_NODES or total > MAX_NODES:\n",
+        "        if False:\n",
+        ("tests/test_safeyaml.py",),
+        "an alias bomb is built instead of refused",
+    ),
+    Mutant(
+        "libinput-blank-field",
+        "mousedom/capture/libinput.py",
+        "            if _EMPTY_FIELD.search(joined):\n",
+        "            if False:\n",
+        ("tests/test_capture_messy.py",),
+        "a blank field in a libinput row is read as 0",
+    ),
+    Mutant(
+        "gap-windowed-through",
+        "mousedom/capture/replay.py",
+        "                if skip_gap():\n",
+        "                if False:\n",
+        ("tests/test_replay_gaps.py",),
+        "a gap of 1.3e9 s is windowed through (cost by time span)",
+    ),
+]
+
+
+def _copy_checkout(dest: Path) -> None:
+    files = subprocess.run(
+        ["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
+        cwd=REPO,
+        capture_output=True,
+        check=True,
+    ).stdout.split(b"\0")
+    for f in files:
+        if not f:
+            continue
+        src = REPO / f.decode()
+        if src.is_file():
+            (dest / f.decode()).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(src, dest / f.decode())
+
+
+TIMEOUT_S = 180  # a mutant that makes its tests hang (a gap windowed through) is caught
+
+
+def _pytest(copy: Path, tests: tuple[str, ...]) -> int:
+    """pytest's exit status, or -1 if the tests did not finish within TIMEOUT_S."""
+    try:
+        return subprocess.run(
+            [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", *tests],
+            cwd=copy,
+            env={"PYTHONPATH": str(copy), "PATH": "/usr/bin:/bin", "HOME": str(copy)},
+            capture_output=True,
+            timeout=TIMEOUT_S,
+        ).returncode
+    except subprocess.TimeoutExpired:
+        return -1
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--only", action="append", help="run this mutant only (repeatable)")
+    ap.add_argument("--list", action="store_true", help="list the mutants and exit")
+    args = ap.parse_args(argv)
+    chosen = [m for m in MUTANTS if not args.only or m.name in args.only]
+    if args.list:
+        for m in chosen:
+            print(f"{m.name:32s} {m.path}: {m.why}")
+        return 0
+    missed = 0
+    with tempfile.TemporaryDirectory(prefix="mousedom-mutants-") as tmp:
+        copy = Path(tmp)
+        _copy_checkout(copy)
+        for tests in sorted({m.tests for m in chosen}):
+            if _pytest(copy, tests) != 0:
+                print(f"the unmutated copy fails {' '.join(tests)}: fix that first")
+                return 2
+        print(f"{'mutant':32s} {'result':7s} {'seconds':>7s}  tests")
+        for m in chosen:
+            target = copy / m.path
+            original = target.read_text()
+            if original.count(m.old) != 1:
+                print(f"{m.name:32s} {'STALE':7s} {'':>7s}  the text to mutate is not there once")
+                missed += 1
+                continue
+            target.write_text(original.replace(m.old, m.new))
+            start = time.monotonic()
+            rc = _pytest(copy, m.tests)
+            target.write_text(original)
+            caught = rc in (1, -1)  # failed, or hung; 2-5 would be a broken run, not a catch
+            missed += not caught
+            result = {1: "caught", -1: "hung", 0: "MISSED"}.get(rc, f"rc={rc}")
+            print(f"{m.name:32s} {result:7s} {time.monotonic() - start:7.1f}  {' '.join(m.tests)}")
+    print(f"mutants: {len(chosen)}, caught {len(chosen) - missed}, missed {missed}")
+    return 1 if missed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
