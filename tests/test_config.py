@@ -152,9 +152,18 @@ def test_any_yaml_value_under_a_mouse_is_handled(value):
 
     doc = {"mice": {"a": value, "b": {"cpi": 400, "mount": {"x": 0, "y": 1}, "replay": "x"}}}
     try:
-        parse_config(yaml.safe_dump(doc), "fuzz.yaml")
-    except ConfigError:
-        pass
+        cfg = parse_config(yaml.safe_dump(doc), "fuzz.yaml")
+    except ConfigError as e:
+        # One line, naming the file and the mouse it is about (a parser that accepts
+        # everything, or says nothing useful, fails here).
+        text = str(e)
+        assert "\n" not in text and text.startswith("fuzz.yaml:"), text
+        assert "mice" in text, text
+        return
+    # Accepted: then mouse a is a complete mouse, as the value said.
+    a = cfg.mouse("a")
+    assert isinstance(value, dict) and a.cpi_x > 0 and a.cpi_y > 0
+    assert (a.mount.x, a.mount.y) == (float(value["mount"]["x"]), float(value["mount"]["y"]))
 
 
 def test_serial_mouse_report_rate_follows_k():

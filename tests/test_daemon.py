@@ -97,6 +97,7 @@ def inproc(tmp_path):
             assert time.monotonic() < deadline
             time.sleep(0.01)
         running.append((d, th))
+        d.thread = th  # tests that stop it themselves join it before reading its state
         return d, sources
 
     yield start
@@ -130,12 +131,17 @@ def test_counts_are_conserved_through_the_loop(inproc):
     t = t0 + np.arange(1, 301) * 0.002
     for name in src:
         src[name].write(t, np.full(300, 1.0), np.full(300, -2.0))  # all at once, stamped ahead
-    time.sleep(0.8)
-    c.send({"cmd": "status"})
-    st = c.until("STATUS")
+    deadline = time.monotonic() + 10  # waited on the daemon's own count, not on a sleep
+    while True:
+        c.send({"cmd": "status"})
+        st = c.until("STATUS")
+        if st["counts_in"] == [[300.0, -600.0], [300.0, -600.0]] or time.monotonic() > deadline:
+            break
+        time.sleep(0.02)
     assert st["counts_in"] == [[300.0, -600.0], [300.0, -600.0]]
     d.request_stop()
-    time.sleep(0.3)
+    d.thread.join(5)
+    assert not d.thread.is_alive()
     # after finish() every count is in some window
     assert np.allclose(d.tracker.counts_out, d.tracker.counts_in)
     # both mice moved forward by 600 counts at 1000 CPI: 0.01524 m, no rotation

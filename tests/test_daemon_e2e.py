@@ -48,7 +48,9 @@ def test_clients_rate_commands_and_sigterm(rig_run):
     poses = a.poses(2.0)
     wall = time.monotonic() - t_wall
     assert _rate(poses) == pytest.approx(RATE, rel=0.10)
-    assert len(poses) / wall == pytest.approx(RATE, rel=0.10)
+    # Real time by the wall clock too, but only as a floor: a loaded machine delays a
+    # read, never adds poses (the exact rate is the stamps' one, above).
+    assert len(poses) / wall > 0.75 * RATE
     assert all(p["updating"] and p["used"] == 3 and p["missing"] == [] for p in poses)
     # Driving forward: x never goes back (a window may see no motion when the real-time
     # feeder is starved on a loaded machine, so equal is allowed), and it does advance.
@@ -220,9 +222,18 @@ def test_pose_tracks_the_simulated_motion_and_records_it(rig_run, tmp_path):
     run = rig_run(traj, args=("--record", str(record)))
     c = Conn(run.daemon.socket_path)
     c.until("VERSION")
-    time.sleep(run.result.duration + 0.4)
-    c.send({"cmd": "status"})
-    pose = c.until("STATUS")["pose"]
+    run.feeder.join(run.result.duration + 10)  # every report written
+    sent = [[float(r.dx.sum()), float(r.dy.sum())] for r in run.result.reports.values()]
+    deadline = time.monotonic() + 10
+    while True:  # until every count sent is in, and fused into some window
+        c.send({"cmd": "status"})
+        st = c.until("STATUS")
+        fused = np.allclose(st["counts_out"], st["counts_in"], atol=1e-6)
+        if (st["counts_in"] == sent and fused) or time.monotonic() > deadline:
+            break
+        time.sleep(0.05)
+    assert st["counts_in"] == sent
+    pose = st["pose"]
     truth = run.result.truth(run.result.duration)[0]
     assert pose["theta"] == pytest.approx(truth[2], abs=0.02)
     assert pose["x"] == pytest.approx(truth[0], abs=0.01)
@@ -267,7 +278,7 @@ def test_demo_runs_the_bundled_capture_in_real_time(tmp_path):
         t = time.monotonic()
         poses = c.poses(1.5)
         wall = time.monotonic() - t
-        assert len(poses) / wall == pytest.approx(banner["rate_hz"], rel=0.1)
+        assert len(poses) / wall > 0.75 * banner["rate_hz"]  # a floor: see above
         assert all(p["updating"] and p["used"] == 3 for p in poses)
         moved = math.hypot(poses[-1]["x"] - poses[0]["x"], poses[-1]["y"] - poses[0]["y"])
         turned = abs(poses[-1]["theta"] - poses[0]["theta"])

@@ -12,9 +12,12 @@ from test_evdev_fakes import add_device
 
 def test_list_on_this_machine_without_dev_input():
     """The build machine has no /dev/input: say so and exit 0 (a fact, not an error)."""
-    if Path("/dev/input").exists():  # a developer's desktop: still must work and exit 0
-        p = run_mousedom("list")
+    if Path("/dev/input").exists():  # a developer's desktop: it must see what is there
+        p = run_mousedom("list", "--json")
         assert p.returncode == 0, p.stderr
+        j = json.loads(p.stdout)
+        events = [n for n in os.listdir("/dev/input") if n.startswith("event")]
+        assert j["present"] is True and j["nodes"] == len(events), (j, events)
         return
     p = run_mousedom("list")
     assert p.returncode == 0, p.stderr

@@ -104,10 +104,15 @@ def test_bad_commands_say_what_is_wrong(line, words):
 
 @given(st.binary(max_size=200))
 def test_any_bytes_parse_or_raise_protocol_error(data):
+    """Anything a client sends either is a command that was there to read, or an error
+    that says what is wrong (not an empty or generic message)."""
     try:
-        parse_command(data)
-    except ProtocolError:
-        pass
+        cmd = parse_command(data)
+    except ProtocolError as e:
+        assert str(e) and len(str(e)) < 200
+        return
+    obj = json.loads(data.decode("utf-8"))
+    assert obj["cmd"] == cmd.name and set(cmd.args) == set(obj) - {"cmd", "id"}
 
 
 def test_messages_are_one_json_line_with_a_class():

@@ -12,6 +12,8 @@ import shutil
 import subprocess
 from pathlib import Path
 
+import pytest
+
 from mousedom.config import load_config
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -83,13 +85,13 @@ def test_mice_get_names_groups_and_the_desktop_ignores_them():
 
 
 def test_udevadm_verify_where_available():
-    """``udevadm verify`` (systemd >= 254) when this machine has it; parsing above always."""
+    """``udevadm verify`` (systemd >= 254) when this machine has it; the rules are parsed
+    by the tests above everywhere.  Where it is missing the skip says so (pytest -rs)."""
     tool = shutil.which("udevadm")
-    parse_rules(RULES.read_text())
     if tool is None:
-        return
+        pytest.skip("udevadm is not installed (the rules are still parsed by the tests above)")
     help_text = subprocess.run([tool, "--help"], capture_output=True, text=True).stdout
     if "verify" not in help_text:
-        return
+        pytest.skip("this udevadm has no 'verify' (systemd < 254)")
     out = subprocess.run([tool, "verify", str(RULES)], capture_output=True, text=True)
     assert out.returncode == 0, out.stdout + out.stderr
