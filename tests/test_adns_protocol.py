@@ -15,15 +15,20 @@ FUZZ = settings(
     max_examples=300, derandomize=True, deadline=None, suppress_health_check=[HealthCheck.too_slow]
 )
 
-motions = st.builds(
-    P.Motion,
-    seq=st.integers(0, 0xFFFF),
-    t_us=st.integers(0, 0xFFFFFFFF),
-    dx=st.integers(-127 * 12, 127 * 12),
-    dy=st.integers(-127 * 12, 127 * 12),
-    frames=st.integers(12, 12),
-    squal_min=st.integers(0, 255),
-    flags=st.integers(0, P.FLAGS_KNOWN),
+# Any number of frames a packet can sum (K up to 255, or more when the UART was busy),
+# with counts up to what that many frames can hold: the plausibility limit scales with
+# the frames, so the strategy must vary them.
+motions = st.integers(1, 0xFFFF).flatmap(
+    lambda frames: st.builds(
+        P.Motion,
+        seq=st.integers(0, 0xFFFF),
+        t_us=st.integers(0, 0xFFFFFFFF),
+        dx=st.integers(-128 * P.DRAIN_MAX_READS * frames, 128 * P.DRAIN_MAX_READS * frames),
+        dy=st.integers(-128 * P.DRAIN_MAX_READS * frames, 128 * P.DRAIN_MAX_READS * frames),
+        frames=st.just(frames),
+        squal_min=st.integers(0, 255),
+        flags=st.integers(0, P.FLAGS_KNOWN),
+    )
 )
 statuses = st.builds(
     P.Status,
@@ -216,3 +221,16 @@ def test_inserted_and_deleted_bytes_never_yield_a_bad_packet(pkts, inserts, dele
     parser = P.Parser()
     for p in parser.feed(bytes(wire)):
         assert p in pkts
+
+
+@pytest.mark.parametrize("frames", [1, 12, 255, 4000])
+def test_the_plausibility_limit_scales_with_the_frames(frames):
+    """A packet may sum at most 128 counts per motion read, DRAIN_MAX_READS reads per
+    frame: exactly at that limit it is accepted, one count past it refused (hand-computed:
+    128 * 8 * frames)."""
+    limit = 128 * 8 * frames
+    for dx, dy, ok in ((limit, 0, True), (0, -limit, True), (limit + 1, 0, False),
+                       (0, -limit - 1, False)):  # fmt: skip
+        parser = P.Parser()
+        got = parser.feed(P.encode_packet(P.Motion(0, 1000, dx, dy, frames, 80, 0)))
+        assert (len(got) == 1) == ok and parser.stats.bad_frames == (0 if ok else 1)

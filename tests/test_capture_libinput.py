@@ -196,3 +196,29 @@ def test_values_at_the_32_bit_limits_are_kept(tmp_path):
     cap = drain(p)
     dx = cap.motion[0][1]
     assert dx.max() == 2147483647 and dx.min() == -2147483648
+
+
+def test_a_hand_written_recording_in_libinput_s_own_format():
+    """tests/data/libinput-handwritten.yml is typed from libinput-record(1)'s FILE FORMAT:
+    comment headers, a hid descriptor, udev properties, quirks, a "Current time" comment,
+    libinput event entries between the evdev ones, MSC_SCAN and buttons, a keyboard.  Its
+    counts, summed by hand from the file: REL_X -1 -3 +10 = 6, REL_Y 2 -12 +5 = -5, over
+    4 motion frames at 0, 7.996 ms, 23.999 ms and 1.000003 s."""
+    from pathlib import Path
+
+    path = Path(__file__).parent / "data" / "libinput-handwritten.yml"
+    cap = drain(path)
+    assert [d.name for d in cap.devices] == [
+        "Logitech USB Optical Mouse",
+        "AT Translated Set 2 keyboard",
+    ]
+    mouse, keyboard = cap.devices
+    assert mouse.rel_xy is True and keyboard.rel_xy is False
+    assert (mouse.bus, mouse.vendor, mouse.product) == (3, 0x46D, 0xC077)
+    assert mouse.extra["node"] == "/dev/input/event5"
+    t, dx, dy = cap.motion[0]
+    assert dx.tolist() == [-1, -3, 0, 10] and dy.tolist() == [2, 0, -12, 5]
+    assert t.tolist() == pytest.approx([0.0, 0.007996, 0.023999, 1.000003], abs=1e-9)
+    s = cap.stats[0]
+    assert (s.net_x, s.net_y, s.frames, s.reports) == (6, -5, 5, 4)
+    assert 1 not in cap.motion  # the keyboard is no mouse: no feed

@@ -120,8 +120,10 @@ def test_the_one_deviation_signed_length_at_alpha_zero():
     y = np.array([0.0])
     mx, my, dth = models.bonarini_mid(x, y, x, y, 0.2)
     np.testing.assert_allclose([mx[0], my[0], dth[0]], [-0.01, 0.0, 0.0], atol=1e-17)
-    # the literal |x| would have reported +0.01: the wrong way
-    assert np.abs(x[0]) == pytest.approx(-mx[0], rel=1e-12)
+    # The same slide the other way is its mirror image: the sign follows the motion, as
+    # the literal |x| (+0.01 both ways) would not.
+    mx2, my2, dth2 = models.bonarini_mid(-x, y, -x, y, 0.2)
+    np.testing.assert_allclose([mx2[0], my2[0], dth2[0]], [0.01, 0.0, 0.0], atol=1e-17)
 
 
 def test_backwards_motion_composes_correctly_unlike_eqs_15_16():

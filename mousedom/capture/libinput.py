@@ -65,9 +65,12 @@ _ROW_C = re.compile(rb"(?m)^[ \t]*- \[([^\]\n]*)\][ \t]*(?:#[^\n]*)?$")  # with 
 # Lines allowed in an event list besides rows: "- evdev:", "- hid:", keys of hid and
 # libinput entries, blanks (comments are stripped first).
 # An ``evdev:`` key with anything after it is not "other": it holds events (flow style).
+# ``- {time: ..., type: POINTER_MOTION, ...}``: an entry of a ``- libinput:`` list
+# (``libinput record --with-libinput``), never an evdev event.
 _OTHER = re.compile(
     rb"(?m)^(?:[ \t]*- \[[^\]\n]*\][ \t]*"
-    rb"|[ \t]*(?:- )?(?!evdev:[ \t]*[^ \t\n])[A-Za-z_][\w-]*:.*|[ \t]*)$"
+    rb"|[ \t]*(?:- )?(?!evdev:[ \t]*[^ \t\n])[A-Za-z_][\w-]*:.*"
+    rb"|[ \t]*- \{.*\}[ \t]*|[ \t]*)$"
 )
 # Flow style, as YAML allows and other writers produce: ``- evdev: [[0, 10, 2, 0, 1], ...]``.
 _EMPTY_FIELD = re.compile(rb"(?:^|,)[ \t]*(?:,|$)")
