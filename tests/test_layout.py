@@ -29,7 +29,7 @@ LAYERS = [
     {"capture"},
     {"sources"},
     {"fusion"},
-    {"config", "errors", "safeyaml", "safewrite", "__init__"},
+    {"config", "errors", "safeyaml", "safewrite", "invocation", "__init__"},
 ]
 ALLOWED_UP = {("config", "mousedom.fusion.geometry")}
 

@@ -8,6 +8,7 @@ import logging
 import os
 import sys
 
+from mousedom import invocation
 from mousedom.config import DEFAULT_CONFIG_PATH, ConfigError, load_config
 from mousedom.errors import UserError
 
@@ -96,9 +97,8 @@ def run(args: argparse.Namespace) -> int:
             config = load_config(path)
         except ConfigError as e:
             if args.config is None and not os.path.exists(path):
-                raise ConfigError(
-                    f"{e} (give --config FILE, or try: mousedom run --demo)"
-                ) from None
+                demo = invocation.command("run", "--demo")
+                raise ConfigError(f"{e} (give --config FILE, or try: {demo})") from None
             raise
     socket_path = args.socket or config.server.socket or default_socket_path()
     factory = functools.partial(make_source, loop=True) if args.demo else make_source

@@ -29,6 +29,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from mousedom import invocation
 from mousedom.config import Config, MouseConfig
 from mousedom.service.control import ClientCommands
 from mousedom.service.factory import make_source
@@ -164,9 +165,9 @@ class Daemon(SensorSlots, Publisher, ClientCommands, Reloader):
                 log.info("recording the sensors' reports to %s", self.record_path)
             self.server.open()
             log.info(
-                "listening on %s; watch it with: mousedom watch --socket %s",
+                "listening on %s; watch it with: %s",
                 self.server.path,
-                self.server.path,
+                invocation.command("watch", "--socket", self.server.path),
             )
             self._status_text = self._status_line()
             self.notifier.ready(self._status_text)
