@@ -10,6 +10,10 @@
 Other messages (SOURCE, STATUS) are kept as they pass: ``c.sources`` holds the latest
 SOURCE per sensor.  Commands wait for their OK (or raise ``CommandError`` on ERROR); poses
 that arrive meanwhile are kept for the iterator, none is lost.
+
+Errors: ``DaemonNotRunning`` (no daemon at the socket) and ``NotADaemon`` (something else
+there) are ``ConnectionError``s, so ``except OSError`` catches them; ``CommandError`` is a
+``RuntimeError``; all three are ``ClientError``s.
 """
 
 from __future__ import annotations
@@ -23,12 +27,28 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
 
-from mousedom.errors import UserError
+from mousedom import invocation
 from mousedom.service.server import SOCKET_NAME, default_socket_path
 
 
-class CommandError(Exception):
-    """The daemon answered a command with ERROR."""
+class ClientError(Exception):
+    """Everything this client raises about the daemon (a base to catch them all)."""
+
+
+class DaemonNotRunning(ClientError, ConnectionError):
+    """No daemon answers at the socket (missing, refused, or no permission).  A
+    ConnectionError, so ``except OSError`` catches it too; ``errno`` is the OS's."""
+
+    def __str__(self) -> str:
+        return self.strerror or super().__str__()  # the message, without "[Errno 2]"
+
+
+class NotADaemon(ClientError, ConnectionError):
+    """Something answered at the socket, but not with mousedom's VERSION banner."""
+
+
+class CommandError(ClientError, RuntimeError):
+    """The daemon answered a command with ERROR (its message is the exception's)."""
 
 
 @dataclass(frozen=True)
@@ -98,18 +118,24 @@ class Client:
             self.sock.connect(self.path)
         except OSError as e:
             self.sock.close()
-            raise UserError(
-                f"{self.path}: cannot connect: {e.strerror} (is the daemon running? "
-                "start it with `mousedom run`, or give --socket)"
+            raise DaemonNotRunning(
+                e.errno,
+                f"{self.path}: cannot connect: {e.strerror} (is the daemon running? start it "
+                f"with `{invocation.command('run')}`, or give the socket's path)",
             ) from None
         self.sock.settimeout(timeout)
         self._file = self.sock.makefile("rb")
         self._pending: deque[dict[str, Any]] = deque()
         self._ids = itertools.count(1)
         self.sources: dict[str, dict[str, Any]] = {}
-        self.version = self._read()
+        try:
+            self.version = self._read()
+        except (EOFError, OSError, ValueError) as e:
+            self.close()
+            raise NotADaemon(f"{self.path}: no VERSION banner ({e})") from None
         if self.version.get("class") != "VERSION":
-            raise UserError(f"{self.path}: not a mousedom socket (no VERSION banner)")
+            self.close()
+            raise NotADaemon(f"{self.path}: not a mousedom socket (no VERSION banner)")
 
     def __enter__(self) -> Client:
         return self

@@ -8,8 +8,17 @@ import pytest
 from conftest import mousedom_env, run_mousedom
 from daemon_fixtures import RATE, rig_runner
 
-from mousedom.client import Client, CommandError, Pose, find_socket, poses, socket_candidates
-from mousedom.errors import UserError
+from mousedom.client import (
+    Client,
+    ClientError,
+    CommandError,
+    DaemonNotRunning,
+    NotADaemon,
+    Pose,
+    find_socket,
+    poses,
+    socket_candidates,
+)
 from mousedom.fusion import sim
 
 
@@ -59,9 +68,45 @@ def test_poses_generator(rig_run):
     it.close()
 
 
-def test_client_without_daemon_is_a_user_error(tmp_path):
-    with pytest.raises(UserError, match="cannot connect.*is the daemon running"):
+def test_client_errors_are_the_standard_ones_python_users_catch(tmp_path):
+    """No daemon: a ConnectionError (an OSError) with the OS's errno, and the client's own
+    base class; something else at the socket: the same; an ERROR answer: a RuntimeError."""
+    import errno
+    import socket as _socket
+
+    with pytest.raises(ConnectionError, match="cannot connect.*is the daemon running") as info:
         Client(str(tmp_path / "none.sock"))
+    assert isinstance(info.value, DaemonNotRunning) and isinstance(info.value, ClientError)
+    assert info.value.errno == errno.ENOENT and not str(info.value).startswith("[Errno")
+    with pytest.raises(OSError):
+        Client(str(tmp_path / "none.sock"))
+    # a socket whose server says something else
+    path = str(tmp_path / "other.sock")
+    srv = _socket.socket(_socket.AF_UNIX, _socket.SOCK_STREAM)
+    srv.bind(path)
+    srv.listen(1)
+    import threading
+
+    def talk() -> None:
+        conn, _ = srv.accept()
+        conn.sendall(b'{"class": "HELLO"}\n')
+        conn.close()
+
+    th = threading.Thread(target=talk)
+    th.start()
+    with pytest.raises(NotADaemon, match="not a mousedom socket"):
+        Client(path, timeout=5)
+    th.join(5)
+    srv.close()
+    assert issubclass(NotADaemon, ConnectionError) and issubclass(CommandError, RuntimeError)
+
+
+def test_watch_without_a_daemon_is_one_line(tmp_path):
+    from conftest import run_mousedom
+
+    p = run_mousedom("watch", "--socket", str(tmp_path / "none.sock"))
+    assert p.returncode == 2 and "Traceback" not in p.stderr
+    assert p.stderr.startswith("mousedom: error: ") and p.stderr.count("\n") == 1
 
 
 def test_socket_discovery(tmp_path):
@@ -186,5 +231,5 @@ def test_run_without_socket_uses_the_runtime_directory_and_says_how_to_watch(tmp
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=5)
     assert proc.returncode == 0
-    assert f"watch it with: mousedom watch --socket {sock}" in err
+    assert "watch it with: " in err and f"-m mousedom watch --socket {sock}" in err
     assert not sock.exists()

@@ -101,13 +101,16 @@ class Screen:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mousedom.client import Client
+    from mousedom.client import Client, ClientError
 
     if args.rate < 0:
         raise UserError(f"--rate must be at least 0, got {args.rate}")
     if args.count is not None and args.count < 1:
         raise UserError(f"--count must be at least 1, got {args.count}")
-    client = Client(args.socket)
+    try:
+        client = Client(args.socket)
+    except ClientError as e:  # no daemon there: one line, the client's own message
+        raise UserError(str(e)) from None
     out = sys.stdout
     try:
         client.rate(args.rate)
