@@ -584,3 +584,21 @@ def test_a_long_pause_is_closed_in_bounded_batches_with_the_same_poses(tmp_path)
         np.testing.assert_allclose(getattr(got, k), getattr(want, k), rtol=0, atol=1e-12)
     want_counts = [[data[m][1].sum(), data[m][2].sum()] for m in ("a", "b")]
     np.testing.assert_allclose(got.counts.sum(axis=0), want_counts, rtol=0, atol=1e-6)
+
+
+def test_summary_path_starts_at_the_origin_and_counts_one_mouse_as_a_mouse(tmp_path):
+    """Issue 14 item 7: the path length was measured from the first window's pose, so a
+    straight run could have a path shorter than its displacement; and '1 mice'."""
+    from mousedom.capture.replay import Summary
+    from mousedom.fusion.posebatch import PoseBatch, PoseRow
+
+    s = Summary(("m",))
+    eye = np.eye(3).tolist()
+    s.add(PoseBatch.from_rows([
+        PoseRow(0.01, 0.3, 0.0, 0.0, 30.0, 0.0, 0.0, eye, 1, True, [[0.0, 0.0]], [[0, 0]]),
+        PoseRow(0.02, 0.4, 0.0, 0.0, 10.0, 0.0, 0.0, eye, 1, True, [[0.0, 0.0]], [[0, 0]]),
+    ]))  # fmt: skip
+    assert s.path_length == pytest.approx(0.4)  # from (0, 0): not 0.1
+    cfg = one_mouse_config(tmp_path)
+    p = replay_ps2(cfg)
+    assert p.returncode == 0 and "replay: 1 mouse, model" in p.stderr + p.stdout

@@ -88,7 +88,10 @@ class Summary:
     final: dict[str, float] = field(default_factory=dict)
     mice: list[MouseSummary] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
-    _last_xy: tuple[float, float] | None = None
+    # Where the path so far ends: a replay starts at the origin, and the path from there
+    # to the first window's pose counts (measured from that pose, the path could be
+    # shorter than the displacement).
+    _last_xy: tuple[float, float] = (0.0, 0.0)
 
     def add(self, b: PoseBatch) -> None:
         n = len(b)
@@ -96,10 +99,8 @@ class Summary:
             return
         self.windows += n
         self.not_ok += int(np.count_nonzero(~b.ok))
-        xs, ys = b.x, b.y
-        if self._last_xy is not None:
-            xs = np.concatenate([[self._last_xy[0]], xs])
-            ys = np.concatenate([[self._last_xy[1]], ys])
+        xs = np.concatenate([[self._last_xy[0]], b.x])
+        ys = np.concatenate([[self._last_xy[1]], b.y])
         self.path_length += float(np.hypot(np.diff(xs), np.diff(ys)).sum())
         self._last_xy = (float(b.x[-1]), float(b.y[-1]))
         if self.t_first is None:

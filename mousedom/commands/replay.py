@@ -289,7 +289,8 @@ def format_summary(s: Summary, replay: Replay, args) -> str:
     cfg = replay.config
     model, integrator = _model_integrator(args, replay)
     lines = [
-        f"replay: {len(s.mice)} mice, model {model}, integrator {integrator}, "
+        f"replay: {len(s.mice)} {'mouse' if len(s.mice) == 1 else 'mice'}, model {model}, "
+        f"integrator {integrator}, "
         f"{cfg.rate_hz:g} Hz windows",
         f"duration     {s.duration:.3f} s ({s.reports} reports, {s.windows} windows"
         + (f", {s.not_ok} without enough mice to solve" if s.not_ok else "")
