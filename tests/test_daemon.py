@@ -328,3 +328,28 @@ def test_reload_that_removes_a_mouse_closes_it_and_stops_the_recording(tmp_path)
             pass
     b = cap.stats[1]
     assert (b.net_x, b.net_y) == (5, -7)
+
+
+def test_a_second_daemon_on_a_taken_socket_opens_no_sensor(inproc, tmp_path):
+    """Issue 14 item 9: a second daemon opened (grabbed) every source before it found the
+    socket taken.  It now checks the socket first and opens nothing."""
+    from mousedom.config import parse_config
+
+    first, _ = inproc("lsq", {"a": (0.1, 0.0), "b": (-0.1, 0.0)})
+    opened = []
+
+    def factory(mouse, clock):
+        src = PipeSource(mouse.name)
+        src._open = lambda: opened.append(mouse.name)
+        return src
+
+    config = parse_config(
+        CONFIG.format(model="lsq", mice="  a: {cpi: 1000, mount: {x: 0.1, y: 0}, replay: x}\n"
+                      "  b: {cpi: 1000, mount: {x: -0.1, y: 0}, replay: x}"),
+        need_sources=False,
+    )  # fmt: skip
+    second = Daemon(config, first.server.path, source_factory=factory, handle_signals=False)
+    with pytest.raises(UserError, match="another mousedom daemon is listening"):
+        second.run()
+    assert opened == []
+    assert os.path.exists(first.server.path)  # the first one's socket is untouched

@@ -149,6 +149,7 @@ class Daemon(SensorSlots, Publisher, ClientCommands, Reloader):
             self._install_signals()
         self.selector.register(self._wake_r, selectors.EVENT_READ, self._drain_wake)
         try:
+            self.server.refuse_if_taken()  # before any sensor is opened (and grabbed)
             now = self.clock()
             self.tracker = self._tracker_class(self.config, t0=now)
             self.slots = [self._new_slot(i, m) for i, m in enumerate(self.config.mice)]

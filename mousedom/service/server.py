@@ -181,6 +181,23 @@ class Server:
         self.listener = sock
         self.selector.register(sock, selectors.EVENT_READ, self._accept)
 
+    def refuse_if_taken(self) -> None:
+        """UserError if another daemon listens at the path already: checked before the
+        sensors are opened, so that a second daemon grabs no device on its way out."""
+        try:
+            if not stat.S_ISSOCK(os.lstat(self.path).st_mode):
+                return  # open() says what is wrong with it
+        except OSError:
+            return
+        probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        try:
+            probe.connect(self.path)
+        except OSError:
+            return  # stale: open() removes it
+        finally:
+            probe.close()
+        raise UserError(f"{self.path}: another mousedom daemon is listening there")
+
     def _remove_stale(self) -> None:
         """A socket file left by a crash is removed; one with a live daemon behind it is not."""
         try:
