@@ -1,6 +1,7 @@
 """The ``mousedom`` command line: one subcommand per module of ``mousedom.commands``.
 
-Each module there defines ``register(subparsers)`` which adds its parser and sets
+Each module there (but those whose name starts with ``_``: shared helpers) defines
+``register(subparsers)`` which adds its parser and sets
 ``func`` (a callable taking the parsed namespace and returning an exit code).  Keeping
 one module per subcommand keeps this file free of per-command code.
 """
@@ -25,6 +26,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging on stderr")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
+        if info.name.startswith("_"):
+            continue  # shared helpers (_options), not subcommands
         module = importlib.import_module(f"mousedom.commands.{info.name}")
         module.register(sub)
     return parser

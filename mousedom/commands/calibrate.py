@@ -18,7 +18,8 @@ from mousedom.calibrate import calfile, report, session
 from mousedom.calibrate.inputs import load_captures
 from mousedom.calibrate.reference import WheelGeometry, read_reference
 from mousedom.calibrate.runs import need_runs, split_runs
-from mousedom.config import DEFAULT_CONFIG_PATH, Config, load_config
+from mousedom.commands import _options as options
+from mousedom.config import Config, load_config
 from mousedom.errors import UserError
 
 
@@ -46,9 +47,7 @@ _window = _argument(float, lambda v: v >= 0 and math.isfinite(v), "0 (one window
 
 def register(sub: argparse._SubParsersAction) -> None:
     common = argparse.ArgumentParser(add_help=False)
-    common.add_argument(
-        "--config", default=DEFAULT_CONFIG_PATH, help=f"rig YAML (default {DEFAULT_CONFIG_PATH})"
-    )
+    options.add_default_config(common)
     common.add_argument(
         "--capture",
         action="append",
@@ -89,10 +88,22 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--write", action="store_true", help="store the result in the config's calibration file"
     )
 
-    p = sub.add_parser("calibrate", help="calibrate CPI, mouse distance or mount positions")
+    p = sub.add_parser(
+        "calibrate",
+        help="calibrate CPI, mouse distance or mount positions",
+        description="Calibration procedures of the seed papers, on live mice (Enter starts "
+        "and stops each run) or on --capture files. Each prints a report; --json prints "
+        "JSON; --write stores the result in the config's calibration file.",
+    )
     what = p.add_subparsers(dest="what", metavar="WHAT", required=True)
 
-    c = what.add_parser("cpi", parents=[common], help="CPI from straight pushes (Bonarini 4.2)")
+    c = what.add_parser(
+        "cpi",
+        parents=[common],
+        help="CPI from straight pushes (Bonarini 4.2)",
+        description="Counts per inch from straight pushes of a known length along one of "
+        "the mouse's axes (Bonarini et al. 2004, section 4.2): one run per push.",
+    )
     c.add_argument(
         "--distance", type=_positive, required=True, metavar="METRES", help="length of each push"
     )
@@ -109,6 +120,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "distance",
         parents=[common],
         help="distance between two mice from turns (Bonarini eqs. 18-19)",
+        description="The distance between two mice from turns in place by a known angle "
+        "(Bonarini et al. 2004, eqs. 18-19): one run per turn.",
     )
     d.add_argument(
         "--angle",
@@ -122,7 +135,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     d.set_defaults(func=run_distance)
 
     m = what.add_parser(
-        "mounts", parents=[common], help="mount positions from a reference motion (Kim & Lee IV)"
+        "mounts",
+        parents=[common],
+        help="mount positions from a reference motion (Kim & Lee IV)",
+        description="Each mouse's mount position, yaw and CPI scale from a reference motion "
+        "given as body twist or wheel ticks (Kim & Lee, section IV; the McGill wheel model).",
     )
     m.add_argument(
         "--reference",

@@ -6,13 +6,20 @@ import argparse
 import math
 import os
 
-from mousedom.config import DEFAULT_CONFIG_PATH, ConfigError, MouseConfig, load_config
+from mousedom.commands import _options as options
+from mousedom.config import ConfigError, MouseConfig, load_config
 from mousedom.errors import UserError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("check-config", help="validate a rig config and print what it holds")
-    p.add_argument("--config", default=DEFAULT_CONFIG_PATH, help="rig YAML")
+    p = sub.add_parser(
+        "check-config",
+        help="validate a rig config and print what it holds",
+        description="Load a rig config and its calibration file, check every key (each "
+        "mistake is reported with file, line and key), and print the rig: model, rate, "
+        "and each mouse's CPI, mount and source. Exit 0 when it would run.",
+    )
+    options.add_default_config(p)
     p.add_argument(
         "--no-sources", action="store_true", help="allow mice without a source (replay rigs)"
     )

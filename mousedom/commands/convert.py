@@ -26,6 +26,7 @@ from mousedom.capture import (
     time_offset,
 )
 from mousedom.capture.base import TIME_BASES, lagging_first
+from mousedom.commands import _options as options
 from mousedom.errors import UserError
 from mousedom.safewrite import open_stream, replace_file
 
@@ -45,10 +46,8 @@ def register(subparsers) -> None:
         metavar="NAME=FILE",
         help="an input; NAME (optional) is the config mouse its device stands for",
     )
-    p.add_argument(
-        "-o", "--output", required=True, metavar="OUT", help="the native capture ('-': stdout)"
-    )
-    p.add_argument("--config", metavar="RIG.yaml", help="store this config in the header")
+    options.add_output(p, "the native capture to write ('-': stdout)", required=True)
+    options.add_config(p, "store this rig config in the capture's header")
     p.add_argument("--no-compress", action="store_true", help="store chunks uncompressed")
     p.set_defaults(func=run)
 

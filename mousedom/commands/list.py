@@ -31,8 +31,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.add_argument(
-        "--config",
         "-c",
+        "--config",
         metavar="RIG.yaml",
         help="also say which device each evdev mouse of this config matches; exit 1 if a "
         "rule matches none or several",

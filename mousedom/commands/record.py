@@ -26,6 +26,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from mousedom.commands import _options as options
 from mousedom.config import Config, MouseConfig, load_config
 from mousedom.errors import UserError
 from mousedom.sources.base import Source, SourceGone, SourceUnavailable
@@ -46,8 +47,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "native capture file, showing events and rates per source on stderr. Stop with "
         "Ctrl-C (SIGINT) or SIGTERM, or give --duration.",
     )
-    p.add_argument("--config", "-c", required=True, metavar="RIG.yaml")
-    p.add_argument("-o", "--output", required=True, metavar="FILE")
+    options.add_config(p, "the rig config whose sources to record", required=True)
+    options.add_output(
+        p, "the native capture to write (refused if it exists, unless --force)", required=True
+    )
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     p.add_argument(
         "--status-interval",

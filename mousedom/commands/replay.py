@@ -16,6 +16,7 @@ from typing import TextIO
 
 from mousedom.capture import assign, parse_capture_arg
 from mousedom.capture.replay import CsvSink, Replay, Summary
+from mousedom.commands import _options as options
 from mousedom.config import INTEGRATORS, MODELS, load_config
 from mousedom.errors import UserError
 from mousedom.safewrite import open_stream
@@ -28,7 +29,7 @@ def register(subparsers) -> None:
         description="Replay evemu, libinput record or native captures through the fusion "
         "engine.  Without -o a summary is printed.",
     )
-    p.add_argument("--config", required=True, metavar="RIG.yaml", help="the rig config")
+    options.add_config(p, required=True)
     p.add_argument(
         "--capture",
         action="append",
@@ -37,7 +38,7 @@ def register(subparsers) -> None:
         help="a capture for mouse NAME (repeat per mouse); a multi-device file may be given "
         "without NAME= and is matched to the config's mice",
     )
-    p.add_argument("-o", "--output", metavar="OUT.csv", help="write poses as CSV ('-': stdout)")
+    options.add_output(p, "write the poses as CSV ('-': stdout)")
     p.add_argument("--model", choices=MODELS, help="override the config's model")
     p.add_argument("--integrator", choices=INTEGRATORS, help="override the config's integrator")
     p.add_argument("--plot", metavar="OUT.png", help="draw trajectory and residuals (matplotlib)")

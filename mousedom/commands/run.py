@@ -9,6 +9,7 @@ import os
 import sys
 
 from mousedom import invocation
+from mousedom.commands import _options as options
 from mousedom.config import DEFAULT_CONFIG_PATH, ConfigError, load_config
 from mousedom.errors import UserError
 
@@ -56,12 +57,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Read the configured mice, fuse them and publish the pose on a Unix "
         "socket until SIGTERM/SIGINT; SIGHUP reloads the config and calibration.",
     )
-    p.add_argument(
-        "--config",
-        metavar="FILE",
-        default=None,
-        help=f"rig config (default {DEFAULT_CONFIG_PATH})",
-    )
+    options.add_config(p, f"the rig config (default {DEFAULT_CONFIG_PATH})")
     p.add_argument("--socket", metavar="PATH", help="Unix socket path (default: see docs)")
     p.add_argument(
         "--demo",

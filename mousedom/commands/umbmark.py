@@ -9,6 +9,7 @@ from pathlib import Path
 
 from mousedom.calibrate import calfile, report
 from mousedom.calibrate.umbmark import HEADER, parse_runs, umbmark
+from mousedom.commands import _options as options
 from mousedom.config import load_config
 from mousedom.errors import UserError
 
@@ -21,12 +22,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         "odometry end position minus true end position in metres.",
     )
     p.add_argument("runs", metavar="RUNS.csv", help="the runs ('-' for stdin)")
-    p.add_argument("--config", help="rig YAML (for --write)")
+    options.add_config(p, "the rig config whose calibration file --write updates")
     p.add_argument("--json", action="store_true", help="print JSON on stdout")
     p.add_argument(
         "--write",
         action="store_true",
-        help="store the result in the config's calibration file (informational)",
+        help="store E_max,syst in the config's calibration file, for the record (nothing "
+        "reads it back)",
     )
     p.set_defaults(func=run)
 

@@ -1,0 +1,40 @@
+"""The options several subcommands share, spelled one way: ``-c/--config RIG.yaml`` and
+``-o/--output FILE``, each with its help and its default shown."""
+
+from __future__ import annotations
+
+import argparse
+
+from mousedom.config import DEFAULT_CONFIG_PATH
+
+
+def add_config(
+    p: argparse.ArgumentParser,
+    what: str = "the rig config",
+    *,
+    required: bool = False,
+    default: str | None = None,
+) -> None:
+    """``-c/--config RIG.yaml``; ``default`` is shown in the help (None: no default)."""
+    if required:
+        tail = " (required)"
+    elif default:
+        tail = f" (default {default})"
+    else:
+        tail = ""
+    p.add_argument(
+        "-c", "--config", metavar="RIG.yaml", required=required, default=default,
+        help=what + tail,
+    )  # fmt: skip
+
+
+def add_default_config(p: argparse.ArgumentParser, what: str = "the rig config") -> None:
+    """``-c/--config RIG.yaml`` defaulting to the robot's config in /etc."""
+    add_config(p, what, default=DEFAULT_CONFIG_PATH)
+
+
+def add_output(
+    p: argparse.ArgumentParser, what: str, *, required: bool = False, metavar: str = "FILE"
+) -> None:
+    """``-o/--output FILE``."""
+    p.add_argument("-o", "--output", metavar=metavar, required=required, help=what)
