@@ -13,6 +13,7 @@ calibrated so far.
 
 from __future__ import annotations
 
+import difflib
 import math
 import os
 from dataclasses import dataclass, field, replace
@@ -136,6 +137,7 @@ class _Doc:
     def __init__(self, path: str | None, text: str) -> None:
         self.path = path
         self.lines: dict[tuple[str, ...], int] = {}
+        self.problems: list[ConfigError] = []
         try:
             node, loader = safeyaml.compose(text)
             try:
@@ -179,19 +181,55 @@ class _Doc:
             if keys[:n] in self.lines:
                 line = self.lines[keys[:n]]
                 break
-        return ConfigError(located(self.path, line, message, ".".join(keys) or None))
+        if line is None and not keys[:1]:
+            line = 1  # an empty file: its first line
+        where = ".".join(k if k.isprintable() else repr(k) for k in keys)
+        e = ConfigError(located(self.path, line, message, where or None))
+        e.line = line  # type: ignore[attr-defined]
+        return e
+
+    # Every problem of a file is reported at once: sections are read one by one, each
+    # failure is kept here, and parse_config raises them all together at the end.
+    def keep(self, error: ConfigError) -> None:
+        self.problems.append(error)
+
+    def attempt(self, fn: Any, *args: Any, **kwargs: Any) -> Any:
+        """fn(*args, **kwargs), or None with its ConfigError kept for the end."""
+        try:
+            return fn(*args, **kwargs)
+        except ConfigError as e:
+            self.keep(e)
+            return None
+
+    def raise_problems(self) -> None:
+        if not self.problems:
+            return
+        ordered = sorted(self.problems, key=lambda e: getattr(e, "line", None) or 0)
+        text = "\n".join(dict.fromkeys(str(e) for e in ordered))  # each once, by line
+        raise ConfigError(text)
 
 
 class _Reader:
     """Typed access to one mapping of a _Doc; complains about unknown keys."""
 
-    def __init__(self, doc: _Doc, value: Any, keys: tuple[str, ...]) -> None:
+    def __init__(
+        self, doc: _Doc, value: Any, keys: tuple[str, ...], known: tuple[str, ...] = ()
+    ) -> None:
         if value is None:
             value = {}
         if not isinstance(value, dict):
             raise doc.error(keys, f"must be a mapping, got {_show(value)}")
         self.doc, self.value, self.keys = doc, value, keys
         self.used: set[str] = set()
+        self.known = known
+        self.suggested: set[str] = set()  # known keys offered for misspelt ones
+        if known:
+            # Said first, each on its own line: a misspelt key (`mownt:`) is the real
+            # mistake behind "mount: is required", which may follow.
+            for k in value:
+                if str(k) not in known:
+                    doc.keep(self._unknown(str(k)))
+            self.used.update(str(k) for k in value)
 
     def has(self, key: str) -> bool:
         return key in self.value
@@ -200,8 +238,17 @@ class _Reader:
         self.used.add(key)
         return self.value.get(key, default)
 
-    def sub(self, key: str) -> _Reader:
-        return _Reader(self.doc, self.raw(key), self.keys + (key,))
+    def sub(self, key: str, known: tuple[str, ...] = ()) -> _Reader:
+        return _Reader(self.doc, self.raw(key), self.keys + (key,), known)
+
+    def _unknown(self, key: str) -> ConfigError:
+        close = difflib.get_close_matches(key, self.known, n=1, cutoff=0.6)
+        if close:
+            self.suggested.add(close[0])
+            hint = f"did you mean {close[0]}?"
+        else:
+            hint = f"known here: {', '.join(self.known)};"
+        return self.err(key, f"unknown key ({hint} see docs/config.md)")
 
     def err(self, key: str | None, message: str) -> ConfigError:
         return self.doc.error(self.keys + ((key,) if key else ()), message)
@@ -261,10 +308,18 @@ class _Reader:
         return v
 
     def finish(self) -> None:
-        unknown = [k for k in self.value if k not in self.used]
-        if unknown:
-            k = str(unknown[0])
-            raise self.err(k, "unknown key (check the spelling; see docs/config.md)")
+        """Sections read without a ``known`` list: their unknown keys, all of them."""
+        for k in self.value:
+            if k not in self.used:
+                self.doc.keep(
+                    self.err(str(k), "unknown key (check the spelling; see docs/config.md)")
+                )
+
+
+TOP_KEYS = ("rate_hz", "model", "integrator", "mice", "server", "wheels", "calibration")
+MOUSE_KEYS = ("cpi", "mount", "flip", "sigma", "report_hz", "evdev", "serial", "replay")
+SERVER_KEYS = ("socket", "mode", "group", "control_uids", "control_gids", "max_clients",
+               "queue_lines", "max_line")  # fmt: skip
 
 
 def _show(v: Any) -> str:
@@ -282,7 +337,7 @@ def _cpi(r: _Reader, key: str, default: tuple[float, float] | None) -> tuple[flo
             raise r.err(key, "is required (counts per inch, a number or {x: .., y: ..})")
         return default
     if isinstance(v, dict):
-        sub = r.sub(key)
+        sub = r.sub(key, ("x", "y"))
         cx = sub.number("x", positive=True)
         cy = sub.number("y", positive=True)
         sub.finish()
@@ -296,7 +351,7 @@ def _mount(r: _Reader, default: Mount | None) -> Mount:
         if default is None:
             raise r.err("mount", "is required ({x: metres, y: metres, yaw: degrees})")
         return default
-    m = r.sub("mount")
+    m = r.sub("mount", ("x", "y", "yaw"))
     base = default or Mount()
     x = m.number("x", base.x)
     y = m.number("y", base.y)
@@ -306,7 +361,7 @@ def _mount(r: _Reader, default: Mount | None) -> Mount:
 
 
 def _evdev(r: _Reader) -> EvdevMatch:
-    e = r.sub("evdev")
+    e = r.sub("evdev", ("path", "name", "phys", "vendor", "product", "uniq", "grab"))
     match = EvdevMatch(
         path=e.string("path"),
         name=e.string("name"),
@@ -323,7 +378,7 @@ def _evdev(r: _Reader) -> EvdevMatch:
 
 
 def _serial(r: _Reader) -> SerialSource:
-    s = r.sub("serial")
+    s = r.sub("serial", ("port", "baud", "k", "sensor_cpi"))
     port = s.string("port")
     if not port:
         raise s.err("port", "is required (a device such as /dev/ttyUSB0 or a pyserial URL)")
@@ -341,48 +396,66 @@ def _serial(r: _Reader) -> SerialSource:
     return src
 
 
-def _mouse(doc: _Doc, name: str, value: Any, base_dir: Path) -> MouseConfig:
-    r = _Reader(doc, value, ("mice", name))
-    cpi_x, cpi_y = _cpi(r, "cpi", None)
-    mount = _mount(r, None)
-    mouse = MouseConfig(
-        name=name,
-        cpi_x=cpi_x,
-        cpi_y=cpi_y,
-        mount=mount,
-        flip=r.boolean("flip", False),
-        sigma=r.number("sigma", 0.5, positive=True),
-        report_hz=r.number("report_hz", 125.0, within=(1.0, 100000.0)),
-    )
+def _mouse(doc: _Doc, name: str, value: Any, base_dir: Path) -> MouseConfig | None:
+    """One mouse; None when it has problems (all kept in ``doc``, each part tried)."""
+    r = _Reader(doc, value, ("mice", name), MOUSE_KEYS)
+
+    def required(key: str, read: Any) -> Any:
+        # "mount: is required" is noise next to "mownt: unknown key (did you mean mount?)"
+        if not r.has(key) and key in r.suggested:
+            return None
+        return doc.attempt(read)
+
+    cpi = required("cpi", lambda: _cpi(r, "cpi", None))
+    mount = required("mount", lambda: _mount(r, None))
+    flip = doc.attempt(r.boolean, "flip", False)
+    sigma = doc.attempt(r.number, "sigma", 0.5, positive=True)
+    report_hz = doc.attempt(r.number, "report_hz", 125.0, within=(1.0, 100000.0))
     sources = [k for k in ("evdev", "serial", "replay") if r.has(k)]
     if len(sources) > 1:
-        raise r.err(sources[1], f"a mouse has one source; {sources[0]} is given already")
+        doc.keep(r.err(sources[1], f"a mouse has one source; {sources[0]} is given already"))
+    source: dict[str, Any] = {}
     if r.has("evdev"):
-        mouse = replace(mouse, evdev=_evdev(r))
+        source["evdev"] = doc.attempt(_evdev, r)
     elif r.has("serial"):
-        serial = _serial(r)
-        mouse = replace(mouse, serial=serial)
+        source["serial"] = doc.attempt(_serial, r)
+    elif r.has("replay"):
+        source["replay"] = doc.attempt(_replay, r, base_dir)
+    parts = [cpi, mount, flip, sigma, report_hz, *source.values()]
+    if any(p is None for p in parts):
+        return None
+    mouse = MouseConfig(
+        name=name, cpi_x=cpi[0], cpi_y=cpi[1], mount=mount, flip=flip, sigma=sigma,
+        report_hz=report_hz,
+    )  # fmt: skip
+    if "evdev" in source:
+        mouse = replace(mouse, evdev=source["evdev"])
+    elif "serial" in source:
+        mouse = replace(mouse, serial=source["serial"])
         if not r.has("report_hz"):
             # The downsampler sends one packet per K sensor polls of 1250 us (firmware/).
-            mouse = replace(mouse, report_hz=1e6 / (serial.k * 1250.0))
-    elif r.has("replay"):
-        v = r.raw("replay")
-        if isinstance(v, dict):
-            rr = r.sub("replay")
-            file = rr.string("file")
-            device = rr.string("device")
-            rr.finish()
-        else:
-            file, device = r.string("replay"), None
-        if not file:
-            raise r.err("replay", "needs a capture file")
+            mouse = replace(mouse, report_hz=1e6 / (source["serial"].k * 1250.0))
+    elif "replay" in source:
+        file, device = source["replay"]
         mouse = replace(mouse, replay=str(base_dir / file), replay_device=device)
-    r.finish()
     return mouse
 
 
+def _replay(r: _Reader, base_dir: Path) -> tuple[str, str | None]:
+    v = r.raw("replay")
+    if isinstance(v, dict):
+        rr = r.sub("replay", ("file", "device"))
+        file = rr.string("file")
+        device = rr.string("device")
+    else:
+        file, device = r.string("replay"), None
+    if not file:
+        raise r.err("replay", "needs a capture file")
+    return file, device
+
+
 def _server(r: _Reader) -> ServerConfig:
-    s = r.sub("server")
+    s = r.sub("server", SERVER_KEYS)
     mode = s.raw("mode", 0o660)
     if isinstance(mode, str):
         try:
@@ -415,7 +488,7 @@ def _server(r: _Reader) -> ServerConfig:
 
 
 def _wheels(r: _Reader) -> WheelsConfig:
-    w = r.sub("wheels")
+    w = r.sub("wheels", ("radius", "radius_left", "radius_right", "track", "ticks_per_rev"))
     radius = w.number("radius", 0.0) if w.has("radius") else None
     wheels = WheelsConfig(
         radius_left=w.number("radius_left", radius, positive=True),
@@ -457,6 +530,7 @@ def _apply_calibration(mice: tuple[MouseConfig, ...], path: Path) -> tuple[Mouse
     section.finish()
     for key in top.value:  # other sections (distance, notes) are informational
         top.used.add(key)
+    doc.raise_problems()
     return tuple(by_name[m.name] for m in mice)
 
 
@@ -471,19 +545,26 @@ def parse_config(text: str, path: str | None = None, *, need_sources: bool = Tru
     """
     doc = _Doc(path, text)
     base_dir = Path(path).resolve().parent if path else Path.cwd()
-    top = _Reader(doc, doc.data, ())
-    rate_hz = top.number("rate_hz", 100.0, within=(0.1, 10000.0))
-    model = top.choice("model", MODELS, "lsq")
-    integrator = top.choice("integrator", INTEGRATORS, "exact")
+    if doc.data is None:
+        raise doc.error((), "the file is empty: a rig config needs at least `mice:`")
+    top = _Reader(doc, doc.data, (), TOP_KEYS)
+    # Each section is read even when another failed, so that one run names every mistake.
+    rate_hz = doc.attempt(top.number, "rate_hz", 100.0, within=(0.1, 10000.0)) or 100.0
+    model = doc.attempt(top.choice, "model", MODELS, "lsq") or "lsq"
+    integrator = doc.attempt(top.choice, "integrator", INTEGRATORS, "exact") or "exact"
     mice_raw = top.raw("mice")
     if not isinstance(mice_raw, dict) or not mice_raw:
-        raise doc.error(("mice",), "needs at least one mouse (a mapping of name: settings)")
-    mice = tuple(_mouse(doc, str(name), value, base_dir) for name, value in mice_raw.items())
-    server = _server(top) if top.has("server") else ServerConfig()
-    wheels = _wheels(top) if top.has("wheels") else None
-    calibration = top.string("calibration")
+        doc.keep(doc.error(("mice",), "needs at least one mouse (a mapping of name: settings)"))
+        mice_raw = {}
+    read = [
+        doc.attempt(_mouse, doc, str(name), value, base_dir) for name, value in mice_raw.items()
+    ]
+    server = (doc.attempt(_server, top) if top.has("server") else None) or ServerConfig()
+    wheels = doc.attempt(_wheels, top) if top.has("wheels") else None
+    calibration = doc.attempt(top.string, "calibration")
     calibration_path = str(base_dir / calibration) if calibration else None
-    top.finish()
+    doc.raise_problems()
+    mice = tuple(m for m in read if m is not None)
 
     if calibration_path:
         mice = _apply_calibration(mice, Path(calibration_path))
@@ -491,10 +572,11 @@ def parse_config(text: str, path: str | None = None, *, need_sources: bool = Tru
     if need_sources:
         for m in mice:
             if not (m.evdev or m.serial or m.replay):
-                raise doc.error(
+                doc.keep(doc.error(
                     ("mice", m.name),
                     "says nowhere where the mouse comes from (evdev, serial or replay)",
-                )
+                ))  # fmt: skip
+        doc.raise_problems()
 
     from mousedom.fusion.geometry import rank_problem  # late import: geometry is numeric
 

@@ -506,8 +506,12 @@ def run_case(case: Case, tmp: str, hang_s: float = HANG_S) -> Result:
         text = str(e)
         if case.kind == "valid":
             return Result(case, "wrong", f"a valid input was refused: {text}")
-        if not text.strip() or "\n" in text.strip():
-            return Result(case, "crash", f"refusal is not one line: {text!r}")
+        lines = text.strip().splitlines()
+        # One line, or (a config's several mistakes at once) one line per problem, each
+        # naming the file as the first does.
+        first = lines[0].split(":", 1)[0] if lines else ""
+        if not lines or not first or not all(ln.startswith(first + ":") for ln in lines):
+            return Result(case, "crash", f"refusal is not one line per problem: {text!r}")
         return Result(case, "refused", text)
     except Exception as e:  # noqa: BLE001 - that is what a fuzzer looks for
         import traceback

@@ -80,3 +80,72 @@ def test_missing_and_binary_config(tmp_path):
     (tmp_path / "bin.yaml").write_bytes(bytes(range(256)))
     p = run_mousedom("check-config", "--config", str(tmp_path / "bin.yaml"))
     assert p.returncode == 2 and "Traceback" not in p.stderr and "not UTF-8" in p.stderr
+
+
+def test_every_mistake_at_once_each_on_its_own_line_with_a_suggestion(tmp_path):
+    """Issue 14 item 4: a misspelt key inside a mouse (`mownt:`) was reported as
+    "mice.right.mount: is required" on the mouse's line, never naming mownt; and only the
+    first mistake of a file was reported."""
+    path = write(
+        tmp_path,
+        "model: lsq\n"  # 1
+        "mice:\n"  # 2
+        "  left:\n"  # 3
+        "    cpi: 400\n"  # 4
+        "    mount: {x: 0, y: 0.1}\n"  # 5
+        "    evdev: {path: /dev/input/event9}\n"  # 6
+        "  right:\n"  # 7
+        "    cpi: -4\n"  # 8
+        "    mownt: {x: 0, y: -0.1}\n"  # 9
+        "    evdev: {path: /dev/input/event8, grabb: true}\n"  # 10
+        "serverr: {}\n",  # 11
+    )
+    p = run_mousedom("check-config", "--config", str(path))
+    assert p.returncode == 2 and "Traceback" not in p.stderr
+    lines = p.stderr.removeprefix("mousedom: error: ").splitlines()
+    assert lines == [
+        f"{path}:8: mice.right.cpi: must be a positive number, got -4",
+        f"{path}:9: mice.right.mownt: unknown key (did you mean mount? see docs/config.md)",
+        f"{path}:10: mice.right.evdev.grabb: unknown key (did you mean grab? see docs/config.md)",
+        f"{path}:11: serverr: unknown key (did you mean server? see docs/config.md)",
+    ]
+
+
+def test_an_empty_file_gets_a_line(tmp_path):
+    path = write(tmp_path, "")
+    p = run_mousedom("check-config", "--config", str(path))
+    assert p.returncode == 2 and f"{path}:1: the file is empty" in p.stderr
+
+
+def test_two_mice_on_one_device_and_absent_devices(tmp_path):
+    """Two mice naming one evdev node (here through a link) are refused, as list and the
+    daemon refuse them; an absent device is a note, or exit 1 with --require-devices."""
+    node = tmp_path / "event9"
+    node.write_text("")
+    (tmp_path / "by-path").symlink_to(node)
+    rig = (
+        "model: lsq\nmice:\n"
+        "  a: {{cpi: 400, mount: {{x: 0, y: 0.1}}, evdev: {{path: {a}}}}}\n"
+        "  b: {{cpi: 400, mount: {{x: 0, y: -0.1}}, evdev: {{path: {b}}}}}\n"
+    )
+    path = write(tmp_path, rig.format(a=node, b=tmp_path / "by-path"))
+    p = run_mousedom("check-config", "--config", str(path))
+    assert p.returncode == 2 and "mice a and b name one device" in p.stderr
+    path = write(tmp_path, rig.format(a=node, b=tmp_path / "event8"))
+    p = run_mousedom("check-config", "--config", str(path))
+    assert p.returncode == 0, p.stderr
+    assert f"note: mice.b: {tmp_path / 'event8'} does not exist on this machine" in p.stdout
+    assert "mice.a" not in p.stdout.split("note:", 1)[1]
+    p = run_mousedom("check-config", "--config", str(path), "--require-devices")
+    assert p.returncode == 1 and "1 device(s) absent" in p.stderr
+
+
+def test_the_shipped_example_leaves_the_adns_rate_to_k():
+    """docs/adns-protocol.md: leave report_hz of the downsampler derived from K."""
+    import yaml
+    from conftest import REPO
+
+    doc = yaml.safe_load((REPO / "config" / "mousedom.yaml").read_text())
+    serial = [m for m in doc["mice"].values() if "serial" in m]
+    assert serial and all("report_hz" not in m for m in serial)
+    assert "config/mousedom.yaml" not in (REPO / ".gitignore").read_text()

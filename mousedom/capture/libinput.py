@@ -427,8 +427,11 @@ def _line_of(text: bytes, needle: bytes) -> int | None:
 
 
 def _show(raw: bytes) -> str:
+    """A piece of a line for a message: control characters escaped (a raw \\x1c or \\r
+    would end or garble the message's line in a terminal)."""
     text = raw.decode("utf-8", "replace").strip()
-    return text if len(text) <= 50 else text[:47] + "..."
+    text = text if len(text) <= 50 else text[:47] + "..."
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
 
 
 def format_libinput(devices: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]]) -> str:

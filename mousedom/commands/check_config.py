@@ -21,6 +21,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     options.add_default_config(p)
     p.add_argument(
+        "--require-devices",
+        action="store_true",
+        help="exit 1 when a configured device or serial port is absent on this machine "
+        "(by default that is a note: the config may be for the robot, not this machine)",
+    )
+    p.add_argument(
         "--no-sources", action="store_true", help="allow mice without a source (replay rigs)"
     )
     p.set_defaults(func=run)
@@ -38,6 +44,25 @@ def _source(m: MouseConfig) -> str:
     if m.replay:
         return f"replay {m.replay}" + (f" device {m.replay_device!r}" if m.replay_device else "")
     return "none"
+
+
+def _device(m: MouseConfig) -> str | None:
+    """The device node or serial port a mouse names, when it names one by path."""
+    if m.evdev and m.evdev.path:
+        return m.evdev.path
+    if m.serial and "://" not in m.serial.port:  # pyserial URLs (loop://) are no file
+        return m.serial.port
+    return None
+
+
+def _shared_paths(mice) -> list[tuple[str, list[str]]]:
+    """Device paths that two or more mice name (after following links)."""
+    by_path: dict[str, list[str]] = {}
+    for m in mice:
+        dev = _device(m)
+        if dev:
+            by_path.setdefault(os.path.realpath(dev), []).append(m.name)
+    return [(p, names) for p, names in by_path.items() if len(names) > 1]
 
 
 def run(args: argparse.Namespace) -> int:
@@ -59,6 +84,13 @@ def run(args: argparse.Namespace) -> int:
             f"yaw {math.degrees(m.mount.yaw):g} deg{', flipped' if m.flip else ''}, "
             f"{m.report_hz:g} Hz, source {_source(m)}"
         )
+    shared = _shared_paths(cfg.mice)
+    if shared:
+        path, names = shared[0]
+        raise UserError(
+            f"{cfg.path}: mice {' and '.join(names)} name one device, {path}: one device "
+            "cannot be two mice (the daemon would keep the second out)"
+        )
     missing = [m for m in cfg.mice if m.replay and not os.path.isfile(m.replay)]
     if missing:  # `mousedom run` would stop on it: not a valid rig yet
         m = missing[0]
@@ -66,4 +98,9 @@ def run(args: argparse.Namespace) -> int:
     if cfg.calibration:
         state = "applied" if os.path.exists(cfg.calibration) else "not written yet"
         print(f"  calibration: {cfg.calibration} ({state})")
+    absent = [(m, dev) for m in cfg.mice if (dev := _device(m)) and not os.path.exists(dev)]
+    for m, dev in absent:
+        print(f"  note: mice.{m.name}: {dev} does not exist on this machine")
+    if absent and args.require_devices:
+        raise UserError(f"{cfg.path}: {len(absent)} device(s) absent (--require-devices)", 1)
     return 0
