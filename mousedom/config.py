@@ -138,6 +138,7 @@ class _Doc:
         self.path = path
         self.lines: dict[tuple[str, ...], int] = {}
         self.problems: list[ConfigError] = []
+        self.need_mounts = True
         try:
             node, loader = safeyaml.compose(text)
             try:
@@ -407,7 +408,7 @@ def _mouse(doc: _Doc, name: str, value: Any, base_dir: Path) -> MouseConfig | No
         return doc.attempt(read)
 
     cpi = required("cpi", lambda: _cpi(r, "cpi", None))
-    mount = required("mount", lambda: _mount(r, None))
+    mount = required("mount", lambda: _mount(r, None if doc.need_mounts else Mount()))
     flip = doc.attempt(r.boolean, "flip", False)
     sigma = doc.attempt(r.number, "sigma", 0.5, positive=True)
     report_hz = doc.attempt(r.number, "report_hz", 125.0, within=(1.0, 100000.0))
@@ -537,13 +538,25 @@ def _apply_calibration(mice: tuple[MouseConfig, ...], path: Path) -> tuple[Mouse
 # --------------------------------------------------------------------------- entry points
 
 
-def parse_config(text: str, path: str | None = None, *, need_sources: bool = True) -> Config:
+def parse_config(
+    text: str,
+    path: str | None = None,
+    *,
+    need_sources: bool = True,
+    need_model: bool = True,
+    need_mounts: bool = True,
+) -> Config:
     """Parse and validate a config given as text.
 
     ``need_sources=False`` lets mice leave out where they come from (replay and
-    calibration supply captures on the command line instead).
+    calibration supply captures on the command line instead).  A tool that does not fuse
+    validates only what it uses: ``need_model=False`` skips the check that the model can
+    be solved from the mice (one mouse on a calibration jig is a fine rig for
+    ``calibrate cpi``), ``need_mounts=False`` lets mice leave out their mount (taken as
+    the body origin).
     """
     doc = _Doc(path, text)
+    doc.need_mounts = need_mounts
     base_dir = Path(path).resolve().parent if path else Path.cwd()
     if doc.data is None:
         raise doc.error((), "the file is empty: a rig config needs at least `mice:`")
@@ -581,7 +594,7 @@ def parse_config(text: str, path: str | None = None, *, need_sources: bool = Tru
     from mousedom.fusion.geometry import rank_problem  # late import: geometry is numeric
 
     problem = rank_problem(model, [(m.mount.x, m.mount.y) for m in mice], [m.name for m in mice])
-    if problem:
+    if problem and need_model:
         raise doc.error(("mice",), f"model {model}: {problem}")
     return Config(
         rate_hz=rate_hz,
@@ -595,7 +608,13 @@ def parse_config(text: str, path: str | None = None, *, need_sources: bool = Tru
     )
 
 
-def load_config(path: str | os.PathLike[str], *, need_sources: bool = True) -> Config:
+def load_config(
+    path: str | os.PathLike[str],
+    *,
+    need_sources: bool = True,
+    need_model: bool = True,
+    need_mounts: bool = True,
+) -> Config:
     """Read a config file; every problem is a ConfigError naming file, line and key."""
     p = str(path)
     try:
@@ -608,4 +627,6 @@ def load_config(path: str | os.PathLike[str], *, need_sources: bool = True) -> C
         raise ConfigError(f"{p}: cannot read config: {e.strerror}") from None
     except UnicodeDecodeError as e:
         raise ConfigError(f"{p}: byte offset {e.start}: not UTF-8 text") from None
-    return parse_config(text, p, need_sources=need_sources)
+    return parse_config(
+        text, p, need_sources=need_sources, need_model=need_model, need_mounts=need_mounts
+    )

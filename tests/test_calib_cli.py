@@ -710,3 +710,33 @@ def test_separate_relative_files_follow_one_rule_in_calibrate_and_replay(cpi_ses
         assert len(warned) == 1 and "left.rel.events, right.rel.events" in warned[0], proc.stderr
     result = json.loads(cal.stdout)
     assert result["left"]["cpi"] == pytest.approx(455, rel=3e-3)  # as with absolute times
+
+
+def test_cpi_on_a_jig_needs_no_mount_and_no_solvable_model(tmp_path):
+    """Issue 14 item 8: one mouse on a jig, no mount: calibrate cpi demanded a rig valid
+    for fusion (lsq needs two mice).  It checks what it uses, and --write stores it."""
+    motion = build_motion([(0.2 * (-1) ** k, 0, 0, 1.2) for k in range(6)])
+    f = write_evemu(tmp_path / "m.events", mouse_reports(SynthMouse("m", 0, 0, cpi_y=812), motion))
+    (tmp_path / "rig.yaml").write_text("calibration: rig.calib.yaml\nmice:\n  m: {cpi: 800}\n")
+    p = ok(calib("cpi", tmp_path / "rig.yaml", "--capture", f"m={f}", "--distance", "0.2",
+                 "--json", "--write"))  # fmt: skip
+    assert json.loads(p.stdout)["m"]["cpi"] == pytest.approx(812, rel=3e-3)
+    stored = yaml.safe_load((tmp_path / "rig.calib.yaml").read_text())
+    assert stored["mice"]["m"]["cpi"]["y"] == pytest.approx(812, rel=3e-3)
+    # the daemon, which fuses, still refuses this rig, and says why
+    p = run_mousedom("check-config", "--config", str(tmp_path / "rig.yaml"), "--no-sources")
+    assert p.returncode == 2 and "mount" in p.stderr
+
+
+def test_distance_on_a_three_mouse_rig_says_which_mice_to_choose(tmp_path):
+    mice = {
+        n: {"cpi": 400, "mount": {"x": x, "y": 0}} for n, x in (("a", 0.1), ("b", 0), ("c", -0.1))
+    }
+    cfg = write_config(tmp_path, mice)
+    motion = build_motion([(0.0, 0.0, math.radians(90) * s, 2.0) for s in (1, -1)])
+    caps = []
+    for i, (n, x) in enumerate((("a", 0.1), ("b", 0.0), ("c", -0.1))):
+        f = write_evemu(tmp_path / f"{n}.events", mouse_reports(SynthMouse(n, x, 0.05), motion, i))
+        caps += ["--capture", f"{n}={f}"]
+    p = fails(calib("distance", cfg, "--angle", "90", *caps))
+    assert "3 have data (a, b, c; the config has a, b, c): choose two with --mice A,B" in p.stderr

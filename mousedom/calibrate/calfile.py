@@ -117,7 +117,8 @@ def store(config: Config, update: Callable[[dict[str, Any]], dict[str, Any]]) ->
     data = read_calibration(path)
     write_calibration(path, update(data), (config.path,))
     try:
-        load_config(config.path, need_sources=False)  # what was written must load
+        # what was written must load (checked as the calibration commands check a config)
+        load_config(config.path, need_sources=False, need_model=False, need_mounts=False)
     except UserError as e:
         # Put the old file back: a daemon reloading on SIGHUP, or starting, must not
         # meet a calibration that this command knows to be broken.

@@ -178,7 +178,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _setup(args: argparse.Namespace, names: list[str] | None = None):
-    config = load_config(args.config, need_sources=False)
+    # Only what calibration uses is checked: no model needs to be solvable (one mouse on a
+    # jig is a rig for CPI), and CPI needs no mount.
+    cpi_only = args.func is run_cpi
+    config = load_config(
+        args.config, need_sources=False, need_model=False, need_mounts=not cpi_only
+    )
     replaying = args.capture or any(m.replay for m in config.mice)
     if args.write and not config.calibration:
         raise UserError(
@@ -282,6 +287,12 @@ def run_distance(args: argparse.Namespace) -> int:
         if len(pair) != 2 or not all(pair):
             raise UserError(f"--mice {args.mice!r}: give two mouse names, e.g. --mice left,right")
     config, s = _setup(args, pair)
+    if len(s.names) != 2:  # said before anything about runs, which would not help
+        raise UserError(
+            f"{args.config}: calibrate distance takes exactly two mice, and {len(s.names)} have "
+            f"data ({', '.join(s.names)}; the config has {', '.join(config.names)}): "
+            "choose two with --mice A,B"
+        )
     min_runs = args.min_runs or 2
     need_runs(len(s.runs), min_runs, "calibrate distance", args.gap)
     result = session.distance(s, math.radians(args.angle), min_runs)
