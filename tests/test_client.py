@@ -173,23 +173,23 @@ def test_run_without_config_points_at_demo(tmp_path):
     assert "mousedom run --demo" in out.stderr
 
 
-def test_watch_on_a_terminal_redraws_in_place(rig_run):
-    """On a real pty, watch redraws one block (clear + home) per pose with sensor health."""
+def _watch_on_a_pty(socket_path, *args, env_extra=None, size=(100, 40)) -> str:
+    """``mousedom watch`` on a real pseudo-terminal of the given size; its output."""
+    import fcntl
     import os
     import pty
+    import struct
     import subprocess
     import sys
+    import termios
 
-    run = rig_run(sim.straight(1.0, 0.2))
     master, slave = pty.openpty()
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", size[1], size[0], 0, 0))
+    env = mousedom_env(**(env_extra or {}))
     proc = subprocess.Popen(
-        [sys.executable, "-m", "mousedom", "watch", "--socket", str(run.daemon.socket_path)]
-        + ["--count", "3"],
-        stdin=slave,
-        stdout=slave,
-        stderr=subprocess.PIPE,
-        env=mousedom_env(),
-    )
+        [sys.executable, "-m", "mousedom", "watch", "--socket", str(socket_path), *args],
+        stdin=slave, stdout=slave, stderr=subprocess.PIPE, env=env,
+    )  # fmt: skip
     os.close(slave)
     out = b""
     while True:
@@ -200,14 +200,55 @@ def test_watch_on_a_terminal_redraws_in_place(rig_run):
         if not chunk:
             break
         out += chunk
-    assert proc.wait(20) == 0, proc.stderr.read()
+    assert proc.wait(30) == 0, proc.stderr.read()
     os.close(master)
-    text = out.decode()
-    assert text.count("\x1b[H\x1b[J") >= 3
-    last = text.rsplit("\x1b[H\x1b[J", 1)[1]
-    assert "model lsq" in last and "3 used, updating" in last and "sd  x" in last
-    for name in ("front", "left", "right"):
-        assert name in last and "connected" in last
+    return out.decode()
+
+
+def test_watch_on_a_terminal_explains_itself(rig_run):
+    """Issue 14 item 5, on a real pty: one redrawn screen per pose; the heading wrapped to
+    (-180, 180] after a turn of 450 degrees (the daemon's theta is continuous); time since
+    the watch began; labelled fields with units; sensor states in colour; the path."""
+    import math
+    import re
+
+    run = rig_run(sim.turn(math.radians(450), 2.5), env={"TERM": "xterm"})
+    text = _watch_on_a_pty(run.daemon.socket_path, "--count", "45", "--rate", "10",
+                           env_extra={"TERM": "xterm"})  # fmt: skip
+    screens = text.split("\x1b[H\x1b[J")[1:]
+    assert len(screens) >= 45
+    headings = [float(h) for h in re.findall(r"heading\s+([+-][\d.]+) deg", text)]
+    assert headings and all(-180 < h <= 180 for h in headings)
+    last = screens[-1]
+    final = float(re.search(r"heading\s+([+-][\d.]+) deg", last).group(1))
+    assert abs(final - 90.0) < 5.0, final  # 450 degrees is a quarter turn past a whole one
+    times = [float(t) for t in re.findall(r"time\s+([\d.]+) s since the watch began", text)]
+    assert times[0] < 0.2 and 3.5 < times[-1] < 6.0
+    for label in ("position  x", "m/s", "1 sigma", "(one standard deviation)", "3 used, updating",
+                  "path (o start, @ now)", "reports/s"):  # fmt: skip
+        assert label in last, label
+    assert last.count("\x1b[32mtracking") == 3  # three sensors, green
+    plain = _watch_on_a_pty(run.daemon.socket_path, "--count", "2",
+                            env_extra={"TERM": "xterm", "NO_COLOR": "1"})  # fmt: skip
+    assert "\x1b[32m" not in plain and "tracking" in plain
+
+
+def test_watch_screen_pieces():
+    """The pure view: wrapping, the sketch's start and end marks, states by word."""
+    from mousedom.commands import _watchview as view
+
+    assert view.wrap_degrees(math.radians(442)) == pytest.approx(82)
+    assert view.wrap_degrees(math.radians(-180)) == pytest.approx(180)
+    assert view.wrap_degrees(math.radians(181)) == pytest.approx(-179)
+    box = view.sketch([(0.0, 0.0), (0.5, 0.0), (1.0, 0.25)], 30, 8)
+    start = next(i for i, row in enumerate(box[1:-1], 1) if "o" in row)  # inside the frame
+    now = next(i for i, row in enumerate(box[1:-1], 1) if "@" in row)
+    assert len(box) == 8 and start == len(box) - 2 and now < start  # y up: @ is higher
+    assert box[start].index("o") < box[now].index("@")  # and further along x
+    assert view.sketch([(0.0, 0.0)], 30, 8) == []  # no motion yet: no box
+    assert view.source_state({"connected": False}) == "gone"
+    assert view.source_state({"connected": True, "excluded": True}) == "excluded"
+    assert view.source_state({"connected": True, "state": "suspect"}) == "suspect"
 
 
 def test_run_without_socket_uses_the_runtime_directory_and_says_how_to_watch(tmp_path):

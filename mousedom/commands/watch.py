@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
+import os
+import shutil
 import sys
 from typing import Any, TextIO
 
+from mousedom.commands import _watchview as view
 from mousedom.errors import UserError
 
 
@@ -26,76 +28,43 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def _deg(rad: float | None) -> str:
-    return "   nan" if rad is None else f"{math.degrees(rad):+8.2f}"
-
-
-def _num(v: float | None, fmt: str) -> str:
-    return "nan" if v is None else format(v, fmt)
-
-
-def pose_line(m: dict[str, Any]) -> str:
-    state = "updating" if m["updating"] else "NOT UPDATED (no rank)"
-    line = (
-        f"t {m['t']:.3f}  x {_num(m['x'], '+.4f')} m  y {_num(m['y'], '+.4f')} m  "
-        f"theta {_deg(m['theta'])} deg  v {_num(m['vx'], '+.3f')} {_num(m['vy'], '+.3f')} m/s  "
-        f"omega {_deg(m['omega'])} deg/s  {m['used']} used, {state}"
-    )
-    if m.get("missing"):
-        line += "  missing: " + ", ".join(m["missing"])
-    return line
-
-
-def sigma_line(m: dict[str, Any]) -> str:
-    cov = m["cov"]
-    sd = [math.sqrt(cov[i][i]) if cov[i][i] is not None and cov[i][i] >= 0 else None
-          for i in range(3)]  # fmt: skip
-    return (
-        f"sd  x {_num(sd[0] and sd[0] * 1e3, '.2f')} mm  y {_num(sd[1] and sd[1] * 1e3, '.2f')} mm"
-        f"  theta {_num(sd[2] and math.degrees(sd[2]), '.3f')} deg"
-    )
-
-
-def source_line(s: dict[str, Any]) -> str:
-    state = "connected" if s.get("connected") else "GONE"
-    if s.get("excluded") and s.get("connected"):
-        state = "excluded"
-    age = s.get("age")
-    res = s.get("residual")
-    parts = [
-        f"{s.get('name', '?'):<12}",
-        f"{state:<10}",
-        f"{s.get('rate_hz') or 0:7.1f} Hz",
-        f"age {'-' if age is None else f'{age:.3f}s':>8}",
-        f"residual {'-' if res is None else f'{res * 1e3:.3f} mm':>10}",
-        f"dropped {s.get('dropped', 0)}",
-    ]
-    if "squal" in s:
-        parts.append(f"SQUAL {s['squal']}")
-    if s.get("error") and not s.get("connected"):
-        parts.append(str(s["error"]))
-    return "  ".join(parts)
+def _color(out: TextIO) -> bool:
+    """Colour only on a terminal that has it, and not when NO_COLOR is set (no-color.org)."""
+    term = os.environ.get("TERM", "")
+    return out.isatty() and term not in ("", "dumb") and "NO_COLOR" not in os.environ
 
 
 class Screen:
-    """Redraws a block in place on a terminal; prints line by line otherwise."""
+    """Redraws the screen in place on a terminal; prints line by line otherwise."""
+
+    MAX_PATH = 4000  # points kept for the sketch (thinned by half when full)
 
     def __init__(self, out: TextIO, tty: bool) -> None:
         self.out, self.tty = out, tty
+        self.color = tty and _color(out)
         self.last: dict[str, Any] | None = None
+        self.t_start: float | None = None
+        self.path: list[tuple[float, float]] = []
 
     def show(self, header: str, pose: dict[str, Any] | None, sources: dict[str, dict]) -> None:
         if pose is not None:
             self.last = pose
+            if self.t_start is None:
+                self.t_start = pose["t"]
+            if pose.get("x") is not None and pose.get("y") is not None:
+                self.path.append((pose["x"], pose["y"]))
+                if len(self.path) > self.MAX_PATH:
+                    self.path = self.path[::2]
         pose = self.last
+        t_start = self.t_start if self.t_start is not None else 0.0
         if not self.tty:
             if pose is not None:
-                print(pose_line(pose), file=self.out, flush=True)
+                print(view.pose_line(pose, t_start), file=self.out, flush=True)
             return
-        lines = [header, ""]
-        if pose is not None:
-            lines += [pose_line(pose), sigma_line(pose), ""]
-        lines += [source_line(s) for s in sources.values()]
+        size = shutil.get_terminal_size((100, 30))
+        lines = view.screen(
+            header, pose, sources, t_start, self.path, (size.columns, size.lines), self.color
+        )
         self.out.write("\x1b[H\x1b[J" + "\n".join(lines) + "\n")
         self.out.flush()
 
@@ -130,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
             if args.json:
                 print(json.dumps(msg), file=out, flush=True)
             elif cls == "SOURCE" and not screen.tty:
-                print("source " + source_line(msg), file=out, flush=True)
+                print("source " + view.source_line(msg), file=out, flush=True)
             elif cls == "POSE" or (cls == "SOURCE" and screen.tty):
                 screen.show(header, msg if cls == "POSE" else None, client.sources)
             if cls == "POSE":

@@ -1,0 +1,156 @@
+"""What ``mousedom watch`` shows, as text: pure functions of the protocol's messages.
+
+Read cold, a screen must explain itself: the heading is wrapped to (-180, 180] degrees
+(the daemon's theta is continuous: +442 deg is the fifth quarter turn), time counts from
+when the watch began, every number has its name and unit, the uncertainty is called what
+it is (one standard deviation, from the POSE covariance), each sensor's state is a word
+(in colour where the terminal has it), and the path so far is sketched when it fits.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+GREEN, YELLOW, RED, DIM, RESET = "\x1b[32m", "\x1b[33m", "\x1b[31m", "\x1b[2m", "\x1b[0m"
+
+
+def wrap_degrees(rad: float) -> float:
+    """Radians -> degrees in (-180, 180]."""
+    d = math.degrees(rad) % 360.0
+    return d - 360.0 if d > 180.0 else d
+
+
+def _num(v: float | None, fmt: str, scale: float = 1.0) -> str:
+    return "n/a" if v is None or not math.isfinite(v) else format(v * scale, fmt)
+
+
+def pose_lines(m: dict[str, Any], t_start: float) -> list[str]:
+    heading = None if m.get("theta") is None else wrap_degrees(m["theta"])
+    turn = None if m.get("omega") is None else math.degrees(m["omega"])
+    state = "updating" if m["updating"] else "NOT UPDATING (the mice cannot tell the motion)"
+    lines = [
+        f"time      {m['t'] - t_start:9.2f} s since the watch began",
+        f"position  x {_num(m['x'], '+9.4f')} m    y {_num(m['y'], '+9.4f')} m    "
+        f"heading {_num(heading, '+8.2f')} deg",
+        f"velocity  x {_num(m['vx'], '+9.3f')} m/s  y {_num(m['vy'], '+9.3f')} m/s  "
+        f"turning {_num(turn, '+8.2f')} deg/s",
+        _sigma_line(m),
+        f"mice      {m['used']} used, {state}"
+        + (f"; missing: {', '.join(m['missing'])}" if m.get("missing") else ""),
+    ]
+    return lines
+
+
+def pose_line(m: dict[str, Any], t_start: float) -> str:
+    """One pose in one line, for a pipe or a log: the screen's fields with their units."""
+    heading = None if m.get("theta") is None else wrap_degrees(m["theta"])
+    turn = None if m.get("omega") is None else math.degrees(m["omega"])
+    state = "updating" if m["updating"] else "NOT UPDATING"
+    line = (
+        f"t {m['t'] - t_start:.3f} s  x {_num(m['x'], '+.4f')} m  y {_num(m['y'], '+.4f')} m  "
+        f"heading {_num(heading, '+.2f')} deg  v {_num(m['vx'], '+.3f')} {_num(m['vy'], '+.3f')}"
+        f" m/s  turning {_num(turn, '+.2f')} deg/s  {m['used']} used, {state}"
+    )
+    if m.get("missing"):
+        line += "  missing: " + ", ".join(m["missing"])
+    return line
+
+
+def _sigma_line(m: dict[str, Any]) -> str:
+    cov = m.get("cov") or [[None] * 3] * 3
+    sd = [math.sqrt(c) if c is not None and c >= 0 else None for c in (cov[i][i] for i in range(3))]
+    return (
+        f"1 sigma   x {_num(sd[0], '9.2f', 1e3)} mm   y {_num(sd[1], '9.2f', 1e3)} mm   "
+        f"heading {_num(sd[2], '8.3f', 180 / math.pi)} deg  (one standard deviation)"
+    )
+
+
+def source_state(s: dict[str, Any]) -> str:
+    if not s.get("connected"):
+        return "gone"
+    state = s.get("state")
+    if state:  # the fault-tolerant engine's words: tracking, suspect, excluded
+        return str(state)
+    return "excluded" if s.get("excluded") else "tracking"
+
+
+def source_line(s: dict[str, Any], color: bool = False) -> str:
+    state = source_state(s)
+    age, res = s.get("age"), s.get("residual")
+    parts = [
+        f"{s.get('name', '?'):<10}",
+        _paint(f"{state:<9}", state, color),
+        f"{s.get('rate_hz') or 0:7.1f} reports/s",
+        f"last {'-' if age is None else f'{age * 1e3:.0f} ms ago':>11}",
+        f"residual {'-' if res is None else f'{res * 1e3:.3f} mm':>9}",
+        f"dropped {s.get('dropped', 0)}",
+    ]
+    if "squal" in s:
+        parts.append(f"SQUAL {s['squal']}")
+    if s.get("reason"):
+        parts.append(f"({s['reason']})")
+    if s.get("error") and not s.get("connected"):
+        parts.append(str(s["error"]))
+    return "  ".join(parts)
+
+
+def _paint(text: str, state: str, color: bool) -> str:
+    if not color:
+        return text
+    code = {"tracking": GREEN, "suspect": YELLOW, "excluded": YELLOW, "gone": RED}.get(state)
+    return f"{code}{text}{RESET}" if code else text
+
+
+def sketch(path: list[tuple[float, float]], width: int, height: int) -> list[str]:
+    """The path so far in a width x height box of characters, x (forward at start) to the
+    right, y up; 'o' the start, '@' now, '.' where it went.  [] if there is no room or no
+    motion yet."""
+    if width < 12 or height < 4 or len(path) < 2:
+        return []
+    xs, ys = [p[0] for p in path], [p[1] for p in path]
+    x0, x1, y0, y1 = min(xs), max(xs), min(ys), max(ys)
+    span = max(x1 - x0, (y1 - y0) * 2.0, 1e-3)  # characters are about twice as tall
+    cols, rows = width - 2, height - 2
+    grid = [[" "] * cols for _ in range(rows)]
+
+    def cell(x: float, y: float) -> tuple[int, int]:
+        c = int((x - x0) / span * (cols - 1))
+        r = rows - 1 - int((y - y0) * 2.0 / span * (rows - 1))
+        return max(0, min(rows - 1, r)), max(0, min(cols - 1, c))
+
+    for x, y in path:
+        r, c = cell(x, y)
+        grid[r][c] = "."
+    r, c = cell(*path[0])
+    grid[r][c] = "o"
+    r, c = cell(*path[-1])
+    grid[r][c] = "@"
+    scale = f" {span:.2f} m across "
+    top = (
+        "+" + scale + "-" * (cols - len(scale)) + "+"
+        if cols > len(scale)
+        else "+" + "-" * cols + "+"
+    )
+    return [top, *("|" + "".join(row) + "|" for row in grid), "+" + "-" * cols + "+"]
+
+
+def screen(
+    header: str,
+    pose: dict[str, Any] | None,
+    sources: dict[str, dict],
+    t_start: float,
+    path: list[tuple[float, float]],
+    size: tuple[int, int],
+    color: bool,
+) -> list[str]:
+    """The whole terminal screen, at most ``size`` = (columns, lines)."""
+    cols, rows = size
+    lines = [header, ""]
+    if pose is not None:
+        lines += pose_lines(pose, t_start) + [""]
+    lines += ["sensors"] + [source_line(s, color) for s in sources.values()]
+    room = rows - len(lines) - 2
+    if pose is not None and room >= 6:
+        lines += ["", "path (o start, @ now)"] + sketch(path, min(cols, 72), min(room - 1, 20))
+    return lines[:rows]
