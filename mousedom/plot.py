@@ -1,4 +1,5 @@
-"""``--plot``: the trajectory and the per-mouse residuals of a replay, as a PNG.
+"""``--plot``: a replay's trajectory (coloured by time, with heading arrows, covariance
+ellipses, start and end) and, where the rig has redundant readings, each mouse's residual.
 
 matplotlib is an optional extra (``pip install 'mousedom[plot]'``); ``require()`` checks
 for it before a long replay starts, so a missing extra costs no time.
@@ -29,12 +30,17 @@ def require() -> None:
         raise UserError(INSTALL_HINT) from None
 
 
+# Columns the collector keeps per window: time, pose, the pose covariance's xy block, then
+# each mouse's |residual|.
+T, X, Y, THETA, CXX, CXY, CYY, RES = range(8)
+
+
 class PlotCollector:
     """A replay sink that keeps what the plot needs, decimated to bounded memory."""
 
     def __init__(self) -> None:
         self.step = 1
-        self._parts: list[np.ndarray] = []  # rows: t, x, y, residual per mouse ...
+        self._parts: list[np.ndarray] = []
         self._n = 0
         self._skip = 0
         self._last: np.ndarray | None = None
@@ -43,7 +49,10 @@ class PlotCollector:
         if not len(b):
             return
         res = np.linalg.norm(b.residual, axis=2)  # (n, N) metres
-        rows = np.column_stack([b.t, b.x, b.y, res])
+        cov = b.cov
+        rows = np.column_stack(
+            [b.t, b.x, b.y, b.theta, cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1], res]
+        )
         self._last = rows[-1]  # the final pose is marked "end": never decimated away
         rows = rows[self._skip :: self.step]
         self._skip = (self._skip - len(b)) % self.step
@@ -56,44 +65,139 @@ class PlotCollector:
 
     def data(self) -> np.ndarray:
         if not self._parts:
-            return np.zeros((0, 3))
+            return np.zeros((0, RES))
         data = np.concatenate(self._parts)
         if data[-1, 0] != self._last[0]:
             data = np.vstack([data, self._last])
         return data
 
 
-def save(collector: PlotCollector, names: tuple[str, ...], path: str, title: str = "") -> None:
+def redundancy(model: str, n_mice: int) -> int:
+    """Readings beyond what the model's unknowns need: the residual's degrees of freedom.
+    Zero (one mouse on diff-drive or lsq: no reading to spare) means there
+    is no residual to show, only floating-point noise."""
+    unknowns = 2 if model == "diff-drive" else 3
+    return max(0, 2 * n_mice - unknowns)
+
+
+def figure(
+    collector: PlotCollector,
+    names: tuple[str, ...],
+    *,
+    model: str = "lsq",
+    rates: dict[str, float] | None = None,
+    title: str = "",
+):
+    """The matplotlib Figure of a replay (tests look at its artists)."""
     require()
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.collections import LineCollection
+    from matplotlib.patches import Ellipse
 
     data = collector.data()
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(12, 5.5))
-    ax1.plot(data[:, 1], data[:, 2], lw=1.0)
-    if len(data):
-        ax1.plot(data[0, 1], data[0, 2], "go", label="start")
-        ax1.plot(data[-1, 1], data[-1, 2], "rs", label="end")
-        ax1.legend(loc="best")
+    residual = redundancy(model, len(names)) > 0 and data.shape[1] > RES
+    fig, axes = plt.subplots(1, 2 if residual else 1, figsize=(12 if residual else 7, 5.5))
+    ax1 = axes[0] if residual else axes
     ax1.set_xlabel("x (m)")
     ax1.set_ylabel("y (m)")
-    ax1.set_aspect("equal", adjustable="datalim")
     ax1.set_title("trajectory (odometry frame)")
     ax1.grid(True, alpha=0.3)
-    for i, name in enumerate(names):
-        if data.shape[1] > 3 + i:
-            ax2.plot(data[:, 0], data[:, 3 + i] * 1000.0, lw=0.8, label=name)
-    ax2.set_xlabel("t (s)")
-    ax2.set_ylabel("|residual| (mm per window)")
-    ax2.set_title("per-mouse residual (rigidity check)")
-    ax2.grid(True, alpha=0.3)
-    if names:
-        ax2.legend(loc="best")
+    ax1.set_aspect("equal", adjustable="datalim")
+    if len(data) >= 2:
+        # The path coloured by time: where the robot was when.
+        pts = data[:, [X, Y]]
+        segs = np.stack([pts[:-1], pts[1:]], axis=1)
+        line = LineCollection(segs, cmap="viridis", linewidths=1.5, zorder=2)
+        line.set_array(data[1:, T] - data[0, T])
+        ax1.add_collection(line)
+        fig.colorbar(line, ax=ax1, label="t (s since the start)", shrink=0.8)
+        _arrows(ax1, data)
+        _ellipses(ax1, data, Ellipse)
+        ax1.autoscale_view()
+    if len(data):
+        # Start: a large ring drawn over everything, so an end at the same place (a closed
+        # square) cannot hide it; end: a smaller filled square under it.
+        ax1.plot(data[-1, X], data[-1, Y], "s", color="tab:red", ms=7, zorder=4, label="end")
+        ax1.plot(data[0, X], data[0, Y], "o", mfc="none", mec="tab:green", mew=2.0, ms=13,
+                 zorder=5, label="start")  # fmt: skip
+        ax1.legend(loc="best")
+    if residual:
+        ax2 = axes[1]
+        for i, name in enumerate(names):
+            label = name if not rates or name not in rates else f"{name} ({rates[name]:.0f} Hz)"
+            ax2.plot(data[:, T], data[:, RES + i] * 1000.0, lw=0.8, label=label)
+        ax2.set_xlabel("t (s)")
+        ax2.set_ylabel("|residual| (mm per window)")
+        ax2.set_title("per-mouse residual (rigidity check)")
+        ax2.grid(True, alpha=0.3)
+        if names:
+            ax2.legend(loc="best", title="mouse (report rate)" if rates else None)
+    elif rates:  # no residual panel: the rates go with the trajectory
+        text = "report rate: " + ", ".join(f"{n} {r:.0f} Hz" for n, r in rates.items())
+        ax1.text(0.01, 0.01, text, transform=ax1.transAxes, fontsize=8, color="0.3")
     if title:
         fig.suptitle(title)
     fig.tight_layout()
+    return fig
+
+
+def _arrows(ax, data: np.ndarray, count: int = 12) -> None:
+    """Heading arrows at evenly spaced times: which way the robot faced, and went."""
+    idx = np.unique(np.linspace(0, len(data) - 1, count).astype(int))
+    span = max(np.ptp(data[:, X]), np.ptp(data[:, Y]), 1e-3)
+    size = 0.04 * span
+    th = data[idx, THETA]
+    ax.quiver(data[idx, X], data[idx, Y], np.cos(th) * size, np.sin(th) * size,
+              angles="xy", scale_units="xy", scale=1, width=0.004, color="0.25", zorder=3,
+              label="heading")  # fmt: skip
+
+
+def _ellipses(ax, data: np.ndarray, ellipse_class, count: int = 8) -> None:
+    """3-sigma ellipses of the position covariance at evenly spaced times.  Odometry's
+    uncertainty is often millimetres on a path of metres: then the ellipses are drawn
+    magnified by a power of ten, and the legend says by how much."""
+    idx = np.unique(np.linspace(0, len(data) - 1, count).astype(int))[1:]
+    if not len(idx):
+        return
+    cov = np.stack(
+        [[data[idx, CXX], data[idx, CXY]], [data[idx, CXY], data[idx, CYY]]], axis=-1
+    ).transpose(1, 0, 2)  # (k, 2, 2)
+    if not np.isfinite(cov).all():
+        return
+    vals, vecs = np.linalg.eigh(cov)
+    radii = 3.0 * np.sqrt(np.clip(vals, 0.0, None))  # (k, 2)
+    span = max(np.ptp(data[:, X]), np.ptp(data[:, Y]), 1e-3)
+    largest = radii.max()
+    if largest <= 0:
+        return
+    gain = 1.0
+    while largest * gain < 0.02 * span:
+        gain *= 10.0
+    label = "3-sigma position" + ("" if gain == 1 else f" (x{gain:g})")
+    for k, i in enumerate(idx):
+        angle = np.degrees(np.arctan2(vecs[k, 1, 1], vecs[k, 0, 1]))
+        ax.add_patch(ellipse_class(
+            (data[i, X], data[i, Y]), 2 * radii[k, 1] * gain, 2 * radii[k, 0] * gain,
+            angle=angle, fill=False, color="tab:orange", lw=1.0, zorder=3,
+            label=label if k == 0 else None,
+        ))  # fmt: skip
+
+
+def save(
+    collector: PlotCollector,
+    names: tuple[str, ...],
+    path: str,
+    title: str = "",
+    *,
+    model: str = "lsq",
+    rates: dict[str, float] | None = None,
+) -> None:
+    import matplotlib.pyplot as plt
+
+    fig = figure(collector, names, model=model, rates=rates, title=title)
     kind = os.path.splitext(path)[1].lstrip(".").lower() or "png"
     try:
         # A temporary file beside the target, renamed over it: no link followed.

@@ -23,3 +23,63 @@ def test_plot_collector_keeps_first_and_final_pose_when_decimating(monkeypatch):
     assert len(data) <= 2 * 50 + 1  # bounded
     assert data[0, 0] == t[0] and data[-1, 0] == t[-1] and data[-1, 1] == 2.0 * t[-1]
     assert np.all(np.diff(data[:, 0]) > 0)
+
+
+def _collector(rig, trajectory):
+    from mousedom import plot
+    from mousedom.fusion import sim
+
+    result = sim.simulate(rig, trajectory, seed=2)
+    batch, _ = sim.run_tracker(result)
+    col = plot.PlotCollector()
+    col(batch)
+    return col, batch
+
+
+def _titles(fig):
+    return [ax.get_title() for ax in fig.axes if ax.get_title()]
+
+
+def test_the_figure_shows_time_direction_uncertainty_start_and_end():
+    """Issue 14 item 6, checked on the figure's artists: the path is a LineCollection
+    coloured by time; heading arrows; covariance ellipses; a start ring drawn above the end
+    square (a closed square put the end marker over the start); the residual panel with
+    each mouse's report rate."""
+    from matplotlib.collections import LineCollection
+    from matplotlib.patches import Ellipse
+    from matplotlib.quiver import Quiver
+
+    from mousedom import plot
+    from mousedom.fusion import sim
+
+    rig = sim.three_mouse_rig()
+    col, batch = _collector(rig, sim.umbmark_square(1.0))
+    fig = plot.figure(col, ("front", "left", "right"), model="lsq",
+                      rates={"front": 125.0, "left": 125.0, "right": 125.0})  # fmt: skip
+    assert _titles(fig) == ["trajectory (odometry frame)", "per-mouse residual (rigidity check)"]
+    ax = fig.axes[0]
+    paths = [c for c in ax.collections if isinstance(c, LineCollection)]
+    assert len(paths) == 1
+    times = paths[0].get_array()
+    assert len(times) == len(batch) - 1 and np.all(np.diff(times) > 0)  # coloured by time
+    assert any(isinstance(c, Quiver) for c in ax.collections)
+    assert sum(isinstance(p, Ellipse) for p in ax.patches) >= 5
+    marks = {ln.get_label(): ln for ln in ax.get_lines()}
+    assert marks["start"].get_zorder() > marks["end"].get_zorder()
+    assert marks["start"].get_markerfacecolor() == "none"  # a ring: the end shows through
+    legend = [t.get_text() for t in fig.axes[1].get_legend().get_texts()]
+    assert legend == ["front (125 Hz)", "left (125 Hz)", "right (125 Hz)"]
+
+
+def test_one_mouse_gets_no_residual_panel():
+    """With one mouse on diff-drive there is no redundant reading, so the residual is
+    floating-point noise (1e-17 mm), not a rigidity check: no panel for it."""
+    from mousedom import plot
+    from mousedom.fusion import sim
+
+    rig = sim.Rig((sim.SimMouse("m", 0.1, 0.0),), model="diff-drive")
+    col, _ = _collector(rig, sim.sequence(sim.straight(0.3), sim.turn(1.0)))
+    fig = plot.figure(col, ("m",), model="diff-drive", rates={"m": 125.0})
+    assert _titles(fig) == ["trajectory (odometry frame)"]
+    assert plot.redundancy("diff-drive", 1) == 0 and plot.redundancy("lsq", 2) == 1
+    assert plot.redundancy("diff-drive", 2) == 2

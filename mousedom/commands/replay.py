@@ -145,7 +145,9 @@ def run(args) -> int:
     if collector is not None:
         from mousedom import plot
 
-        plot.save(collector, config.names, args.plot, title=_title(args, replay))
+        rates = {m.name: m.rate_hz for m in summary.mice}
+        plot.save(collector, config.names, args.plot, title=_title(args, replay),
+                  model=args.model or config.model, rates=rates)  # fmt: skip
     if args.umbmark:
         _emit_umbmark(args, summary, true_end)
     elif out is None:
