@@ -13,17 +13,10 @@ import sys
 import pytest
 from capture_helpers import PS2, external_dir, one_mouse_config
 from conftest import run_mousedom
+from test_replay_errors import _one_error_line
 
 from mousedom.errors import UserError
 from mousedom.safewrite import open_stream, replace_bytes, replace_file
-
-
-def _one_error(stderr: str, *needles: str) -> None:
-    assert "Traceback" not in stderr, stderr
-    lines = [ln for ln in stderr.splitlines() if ln.strip()]
-    assert len(lines) == 1 and lines[0].startswith("mousedom: error:"), stderr
-    for n in needles:
-        assert n in lines[0], lines[0]
 
 
 def test_stream_through_a_link_to_a_file_is_refused_and_the_target_kept(tmp_path):
@@ -112,7 +105,7 @@ def test_replay_outputs_refuse_links(tmp_path):
             "replay", "--config", str(cfg), "--capture", cap, flag, str(link), *extra
         )
         assert proc.returncode != 0, (flag, proc.stderr)
-        _one_error(proc.stderr, str(link), "symbolic link")
+        _one_error_line(proc.stderr, str(link), "symbolic link")
         assert target.read_text() == "keep"
         link.unlink()
 
@@ -124,7 +117,7 @@ def test_convert_refuses_a_link_and_leaves_no_temporary(tmp_path):
     link.symlink_to(target)
     proc = run_mousedom("convert", "--capture", f"m={external_dir() / PS2}", "-o", str(link))
     assert proc.returncode != 0
-    _one_error(proc.stderr, "symbolic link")
+    _one_error_line(proc.stderr, "symbolic link")
     assert target.read_text() == "keep"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out.mdcap", "victim"]
 
