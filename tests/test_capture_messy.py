@@ -216,6 +216,8 @@ def test_evemu_absurd_numbers_are_one_clear_error(tmp_path, line, words):
         "[-1, 0, 2, 0, 1]",
         "[0, 10000, 2, 0, ]",  # numpy's fromstring reads a blank field as 0: a silent REL_X 0
         "[1, , 2, 0, 5]",
+        "[1, +, 2, 0, 5]",  # a lone sign is a 0 to numpy, too
+        "[1, 5, 2, 0, -]",
     ],
 )
 def test_libinput_absurd_numbers_are_one_clear_error(tmp_path, row):
