@@ -13,25 +13,19 @@ calibrated so far.
 
 from __future__ import annotations
 
-import difflib
 import math
 import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from mousedom import safeyaml
-from mousedom.errors import UserError, located
+from mousedom.errors import located
+from mousedom.yamldoc import ConfigError, Reader, YamlDoc, shown
 
 MODELS = ("lsq", "diff-drive", "bonarini")
 INTEGRATORS = ("exact", "taylor", "euler", "midpoint")
 DEFAULT_CONFIG_PATH = "/etc/mousedom/mousedom.yaml"
-
-
-class ConfigError(UserError):
-    """A config or calibration file is wrong; the message names file, line and key."""
 
 
 @dataclass(frozen=True)
@@ -128,210 +122,16 @@ class Config:
         return self.names.index(name)
 
 
-# --------------------------------------------------------------------------- YAML with lines
-
-
-class _Doc:
-    """Parsed YAML plus the line number (1-based) of every key path."""
-
-    def __init__(self, path: str | None, text: str) -> None:
-        self.path = path
-        self.lines: dict[tuple[str, ...], int] = {}
-        self.problems: list[ConfigError] = []
-        self.need_mounts = True
-        try:
-            node, loader = safeyaml.compose(text)
-            try:
-                self.data = loader.construct_document(node) if node is not None else None
-            finally:
-                loader.dispose()
-        except yaml.MarkedYAMLError as e:
-            mark = e.problem_mark or e.context_mark
-            line = mark.line + 1 if mark else None
-            raise ConfigError(located(path, line, f"invalid YAML: {e.problem or e}")) from None
-        except yaml.YAMLError as e:
-            raise ConfigError(located(path, None, f"invalid YAML: {e}")) from None
-        if node is not None:
-            self._index(node, ())
-
-    def _index(self, node: yaml.Node, prefix: tuple[str, ...]) -> None:
-        self.lines.setdefault(prefix, node.start_mark.line + 1)
-        if isinstance(node, yaml.MappingNode):
-            seen: set[str] = set()
-            for key_node, value_node in node.value:
-                key = str(key_node.value)
-                line = key_node.start_mark.line + 1
-                if key in seen:
-                    # YAML keeps the last of two equal keys; a second `left:` silently
-                    # replacing the first mouse would be a wrong answer later.
-                    first = self.lines[prefix + (key,)]
-                    where = ".".join(prefix + (key,))
-                    raise ConfigError(
-                        located(self.path, line, f"given twice (first on line {first})", where)
-                    )
-                seen.add(key)
-                self.lines[prefix + (key,)] = line
-                self._index(value_node, prefix + (key,))
-        elif isinstance(node, yaml.SequenceNode):
-            for i, item in enumerate(node.value):
-                self._index(item, prefix + (str(i),))
-
-    def error(self, keys: tuple[str, ...], message: str) -> ConfigError:
-        line = None
-        for n in range(len(keys), -1, -1):
-            if keys[:n] in self.lines:
-                line = self.lines[keys[:n]]
-                break
-        if line is None and not keys[:1]:
-            line = 1  # an empty file: its first line
-        where = ".".join(k if k.isprintable() else repr(k) for k in keys)
-        e = ConfigError(located(self.path, line, message, where or None))
-        e.line = line  # type: ignore[attr-defined]
-        return e
-
-    # Every problem of a file is reported at once: sections are read one by one, each
-    # failure is kept here, and parse_config raises them all together at the end.
-    def keep(self, error: ConfigError) -> None:
-        self.problems.append(error)
-
-    def attempt(self, fn: Any, *args: Any, **kwargs: Any) -> Any:
-        """fn(*args, **kwargs), or None with its ConfigError kept for the end."""
-        try:
-            return fn(*args, **kwargs)
-        except ConfigError as e:
-            self.keep(e)
-            return None
-
-    def raise_problems(self) -> None:
-        if not self.problems:
-            return
-        ordered = sorted(self.problems, key=lambda e: getattr(e, "line", None) or 0)
-        text = "\n".join(dict.fromkeys(str(e) for e in ordered))  # each once, by line
-        raise ConfigError(text)
-
-
-class _Reader:
-    """Typed access to one mapping of a _Doc; complains about unknown keys."""
-
-    def __init__(
-        self, doc: _Doc, value: Any, keys: tuple[str, ...], known: tuple[str, ...] = ()
-    ) -> None:
-        if value is None:
-            value = {}
-        if not isinstance(value, dict):
-            raise doc.error(keys, f"must be a mapping, got {_show(value)}")
-        self.doc, self.value, self.keys = doc, value, keys
-        self.used: set[str] = set()
-        self.known = known
-        self.suggested: set[str] = set()  # known keys offered for misspelt ones
-        if known:
-            # Said first, each on its own line: a misspelt key (`mownt:`) is the real
-            # mistake behind "mount: is required", which may follow.
-            for k in value:
-                if str(k) not in known:
-                    doc.keep(self._unknown(str(k)))
-            self.used.update(str(k) for k in value)
-
-    def has(self, key: str) -> bool:
-        return key in self.value
-
-    def raw(self, key: str, default: Any = None) -> Any:
-        self.used.add(key)
-        return self.value.get(key, default)
-
-    def sub(self, key: str, known: tuple[str, ...] = ()) -> _Reader:
-        return _Reader(self.doc, self.raw(key), self.keys + (key,), known)
-
-    def _unknown(self, key: str) -> ConfigError:
-        close = difflib.get_close_matches(key, self.known, n=1, cutoff=0.6)
-        if close:
-            self.suggested.add(close[0])
-            hint = f"did you mean {close[0]}?"
-        else:
-            hint = f"known here: {', '.join(self.known)};"
-        return self.err(key, f"unknown key ({hint} see docs/config.md)")
-
-    def err(self, key: str | None, message: str) -> ConfigError:
-        return self.doc.error(self.keys + ((key,) if key else ()), message)
-
-    def number(
-        self,
-        key: str,
-        default: float | None = None,
-        *,
-        positive: bool = False,
-        within: tuple[float, float] | None = None,
-    ) -> float:
-        v = self.raw(key, default)
-        if v is None:
-            raise self.err(key, "is required")
-        if isinstance(v, int) and not isinstance(v, bool) and abs(v) > 1e300:
-            raise self.err(key, f"must be a number of sensible size, got {_show(v)}")
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-            raise self.err(key, f"must be a number, got {_show(v)}")
-        if positive and v <= 0:
-            raise self.err(key, f"must be a positive number, got {v}")
-        if within and not within[0] <= v <= within[1]:
-            raise self.err(key, f"must be between {within[0]:g} and {within[1]:g}, got {v}")
-        return float(v)
-
-    def integer(self, key: str, default: int | None = None, *, minimum: int | None = None) -> int:
-        v = self.raw(key, default)
-        if isinstance(v, str):
-            try:
-                v = int(v, 0)
-            except ValueError:
-                raise self.err(key, f"must be an integer, got {_show(v)}") from None
-        if isinstance(v, bool) or not isinstance(v, int):
-            raise self.err(key, f"must be an integer, got {_show(v)}")
-        if minimum is not None and v < minimum:
-            raise self.err(key, f"must be at least {minimum}, got {v}")
-        return v
-
-    def string(self, key: str, default: str | None = None) -> str | None:
-        v = self.raw(key, default)
-        if v is not None and not isinstance(v, str):
-            raise self.err(key, f"must be a string, got {_show(v)}")
-        if v is not None and "\0" in v:  # no path, name or group holds one
-            raise self.err(key, f"must not contain a NUL character, got {_show(v)}")
-        return v
-
-    def boolean(self, key: str, default: bool) -> bool:
-        v = self.raw(key, default)
-        if not isinstance(v, bool):
-            raise self.err(key, f"must be true or false, got {_show(v)}")
-        return v
-
-    def choice(self, key: str, options: tuple[str, ...], default: str) -> str:
-        v = self.raw(key, default)
-        if v not in options:
-            raise self.err(key, f"must be one of {', '.join(options)}, got {_show(v)}")
-        return v
-
-    def finish(self) -> None:
-        """Sections read without a ``known`` list: their unknown keys, all of them."""
-        for k in self.value:
-            if k not in self.used:
-                self.doc.keep(
-                    self.err(str(k), "unknown key (check the spelling; see docs/config.md)")
-                )
-
-
 TOP_KEYS = ("rate_hz", "model", "integrator", "mice", "server", "wheels", "calibration")
 MOUSE_KEYS = ("cpi", "mount", "flip", "sigma", "report_hz", "evdev", "serial", "replay")
 SERVER_KEYS = ("socket", "mode", "group", "control_uids", "control_gids", "max_clients",
                "queue_lines", "max_line")  # fmt: skip
 
 
-def _show(v: Any) -> str:
-    text = repr(v)
-    return text if len(text) <= 40 else text[:37] + "..."
-
-
 # --------------------------------------------------------------------------- sections
 
 
-def _cpi(r: _Reader, key: str, default: tuple[float, float] | None) -> tuple[float, float]:
+def _cpi(r: Reader, key: str, default: tuple[float, float] | None) -> tuple[float, float]:
     v = r.raw(key)
     if v is None:
         if default is None:
@@ -347,7 +147,7 @@ def _cpi(r: _Reader, key: str, default: tuple[float, float] | None) -> tuple[flo
     return c, c
 
 
-def _mount(r: _Reader, default: Mount | None) -> Mount:
+def _mount(r: Reader, default: Mount | None) -> Mount:
     if not r.has("mount"):
         if default is None:
             raise r.err("mount", "is required ({x: metres, y: metres, yaw: degrees})")
@@ -361,7 +161,7 @@ def _mount(r: _Reader, default: Mount | None) -> Mount:
     return Mount(x, y, yaw)
 
 
-def _evdev(r: _Reader) -> EvdevMatch:
+def _evdev(r: Reader) -> EvdevMatch:
     e = r.sub("evdev", ("path", "name", "phys", "vendor", "product", "uniq", "grab"))
     match = EvdevMatch(
         path=e.string("path"),
@@ -378,7 +178,7 @@ def _evdev(r: _Reader) -> EvdevMatch:
     return match
 
 
-def _serial(r: _Reader) -> SerialSource:
+def _serial(r: Reader) -> SerialSource:
     s = r.sub("serial", ("port", "baud", "k", "sensor_cpi"))
     port = s.string("port")
     if not port:
@@ -397,9 +197,9 @@ def _serial(r: _Reader) -> SerialSource:
     return src
 
 
-def _mouse(doc: _Doc, name: str, value: Any, base_dir: Path) -> MouseConfig | None:
+def _mouse(doc: YamlDoc, name: str, value: Any, base_dir: Path) -> MouseConfig | None:
     """One mouse; None when it has problems (all kept in ``doc``, each part tried)."""
-    r = _Reader(doc, value, ("mice", name), MOUSE_KEYS)
+    r = Reader(doc, value, ("mice", name), MOUSE_KEYS)
 
     def required(key: str, read: Any) -> Any:
         # "mount: is required" is noise next to "mownt: unknown key (did you mean mount?)"
@@ -442,7 +242,7 @@ def _mouse(doc: _Doc, name: str, value: Any, base_dir: Path) -> MouseConfig | No
     return mouse
 
 
-def _replay(r: _Reader, base_dir: Path) -> tuple[str, str | None]:
+def _replay(r: Reader, base_dir: Path) -> tuple[str, str | None]:
     v = r.raw("replay")
     if isinstance(v, dict):
         rr = r.sub("replay", ("file", "device"))
@@ -455,7 +255,7 @@ def _replay(r: _Reader, base_dir: Path) -> tuple[str, str | None]:
     return file, device
 
 
-def _server(r: _Reader) -> ServerConfig:
+def _server(r: Reader) -> ServerConfig:
     s = r.sub("server", SERVER_KEYS)
     mode = s.raw("mode", 0o660)
     if isinstance(mode, str):
@@ -466,12 +266,12 @@ def _server(r: _Reader) -> ServerConfig:
                 "mode", f"must be an octal file mode such as '0660', got {mode!r}"
             ) from None
     if isinstance(mode, bool) or not isinstance(mode, int) or not 0 <= mode <= 0o777:
-        raise s.err("mode", f"must be a file mode between 0 and 0777, got {_show(mode)}")
+        raise s.err("mode", f"must be a file mode between 0 and 0777, got {shown(mode)}")
 
     def ids(key: str, default: tuple[int, ...]) -> tuple[int, ...]:
         v = s.raw(key, list(default))
         if not isinstance(v, list) or not all(isinstance(i, int) and i >= 0 for i in v):
-            raise s.err(key, f"must be a list of numeric ids, got {_show(v)}")
+            raise s.err(key, f"must be a list of numeric ids, got {shown(v)}")
         return tuple(v)
 
     server = ServerConfig(
@@ -488,7 +288,7 @@ def _server(r: _Reader) -> ServerConfig:
     return server
 
 
-def _wheels(r: _Reader) -> WheelsConfig:
+def _wheels(r: Reader) -> WheelsConfig:
     w = r.sub("wheels", ("radius", "radius_left", "radius_right", "track", "ticks_per_rev"))
     radius = w.number("radius", 0.0) if w.has("radius") else None
     wheels = WheelsConfig(
@@ -515,8 +315,8 @@ def _apply_calibration(mice: tuple[MouseConfig, ...], path: Path) -> tuple[Mouse
         ) from None
     except UnicodeDecodeError as e:
         raise ConfigError(f"{path}: byte offset {e.start}: not UTF-8 text") from None
-    doc = _Doc(str(path), text)
-    top = _Reader(doc, doc.data, ())
+    doc = YamlDoc(str(path), text)
+    top = Reader(doc, doc.data, ())
     section = top.sub("mice")
     by_name = {m.name: m for m in mice}
     for name in section.value:
@@ -555,12 +355,12 @@ def parse_config(
     ``calibrate cpi``), ``need_mounts=False`` lets mice leave out their mount (taken as
     the body origin).
     """
-    doc = _Doc(path, text)
+    doc = YamlDoc(path, text)
     doc.need_mounts = need_mounts
     base_dir = Path(path).resolve().parent if path else Path.cwd()
     if doc.data is None:
         raise doc.error((), "the file is empty: a rig config needs at least `mice:`")
-    top = _Reader(doc, doc.data, (), TOP_KEYS)
+    top = Reader(doc, doc.data, (), TOP_KEYS)
     # Each section is read even when another failed, so that one run names every mistake.
     rate_hz = doc.attempt(top.number, "rate_hz", 100.0, within=(0.1, 10000.0)) or 100.0
     model = doc.attempt(top.choice, "model", MODELS, "lsq") or "lsq"

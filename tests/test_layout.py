@@ -5,7 +5,8 @@
     capture                                file formats, the replay engine, replay sources
     sources                                devices -> reports (evdev, ADNS-3080)
     fusion                                 the pure engine: no I/O, time as data
-    config, errors, safeyaml, safewrite    what every room uses
+    config, yamldoc, errors, safeyaml,     what every room uses
+    safewrite, invocation
 
 A module may import from its own room and from the rooms below it, never from above
 (docs/architecture.md).  One exception is written down: ``config`` checks a rig's rank at
@@ -29,7 +30,7 @@ LAYERS = [
     {"capture"},
     {"sources"},
     {"fusion"},
-    {"config", "errors", "safeyaml", "safewrite", "invocation", "__init__"},
+    {"config", "yamldoc", "errors", "safeyaml", "safewrite", "invocation", "__init__"},
 ]
 ALLOWED_UP = {("config", "mousedom.fusion.geometry")}
 
