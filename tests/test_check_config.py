@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pytest
 from conftest import run_mousedom
 
 
@@ -149,3 +150,29 @@ def test_the_shipped_example_leaves_the_adns_rate_to_k():
     serial = [m for m in doc["mice"].values() if "serial" in m]
     assert serial and all("report_hz" not in m for m in serial)
     assert "config/mousedom.yaml" not in (REPO / ".gitignore").read_text()
+
+
+@pytest.mark.parametrize(
+    "text, words",
+    [
+        ("mice: " + "[" * 3000 + "]" * 3000 + "\n", "nest"),  # RecursionError once
+        ("rate_hz: " + "9" * 400 + "\nmice: {}\n", "integer of 400"),  # OverflowError once
+        ("mice:\n  a: {cpi: " + "9" * 5000 + "}\n", "integer of 5000"),  # ValueError once
+        (
+            "a: &a [x, x]\nb: &b [*a, *a, *a, *a, *a, *a, *a, *a, *a, *a]\n"
+            + "".join(
+                f"c{i}: &c{i} [" + ", ".join(["*b" if i == 0 else f"*c{i - 1}"] * 10) + "]\n"
+                for i in range(6)
+            ),
+            "aliases expand",
+        ),  # fmt: skip
+        ('calibration: "\\0"\nmice: {a: {cpi: 1, mount: {x: 0, y: 0}}}\n', "NUL"),
+    ],
+    ids=["deep", "overflow", "long-int", "alias-bomb", "nul"],
+)
+def test_configs_that_once_gave_tracebacks_are_one_error_each(tmp_path, text, words):
+    """Issue 11 item 5: check-config printed tracebacks for these configs."""
+    path = write(tmp_path, text)
+    p = run_mousedom("check-config", "--config", str(path), "--no-sources")
+    assert p.returncode == 2 and "Traceback" not in p.stderr, p.stderr
+    assert p.stderr.startswith(f"mousedom: error: {path}:") and words in p.stderr, p.stderr
