@@ -222,3 +222,18 @@ def test_a_hand_written_recording_in_libinput_s_own_format():
     s = cap.stats[0]
     assert (s.net_x, s.net_y, s.frames, s.reports) == (6, -5, 5, 4)
     assert 1 not in cap.motion  # the keyboard is no mouse: no feed
+
+
+def test_a_recording_laid_out_as_the_man_page_shows_it():
+    """libinput-record(1)'s FILE FORMAT indents the devices under `devices:` and puts
+    `- hid:` entries (one with a tab) among the evdev ones, with absinfo-free mouse codes
+    and quirks: tests/data/libinput-indented.yml, typed by hand in that layout.  Counts
+    by hand: REL_X 4 + 1 = 5, REL_Y -2, two motion frames."""
+    from pathlib import Path
+
+    cap = drain(Path(__file__).parent / "data" / "libinput-indented.yml")
+    assert [d.name for d in cap.devices] == ["Test Optical Mouse"] and cap.devices[0].rel_xy
+    t, dx, dy = cap.motion[0]
+    assert dx.tolist() == [4, 1] and dy.tolist() == [-2, 0]
+    assert t.tolist() == pytest.approx([0.0, 0.008])
+    assert not cap.warnings
