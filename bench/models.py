@@ -10,19 +10,25 @@ d @ B^T that any linear model must at least do.  No assertions: figures only.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
-import numpy as np
+# One BLAS thread, set before numpy loads its BLAS: the baseline's matrix product would
+# otherwise run on every core while the models (mostly elementwise numpy) run on one, and
+# the ratio would compare two machines (a multithreaded baseline once printed 2.69 M
+# windows/s where one thread gives 183 M/s).  Printed with the figures.
+BLAS_ENV = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+for _name in BLAS_ENV:
+    os.environ.setdefault(_name, "1")
+
+import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from timing import median_time  # noqa: E402  (bench/timing.py)
 
-from mousedom.fusion import (
-    integrate,
-    models,  # noqa: E402
-)
+from mousedom.fusion import integrate, models  # noqa: E402
 from mousedom.fusion.geometry import design_matrix  # noqa: E402
 
 
@@ -54,7 +60,8 @@ def main() -> None:
         ("step_jacobian", lambda: integrate.step_jacobian(q)),
         ("compose", lambda: integrate.compose(np.zeros(3), q)),
     ]
-    print(f"{n} windows; median of 5 runs; ratio = time / baseline time")
+    threads = ", ".join(f"{k}={os.environ[k]}" for k in BLAS_ENV)
+    print(f"{n} windows; median of 5 runs; ratio = time / baseline time; BLAS: {threads}")
     print(f"{'case':34s} {'M windows/s':>12s} {'x baseline':>11s}")
     for name, fn in cases:
         t = base if name.startswith("baseline") else median_time(fn)
