@@ -188,3 +188,13 @@ def test_any_bytes_give_a_command_or_an_error_that_encodes(data):
     assert cmd.name in COMMANDS
     assert all(math.isfinite(v) for v in cmd.args.values())
     json.dumps({"id": cmd.id}, allow_nan=False)
+
+
+@pytest.mark.parametrize("line", [b'{"cmd":"reset","x":1e308}', b'{"cmd":"fix","theta":1e300}',
+                                  b'{"cmd":"fix","y":-2e7}'])  # fmt: skip
+def test_poses_no_float_can_hold_are_refused(line):
+    """A reset or fix far beyond any map (1e308 m) would turn the pose and its covariance
+    into inf and NaN for every later window."""
+    with pytest.raises(ProtocolError, match="must be within"):
+        parse_command(line)
+    assert parse_command(b'{"cmd":"fix","x":9999999.5,"theta":-9999}').args["x"] == 9999999.5

@@ -31,6 +31,7 @@ COMMANDS: dict[str, tuple[str, ...]] = {
 }
 POSE_MOVING = frozenset({"reset", "fix"})
 MAX_CLIENT_HZ = 10000.0
+POSE_LIMITS = {"x": 1e7, "y": 1e7, "theta": 1e4}  # metres (10,000 km), radians
 # A command is one flat object: any nesting is a mistake, and deep nesting is an attack on
 # the recursive JSON parser.  An id is echoed back, so it must be something we can encode.
 MAX_DEPTH = 8
@@ -203,6 +204,10 @@ def _command(obj: dict[str, Any], cmd_id: Any = None) -> Command:
         args[key] = _number(name, key, value)
     if name == "fix" and not args:
         raise ProtocolError("fix: give at least one of x, y, theta")
+    for key, limit in POSE_LIMITS.items():
+        if key in args and abs(args[key]) > limit:
+            # Past these, float64 loses the millimetre (and the covariance its meaning).
+            raise ProtocolError(f"{name}: {key} must be within +-{limit:g}")
     if name == "rate":
         if "hz" not in args:
             raise ProtocolError("rate: needs hz (poses per second; 0 stops POSE)")
