@@ -322,7 +322,7 @@ def _apply_calibration(mice: tuple[MouseConfig, ...], path: Path) -> tuple[Mouse
     for name in section.value:
         if name not in by_name:
             raise section.err(str(name), "calibration for a mouse the config does not have")
-        r = section.sub(str(name))
+        r = section.sub(str(name), ("cpi", "mount", "scale"))
         m = by_name[name]
         cpi_x, cpi_y = _cpi(r, "cpi", (m.cpi_x, m.cpi_y))
         by_name[name] = replace(m, cpi_x=cpi_x, cpi_y=cpi_y, mount=_mount(r, m.mount))

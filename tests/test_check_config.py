@@ -176,3 +176,15 @@ def test_configs_that_once_gave_tracebacks_are_one_error_each(tmp_path, text, wo
     p = run_mousedom("check-config", "--config", str(path), "--no-sources")
     assert p.returncode == 2 and "Traceback" not in p.stderr, p.stderr
     assert p.stderr.startswith(f"mousedom: error: {path}:") and words in p.stderr, p.stderr
+
+
+def test_a_misspelt_key_in_the_calibration_file_gets_a_suggestion(tmp_path):
+    (tmp_path / "rig.calib.yaml").write_text("mice:\n  a:\n    cpj: 500\n")
+    path = write(
+        tmp_path,
+        "calibration: rig.calib.yaml\nmice:\n  a: {cpi: 400, mount: {x: 0, y: 0.1}}\n"
+        "  b: {cpi: 400, mount: {x: 0, y: -0.1}}\n",
+    )
+    p = run_mousedom("check-config", "--config", str(path), "--no-sources")
+    assert p.returncode == 2
+    assert "rig.calib.yaml:3: mice.a.cpj: unknown key (did you mean cpi?" in p.stderr
