@@ -37,14 +37,16 @@ def _identity(path: str) -> tuple[int, int] | None:
     return st.st_dev, st.st_ino
 
 
+def same_file(a: str, b: str) -> bool:
+    """One file (through any link or hard link), or one path for a file not made yet."""
+    ida = _identity(a)
+    return (ida is not None and ida == _identity(b)) or os.path.abspath(a) == os.path.abspath(b)
+
+
 def refuse_inputs(output: str, inputs: Iterable[str | None]) -> None:
     """UserError if ``output`` is (through any link) one of ``inputs``, or names it."""
-    out_id = _identity(output)
-    out_abs = os.path.abspath(output)
     for path in inputs:
-        if not path:
-            continue
-        if (out_id is not None and out_id == _identity(path)) or out_abs == os.path.abspath(path):
+        if path and same_file(output, path):
             raise UserError(f"{output}: is the input {path}; not overwriting it")
 
 

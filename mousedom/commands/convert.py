@@ -28,7 +28,7 @@ from mousedom.capture import (
 from mousedom.capture.base import TIME_BASES, lagging_first
 from mousedom.commands import _options as options
 from mousedom.errors import UserError
-from mousedom.safewrite import open_stream, replace_file
+from mousedom.safewrite import open_stream, replace_file, same_file
 
 
 def register(subparsers) -> None:
@@ -66,7 +66,7 @@ def run(args) -> int:
     paths = [cap.path for _, cap in inputs] + [args.config or ""]
     paths += [d for _, cap in inputs if (d := getattr(cap, "desc_path", None))]
     for path in paths:
-        if path and _same(args.output, path):
+        if path and same_file(args.output, path):
             raise UserError(f"{args.output}: the output would overwrite an input ({path})")
     if args.output == "-":
         # As replay's -o -: the capture goes to stdout (a pipe, e.g. to ssh or gzip).
@@ -92,14 +92,6 @@ def run(args) -> int:
         file=sys.stderr if args.output == "-" else sys.stdout,
     )
     return 0
-
-
-def _same(a: str, b: str) -> bool:
-    """The same file (also through a link), or the same path for one not made yet."""
-    try:
-        return os.path.samefile(a, b)
-    except OSError:
-        return os.path.abspath(a) == os.path.abspath(b)
 
 
 def _convert_into(

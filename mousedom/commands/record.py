@@ -29,6 +29,7 @@ from pathlib import Path
 from mousedom.commands import _options as options
 from mousedom.config import Config, MouseConfig, load_config
 from mousedom.errors import UserError
+from mousedom.safewrite import same_file
 from mousedom.sources.base import Source, SourceGone, SourceUnavailable
 from mousedom.sources.discovery import SystemPaths, paths_for_root
 
@@ -388,7 +389,7 @@ def run(args: argparse.Namespace) -> int:
     if not args.output:
         raise UserError("-o/--output: empty file name")
     cfg = load_config(args.config)
-    if _same_file(args.output, args.config):
+    if same_file(args.output, args.config):
         raise UserError(f"{args.output}: is the config file {args.config}; not overwriting it")
     if os.path.exists(args.output) and not args.force:
         raise UserError(f"{args.output}: exists; not overwriting a recording (use --force)")
@@ -429,13 +430,6 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _same_file(a: str, b: str) -> bool:
-    try:
-        return os.path.samefile(a, b)
-    except OSError:
-        return False
-
-
 def _node(s: Slot) -> str:
     if s.serial:
         return s.mouse.serial.port
@@ -447,13 +441,13 @@ def _check_distinct(cfg: Config, slots: list[Slot], output: str) -> None:
     record it twice; the output being a source would record its own bytes."""
     for i, a in enumerate(slots):
         for b in slots[i + 1 :]:
-            if _same_file(_node(a), _node(b)):
+            if same_file(_node(a), _node(b)):
                 raise UserError(
                     f"{cfg.path}: mice.{a.mouse.name} and mice.{b.mouse.name} both read "
                     f"{_node(a)}: give each mouse its own device",
                     exit_code=1,
                 )
-        if _same_file(output, _node(a)):
+        if same_file(output, _node(a)):
             raise UserError(
                 f"{output}: is the device of mice.{a.mouse.name}; not recording into it",
                 exit_code=1,

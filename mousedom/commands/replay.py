@@ -19,7 +19,7 @@ from mousedom.capture.replay import CsvSink, Replay, Summary
 from mousedom.commands import _options as options
 from mousedom.config import INTEGRATORS, MODELS, load_config
 from mousedom.errors import UserError
-from mousedom.safewrite import open_stream
+from mousedom.safewrite import open_stream, same_file
 
 
 def register(subparsers) -> None:
@@ -163,11 +163,7 @@ def _refuse_overwriting_inputs(args, inputs: list[str]) -> None:
         if not out or out == "-" or not os.path.exists(out):
             continue
         for path in inputs:
-            try:
-                same = os.path.samefile(out, path)
-            except OSError:
-                continue
-            if same:
+            if same_file(out, path):
                 raise UserError(f"{flag} {out}: that is an input ({path}); it would be overwritten")
 
 
