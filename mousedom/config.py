@@ -73,6 +73,26 @@ class MouseConfig:
     serial: SerialSource | None = None
     replay: str | None = None  # capture file (absolute, or resolved against the config)
     replay_device: str | None = None  # device name inside a multi-device capture
+    max_speed: float | None = None  # m/s the sensor tracks; faster reads are "saturated"
+    min_squal: int | None = None  # ADNS-3080 SQUAL below this gates reports ("low quality")
+
+
+# ADNS-3080 datasheet: tracking up to 40 inches per second; SQUAL (a quarter of the
+# features seen, at most 169) is "nearly equal to zero if there is no surface below the
+# sensor" and averages several tens on white paper at the nominal height, so a floor of 15
+# tells a lifted or blinded sensor from a dull floor.
+ADNS3080_MAX_SPEED = 40 * 0.0254
+ADNS3080_MIN_SQUAL = 15
+
+
+@dataclass(frozen=True)
+class RobustConfig:
+    """The fault-tolerant fusion's settings (docs/models.md, "Faults")."""
+
+    enabled: bool = True
+    false_alarm: float = 1e-4  # chance per window that a healthy rig fails the test
+    relative_noise: float = 0.05  # reading error in proportion to motion (CPI, stamps)
+    readmit_s: float = 0.25  # consistent motion an excluded mouse needs to be used again
 
 
 @dataclass(frozen=True)
@@ -107,6 +127,7 @@ class Config:
     wheels: WheelsConfig | None = None
     calibration: str | None = None  # absolute path of the calibration file, if any
     path: str | None = None  # where this config was read from
+    robust: RobustConfig = field(default_factory=RobustConfig)
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -122,8 +143,10 @@ class Config:
         return self.names.index(name)
 
 
-TOP_KEYS = ("rate_hz", "model", "integrator", "mice", "server", "wheels", "calibration")
-MOUSE_KEYS = ("cpi", "mount", "flip", "sigma", "report_hz", "evdev", "serial", "replay")
+TOP_KEYS = ("rate_hz", "model", "integrator", "mice", "server", "wheels", "calibration",
+            "robust")  # fmt: skip
+MOUSE_KEYS = ("cpi", "mount", "flip", "sigma", "report_hz", "evdev", "serial", "replay",
+              "max_speed", "min_squal")  # fmt: skip
 SERVER_KEYS = ("socket", "mode", "group", "control_uids", "control_gids", "max_clients",
                "queue_lines", "max_line")  # fmt: skip
 
@@ -212,6 +235,10 @@ def _mouse(doc: YamlDoc, name: str, value: Any, base_dir: Path) -> MouseConfig |
     flip = doc.attempt(r.boolean, "flip", False)
     sigma = doc.attempt(r.number, "sigma", 0.5, positive=True)
     report_hz = doc.attempt(r.number, "report_hz", 125.0, within=(1.0, 100000.0))
+    max_speed = doc.attempt(r.number, "max_speed", 0.0, positive=True) if r.has(
+        "max_speed") else None  # fmt: skip
+    min_squal = doc.attempt(r.integer, "min_squal", 0, minimum=0) if r.has(
+        "min_squal") else None  # fmt: skip
     sources = [k for k in ("evdev", "serial", "replay") if r.has(k)]
     if len(sources) > 1:
         doc.keep(r.err(sources[1], f"a mouse has one source; {sources[0]} is given already"))
@@ -227,12 +254,17 @@ def _mouse(doc: YamlDoc, name: str, value: Any, base_dir: Path) -> MouseConfig |
         return None
     mouse = MouseConfig(
         name=name, cpi_x=cpi[0], cpi_y=cpi[1], mount=mount, flip=flip, sigma=sigma,
-        report_hz=report_hz,
+        report_hz=report_hz, max_speed=max_speed, min_squal=min_squal,
     )  # fmt: skip
     if "evdev" in source:
         mouse = replace(mouse, evdev=source["evdev"])
     elif "serial" in source:
         mouse = replace(mouse, serial=source["serial"])
+        # The sensor's own limits are known; a USB mouse's are not (none unless set).
+        if max_speed is None:
+            mouse = replace(mouse, max_speed=ADNS3080_MAX_SPEED)
+        if min_squal is None:
+            mouse = replace(mouse, min_squal=ADNS3080_MIN_SQUAL)
         if not r.has("report_hz"):
             # The downsampler sends one packet per K sensor polls of 1250 us (firmware/).
             mouse = replace(mouse, report_hz=1e6 / (source["serial"].k * 1250.0))
@@ -286,6 +318,21 @@ def _server(r: Reader) -> ServerConfig:
     )
     s.finish()
     return server
+
+
+def _robust(r: Reader) -> RobustConfig:
+    v = r.raw("robust")
+    if isinstance(v, bool):  # `robust: false` turns it off (for comparison)
+        return RobustConfig(enabled=v)
+    s = r.sub("robust", ("enabled", "false_alarm", "relative_noise", "readmit_s"))
+    robust = RobustConfig(
+        enabled=s.boolean("enabled", True),
+        false_alarm=s.number("false_alarm", 1e-4, within=(1e-12, 0.5)),
+        relative_noise=s.number("relative_noise", 0.05, within=(0.0, 1.0)),
+        readmit_s=s.number("readmit_s", 0.25, within=(0.0, 3600.0)),
+    )
+    s.finish()
+    return robust
 
 
 def _wheels(r: Reader) -> WheelsConfig:
@@ -374,6 +421,7 @@ def parse_config(
     ]
     server = (doc.attempt(_server, top) if top.has("server") else None) or ServerConfig()
     wheels = doc.attempt(_wheels, top) if top.has("wheels") else None
+    robust = (doc.attempt(_robust, top) if top.has("robust") else None) or RobustConfig()
     calibration = doc.attempt(top.string, "calibration")
     calibration_path = str(base_dir / calibration) if calibration else None
     doc.raise_problems()
@@ -405,6 +453,7 @@ def parse_config(
         wheels=wheels,
         calibration=calibration_path,
         path=path,
+        robust=robust,
     )
 
 

@@ -39,6 +39,9 @@ def _batch(t):
         ok=np.ones(n, bool),
         residual=np.zeros((n, 1, 2)),
         counts=np.zeros((n, 1, 2)),
+        state=np.zeros((n, 1), np.int8),
+        reason=np.zeros((n, 1), np.int8),
+        consistent=np.ones(n, bool),
     )
 
 

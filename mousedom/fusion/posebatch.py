@@ -31,9 +31,12 @@ class PoseRow(NamedTuple):
     ok: bool
     residual: list[list[float]]  # N x 2
     counts: list[list[float]] | list[tuple[float, float]]  # N x 2
+    state: tuple[int, ...] | list[int]  # per mouse: robust.STATES index after the window
+    reason: tuple[int, ...] | list[int]  # per mouse: robust.REASONS index
+    consistent: bool  # False: the mice disagreed and nobody could be blamed
 
 
-_DTYPES = {"used": int, "ok": bool}
+_DTYPES = {"used": int, "ok": bool, "state": np.int8, "reason": np.int8, "consistent": bool}
 
 
 @dataclass
@@ -52,6 +55,9 @@ class PoseBatch:
     ok: np.ndarray  # False: the live mice could not determine the motion; pose held
     residual: np.ndarray  # (n,N,2) metres, body frame: d - A q
     counts: np.ndarray  # (n,N,2) counts (REL_X, REL_Y) that fell into the window
+    state: np.ndarray  # (n,N) int8: each mouse's health after the window (robust.STATES)
+    reason: np.ndarray  # (n,N) int8: why, for suspect and excluded mice (robust.REASONS)
+    consistent: np.ndarray  # (n,) bool: False where the mice disagreed, nobody blamed
 
     @classmethod
     def from_rows(cls, rows: list[PoseRow]) -> PoseBatch:
@@ -89,6 +95,8 @@ class PoseBatch:
             t=z, x=z, y=z, theta=z, vx=z, vy=z, omega=z,
             cov=np.zeros((0, 3, 3)), used=np.zeros(0, dtype=int), ok=np.zeros(0, dtype=bool),
             residual=np.zeros((0, n_mice, 2)), counts=np.zeros((0, n_mice, 2)),
+            state=np.zeros((0, n_mice), dtype=np.int8),
+            reason=np.zeros((0, n_mice), dtype=np.int8), consistent=np.zeros(0, dtype=bool),
         )  # fmt: skip
 
     @classmethod

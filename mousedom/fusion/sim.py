@@ -10,6 +10,12 @@ Sensors behave as real ones do: they report at their own rate and phase, only wh
 moved; counts are whole and the sub-count remainder carries over to the next report;
 noise (optional) perturbs each report's increment; during spans of lost tracking (the
 sensor lifted off the floor) motion is not seen at all.
+
+Faults a real floor causes can be put on any mouse (issue 16): ``lost`` spans (lifted:
+silent, or reporting only ``lift_noise``), ``scale`` spans (a glossy patch: it under-reads
+by a factor), ``jumps`` (a seam: a burst of counts added to one report), ``max_speed`` (it
+saturates: the sensor never reads faster than that), and ``stamp_delay`` (reports stamped
+on arrival, up to that many seconds after the sensor's sample, as over USB).
 """
 
 from __future__ import annotations
@@ -160,6 +166,11 @@ class SimMouse:
     lost: tuple[tuple[float, float], ...] = ()  # spans of lost tracking [from, to)
     flip: bool = False
     quantize: bool = True  # False: exact float counts (for exactness tests)
+    lift_noise: float = 0.0  # std of counts per report while lost (a lifted sensor's speckle)
+    scale: tuple[tuple[float, float, float], ...] = ()  # (from, to, factor): under-reads
+    jumps: tuple[tuple[float, float, float], ...] = ()  # (t, REL_X, REL_Y) counts added
+    max_speed: float | None = None  # m/s the sensor can track; faster motion reads as this
+    stamp_delay: float = 0.0  # reports stamped up to this many seconds late (uniform)
 
     def counts_per_body_metre(self) -> np.ndarray:
         """2x2 matrix: body-frame metres of sensor motion -> (REL_X, REL_Y) counts."""
@@ -257,9 +268,14 @@ def _sensor_cumulative(mouse: SimMouse, motion: Motion, t: np.ndarray) -> np.nda
     """Exact cumulative (REL_X, REL_Y) counts, unrounded, of ``mouse`` at times t (n,2)."""
     k_matrix = mouse.counts_per_body_metre()
     # Count rates per segment (constant within a segment) and cumulative at the starts.
-    rates = np.array(
-        [k_matrix @ (s.vx - s.omega * mouse.y, s.vy + s.omega * mouse.x) for s in motion.segments]
+    velocity = np.array(
+        [(s.vx - s.omega * mouse.y, s.vy + s.omega * mouse.x) for s in motion.segments]
     ).reshape(-1, 2)
+    if mouse.max_speed is not None:  # saturation: the sensor reads at most max_speed
+        speed = np.hypot(velocity[:, 0], velocity[:, 1])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            velocity = velocity * np.minimum(1.0, mouse.max_speed / speed)[:, None]
+    rates = velocity @ k_matrix.T
     durations = np.diff(motion.starts)
     at_starts = np.vstack([np.zeros(2), np.cumsum(rates * durations[:, None], axis=0)])
 
@@ -270,8 +286,9 @@ def _sensor_cumulative(mouse: SimMouse, motion: Motion, t: np.ndarray) -> np.nda
         return at_starts[k] + rates[k] * (times - motion.starts[k])[:, None]
 
     c = cumulative(t)
-    for a, b in mouse.lost:  # motion during a lost span is never seen
-        c = c - (cumulative(np.clip(t, a, b)) - cumulative(np.full_like(t, a)))
+    spans = [(a, b, 0.0) for a, b in mouse.lost] + list(mouse.scale)
+    for a, b, factor in spans:  # motion during a lost span is never seen, under-read partly
+        c = c - (1.0 - factor) * (cumulative(np.clip(t, a, b)) - cumulative(np.full_like(t, a)))
     return c
 
 
@@ -293,6 +310,15 @@ def simulate(
         moving = np.any(np.abs(inc) > 1e-12, axis=1)
         if mouse.noise > 0:
             inc = inc + moving[:, None] * rng.normal(0.0, mouse.noise, inc.shape)
+        if mouse.lift_noise > 0:
+            lifted = np.zeros(len(slots), dtype=bool)
+            for a, b in mouse.lost:
+                lifted |= (slots >= a) & (slots < b)
+            inc = inc + lifted[:, None] * rng.normal(0.0, mouse.lift_noise, inc.shape)
+        for tj, jx, jy in mouse.jumps:
+            k = int(np.searchsorted(slots, tj))
+            if k < len(slots):
+                inc[k] += (jx, jy)
         seen = np.cumsum(inc, axis=0)
         if mouse.quantize:
             # The sensor reports whole counts and keeps the remainder for later.
@@ -301,9 +327,12 @@ def simulate(
         else:
             counts = inc
         keep = np.any(counts != 0, axis=1)
-        result.reports[mouse.name] = SimReports(
-            t=slots[keep], dx=counts[keep, 0], dy=counts[keep, 1]
-        )
+        stamps = slots[keep]
+        if mouse.stamp_delay > 0:  # arrival stamps: late by a random delay, never reordered
+            stamps = np.maximum.accumulate(
+                stamps + rng.uniform(0.0, mouse.stamp_delay, len(stamps))
+            )
+        result.reports[mouse.name] = SimReports(t=stamps, dx=counts[keep, 0], dy=counts[keep, 1])
     return result
 
 

@@ -26,7 +26,7 @@ import math
 import numpy as np
 
 from mousedom.config import Config
-from mousedom.fusion import integrate, models, onewindow
+from mousedom.fusion import integrate, models, onewindow, robust
 from mousedom.fusion.countfunction import CountFunction
 from mousedom.fusion.covariance import CovarianceState, propagate, world_step_noise
 from mousedom.fusion.geometry import rank_problem
@@ -72,6 +72,15 @@ class Tracker:
         self._cov = [[0.0] * 3 for _ in range(3)]
         self._cov_at = [0.0, 0.0]
         self.counts_out = np.zeros((self.n_mice, 2))
+        self.screen = None
+        if config.robust.enabled and self.n_mice:
+            self.screen = robust.Screen(
+                self.model, self._positions, self._sigma,
+                np.array([1.0 / m.report_hz for m in config.mice]), self.period,
+                config.robust,
+                np.array([m.max_speed or math.inf for m in config.mice]),
+            )  # fmt: skip
+        self._fast_state = {}  # live pattern -> the steady state row (tracking / missing)
 
     # ------------------------------------------------------------------ inputs
 
@@ -366,6 +375,7 @@ class Tracker:
     def _solve(self, t_end: np.ndarray, counts: np.ndarray, mask: np.ndarray) -> PoseBatch:
         d = np.einsum("nij,knj->kni", self._to_body, counts) if self.n_mice else counts
         sol = models.solve(self.model, d, self._positions, self._sigma, mask)
+        sol, health, reason, consistent = self._screened(d, mask, sol)
         q = np.where(sol.ok[:, None], sol.q, 0.0)
         steps = integrate.body_step(q, self.integrator)
         poses = integrate.compose(np.array(self._pose), steps)
@@ -389,7 +399,34 @@ class Tracker:
             ok=sol.ok,
             residual=sol.residual,
             counts=counts,
+            state=health,
+            reason=reason,
+            consistent=consistent,
         )
+
+    def _screened(self, d: np.ndarray, mask: np.ndarray, sol: models.Solution):
+        """The fault-tolerant screen over an array of windows (mousedom.fusion.robust):
+        the solution re-solved without the mice it excluded, with the covariance of
+        unattributed inconsistent windows inflated, and each mouse's health per window."""
+        n = len(mask)
+        if self.screen is None:
+            state = np.where(mask, robust.TRACKING, robust.MISSING).astype(np.int8)
+            return sol, state, np.zeros_like(state), np.ones(n, dtype=bool)
+        q = np.where(sol.ok[:, None], sol.q, 0.0)
+        used, inflate, consistent, state, reason = self.screen.batch(d, mask, q)
+        changed = np.flatnonzero(np.any(used != mask, axis=1))
+        if len(changed) or np.any(inflate != 1.0):
+            q, cov, res = sol.q.copy(), sol.cov.copy(), sol.residual.copy()
+            n_used, ok = sol.used.copy(), sol.ok.copy()
+            if len(changed):
+                sub = models.solve(
+                    self.model, d[changed], self._positions, self._sigma, used[changed]
+                )
+                q[changed], cov[changed], res[changed] = sub.q, sub.cov, sub.residual
+                n_used[changed], ok[changed] = sub.used, sub.ok
+            cov *= inflate[:, None, None]
+            sol = models.Solution(q=q, cov=cov, residual=res, used=n_used, ok=ok)
+        return sol, state, reason, consistent
 
     def _linear_plan(self, live: tuple[bool, ...]) -> tuple:
         """What _solve_one needs per pattern of live mice, as Python floats: (A rows, B rows,
@@ -416,6 +453,44 @@ class Tracker:
         self, t_end: float, counts: list[tuple[float, float]], live: tuple[bool, ...]
     ) -> PoseBatch:
         """_solve for one window of a linear model (see mousedom.fusion.onewindow)."""
+        q, residual, idx, c3, ok = self._linear_one(counts, live)
+        state, reason, consistent = self._fast_state.get(live), None, True
+        screen = self.screen
+        if screen is not None:
+            d_all = onewindow.body_counts(self._to_body_rows, counts, range(self.n_mice))
+            d_pairs = [d_all[2 * i : 2 * i + 2] for i in range(self.n_mice)]
+            if not screen.fast_one(d_pairs, q, live, False):
+                dec = screen.decide(np.array(d_pairs), np.array(live, dtype=bool))
+                used = tuple(dec.used.tolist())
+                if used != live:
+                    q, residual, idx, c3, ok = self._linear_one(counts, used)
+                if dec.inflate != 1.0:
+                    c3 = [[v * dec.inflate for v in row] for row in c3]
+                consistent = dec.consistent
+                state = None
+            if state is None:
+                state = tuple(h.state for h in screen.health)
+                reason = tuple(h.reason for h in screen.health)
+        if state is None or reason is None:
+            state = state or tuple(robust.TRACKING if v else robust.MISSING for v in live)
+            if screen is not None and live == screen.steady():
+                self._fast_state[live] = state
+            reason = (0,) * self.n_mice
+        ux, uy, a = q
+        sx, sy = onewindow.body_step(ux, uy, a, self.integrator)
+        x0, y0, th0 = self._pose
+        cb, sb = math.cos(th0), math.sin(th0)
+        x, y, th = x0 + (cb * sx - sb * sy), y0 + (sb * sx + cb * sy), th0 + a
+        g = onewindow.noise(th0, ux, uy, a, c3)
+        cov = onewindow.propagate(self._cov, self._cov_at, (x, y), g)
+        self._pose, self._cov, self._cov_at = [x, y, th], cov, [x, y]
+        rate = self._rate
+        pose = PoseRow(t_end, x, y, th, ux * rate, uy * rate, a * rate, cov, len(idx), ok,
+                    residual, counts, state, reason, consistent)  # fmt: skip
+        return PoseBatch.from_rows([pose])
+
+    def _linear_one(self, counts: list, live: tuple[bool, ...]):
+        """(q, residual per mouse, used indices, q covariance, ok) of one window."""
         a_rows, b_rows, idx, c3, cols = self._linear_plan(live)
         residual = [[0.0, 0.0] for _ in range(self.n_mice)]
         q = [0.0, 0.0, 0.0]
@@ -427,15 +502,4 @@ class Tracker:
                 q[c] = v
             for k, i in enumerate(idx):
                 residual[i] = res[2 * k : 2 * k + 2]
-        ux, uy, a = q
-        sx, sy = onewindow.body_step(ux, uy, a, self.integrator)
-        x0, y0, th0 = self._pose
-        cb, sb = math.cos(th0), math.sin(th0)
-        x, y, th = x0 + (cb * sx - sb * sy), y0 + (sb * sx + cb * sy), th0 + a
-        g = onewindow.noise(th0, ux, uy, a, c3)
-        cov = onewindow.propagate(self._cov, self._cov_at, (x, y), g)
-        self._pose, self._cov, self._cov_at = [x, y, th], cov, [x, y]
-        rate = self._rate
-        pose = PoseRow(t_end, x, y, th, ux * rate, uy * rate, a * rate, cov, len(idx), ok,
-                    residual, counts)  # fmt: skip
-        return PoseBatch.from_rows([pose])
+        return q, residual, idx, c3, ok
