@@ -6,24 +6,21 @@ fast turn saturates one: each is a reading that no rigid motion of the rig expla
 together with the others.  Per window (docs/models.md, "Faults"):
 
 1. The live mice's readings d are solved as today (weighted least squares, W = sigma^-2),
-   and their residuals are normalised by each mouse's expected error over the window,
-       s_i^2 = sigma_i^2 + (rho max(|d_i|, |p_i|))^2 + (g_i |p_i - p_i'|)^2,
-   where p_i is the solution's prediction of the mouse's displacement (p_i' the previous
-   window's), rho the relative reading error (CPI error, stamp jitter: ``relative_noise``)
-   and g_i = min(1, P_i / T) / 4 for a mouse reporting every P_i into windows of T: a
-   report that straddles a window edge is split in proportion to time, which is wrong by up
-   to a quarter of the change of motion within it.  The s_i are taken from the solution
-   with every candidate mouse and kept while mice are left out in turn, so that a faulty
-   mouse cannot widen its own tolerance by moving the solution.
+   and their residuals are normalised by each mouse's expected error over the window, s_i
+   (``noisemodel``: a floor, a part in proportion to motion and one for report splitting,
+   each scaled by what the mouse's own residuals have shown).  The s_i are taken from the
+   solution with every candidate mouse and kept while mice are left out in turn, so that a
+   faulty mouse cannot widen its own tolerance by moving the solution.
 2. T = min_q sum_i |d_i - A_i q|^2 / s_i^2 is chi-square with 2L - k degrees of freedom on
    a healthy rig of L mice and k unknowns, whatever the layout.  Above its (1 - alpha)
    quantile (``false_alarm`` alpha, 1e-4 by default) the window is inconsistent.
 3. Then each mouse (then each pair) is left out in turn, where the rest still determine the
    model with at least one redundant reading; if exactly one choice makes the rest
    consistent, those mice are excluded.  Where several do (the geometry cannot tell, e.g.
-   mice on one line), a mouse that is silent while the others say it moved is the one;
-   otherwise nobody is blamed: the window keeps all mice, its covariance is multiplied by
-   T / dof, and the mice become ``suspect``.
+   mice on one line), the one that keeps the rig's motion continuous is, or else a mouse
+   that is silent while the others say it moved (``_tie_break``); otherwise nobody is
+   blamed: the window keeps all mice, its covariance is multiplied by T / dof, and the mice
+   become ``suspect``.
 4. An excluded mouse is re-admitted after ``readmit_s`` of windows in which it agreed with
    the others while they moved enough to have shown the fault.
 
@@ -33,8 +30,8 @@ sensor's overflow flag ("low quality"), a reading or a prediction beyond ``max_s
 to change a window already published, so the daemon and replay give the same poses.
 
 The common case (every mouse tracking, the window consistent) is decided by ``fast_one`` on
-Python floats (the daemon) or ``batch`` for whole arrays (replay); only windows where
-something happens take ``decide``, the one exact path both share.
+Python floats (the daemon) or ``screenbatch.screen`` for whole arrays (replay); only
+windows where something happens take ``decide``, the one exact path both share.
 """
 
 from __future__ import annotations
@@ -46,15 +43,12 @@ import numpy as np
 
 from mousedom.config import RobustConfig
 from mousedom.fusion import chi2, models
+from mousedom.fusion.noisemodel import NoiseModel
 
 TRACKING, SUSPECT, EXCLUDED, MISSING = 0, 1, 2, 3
 STATES = ("tracking", "suspect", "excluded", "missing")
 NONE, INCONSISTENT, SILENT, SATURATED, LOW_QUALITY = 0, 1, 2, 3, 4
 REASONS = ("", "inconsistent", "silent while others move", "saturated", "low quality")
-
-# A SQUAL at this value or above leaves the noise as configured; below it (and above the
-# gate) the expected error grows as 1/sqrt(SQUAL): fewer features, a noisier correlation.
-SQUAL_FULL = 30
 
 # How much smoother than the next one the winning explanation's motion must be (tie_break).
 _CONTINUITY_MARGIN = 10.0
@@ -89,38 +83,32 @@ class Screen:
         settings: RobustConfig,
         max_speed: np.ndarray | None = None,
     ) -> None:
-        self.settings = settings
         self.n = len(positions)
         self.positions = np.asarray(positions, dtype=float)
         self.sigma = np.asarray(sigma, dtype=float)
         self.cols = (0, 2) if model == "diff-drive" else (0, 1, 2)
         self.k = len(self.cols)
         self.alpha = settings.false_alarm
-        self.rho2 = settings.relative_noise**2
-        periods = np.asarray(report_periods, dtype=float)
-        self.gran2 = (0.25 * np.minimum(1.0, periods / window)) ** 2
+        self.noise = NoiseModel(self.sigma, settings.relative_noise, report_periods, window)
         speed = np.full(self.n, np.inf) if max_speed is None else np.asarray(max_speed, float)
         self.max_step2 = (speed * window) ** 2  # inf: no limit
         self.readmit = max(1, math.ceil(settings.readmit_s / window - 1e-9))
         self.health = [MouseHealth() for _ in range(self.n)]
-        self.prev_d = np.zeros((self.n, 2))
-        self.prev_p = np.zeros((self.n, 2))
+        self.prev_p = np.zeros((self.n, 2))  # the previous window's predictions
+        self._thresholds = [math.inf] + [self.threshold(k) for k in range(1, 2 * self.n + 1)]
+        self._leverages: dict[bytes, np.ndarray] = {}
         # Python copies for fast_one
         self._xy = self.positions.tolist()
-        self._sig2 = (self.sigma**2).tolist()
-        self._gran2 = self.gran2.tolist()
         self._max2 = self.max_step2.tolist()
-        self._prev = [[0.0, 0.0, 0.0, 0.0] for _ in range(self.n)]  # dx, dy, px, py
+        self._prev = [[0.0, 0.0] for _ in range(self.n)]
 
-    # ----------------------------------------------------------------- thresholds
+    # ----------------------------------------------------------------- basics
 
     def threshold(self, dof: int) -> float:
         return chi2.quantile(1.0 - self.alpha, dof)
 
     def dof(self, n_used: int) -> int:
         return 2 * n_used - self.k
-
-    # ----------------------------------------------------------------- common case
 
     def steady(self) -> tuple[bool, ...] | None:
         """The live pattern under which the common case applies (every tracking mouse
@@ -135,6 +123,35 @@ class Screen:
                 return None
         return tuple(out)
 
+    def leverage(self, used: np.ndarray) -> np.ndarray:
+        """(N,) trace of each used mouse's 2x2 block of the hat matrix A B (0 if unused)."""
+        key = np.asarray(used, dtype=bool).tobytes()
+        h = self._leverages.get(key)
+        if h is None:
+            h = np.zeros(self.n)
+            used = np.frombuffer(key, dtype=bool)
+            est = None
+            if used.any():
+                est = models._estimator(
+                    self.positions.tobytes(), self.sigma.tobytes(), key, self.cols
+                )
+            if est is not None:
+                diag = np.diag(est[0] @ est[1])
+                h[used] = diag[0::2] + diag[1::2]
+            self._leverages[key] = h
+        return h
+
+    def _set_prev(self, p: np.ndarray) -> None:
+        self.prev_p = np.array(p, dtype=float)
+        self._prev = self.prev_p.tolist()
+
+    def _count_window(self) -> None:
+        self.noise.seen += 1
+        if self.noise.seen >= self.noise.block:
+            self.noise.end_block()
+
+    # ----------------------------------------------------------------- common case
+
     def fast_one(
         self, d: list[list[float]], q: list[float], live: tuple[bool, ...], evidence: bool
     ) -> bool:
@@ -144,41 +161,47 @@ class Screen:
         if evidence or live != self.steady():
             return False
         ux, uy, a = q
+        nm = self.noise
+        terms = []
         total = 0.0
-        n_used = 0
         for i, (x, y) in enumerate(self._xy):
+            if not live[i]:
+                continue
             px, py = ux - a * y, uy + a * x
             dx, dy = d[i]
-            prev = self._prev[i]
-            if live[i]:
-                m2 = max(dx * dx + dy * dy, px * px + py * py)
-                if m2 >= self._max2[i]:
-                    return False  # saturated: decide
-                fx, fy = px - prev[2], py - prev[3]
-                s2 = self._sig2[i] + self.rho2 * m2 + self._gran2[i] * (fx * fx + fy * fy)
-                rx, ry = dx - px, dy - py
-                total += (rx * rx + ry * ry) / s2
-                n_used += 1
-        dof = 2 * n_used - self.k
-        if dof > 0 and total > self.threshold(dof):
+            m2 = max(dx * dx + dy * dy, px * px + py * py)
+            if m2 >= self._max2[i]:
+                return False  # saturated: decide
+            fx, fy = px - self._prev[i][0], py - self._prev[i][1]
+            floor = nm.f_floor[i]
+            prop = nm.f_rho2[i] * m2 + nm.f_gran2[i] * (fx * fx + fy * fy)
+            rx, ry = dx - px, dy - py
+            r2 = rx * rx + ry * ry
+            total += r2 / (floor + prop)
+            terms.append((i, r2, floor, prop, m2))
+        dof = 2 * len(terms) - self.k
+        if dof > 0 and total > self._thresholds[dof]:
             return False
-        for i, (x, y) in enumerate(self._xy):
-            self._prev[i] = [d[i][0], d[i][1], ux - a * y, uy + a * x]
+        if dof > 0:
+            h = self.leverage(np.array(live, dtype=bool))
+            for i, r2, floor, prop, m2 in terms:
+                if m2 > nm.sig2[i]:
+                    nm.sample(i, r2, floor, prop, h[i])
+        self._prev = [[ux - a * y, uy + a * x] for x, y in self._xy]
+        self.prev_p = np.array(self._prev)
+        self._count_window()
         return True
-
-    def _sync_prev_from_floats(self) -> None:
-        arr = np.array(self._prev)
-        self.prev_d, self.prev_p = arr[:, :2].copy(), arr[:, 2:].copy()
-
-    def _sync_prev_to_floats(self) -> None:
-        self._prev = np.concatenate([self.prev_d, self.prev_p], axis=1).tolist()
 
     # ----------------------------------------------------------------- the exact path
 
-    def _predict(self, q: np.ndarray) -> np.ndarray:
-        """Each mouse's displacement (N, 2) under the body twist increment q."""
+    def predict(self, q: np.ndarray) -> np.ndarray:
+        """Each mouse's displacement (..., N, 2) under body twist increments q (..., 3)."""
+        q = np.asarray(q, dtype=float)
         x, y = self.positions[:, 0], self.positions[:, 1]
-        return np.stack([q[0] - q[2] * y, q[1] + q[2] * x], axis=1)
+        return np.stack(
+            [q[..., None, 0] - q[..., None, 2] * y, q[..., None, 1] + q[..., None, 2] * x],
+            axis=-1,
+        )
 
     def _solve(self, d: np.ndarray, used: np.ndarray) -> np.ndarray | None:
         """q (3,) by the configured weights on the ``used`` mice; None without rank."""
@@ -192,11 +215,6 @@ class Screen:
         q = np.zeros(3)
         q[list(self.cols)] = est[1] @ d[used].reshape(-1)
         return q
-
-    def _s2(self, d: np.ndarray, p: np.ndarray, squal_scale: np.ndarray) -> np.ndarray:
-        m2 = np.maximum(np.sum(d * d, axis=1), np.sum(p * p, axis=1))
-        a2 = np.sum((p - self.prev_p) ** 2, axis=1)
-        return self.sigma**2 * squal_scale + self.rho2 * m2 + self.gran2 * a2
 
     def _statistic(self, d: np.ndarray, used: np.ndarray, s2: np.ndarray):
         """(T, dof, q) for the ``used`` mice, or None without rank: T is the minimum over
@@ -221,7 +239,7 @@ class Screen:
         return float(r @ r), dof, q
 
     def _passes(self, stat) -> bool:
-        return stat is not None and stat[1] > 0 and stat[0] <= self.threshold(stat[1])
+        return stat is not None and stat[1] > 0 and stat[0] <= self._thresholds[stat[1]]
 
     def decide(
         self,
@@ -236,17 +254,15 @@ class Screen:
         live = np.asarray(live, dtype=bool)
         scale = np.ones(n) if squal_scale is None else np.asarray(squal_scale, dtype=float)
         lowq = np.zeros(n, dtype=bool) if low_quality is None else np.asarray(low_quality)
-        health = self.health
-        excluded = np.array([h.state == EXCLUDED for h in health])
+        excluded = np.array([h.state == EXCLUDED for h in self.health])
         used = live & ~excluded
         if self._solve(d, used) is None:
             used = live.copy()  # the healthy ones alone cannot: the excluded must serve
         q = self._solve(d, used)
-        p = self._predict(q) if q is not None else np.zeros((n, 2))
+        p = self.predict(q) if q is not None else np.zeros((n, 2))
         # Sensor evidence first.
-        d2, p2 = np.sum(d * d, axis=1), np.sum(p * p, axis=1)
         gate = np.zeros(n, dtype=int)
-        gate[live & (np.maximum(d2, p2) >= self.max_step2)] = SATURATED
+        gate[live & (np.maximum(np.sum(d * d, 1), np.sum(p * p, 1)) >= self.max_step2)] = SATURATED
         gate[live & lowq] = LOW_QUALITY
         gated = used & (gate > 0)
         suspect = np.zeros(n, dtype=bool)
@@ -257,9 +273,10 @@ class Screen:
             else:
                 suspect |= gated  # cannot do without it: used, but flagged
             q = self._solve(d, used)
-            p = self._predict(q) if q is not None else p
+            p = self.predict(q) if q is not None else p
+        floor, prop = self.noise.parts(d, p, self.prev_p)
+        s2 = floor * scale + prop
         inflate, consistent = 1.0, True
-        s2 = self._s2(d, p, scale)
         stat = self._statistic(d, used, s2)
         if stat is not None and stat[1] > 0 and not self._passes(stat):
             blamed = self._identify(d, used, s2)
@@ -269,15 +286,22 @@ class Screen:
                 used = used.copy()
                 used[list(blamed)] = False
                 q = self._solve(d, used)
-                p = self._predict(q)
+                p = self.predict(q)
             else:
                 consistent = False
                 inflate = stat[0] / stat[1]
                 suspect |= used
                 reason[used & (reason == NONE)] = INCONSISTENT
-        self._update(d, p, live, used, suspect, reason, consistent, scale)
-        self.prev_d, self.prev_p = d.copy(), p
-        self._sync_prev_to_floats()
+        floor, prop = self.noise.parts(d, p, self.prev_p)
+        self._update(d, p, live, used, suspect, reason, consistent, floor * scale, prop)
+        if consistent and self.dof(int(used.sum())) > 0:
+            r2 = np.sum((d - p) ** 2, axis=1)
+            moving = np.maximum(np.sum(d * d, 1), np.sum(p * p, 1)) > self.noise.sig2
+            h = self.leverage(used)
+            for i in np.flatnonzero(used & moving & ~suspect):
+                self.noise.sample(int(i), float(r2[i]), float(floor[i]), float(prop[i]), h[i])
+        self._set_prev(p)
+        self._count_window()
         return Decision(used=used, inflate=inflate, consistent=consistent)
 
     def _identify(self, d: np.ndarray, used: np.ndarray, s2: np.ndarray):
@@ -307,34 +331,30 @@ class Screen:
 
     def _tie_break(self, d: np.ndarray, passing: list, s2: np.ndarray):
         """Several exclusions explain the window (the geometry cannot tell the fault's
-        direction apart): the physical priors decide, or nobody is blamed.  First a mouse
-        that is silent while the rest say it moved (a lift); then continuity of motion: a
-        robot does not change its motion by a multiple of its tolerance between two
-        windows, a glitching sensor does, so the explanation whose motion is by far the
-        closest to the previous window's wins."""
-        thr2 = self.threshold(2)
+        direction apart): physical priors decide, or nobody is blamed.  First continuity
+        of motion: a robot does not change its motion by a multiple of its tolerance from
+        one window to the next, a glitching sensor does, so an explanation whose motion is
+        by far the closest to the previous window's wins.  Then a mouse that is silent
+        while the rest say it moved (a lift)."""
+        thr2 = self._thresholds[2]
         silent = []
         change = []
         for combo, stat in passing:
-            p = self._predict(stat[2])
+            p = self.predict(stat[2])
             if all(not d[j].any() and p[j] @ p[j] > thr2 * s2[j] for j in combo):
                 silent.append(combo)
             change.append((float(np.sum(np.sum((p - self.prev_p) ** 2, axis=1) / s2)), combo))
-        if len(silent) == 1:
-            return silent[0]
-        if silent:
-            return None
         change.sort(key=lambda c: c[0])
         if change[0][0] * _CONTINUITY_MARGIN < change[1][0]:
             return change[0][1]
-        return None
+        return silent[0] if len(silent) == 1 else None
 
-    def _update(self, d, p, live, used, suspect, reason, consistent, scale) -> None:
+    def _update(self, d, p, live, used, suspect, reason, consistent, floor, prop) -> None:
         """Health after the window: exclusions, suspicion, re-admission (module step 4)."""
-        s2 = self._s2(d, p, scale)
-        a2 = np.sum((p - self.prev_p) ** 2, axis=1)
-        floor2 = self.sigma**2 * scale + self.gran2 * a2  # the error not in proportion
-        thr2 = self.threshold(2)
+        s2 = floor + prop
+        m2 = np.maximum(np.sum(d * d, axis=1), np.sum(p * p, axis=1))
+        not_proportional = s2 - self.noise.lam_r * self.noise.rho2 * m2
+        thr2 = self._thresholds[2]
         for i, h in enumerate(self.health):
             if not live[i]:
                 h.state, h.reason, h.good = MISSING, NONE, 0
@@ -352,7 +372,7 @@ class Screen:
                 if r @ r > thr2 * s2[i]:
                     h.good = 0
                     h.reason = SILENT if not d[i].any() else INCONSISTENT
-                elif p[i] @ p[i] > 4.0 * thr2 * floor2[i]:
+                elif p[i] @ p[i] > 4.0 * thr2 * not_proportional[i]:
                     h.good += 1
                     if h.good >= self.readmit:
                         h.state, h.reason, h.good = TRACKING, NONE, 0
@@ -365,91 +385,6 @@ class Screen:
                 h.good += 1
                 if h.good >= self.readmit:
                     h.state, h.reason, h.good = TRACKING, NONE, 0
-
-    # ----------------------------------------------------------------- arrays (replay)
-
-    def batch(
-        self,
-        d: np.ndarray,
-        mask: np.ndarray,
-        q: np.ndarray,
-        squal_scale: np.ndarray | None = None,
-        low_quality: np.ndarray | None = None,
-    ):
-        """``decide`` for consecutive windows, fast where nothing happens.
-
-        d: (n, N, 2) readings; mask: (n, N) live mice; q: (n, 3) today's solution with that
-        mask.  Returns (used (n, N), inflate (n,), consistent (n,), state (n, N),
-        reason (n, N)).
-        """
-        n, nm = mask.shape
-        used = mask.copy()
-        inflate = np.ones(n)
-        consistent = np.ones(n, dtype=bool)
-        state = np.where(mask, TRACKING, MISSING).astype(np.int8)
-        reason = np.zeros((n, nm), dtype=np.int8)
-        if n == 0:
-            return used, inflate, consistent, state, reason
-        p = (
-            q[:, None, :2]
-            + q[:, None, 2:3]
-            * np.stack([-self.positions[:, 1], self.positions[:, 0]], axis=1)[None]
-        )
-        fast = self._fast_rows(d, p, mask, squal_scale, low_quality)
-        codes = mask.astype(np.int64) @ (np.int64(1) << np.arange(nm, dtype=np.int64))
-        bad = np.flatnonzero(~fast)
-        changes = np.flatnonzero(codes[1:] != codes[:-1]) + 1
-        self._sync_prev_from_floats()
-        i = 0
-        prev_altered = False
-        while i < n:
-            steady = self.steady()
-            if steady is not None and not prev_altered:
-                code = sum(1 << k for k, v in enumerate(steady) if v)
-                if codes[i] == code:
-                    j = min(_next(bad, i, n), _next(changes, i + 1, n))
-                    if j > i:
-                        self.prev_d, self.prev_p = d[j - 1].copy(), p[j - 1].copy()
-                        i = j
-                        continue
-            sq = None if squal_scale is None else squal_scale[i]
-            lq = None if low_quality is None else low_quality[i]
-            dec = self.decide(d[i], mask[i], sq, lq)
-            used[i] = dec.used
-            inflate[i] = dec.inflate
-            consistent[i] = dec.consistent
-            state[i] = [h.state for h in self.health]
-            reason[i] = [h.reason for h in self.health]
-            # the next window's changes are from this one's own solution: decide them too
-            prev_altered = not np.array_equal(dec.used, mask[i])
-            i += 1
-        self._sync_prev_to_floats()
-        return used, inflate, consistent, state, reason
-
-    def _fast_rows(self, d, p, mask, squal_scale, low_quality) -> np.ndarray:
-        """The common case's test for every row at once, with the previous row taken as
-        the unaltered one (``batch`` sends a row after an altered one to ``decide``)."""
-        prev_p = np.concatenate([self.prev_p[None], p[:-1]])
-        d2, p2 = np.sum(d * d, axis=2), np.sum(p * p, axis=2)
-        m2 = np.maximum(d2, p2)
-        a2 = np.sum((p - prev_p) ** 2, axis=2)
-        s2 = self.sigma**2 + self.rho2 * m2 + self.gran2 * a2
-        r = d - p
-        t = np.sum(np.where(mask, np.sum(r * r, axis=2) / s2, 0.0), axis=1)
-        dof = 2 * mask.sum(axis=1) - self.k
-        thr = np.array([self.threshold(k) if k > 0 else np.inf for k in range(2 * self.n + 1)])
-        ok = (dof <= 0) | (t <= thr[np.maximum(dof, 0)])
-        ok &= ~np.any(mask & (m2 >= self.max_step2), axis=1)
-        if squal_scale is not None:
-            ok &= ~np.any(mask & (squal_scale != 1.0), axis=1)
-        if low_quality is not None:
-            ok &= ~np.any(mask & low_quality, axis=1)
-        return ok
-
-
-def _next(sorted_idx: np.ndarray, i: int, n: int) -> int:
-    k = int(np.searchsorted(sorted_idx, i))
-    return int(sorted_idx[k]) if k < len(sorted_idx) else n
 
 
 def _combinations(items: list[int], size: int):

@@ -26,7 +26,7 @@ import math
 import numpy as np
 
 from mousedom.config import Config
-from mousedom.fusion import integrate, models, onewindow, robust
+from mousedom.fusion import integrate, models, onewindow, robust, screenbatch
 from mousedom.fusion.countfunction import CountFunction
 from mousedom.fusion.covariance import CovarianceState, propagate, world_step_noise
 from mousedom.fusion.geometry import rank_problem
@@ -413,7 +413,7 @@ class Tracker:
             state = np.where(mask, robust.TRACKING, robust.MISSING).astype(np.int8)
             return sol, state, np.zeros_like(state), np.ones(n, dtype=bool)
         q = np.where(sol.ok[:, None], sol.q, 0.0)
-        used, inflate, consistent, state, reason = self.screen.batch(d, mask, q)
+        used, inflate, consistent, state, reason = screenbatch.screen(self.screen, d, mask, q)
         changed = np.flatnonzero(np.any(used != mask, axis=1))
         if len(changed) or np.any(inflate != 1.0):
             q, cov, res = sol.q.copy(), sol.cov.copy(), sol.residual.copy()

@@ -1,0 +1,121 @@
+"""Each mouse's expected reading error over a window, for the consistency test (``robust``).
+
+    s_i^2 = lf_i sigma_i^2 + lr_i ((rho max(|d_i|, |p_i|))^2 + (g_i |p_i - p_i'|)^2)
+
+- sigma_i: the config's ``sigma`` (counts per axis per window, in metres): the floor.
+- rho: ``robust.relative_noise``, the error in proportion to motion (CPI off by a few per
+  cent, arrival stamps jittering against a window of 10 ms).
+- g_i = min(1, P_i / T) / 4 for a mouse reporting every P_i into windows of T: a report that
+  straddles a window edge is split in proportion to time, which is wrong by up to a quarter
+  of the change of motion within it (p_i' is the previous window's prediction).
+- lf_i, lr_i >= 1: learned.  A config's sigma is a guess; a mouse at 1 kHz with noisy
+  reports, or a floor that makes one mouse read a few per cent off, would fail a test built
+  on the guess again and again.  So every ``block`` windows each factor is re-estimated from
+  that mouse's residuals in the windows it was used in, consistent and moving (its last
+  256 samples of each): the floor's from windows where the floor is at least a quarter of
+  the proportional part (that part subtracted), the proportional one's likewise.  For a
+  2-D residual of per-axis variance s^2 (1 - h/2) (h: the mouse's leverage, the trace of its
+  block of the hat matrix), |r|^2 / (s^2 (1 - h/2)) is chi-square with 2 degrees of freedom,
+  whose median is 2 ln 2; the factor is the blocks' median over that.  It grows at once and
+  shrinks by half-steps (geometric mean with the old one), and never goes below 1: the
+  config's sigma is the least error a mouse is granted.  The floor's factor starts at 100
+  (ten times the config's sigma) and comes down as the mouse shows it is quieter: starting
+  strict would exclude a noisy mouse in exactly the windows that would have taught the model
+  its noise, and with a generous floor those windows are plentiful (the floor then dominates
+  at all but high speeds).  Faults at speed are caught by the proportional part meanwhile.  A median over a block is not moved
+  by the few faulty windows that pass the test; windows that fail it, and excluded mice,
+  give no samples.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+_MEDIAN_CHI2_2 = 2.0 * math.log(2.0)
+_MIN_SAMPLES = 10
+_START_FLOOR = 100.0  # the floor's factor before anything is learnt (see the docstring)
+_KEEP = 256  # samples per factor and mouse the estimate is the median of
+_MAX_FACTOR = 1e4
+
+
+class NoiseModel:
+    def __init__(
+        self, sigma: np.ndarray, rho: float, report_periods: np.ndarray, window: float
+    ) -> None:
+        self.sig2 = np.asarray(sigma, dtype=float) ** 2
+        self.n = len(self.sig2)
+        self.rho2 = float(rho) ** 2
+        periods = np.asarray(report_periods, dtype=float)
+        self.gran2 = (0.25 * np.minimum(1.0, periods / window)) ** 2
+        self.block = max(20, math.ceil(0.5 / window - 1e-9))
+        self.lam_f = np.full(self.n, _START_FLOOR)
+        self.lam_r = np.ones(self.n)
+        self.seen = 0  # windows sampled in the current block
+        self._floor: list[list[float]] = [[] for _ in range(self.n)]
+        self._prop: list[list[float]] = [[] for _ in range(self.n)]
+        self._sync()
+
+    def _sync(self) -> None:
+        # Python copies for the one-window path
+        self.f_floor = (self.lam_f * self.sig2).tolist()
+        self.f_rho2 = (self.lam_r * self.rho2).tolist()
+        self.f_gran2 = (self.lam_r * self.gran2).tolist()
+
+    # ----------------------------------------------------------------- the variance
+
+    def parts(
+        self, d: np.ndarray, p: np.ndarray, prev_p: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(floor, proportional) parts of s^2 for readings d and predictions p (..., N, 2)."""
+        m2 = np.maximum(np.sum(d * d, axis=-1), np.sum(p * p, axis=-1))
+        a2 = np.sum((p - prev_p) ** 2, axis=-1)
+        floor = np.broadcast_to(self.lam_f * self.sig2, m2.shape)
+        return floor, self.lam_r * (self.rho2 * m2 + self.gran2 * a2)
+
+    def s2(self, d: np.ndarray, p: np.ndarray, prev_p: np.ndarray) -> np.ndarray:
+        floor, prop = self.parts(d, p, prev_p)
+        return floor + prop
+
+    # ----------------------------------------------------------------- learning
+
+    def sample(self, i: int, r2: float, floor: float, prop: float, h: float) -> None:
+        """One window's evidence from mouse i: squared residual r2, the two parts of its
+        current s^2 and its leverage h.  Each factor is estimated from windows where its
+        part is at least a quarter of the other, the other part taken as it stands."""
+        expected = _MEDIAN_CHI2_2 * (1.0 - 0.5 * h)
+        if expected <= 0:
+            return
+        v = r2 / expected
+        if 4.0 * floor >= prop:
+            self._floor[i].append((v - prop) / self.sig2[i])
+        if 4.0 * prop >= floor and prop > 0:
+            self._prop[i].append((v - floor) / (prop / self.lam_r[i]))
+
+    def sample_arrays(self, r2, floor, prop, h, eligible) -> None:
+        """``sample`` for (n, N) arrays, where ``eligible``."""
+        expected = _MEDIAN_CHI2_2 * (1.0 - 0.5 * h)
+        ok = eligible & (expected > 0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            v = r2 / expected
+            fl = (v - prop) / self.sig2
+            pr = (v - floor) / (prop / self.lam_r)
+        by_floor = ok & (4.0 * floor >= prop)
+        by_prop = ok & (4.0 * prop >= floor) & (prop > 0)
+        for i in range(self.n):
+            self._floor[i] += fl[by_floor[:, i], i].tolist()
+            self._prop[i] += pr[by_prop[:, i], i].tolist()
+
+    def end_block(self) -> None:
+        """Re-estimate the factors from the last samples (module docstring)."""
+        for lam, samples in ((self.lam_f, self._floor), (self.lam_r, self._prop)):
+            for i in range(self.n):
+                if len(samples[i]) > _KEEP:
+                    del samples[i][:-_KEEP]
+                if len(samples[i]) >= _MIN_SAMPLES:
+                    est = float(np.median(samples[i]))
+                    new = est if est > lam[i] else math.sqrt(lam[i] * max(est, 0.0))
+                    lam[i] = min(_MAX_FACTOR, max(1.0, new))
+        self.seen = 0
+        self._sync()
