@@ -64,6 +64,9 @@ class Pose:
     used: int
     updating: bool
     missing: tuple[str, ...]
+    excluded: tuple[str, ...] = ()  # left out by the fault-tolerant fusion (protocol 1.1)
+    suspect: tuple[str, ...] = ()
+    consistent: bool = True
 
     @classmethod
     def from_message(cls, m: dict[str, Any]) -> Pose:
@@ -84,6 +87,9 @@ class Pose:
             used=int(m["used"]),
             updating=bool(m["updating"]),
             missing=tuple(m.get("missing", ())),
+            excluded=tuple(m.get("excluded", ())),
+            suspect=tuple(m.get("suspect", ())),
+            consistent=bool(m.get("consistent", True)),
         )
 
 

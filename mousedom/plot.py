@@ -31,7 +31,8 @@ def require() -> None:
 
 
 # Columns the collector keeps per window: time, pose, the pose covariance's xy block, then
-# each mouse's |residual|.
+# each mouse's |residual|, then each mouse's health (fusion.robust.STATES index; where
+# rows are decimated, the worst state of the rows a kept one stands for).
 T, X, Y, THETA, CXX, CXY, CYY, RES = range(8)
 
 
@@ -50,16 +51,25 @@ class PlotCollector:
             return
         res = np.linalg.norm(b.residual, axis=2)  # (n, N) metres
         cov = b.cov
+        state = _worst(b.state)
         rows = np.column_stack(
-            [b.t, b.x, b.y, b.theta, cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1], res]
+            [b.t, b.x, b.y, b.theta, cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1], res, state]
         )
         self._last = rows[-1]  # the final pose is marked "end": never decimated away
-        rows = rows[self._skip :: self.step]
+        idx = np.arange(self._skip, len(b), self.step)
+        kept = rows[idx]
+        if len(idx) and self.step > 1:
+            nm = state.shape[1]
+            kept[:, kept.shape[1] - nm :] = np.maximum.reduceat(state, idx, axis=0)
         self._skip = (self._skip - len(b)) % self.step
-        self._parts.append(rows)
-        self._n += len(rows)
+        self._parts.append(kept)
+        self._n += len(kept)
         if self._n > MAX_POINTS:  # halve the resolution of what was kept and of what comes
-            data = np.concatenate(self._parts)[::2]
+            data = np.concatenate(self._parts)
+            nm = state.shape[1]
+            worst = np.maximum.reduceat(data[:, data.shape[1] - nm :], np.arange(0, len(data), 2))
+            data = data[::2]
+            data[:, data.shape[1] - nm :] = worst
             self._parts, self._n = [data], len(data)
             self.step *= 2
 
@@ -70,6 +80,13 @@ class PlotCollector:
         if data[-1, 0] != self._last[0]:
             data = np.vstack([data, self._last])
         return data
+
+
+def _worst(state: np.ndarray) -> np.ndarray:
+    """Health codes ordered by how bad they are for shading: excluded (2) above suspect
+    (1) above tracking (0); missing (3) is not the engine's verdict, shown as tracking."""
+    s = np.asarray(state, dtype=float)
+    return np.where(s == 3, 0.0, s)
 
 
 def redundancy(model: str, n_mice: int) -> int:
@@ -126,9 +143,12 @@ def figure(
         ax1.legend(loc="best")
     if residual:
         ax2 = axes[1]
+        health = data[:, RES + len(names) :]
         for i, name in enumerate(names):
             label = name if not rates or name not in rates else f"{name} ({rates[name]:.0f} Hz)"
-            ax2.plot(data[:, T], data[:, RES + i] * 1000.0, lw=0.8, label=label)
+            (curve,) = ax2.plot(data[:, T], data[:, RES + i] * 1000.0, lw=0.8, label=label)
+            if health.shape[1] == len(names):
+                _shade(ax2, data[:, T], health[:, i], curve.get_color(), name)
         ax2.set_xlabel("t (s)")
         ax2.set_ylabel("|residual| (mm per window)")
         ax2.set_title("per-mouse residual (rigidity check)")
@@ -142,6 +162,20 @@ def figure(
         fig.suptitle(title)
     fig.tight_layout()
     return fig
+
+
+def _shade(ax, t: np.ndarray, state: np.ndarray, color: str, name: str) -> None:
+    """Spans where the fault-tolerant fusion excluded the mouse (solid) or doubted it
+    (hatched), in the mouse's colour."""
+    for code, style in ((2, {"alpha": 0.18}), (1, {"alpha": 0.08, "hatch": "//"})):
+        on = state == code
+        if not on.any():
+            continue
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], on.astype(int), [0]])))
+        label = f"{name} {'excluded' if code == 2 else 'suspect'}"
+        for a, b in zip(edges[0::2], edges[1::2], strict=True):
+            ax.axvspan(t[a], t[min(b, len(t) - 1)], color=color, lw=0, label=label, **style)
+            label = None
 
 
 def _arrows(ax, data: np.ndarray, count: int = 12) -> None:

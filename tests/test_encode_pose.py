@@ -23,10 +23,17 @@ anyfloat = st.floats(allow_nan=True, allow_infinity=True)
     st.integers(0, 64),
     st.booleans(),
     st.lists(st.text(max_size=12), max_size=4),
+    st.lists(st.text(max_size=12), max_size=3),
+    st.lists(st.text(max_size=12), max_size=3),
+    st.booleans(),
 )
-def test_encode_pose_is_byte_identical(t, pose, twist, cov, used, updating, missing):
-    want = encode(pose_message(t, pose, twist, np.array(cov), used, updating, missing))
-    got = encode_pose(t, pose, twist, cov, used, updating, tuple(missing))
+def test_encode_pose_is_byte_identical(
+    t, pose, twist, cov, used, updating, missing, excluded, suspect, consistent
+):
+    health = (excluded, suspect, consistent)
+    want = encode(pose_message(t, pose, twist, np.array(cov), used, updating, missing, *health))
+    got = encode_pose(t, pose, twist, cov, used, updating, tuple(missing), tuple(excluded),
+                      tuple(suspect), consistent)  # fmt: skip
     assert got == want
     json.loads(got)  # and it is strict JSON
 
@@ -59,10 +66,12 @@ def test_every_field_lands_where_the_protocol_says():
     swapped row, column or field cannot pass (both encoders swapping the covariance's x
     and y rows once passed every test but one end-to-end check of cov[0][0])."""
     cov = [[1.0, 2.0, 3.0], [4.0, 5.0, 6.0], [7.0, 8.0, 9.0]]
+    health = (("front",), ("left",), False)
     for line in (
-        encode_pose(12.5, (0.1, 0.2, 0.3), (0.4, 0.5, 0.6), cov, 3, True, ("rear",)),
+        encode_pose(12.5, (0.1, 0.2, 0.3), (0.4, 0.5, 0.6), cov, 3, True, ("rear",), *health),
         encode(
-            pose_message(12.5, (0.1, 0.2, 0.3), (0.4, 0.5, 0.6), np.array(cov), 3, True, ["rear"])
+            pose_message(12.5, (0.1, 0.2, 0.3), (0.4, 0.5, 0.6), np.array(cov), 3, True,
+                         ["rear"], *health)
         ),  # fmt: skip
     ):
         msg = json.loads(line)
@@ -79,4 +88,7 @@ def test_every_field_lands_where_the_protocol_says():
             "used": 3,
             "updating": True,
             "missing": ["rear"],
+            "excluded": ["front"],
+            "suspect": ["left"],
+            "consistent": False,
         }

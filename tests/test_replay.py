@@ -97,13 +97,13 @@ def test_csv_to_stdout_last_row_holds_every_count(tmp_path):
     src = external_dir() / PS2
     proc = _ok(run_mousedom("replay", "--config", str(cfg), "--capture", f"m={src}", "-o", "-"))
     lines = proc.stdout.splitlines()
-    assert lines[0] == "t,x,y,theta,vx,vy,omega,used,ok"
+    assert lines[0] == "t,x,y,theta,vx,vy,omega,used,ok,consistent,state_m,reason_m"
     # In process: the windows' counts add up to the capture's net counts.
     config = parse_config(cfg.read_text(), str(cfg), need_sources=False)
     batches = []
     rp = Replay(config, assign(config, [("m", str(src))]))
     buf = io.StringIO()
-    sink = CsvSink(buf)
+    sink = CsvSink(buf, config.names)
     summary = rp.run(lambda b: (batches.append(b), sink(b)))
     counts = sum(b.counts.sum(axis=0) for b in batches)
     assert counts[0].tolist() == [-5424.0, -929.0]
@@ -465,7 +465,7 @@ def test_a_capture_without_motion_warns(tmp_path):
     src.write_text("E: 1.0 0001 0110 1\nE: 1.0 0000 0000 0\n")
     cfg = one_mouse_config(tmp_path)
     proc = _ok(run_mousedom("replay", "--config", str(cfg), "--capture", f"m={src}", "-o", "-"))
-    assert proc.stdout == "t,x,y,theta,vx,vy,omega,used,ok\n"
+    assert proc.stdout == "t,x,y,theta,vx,vy,omega,used,ok,consistent,state_m,reason_m\n"
     assert "no motion reports" in proc.stderr
 
 

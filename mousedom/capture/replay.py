@@ -26,8 +26,11 @@ from mousedom.capture.base import DeviceStats, lagging_first
 from mousedom.config import Config
 from mousedom.fusion.tracker import PoseBatch, Tracker
 
-CSV_COLUMNS = ("t", "x", "y", "theta", "vx", "vy", "omega", "used", "ok")
-_ROW = "%.6f,%.9f,%.9f,%.9f,%.6f,%.6f,%.6f,%d,%d"
+CSV_COLUMNS = ("t", "x", "y", "theta", "vx", "vy", "omega", "used", "ok", "consistent")
+_ROW = "%.6f,%.9f,%.9f,%.9f,%.6f,%.6f,%.6f,%d,%d,%d"
+# Then per mouse: state_<name> (fusion.robust.STATES: 0 tracking, 1 suspect, 2 excluded,
+# 3 missing) and reason_<name> (fusion.robust.REASONS: 0 none, 1 inconsistent, 2 silent
+# while others move, 3 saturated, 4 low quality), as numbers so the file stays numeric.
 
 
 # Serial packets are mapped from the firmware clock onto host time by a filter that may
@@ -265,6 +268,8 @@ class Replay:
                 if len(t):
                     for mouse in mice:
                         queue(mouse, t, dx, dy)
+                        if r.quality is not None:
+                            tracker.push_quality(mouse, *r.quality)
                     st.capture.stats[chunk.device].add_motion(t, dx, dy)
             if batch.complete > -math.inf:
                 st.watermark = batch.complete - st.offset
@@ -321,19 +326,30 @@ class Replay:
         return summary
 
 
+def health_columns(names: tuple[str, ...]) -> list[str]:
+    """The per-mouse CSV columns (a name's commas and quotes would break the CSV)."""
+    safe = ["".join(c if c.isalnum() or c in "-_." else "_" for c in n) for n in names]
+    return [f"{kind}_{n}" for n in safe for kind in ("state", "reason")]
+
+
 class CsvSink:
     """Writes pose batches as CSV rows (header first)."""
 
-    def __init__(self, out: TextIO) -> None:
+    def __init__(self, out: TextIO, names: tuple[str, ...] = ()) -> None:
         self.out = out
         self.rows = 0
-        out.write(",".join(CSV_COLUMNS) + "\n")
+        self.n = len(names)
+        self.row = _ROW + ",%d" * (2 * self.n)
+        out.write(",".join([*CSV_COLUMNS, *health_columns(names)]) + "\n")
 
     def __call__(self, b: PoseBatch) -> None:
-        cols = (b.t, b.x, b.y, b.theta, b.vx, b.vy, b.omega, b.used, b.ok)
+        cols = [b.t, b.x, b.y, b.theta, b.vx, b.vy, b.omega, b.used, b.ok, b.consistent]
+        if self.n:
+            both = np.stack([b.state, b.reason], axis=2).reshape(len(b), 2 * self.n)
+            cols += list(both.T)
         lists = [c.tolist() for c in cols]
         # Formatting each row with one %-operation is the fastest pure-Python way.
-        self.out.write("\n".join(map(_ROW.__mod__, zip(*lists, strict=True))) + "\n")
+        self.out.write("\n".join(map(self.row.__mod__, zip(*lists, strict=True))) + "\n")
         self.rows += len(b)
 
 

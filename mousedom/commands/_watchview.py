@@ -36,10 +36,20 @@ def pose_lines(m: dict[str, Any], t_start: float) -> list[str]:
         f"velocity  x {_num(m['vx'], '+9.3f')} m/s  y {_num(m['vy'], '+9.3f')} m/s  "
         f"turning {_num(turn, '+8.2f')} deg/s",
         _sigma_line(m),
-        f"mice      {m['used']} used, {state}"
-        + (f"; missing: {', '.join(m['missing'])}" if m.get("missing") else ""),
+        f"mice      {m['used']} used, {state}" + _health(m, "; "),
     ]
     return lines
+
+
+def _health(m: dict[str, Any], sep: str) -> str:
+    """The fault-tolerant fusion's verdict on the window, in words."""
+    parts = []
+    for key in ("missing", "excluded", "suspect"):
+        if m.get(key):
+            parts.append(f"{key}: {', '.join(m[key])}")
+    if m.get("consistent") is False:
+        parts.append("the mice DISAGREE (uncertainty widened)")
+    return "".join(sep + p for p in parts)
 
 
 def pose_line(m: dict[str, Any], t_start: float) -> str:
@@ -52,9 +62,7 @@ def pose_line(m: dict[str, Any], t_start: float) -> str:
         f"heading {_num(heading, '+.2f')} deg  v {_num(m['vx'], '+.3f')} {_num(m['vy'], '+.3f')}"
         f" m/s  turning {_num(turn, '+.2f')} deg/s  {m['used']} used, {state}"
     )
-    if m.get("missing"):
-        line += "  missing: " + ", ".join(m["missing"])
-    return line
+    return line + _health(m, "  ")
 
 
 def _sigma_line(m: dict[str, Any]) -> str:

@@ -109,7 +109,7 @@ def run(args) -> int:
     elif args.output:
         out = _Output(open_stream(args.output, inputs, text=True), args.output)
     if out is not None:
-        sinks.append(CsvSink(out))
+        sinks.append(CsvSink(out, config.names))
     collector = None
     if args.plot:
         from mousedom.plot import PlotCollector

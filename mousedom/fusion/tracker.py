@@ -29,6 +29,7 @@ from mousedom.config import Config
 from mousedom.fusion import integrate, models, onewindow, robust, screenbatch
 from mousedom.fusion.countfunction import CountFunction
 from mousedom.fusion.covariance import CovarianceState, propagate, world_step_noise
+from mousedom.fusion.evidence import SensorEvidence
 from mousedom.fusion.geometry import rank_problem
 from mousedom.fusion.posebatch import PoseBatch, PoseRow
 from mousedom.fusion.units import counts_matrices, sigma_metres
@@ -81,6 +82,9 @@ class Tracker:
                 np.array([m.max_speed or math.inf for m in config.mice]),
             )  # fmt: skip
         self._fast_state = {}  # live pattern -> the steady state row (tracking / missing)
+        self.evidence = SensorEvidence(
+            [1.0 / m.report_hz for m in config.mice], [m.min_squal for m in config.mice]
+        )
 
     # ------------------------------------------------------------------ inputs
 
@@ -133,6 +137,12 @@ class Tracker:
         self._start(t[0])
         m.pending.append((t, dx, dy))
         m.last_t = max(m.last_t, float(t.max()))
+
+    def push_quality(self, mouse: int | str, t: list, squal: list, overflow: list) -> None:
+        """The sensor's own word on reports pushed (or about to be): SQUAL (None where
+        unknown) and whether counts were lost to an overflow (``fusion.evidence``)."""
+        if self.screen is not None:
+            self.evidence.push(self._index(mouse), t, squal, overflow)
 
     def _queue_small(self, m: CountFunction, t: list, dx: list, dy: list) -> None:
         # One sum each is NaN or inf if any element is: cheaper than a test per element.
@@ -354,7 +364,7 @@ class Tracker:
                 m.dead = [span for span in m.dead if span[1] > end_t]
         self._closed = k_new
         self.counts_out += counts.sum(axis=0)
-        return self._solve(edges[1:], counts, mask)
+        return self._solve(edges[1:], counts, mask, self.evidence.windows(edges))
 
     def _close_one(self) -> PoseBatch:
         """_close_until for the next window on Python floats: the daemon's case."""
@@ -364,18 +374,22 @@ class Tracker:
         live = tuple([m.live_in(start, end) for m in self._mice])
         self._closed = k + 1
         self.counts_out += counts
+        evidence = self.evidence.window(start, end) if self.evidence else None
         if self.model == "bonarini":  # numerical linearisation: the array path
-            return self._solve(np.array([end]), np.array([counts]), np.array([live]))
-        return self._solve_one(end, counts, live)
+            ev = None if evidence is None else (np.array([evidence[0]]), np.array([evidence[1]]))
+            return self._solve(np.array([end]), np.array([counts]), np.array([live]), ev)
+        return self._solve_one(end, counts, live, evidence)
 
     # Up to this many windows per poll, _close_one (floats, no validation) is used; tests
     # set it to 0 to compare it with the array path.
     _SMALL = 1
 
-    def _solve(self, t_end: np.ndarray, counts: np.ndarray, mask: np.ndarray) -> PoseBatch:
+    def _solve(
+        self, t_end: np.ndarray, counts: np.ndarray, mask: np.ndarray, evidence=None
+    ) -> PoseBatch:
         d = np.einsum("nij,knj->kni", self._to_body, counts) if self.n_mice else counts
         sol = models.solve(self.model, d, self._positions, self._sigma, mask)
-        sol, health, reason, consistent = self._screened(d, mask, sol)
+        sol, health, reason, consistent = self._screened(d, mask, sol, evidence)
         q = np.where(sol.ok[:, None], sol.q, 0.0)
         steps = integrate.body_step(q, self.integrator)
         poses = integrate.compose(np.array(self._pose), steps)
@@ -404,7 +418,7 @@ class Tracker:
             consistent=consistent,
         )
 
-    def _screened(self, d: np.ndarray, mask: np.ndarray, sol: models.Solution):
+    def _screened(self, d: np.ndarray, mask: np.ndarray, sol: models.Solution, evidence=None):
         """The fault-tolerant screen over an array of windows (mousedom.fusion.robust):
         the solution re-solved without the mice it excluded, with the covariance of
         unattributed inconsistent windows inflated, and each mouse's health per window."""
@@ -413,7 +427,10 @@ class Tracker:
             state = np.where(mask, robust.TRACKING, robust.MISSING).astype(np.int8)
             return sol, state, np.zeros_like(state), np.ones(n, dtype=bool)
         q = np.where(sol.ok[:, None], sol.q, 0.0)
-        used, inflate, consistent, state, reason = screenbatch.screen(self.screen, d, mask, q)
+        scale, low = evidence if evidence is not None else (None, None)
+        used, inflate, consistent, state, reason = screenbatch.screen(
+            self.screen, d, mask, q, scale, low
+        )
         changed = np.flatnonzero(np.any(used != mask, axis=1))
         if len(changed) or np.any(inflate != 1.0):
             q, cov, res = sol.q.copy(), sol.cov.copy(), sol.residual.copy()
@@ -450,7 +467,11 @@ class Tracker:
         return plan
 
     def _solve_one(
-        self, t_end: float, counts: list[tuple[float, float]], live: tuple[bool, ...]
+        self,
+        t_end: float,
+        counts: list[tuple[float, float]],
+        live: tuple[bool, ...],
+        evidence: tuple[list[float], list[bool]] | None = None,
     ) -> PoseBatch:
         """_solve for one window of a linear model (see mousedom.fusion.onewindow)."""
         q, residual, idx, c3, ok = self._linear_one(counts, live)
@@ -459,8 +480,9 @@ class Tracker:
         if screen is not None:
             d_all = onewindow.body_counts(self._to_body_rows, counts, range(self.n_mice))
             d_pairs = [d_all[2 * i : 2 * i + 2] for i in range(self.n_mice)]
-            if not screen.fast_one(d_pairs, q, live, False):
-                dec = screen.decide(np.array(d_pairs), np.array(live, dtype=bool))
+            if not screen.fast_one(d_pairs, q, live, evidence is not None):
+                scale, low = evidence if evidence is not None else (None, None)
+                dec = screen.decide(np.array(d_pairs), np.array(live, dtype=bool), scale, low)
                 used = tuple(dec.used.tolist())
                 if used != live:
                     q, residual, idx, c3, ok = self._linear_one(counts, used)

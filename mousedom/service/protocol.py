@@ -20,7 +20,7 @@ from typing import Any
 from mousedom import __version__
 
 PROTO_MAJOR = 1
-PROTO_MINOR = 0
+PROTO_MINOR = 1  # 1: POSE has excluded, suspect and consistent; SOURCE state and reason
 
 # Which keys each command takes; anything else is a mistake worth telling the client about.
 COMMANDS: dict[str, tuple[str, ...]] = {
@@ -256,11 +256,18 @@ def pose_message(
     used: int,
     updating: bool,
     missing: Iterable[str] = (),
+    excluded: Iterable[str] = (),
+    suspect: Iterable[str] = (),
+    consistent: bool = True,
 ) -> dict[str, Any]:
     """A POSE: odometry-frame pose, body-frame velocities, covariance of (x, y, theta).
 
     ``updating`` is False when the model had no rank over this window: the pose was held,
-    not guessed.  ``missing`` names the sensors that did not contribute (gone or excluded).
+    not guessed.  ``missing`` names the sensors that did not contribute because they are
+    gone, ``excluded`` those the fault-tolerant fusion left out (their readings disagreed,
+    or their sensor said they were not tracking), ``suspect`` those used but in doubt.
+    ``consistent`` is False where the mice disagreed and nobody could be blamed (the
+    covariance is inflated for that window).
     """
     return {
         "class": "POSE",
@@ -275,6 +282,9 @@ def pose_message(
         "used": int(used),
         "updating": bool(updating),
         "missing": list(missing),
+        "excluded": list(excluded),
+        "suspect": list(suspect),
+        "consistent": bool(consistent),
     }
 
 
@@ -297,6 +307,9 @@ def encode_pose(
     used: int,
     updating: bool,
     missing: tuple[str, ...] = (),
+    excluded: tuple[str, ...] = (),
+    suspect: tuple[str, ...] = (),
+    consistent: bool = True,
 ) -> bytes:
     """``encode(pose_message(...))`` byte for byte, without the dict and the generic JSON
     encoder: the daemon writes one per window (tests check both give the same bytes).
@@ -308,7 +321,9 @@ def encode_pose(
         f'"theta":{f(pose[2])},"vx":{f(twist[0])},"vy":{f(twist[1])},"omega":{f(twist[2])},'
         f'"cov":[[{f(c0[0])},{f(c0[1])},{f(c0[2])}],[{f(c1[0])},{f(c1[1])},{f(c1[2])}],'
         f'[{f(c2[0])},{f(c2[1])},{f(c2[2])}]],"used":{int(used)},'
-        f'"updating":{"true" if updating else "false"},"missing":{_json_names(missing)}}}\n'
+        f'"updating":{"true" if updating else "false"},"missing":{_json_names(missing)},'
+        f'"excluded":{_json_names(excluded)},"suspect":{_json_names(suspect)},'
+        f'"consistent":{"true" if consistent else "false"}}}\n'
     ).encode()
 
 

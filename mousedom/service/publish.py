@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from mousedom.fusion import robust
 from mousedom.fusion.posebatch import PoseBatch
 from mousedom.service.protocol import encode, encode_pose, source_message
 
@@ -29,6 +30,7 @@ class Publisher:
                     if rx - rx == 0.0 and ry - ry == 0.0:  # both finite
                         slot.residual_sq += rx * rx + ry * ry
                         slot.residual_n += 1
+            excluded, suspect = self._health_names(pose.state)
             line = encode_pose(
                 pose.t,
                 (pose.x, pose.y, pose.theta),
@@ -37,11 +39,31 @@ class Publisher:
                 pose.used,
                 pose.ok,
                 missing,
+                excluded,
+                suspect,
+                pose.consistent,
             )
             self.poses += 1
             self.last_pose_t = pose.t
             self.not_updated += not pose.ok
             self.server.broadcast_pose(pose.t, line, tolerance)
+        last = batch.rows()[-1]
+        for slot, st, why in zip(self.slots, last.state, last.reason, strict=False):
+            slot.health_state, slot.health_reason = int(st), int(why)
+
+    def _health_names(self, state) -> tuple[tuple[str, ...], tuple[str, ...]]:
+        """(excluded, suspect) sensor names for a window's per-mouse states (cached: a rig
+        has few patterns, and this runs for every window)."""
+        cache = self.__dict__.setdefault("_names_by_state", {})
+        key = (tuple(s.name for s in self.slots), tuple(state))
+        names = cache.get(key)
+        if names is None:
+            ex = tuple(s.name for s, v in zip(self.slots, state, strict=False)
+                       if v == robust.EXCLUDED)  # fmt: skip
+            su = tuple(s.name for s, v in zip(self.slots, state, strict=False)
+                       if v == robust.SUSPECT)  # fmt: skip
+            names = cache[key] = (ex, su)
+        return names
 
     def _source_messages(self, now: float) -> list[dict[str, Any]]:
         out = []
@@ -56,7 +78,9 @@ class Publisher:
                     live=slot.live,
                     age=None if h.last_t is None else round(now - h.last_t, 6),
                     residual=slot.residual_rms,
-                    excluded=not slot.live,
+                    excluded=not slot.live or slot.health_state == robust.EXCLUDED,
+                    state="gone" if not slot.live else robust.STATES[slot.health_state],
+                    reason=robust.REASONS[slot.health_reason] or None,
                 )
             )
         return out

@@ -38,6 +38,8 @@ class Slot:
     residual_sq: float = 0.0
     residual_n: int = 0
     residual_rms: float | None = None
+    health_state: int = 0  # robust.STATES index after the last window
+    health_reason: int = 0  # robust.REASONS index
     announced: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -114,6 +116,8 @@ class SensorSlots:
             if len(batch):
                 # As the source holds them: a live read's lists go on without numpy.
                 self.tracker.push(slot.index, *batch.columns())
+                if batch.quality is not None:
+                    self.tracker.push_quality(slot.index, *batch.quality)
                 if self.recording is not None:
                     self._record(self.recording.motion, slot.index, batch.t, batch.dx, batch.dy)
 

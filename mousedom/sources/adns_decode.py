@@ -80,6 +80,8 @@ class AdnsDecoder:
         t: list[float] = []
         dx: list[int] = []
         dy: list[int] = []
+        squal: list[int | None] = []
+        overflow: list[bool] = []
         for p in packets:
             if self.clock.is_backwards(p.t_us):
                 self._restarted()
@@ -88,6 +90,8 @@ class AdnsDecoder:
                 t.append(mapped)
                 dx.append(p.dx)
                 dy.append(-p.dy)
+                squal.append(p.squal_min if p.squal_min != 0xFF else None)
+                overflow.append(bool(p.flags & P.FLAG_OVERFLOW))  # counts lost in the sensor
                 self._motion(p)
             elif isinstance(p, P.Status):
                 self._status(p)
@@ -99,7 +103,10 @@ class AdnsDecoder:
                 self.health.naks += 1
                 name = P.NAK_NAMES.get(p.error, str(p.error))
                 self.health.last_nak = f"command 0x{p.cmd:02x}: {name}"
-        return Reports(self.name, np.array(t), np.array(dx), np.array(dy)), packets
+        reports = Reports(self.name, np.array(t), np.array(dx), np.array(dy))
+        if t:
+            reports.quality = (t, squal, overflow)
+        return reports, packets
 
     def feed_many(self, ts: Iterable[float], pieces: Iterable[bytes]) -> Reports:
         """Feed recorded pieces (a capture's serial batch: host times and raw bytes) and
@@ -108,12 +115,16 @@ class AdnsDecoder:
         parts = [r for r in parts if len(r)]
         if not parts:
             return Reports(self.name, np.zeros(0), np.zeros(0), np.zeros(0))
-        return Reports(
+        out = Reports(
             self.name,
             np.concatenate([r.t for r in parts]),
             np.concatenate([r.dx for r in parts]),
             np.concatenate([r.dy for r in parts]),
         )
+        out.quality = tuple(  # type: ignore[assignment]
+            [v for r in parts for v in r.quality[k]] for k in range(3)
+        )
+        return out
 
     def _restarted(self) -> None:
         # The firmware's clock went backwards: it rebooted.  Its new clock has nothing

@@ -38,10 +38,13 @@ class Reports:
     queues lists without numpy), and the arrays are only made if someone asks for them.
     """
 
-    __slots__ = ("mouse", "_t", "_dx", "_dy", "_lists")
+    __slots__ = ("mouse", "_t", "_dx", "_dy", "_lists", "quality")
 
     def __init__(self, mouse: str, t: ArrayLike, dx: ArrayLike, dy: ArrayLike) -> None:
         self.mouse = mouse
+        # The sensor's own word on each report, where it has one (the ADNS-3080):
+        # (t, SQUAL or None, overflow) lists, for ``Tracker.push_quality``.
+        self.quality: tuple[list[float], list[Any], list[bool]] | None = None
         self._t = np.asarray(t, dtype=np.float64)
         self._dx = np.asarray(dx, dtype=np.float64)
         self._dy = np.asarray(dy, dtype=np.float64)
@@ -53,6 +56,7 @@ class Reports:
         floats).  The lists are kept, not copied: the caller hands them over."""
         r = cls.__new__(cls)
         r.mouse = mouse
+        r.quality = None
         r._t = r._dx = r._dy = None
         r._lists = (t, dx, dy)
         return r
