@@ -242,8 +242,13 @@ def rig_runner(tmp_path):
     runs a daemon on a three-mouse FIFO rig driving ``trajectory``; stops all at the end."""
     started = []
 
-    def start(trajectory, extra: str = "", rate_hz: float = RATE, env=None, args=(), preexec=None):
-        rig = sim.three_mouse_rig()
+    def start(
+        trajectory, extra: str = "", rate_hz: float = RATE, env=None, args=(), preexec=None,
+        rig=None, faulty=None,
+    ):  # fmt: skip
+        """``faulty``: the rig the mice really are (faults put on it); the config is
+        written from ``rig`` (the healthy one the robot believes in)."""
+        rig = rig or sim.three_mouse_rig()
         fifos = {m.name: tmp_path / f"{m.name}.fifo" for m in rig.mice}
         mice = {n: FifoMouse(p) for n, p in fifos.items()}
         config = write_rig_config(tmp_path / "rig.yaml", rig, fifos, extra, rate_hz=rate_hz)
@@ -253,7 +258,7 @@ def rig_runner(tmp_path):
         daemon.wait_socket()
         for m in mice.values():
             m.attach()
-        result = sim.simulate(rig, trajectory, seed=3)
+        result = sim.simulate(faulty or rig, trajectory, seed=3)
         feeder = Feeder(mice, result.reports, time.monotonic() + 0.1)
         feeder.start()
         ctx = type("Run", (), {})()

@@ -70,8 +70,9 @@ def test_every_field_lands_where_the_protocol_says():
     for line in (
         encode_pose(12.5, (0.1, 0.2, 0.3), (0.4, 0.5, 0.6), cov, 3, True, ("rear",), *health),
         encode(
-            pose_message(12.5, (0.1, 0.2, 0.3), (0.4, 0.5, 0.6), np.array(cov), 3, True,
-                         ["rear"], *health)
+            pose_message(
+                12.5, (0.1, 0.2, 0.3), (0.4, 0.5, 0.6), np.array(cov), 3, True, ["rear"], *health
+            )
         ),  # fmt: skip
     ):
         msg = json.loads(line)

@@ -433,3 +433,13 @@ def test_bonarini_on_the_one_window_path_equals_the_array_path():
     got = np.array([[r.x, r.y, r.theta] for r in rows])
     want = np.column_stack([batch.x, batch.y, batch.theta])
     np.testing.assert_allclose(got, want, atol=1e-12)
+
+
+def test_many_live_reads_queued_without_a_poll_keep_every_count():
+    """A live read queues Python ints; past 64 queued reports they become knots on the
+    array path, which once failed on int arrays (numpy cannot add floats into them in
+    place) when one mouse held the windows back for a while (a lifted mouse)."""
+    tracker = Tracker(sim.rig_config(sim.three_mouse_rig()), t0=0.0)
+    for k in range(100):
+        tracker.push("front", [0.001 * k], [1], [2])
+    assert tracker.finish().counts.sum(axis=0)[0].tolist() == [100.0, 200.0]

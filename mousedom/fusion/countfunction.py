@@ -78,7 +78,11 @@ class CountFunction:
         if len(self.pending) == 1:
             t, dx, dy = (np.asarray(c, dtype=np.float64) for c in self.pending[0])
         else:
-            t, dx, dy = (np.concatenate(cols) for cols in zip(*self.pending, strict=True))
+            # float64 always: a live read queues Python ints, which would make int arrays
+            t, dx, dy = (
+                np.concatenate(cols).astype(np.float64, copy=False)
+                for cols in zip(*self.pending, strict=True)
+            )
         self.pending = []
         cum = np.cumsum(np.stack([dx, dy]), axis=1)  # (2, n)
         cx, cy = cum[:, -1].tolist()

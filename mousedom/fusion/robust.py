@@ -17,8 +17,8 @@ together with the others.  Per window (docs/models.md, "Faults"):
 3. Then each mouse (then each pair) is left out in turn, where the rest still determine the
    model with at least one redundant reading; if exactly one choice makes the rest
    consistent, those mice are excluded.  Where several do (the geometry cannot tell, e.g.
-   mice on one line), the one that keeps the rig's motion continuous is, or else a mouse
-   that is silent while the others say it moved (``_tie_break``); otherwise nobody is
+   mice on one line), one that fits far better, or keeps the rig's motion continuous, or is
+   silent while the others say it moved is the one (``_tie_break``); otherwise nobody is
    blamed: the window keeps all mice, its covariance is multiplied by T / dof, and the mice
    become ``suspect``.
 4. An excluded mouse is re-admitted after ``readmit_s`` of windows in which it agreed with
@@ -52,6 +52,7 @@ REASONS = ("", "inconsistent", "silent while others move", "saturated", "low qua
 
 # How much smoother than the next one the winning explanation's motion must be (tie_break).
 _CONTINUITY_MARGIN = 10.0
+_FIT_MARGIN = chi2.quantile(0.999, 1)
 
 
 @dataclass
@@ -238,6 +239,11 @@ class Screen:
         r = b - a @ sol
         return float(r @ r), dof, q
 
+    def _silent(self, d: np.ndarray, i: int) -> bool:
+        """No counts in the window (a thousandth of its sigma: the split of reports
+        across windows leaves rounding dust where there were none)."""
+        return float(d[i] @ d[i]) <= 1e-6 * self.noise.sig2[i]
+
     def _passes(self, stat) -> bool:
         return stat is not None and stat[1] > 0 and stat[0] <= self._thresholds[stat[1]]
 
@@ -282,7 +288,7 @@ class Screen:
             blamed = self._identify(d, used, s2)
             if blamed is not None:
                 for j in blamed:
-                    reason[j] = SILENT if not d[j].any() else INCONSISTENT
+                    reason[j] = SILENT if self._silent(d, j) else INCONSISTENT
                 used = used.copy()
                 used[list(blamed)] = False
                 q = self._solve(d, used)
@@ -331,17 +337,22 @@ class Screen:
 
     def _tie_break(self, d: np.ndarray, passing: list, s2: np.ndarray):
         """Several exclusions explain the window (the geometry cannot tell the fault's
-        direction apart): physical priors decide, or nobody is blamed.  First continuity
-        of motion: a robot does not change its motion by a multiple of its tolerance from
-        one window to the next, a glitching sensor does, so an explanation whose motion is
-        by far the closest to the previous window's wins.  Then a mouse that is silent
-        while the rest say it moved (a lift)."""
+        direction apart): evidence and physical priors decide, or nobody is blamed.  First
+        the fit: an explanation that leaves far less residual than every other (by the
+        0.999 quantile of chi-square with one degree, a likelihood ratio over 200) wins.
+        Then continuity of motion: a robot does not change its motion by a multiple of its
+        tolerance from one window to the next, a glitching sensor does, so an explanation
+        whose motion is by far the closest to the previous window's wins.  Then a mouse
+        that is silent while the rest say it moved (a lift)."""
+        fits = sorted(passing, key=lambda c: c[1][0])
+        if fits[1][1][0] - fits[0][1][0] > _FIT_MARGIN:
+            return fits[0][0]
         thr2 = self._thresholds[2]
         silent = []
         change = []
         for combo, stat in passing:
             p = self.predict(stat[2])
-            if all(not d[j].any() and p[j] @ p[j] > thr2 * s2[j] for j in combo):
+            if all(self._silent(d, j) and p[j] @ p[j] > thr2 * s2[j] for j in combo):
                 silent.append(combo)
             change.append((float(np.sum(np.sum((p - self.prev_p) ** 2, axis=1) / s2)), combo))
         change.sort(key=lambda c: c[0])
@@ -371,7 +382,7 @@ class Screen:
                 r = d[i] - p[i]
                 if r @ r > thr2 * s2[i]:
                     h.good = 0
-                    h.reason = SILENT if not d[i].any() else INCONSISTENT
+                    h.reason = SILENT if self._silent(d, i) else INCONSISTENT
                 elif p[i] @ p[i] > 4.0 * thr2 * not_proportional[i]:
                     h.good += 1
                     if h.good >= self.readmit:

@@ -1,0 +1,324 @@
+"""Fault-tolerant fusion (issue 16) on simulated rigs with exact truth.
+
+Each fault is put on one mouse of a rig in several layouts and report rates
+(mousedom.fusion.scenarios); the robust engine must exclude that mouse while the fault
+shows, blame nobody else, and end within reach of the informed reference (plain least
+squares with the faulty reports removed by hand), far from plain least squares.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from mousedom.config import RobustConfig, parse_config
+from mousedom.fusion import chi2, robust, scenarios, sim
+from mousedom.fusion.tracker import Tracker
+
+DURATION = 30.0
+
+
+def _run(layout: str, kind: str, seed: int):
+    traj = scenarios.drive(DURATION, seed)
+    base = scenarios.rig(layout)
+    fault = scenarios.fault_for(kind, base, DURATION, seed)
+    result = sim.simulate(scenarios.apply(base, fault), traj, seed=seed)
+    limits = {fault.mouse: scenarios.SATURATION_SPEED} if kind == "saturation" else None
+    plain_b, plain = scenarios.run(result, scenarios.config(base, robust=False))
+    batch, rob = scenarios.run(result, scenarios.config(base, max_speed=limits))
+    dead = scenarios.informed_dead(fault, base, traj)
+    _, informed = scenarios.run(result, scenarios.config(base, robust=False), dead)
+    errors = [scenarios.end_error(result, t)[0] for t in (plain, rob, informed)]
+    return base, fault, batch, plain_b, errors
+
+
+# --------------------------------------------------------------------------- chi-square
+
+
+def test_chi2_quantiles_match_the_tables():
+    """Abramowitz & Stegun table 26.8 values, and the closed form for 2 degrees."""
+    assert chi2.quantile(0.95, 1) == pytest.approx(3.841459, abs=1e-6)
+    assert chi2.quantile(0.99, 3) == pytest.approx(11.344867, abs=1e-6)
+    assert chi2.quantile(0.9999, 3) == pytest.approx(21.107513, abs=1e-5)
+    assert chi2.quantile(0.999, 5) == pytest.approx(20.515006, abs=1e-5)
+    for p in (0.5, 0.9, 1 - 1e-4, 1 - 1e-9):
+        assert chi2.quantile(p, 2) == pytest.approx(-2 * math.log(1 - p), rel=1e-9)
+    with pytest.raises(ValueError):
+        chi2.quantile(1.0, 3)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(1, 12), st.floats(0.05, 60.0))
+def test_chi2_survival_is_the_integral_of_the_density(dof, x):
+    """Q(x) against a numerical integral of the chi-square density from x to far out."""
+    k = dof / 2.0
+    grid = np.linspace(x, x + 200.0, 400001)
+    dens = np.exp((k - 1) * np.log(grid) - grid / 2 - k * math.log(2) - math.lgamma(k))
+    integral = float(np.sum((dens[1:] + dens[:-1]) * np.diff(grid)) / 2)
+    assert chi2.survival(x, dof) == pytest.approx(integral, rel=1e-5, abs=1e-12)
+
+
+# --------------------------------------------------------------------------- faults, 3+ mice
+
+CASES = [
+    ("triangle", "lift"),
+    ("triangle", "lift-noisy"),
+    ("triangle", "under-read"),
+    ("triangle", "jumps"),
+    ("triangle", "saturation"),
+    ("square", "lift"),
+    ("square", "under-read"),
+    ("square", "jumps"),
+    ("wide", "lift"),
+    ("wide", "saturation"),
+]
+
+
+@pytest.mark.parametrize("layout,kind", CASES)
+def test_a_faulty_mouse_is_excluded_and_the_pose_kept(layout, kind):
+    base, fault, batch, plain_b, (plain, rob, informed) = _run(layout, kind, seed=1)
+    names = [m.name for m in base.mice]
+    j = names.index(fault.mouse)
+    excluded = batch.state == robust.EXCLUDED
+    # Nobody else is blamed.
+    others = np.delete(excluded, j, axis=1)
+    assert others.sum() == 0, f"healthy mice excluded in {others.any(axis=1).sum()} windows"
+    # The faulty one is excluded while its fault shows (saturation: while the others
+    # move it faster than it tracks).
+    assert excluded[:, j].sum() > 0
+    if kind in ("lift", "lift-noisy", "under-read"):
+        during = (batch.t > fault.start + 0.05) & (batch.t < fault.end)
+        moving = np.hypot(batch.vx, batch.omega * 0.1) > 0.02
+        assert excluded[during & moving, j].mean() > 0.95
+    # Close to the informed reference, and far better than plain least squares where the
+    # fault hurt it (jumps in opposite directions can cancel by chance).
+    assert rob <= 1.5 * informed + 0.005, (plain, rob, informed)
+    if plain > 5 * informed + 0.01:
+        assert rob < 0.2 * plain, (plain, rob, informed)
+
+
+@pytest.mark.parametrize("layout", ["triangle", "square"])
+def test_jumps_each_exclude_the_jumping_mouse_at_the_jump(layout):
+    base, fault, batch, _, _ = _run(layout, "jumps", seed=2)
+    j = [m.name for m in base.mice].index(fault.mouse)
+    for t_jump, _, _ in fault.jumps:
+        # the window that holds the first report after the jump (stamped up to 1 ms late)
+        k = int(np.searchsorted(batch.t, t_jump + 0.0011))
+        assert batch.state[k, j] == robust.EXCLUDED, f"jump at {t_jump:.3f} s not excluded"
+        assert batch.reason[k, j] == robust.INCONSISTENT
+
+
+def test_a_silent_mouse_is_named_silent():
+    base, fault, batch, _, _ = _run("triangle", "lift", seed=1)
+    j = [m.name for m in base.mice].index(fault.mouse)
+    during = (batch.t > fault.start + 0.05) & (batch.t < fault.end)
+    reasons = batch.reason[during & (batch.state[:, j] == robust.EXCLUDED), j]
+    assert (reasons == robust.SILENT).mean() > 0.9
+
+
+def test_an_excluded_mouse_comes_back_after_the_fault():
+    base, fault, batch, _, _ = _run("triangle", "lift", seed=1)
+    j = [m.name for m in base.mice].index(fault.mouse)
+    after = batch.t > fault.end + 2.0
+    assert (batch.state[after, j] == robust.TRACKING).mean() > 0.95
+
+
+def test_the_covariance_grows_faster_while_a_mouse_is_excluded():
+    """Fewer mice, less information: on a steady straight drive, the pose covariance
+    grows faster per window while the lifted mouse is left out than before."""
+    base = scenarios.rig("triangle")
+    lifted = dataclasses.replace(base.mice[0], lost=((1.5, 2.5),))
+    faulty = dataclasses.replace(base, mice=(lifted, *base.mice[1:]))
+    traj = sim.sequence(sim.pause(0.3), sim.straight(1.2, 0.3))
+    result = sim.simulate(faulty, traj, seed=6)
+    batch, _ = scenarios.run(result, scenarios.config(base))
+    growth = np.diff(np.trace(batch.cov[:, :2, :2], axis1=1, axis2=2))
+    ex = batch.state[1:, 0] == robust.EXCLUDED
+    before = (batch.t[1:] > 0.6) & (batch.t[1:] < 1.4)
+    assert ex[(batch.t[1:] > 1.6) & (batch.t[1:] < 2.5)].all()
+    assert np.median(growth[ex]) > 1.2 * np.median(growth[before])
+
+
+# --------------------------------------------------------------------------- what rigs see
+
+
+def _pair(model: str = "lsq", positions=((0.0, 0.1), (0.0, -0.1))) -> sim.Rig:
+    mice = tuple(
+        sim.SimMouse(n, x, y, cpi_x=1000, cpi_y=1000, rate_hz=500, noise=0.3, phase=0.001 * k)
+        for k, (n, (x, y)) in enumerate(zip(("left", "right"), positions, strict=True))
+    )
+    return sim.Rig(mice, model=model)
+
+
+def test_two_mice_detect_a_fault_they_cannot_blame():
+    """Two mice (lsq: one redundant reading): a lift while turning breaks the rigid-body
+    check, but leaving either mouse out leaves nothing to check the other against.  The
+    windows are reported inconsistent, both mice suspect, nobody excluded, and the
+    covariance inflated against plain least squares."""
+    rig = _pair(positions=((0.1, 0.05), (-0.1, -0.05)))
+    lifted = dataclasses.replace(rig.mice[0], lost=((2.0, 4.0),))
+    faulty = dataclasses.replace(rig, mice=(lifted, rig.mice[1]))
+    traj = sim.sequence(sim.pause(0.5), sim.arc(0.3, 3.0, 0.3), sim.pause(0.5))
+    result = sim.simulate(faulty, traj, seed=4)
+    batch, _ = scenarios.run(result, scenarios.config(rig))
+    plain, _ = scenarios.run(result, scenarios.config(rig, robust=False))
+    during = (batch.t > 2.1) & (batch.t < 4.0)
+    assert (~batch.consistent[during]).mean() > 0.9
+    assert not (batch.state == robust.EXCLUDED).any()
+    assert (batch.state[during] == robust.SUSPECT).all(axis=1).mean() > 0.9
+    step = np.diff(np.trace(batch.cov[:, :2, :2], axis1=1, axis2=2))[during[1:]]
+    plain_step = np.diff(np.trace(plain.cov[:, :2, :2], axis1=1, axis2=2))[during[1:]]
+    assert np.median(step) > 10 * np.median(plain_step)
+    before = batch.t < 1.9
+    assert batch.consistent[before].all()
+
+
+def test_two_mice_on_the_axle_cannot_see_a_lift_while_driving_straight():
+    """The documented blind spot: one of two axle mice lifted while driving straight
+    reads as a pivot about the other, which a differential-drive robot can do.  No
+    window is inconsistent (and none could be: the readings are a legal motion)."""
+    rig = _pair("diff-drive")
+    lifted = dataclasses.replace(rig.mice[0], lost=((1.0, 2.0),))
+    faulty = dataclasses.replace(rig, mice=(lifted, rig.mice[1]))
+    result = sim.simulate(faulty, sim.sequence(sim.pause(0.2), sim.straight(0.8, 0.3)), seed=5)
+    batch, _ = scenarios.run(result, scenarios.config(rig))
+    assert batch.consistent.all() and not (batch.state == robust.EXCLUDED).any()
+    during = (batch.t > 1.05) & (batch.t < 2.0)
+    assert np.abs(batch.omega[during]).mean() > 0.5  # the pivot it had to believe
+
+
+def test_one_mouse_can_only_say_it_is_saturated():
+    """One mouse: nothing to check against but its own limit; it stays in use (there
+    is no other) but is marked suspect, reason saturated."""
+    m = sim.SimMouse("m", 0.1, 0.0, cpi_x=1000, cpi_y=1000, rate_hz=500, max_speed=0.3)
+    rig = sim.Rig((m,), model="diff-drive")
+    traj = sim.sequence(sim.straight(0.4, 0.2), sim.straight(1.0, 0.5))
+    result = sim.simulate(rig, traj)
+    cfg = sim.rig_config(rig)
+    cfg = dataclasses.replace(cfg, mice=(dataclasses.replace(cfg.mice[0], max_speed=0.3),))
+    tracker = Tracker(cfg, t0=0.0)
+    for name, rep in result.reports.items():
+        tracker.push(name, rep.t, rep.dx, rep.dy)
+    b = tracker.finish()
+    fast = b.t > 2.2
+    assert (b.state[fast, 0] == robust.SUSPECT).mean() > 0.9
+    assert (b.reason[fast, 0] == robust.SATURATED).mean() > 0.9
+    assert (b.state[b.t < 1.8, 0] == robust.TRACKING).all()
+
+
+# --------------------------------------------------------------------------- sensor evidence
+
+
+def _three(extra: str = "") -> tuple[sim.Rig, object]:
+    rig = scenarios.rig("triangle", noise=0.0, stamp_delay=0.0)
+    text = sim.rig_yaml(rig) + extra
+    return rig, parse_config(text, "<rig>", need_sources=False)
+
+
+def test_low_squal_and_overflow_gate_a_mouse():
+    rig, cfg = _three()
+    cfg = dataclasses.replace(
+        cfg, mice=tuple(dataclasses.replace(m, min_squal=15) for m in cfg.mice)
+    )
+    result = sim.simulate(rig, sim.sequence(sim.pause(0.2), sim.straight(0.6, 0.3)))
+    tracker = Tracker(cfg, t0=0.0)
+    for name, rep in result.reports.items():
+        tracker.push(name, rep.t, rep.dx, rep.dy)
+        t = rep.t.tolist()
+        squal = [5 if 1.0 <= x < 1.2 else 40 for x in t] if name == "left" else [40] * len(t)
+        overflow = [name == "right" and 1.5 <= x < 1.6 for x in t]
+        tracker.push_quality(name, t, squal, overflow)
+    b = tracker.finish()
+    left, right = cfg.names.index("left"), cfg.names.index("right")
+    gated = (b.t > 1.02) & (b.t < 1.2)
+    assert (b.state[gated, left] == robust.EXCLUDED).all()
+    assert (b.reason[gated, left] == robust.LOW_QUALITY).all()
+    ov = (b.t > 1.51) & (b.t < 1.6)
+    assert (b.state[ov, right] == robust.EXCLUDED).all()
+    assert (b.state[b.t < 0.95] == robust.TRACKING).all()
+
+
+def test_adns_mice_get_the_datasheet_limits_by_default():
+    text = """
+mice:
+  flow: {cpi: 1600, mount: {x: 0, y: 0}, serial: {port: /dev/ttyUSB0}}
+  usb: {cpi: 1000, mount: {x: 0.1, y: 0}, evdev: {name: x}}
+"""
+    cfg = parse_config(text, "<t>")
+    flow, usb = cfg.mice
+    assert flow.max_speed == pytest.approx(40 * 0.0254) and flow.min_squal == 15
+    assert usb.max_speed is None and usb.min_squal is None
+    cfg = parse_config(text.replace("port: /dev/ttyUSB0", "port: /dev/ttyUSB0}, max_speed: 2, "
+                                    "min_squal: 30, x: {a: 1") .replace(", x: {a: 1}", ""),
+                       "<t>")  # fmt: skip
+    assert cfg.mice[0].max_speed == 2.0 and cfg.mice[0].min_squal == 30
+
+
+def test_robust_settings_parse_and_switch_off():
+    base = "mice:\n  a: {cpi: 400, mount: {x: 0, y: 0}}\n  b: {cpi: 400, mount: {x: 1, y: 0}}\n"
+    assert parse_config(base, need_sources=False).robust == RobustConfig()
+    off = parse_config(base + "robust: false\n", need_sources=False)
+    assert off.robust.enabled is False
+    cfg = parse_config(base + "robust: {false_alarm: 1.0e-6, readmit_s: 1}\n",
+                       need_sources=False)  # fmt: skip
+    assert cfg.robust.false_alarm == 1e-6 and cfg.robust.readmit_s == 1.0
+    from mousedom.yamldoc import ConfigError
+
+    with pytest.raises(ConfigError, match=r"robust.fals_alarm: unknown key.*false_alarm"):
+        parse_config(base + "robust: {fals_alarm: 0.1}\n", "<t>", need_sources=False)
+    with pytest.raises(ConfigError, match=r"false_alarm: must be between"):
+        parse_config(base + "robust: {false_alarm: 2}\n", "<t>", need_sources=False)
+
+
+# --------------------------------------------------------------------------- healthy rigs
+
+
+@settings(max_examples=8, deadline=None)
+@given(st.integers(0, 10_000), st.sampled_from(["triangle", "square", "wide"]))
+def test_on_a_healthy_rig_the_robust_path_gives_todays_poses(seed, layout):
+    """Within the false-alarm rate (1e-4 per window; a 20 s drive has 2000 windows) the
+    robust engine changes nothing on healthy noisy data: every window's pose is today's."""
+    rig = scenarios.rig(layout)
+    result = sim.simulate(rig, scenarios.drive(20.0, seed), seed=seed)
+    rob, _ = scenarios.run(result, scenarios.config(rig))
+    plain, _ = scenarios.run(result, scenarios.config(rig, robust=False))
+    changed = np.flatnonzero((rob.state == robust.EXCLUDED).any(axis=1) | ~rob.consistent)
+    assert len(changed) <= 2
+    if not len(changed):
+        assert np.array_equal(rob.x, plain.x) and np.array_equal(rob.theta, plain.theta)
+        assert np.array_equal(rob.cov, plain.cov)
+
+
+@pytest.mark.parametrize("kind", ["none", "lift", "jumps"])
+def test_the_one_window_path_decides_as_the_array_path(kind):
+    """The daemon's path (one window per poll, Python floats) and replay's (arrays)
+    make the same decisions and the same poses, faults included."""
+    base = scenarios.rig("triangle")
+    fault = scenarios.fault_for(kind, base, 12.0, 3)
+    result = sim.simulate(scenarios.apply(base, fault), scenarios.drive(12.0, 3), seed=3)
+    cfg = scenarios.config(base)
+    batch, _ = scenarios.run(result, cfg)
+    tracker = Tracker(cfg, t0=0.0)
+    merged = sorted(
+        (t, name, dx, dy)
+        for name, r in result.reports.items()
+        for t, dx, dy in zip(r.t.tolist(), r.dx.tolist(), r.dy.tolist(), strict=True)
+    )
+    out = []
+    for t, name, dx, dy in merged:
+        tracker.push(name, [t], [int(dx)], [int(dy)])
+        out.append(tracker.poll())
+    out.append(tracker.finish())
+    from mousedom.fusion.posebatch import PoseBatch
+
+    one = PoseBatch.concat(out, 3)
+    assert len(one) == len(batch)
+    assert np.array_equal(one.state, batch.state) and np.array_equal(one.reason, batch.reason)
+    np.testing.assert_allclose(one.x, batch.x, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(one.theta, batch.theta, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(one.cov, batch.cov, rtol=1e-9, atol=1e-18)
