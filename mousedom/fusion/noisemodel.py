@@ -22,9 +22,9 @@
   (ten times the config's sigma) and comes down as the mouse shows it is quieter: starting
   strict would exclude a noisy mouse in exactly the windows that would have taught the model
   its noise, and with a generous floor those windows are plentiful (the floor then dominates
-  at all but high speeds).  Faults at speed are caught by the proportional part meanwhile.  A median over a block is not moved
-  by the few faulty windows that pass the test; windows that fail it, and excluded mice,
-  give no samples.
+  at all but high speeds).  Faults at speed are caught by the proportional part meanwhile.
+  A median is not moved by the few faulty windows that pass the test; windows that fail
+  it, and excluded mice, give no samples.
 """
 
 from __future__ import annotations
