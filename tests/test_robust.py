@@ -282,16 +282,21 @@ def test_robust_settings_parse_and_switch_off():
 @given(st.integers(0, 10_000), st.sampled_from(["triangle", "square", "wide"]))
 def test_on_a_healthy_rig_the_robust_path_gives_todays_poses(seed, layout):
     """Within the false-alarm rate (1e-4 per window; a 20 s drive has 2000 windows) the
-    robust engine changes nothing on healthy noisy data: every window's pose is today's."""
+    robust engine changes nothing on healthy noisy data: every window's pose is today's
+    unless a mouse was falsely excluded (rarely; never more than twice here), and even
+    then the run ends no worse than today's beyond a millimetre."""
     rig = scenarios.rig(layout)
     result = sim.simulate(rig, scenarios.drive(20.0, seed), seed=seed)
-    rob, _ = scenarios.run(result, scenarios.config(rig))
-    plain, _ = scenarios.run(result, scenarios.config(rig, robust=False))
-    changed = np.flatnonzero((rob.state == robust.EXCLUDED).any(axis=1) | ~rob.consistent)
-    assert len(changed) <= 2
-    if not len(changed):
+    rob, rt = scenarios.run(result, scenarios.config(rig))
+    plain, pt = scenarios.run(result, scenarios.config(rig, robust=False))
+    st_ = rob.state
+    events = int(((st_[1:] == robust.EXCLUDED) & (st_[:-1] != robust.EXCLUDED)).sum())
+    events += int((~rob.consistent).sum())
+    assert events <= 2
+    if not events:
         assert np.array_equal(rob.x, plain.x) and np.array_equal(rob.theta, plain.theta)
         assert np.array_equal(rob.cov, plain.cov)
+    assert scenarios.end_error(result, rt)[0] <= scenarios.end_error(result, pt)[0] + 1e-3
 
 
 @pytest.mark.parametrize("kind", ["none", "lift", "jumps"])

@@ -356,7 +356,11 @@ class Screen:
                 silent.append(combo)
             change.append((float(np.sum(np.sum((p - self.prev_p) ** 2, axis=1) / s2)), combo))
         change.sort(key=lambda c: c[0])
-        if change[0][0] * _CONTINUITY_MARGIN < change[1][0]:
+        # the other explanation must need a change of motion beyond the tolerance itself:
+        # at a standstill every explanation's change is noise, and ratios of noise decide
+        # nothing
+        if (change[0][0] * _CONTINUITY_MARGIN < change[1][0]
+                and change[1][0] > self._thresholds[2 * self.n]):  # fmt: skip
             return change[0][1]
         return silent[0] if len(silent) == 1 else None
 
