@@ -274,3 +274,22 @@ def test_run_without_socket_uses_the_runtime_directory_and_says_how_to_watch(tmp
     assert proc.returncode == 0
     assert "watch it with: " in err and f"-m mousedom watch --socket {sock}" in err
     assert not sock.exists()
+
+
+def test_watch_says_which_mice_the_fusion_left_out():
+    """Issue 16: the POSE's excluded and suspect sensors, and a window the mice disagreed
+    on, in words; a SOURCE's state and reason."""
+    from mousedom.commands import _watchview as view
+
+    pose = {"t": 5.0, "x": 0.1, "y": 0.0, "theta": 0.0, "vx": 0.3, "vy": 0.0, "omega": 0.0,
+            "cov": [[1e-6, 0, 0], [0, 1e-6, 0], [0, 0, 1e-6]], "used": 2, "updating": True,
+            "missing": [], "excluded": ["front"], "suspect": [], "consistent": True}  # fmt: skip
+    assert "excluded: front" in view.pose_lines(pose, 0.0)[-1]
+    assert view.pose_line(pose, 0.0).endswith("excluded: front")
+    pose.update(excluded=[], suspect=["left", "right"], consistent=False)
+    line = view.pose_line(pose, 0.0)
+    assert "suspect: left, right" in line and "DISAGREE" in line
+    src = {"name": "front", "connected": True, "state": "excluded",
+           "reason": "silent while others move"}  # fmt: skip
+    text = view.source_line(src)
+    assert "excluded" in text and "(silent while others move)" in text

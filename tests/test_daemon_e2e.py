@@ -408,3 +408,27 @@ def test_a_recording_that_cannot_grow_stops_and_the_daemon_goes_on(rig_run, tmp_
     assert "File too large" in run.daemon.log() and "Traceback" not in run.daemon.log()
     assert len(c.poses(0.5)) >= 10 and run.daemon.proc.poll() is None
     assert 0 < out.stat().st_size <= 20_000
+
+
+def test_a_lifted_mouse_is_excluded_in_pose_and_source(rig_run):
+    """Issue 16 end to end: one of three FIFO mice goes silent while the robot drives (a
+    lift); POSE names it excluded, the pose follows the truth, and SOURCE says why."""
+    import dataclasses
+
+    rig = sim.three_mouse_rig()
+    lifted = dataclasses.replace(rig.mice[0], lost=((1.0, 3.5),))
+    faulty = dataclasses.replace(rig, mice=(lifted, *rig.mice[1:]))
+    run = rig_run(sim.straight(1.2, 0.3), rig=rig, faulty=faulty)
+    c = Conn(run.daemon.socket_path)
+    c.until("VERSION")
+    pose = c.until("POSE", lambda m: m["excluded"] == ["front"], limit=20000)
+    assert pose["used"] == 2 and pose["consistent"] and pose["updating"]
+    c.send({"cmd": "status"})
+    c.until("STATUS")
+    front = next(s for s in (c.until("SOURCE") for _ in range(3)) if s["name"] == "front")
+    assert front["state"] == "excluded" and front["reason"] == "silent while others move"
+    assert front["excluded"] is True and front["connected"] is True
+    late = c.until("POSE", lambda m: m["t"] - pose["t"] > 1.0, limit=20000)
+    assert late["excluded"] == ["front"]
+    truth_x = 0.3 * (late["t"] - pose["t"]) + pose["x"]
+    assert late["x"] == pytest.approx(truth_x, abs=0.01)  # still driving at 0.3 m/s

@@ -117,10 +117,11 @@ def test_csv_to_stdout_last_row_holds_every_count(tmp_path):
 # ------------------------------------------------------------------ simulated rigs
 
 
-def _sim_native(tmp_path, chunk_reports=2000):
+def _sim_native(tmp_path, chunk_reports=2000, fault=None):
+    """A three-mouse capture; ``fault(rig) -> faulty rig`` for the mice as they really were."""
     rig = sim.three_mouse_rig(cpi=800.0, rate_hz=250.0)
     traj = sim.sequence(sim.straight(0.5), sim.turn(math.pi / 2), sim.arc(0.4, math.pi / 3))
-    res = sim.simulate(rig, traj, seed=4, t_start=1000.0)
+    res = sim.simulate(fault(rig) if fault else rig, traj, seed=4, t_start=1000.0)
     cfg = tmp_path / "rig.yaml"
     cfg.write_text(sim.rig_yaml(rig))
     devices = [DeviceInfo(name=f"usb {m.name}", mouse=m.name, rel_xy=True) for m in rig.mice]
@@ -164,6 +165,32 @@ def test_simulated_rig_native_replay_matches_truth_and_batch_tracker(tmp_path):
     assert final == pytest.approx([batch.x[-1], batch.y[-1], batch.theta[-1]], abs=1e-6)
     # Time base: monotonic times are kept as they are.
     assert data["t"][0] > 1000.0
+
+
+def test_replay_csv_names_the_excluded_mouse_and_robust_false_turns_it_off(tmp_path):
+    """Issue 16: the replay CSV's health columns show the lifted mouse excluded (and why)
+    while it was lifted, and the config's switch gives plain least squares."""
+    import dataclasses
+
+    def lift(rig):
+        front = dataclasses.replace(rig.mice[0], lost=((1000.8, 1001.6),))
+        return dataclasses.replace(rig, mice=(front, *rig.mice[1:]))
+
+    rig, res, cfg, path = _sim_native(tmp_path, fault=lift)
+    data = read_csv(_ok(run_mousedom("replay", "--config", str(cfg), "--capture", str(path),
+                                     "-o", "-")).stdout)  # fmt: skip
+    assert {"consistent", "state_front", "reason_front", "state_right"} <= set(data)
+    held = (data["t"] > 1000.85) & (data["t"] < 1001.6)
+    assert (data["state_front"][held] == 2).all() and (data["reason_front"][held] == 2).all()
+    assert (data["used"][held] == 2).all() and (data["state_left"] == 0).all()
+    truth = res.truth(res.motion.starts[-1])[0]
+    assert np.hypot(data["x"][-1] - truth[0], data["y"][-1] - truth[1]) < 0.01
+    off = tmp_path / "off.yaml"
+    off.write_text(cfg.read_text() + "robust: false\n")
+    plain = read_csv(_ok(run_mousedom("replay", "--config", str(off), "--capture", str(path),
+                                      "-o", "-")).stdout)  # fmt: skip
+    assert (plain["state_front"] == 0).all() and (plain["used"] == 3).all()
+    assert np.hypot(plain["x"][-1] - truth[0], plain["y"][-1] - truth[1]) > 0.05
 
 
 def test_multi_device_file_without_name_maps_by_config(tmp_path):

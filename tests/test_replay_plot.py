@@ -83,3 +83,39 @@ def test_one_mouse_gets_no_residual_panel():
     assert _titles(fig) == ["trajectory (odometry frame)"]
     assert plot.redundancy("diff-drive", 1) == 0 and plot.redundancy("lsq", 2) == 1
     assert plot.redundancy("diff-drive", 2) == 2
+
+
+def test_excluded_spans_are_shaded_per_mouse_even_when_decimated(monkeypatch):
+    """Issue 16: --plot shades where the fault-tolerant fusion left a mouse out, in that
+    mouse's colour, and a short exclusion survives decimation (the worst state of the
+    rows a kept one stands for)."""
+    import dataclasses
+
+    from mousedom import plot
+    from mousedom.fusion import sim
+
+    monkeypatch.setattr(plot, "MAX_POINTS", 60)
+    rig = sim.three_mouse_rig()
+    lifted = dataclasses.replace(rig.mice[1], lost=((1.0, 1.3),))
+    faulty = dataclasses.replace(rig, mice=(rig.mice[0], lifted, rig.mice[2]))
+    result = sim.simulate(faulty, sim.straight(1.5, 0.3), seed=2)
+    batch, _ = sim.run_tracker(result, sim.rig_config(rig))
+    assert (batch.state[:, 1] == 2).any()
+    col = plot.PlotCollector()
+    for k in range(0, len(batch), 7):
+        col(_slice(batch, k, k + 7))
+    assert col.step > 1  # decimated
+    fig = plot.figure(col, ("front", "left", "right"), model="lsq")
+    spans = [p for p in fig.axes[1].patches if p.get_label() == "left excluded"]
+    assert spans, [p.get_label() for p in fig.axes[1].patches]
+    x0 = min(p.get_x() for p in spans)
+    assert 0.95 < x0 < 1.2
+    assert not [p for p in fig.axes[1].patches if "front" in str(p.get_label())]
+
+
+def _slice(b, i, j):
+    from dataclasses import fields
+
+    from mousedom.fusion.posebatch import PoseBatch
+
+    return PoseBatch(**{f.name: getattr(b, f.name)[i:j] for f in fields(PoseBatch)})
