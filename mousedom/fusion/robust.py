@@ -22,7 +22,8 @@ together with the others.  Per window (docs/models.md, "Faults"):
    blamed: the window keeps all mice, its covariance is multiplied by T / dof, and the mice
    become ``suspect``.
 4. An excluded mouse is re-admitted after ``readmit_s`` of windows in which it agreed with
-   the others while they moved enough to have shown the fault.
+   the others while they moved enough to have shown the fault; one its own sensor's
+   evidence excluded, after a fifth of that once the evidence is gone and it agrees.
 
 Sensor evidence gates a mouse before any of this: SQUAL below ``min_squal`` or the
 sensor's overflow flag ("low quality"), a reading or a prediction beyond ``max_speed``
@@ -94,6 +95,7 @@ class Screen:
         speed = np.full(self.n, np.inf) if max_speed is None else np.asarray(max_speed, float)
         self.max_step2 = (speed * window) ** 2  # inf: no limit
         self.readmit = max(1, math.ceil(settings.readmit_s / window - 1e-9))
+        self.readmit_evidence = max(1, self.readmit // 5)
         self.health = [MouseHealth() for _ in range(self.n)]
         self.prev_p = np.zeros((self.n, 2))  # the previous window's predictions
         self._thresholds = [math.inf] + [self.threshold(k) for k in range(1, 2 * self.n + 1)]
@@ -387,6 +389,13 @@ class Screen:
                 if r @ r > thr2 * s2[i]:
                     h.good = 0
                     h.reason = SILENT if self._silent(d, i) else INCONSISTENT
+                elif h.reason in (SATURATED, LOW_QUALITY):
+                    # Its own sensor said why, and says so no more: a fifth of the wait
+                    # (a longer one only loses a good mouse, here the one whose speed
+                    # limit a fast rig keeps crossing).
+                    h.good += 1
+                    if h.good >= self.readmit_evidence:
+                        h.state, h.reason, h.good = TRACKING, NONE, 0
                 elif p[i] @ p[i] > 4.0 * thr2 * not_proportional[i]:
                     h.good += 1
                     if h.good >= self.readmit:
