@@ -118,6 +118,29 @@ class ServerConfig:
 
 
 @dataclass(frozen=True)
+class Ros2Config:
+    """The optional ROS 2 output over DDS (docs/ros2.md); ``outputs: {ros2: {...}}``."""
+
+    domain_id: int | None = None  # None: $ROS_DOMAIN_ID, else 0
+    namespace: str = ""  # e.g. /robot1: topics become /robot1/odom, ...
+    odom_topic: str = "/odom"
+    tf_topic: str = "/tf"
+    diagnostics_topic: str = "/diagnostics"
+    odom_frame: str = "odom"
+    base_frame: str = "base_link"
+    map_frame: str = "map"
+    publish_tf: bool = True  # odom -> base_link (off where robot_localization publishes it)
+    publish_map_tf: bool = False  # map -> odom, the correction that fix and reset move
+    diagnostics: bool = True
+    counts: bool = False  # per-mouse counts of each window on <namespace>/mousedom/<mouse>/counts
+    stamps: str = "system"  # system (ROS time, what tf and Nav2 compare with) | monotonic
+
+
+STAMPS = ("system", "monotonic")
+ROS2_KEYS = tuple(f for f in Ros2Config.__dataclass_fields__)
+
+
+@dataclass(frozen=True)
 class Config:
     rate_hz: float
     model: str
@@ -128,6 +151,7 @@ class Config:
     calibration: str | None = None  # absolute path of the calibration file, if any
     path: str | None = None  # where this config was read from
     robust: RobustConfig = field(default_factory=RobustConfig)
+    ros2: Ros2Config | None = None  # outputs.ros2: None means no DDS output
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -144,7 +168,7 @@ class Config:
 
 
 TOP_KEYS = ("rate_hz", "model", "integrator", "mice", "server", "wheels", "calibration",
-            "robust")  # fmt: skip
+            "robust", "outputs")  # fmt: skip
 MOUSE_KEYS = ("cpi", "mount", "flip", "sigma", "report_hz", "evdev", "serial", "replay",
               "max_speed", "min_squal")  # fmt: skip
 SERVER_KEYS = ("socket", "mode", "group", "control_uids", "control_gids", "max_clients",
@@ -335,6 +359,60 @@ def _robust(r: Reader) -> RobustConfig:
     return robust
 
 
+def _outputs(r: Reader) -> Ros2Config | None:
+    o = r.sub("outputs", ("ros2",))
+    ros2 = None
+    if o.has("ros2"):
+        v = o.raw("ros2")
+        if v is False or v is None:
+            ros2 = None
+        elif v is True:
+            ros2 = Ros2Config()
+        else:
+            ros2 = _ros2(o)
+    o.finish()
+    return ros2
+
+
+def _ros2(r: Reader) -> Ros2Config:
+    s = r.sub("ros2", ("enabled", *ROS2_KEYS))
+    d = Ros2Config()
+
+    def name(key: str, default: str, topic: bool) -> str:
+        v = s.string(key) if s.has(key) else default
+        ok = all(c.isalnum() or c in "_/~" for c in v) if topic else all(
+            c.isalnum() or c in "_/" for c in v)  # fmt: skip
+        if not v or not ok or "//" in v:
+            what = "a ROS topic name" if topic else "a frame id"
+            raise s.err(key, f"must be {what} (letters, digits, _ and /), got {shown(v)}")
+        return v
+
+    namespace = s.string("namespace") if s.has("namespace") else ""
+    if namespace and not (namespace.startswith("/") and name("namespace", namespace, True)):
+        raise s.err("namespace", f"must start with / (e.g. /robot1), got {shown(namespace)}")
+    domain = s.integer("domain_id", minimum=0) if s.has("domain_id") else None
+    if domain is not None and domain > 232:
+        raise s.err("domain_id", f"must be between 0 and 232 (ROS 2's range), got {domain}")
+    cfg = Ros2Config(
+        domain_id=domain,
+        namespace=namespace.rstrip("/"),
+        odom_topic=name("odom_topic", d.odom_topic, True),
+        tf_topic=name("tf_topic", d.tf_topic, True),
+        diagnostics_topic=name("diagnostics_topic", d.diagnostics_topic, True),
+        odom_frame=name("odom_frame", d.odom_frame, False),
+        base_frame=name("base_frame", d.base_frame, False),
+        map_frame=name("map_frame", d.map_frame, False),
+        publish_tf=s.boolean("publish_tf", d.publish_tf),
+        publish_map_tf=s.boolean("publish_map_tf", d.publish_map_tf),
+        diagnostics=s.boolean("diagnostics", d.diagnostics),
+        counts=s.boolean("counts", d.counts),
+        stamps=s.choice("stamps", STAMPS, d.stamps),
+    )
+    enabled = s.boolean("enabled", True)
+    s.finish()
+    return cfg if enabled else None
+
+
 def _wheels(r: Reader) -> WheelsConfig:
     w = r.sub("wheels", ("radius", "radius_left", "radius_right", "track", "ticks_per_rev"))
     radius = w.number("radius", 0.0) if w.has("radius") else None
@@ -422,6 +500,7 @@ def parse_config(
     server = (doc.attempt(_server, top) if top.has("server") else None) or ServerConfig()
     wheels = doc.attempt(_wheels, top) if top.has("wheels") else None
     robust = (doc.attempt(_robust, top) if top.has("robust") else None) or RobustConfig()
+    ros2 = doc.attempt(_outputs, top) if top.has("outputs") else None
     calibration = doc.attempt(top.string, "calibration")
     calibration_path = str(base_dir / calibration) if calibration else None
     doc.raise_problems()
@@ -454,6 +533,7 @@ def parse_config(
         calibration=calibration_path,
         path=path,
         robust=robust,
+        ros2=ros2,
     )
 
 

@@ -623,9 +623,9 @@ def test_summary_path_starts_at_the_origin_and_counts_one_mouse_as_a_mouse(tmp_p
     eye = np.eye(3).tolist()
     s.add(PoseBatch.from_rows([
         PoseRow(0.01, 0.3, 0.0, 0.0, 30.0, 0.0, 0.0, eye, 1, True, [[0.0, 0.0]], [[0, 0]],
-                (0,), (0,), True),
+                (0,), (0,), True, eye),
         PoseRow(0.02, 0.4, 0.0, 0.0, 10.0, 0.0, 0.0, eye, 1, True, [[0.0, 0.0]], [[0, 0]],
-                (0,), (0,), True),
+                (0,), (0,), True, eye),
     ]))  # fmt: skip
     assert s.path_length == pytest.approx(0.4)  # from (0, 0): not 0.1
     cfg = one_mouse_config(tmp_path)

@@ -42,6 +42,7 @@ def _batch(t):
         state=np.zeros((n, 1), np.int8),
         reason=np.zeros((n, 1), np.int8),
         consistent=np.ones(n, bool),
+        qcov=np.zeros((n, 3, 3)),
     )
 
 

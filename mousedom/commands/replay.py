@@ -43,6 +43,12 @@ def register(subparsers) -> None:
     p.add_argument("--integrator", choices=INTEGRATORS, help="override the config's integrator")
     p.add_argument("--plot", metavar="OUT.png", help="draw trajectory and residuals (matplotlib)")
     p.add_argument(
+        "--mcap",
+        metavar="OUT.mcap",
+        help="write the poses as a ROS 2 MCAP recording: /odom, /tf, each mouse's counts "
+        "(Foxglove, ros2 bag; needs mousedom[ros2])",
+    )
+    p.add_argument(
         "--speed",
         type=float,
         metavar="X",
@@ -81,6 +87,10 @@ def run(args) -> int:
         from mousedom import plot
 
         plot.require()
+    if args.mcap:
+        from mousedom.service import mcapout
+
+        mcapout.require()
     config = load_config(args.config, need_sources=False)
     if args.model:
         # The config checks its own model against its mice; an override must pass too
@@ -110,6 +120,15 @@ def run(args) -> int:
         out = _Output(open_stream(args.output, inputs, text=True), args.output)
     if out is not None:
         sinks.append(CsvSink(out, config.names))
+    recorder = None
+    if args.mcap:
+        from mousedom.config import Ros2Config
+        from mousedom.service.mcapout import McapRecorder
+
+        # stamps: the capture's own clock (a replay has no other)
+        recorder = McapRecorder(args.mcap, config.ros2 or Ros2Config(), config.names,
+                                config.rate_hz, inputs)  # fmt: skip
+        sinks.append(recorder.batch)
     collector = None
     if args.plot:
         from mousedom.plot import PlotCollector
@@ -139,6 +158,8 @@ def run(args) -> int:
             bar.close()
         if out is not None:
             out.finish()
+        if recorder is not None:
+            recorder.close()
 
     for w in summary.warnings[len(early) :]:
         print(f"mousedom: warning: {w}", file=sys.stderr)
@@ -159,7 +180,7 @@ def run(args) -> int:
 
 def _refuse_overwriting_inputs(args, inputs: list[str]) -> None:
     """-o or --plot naming an input would truncate it before it is read (data lost)."""
-    for flag, out in (("-o", args.output), ("--plot", args.plot)):
+    for flag, out in (("-o", args.output), ("--plot", args.plot), ("--mcap", args.mcap)):
         if not out or out == "-" or not os.path.exists(out):
             continue
         for path in inputs:

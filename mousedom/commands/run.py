@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import functools
 import logging
 import os
@@ -70,6 +71,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="also write every sensor report to FILE (native capture, for mousedom replay)",
     )
     p.add_argument(
+        "--ros2",
+        action="store_true",
+        help="also publish /odom, /tf and /diagnostics to ROS 2 over DDS (the config's "
+        "outputs.ros2, or its defaults; domain $ROS_DOMAIN_ID; needs mousedom[ros2])",
+    )
+    p.add_argument(
+        "--record-mcap",
+        metavar="OUT.mcap",
+        help="also write the poses as a ROS 2 MCAP recording (Foxglove, ros2 bag)",
+    )
+    p.add_argument(
         "--verbose", action="store_true", default=argparse.SUPPRESS, help="debug logging"
     )
     p.set_defaults(func=run)
@@ -96,6 +108,32 @@ def run(args: argparse.Namespace) -> int:
                 demo = invocation.command("run", "--demo")
                 raise ConfigError(f"{e} (give --config FILE, or try: {demo})") from None
             raise
-    socket_path = args.socket or config.server.socket or default_socket_path()
-    factory = functools.partial(make_source, loop=True) if args.demo else make_source
-    return Daemon(config, socket_path, source_factory=factory, record=args.record).run()
+    if args.ros2 and config.ros2 is None:
+        from mousedom.config import Ros2Config
+
+        config = dataclasses.replace(config, ros2=Ros2Config())
+    outputs = []
+    try:
+        if config.ros2 is not None:
+            from mousedom.service.ros2out import Ros2Output
+
+            outputs.append(Ros2Output(config.ros2, config.names, config.rate_hz))
+        if args.record_mcap:
+            from mousedom.config import Ros2Config
+            from mousedom.service.mcapout import McapRecorder, system_offset
+
+            inputs = [config.path] + [m.replay for m in config.mice if m.replay]
+            outputs.append(McapRecorder(args.record_mcap, config.ros2 or Ros2Config(),
+                                        config.names, config.rate_hz, inputs,
+                                        offset=system_offset(config.ros2)))  # fmt: skip
+        socket_path = args.socket or config.server.socket or default_socket_path()
+        factory = functools.partial(make_source, loop=True) if args.demo else make_source
+        daemon = Daemon(config, socket_path, source_factory=factory, record=args.record,
+                        outputs=outputs)  # fmt: skip
+        return daemon.run()
+    finally:
+        for out in outputs:
+            try:
+                out.close()
+            except UserError as e:
+                log.error("%s", e)

@@ -34,6 +34,7 @@ class PoseRow(NamedTuple):
     state: tuple[int, ...] | list[int]  # per mouse: robust.STATES index after the window
     reason: tuple[int, ...] | list[int]  # per mouse: robust.REASONS index
     consistent: bool  # False: the mice disagreed and nobody could be blamed
+    qcov: list[list[float]]  # 3x3 covariance of the window's twist increment (u_x, u_y, a)
 
 
 _DTYPES = {"used": int, "ok": bool, "state": np.int8, "reason": np.int8, "consistent": bool}
@@ -58,6 +59,7 @@ class PoseBatch:
     state: np.ndarray  # (n,N) int8: each mouse's health after the window (robust.STATES)
     reason: np.ndarray  # (n,N) int8: why, for suspect and excluded mice (robust.REASONS)
     consistent: np.ndarray  # (n,) bool: False where the mice disagreed, nobody blamed
+    qcov: np.ndarray  # (n,3,3) covariance of the window's twist increment (u_x, u_y, a)
 
     @classmethod
     def from_rows(cls, rows: list[PoseRow]) -> PoseBatch:
@@ -97,6 +99,7 @@ class PoseBatch:
             residual=np.zeros((0, n_mice, 2)), counts=np.zeros((0, n_mice, 2)),
             state=np.zeros((0, n_mice), dtype=np.int8),
             reason=np.zeros((0, n_mice), dtype=np.int8), consistent=np.zeros(0, dtype=bool),
+            qcov=np.zeros((0, 3, 3)),
         )  # fmt: skip
 
     @classmethod

@@ -416,6 +416,7 @@ class Tracker:
             state=health,
             reason=reason,
             consistent=consistent,
+            qcov=sol.cov,
         )
 
     def _screened(self, d: np.ndarray, mask: np.ndarray, sol: models.Solution, evidence=None):
@@ -508,7 +509,7 @@ class Tracker:
         self._pose, self._cov, self._cov_at = [x, y, th], cov, [x, y]
         rate = self._rate
         pose = PoseRow(t_end, x, y, th, ux * rate, uy * rate, a * rate, cov, len(idx), ok,
-                    residual, counts, state, reason, consistent)  # fmt: skip
+                    residual, counts, state, reason, consistent, c3)  # fmt: skip
         return PoseBatch.from_rows([pose])
 
     def _linear_one(self, counts: list, live: tuple[bool, ...]):

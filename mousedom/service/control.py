@@ -26,15 +26,25 @@ class ClientCommands:
         )
         return [banner, *self._source_messages(self.clock())]
 
+    def _moved(self, before: tuple[float, float, float]) -> None:
+        """The pose was moved: outputs that keep a continuous odom frame (REP-105) move
+        their map -> odom correction instead."""
+        if self.outputs:
+            self._to_outputs("moved", before, self.tracker.pose)
+
     def _on_command(self, client: Client, cmd: Command) -> list[dict[str, Any]]:
         a = cmd.args
         if cmd.name == "reset":
+            before = self.tracker.pose
             self.tracker.reset(x=a.get("x", 0.0), y=a.get("y", 0.0), theta=a.get("theta", 0.0))
             log.info("pose reset to %s by %r", self._pose_now(), client)
+            self._moved(before)
             return [ok_message("reset", cmd.id, pose=self._pose_now())]
         if cmd.name == "fix":
+            before = self.tracker.pose
             self.tracker.fix(x=a.get("x"), y=a.get("y"), theta=a.get("theta"))
             log.info("pose fixed (%s) by %r", a, client)
+            self._moved(before)
             return [ok_message("fix", cmd.id, pose=self._pose_now())]
         if cmd.name == "rate":
             client.set_rate(a["hz"])

@@ -68,6 +68,7 @@ class Daemon(SensorSlots, Publisher, ClientCommands, Reloader):
         notifier: Notifier | None = None,
         handle_signals: bool = True,
         record: str | None = None,
+        outputs: list | None = None,
     ) -> None:
         from mousedom.fusion.tracker import Tracker  # late: the numeric core loads only when run
 
@@ -88,6 +89,9 @@ class Daemon(SensorSlots, Publisher, ClientCommands, Reloader):
         self.slots: list[Slot] = []
         self.record_path = record
         self.recording: Any = None  # live_record.Recording while --record is on
+        # Where else each window goes (ROS 2 over DDS, an MCAP file): publish(row),
+        # moved(before, after), sources(messages, t), close() (see publish.py)
+        self.outputs: list[Any] = list(outputs or ())
         self.tracker: Any = None
         self.started = clock()
         self.poses = 0
@@ -211,6 +215,7 @@ class Daemon(SensorSlots, Publisher, ClientCommands, Reloader):
             if now >= next_status:
                 next_status = max(next_status + STATUS_S, now)
                 self._broadcast_sources(now)
+                self._output_sources(now)
                 self._update_status()
                 if self.recording is not None:
                     self._record(self.recording.sync, self.tracker.frontier_time)

@@ -7,11 +7,14 @@ A mixin of ``Daemon``: it uses ``self.slots``, ``self.server``, ``self.tracker``
 
 from __future__ import annotations
 
+import logging
 from typing import Any
 
 from mousedom.fusion import robust
 from mousedom.fusion.posebatch import PoseBatch
 from mousedom.service.protocol import encode, encode_pose, source_message
+
+log = logging.getLogger("mousedom.service.daemon")
 
 
 class Publisher:
@@ -47,6 +50,8 @@ class Publisher:
             self.last_pose_t = pose.t
             self.not_updated += not pose.ok
             self.server.broadcast_pose(pose.t, line, tolerance)
+            if self.outputs:
+                self._to_outputs("publish", pose)
         last = batch.rows()[-1]
         for slot, st, why in zip(self.slots, last.state, last.reason, strict=False):
             slot.health_state, slot.health_reason = int(st), int(why)
@@ -84,6 +89,24 @@ class Publisher:
                 )
             )
         return out
+
+    def _to_outputs(self, method: str, *args: Any) -> None:
+        """Hand on to each output (DDS, MCAP); one that fails is logged and dropped: the
+        socket, which robots rely on, goes on."""
+        for out in list(self.outputs):
+            try:
+                getattr(out, method)(*args)
+            except Exception as e:  # noqa: BLE001 - any failure of an optional output
+                log.error("output %s failed (%s); it is stopped", type(out).__name__, e)
+                self.outputs.remove(out)
+                try:
+                    out.close()
+                except Exception:  # noqa: BLE001
+                    pass
+
+    def _output_sources(self, now: float) -> None:
+        if self.outputs:
+            self._to_outputs("sources", self._source_messages(now), now)
 
     def _broadcast_sources(self, now: float) -> None:
         if not self.server.clients:

@@ -1,0 +1,175 @@
+"""The daemon's windows as ROS 2 messages, as plain data: shared by the DDS output
+(``ros2out``) and the MCAP writer (``mcapout``).  Pure: no DDS, no files, no clock.
+
+Conventions (REP-103, REP-105, docs/ros2.md):
+- ``nav_msgs/msg/Odometry``: the pose of ``base_frame`` in ``odom_frame`` and the twist in
+  ``base_frame`` (the body frame: x forward, y left).  The 3x3 covariances over (x, y, theta)
+  go into the row-major 6x6 over (x, y, z, rot x, rot y, rot z) at rows and columns 0, 1
+  and 5; what planar odometry does not observe (z, roll, pitch and their rates) gets
+  ``UNOBSERVED`` on the diagonal, as robot_localization and Nav2 expect of a 2-D sensor.
+- REP-105 continuity: the odom pose never jumps.  The socket's ``reset`` and ``fix`` move
+  the daemon's pose; here they move the ``map -> odom`` correction instead (``Rep105``),
+  so that map -> odom -> base_link is the fixed pose and odom -> base_link stays smooth.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from mousedom.config import Ros2Config
+
+UNOBSERVED = 1e6  # variance of what a planar sensor cannot see (m^2, rad^2 and per s^2)
+PLANAR = (0, 1, 5)  # x, y, yaw in ROS's 6x6 (x, y, z, rot x, rot y, rot z)
+
+Pose2 = tuple[float, float, float]
+
+
+def compose(a: Pose2, b: Pose2) -> Pose2:
+    """SE(2) a * b: b expressed in a's frame, made absolute."""
+    c, s = math.cos(a[2]), math.sin(a[2])
+    return (a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], a[2] + b[2])
+
+
+def inverse(a: Pose2) -> Pose2:
+    c, s = math.cos(a[2]), math.sin(a[2])
+    return (-(c * a[0] + s * a[1]), s * a[0] - c * a[1], -a[2])
+
+
+class Rep105:
+    """The map -> odom correction M with P = M * O: P is the daemon's pose (which ``reset``
+    and ``fix`` move), O the odometry frame's pose of the robot (which never jumps).  Both
+    take the same body-frame steps, so M changes only when the daemon's pose is moved."""
+
+    def __init__(self) -> None:
+        self.map_odom: Pose2 = (0.0, 0.0, 0.0)
+
+    def odom_pose(self, pose: Pose2) -> Pose2:
+        return compose(inverse(self.map_odom), pose)
+
+    def moved(self, before: Pose2, after: Pose2) -> None:
+        """The daemon's pose was set from ``before`` to ``after`` (reset or fix)."""
+        self.map_odom = compose(compose(after, inverse(before)), self.map_odom)
+
+
+def quaternion(yaw: float) -> dict[str, float]:
+    return {"x": 0.0, "y": 0.0, "z": math.sin(0.5 * yaw), "w": math.cos(0.5 * yaw)}
+
+
+def covariance6(cov3: Any, rotate: float = 0.0) -> list[float]:
+    """A 3x3 covariance over (x, y, yaw) as ROS's row-major 6x6; ``rotate`` turns its
+    x, y block by that angle (the odom frame is the daemon's turned by map -> odom)."""
+    c = [[float(v) for v in row] for row in cov3]
+    if rotate:
+        cr, sr = math.cos(rotate), math.sin(rotate)
+        r = [[cr, -sr, 0.0], [sr, cr, 0.0], [0.0, 0.0, 1.0]]
+        rc = [[sum(r[i][k] * c[k][j] for k in range(3)) for j in range(3)] for i in range(3)]
+        c = [[sum(rc[i][k] * r[j][k] for k in range(3)) for j in range(3)] for i in range(3)]
+    out = [0.0] * 36
+    for k in (2, 3, 4):
+        out[7 * k] = UNOBSERVED
+    for a, i in enumerate(PLANAR):
+        for b, j in enumerate(PLANAR):
+            v = c[a][b]
+            out[6 * i + j] = v if v == v else UNOBSERVED  # NaN: unknown
+    return out
+
+
+def stamp(t: float, offset: float) -> dict[str, int]:
+    """builtin_interfaces/Time of monotonic time t plus ``offset`` (the system clock's lead
+    over the monotonic one, or 0), rounded to the nanosecond."""
+    ns = max(0, round((t + offset) * 1e9))
+    return {"sec": ns // 1_000_000_000, "nanosec": ns % 1_000_000_000}
+
+
+def stamp_ns(t: float, offset: float) -> int:
+    return max(0, round((t + offset) * 1e9))
+
+
+def header(frame: str, st: dict[str, int]) -> dict[str, Any]:
+    return {"stamp": st, "frame_id": frame}
+
+
+def topic(cfg: Ros2Config, name: str) -> str:
+    """A topic under the namespace: /odom -> /robot1/odom."""
+    name = name if name.startswith("/") else "/" + name
+    return (cfg.namespace or "") + name
+
+
+def odometry(
+    cfg: Ros2Config, st: dict[str, int], odom: Pose2, rotate: float, row: Any, rate: float
+) -> dict[str, Any]:
+    """nav_msgs/msg/Odometry of one window: ``odom`` its pose in the odom frame, ``rotate``
+    the odom frame's turn from the daemon's (for the pose covariance), ``row`` the window
+    (a PoseRow), ``rate`` windows per second (the twist covariance is q's times rate^2)."""
+    r2 = rate * rate
+    qcov = [[float(v) * r2 for v in line] for line in row.qcov]
+    return {
+        "header": header(cfg.odom_frame, st),
+        "child_frame_id": cfg.base_frame,
+        "pose": {
+            "pose": {
+                "position": {"x": odom[0], "y": odom[1], "z": 0.0},
+                "orientation": quaternion(odom[2]),
+            },
+            "covariance": covariance6(row.cov, rotate),
+        },
+        "twist": {
+            "twist": {
+                "linear": {"x": float(row.vx), "y": float(row.vy), "z": 0.0},
+                "angular": {"x": 0.0, "y": 0.0, "z": float(row.omega)},
+            },
+            "covariance": covariance6(qcov),
+        },
+    }
+
+
+def transform(parent: str, child: str, st: dict[str, int], pose: Pose2) -> dict[str, Any]:
+    """geometry_msgs/msg/TransformStamped: ``child``'s pose in ``parent``."""
+    return {
+        "header": header(parent, st),
+        "child_frame_id": child,
+        "transform": {
+            "translation": {"x": pose[0], "y": pose[1], "z": 0.0},
+            "rotation": quaternion(pose[2]),
+        },
+    }
+
+
+# diagnostic_msgs/msg/DiagnosticStatus levels
+OK, WARN, ERROR, STALE = 0, 1, 2, 3
+_LEVEL = {"tracking": OK, "suspect": WARN, "excluded": ERROR, "missing": ERROR, "gone": ERROR}
+
+
+def diagnostics(st: dict[str, int], sources: list[dict[str, Any]]) -> dict[str, Any]:
+    """diagnostic_msgs/msg/DiagnosticArray: one status per sensor from its SOURCE message
+    (the fault-tolerant fusion's state and reason, whether it is connected, its rate)."""
+    statuses = []
+    for s in sources:
+        state = s.get("state") or ("tracking" if s.get("live") else "gone")
+        if not s.get("connected"):
+            state = "gone"
+        why = s.get("reason") or s.get("error") or ""
+        values = {
+            "state": state,
+            "reason": why,
+            "reports per second": f"{s.get('rate_hz') or 0.0:.1f}",
+            "residual (m per window)": "" if s.get("residual") is None else f"{s['residual']:.3g}",
+            "kind": str(s.get("kind", "")),
+        }
+        if "squal" in s:
+            values["SQUAL"] = str(s["squal"])
+        statuses.append({
+            "level": _LEVEL.get(state, WARN),
+            "name": f"mousedom: {s.get('name', '?')}",
+            "message": state + (f" ({why})" if why else ""),
+            "hardware_id": str(s.get("node") or s.get("port") or s.get("name", "")),
+            "values": [{"key": k, "value": v} for k, v in values.items()],
+        })  # fmt: skip
+    return {"header": header("", st), "status": statuses}
+
+
+def counts(st: dict[str, int], mouse: str, cx: float, cy: float) -> dict[str, Any]:
+    """geometry_msgs/msg/Vector3Stamped: one mouse's counts (REL_X, REL_Y) in a window,
+    ``frame_id`` its name."""
+    return {"header": header(mouse, st), "vector": {"x": float(cx), "y": float(cy), "z": 0.0}}

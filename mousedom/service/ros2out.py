@@ -1,0 +1,128 @@
+"""The daemon's ROS 2 output: nav_msgs/Odometry, TF and diagnostics over DDS, no ROS needed.
+
+ROS 2's middleware is DDS; ``cyclonedds`` (the ``ros2`` extra) speaks it.  ROS 2's
+conventions on the wire (what rmw_cyclonedds does): a topic ``/odom`` is the DDS topic
+``rt/odom``, the type ``nav_msgs/msg/Odometry`` is ``nav_msgs::msg::dds_::Odometry_`` in
+XCDR1, the domain is ``$ROS_DOMAIN_ID`` (0 if unset) unless the config names one.  QoS as
+rclcpp's defaults for these topics: reliable, volatile, keep last 10 (/odom, /diagnostics)
+and keep last 100 (/tf, as tf2's TransformBroadcaster).
+
+What is published is ``ros2conv``'s: odom -> base_link that never jumps (REP-105), the
+map -> odom correction that the socket's reset and fix move, one DiagnosticStatus per
+sensor from the fault-tolerant fusion's health.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from typing import Any
+
+from mousedom.config import Ros2Config
+from mousedom.errors import UserError
+from mousedom.service import ros2conv as conv
+from mousedom.service import ros2msgs as msgs
+
+log = logging.getLogger("mousedom.service.ros2")
+
+INSTALL_HINT = (
+    "the ROS 2 output needs cyclonedds, which is not installed: "
+    "pip install 'mousedom[ros2]' (or: pip install cyclonedds mcap mcap-ros2-support)"
+)
+
+
+def require() -> None:
+    try:
+        import cyclonedds.domain  # noqa: F401
+    except ImportError:
+        raise UserError(INSTALL_HINT) from None
+
+
+def domain_id(cfg: Ros2Config, environ: dict[str, str] | None = None) -> int:
+    """The config's domain, else $ROS_DOMAIN_ID, else 0 (as ROS 2 does)."""
+    if cfg.domain_id is not None:
+        return cfg.domain_id
+    raw = (os.environ if environ is None else environ).get("ROS_DOMAIN_ID", "").strip()
+    if not raw:
+        return 0
+    if not raw.isdigit() or int(raw) > 232:
+        raise UserError(f"ROS_DOMAIN_ID={raw!r}: must be a number from 0 to 232")
+    return int(raw)
+
+
+class Ros2Output:
+    """One DDS participant and its writers; ``publish`` per window (see the module)."""
+
+    def __init__(self, cfg: Ros2Config, sensors: tuple[str, ...], rate_hz: float) -> None:
+        require()
+        from cyclonedds.domain import DomainParticipant
+        from cyclonedds.pub import DataWriter
+        from cyclonedds.qos import Policy, Qos
+        from cyclonedds.topic import Topic
+        from cyclonedds.util import duration
+
+        self.cfg, self.sensors, self.rate = cfg, sensors, rate_hz
+        self.domain = domain_id(cfg)
+        self.rep = conv.Rep105()
+        types = msgs.idl_types()
+        self.participant = DomainParticipant(self.domain)
+
+        def writer(topic: str, name: str, depth: int):
+            qos = Qos(
+                Policy.Reliability.Reliable(duration(milliseconds=100)),
+                Policy.Durability.Volatile,
+                Policy.History.KeepLast(depth),
+            )
+            t = Topic(self.participant, "rt" + conv.topic(cfg, topic), types[name], qos=qos)
+            return DataWriter(self.participant, t, qos)
+
+        self.odom = writer(cfg.odom_topic, msgs.ODOMETRY, 10)
+        self.tf = (
+            writer(cfg.tf_topic, msgs.TF, 100) if cfg.publish_tf or cfg.publish_map_tf else None
+        )
+        self.diag = writer(cfg.diagnostics_topic, msgs.DIAGNOSTICS, 10) if cfg.diagnostics else None
+        self.counts = []
+        if cfg.counts:
+            self.counts = [writer(f"/mousedom/{s}/counts", msgs.COUNTS, 10) for s in sensors]
+        self.sent = 0
+        log.info("ROS 2 output on domain %d: %s (%s -> %s)", self.domain,
+                 conv.topic(cfg, cfg.odom_topic), cfg.odom_frame, cfg.base_frame)  # fmt: skip
+
+    def _offset(self) -> float:
+        # The system clock's lead over the monotonic one, read per message: NTP may step it.
+        return time.time() - time.monotonic() if self.cfg.stamps == "system" else 0.0
+
+    def publish(self, row: Any) -> None:
+        """One window (a PoseRow): Odometry, and TF where enabled."""
+        cfg = self.cfg
+        st = conv.stamp(row.t, self._offset())
+        odom = self.rep.odom_pose((row.x, row.y, row.theta))
+        rotate = -self.rep.map_odom[2]
+        self.odom.write(msgs.build(msgs.ODOMETRY, conv.odometry(cfg, st, odom, rotate, row,
+                                                                 self.rate)))  # fmt: skip
+        if self.tf is not None:
+            tfs = []
+            if cfg.publish_tf:
+                tfs.append(conv.transform(cfg.odom_frame, cfg.base_frame, st, odom))
+            if cfg.publish_map_tf:
+                tfs.append(conv.transform(cfg.map_frame, cfg.odom_frame, st, self.rep.map_odom))
+            self.tf.write(msgs.build(msgs.TF, {"transforms": tfs}))
+        for w, (cx, cy) in zip(self.counts, row.counts, strict=False):
+            w.write(msgs.build(msgs.COUNTS, conv.counts(st, "", cx, cy)))
+        self.sent += 1
+
+    def moved(self, before: conv.Pose2, after: conv.Pose2) -> None:
+        """The socket's reset or fix moved the pose: map -> odom takes the jump."""
+        self.rep.moved(before, after)
+
+    def sources(self, messages: list[dict[str, Any]], t: float) -> None:
+        """The SOURCE messages (once a second) as /diagnostics."""
+        if self.diag is not None:
+            st = conv.stamp(t, self._offset())
+            self.diag.write(msgs.build(msgs.DIAGNOSTICS, conv.diagnostics(st, messages)))
+
+    def close(self) -> None:
+        self.odom = self.tf = self.diag = None
+        self.counts = []
+        self.participant = None
