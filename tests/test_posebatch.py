@@ -11,8 +11,9 @@ from mousedom.fusion.posebatch import PoseBatch, PoseRow
 def _row(k: int) -> PoseRow:
     cov = [[1e-6 * (k + 1), 2e-9, 0.0], [2e-9, 3e-6, 1e-9], [0.0, 1e-9, 4e-5]]
     res = [[1e-5 * k, -2e-5], [0.0, 0.0]]
+    health = ((0, 2 * (k % 2)), (0, k % 2), k != 1)
     return PoseRow(0.01 * k, 0.1 * k, -0.2, 0.3, 1.0, 0.0, -0.5, cov, 2 - k % 2, k % 3 != 0,
-                res, [(k, -3.0), (0.5, 2.0)], (0, 2 * (k % 2)), (0, k % 2), k != 1, cov)  # fmt: skip
+                   res, [(k, -3.0), (0.5, 2.0)], *health, cov)  # fmt: skip
 
 
 def test_rows_become_arrays_of_the_array_layout_on_first_read():
