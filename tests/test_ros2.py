@@ -1,0 +1,404 @@
+"""ROS 2 output (issue 12): DDS to a subscriber made from ROS 2's own message definitions,
+MCAP files read back by the mcap library and by rosbags, REP-105, and life without the
+extra.
+
+The DDS tests run a real daemon process and a real subscriber process
+(tests/ros2_subscriber.py, whose types come from rosbags' typestores for Humble and
+Jazzy) on a throw-away domain, over loopback unicast (no multicast needed).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import random
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import run_mousedom
+from daemon_fixtures import REPO, Conn, DaemonProcess, Feeder, FifoMouse, write_rig_config
+from rosbags.typesys import Stores, get_typestore
+
+from mousedom.config import Ros2Config, parse_config
+from mousedom.fusion import sim
+from mousedom.service import ros2conv, ros2msgs
+from mousedom.yamldoc import ConfigError
+
+LOOPBACK = (
+    '<CycloneDDS><Domain><General><Interfaces><NetworkInterface name="lo"/></Interfaces>'
+    "<AllowMulticast>false</AllowMulticast></General><Discovery>"
+    '<ParticipantIndex>auto</ParticipantIndex><Peers><Peer address="127.0.0.1"/></Peers>'
+    "</Discovery></Domain></CycloneDDS>"
+)
+
+
+def _yaw(q: dict) -> float:
+    return 2.0 * math.atan2(q["z"], q["w"])
+
+
+# --------------------------------------------------------------------------- definitions
+
+
+@pytest.mark.parametrize("store", [Stores.ROS2_HUMBLE, Stores.ROS2_JAZZY])
+def test_our_field_lists_are_ros2s(store):
+    """Every type we publish has exactly ROS 2's fields, in order, of ROS 2's types
+    (rosbags' copies of the interface packages of Humble and of Jazzy)."""
+    ts = get_typestore(store)
+
+    def describe(node) -> str:
+        kind, detail = node
+        if kind == 1:
+            return detail[0]
+        if kind == 2:
+            pkg, _, name = detail.split("/")
+            return f"{pkg}/{name}"
+        inner, size = detail
+        return f"{describe(inner)}[{size if kind == 3 else ''}]"
+
+    for name, fields in ros2msgs.FIELDS.items():
+        _, theirs = ts.fielddefs[ros2msgs.ros2_name(name)]
+        assert [(describe(node), fname) for fname, node in theirs] == list(fields), name
+
+
+def test_our_cdr_is_what_rosbags_reads():
+    """Serialised by cyclonedds from our types, deserialised by rosbags from ROS 2's."""
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    row = _row()
+    msg = ros2conv.odometry(Ros2Config(), ros2conv.stamp(12.5, 0.0), (1.0, 2.0, 0.3), 0.0,
+                            row, 50.0)  # fmt: skip
+    data = ros2msgs.build(ros2msgs.ODOMETRY, msg).serialize()
+    back = ts.deserialize_cdr(data, "nav_msgs/msg/Odometry")
+    assert back.header.stamp.sec == 12 and back.header.stamp.nanosec == 500_000_000
+    assert back.child_frame_id == "base_link" and back.pose.pose.position.y == 2.0
+    assert back.twist.twist.angular.z == row.omega
+    assert back.pose.covariance[35] == row.cov[2][2]
+
+
+def _row():
+    from mousedom.fusion.posebatch import PoseRow
+
+    cov = [[1.0, 2.0, 3.0], [2.0, 5.0, 6.0], [3.0, 6.0, 9.0]]
+    qcov = [[0.1, 0.2, 0.3], [0.2, 0.5, 0.6], [0.3, 0.6, 0.9]]
+    return PoseRow(12.5, 1.0, 2.0, 0.3, 0.25, -0.01, 0.5, cov, 3, True, [[0, 0]] * 3,
+                   [[1, 2]] * 3, (0, 0, 0), (0, 0, 0), True, qcov)  # fmt: skip
+
+
+def test_covariances_land_in_rosses_six_by_six():
+    """(x, y, yaw) at rows and columns 0, 1, 5 of the row-major 6x6; z, roll and pitch
+    unobserved; the twist's is q's times rate squared."""
+    row = _row()
+    msg = ros2conv.odometry(Ros2Config(), ros2conv.stamp(0.0, 0.0), (0.0, 0.0, 0.0), 0.0,
+                            row, 10.0)  # fmt: skip
+    c = np.array(msg["pose"]["covariance"]).reshape(6, 6)
+    assert c[np.ix_([0, 1, 5], [0, 1, 5])].tolist() == row.cov
+    assert [c[2, 2], c[3, 3], c[4, 4]] == [ros2conv.UNOBSERVED] * 3
+    assert c[0, 2] == c[2, 5] == 0.0
+    t = np.array(msg["twist"]["covariance"]).reshape(6, 6)
+    np.testing.assert_allclose(t[np.ix_([0, 1, 5], [0, 1, 5])], np.array(row.qcov) * 100.0)
+
+
+def test_rep105_odom_never_jumps_and_map_odom_takes_the_fix():
+    rep = ros2conv.Rep105()
+    p = (1.0, 0.5, 0.4)
+    assert rep.odom_pose(p) == p
+    rep.moved(p, (3.0, -1.0, 1.2))  # a fix moved the daemon's pose
+    after = (3.0, -1.0, 1.2)
+    np.testing.assert_allclose(rep.odom_pose(after), p, atol=1e-12)  # odom did not move
+    step = (0.1, 0.02, 0.05)  # a body-frame step taken by both frames
+    np.testing.assert_allclose(rep.odom_pose(ros2conv.compose(after, step)),
+                               ros2conv.compose(p, step), atol=1e-12)  # fmt: skip
+    np.testing.assert_allclose(ros2conv.compose(rep.map_odom, rep.odom_pose(after)), after,
+                               atol=1e-12)  # fmt: skip
+
+
+def test_outputs_ros2_config():
+    base = "mice:\n  a: {cpi: 400, mount: {x: 0, y: 0}}\n  b: {cpi: 400, mount: {x: 1, y: 0}}\n"
+    assert parse_config(base, need_sources=False).ros2 is None
+    cfg = parse_config(base + "outputs: {ros2: true}\n", need_sources=False)
+    assert cfg.ros2 == Ros2Config()
+    cfg = parse_config(base + "outputs:\n  ros2: {namespace: /robot1, domain_id: 7, "
+                       "publish_tf: false, stamps: monotonic}\n", need_sources=False)  # fmt: skip
+    assert cfg.ros2.namespace == "/robot1" and cfg.ros2.domain_id == 7
+    assert ros2conv.topic(cfg.ros2, cfg.ros2.odom_topic) == "/robot1/odom"
+    off = parse_config(base + "outputs: {ros2: {enabled: false}}\n", need_sources=False)
+    assert off.ros2 is None
+    for bad, says in (
+        ("{domain_id: 300}", "domain_id: must be between 0 and 232"),
+        ("{namespace: robot1}", "namespace: must start with /"),
+        ("{odom_topic: 'od om'}", "odom_topic: must be a ROS topic name"),
+        ("{stamps: wall}", "stamps: must be one of system, monotonic"),
+        ("{odom_frme: x}", "unknown key (did you mean odom_frame?"),
+    ):
+        with pytest.raises(ConfigError) as e:
+            parse_config(base + f"outputs: {{ros2: {bad}}}\n", "<t>", need_sources=False)
+        assert "outputs.ros2." in str(e.value) and says in str(e.value), str(e.value)
+
+
+# --------------------------------------------------------------------------- DDS
+
+
+class Subscriber:
+    """tests/ros2_subscriber.py as a process: its JSON lines, collected by a thread."""
+
+    def __init__(self, distro: str, domain: int, env: dict, *topics: str) -> None:
+        self.proc = subprocess.Popen(
+            [sys.executable, str(REPO / "tests" / "ros2_subscriber.py"), distro, str(domain),
+             *topics],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
+            text=True,
+        )  # fmt: skip
+        assert self.proc.stdout.readline().strip() == "ready", self.proc.stderr.read()
+        self.messages: list[dict] = []
+        self.thread = threading.Thread(target=self._collect, daemon=True)
+        self.thread.start()
+
+    def _collect(self) -> None:
+        for line in self.proc.stdout:
+            self.messages.append(json.loads(line))
+
+    def of(self, topic: str) -> list[dict]:
+        return [m["msg"] for m in list(self.messages) if m["topic"] == topic]
+
+    def wait_for(self, topic: str, n: int, timeout: float = 10.0) -> list[dict]:
+        deadline = time.monotonic() + timeout
+        while len(self.of(topic)) < n and time.monotonic() < deadline:
+            time.sleep(0.05)
+        return self.of(topic)
+
+    def stop(self) -> None:
+        self.proc.stdin.close()
+        self.proc.wait(5)
+
+
+@pytest.fixture
+def dds_env(tmp_path):
+    env = dict(os.environ)
+    env["CYCLONEDDS_URI"] = LOOPBACK
+    env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
+    env.pop("ROS_DOMAIN_ID", None)
+    return env, random.Random().randrange(100, 230)
+
+
+@pytest.mark.parametrize("distro", ["humble", "jazzy"])
+def test_odometry_and_tf_reach_a_ros2_subscriber(tmp_path, dds_env, distro):
+    """A three-mouse FIFO rig; the daemon's /odom and /tf against its socket's POSE, window
+    by window (monotonic stamps, so that a POSE and its Odometry share a time); then a
+    ``fix`` that moves the POSE but not /odom, only map -> odom (REP-105)."""
+    env, domain = dds_env
+    rig = sim.three_mouse_rig()
+    fifos = {m.name: tmp_path / f"{m.name}.fifo" for m in rig.mice}
+    mice = {n: FifoMouse(p) for n, p in fifos.items()}
+    extra = (f"outputs:\n  ros2: {{domain_id: {domain}, stamps: monotonic, "
+             "publish_map_tf: true}\n")  # fmt: skip
+    config = write_rig_config(tmp_path / "rig.yaml", rig, fifos, extra, rate_hz=50.0)
+    sub = Subscriber(distro, domain, env, "/odom=nav_msgs/msg/Odometry",
+                     "/tf=tf2_msgs/msg/TFMessage",
+                     "/diagnostics=diagnostic_msgs/msg/DiagnosticArray")  # fmt: skip
+    daemon = DaemonProcess(config, tmp_path / "run" / "mousedom.sock", env=env)
+    feeder = None
+    try:
+        daemon.wait_socket()
+        for m in mice.values():
+            m.attach()
+        traj = sim.sequence(sim.straight(0.6, 0.2), sim.arc(0.5, 1.0, 0.2))
+        result = sim.simulate(rig, traj, seed=3)
+        feeder = Feeder(mice, result.reports, time.monotonic() + 0.1)
+        feeder.start()
+        c = Conn(daemon.socket_path)
+        poses = [m for m in (c.read() for _ in range(400)) if m["class"] == "POSE"]
+        odoms = sub.wait_for("/odom", 100)
+        by_t = {round(o["header"]["stamp"]["sec"] + o["header"]["stamp"]["nanosec"] * 1e-9, 6): o
+                for o in odoms}  # fmt: skip
+        matched = [(p, by_t[round(p["t"], 6)]) for p in poses if round(p["t"], 6) in by_t]
+        assert len(matched) > 50
+        for p, o in matched:
+            assert o["header"]["frame_id"] == "odom" and o["child_frame_id"] == "base_link"
+            pos = o["pose"]["pose"]["position"]
+            assert (pos["x"], pos["y"]) == pytest.approx((p["x"], p["y"]), abs=1e-9)
+            assert _yaw(o["pose"]["pose"]["orientation"]) == pytest.approx(p["theta"], abs=1e-9)
+            tw = o["twist"]["twist"]
+            assert (tw["linear"]["x"], tw["angular"]["z"]) == pytest.approx(
+                (p["vx"], p["omega"]), abs=1e-9)  # fmt: skip
+            cov = np.array(o["pose"]["covariance"]).reshape(6, 6)
+            np.testing.assert_allclose(cov[np.ix_([0, 1, 5], [0, 1, 5])], p["cov"],
+                                       rtol=1e-9, atol=1e-15)  # fmt: skip
+        moving = [o for p, o in matched if abs(p["vx"]) > 0.1]
+        assert moving and all(o["twist"]["covariance"][0] > 0 for o in moving)
+        tfs = sub.wait_for("/tf", 50)
+        frames = {(t["header"]["frame_id"], t["child_frame_id"]) for m in tfs
+                  for t in m["transforms"]}  # fmt: skip
+        assert frames == {("odom", "base_link"), ("map", "odom")}
+
+        # REP-105: a fix moves map -> odom, not odom
+        last_odom = sub.of("/odom")[-1]["pose"]["pose"]["position"]["x"]
+        c.send({"cmd": "fix", "x": 5.0})
+        ok = c.until("OK")
+        assert ok["pose"]["x"] == 5.0
+        after = c.until("POSE")
+        time.sleep(0.3)
+        later = [o for o in sub.of("/odom") if o["header"]["stamp"]["sec"]
+                 + o["header"]["stamp"]["nanosec"] * 1e-9 >= after["t"] - 1e-6]  # fmt: skip
+        assert later and abs(later[0]["pose"]["pose"]["position"]["x"] - last_odom) < 0.05
+        map_odom = [t for m in sub.of("/tf") for t in m["transforms"]
+                    if t["header"]["frame_id"] == "map"][-1]["transform"]  # fmt: skip
+        x_odom = later[-1]["pose"]["pose"]["position"]["x"]
+        assert map_odom["translation"]["x"] == pytest.approx(5.0 - last_odom, abs=0.05)
+        assert x_odom < 2.0  # odom still near where the robot drove, not at 5 m
+        diags = sub.wait_for("/diagnostics", 1)
+        names = {s["name"] for s in diags[-1]["status"]}
+        assert names == {"mousedom: front", "mousedom: left", "mousedom: right"}
+        assert all(s["level"] == 0 for s in diags[-1]["status"])
+        c.close()
+    finally:
+        if feeder is not None:
+            feeder.stop()
+        daemon.stop()
+        sub.stop()
+
+
+def test_run_demo_ros2_uses_ros_domain_id(tmp_path, dds_env):
+    """`mousedom run --demo --ros2`, ROS_DOMAIN_ID from the environment: /odom arrives."""
+    env, domain = dds_env
+    env = {**env, "ROS_DOMAIN_ID": str(domain)}
+    sub = Subscriber("jazzy", domain, env, "/odom=nav_msgs/msg/Odometry")
+    daemon = DaemonProcess(Path("unused"), tmp_path / "run" / "m.sock", "--demo", "--ros2",
+                           env=env, config_args=False)  # fmt: skip
+    try:
+        daemon.wait_socket()
+        odoms = sub.wait_for("/odom", 20)
+        assert len(odoms) >= 20
+        stamp = odoms[-1]["header"]["stamp"]["sec"]
+        assert abs(stamp - time.time()) < 60  # system clock stamps by default (ROS time)
+    finally:
+        daemon.stop()
+        sub.stop()
+    assert f"ROS 2 output on domain {domain}" in daemon.log()
+
+
+# --------------------------------------------------------------------------- MCAP
+
+
+def test_replay_mcap_reads_back_with_mcap_and_rosbags(tmp_path):
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+    from rosbags.highlevel import AnyReader
+
+    from mousedom.capture.replay import read_csv
+    from mousedom.demo import DEMO_CONFIG
+
+    out = tmp_path / "demo.mcap"
+    proc = run_mousedom("replay", "--config", str(DEMO_CONFIG), "-o", "-", "--mcap", str(out))
+    assert proc.returncode == 0, proc.stderr
+    rows = read_csv(proc.stdout)
+    with open(out, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        summary = reader.get_summary()
+        kinds = {c.topic: (summary.schemas[c.schema_id].name,
+                           summary.schemas[c.schema_id].encoding, c.message_encoding)
+                 for c in summary.channels.values()}  # fmt: skip
+        odom = [m for _, _, _, m in reader.iter_decoded_messages(topics=["/odom"])]
+    assert kinds["/odom"] == ("nav_msgs/msg/Odometry", "ros2msg", "cdr")
+    assert kinds["/tf"][0] == "tf2_msgs/msg/TFMessage"
+    assert kinds["/mousedom/front/counts"][0] == "geometry_msgs/msg/Vector3Stamped"
+    assert len(odom) == len(rows["t"])
+    x = np.array([m.pose.pose.position.x for m in odom])
+    yaw = np.array([2 * math.atan2(m.pose.pose.orientation.z, m.pose.pose.orientation.w)
+                    for m in odom])  # fmt: skip
+    np.testing.assert_allclose(x, rows["x"], atol=1e-9)
+    np.testing.assert_allclose(np.unwrap(yaw), rows["theta"], atol=1e-6)
+    stamps = np.array([m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in odom])
+    np.testing.assert_allclose(stamps, rows["t"], atol=1e-6)
+    with AnyReader([out]) as bag:
+        conns = {c.topic: c for c in bag.connections}
+        got = [
+            bag.deserialize(raw, c.msgtype)
+            for c, _, raw in bag.messages(connections=[conns["/mousedom/left/counts"]])
+        ]
+        tf = [bag.deserialize(raw, c.msgtype)
+              for c, _, raw in bag.messages(connections=[conns["/tf"]])]  # fmt: skip
+    assert len(got) == len(rows["t"]) and got[0].header.frame_id == "left"
+    assert tf[-1].transforms[0].transform.translation.x == pytest.approx(rows["x"][-1], abs=1e-9)
+    # every count of the capture is in the recording (the demo's left mouse)
+    total = sum(m.vector.y for m in got)
+    assert total == pytest.approx(_net_counts("left")[1], abs=1e-6)
+
+
+def _net_counts(name: str):
+    """What the engine counted for a mouse of the demo, in process."""
+    from mousedom.capture import assign
+    from mousedom.capture.replay import Replay
+    from mousedom.config import load_config
+    from mousedom.demo import DEMO_CONFIG
+
+    config = load_config(DEMO_CONFIG, need_sources=False)
+    batches = []
+    Replay(config, assign(config, [])).run(batches.append)
+    i = config.names.index(name)
+    return sum(b.counts[:, i].sum(axis=0) for b in batches)
+
+
+def test_run_record_mcap_writes_what_the_socket_saw(tmp_path):
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    out = tmp_path / "run.mcap"
+    daemon = DaemonProcess(Path("unused"), tmp_path / "run" / "m.sock", "--demo",
+                           "--record-mcap", str(out), config_args=False)  # fmt: skip
+    try:
+        daemon.wait_socket()
+        c = Conn(daemon.socket_path)
+        poses = [m for m in (c.read() for _ in range(200)) if m["class"] == "POSE"]
+        time.sleep(1.2)  # a SOURCE round: /diagnostics
+    finally:
+        assert daemon.stop() == 0
+    with open(out, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        odom = [m for _, _, _, m in reader.iter_decoded_messages(topics=["/odom"])]
+    with open(out, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        diags = [m for _, _, _, m in reader.iter_decoded_messages(topics=["/diagnostics"])]
+    assert len(odom) >= len(poses) > 50 and diags
+    xs = {round(m.pose.pose.position.x, 9) for m in odom}
+    assert all(round(p["x"], 9) in xs for p in poses[-20:])
+
+
+# --------------------------------------------------------------------------- without the extra
+
+
+def _without(tmp_path: Path, *modules: str) -> dict:
+    """An environment in which importing ``modules`` fails, as on a machine without them."""
+    shim = tmp_path / "shim"
+    for mod in modules:
+        (shim / mod).mkdir(parents=True)
+        (shim / mod / "__init__.py").write_text(f"raise ImportError('no module named {mod}')\n")
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(shim), str(REPO), env.get("PYTHONPATH", "")])
+    return env
+
+
+def test_without_the_extra_the_daemon_runs_and_ros2_says_how_to_install(tmp_path):
+    env = _without(tmp_path, "cyclonedds", "mcap_ros2")
+    proc = subprocess.run([sys.executable, "-m", "mousedom", "run", "--demo", "--ros2",
+                           "--socket", str(tmp_path / "a.sock")], env=env, capture_output=True,
+                          text=True, timeout=60)  # fmt: skip
+    assert proc.returncode != 0
+    assert "pip install 'mousedom[ros2]'" in proc.stderr and "Traceback" not in proc.stderr
+    proc = run_mousedom("replay", "--config", str(REPO / "mousedom" / "data" / "demo-rig.yaml"),
+                        "--mcap", str(tmp_path / "x.mcap"), env=env)  # fmt: skip
+    assert proc.returncode != 0 and "mousedom[ros2]" in proc.stderr
+    assert "Traceback" not in proc.stderr and not (tmp_path / "x.mcap").exists()
+    # and without --ros2 the daemon runs as before, the DDS library never imported
+    daemon = DaemonProcess(Path("unused"), tmp_path / "run" / "m.sock", "--demo", env=env,
+                           config_args=False)  # fmt: skip
+    try:
+        daemon.wait_socket()
+        c = Conn(daemon.socket_path)
+        assert c.until("POSE")["updating"] in (True, False)
+    finally:
+        assert daemon.stop() == 0
