@@ -103,7 +103,7 @@ def feeder(paths: list[str], seconds: float, out: str) -> None:
 # ----------------------------------------------------------------------------- daemon run
 
 
-def write_config(d: Path, fifos: list[Path], rate_hz: float) -> Path:
+def write_config(d: Path, fifos: list[Path], rate_hz: float, extra: str = "") -> Path:
     lines = [f"rate_hz: {rate_hz}", "model: lsq", "integrator: exact", "mice:"]
     for name, (x, y), fifo in zip(
         MICE, [(0.15, 0), (0, 0.15), (-0.15, 0), (0, -0.15)], fifos, strict=True
@@ -116,7 +116,7 @@ def write_config(d: Path, fifos: list[Path], rate_hz: float) -> Path:
             f"    report_hz: {REPORT_HZ}",
         ]
     path = d / "bench.yaml"
-    path.write_text("\n".join(lines) + "\n")
+    path.write_text("\n".join(lines) + "\n" + extra)
     return path
 
 
@@ -127,11 +127,13 @@ def start_feeder(fifos: list[Path], seconds: float, out: Path) -> subprocess.Pop
     )
 
 
-def run_daemon(d: Path, seconds: float, rate_hz: float) -> dict:
+def run_daemon(d: Path, seconds: float, rate_hz: float, extra: str = "", on_ready=None) -> dict:
+    """One measured run; ``extra`` is appended to the rig config, ``on_ready()`` is called
+    once the daemon listens (bench/ros2.py starts its subscriber there)."""
     fifos = [d / f"{m}.fifo" for m in MICE]
     for f in fifos:
         os.mkfifo(f)
-    config = write_config(d, fifos, rate_hz)
+    config = write_config(d, fifos, rate_hz, extra)
     sock_path = d / "mousedom.sock"
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     daemon = subprocess.Popen(
@@ -152,6 +154,8 @@ def run_daemon(d: Path, seconds: float, rate_hz: float) -> dict:
         if daemon.poll() is not None:
             raise SystemExit("daemon did not start")
         time.sleep(0.02)
+    if on_ready is not None:
+        on_ready()
     stamps_file = d / "stamps.npz"
     feed = start_feeder(fifos, seconds + 1.5, stamps_file)
 
@@ -216,6 +220,8 @@ def run_daemon(d: Path, seconds: float, rate_hz: float) -> dict:
     lat_ms = np.array(lat) * 1e3
     n_poses = sum(1 for _, a in received if wall0 <= a <= wall1)
     return {
+        "stamps": stamps,
+        "window": (wall0, wall1),
         "cpu": (cpu1 - cpu0) / (wall1 - wall0),
         "lat_ms": lat_ms,
         "pose_hz": n_poses / (wall1 - wall0),

@@ -383,7 +383,7 @@ def _without(tmp_path: Path, *modules: str) -> dict:
 
 
 def test_without_the_extra_the_daemon_runs_and_ros2_says_how_to_install(tmp_path):
-    env = _without(tmp_path, "cyclonedds", "mcap_ros2")
+    env = _without(tmp_path, "cyclonedds", "mcap", "mcap_ros2")
     proc = subprocess.run([sys.executable, "-m", "mousedom", "run", "--demo", "--ros2",
                            "--socket", str(tmp_path / "a.sock")], env=env, capture_output=True,
                           text=True, timeout=60)  # fmt: skip
@@ -402,3 +402,38 @@ def test_without_the_extra_the_daemon_runs_and_ros2_says_how_to_install(tmp_path
         assert c.until("POSE")["updating"] in (True, False)
     finally:
         assert daemon.stop() == 0
+
+
+def test_packed_cdr_is_byte_for_byte_cyclonedds():
+    """ros2cdr packs the per-window messages with struct; the generic path (our types,
+    cyclonedds' serializer) must give the same bytes, frame names of every length (the
+    padding) included."""
+    from mousedom.service import ros2cdr
+
+    st = ros2conv.stamp(1234.000000123, 0.0)
+    for frame, child in (("odom", "base_link"), ("o", "b"), ("robot1/odom", "robot1/base_lnk")):
+        cfg = Ros2Config(odom_frame=frame, base_frame=child)
+        msg = ros2conv.odometry(cfg, st, (0.1, -0.2, 2.9), 0.4, _row(), 100.0)
+        want = ros2msgs.build(ros2msgs.ODOMETRY, msg).serialize()
+        assert ros2cdr.OdometryCdr(frame, child).encode(st, msg) == want
+        pairs = [(frame, child), ("map", frame)]
+        tfs = [ros2conv.transform(p, c, st, (0.5, 0.25, -1.0)) for p, c in pairs]
+        want = ros2msgs.build(ros2msgs.TF, {"transforms": tfs}).serialize()
+        assert ros2cdr.TfCdr(pairs).encode(st, tfs) == want
+        v = ros2conv.counts(st, child, 3, -7)
+        assert ros2cdr.Vector3StampedCdr(child).encode(st, v) == ros2msgs.build(
+            ros2msgs.COUNTS, v).serialize()  # fmt: skip
+    sources = [
+        {"name": "front", "connected": True, "live": True, "state": "tracking",
+         "rate_hz": 125.0, "residual": 1e-5, "kind": "evdev", "node": "/dev/input/event3"},
+        {"name": "flow", "connected": True, "live": True, "state": "excluded",
+         "reason": "low quality", "rate_hz": 66.0, "residual": None, "kind": "adns",
+         "squal": 9},
+        {"name": "gone", "connected": False, "error": "unplugged"},
+    ]  # fmt: skip
+    for subset in (sources, sources[:1], sources[1:], []):
+        msg = ros2conv.diagnostics(st, subset)
+        want = ros2msgs.build(ros2msgs.DIAGNOSTICS, msg).serialize()
+        assert ros2cdr.diagnostics(st, msg) == want
+    levels = [s["level"] for s in ros2conv.diagnostics(st, sources)["status"]]
+    assert levels == [ros2conv.OK, ros2conv.ERROR, ros2conv.ERROR]

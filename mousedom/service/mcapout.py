@@ -10,18 +10,16 @@ a replay, ROS time (the system clock) from the daemon unless ``stamps: monotonic
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any  # noqa: F401
 
 from mousedom.config import Ros2Config
 from mousedom.errors import UserError
 from mousedom.safewrite import open_stream
+from mousedom.service import ros2cdr as cdr
 from mousedom.service import ros2conv as conv
 from mousedom.service import ros2msgs as msgs
 
-INSTALL_HINT = (
-    "MCAP output needs mcap and mcap-ros2-support, which are not installed: "
-    "pip install 'mousedom[ros2]'"
-)
+INSTALL_HINT = "MCAP output needs mcap, which is not installed: pip install 'mousedom[ros2]'"
 
 
 def system_offset(cfg: Ros2Config | None) -> float:
@@ -35,7 +33,7 @@ def system_offset(cfg: Ros2Config | None) -> float:
 
 def require() -> None:
     try:
-        import mcap_ros2.writer  # noqa: F401
+        import mcap.writer  # noqa: F401
     except ImportError:
         raise UserError(INSTALL_HINT) from None
 
@@ -51,50 +49,54 @@ class McapRecorder:
         offset: float = 0.0,
     ) -> None:
         require()
-        from mcap_ros2.writer import Writer
+        from mcap.writer import CompressionType, Writer
+
+        from mousedom import __version__
 
         self.cfg, self.sensors, self.rate, self.offset = cfg, sensors, rate_hz, offset
         self.path = path
-        try:
-            self.file = open_stream(path, list(inputs))
-        except OSError as e:
-            raise UserError(f"{path}: cannot write: {e.strerror or e}") from None
-        self.writer = Writer(self.file)
-        self.schemas = {
-            t: self.writer.register_msgdef(msgs.ros2_name(t), msgs.msgdef(t))
+        self.file = open_stream(path, list(inputs))
+        self.writer = Writer(self.file, compression=CompressionType.ZSTD)
+        self.writer.start(profile="ros2", library=f"mousedom {__version__}")
+        schemas = {
+            t: self.writer.register_schema(msgs.ros2_name(t), "ros2msg", msgs.msgdef(t).encode())
             for t in (msgs.ODOMETRY, msgs.TF, msgs.DIAGNOSTICS, msgs.COUNTS)
         }
-        self.rep = conv.Rep105()
-        self.topics = {
-            "odom": conv.topic(cfg, cfg.odom_topic),
-            "tf": conv.topic(cfg, cfg.tf_topic),
-            "diag": conv.topic(cfg, cfg.diagnostics_topic),
+
+        def channel(topic: str, kind: str) -> int:
+            return self.writer.register_channel(conv.topic(cfg, topic), "cdr", schemas[kind])
+
+        self.odom_ch = channel(cfg.odom_topic, msgs.ODOMETRY)
+        self.tf_ch = channel(cfg.tf_topic, msgs.TF)
+        self.diag_ch = channel(cfg.diagnostics_topic, msgs.DIAGNOSTICS)
+        self.count_ch = [channel(f"/mousedom/{s}/counts", msgs.COUNTS) for s in sensors]
+        self.odom_cdr = cdr.OdometryCdr(cfg.odom_frame, cfg.base_frame)
+        self.tf_cdr = {
+            False: cdr.TfCdr([(cfg.odom_frame, cfg.base_frame)]),
+            True: cdr.TfCdr([(cfg.odom_frame, cfg.base_frame), (cfg.map_frame, cfg.odom_frame)]),
         }
-        self.count_topics = [conv.topic(cfg, f"/mousedom/{s}/counts") for s in sensors]
+        self.counts_cdr = [cdr.Vector3StampedCdr(s) for s in sensors]
+        self.rep = conv.Rep105()
         self.written = 0
 
-    def _write(self, topic: str, kind: str, message: dict[str, Any], ns: int) -> None:
-        self.writer.write_message(topic, self.schemas[kind], message, log_time=ns,
-                                  publish_time=ns)  # fmt: skip
+    def _write(self, channel: int, data: bytes, ns: int) -> None:
+        self.writer.add_message(channel, log_time=ns, data=data, publish_time=ns)
 
     def publish(self, row: Any) -> None:
         cfg = self.cfg
         ns = conv.stamp_ns(row.t, self.offset)
         st = {"sec": ns // 1_000_000_000, "nanosec": ns % 1_000_000_000}
         odom = self.rep.odom_pose((row.x, row.y, row.theta))
-        self._write(
-            self.topics["odom"],
-            msgs.ODOMETRY,
-            conv.odometry(cfg, st, odom, -self.rep.map_odom[2], row, self.rate),
-            ns,
-        )
+        msg = conv.odometry(cfg, st, odom, -self.rep.map_odom[2], row, self.rate)
+        self._write(self.odom_ch, self.odom_cdr.encode(st, msg), ns)
         tfs = [conv.transform(cfg.odom_frame, cfg.base_frame, st, odom)]
-        if self.rep.map_odom != (0.0, 0.0, 0.0) or cfg.publish_map_tf:
+        both = self.rep.map_odom != (0.0, 0.0, 0.0) or cfg.publish_map_tf
+        if both:
             tfs.append(conv.transform(cfg.map_frame, cfg.odom_frame, st, self.rep.map_odom))
-        self._write(self.topics["tf"], msgs.TF, {"transforms": tfs}, ns)
-        for topic, name, (cx, cy) in zip(self.count_topics, self.sensors, row.counts,
-                                          strict=False):  # fmt: skip
-            self._write(topic, msgs.COUNTS, conv.counts(st, name, cx, cy), ns)
+        self._write(self.tf_ch, self.tf_cdr[both].encode(st, tfs), ns)
+        for ch, enc, name, (cx, cy) in zip(self.count_ch, self.counts_cdr, self.sensors,
+                                           row.counts, strict=False):  # fmt: skip
+            self._write(ch, enc.encode(st, conv.counts(st, name, cx, cy)), ns)
         self.written += 1
 
     def batch(self, b: Any) -> None:
@@ -108,7 +110,7 @@ class McapRecorder:
     def sources(self, messages: list[dict[str, Any]], t: float) -> None:
         ns = conv.stamp_ns(t, self.offset)
         st = {"sec": ns // 1_000_000_000, "nanosec": ns % 1_000_000_000}
-        self._write(self.topics["diag"], msgs.DIAGNOSTICS, conv.diagnostics(st, messages), ns)
+        self._write(self.diag_ch, cdr.diagnostics(st, conv.diagnostics(st, messages)), ns)
 
     def close(self) -> None:
         if self.writer is None:

@@ -21,6 +21,7 @@ from typing import Any
 
 from mousedom.config import Ros2Config
 from mousedom.errors import UserError
+from mousedom.service import ros2cdr as cdr
 from mousedom.service import ros2conv as conv
 from mousedom.service import ros2msgs as msgs
 
@@ -51,6 +52,25 @@ def domain_id(cfg: Ros2Config, environ: dict[str, str] | None = None) -> int:
     return int(raw)
 
 
+class _RawWriter:
+    """A DataWriter fed CDR bytes: cyclonedds' ``write`` wants an object of the topic's
+    type and calls its ``serialize``; this hands it one whose ``serialize`` is the bytes."""
+
+    def __init__(self, writer: Any, cls: type) -> None:
+        self.writer = writer
+
+        class Serialized(cls):  # type: ignore[misc, valid-type]
+            def serialize(self, *args: Any, **kwargs: Any) -> bytes:  # noqa: ARG002
+                return self.cdr
+
+        self._cls = Serialized
+
+    def write(self, data: bytes) -> None:
+        sample = object.__new__(self._cls)
+        sample.cdr = data
+        self.writer.write(sample)
+
+
 class Ros2Output:
     """One DDS participant and its writers; ``publish`` per window (see the module)."""
 
@@ -75,7 +95,7 @@ class Ros2Output:
                 Policy.History.KeepLast(depth),
             )
             t = Topic(self.participant, "rt" + conv.topic(cfg, topic), types[name], qos=qos)
-            return DataWriter(self.participant, t, qos)
+            return _RawWriter(DataWriter(self.participant, t, qos), types[name])
 
         self.odom = writer(cfg.odom_topic, msgs.ODOMETRY, 10)
         self.tf = (
@@ -86,6 +106,15 @@ class Ros2Output:
         if cfg.counts:
             self.counts = [writer(f"/mousedom/{s}/counts", msgs.COUNTS, 10) for s in sensors]
         self.sent = 0
+        # CDR packed per window (ros2cdr: byte for byte what cyclonedds would serialise)
+        self.odom_cdr = cdr.OdometryCdr(cfg.odom_frame, cfg.base_frame)
+        pairs = []
+        if cfg.publish_tf:
+            pairs.append((cfg.odom_frame, cfg.base_frame))
+        if cfg.publish_map_tf:
+            pairs.append((cfg.map_frame, cfg.odom_frame))
+        self.tf_cdr = cdr.TfCdr(pairs)
+        self.counts_cdr = [cdr.Vector3StampedCdr(s) for s in sensors]
         log.info("ROS 2 output on domain %d: %s (%s -> %s)", self.domain,
                  conv.topic(cfg, cfg.odom_topic), cfg.odom_frame, cfg.base_frame)  # fmt: skip
 
@@ -99,17 +128,18 @@ class Ros2Output:
         st = conv.stamp(row.t, self._offset())
         odom = self.rep.odom_pose((row.x, row.y, row.theta))
         rotate = -self.rep.map_odom[2]
-        self.odom.write(msgs.build(msgs.ODOMETRY, conv.odometry(cfg, st, odom, rotate, row,
-                                                                 self.rate)))  # fmt: skip
+        msg = conv.odometry(cfg, st, odom, rotate, row, self.rate)
+        self.odom.write(self.odom_cdr.encode(st, msg))
         if self.tf is not None:
             tfs = []
             if cfg.publish_tf:
                 tfs.append(conv.transform(cfg.odom_frame, cfg.base_frame, st, odom))
             if cfg.publish_map_tf:
                 tfs.append(conv.transform(cfg.map_frame, cfg.odom_frame, st, self.rep.map_odom))
-            self.tf.write(msgs.build(msgs.TF, {"transforms": tfs}))
-        for w, (cx, cy) in zip(self.counts, row.counts, strict=False):
-            w.write(msgs.build(msgs.COUNTS, conv.counts(st, "", cx, cy)))
+            self.tf.write(self.tf_cdr.encode(st, tfs))
+        for w, enc, name, (cx, cy) in zip(self.counts, self.counts_cdr, self.sensors,
+                                          row.counts, strict=False):  # fmt: skip
+            w.write(enc.encode(st, conv.counts(st, name, cx, cy)))
         self.sent += 1
 
     def moved(self, before: conv.Pose2, after: conv.Pose2) -> None:
@@ -120,7 +150,7 @@ class Ros2Output:
         """The SOURCE messages (once a second) as /diagnostics."""
         if self.diag is not None:
             st = conv.stamp(t, self._offset())
-            self.diag.write(msgs.build(msgs.DIAGNOSTICS, conv.diagnostics(st, messages)))
+            self.diag.write(cdr.diagnostics(st, conv.diagnostics(st, messages)))
 
     def close(self) -> None:
         self.odom = self.tf = self.diag = None
