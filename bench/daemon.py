@@ -1,19 +1,22 @@
-"""Daemon cost and latency: four mice at 1000 Hz each, fed through FIFOs as input events.
+"""Daemon cost and latency next to the two baselines a user would compare it with.
 
-    /work/venv/bin/python bench/daemon.py [--seconds 10] [--rate-hz 100] [--rounds 3]
+    .venv/bin/python bench/daemon.py [--mice 4] [--report-hz 1000] [--seconds 8] [--rounds 3]
 
 A feeder process writes each mouse's reports (REL_X, REL_Y, SYN_REPORT; 72 bytes) into its
 FIFO when due, stamped with the CLOCK_MONOTONIC time of the write, as the kernel stamps a
-real mouse's events.  ``mousedom run`` reads them through the evdev source (its FIFO hook)
-and a client reads POSE lines from the socket.
+real mouse's events.  Three readers of the same load take turns, each round all three:
 
-Figures:
-- CPU of the daemon process (from /proc/PID/schedstat), as % of one core;
-- latency beyond the window wait: a window [T - P, T] can close only once every mouse has
-  reported past T, i.e. at c(T) = max over mice of the first stamp after T.  The latency is
-  the time from c(T) to the POSE for T arriving at the client;
-- the same run's baseline: a bare reader that selects on the four FIFOs and discards the
-  bytes (the least any Python reader pays), its CPU and its write-to-read latency.
+- the floor: a reader that wakes at the output rate (100 Hz) and reads all the FIFOs,
+  discarding the bytes: the least any design that batches per window can pay;
+- a peer-style daemon: a plain Python loop that wakes for every report (poll on the
+  FIFOs), sums its counts, and per window solves the least squares with numpy and writes a
+  JSON pose line to a client;
+- ``mousedom run`` (the evdev source's FIFO hook), with a client reading POSE lines.
+
+Figures: each one's CPU (from /proc/PID/schedstat) as % of one core, medians over the
+rounds and the median per-round ratios to the floor and to the peer; mousedom's latency
+beyond the window wait (a window [T - P, T] can close only once every mouse has reported
+past T, at c(T); the latency is from c(T) to that window's POSE reaching the client).
 """
 
 from __future__ import annotations
@@ -37,8 +40,17 @@ sys.path.insert(0, str(ROOT))
 
 from mousedom.sources.events import EV_REL, EV_SYN, EVENT_DTYPE, SYN_REPORT  # noqa: E402
 
-MICE = ("front", "left", "rear", "right")
+ALL_MICE = ("front", "left", "rear", "right", "m4", "m5", "m6", "m7")
+MICE = ALL_MICE[:4]
 REPORT_HZ = 1000.0
+
+
+def configure(n_mice: int, report_hz: float) -> None:
+    """The load of the runs that follow (module settings: the feeder child reads them
+    from its arguments)."""
+    global MICE, REPORT_HZ
+    MICE = ALL_MICE[:n_mice]
+    REPORT_HZ = float(report_hz)
 
 
 def cpu_seconds(pid: int) -> float:
@@ -59,7 +71,7 @@ def record(t: float, dx: int, dy: int) -> bytes:
 # ----------------------------------------------------------------------------- feeder
 
 
-def feeder(paths: list[str], seconds: float, out: str) -> None:
+def feeder(paths: list[str], seconds: float, out: str, report_hz: float) -> None:
     """Child process: write every mouse's reports when due; save the stamps."""
     fds = []
     for p in paths:
@@ -72,7 +84,7 @@ def feeder(paths: list[str], seconds: float, out: str) -> None:
     for fd in fds:
         os.set_blocking(fd, True)
     n = len(paths)
-    period = 1.0 / REPORT_HZ
+    period = 1.0 / report_hz
     start = time.monotonic() + 0.2
     # mouse i reports at start + i*period/n + k*period: phases spread over the period
     stamps: list[list[float]] = [[] for _ in range(n)]
@@ -103,16 +115,19 @@ def feeder(paths: list[str], seconds: float, out: str) -> None:
 # ----------------------------------------------------------------------------- daemon run
 
 
+def positions(n: int) -> list[tuple[float, float]]:
+    """Mice on a circle of 15 cm round the body origin."""
+    return [(0.15 * np.cos(2 * np.pi * k / n), 0.15 * np.sin(2 * np.pi * k / n)) for k in range(n)]
+
+
 def write_config(d: Path, fifos: list[Path], rate_hz: float, extra: str = "") -> Path:
     lines = [f"rate_hz: {rate_hz}", "model: lsq", "integrator: exact", "mice:"]
-    for name, (x, y), fifo in zip(
-        MICE, [(0.15, 0), (0, 0.15), (-0.15, 0), (0, -0.15)], fifos, strict=True
-    ):
+    for name, (x, y), fifo in zip(MICE[: len(fifos)], positions(len(fifos)), fifos, strict=True):
         lines += [
             f"  {name}:",
             f"    evdev: {{path: {fifo}, grab: false}}",
             "    cpi: 1000",
-            f"    mount: {{x: {x}, y: {y}, yaw: 0}}",
+            f"    mount: {{x: {float(x)!r}, y: {float(y)!r}, yaw: 0}}",
             f"    report_hz: {REPORT_HZ}",
         ]
     path = d / "bench.yaml"
@@ -123,8 +138,9 @@ def write_config(d: Path, fifos: list[Path], rate_hz: float, extra: str = "") ->
 def start_feeder(fifos: list[Path], seconds: float, out: Path) -> subprocess.Popen:
     """The feeder runs as this file with --feed, in its own process (its own core)."""
     return subprocess.Popen(
-        [sys.executable, __file__, "--feed", str(out), str(seconds), *map(str, fifos)]
-    )
+        [sys.executable, __file__, "--feed", str(out), str(seconds), str(REPORT_HZ),
+         *map(str, fifos)]
+    )  # fmt: skip
 
 
 def run_daemon(d: Path, seconds: float, rate_hz: float, extra: str = "", on_ready=None) -> dict:
@@ -232,64 +248,150 @@ def run_daemon(d: Path, seconds: float, rate_hz: float, extra: str = "", on_read
     }
 
 
-# ----------------------------------------------------------------------------- baseline
+# ----------------------------------------------------------------------------- baselines
+
+FLOOR = r"""
+import os, sys, time
+rate = float(sys.argv[1])
+fds = [os.open(p, os.O_RDONLY | os.O_NONBLOCK) for p in sys.argv[2:]]
+open_ = set(fds)
+tick = time.monotonic()
+while open_:
+    tick += 1.0 / rate
+    delay = tick - time.monotonic()
+    if delay > 0:
+        time.sleep(delay)
+    for fd in list(open_):
+        try:
+            while len(os.read(fd, 65536)) == 65536:
+                pass
+        except BlockingIOError:
+            pass
+        else:
+            pass
+        # a writer that has gone reads as b"" at once: stop when all have
+    if time.monotonic() > float(os.environ["BENCH_END"]):
+        break
+"""
+
+PEER = r"""
+import json, os, select, socket, struct, sys, time
+import numpy as np
+rate, sock_path, xy = float(sys.argv[1]), sys.argv[2], json.loads(sys.argv[3])
+paths = sys.argv[4:]
+fds = [os.open(p, os.O_RDONLY | os.O_NONBLOCK) for p in paths]
+index = {fd: i for i, fd in enumerate(fds)}
+n = len(fds)
+A = np.zeros((2 * n, 3))
+for i, (x, y) in enumerate(xy):
+    A[2 * i] = (1, 0, -y)
+    A[2 * i + 1] = (0, 1, x)
+srv = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+srv.bind(sock_path)
+srv.listen(1)
+client, _ = srv.accept()
+poll = select.poll()
+for fd in fds:
+    poll.register(fd, select.POLLIN)
+ev = struct.Struct("<qqHHi")
+acc = np.zeros((n, 2))
+pose = np.zeros(3)
+rest = {fd: b"" for fd in fds}
+period = 1.0 / rate
+next_t = time.monotonic() + period
+end = float(os.environ["BENCH_END"])
+while time.monotonic() < end:
+    timeout = max(0.0, next_t - time.monotonic())
+    for fd, _ in poll.poll(timeout * 1000):
+        try:
+            data = rest[fd] + os.read(fd, 4096)
+        except BlockingIOError:
+            continue
+        k = len(data) - len(data) % 24
+        rest[fd] = data[k:]
+        i = index[fd]
+        for sec, usec, typ, code, value in ev.iter_unpack(data[:k]):
+            if typ == 2 and code < 2:
+                acc[i, code] += value
+    now = time.monotonic()
+    if now >= next_t:
+        d = (acc * (0.0254 / 1000.0)).reshape(-1)
+        q = np.linalg.lstsq(A, d, rcond=None)[0]
+        c, s_ = np.cos(pose[2]), np.sin(pose[2])
+        pose += (c * q[0] - s_ * q[1], s_ * q[0] + c * q[1], q[2])
+        line = json.dumps({"t": next_t, "x": pose[0], "y": pose[1], "theta": pose[2]})
+        client.sendall(line.encode() + b"\n")
+        acc[:] = 0
+        next_t += period
+"""
 
 
-def run_baseline(d: Path, seconds: float) -> dict:
-    """A bare select() reader of the four FIFOs: what reading alone costs."""
-    fifos = [d / f"b{m}.fifo" for m in MICE]
+def _measure(proc: subprocess.Popen, seconds: float) -> tuple[float, float, float]:
+    time.sleep(1.2)  # warm-up: the feeder starts
+    cpu0, wall0 = cpu_seconds(proc.pid), time.monotonic()
+    time.sleep(seconds)
+    cpu1, wall1 = cpu_seconds(proc.pid), time.monotonic()
+    return (cpu1 - cpu0) / (wall1 - wall0), wall0, wall1
+
+
+def run_floor(d: Path, seconds: float, rate_hz: float) -> dict:
+    """The floor: wake at the output rate, read every FIFO, discard."""
+    fifos = [d / f"f{m}.fifo" for m in MICE]
     for f in fifos:
         os.mkfifo(f)
-    code = (
-        "import os, select, sys, time\n"
-        "fds = [os.open(p, os.O_RDONLY | os.O_NONBLOCK) for p in sys.argv[1:]]\n"
-        "lat = []\n"
-        "open_ = set(fds)\n"
-        "p = select.poll()\n"
-        "[p.register(fd, select.POLLIN) for fd in fds]\n"
-        "while open_:\n"
-        "    for fd, ev in p.poll(1000):\n"
-        "        data = os.read(fd, 65536)\n"
-        "        if not data and ev & select.POLLHUP:\n"
-        "            p.unregister(fd); open_.discard(fd); continue\n"
-        "        if data:\n"
-        "            now = time.monotonic()\n"
-        "            sec = int.from_bytes(data[-72:-64], 'little')\n"
-        "            usec = int.from_bytes(data[-64:-56], 'little')\n"
-        "            lat.append(now - (sec + usec / 1e6))\n"
-        "print(' '.join(f'{x:.7f}' for x in lat))\n"
-    )
-    reader = subprocess.Popen(
-        [sys.executable, "-c", code, *map(str, fifos)], stdout=subprocess.PIPE, text=True
-    )
+    env = dict(os.environ, BENCH_END=str(time.monotonic() + seconds + 4.0))
+    proc = subprocess.Popen([sys.executable, "-c", FLOOR, str(rate_hz), *map(str, fifos)],
+                            env=env)  # fmt: skip
     time.sleep(0.3)
-    feed = start_feeder(fifos, seconds + 1.5, d / "bstamps.npz")
-    time.sleep(1.2)
-    cpu0, wall0 = cpu_seconds(reader.pid), time.monotonic()
-    time.sleep(seconds)
-    cpu1, wall1 = cpu_seconds(reader.pid), time.monotonic()
+    feed = start_feeder(fifos, seconds + 1.5, d / "fstamps.npz")
+    cpu, _, _ = _measure(proc, seconds)
     feed.wait()
-    out, _ = reader.communicate(timeout=10)
-    lat = np.array([float(x) for x in out.split()]) * 1e3
-    return {"cpu": (cpu1 - cpu0) / (wall1 - wall0), "lat_ms": lat}
+    proc.kill()
+    proc.wait()
+    return {"cpu": cpu}
+
+
+def run_peer(d: Path, seconds: float, rate_hz: float) -> dict:
+    """A peer-style daemon: a wake per report, numpy least squares per window."""
+    fifos = [d / f"p{m}.fifo" for m in MICE]
+    for f in fifos:
+        os.mkfifo(f)
+    sock_path = d / "peer.sock"
+    env = dict(os.environ, BENCH_END=str(time.monotonic() + seconds + 4.0))
+    xy = json.dumps([[float(x), float(y)] for x, y in positions(len(MICE))])
+    proc = subprocess.Popen([sys.executable, "-c", PEER, str(rate_hz), str(sock_path), xy,
+                             *map(str, fifos)], env=env)  # fmt: skip
+    while not sock_path.exists():
+        time.sleep(0.01)
+    client = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    client.connect(str(sock_path))
+    lines = []
+    th = threading.Thread(target=lambda: lines.extend(client.makefile("rb")), daemon=True)
+    th.start()
+    feed = start_feeder(fifos, seconds + 1.5, d / "pstamps.npz")
+    cpu, wall0, wall1 = _measure(proc, seconds)
+    feed.wait()
+    proc.kill()
+    proc.wait()
+    client.close()
+    return {"cpu": cpu, "poses": len(lines)}
 
 
 def tracker_cost(d: Path, rate_hz: float, windows: int = 2000) -> float:
     """Seconds of CPU per window that the tracker alone takes for this load (in-process):
-    four pushes of one window's reports, the silence-rule calls and the poll."""
+    a push of one window's reports per mouse, the silence-rule calls and the poll."""
     from mousedom.config import load_config
     from mousedom.fusion.tracker import Tracker
 
     config = load_config(write_config(d, [d / f"x{m}" for m in MICE], rate_hz))
     tracker = Tracker(config, t0=0.0)
-    per = int(REPORT_HZ / rate_hz)
-    ones = np.ones(per)
+    per = max(1, int(REPORT_HZ / rate_hz))
     t0 = time.process_time()
     for w in range(windows):
         start = w / rate_hz
         for i in range(len(MICE)):
-            t = start + (i + 0.5) / (len(MICE) * REPORT_HZ) + np.arange(per) / REPORT_HZ
-            tracker.push(i, t, ones, -3 * ones)
+            t = [start + (i + 0.5) / (len(MICE) * REPORT_HZ) + k / REPORT_HZ for k in range(per)]
+            tracker.push(i, t, [1] * per, [-3] * per)
             tracker.complete_until(start + 1 / rate_hz, mouse=i)
         tracker.poll()
     return (time.process_time() - t0) / windows
@@ -297,61 +399,49 @@ def tracker_cost(d: Path, rate_hz: float, windows: int = 2000) -> float:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seconds", type=float, default=10.0, help="measured seconds per run")
+    ap.add_argument("--mice", type=int, default=4)
+    ap.add_argument("--report-hz", type=float, default=1000.0)
+    ap.add_argument("--seconds", type=float, default=8.0, help="measured seconds per run")
     ap.add_argument("--rate-hz", type=float, default=100.0)
-    ap.add_argument("--rounds", type=int, default=3, help="baseline + daemon runs, alternated")
+    ap.add_argument("--rounds", type=int, default=3, help="floor, peer, mousedom, in turn")
     ap.add_argument("--feed", nargs="+", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.feed:
-        out, seconds, *paths = args.feed
-        feeder(paths, float(seconds), out)
+        out, seconds, report_hz, *paths = args.feed
+        feeder(paths, float(seconds), out, float(report_hz))
         return
-    runs, bases = [], []
+    configure(args.mice, args.report_hz)
+    ours, floors, peers = [], [], []
     with tempfile.TemporaryDirectory(prefix="mousedom-bench-") as tmp:
         for r in range(args.rounds):
-            # Alternated, so that both see the same (shared, noisy) machine.
             d = Path(tmp) / f"round{r}"
             d.mkdir()
-            bases.append(run_baseline(d, args.seconds))
-            runs.append(run_daemon(d, args.seconds, args.rate_hz))
-            print(
-                f"round {r + 1}: daemon {100 * runs[-1]['cpu']:.2f} %, bare reader "
-                f"{100 * bases[-1]['cpu']:.2f} %, latency p99 "
-                f"{np.percentile(runs[-1]['lat_ms'], 99):.3f} ms",
-                flush=True,
-            )
+            floors.append(run_floor(d, args.seconds, args.rate_hz))
+            peers.append(run_peer(d, args.seconds, args.rate_hz))
+            ours.append(run_daemon(d, args.seconds, args.rate_hz))
+            print(f"round {r + 1}: floor {100 * floors[-1]['cpu']:.2f} %, peer "
+                  f"{100 * peers[-1]['cpu']:.2f} %, mousedom {100 * ours[-1]['cpu']:.2f} %, "
+                  f"latency p99 {np.percentile(ours[-1]['lat_ms'], 99):.3f} ms",
+                  flush=True)  # fmt: skip
         per_window = tracker_cost(Path(tmp), args.rate_hz)
-    cpu = float(np.median([r["cpu"] for r in runs]))
-    base_cpu = float(np.median([b["cpu"] for b in bases]))
-    ratio = float(np.median([r["cpu"] / b["cpu"] for r, b in zip(runs, bases, strict=True)]))
-    lat = np.concatenate([r["lat_ms"] for r in runs])
-    blat = np.concatenate([b["lat_ms"] for b in bases])
-    run = runs[0]
-    print(f"four mice x {REPORT_HZ:.0f} Hz through FIFOs, {run['reports']} reports per run, "
-          f"POSE at {args.rate_hz:g} Hz, {args.rounds} x {args.seconds:g} s measured")  # fmt: skip
-    print(f"POSE rate received        {np.median([r['pose_hz'] for r in runs]):.1f} Hz")
-    print(
-        f"loop                      {np.median([r['wakes_hz'] for r in runs]):.0f} wakes/s, "
-        f"{np.median([r['reads_hz'] for r in runs]):.0f} source reads/s "
-        f"(reports arrive at {len(MICE) * REPORT_HZ:.0f}/s)"
-    )
-    print(
-        f"daemon CPU                median {100 * cpu:.2f} % of one core (target <= 5 %); "
-        f"baseline bare reader {100 * base_cpu:.2f} %; median ratio {ratio:.2f}"
-    )
-    print(
-        f"latency beyond window     p50 {np.median(lat):.3f} ms  p99 {np.percentile(lat, 99):.3f}"
-        f" ms  max {lat.max():.3f} ms  over {len(lat)} poses (target p99 <= 2 ms)"
-    )
-    print(
-        f"of which the tracker      {per_window * 1e6:.0f} us per window in-process = "
-        f"{100 * per_window * args.rate_hz:.2f} % of one core at {args.rate_hz:g} Hz"
-    )
-    print(
-        f"baseline pipe latency     p50 {np.median(blat):.3f} ms  "
-        f"p99 {np.percentile(blat, 99):.3f} ms; ratio of p99s "
-        f"{np.percentile(lat, 99) / np.percentile(blat, 99):.1f}"
-    )
+
+    def med(runs):
+        return 100 * float(np.median([r["cpu"] for r in runs]))
+
+    to_floor = float(np.median([o["cpu"] / f["cpu"] for o, f in zip(ours, floors, strict=True)]))
+    to_peer = float(np.median([o["cpu"] / p["cpu"] for o, p in zip(ours, peers, strict=True)]))
+    lat = np.concatenate([r["lat_ms"] for r in ours])
+    print(f"{args.mice} mice x {args.report_hz:g} Hz through FIFOs, POSE at {args.rate_hz:g} Hz,"
+          f" {args.rounds} rounds x {args.seconds:g} s measured (medians)")  # fmt: skip
+    print(f"floor (100 Hz batched reader)  {med(floors):6.2f} % of one core")
+    print(f"peer-style daemon              {med(peers):6.2f} %")
+    print(f"mousedom run                   {med(ours):6.2f} %   ratio to the floor "
+          f"{to_floor:.2f} (target <= 2), to the peer {to_peer:.2f} (target <= 0.5)")
+    print(f"loop                           {np.median([r['wakes_hz'] for r in ours]):.0f} "
+          f"wakes/s, {np.median([r['reads_hz'] for r in ours]):.0f} source reads/s")
+    print(f"latency beyond the window      p50 {np.median(lat):.3f} ms  p99 "
+          f"{np.percentile(lat, 99):.3f} ms  over {len(lat)} poses (target p99 <= 2 ms)")
+    print(f"of which the tracker           {per_window * 1e6:.0f} us per window in-process")
 
 
 if __name__ == "__main__":
