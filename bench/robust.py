@@ -21,21 +21,12 @@ import argparse
 import math
 import statistics
 
-from mousedom.fusion import robust, scenarios, sim
+from mousedom.fusion import robust, scenarios
 
 
 def one(layout: str, kind: str, seed: int, duration: float):
-    traj = scenarios.drive(duration, seed)
-    base = scenarios.rig(layout)
-    fault = scenarios.fault_for(kind, base, duration, seed)
-    result = sim.simulate(scenarios.apply(base, fault), traj, seed=seed)
-    limits = {fault.mouse: scenarios.SATURATION_SPEED} if kind == "saturation" else None
-    _, plain = scenarios.run(result, scenarios.config(base, robust=False))
-    batch, rob = scenarios.run(result, scenarios.config(base, robust=True, max_speed=limits))
-    dead = scenarios.informed_dead(fault, base, traj)
-    _, informed = scenarios.run(result, scenarios.config(base, robust=False), dead)
-    errors = [scenarios.end_error(result, t) for t in (plain, rob, informed)]
-    return errors, batch
+    c = scenarios.compare(layout, kind, seed, duration)
+    return c.errors, c.robust
 
 
 def false_exclusions(batch) -> tuple[int, int]:

@@ -24,17 +24,8 @@ DURATION = 30.0
 
 
 def _run(layout: str, kind: str, seed: int):
-    traj = scenarios.drive(DURATION, seed)
-    base = scenarios.rig(layout)
-    fault = scenarios.fault_for(kind, base, DURATION, seed)
-    result = sim.simulate(scenarios.apply(base, fault), traj, seed=seed)
-    limits = {fault.mouse: scenarios.SATURATION_SPEED} if kind == "saturation" else None
-    plain_b, plain = scenarios.run(result, scenarios.config(base, robust=False))
-    batch, rob = scenarios.run(result, scenarios.config(base, max_speed=limits))
-    dead = scenarios.informed_dead(fault, base, traj)
-    _, informed = scenarios.run(result, scenarios.config(base, robust=False), dead)
-    errors = [scenarios.end_error(result, t)[0] for t in (plain, rob, informed)]
-    return base, fault, batch, plain_b, errors
+    c = scenarios.compare(layout, kind, seed, DURATION)
+    return c.base, c.fault, c.robust, c.plain, [e[0] for e in c.errors]
 
 
 # --------------------------------------------------------------------------- chi-square

@@ -213,3 +213,30 @@ def informed_dead(
         period = 1.0 / next(m.rate_hz for m in rig.mice if m.name == fault.mouse)
         return tuple((fault.mouse, t - period, t + period) for t, _, _ in fault.jumps)
     return ((fault.mouse, fault.start, fault.end),)
+
+
+@dataclass
+class Comparison:
+    """One faulty drive run three ways (see ``compare``)."""
+
+    base: sim.Rig  # the rig as the robot believes it is (no faults)
+    fault: Fault
+    robust: object  # the robust engine's PoseBatch
+    plain: object  # plain least squares' PoseBatch
+    errors: list[tuple[float, float]]  # end (position, heading) error: plain, robust, informed
+
+
+def compare(layout: str, kind: str, seed: int, duration: float) -> Comparison:
+    """The drive of ``seed`` with the fault ``kind`` on ``layout``, through plain least
+    squares, the robust engine (told the saturating mouse's limit) and the informed
+    reference (plain, the faulty reports removed by hand for exactly the fault's span)."""
+    traj = drive(duration, seed)
+    base = rig(layout)
+    fault = fault_for(kind, base, duration, seed)
+    result = sim.simulate(apply(base, fault), traj, seed=seed)
+    limits = {fault.mouse: SATURATION_SPEED} if kind == "saturation" else None
+    plain_b, plain = run(result, config(base, robust=False))
+    batch, rob = run(result, config(base, max_speed=limits))
+    _, informed = run(result, config(base, robust=False), informed_dead(fault, base, traj))
+    errors = [end_error(result, t) for t in (plain, rob, informed)]
+    return Comparison(base, fault, batch, plain_b, errors)
