@@ -12,8 +12,9 @@
   reports, or a floor that makes one mouse read a few per cent off, would fail a test built
   on the guess again and again.  So every ``block`` windows each factor is re-estimated from
   that mouse's residuals in the windows it was used in, consistent and moving (its last
-  256 samples of each): the floor's from windows where the floor is at least a quarter of
-  the proportional part (that part subtracted), the proportional one's likewise.  For a
+  256 samples of each; ``block`` is a second's windows): the floor's from windows where
+  the floor is at least a quarter of the proportional part (that part subtracted), the
+  proportional one's likewise.  For a
   2-D residual of per-axis variance s^2 (1 - h/2) (h: the mouse's leverage, the trace of its
   block of the hat matrix), |r|^2 / (s^2 (1 - h/2)) is chi-square with 2 degrees of freedom,
   whose median is 2 ln 2; the factor is the blocks' median over that.  It grows at once and
@@ -40,6 +41,14 @@ _KEEP = 256  # samples per factor and mouse the estimate is the median of
 _MAX_FACTOR = 1e4
 
 
+def _median(values: list[float]) -> float:
+    """The median of a list of floats (sorted in Python: for a few hundred values this is
+    several times cheaper than numpy's call)."""
+    v = sorted(values)
+    mid = len(v) // 2
+    return v[mid] if len(v) % 2 else 0.5 * (v[mid - 1] + v[mid])
+
+
 class NoiseModel:
     def __init__(
         self, sigma: np.ndarray, rho: float, report_periods: np.ndarray, window: float
@@ -49,12 +58,14 @@ class NoiseModel:
         self.rho2 = float(rho) ** 2
         periods = np.asarray(report_periods, dtype=float)
         self.gran2 = (0.25 * np.minimum(1.0, periods / window)) ** 2
-        self.block = max(20, math.ceil(0.5 / window - 1e-9))
+        self.block = max(20, math.ceil(1.0 / window - 1e-9))
         self.lam_f = np.full(self.n, _START_FLOOR)
         self.lam_r = np.ones(self.n)
         self.seen = 0  # windows sampled in the current block
+        self.version = 0  # bumped whenever a factor changes
         self._floor: list[list[float]] = [[] for _ in range(self.n)]
         self._prop: list[list[float]] = [[] for _ in range(self.n)]
+        self._seen_len = [[0] * self.n, [0] * self.n]  # samples held at the last block's end
         self._sync()
 
     def _sync(self) -> None:
@@ -93,29 +104,50 @@ class NoiseModel:
         if 4.0 * prop >= floor and prop > 0:
             self._prop[i].append((v - floor) / (prop / self.lam_r[i]))
 
-    def sample_arrays(self, r2, floor, prop, h, eligible) -> None:
-        """``sample`` for (n, N) arrays, where ``eligible``."""
+    def samples_for(self, r2, floor, prop, h, eligible) -> tuple:
+        """``sample``'s values for (n, N) arrays, where ``eligible``: (floor samples, where
+        they count, proportional samples, where they count), for ``extend``."""
         expected = _MEDIAN_CHI2_2 * (1.0 - 0.5 * h)
         ok = eligible & (expected > 0)
         with np.errstate(divide="ignore", invalid="ignore"):
             v = r2 / expected
             fl = (v - prop) / self.sig2
             pr = (v - floor) / (prop / self.lam_r)
-        by_floor = ok & (4.0 * floor >= prop)
-        by_prop = ok & (4.0 * prop >= floor) & (prop > 0)
+        return fl, ok & (4.0 * floor >= prop), pr, ok & (4.0 * prop >= floor) & (prop > 0)
+
+    def extend(self, values: tuple, rows: slice) -> None:
+        """Add the ``rows`` of ``samples_for``'s arrays, mouse by mouse in row order."""
+        fl, by_floor, pr, by_prop = values
         for i in range(self.n):
-            self._floor[i] += fl[by_floor[:, i], i].tolist()
-            self._prop[i] += pr[by_prop[:, i], i].tolist()
+            f = fl[rows, i][by_floor[rows, i]]
+            if len(f):
+                self._floor[i] += f.tolist()
+            g = pr[rows, i][by_prop[rows, i]]
+            if len(g):
+                self._prop[i] += g.tolist()
 
     def end_block(self) -> None:
-        """Re-estimate the factors from the last samples (module docstring)."""
-        for lam, samples in ((self.lam_f, self._floor), (self.lam_r, self._prop)):
+        """Re-estimate the factors from the last samples (module docstring); a factor
+        without new samples since the last block stays as it is."""
+        changed = False
+        for k, (lam, samples) in enumerate(((self.lam_f, self._floor), (self.lam_r, self._prop))):
             for i in range(self.n):
-                if len(samples[i]) > _KEEP:
-                    del samples[i][:-_KEEP]
-                if len(samples[i]) >= _MIN_SAMPLES:
-                    est = float(np.median(samples[i]))
+                got = samples[i]
+                if len(got) == self._seen_len[k][i]:
+                    continue  # no new evidence
+                if len(got) > _KEEP:
+                    del got[:-_KEEP]
+                self._seen_len[k][i] = len(got)
+                if len(got) >= _MIN_SAMPLES:
+                    est = _median(got)
                     new = est if est > lam[i] else math.sqrt(lam[i] * max(est, 0.0))
-                    lam[i] = min(_MAX_FACTOR, max(1.0, new))
+                    new = min(_MAX_FACTOR, max(1.0, new))
+                    # a step of under 5 % is noise of the median, not news: kept as it is
+                    # (and replay's arrays of the common case stay valid)
+                    if abs(new - lam[i]) > 0.05 * lam[i]:
+                        lam[i] = new
+                        changed = True
         self.seen = 0
-        self._sync()
+        if changed:
+            self.version += 1
+            self._sync()

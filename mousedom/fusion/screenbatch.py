@@ -14,6 +14,8 @@ import numpy as np
 
 from mousedom.fusion.robust import MISSING, TRACKING, Screen
 
+HORIZON = 16  # learning blocks of rows tested at once
+
 
 def screen(
     sc: Screen,
@@ -42,12 +44,21 @@ def screen(
         evidence |= np.any(mask & (squal_scale != 1.0), axis=1)
     if low_quality is not None:
         evidence |= np.any(mask & low_quality, axis=1)
+    lever = _leverages(sc, mask, codes)
     i = 0
     prev_altered = False
+    version, horizon = None, 0
     while i < n:
-        chunk_end = min(n, i + sc.noise.block - sc.noise.seen)
-        fast = _fast_rows(sc, d[i:chunk_end], p[i:chunk_end], mask[i:chunk_end])
-        bad = np.flatnonzero(~fast | evidence[i:chunk_end]) + i
+        if version != sc.noise.version or i >= horizon:
+            # The common case's test and the noise model's samples for the rows ahead
+            # (HORIZON blocks), with the factors as they are; again when a block's end
+            # changes them.
+            version, base = sc.noise.version, i
+            horizon = min(n, i + HORIZON * sc.noise.block)
+            fast, samples = _fast_rows(sc, d[i:horizon], p[i:horizon], mask[i:horizon],
+                                       lever[i:horizon])  # fmt: skip
+            bad = np.flatnonzero(~fast | evidence[i:horizon]) + i
+        chunk_end = min(horizon, i + sc.noise.block - sc.noise.seen)
         j = i
         while j < chunk_end:
             steady = sc.steady()
@@ -56,7 +67,10 @@ def screen(
                 if codes[j] == code:
                     stop = min(_next(bad, j, chunk_end), _next(changes, j + 1, chunk_end))
                     if stop > j:
-                        _accept(sc, d[j:stop], p[j:stop], mask[j])
+                        if sc.dof(int(mask[j].sum())) > 0:
+                            sc.noise.extend(samples, slice(j - base, stop - base))
+                        sc._set_prev(p[stop - 1])
+                        sc.noise.seen += stop - j
                         j = stop
                         continue
             sq = None if squal_scale is None else squal_scale[j]
@@ -71,37 +85,35 @@ def screen(
             prev_altered = not np.array_equal(dec.used, mask[j])
             j += 1
         i = chunk_end
+        if sc.noise.seen >= sc.noise.block:
+            sc.noise.end_block()
     return used, inflate, consistent, state, reason
 
 
-def _fast_rows(sc: Screen, d: np.ndarray, p: np.ndarray, mask: np.ndarray) -> np.ndarray:
+def _leverages(sc: Screen, mask: np.ndarray, codes: np.ndarray) -> np.ndarray:
+    """(n, N) each row's leverages (its live pattern's; a rig has few patterns)."""
+    out = np.empty(mask.shape)
+    for code in np.unique(codes):
+        rows = codes == code
+        out[rows] = sc.leverage(mask[np.argmax(rows)])
+    return out
+
+
+def _fast_rows(sc: Screen, d, p, mask, lever) -> tuple[np.ndarray, tuple]:
     """The common case's test for every row at once, each row's previous window taken as
-    the row before it unaltered (a row after an altered one goes to ``decide``)."""
+    the row before it unaltered (a row after an altered one goes to ``decide``), and the
+    noise model's samples of each row were it accepted."""
     prev_p = np.concatenate([sc.prev_p[None], p[:-1]])
     floor, prop = sc.noise.parts(d, p, prev_p)
-    r = d - p
-    t = np.sum(np.where(mask, np.sum(r * r, axis=2) / (floor + prop), 0.0), axis=1)
+    r2 = np.sum((d - p) ** 2, axis=2)
+    t = np.sum(np.where(mask, r2 / (floor + prop), 0.0), axis=1)
     dof = 2 * mask.sum(axis=1) - sc.k
     thr = np.array(sc._thresholds)
     ok = (dof <= 0) | (t <= thr[np.maximum(dof, 0)])
     m2 = np.maximum(np.sum(d * d, axis=2), np.sum(p * p, axis=2))
-    return ok & ~np.any(mask & (m2 >= sc.max_step2), axis=1)
-
-
-def _accept(sc: Screen, d: np.ndarray, p: np.ndarray, live: np.ndarray) -> None:
-    """Rows accepted as solved: the noise model's samples, the block count, the previous
-    window's predictions (``fast_one`` for many rows of one live pattern)."""
-    if sc.dof(int(live.sum())) > 0:
-        prev_p = np.concatenate([sc.prev_p[None], p[:-1]])
-        floor, prop = sc.noise.parts(d, p, prev_p)
-        r2 = np.sum((d - p) ** 2, axis=2)
-        m2 = np.maximum(np.sum(d * d, axis=2), np.sum(p * p, axis=2))
-        h = np.broadcast_to(sc.leverage(live), r2.shape)
-        sc.noise.sample_arrays(r2, floor, prop, h, live & (m2 > sc.noise.sig2))
-    sc._set_prev(p[-1])
-    sc.noise.seen += len(d)
-    if sc.noise.seen >= sc.noise.block:
-        sc.noise.end_block()
+    ok &= ~np.any(mask & (m2 >= sc.max_step2), axis=1)
+    samples = sc.noise.samples_for(r2, floor, prop, lever, mask & (m2 > sc.noise.sig2))
+    return ok, samples
 
 
 def _next(sorted_idx: np.ndarray, i: int, n: int) -> int:
