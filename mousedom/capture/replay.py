@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from operator import add
 from typing import TextIO
 
 import numpy as np
@@ -339,18 +340,55 @@ class CsvSink:
         self.out = out
         self.rows = 0
         self.n = len(names)
-        self.row = _ROW + ",%d" * (2 * self.n)
+        self._tails: dict[int, str] = {}
+        self.radix = max(self.n + 1, 5)  # used <= N mice, states < 4, reasons < 5
         out.write(",".join([*CSV_COLUMNS, *health_columns(names)]) + "\n")
 
     def __call__(self, b: PoseBatch) -> None:
-        cols = [b.t, b.x, b.y, b.theta, b.vx, b.vy, b.omega, b.used, b.ok, b.consistent]
+        floats = [c.tolist() for c in (b.t, b.x, b.y, b.theta, b.vx, b.vy, b.omega)]
+        # Formatting each row's floats with one %-operation is the fastest pure-Python
+        # way; the whole-number columns (used, ok, consistent, each mouse's state and
+        # reason) take few distinct values, so each distinct tail is formatted once.
+        ints = np.column_stack([b.used, b.ok, b.consistent]).astype(np.int64)
         if self.n:
             both = np.stack([b.state, b.reason], axis=2).reshape(len(b), 2 * self.n)
-            cols += list(both.T)
-        lists = [c.tolist() for c in cols]
-        # Formatting each row with one %-operation is the fastest pure-Python way.
-        self.out.write("\n".join(map(self.row.__mod__, zip(*lists, strict=True))) + "\n")
+            ints = np.column_stack([ints, both.astype(np.int64)])
+        codes, inverse = _row_codes(ints, self.radix)
+        tails = []
+        for code, row in zip(codes.tolist(), ints[_first_of(inverse, len(codes))].tolist(),
+                             strict=True):  # fmt: skip
+            tail = self._tails.get(code) if code >= 0 else None
+            if tail is None:
+                tail = "," + ",".join(map(str, row)) + "\n"
+                if code >= 0 and len(self._tails) < 4096:
+                    self._tails[code] = tail
+            tails.append(tail)
+        lines = map(_FLOATS.__mod__, zip(*floats, strict=True))
+        self.out.write("".join(map(add, lines, [tails[i] for i in inverse.tolist()])))
         self.rows += len(b)
+
+
+_FLOATS = _ROW[: _ROW.index(",%d")]
+
+
+def _row_codes(ints: np.ndarray, radix: int) -> tuple[np.ndarray, np.ndarray]:
+    """Distinct rows of small non-negative ints (each < radix) as one int64 code each,
+    the same in every batch, and each row's index among them (np.unique of rows without
+    its slow axis=0 path)."""
+    weights = np.int64(radix) ** np.arange(ints.shape[1], dtype=np.int64)
+    if radix ** ints.shape[1] >= 2**62 or (ints.size and not 0 <= ints.min() <= ints.max() < radix):
+        # too many columns for one code, or values out of range: rows as they are
+        rows, inverse = np.unique(ints, axis=0, return_inverse=True)
+        return -1 - np.arange(len(rows)), inverse.ravel()  # codes not cached across calls
+    codes, inverse = np.unique(ints @ weights, return_inverse=True)
+    return codes, inverse.ravel()
+
+
+def _first_of(inverse: np.ndarray, k: int) -> np.ndarray:
+    """For each of k distinct values, the first row that has it."""
+    first = np.full(k, len(inverse), dtype=np.int64)
+    np.minimum.at(first, inverse, np.arange(len(inverse)))
+    return first
 
 
 def read_csv(text: str) -> dict[str, np.ndarray]:
