@@ -121,7 +121,8 @@ def positions(n: int) -> list[tuple[float, float]]:
 
 
 def write_config(d: Path, fifos: list[Path], rate_hz: float, extra: str = "") -> Path:
-    lines = [f"rate_hz: {rate_hz}", "model: lsq", "integrator: exact", "mice:"]
+    model = "lsq" if len(fifos) > 1 else "diff-drive"  # one mouse: Hong's model
+    lines = [f"rate_hz: {rate_hz}", f"model: {model}", "integrator: exact", "mice:"]
     for name, (x, y), fifo in zip(MICE[: len(fifos)], positions(len(fifos)), fifos, strict=True):
         lines += [
             f"  {name}:",

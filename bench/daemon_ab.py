@@ -27,7 +27,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "bench"))
 
-from daemon import MICE, cpu_seconds, write_config  # noqa: E402  (bench/daemon.py)
+from daemon import MICE, REPORT_HZ, cpu_seconds, write_config  # noqa: E402  (bench/daemon.py)
 
 
 def start_build(root: Path, d: Path) -> tuple[subprocess.Popen, Path, list[Path]]:
@@ -70,7 +70,7 @@ def one_round(builds: dict[str, Path], seconds: float) -> dict[str, float]:
         fifos = [f for _, _, fs in started.values() for f in fs]
         feed = subprocess.Popen(
             [sys.executable, str(ROOT / "bench" / "daemon.py"), "--feed", str(d / "stamps.npz")]
-            + [str(seconds + 1.5), *map(str, fifos)]
+            + [str(seconds + 1.5), str(REPORT_HZ), *map(str, fifos)]
         )
         clients = [drain(sock) for _, sock, _ in started.values()]
         time.sleep(1.2)  # warm-up: windows begin to close
