@@ -437,3 +437,16 @@ def test_packed_cdr_is_byte_for_byte_cyclonedds():
         assert ros2cdr.diagnostics(st, msg) == want
     levels = [s["level"] for s in ros2conv.diagnostics(st, sources)["status"]]
     assert levels == [ros2conv.OK, ros2conv.ERROR, ros2conv.ERROR]
+
+
+def test_an_unsolved_window_and_diff_drive_sideways_are_not_claimed_certain():
+    row = _row()._replace(ok=False, vx=0.0, vy=0.0, omega=0.0)
+    msg = ros2conv.odometry(Ros2Config(), ros2conv.stamp(0.0, 0.0), (0.0, 0.0, 0.0), 0.0,
+                            row, 10.0)  # fmt: skip
+    t = np.array(msg["twist"]["covariance"]).reshape(6, 6)
+    assert [t[0, 0], t[1, 1], t[5, 5]] == [ros2conv.UNOBSERVED] * 3
+    diff = _row()._replace(qcov=[[0.1, 0.0, 0.3], [0.0, 0.0, 0.0], [0.3, 0.0, 0.9]])
+    msg = ros2conv.odometry(Ros2Config(), ros2conv.stamp(0.0, 0.0), (0.0, 0.0, 0.0), 0.0,
+                            diff, 10.0)  # fmt: skip
+    t = np.array(msg["twist"]["covariance"]).reshape(6, 6)
+    assert t[1, 1] == t[0, 0] == pytest.approx(10.0) and t[0, 1] == 0.0

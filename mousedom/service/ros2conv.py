@@ -104,6 +104,13 @@ def odometry(
     (a PoseRow), ``rate`` windows per second (the twist covariance is q's times rate^2)."""
     r2 = rate * rate
     qcov = [[float(v) * r2 for v in line] for line in row.qcov]
+    if not row.ok:
+        # the live mice could not tell the motion: the twist (given as 0) is unknown
+        qcov = [[UNOBSERVED if i == j else 0.0 for j in range(3)] for i in range(3)]
+    elif qcov[1][1] == 0.0 and qcov[0][0] > 0.0:
+        # diff-drive: no sideways slip is the model's assumption, not a measurement; an
+        # EKF given a variance of 0 would trust it without limit (and may go singular)
+        qcov[1][1] = qcov[0][0]
     return {
         "header": header(cfg.odom_frame, st),
         "child_frame_id": cfg.base_frame,
