@@ -436,12 +436,18 @@ def main() -> None:
           f" {args.rounds} rounds x {args.seconds:g} s measured (medians)")  # fmt: skip
     print(f"floor (100 Hz batched reader)  {med(floors):6.2f} % of one core")
     print(f"peer-style daemon              {med(peers):6.2f} %")
-    print(f"mousedom run                   {med(ours):6.2f} %   ratio to the floor "
-          f"{to_floor:.2f} (target <= 2), to the peer {to_peer:.2f} (target <= 0.5)")
-    print(f"loop                           {np.median([r['wakes_hz'] for r in ours]):.0f} "
-          f"wakes/s, {np.median([r['reads_hz'] for r in ours]):.0f} source reads/s")
-    print(f"latency beyond the window      p50 {np.median(lat):.3f} ms  p99 "
-          f"{np.percentile(lat, 99):.3f} ms  over {len(lat)} poses (target p99 <= 2 ms)")
+    print(
+        f"mousedom run                   {med(ours):6.2f} %   ratio to the floor "
+        f"{to_floor:.2f} (target <= 2), to the peer {to_peer:.2f} (target <= 0.5)"
+    )
+    print(
+        f"loop                           {np.median([r['wakes_hz'] for r in ours]):.0f} "
+        f"wakes/s, {np.median([r['reads_hz'] for r in ours]):.0f} source reads/s"
+    )
+    print(
+        f"latency beyond the window      p50 {np.median(lat):.3f} ms  p99 "
+        f"{np.percentile(lat, 99):.3f} ms  over {len(lat)} poses (target p99 <= 2 ms)"
+    )
     print(f"of which the tracker           {per_window * 1e6:.0f} us per window in-process")
 
 
