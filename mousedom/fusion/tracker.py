@@ -72,7 +72,7 @@ class Tracker:
         self._pose = [0.0, 0.0, 0.0]
         self._cov = [[0.0] * 3 for _ in range(3)]
         self._cov_at = [0.0, 0.0]
-        self.counts_out = np.zeros((self.n_mice, 2))
+        self._counts_out = [[0.0, 0.0] for _ in range(self.n_mice)]  # see counts_out
         self.screen = None
         if config.robust.enabled and self.n_mice:
             self.screen = robust.Screen(
@@ -238,6 +238,11 @@ class Tracker:
     # ------------------------------------------------------------------ outputs
 
     @property
+    def counts_out(self) -> np.ndarray:
+        """(N, 2) counts already in closed windows (REL_X, REL_Y per mouse)."""
+        return np.array(self._counts_out, dtype=np.float64).reshape(self.n_mice, 2)
+
+    @property
     def counts_in(self) -> np.ndarray:
         for m in self._mice:
             self._ingest(m)
@@ -363,7 +368,9 @@ class Tracker:
                     mask[(edges[:-1] < end) & (edges[1:] > start), i] = False
                 m.dead = [span for span in m.dead if span[1] > end_t]
         self._closed = k_new
-        self.counts_out += counts.sum(axis=0)
+        for acc, (cx, cy) in zip(self._counts_out, counts.sum(axis=0).tolist(), strict=True):
+            acc[0] += cx
+            acc[1] += cy
         return self._solve(edges[1:], counts, mask, self.evidence.windows(edges))
 
     def _close_one(self) -> PoseBatch:
@@ -373,7 +380,9 @@ class Tracker:
         counts = [m.close_one(end) for m in self._mice]
         live = tuple([m.live_in(start, end) for m in self._mice])
         self._closed = k + 1
-        self.counts_out += counts
+        for acc, (cx, cy) in zip(self._counts_out, counts, strict=True):
+            acc[0] += cx  # floats, not an array: numpy's += of a list cost 3 us a window
+            acc[1] += cy
         evidence = self.evidence.window(start, end) if self.evidence else None
         if self.model == "bonarini":  # numerical linearisation: the array path
             ev = None if evidence is None else (np.array([evidence[0]]), np.array([evidence[1]]))
