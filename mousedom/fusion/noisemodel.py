@@ -85,10 +85,6 @@ class NoiseModel:
         floor = np.broadcast_to(self.lam_f * self.sig2, m2.shape)
         return floor, self.lam_r * (self.rho2 * m2 + self.gran2 * a2)
 
-    def s2(self, d: np.ndarray, p: np.ndarray, prev_p: np.ndarray) -> np.ndarray:
-        floor, prop = self.parts(d, p, prev_p)
-        return floor + prop
-
     # ----------------------------------------------------------------- learning
 
     def sample(self, i: int, r2: float, floor: float, prop: float, h: float) -> None:

@@ -30,10 +30,6 @@ def _string(buf: bytearray, s: str) -> None:
     buf += struct.pack("<I", len(data)) + data
 
 
-def _split_stamp(sec: int, nanosec: int) -> bytes:
-    return _STAMP.pack(sec, nanosec)
-
-
 class Stamped:
     """A message that starts with a std_msgs/Header and then has fixed strings and doubles:
     ``encode(sec, nanosec, numbers)`` (the payload offset of the header is ``start``)."""
