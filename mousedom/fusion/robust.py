@@ -301,7 +301,8 @@ class Screen:
                 suspect |= used
                 reason[used & (reason == NONE)] = INCONSISTENT
         floor, prop = self.noise.parts(d, p, self.prev_p)
-        self._update(d, p, live, used, suspect, reason, consistent, floor * scale, prop)
+        floor = floor * scale
+        self._update(d, p, live, used, suspect, reason, consistent, floor, prop)
         if consistent and self.dof(int(used.sum())) > 0:
             r2 = np.sum((d - p) ** 2, axis=1)
             moving = np.maximum(np.sum(d * d, 1), np.sum(p * p, 1)) > self.noise.sig2
