@@ -450,3 +450,42 @@ def test_an_unsolved_window_and_diff_drive_sideways_are_not_claimed_certain():
                             diff, 10.0)  # fmt: skip
     t = np.array(msg["twist"]["covariance"]).reshape(6, 6)
     assert t[1, 1] == t[0, 0] == pytest.approx(10.0) and t[0, 1] == 0.0
+
+
+@pytest.mark.parametrize("store", [Stores.ROS2_HUMBLE, Stores.ROS2_JAZZY])
+def test_type_hashes_are_rep2011s(store):
+    """The RIHS01 hashes we announce are the ones computed from ROS 2's definitions."""
+    ts = get_typestore(store)
+    for name, value in ros2msgs.TYPE_HASHES.items():
+        assert ts.hash_rihs01(ros2msgs.ros2_name(name)) == value, name
+    assert set(ros2msgs.TYPE_HASHES) == {ros2msgs.ODOMETRY, ros2msgs.TF, ros2msgs.DIAGNOSTICS,
+                                         ros2msgs.COUNTS}  # fmt: skip
+
+
+def test_writers_announce_their_type_hash(tmp_path, dds_env, monkeypatch):
+    """What `ros2 topic info -v` reads: the writer's USER_DATA, seen through discovery."""
+    from cyclonedds.builtin import BuiltinDataReader, BuiltinTopicDcpsPublication
+    from cyclonedds.domain import DomainParticipant
+
+    from mousedom.service.ros2out import Ros2Output
+
+    env, domain = dds_env
+    monkeypatch.setenv("CYCLONEDDS_URI", env["CYCLONEDDS_URI"])
+    out = Ros2Output(Ros2Config(domain_id=domain), ("a", "b"), 100.0)
+    try:
+        dp = DomainParticipant(domain)
+        reader = BuiltinDataReader(dp, BuiltinTopicDcpsPublication)
+        found = {}
+        deadline = time.monotonic() + 10
+        while len(found) < 3 and time.monotonic() < deadline:
+            for s in reader.take(N=50):
+                if s.topic_name.startswith("rt/"):
+                    found[s.topic_name] = (s.type_name, s.qos)
+            time.sleep(0.05)
+        assert set(found) == {"rt/odom", "rt/tf", "rt/diagnostics"}
+        name, qos = found["rt/odom"]
+        assert name == "nav_msgs::msg::dds_::Odometry_"
+        userdata = next(p for p in qos if type(p).__name__ == "Userdata").data
+        assert userdata == f"typehash={ros2msgs.TYPE_HASHES[ros2msgs.ODOMETRY]};".encode()
+    finally:
+        out.close()

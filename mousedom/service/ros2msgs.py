@@ -62,6 +62,19 @@ FIELDS: dict[str, tuple[tuple[str, str], ...]] = {
     ),
 }  # fmt: skip
 
+# REP-2011 type hashes of the published types (the same in Humble and Jazzy; tests check
+# them against rosbags' computation from ROS 2's definitions).  ROS 2 since Iron announces
+# its own in each endpoint's USER_DATA as "typehash=RIHS01_...;" (rmw_dds_common), shown
+# by `ros2 topic info -v`; an endpoint without one still matches.
+TYPE_HASHES = {
+    "nav_msgs/Odometry": "RIHS01_3cc97dc7fb7502f8714462c526d369e35b603cfc34d946e3f2eda2766dfec6e0",
+    "tf2_msgs/TFMessage": "RIHS01_e369d0f05a23ae52508854b66f6aa0437f3449d652e8cbf22d5abe85d020f087",
+    "diagnostic_msgs/DiagnosticArray":
+        "RIHS01_5a8a36efb05fb25070fa0fb3810290c0e6cd4862b54a8fb975a1ee8dc55a333e",
+    "geometry_msgs/Vector3Stamped":
+        "RIHS01_d4829622288cbb443886e7ea94ea5671a3b1be6bab4ad04224432a65f7d7887a",
+}  # fmt: skip
+
 ODOMETRY = "nav_msgs/Odometry"
 TF = "tf2_msgs/TFMessage"
 DIAGNOSTICS = "diagnostic_msgs/DiagnosticArray"

@@ -3,7 +3,8 @@
 ROS 2's middleware is DDS; ``cyclonedds`` (the ``ros2`` extra) speaks it.  ROS 2's
 conventions on the wire (what rmw_cyclonedds does): a topic ``/odom`` is the DDS topic
 ``rt/odom``, the type ``nav_msgs/msg/Odometry`` is ``nav_msgs::msg::dds_::Odometry_`` in
-XCDR1, the domain is ``$ROS_DOMAIN_ID`` (0 if unset) unless the config names one.  QoS as
+XCDR1, each writer's USER_DATA carries the type's REP-2011 hash as ROS 2 since Iron does,
+the domain is ``$ROS_DOMAIN_ID`` (0 if unset) unless the config names one.  QoS as
 rclcpp's defaults for these topics: reliable, volatile, keep last 10 (/odom, /diagnostics)
 and keep last 100 (/tf, as tf2's TransformBroadcaster).
 
@@ -95,7 +96,8 @@ class Ros2Output:
                 Policy.History.KeepLast(depth),
             )
             t = Topic(self.participant, "rt" + conv.topic(cfg, topic), types[name], qos=qos)
-            return _RawWriter(DataWriter(self.participant, t, qos), types[name])
+            hashed = Qos(*qos, Policy.Userdata(f"typehash={msgs.TYPE_HASHES[name]};".encode()))
+            return _RawWriter(DataWriter(self.participant, t, hashed), types[name])
 
         self.odom = writer(cfg.odom_topic, msgs.ODOMETRY, 10)
         self.tf = (
