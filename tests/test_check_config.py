@@ -31,13 +31,15 @@ def test_prints_each_mouse_and_its_source(tmp_path):
     # serial: the report rate follows K (1e6 / (8 * 1250) = 100 Hz)
     assert lines[1] == (
         "  floor: cpi 1600/1600, mount (0.1, 0) m, yaw 0 deg, 100 Hz, "
-        "source serial /dev/ttyUSB0 (115200 baud, k 8, sensor 1600 cpi)"
+        "source serial /dev/ttyUSB0 (115200 baud, k 8, sensor 1600 cpi); "
+        "tracks up to 1.016 m/s, SQUAL at least 15"  # the ADNS-3080's datasheet limits
     )
     assert lines[2] == (
         "  side: cpi 400/410, mount (-0.1, 0.05) m, yaw 90 deg, flipped, 125 Hz, "
         f"source replay {tmp_path / 'drive.mdcap'} device 'sim b'"
     )
     assert "source evdev (name 'Logitech USB', not grabbed)" in lines[3]
+    assert lines[4].startswith("  fault tolerance: on (false alarm 0.0001 per window")
     # Regression: nothing said whether the calibration file exists (and so is applied).
     assert lines[4] == f"  calibration: {tmp_path / 'rig.calib.yaml'} (not written yet)"
     (tmp_path / "rig.calib.yaml").write_text("mice:\n  usb: {cpi: {x: 451, y: 452}}\n")

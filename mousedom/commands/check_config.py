@@ -65,6 +65,15 @@ def _shared_paths(mice) -> list[tuple[str, list[str]]]:
     return [(p, names) for p, names in by_path.items() if len(names) > 1]
 
 
+def _limits(m) -> str:
+    parts = []
+    if m.max_speed is not None:
+        parts.append(f"tracks up to {m.max_speed:g} m/s")
+    if m.min_squal is not None:
+        parts.append(f"SQUAL at least {m.min_squal}")
+    return "; " + ", ".join(parts) if parts else ""
+
+
 def run(args: argparse.Namespace) -> int:
     try:
         cfg = load_config(args.config, need_sources=not args.no_sources)
@@ -82,7 +91,27 @@ def run(args: argparse.Namespace) -> int:
         print(
             f"  {m.name}: cpi {m.cpi_x:g}/{m.cpi_y:g}, mount ({m.mount.x:g}, {m.mount.y:g}) m, "
             f"yaw {math.degrees(m.mount.yaw):g} deg{', flipped' if m.flip else ''}, "
-            f"{m.report_hz:g} Hz, source {_source(m)}"
+            f"{m.report_hz:g} Hz, source {_source(m)}{_limits(m)}"
+        )
+    r = cfg.robust
+    print(
+        "  fault tolerance: "
+        + (
+            f"on (false alarm {r.false_alarm:g} per window, relative noise {r.relative_noise:g}, "
+            f"re-admission after {r.readmit_s:g} s)"
+            if r.enabled
+            else "off (robust: false)"
+        )
+    )
+    if cfg.ros2 is not None:
+        from mousedom.service.ros2conv import topic
+
+        o = cfg.ros2
+        domain = o.domain_id if o.domain_id is not None else "$ROS_DOMAIN_ID"
+        print(
+            f"  ROS 2 output: {topic(o, o.odom_topic)} ({o.odom_frame} -> {o.base_frame}), "
+            f"domain {domain}, stamps {o.stamps}"
+            + (f", tf {topic(o, o.tf_topic)}" if o.publish_tf or o.publish_map_tf else "")
         )
     shared = _shared_paths(cfg.mice)
     if shared:
