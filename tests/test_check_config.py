@@ -41,7 +41,7 @@ def test_prints_each_mouse_and_its_source(tmp_path):
     assert "source evdev (name 'Logitech USB', not grabbed)" in lines[3]
     assert lines[4].startswith("  fault tolerance: on (false alarm 0.0001 per window")
     # Regression: nothing said whether the calibration file exists (and so is applied).
-    assert lines[4] == f"  calibration: {tmp_path / 'rig.calib.yaml'} (not written yet)"
+    assert lines[5] == f"  calibration: {tmp_path / 'rig.calib.yaml'} (not written yet)"
     (tmp_path / "rig.calib.yaml").write_text("mice:\n  usb: {cpi: {x: 451, y: 452}}\n")
     p = run_mousedom("check-config", "--config", str(path))
     assert p.returncode == 0, p.stderr
