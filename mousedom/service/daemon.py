@@ -51,10 +51,6 @@ SourceFactory = Callable[[MouseConfig, Clock], Source]
 STATUS_S = 1.0  # SOURCE broadcast period
 
 
-def _ignore(mask: int) -> None:
-    """Selector callback for the sources' selector: the loop reads them itself."""
-
-
 class Daemon(SensorSlots, Publisher, ClientCommands, Reloader):
     """Runs until stopped; ``run()`` returns the exit code."""
 
@@ -233,10 +229,15 @@ class Daemon(SensorSlots, Publisher, ClientCommands, Reloader):
         then collected without waiting.
         """
         remaining = deadline - self.clock()
+        main = self.selector.fileno()
         if remaining > 0:
-            ready, _, _ = select.select([self.selector.fileno()], [], [], remaining)
-            if not ready:
-                return []  # timed out (the usual wake-up): nothing to collect
+            # While a window waits for reports, the sources' own epoll descriptor is
+            # waited on too: one select on both, no epoll_ctl per window to add and
+            # remove it from the main one.
+            fds = [main, self.src_sel.fileno()] if self._watching else [main]
+            ready, _, _ = select.select(fds, [], [], remaining)
+            if main not in ready:
+                return []  # timed out, or a source is readable: nothing to dispatch
         return self.selector.select(0)
 
     def _plan(self) -> tuple[float, float]:
@@ -251,13 +252,8 @@ class Daemon(SensorSlots, Publisher, ClientCommands, Reloader):
         )
 
     def _watch_sources(self, on: bool) -> None:
-        """Wake on readable sources only while a window is due but not closed yet."""
-        if on == self._watching:
-            return
-        if on:
-            self.selector.register(self.src_sel, selectors.EVENT_READ, _ignore)
-        else:
-            self.selector.unregister(self.src_sel)
+        """Wake on readable sources only while a window is due but not closed yet (see
+        _select)."""
         self._watching = on
 
     def _read_sources(self, now: float) -> None:
