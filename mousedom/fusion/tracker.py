@@ -26,16 +26,17 @@ import math
 import numpy as np
 
 from mousedom.config import Config
-from mousedom.fusion import integrate, models, onewindow, robust, screenbatch
+from mousedom.fusion import integrate, models, robust, screenbatch
 from mousedom.fusion.countfunction import CountFunction
 from mousedom.fusion.covariance import CovarianceState, propagate, world_step_noise
 from mousedom.fusion.evidence import SensorEvidence
 from mousedom.fusion.geometry import rank_problem
-from mousedom.fusion.posebatch import PoseBatch, PoseRow
+from mousedom.fusion.posebatch import PoseBatch
+from mousedom.fusion.tracker_one import OneWindowPath
 from mousedom.fusion.units import counts_matrices, sigma_metres
 
 
-class Tracker:
+class Tracker(OneWindowPath):
     """Fuses the reports of a rig's mice into poses.  See the module docstring."""
 
     def __init__(
@@ -373,22 +374,6 @@ class Tracker:
             acc[1] += cy
         return self._solve(edges[1:], counts, mask, self.evidence.windows(edges))
 
-    def _close_one(self) -> PoseBatch:
-        """_close_until for the next window on Python floats: the daemon's case."""
-        k = self._closed
-        start, end = self._edge(k), self._edge(k + 1)
-        counts = [m.close_one(end) for m in self._mice]
-        live = tuple([m.live_in(start, end) for m in self._mice])
-        self._closed = k + 1
-        for acc, (cx, cy) in zip(self._counts_out, counts, strict=True):
-            acc[0] += cx  # floats, not an array: numpy's += of a list cost 3 us a window
-            acc[1] += cy
-        evidence = self.evidence.window(start, end) if self.evidence else None
-        if self.model == "bonarini":  # numerical linearisation: the array path
-            ev = None if evidence is None else (np.array([evidence[0]]), np.array([evidence[1]]))
-            return self._solve(np.array([end]), np.array([counts]), np.array([live]), ev)
-        return self._solve_one(end, counts, live, evidence)
-
     # Up to this many windows per poll, _close_one (floats, no validation) is used; tests
     # set it to 0 to compare it with the array path.
     _SMALL = 1
@@ -454,84 +439,3 @@ class Tracker:
             cov *= inflate[:, None, None]
             sol = models.Solution(q=q, cov=cov, residual=res, used=n_used, ok=ok)
         return sol, state, reason, consistent
-
-    def _linear_plan(self, live: tuple[bool, ...]) -> tuple:
-        """What _solve_one needs per pattern of live mice, as Python floats: (A rows, B rows,
-        live indices, q covariance 3x3 array, q columns); A and B are None without rank."""
-        plan = self._linear_cache.get(live)
-        if plan is None:
-            cols = (0, 1, 2) if self.model == "lsq" else (0, 2)
-            key = np.array(live, dtype=bool).tobytes()
-            est = None
-            if any(live):
-                est = models._estimator(self._positions.tobytes(), self._sigma.tobytes(), key, cols)
-            c3 = np.zeros((3, 3))
-            a_rows = b_rows = None
-            if est is not None:
-                c3[np.ix_(cols, cols)] = est[2]
-                a_rows, b_rows = est[0].tolist(), est[1].tolist()
-            c3 = c3.tolist()
-            idx = [i for i, v in enumerate(live) if v]
-            plan = (a_rows, b_rows, idx, c3, cols)
-            self._linear_cache[live] = plan
-        return plan
-
-    def _solve_one(
-        self,
-        t_end: float,
-        counts: list[tuple[float, float]],
-        live: tuple[bool, ...],
-        evidence: tuple[list[float], list[bool]] | None = None,
-    ) -> PoseBatch:
-        """_solve for one window of a linear model (see mousedom.fusion.onewindow)."""
-        q, residual, idx, c3, ok = self._linear_one(counts, live)
-        state, reason, consistent = self._fast_state.get(live), None, True
-        screen = self.screen
-        if screen is not None:
-            d_all = onewindow.body_counts(self._to_body_rows, counts, range(self.n_mice))
-            d_pairs = [d_all[2 * i : 2 * i + 2] for i in range(self.n_mice)]
-            if not screen.fast_one(d_pairs, q, live, evidence is not None):
-                scale, low = evidence if evidence is not None else (None, None)
-                dec = screen.decide(np.array(d_pairs), np.array(live, dtype=bool), scale, low)
-                used = tuple(dec.used.tolist())
-                if used != live:
-                    q, residual, idx, c3, ok = self._linear_one(counts, used)
-                if dec.inflate != 1.0:
-                    c3 = [[v * dec.inflate for v in row] for row in c3]
-                consistent = dec.consistent
-                state = None
-            if state is None:
-                state = tuple(h.state for h in screen.health)
-                reason = tuple(h.reason for h in screen.health)
-        if state is None or reason is None:
-            state = state or tuple(robust.TRACKING if v else robust.MISSING for v in live)
-            if screen is not None and live == screen.steady():
-                self._fast_state[live] = state
-            reason = (0,) * self.n_mice
-        ux, uy, a = q
-        sx, sy = onewindow.body_step(ux, uy, a, self.integrator)
-        x0, y0, th0 = self._pose
-        cb, sb = math.cos(th0), math.sin(th0)
-        x, y, th = x0 + (cb * sx - sb * sy), y0 + (sb * sx + cb * sy), th0 + a
-        g = onewindow.noise(th0, ux, uy, a, c3)
-        cov = onewindow.propagate(self._cov, self._cov_at, (x, y), g)
-        self._pose, self._cov, self._cov_at = [x, y, th], cov, [x, y]
-        rate = self._rate
-        pose = PoseRow(t_end, x, y, th, ux * rate, uy * rate, a * rate, cov, len(idx), ok,
-                    residual, counts, state, reason, consistent, c3)  # fmt: skip
-        return PoseBatch.from_rows([pose])
-
-    def _linear_one(self, counts: list, live: tuple[bool, ...]):
-        """(q, residual per mouse, used indices, q covariance, ok) of one window."""
-        a_rows, b_rows, idx, c3, cols = self._linear_plan(live)
-        residual = [[0.0, 0.0] for _ in range(self.n_mice)]
-        q = [0.0, 0.0, 0.0]
-        ok = b_rows is not None
-        if ok:
-            d = onewindow.body_counts(self._to_body_rows, counts, idx)
-            qk, res = onewindow.linear(d, a_rows, b_rows)
-            for c, v in zip(cols, qk, strict=True):
-                q[c] = v
-            for k, i in enumerate(idx):
-                residual[i] = res[2 * k : 2 * k + 2]
-        return q, residual, idx, c3, ok
