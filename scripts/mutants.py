@@ -47,7 +47,7 @@ MUTANTS = [
     ),
     Mutant(
         "cov-heading-after-one-window",
-        "mousedom/fusion/tracker.py",
+        "mousedom/fusion/tracker_one.py",
         "g = onewindow.noise(th0, ux, uy, a, c3)",
         "g = onewindow.noise(th, ux, uy, a, c3)",
         ("tests/test_covariance_truth.py",),
@@ -156,6 +156,40 @@ MUTANTS = [
         "                if False:\n",
         ("tests/test_replay_gaps.py",),
         "a gap of 1.3e9 s is windowed through (cost by time span)",
+    ),
+    Mutant(
+        "robust-never-excludes",
+        "mousedom/fusion/robust.py",
+        "            if blamed is not None:\n",
+        "            if False:\n",
+        ("tests/test_robust.py",),
+        "the fault-tolerant fusion finds the faulty mouse but never leaves it out",
+    ),
+    Mutant(
+        "robust-no-proportional-noise",
+        "mousedom/fusion/noisemodel.py",
+        "        return floor, self.lam_r * (self.rho2 * m2 + self.gran2 * a2)\n",
+        "        return floor, 0.0 * m2\n",
+        ("tests/test_robust.py",),
+        "the expected error forgets the part in proportion to motion: false alarms",
+    ),
+    Mutant(
+        "robust-never-readmits",
+        "mousedom/fusion/robust.py",
+        "                elif p[i] @ p[i] > 4.0 * thr2 * not_proportional[i]:\n"
+        "                    h.good += 1\n",
+        "                elif p[i] @ p[i] > 4.0 * thr2 * not_proportional[i]:\n"
+        "                    h.good += 0\n",
+        ("tests/test_robust.py",),
+        "an excluded mouse that agrees again is never used again",
+    ),
+    Mutant(
+        "screen-batch-never-decides",
+        "mousedom/fusion/screenbatch.py",
+        "            bad = np.flatnonzero(~fast | evidence[i:horizon]) + i\n",
+        "            bad = np.flatnonzero(evidence[i:horizon]) + i\n",
+        ("tests/test_robust.py",),
+        "replay's array screen accepts every window the daemon would have decided",
     ),
 ]
 
