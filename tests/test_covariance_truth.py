@@ -26,7 +26,7 @@ import pytest
 
 from mousedom.config import parse_config
 from mousedom.fusion import robust, sim
-from mousedom.fusion.tracker import Tracker
+from mousedom.fusion.tracker import PoseBatch, Tracker
 
 RUNS = 300
 RATE = 5.0  # output rate and report rate: one report per window, on the window's end
@@ -43,18 +43,6 @@ def _rig() -> tuple[sim.Rig, object]:
     return rig, parse_config(text, "<monte carlo>", need_sources=False)
 
 
-def _one_window_at_a_time(tracker: Tracker, reports: dict) -> None:
-    """Reports in time order, each pushed as a live read would (lists) and polled."""
-    merged = sorted(
-        (t, name, dx, dy)
-        for name, r in reports.items()
-        for t, dx, dy in zip(r.t.tolist(), r.dx.tolist(), r.dy.tolist(), strict=True)
-    )
-    for t, name, dx, dy in merged:
-        tracker.push(name, [t], [dx], [dy])
-        tracker.poll()
-
-
 def _nees(path: str, lifted: bool = False) -> np.ndarray:
     rig, config = _rig()
     if lifted:  # mouse c lifted for three windows (edges at multiples of 0.2 s)
@@ -68,9 +56,9 @@ def _nees(path: str, lifted: bool = False) -> np.ndarray:
         if path == "array":
             for name, r in result.reports.items():
                 tracker.push(name, r.t, r.dx, r.dy)
-        else:
-            _one_window_at_a_time(tracker, result.reports)
-        last = tracker.finish()
+            last = tracker.finish()
+        else:  # each report pushed as a live read would (lists) and polled
+            last = PoseBatch.concat(sim.run_tracker_live(result, tracker), 3)
         if lifted:  # the robust fusion left c out while it was lifted
             held = (last.t > 0.7) & (last.t < 1.2)
             assert (last.state[held, 2] == robust.EXCLUDED).all(), seed

@@ -299,17 +299,7 @@ def test_the_one_window_path_decides_as_the_array_path(kind):
     result = sim.simulate(scenarios.apply(base, fault), scenarios.drive(12.0, 3), seed=3)
     cfg = scenarios.config(base)
     batch, _ = scenarios.run(result, cfg)
-    tracker = Tracker(cfg, t0=0.0)
-    merged = sorted(
-        (t, name, dx, dy)
-        for name, r in result.reports.items()
-        for t, dx, dy in zip(r.t.tolist(), r.dx.tolist(), r.dy.tolist(), strict=True)
-    )
-    out = []
-    for t, name, dx, dy in merged:
-        tracker.push(name, [t], [int(dx)], [int(dy)])
-        out.append(tracker.poll())
-    out.append(tracker.finish())
+    out = sim.run_tracker_live(result, Tracker(cfg, t0=0.0))
     from mousedom.fusion.posebatch import PoseBatch
 
     one = PoseBatch.concat(out, 3)

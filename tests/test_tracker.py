@@ -419,16 +419,7 @@ def test_bonarini_on_the_one_window_path_equals_the_array_path():
     batch, _ = sim.run_tracker(result)
     config = sim.rig_config(rig)
     live = Tracker(config, t0=float(result.motion.starts[0]))
-    merged = sorted(
-        (t, name, dx, dy)
-        for name, r in result.reports.items()
-        for t, dx, dy in zip(r.t.tolist(), r.dx.tolist(), r.dy.tolist(), strict=True)
-    )
-    rows = []
-    for t, name, dx, dy in merged:
-        live.push(name, [t], [dx], [dy])
-        rows += live.poll().rows()
-    rows += live.finish().rows()
+    rows = [r for b in sim.run_tracker_live(result, live) for r in b.rows()]
     assert len(rows) == len(batch)
     got = np.array([[r.x, r.y, r.theta] for r in rows])
     want = np.column_stack([batch.x, batch.y, batch.theta])

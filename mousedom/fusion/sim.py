@@ -345,3 +345,21 @@ def run_tracker(result: SimResult, config: Config | None = None, **tracker_kw):
     for name, rep in result.reports.items():
         tracker.push(name, rep.t, rep.dx, rep.dy)
     return tracker.finish(), tracker
+
+
+def run_tracker_live(result: SimResult, tracker) -> list:
+    """Feed a simulation as a live daemon would: every report in time order, on its own,
+    as Python lists of an int count (what evdev gives), polling after each; then finish.
+    Returns the tracker's PoseBatches in order (the one-window path's output)."""
+    merged = sorted(
+        (t, name, dx, dy)
+        for name, r in result.reports.items()
+        for t, dx, dy in zip(r.t.tolist(), r.dx.tolist(), r.dy.tolist(), strict=True)
+    )
+    out = []
+    for t, name, dx, dy in merged:
+        tracker.push(name, [t], [int(dx) if float(dx).is_integer() else dx],
+                     [int(dy) if float(dy).is_integer() else dy])  # fmt: skip
+        out.append(tracker.poll())
+    out.append(tracker.finish())
+    return out
