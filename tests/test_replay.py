@@ -191,6 +191,9 @@ def test_replay_csv_names_the_excluded_mouse_and_robust_false_turns_it_off(tmp_p
                                       "-o", "-")).stdout)  # fmt: skip
     assert (plain["state_front"] == 0).all() and (plain["used"] == 3).all()
     assert np.hypot(plain["x"][-1] - truth[0], plain["y"][-1] - truth[1]) > 0.05
+    flag = read_csv(_ok(run_mousedom("replay", "--config", str(cfg), "--capture", str(path),
+                                     "--no-robust", "-o", "-")).stdout)  # fmt: skip
+    assert all(np.array_equal(flag[k], plain[k]) for k in plain)  # the switch = the config
 
 
 def test_multi_device_file_without_name_maps_by_config(tmp_path):

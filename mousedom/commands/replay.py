@@ -41,6 +41,12 @@ def register(subparsers) -> None:
     options.add_output(p, "write the poses as CSV ('-': stdout)")
     p.add_argument("--model", choices=MODELS, help="override the config's model")
     p.add_argument("--integrator", choices=INTEGRATORS, help="override the config's integrator")
+    p.add_argument(
+        "--no-robust",
+        action="store_true",
+        help="plain least squares: no fault test, no mouse left out (as `robust: false`; "
+        "for comparison)",
+    )
     p.add_argument("--plot", metavar="OUT.png", help="draw trajectory and residuals (matplotlib)")
     p.add_argument(
         "--mcap",
@@ -92,6 +98,12 @@ def run(args) -> int:
 
         mcapout.require()
     config = load_config(args.config, need_sources=False)
+    if args.no_robust:
+        import dataclasses
+
+        from mousedom.config import RobustConfig
+
+        config = dataclasses.replace(config, robust=RobustConfig(enabled=False))
     if args.model:
         # The config checks its own model against its mice; an override must pass too
         # (lsq on one mouse solved no window and ended at 0,0,0 with exit 0).
