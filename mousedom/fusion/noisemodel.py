@@ -69,7 +69,9 @@ class NoiseModel:
         self._sync()
 
     def _sync(self) -> None:
-        # Python copies for the one-window path
+        # Python copies for the one-window path (which touches no numpy: see robust.fast_one)
+        self.sig2_list = self.sig2.tolist()
+        self.lam_r_list = self.lam_r.tolist()
         self.f_floor = (self.lam_f * self.sig2).tolist()
         self.f_rho2 = (self.lam_r * self.rho2).tolist()
         self.f_gran2 = (self.lam_r * self.gran2).tolist()
@@ -96,9 +98,9 @@ class NoiseModel:
             return
         v = r2 / expected
         if 4.0 * floor >= prop:
-            self._floor[i].append((v - prop) / self.sig2[i])
+            self._floor[i].append((v - prop) / self.sig2_list[i])
         if 4.0 * prop >= floor and prop > 0:
-            self._prop[i].append((v - floor) / (prop / self.lam_r[i]))
+            self._prop[i].append((v - floor) / (prop / self.lam_r_list[i]))
 
     def samples_for(self, r2, floor, prop, h, eligible) -> tuple:
         """``sample``'s values for (n, N) arrays, where ``eligible``: (floor samples, where

@@ -97,13 +97,15 @@ class Screen:
         self.readmit = max(1, math.ceil(settings.readmit_s / window - 1e-9))
         self.readmit_evidence = max(1, self.readmit // 5)
         self.health = [MouseHealth() for _ in range(self.n)]
-        self.prev_p = np.zeros((self.n, 2))  # the previous window's predictions
         self._thresholds = [math.inf] + [self.threshold(k) for k in range(1, 2 * self.n + 1)]
         self._leverages: dict[bytes, np.ndarray] = {}
-        # Python copies for fast_one
+        # Python copies for fast_one, which must not touch numpy: the daemon runs it once
+        # per window after a sleep, when numpy's first call costs tens of microseconds
+        # (cold caches), more than the test itself.
         self._xy = self.positions.tolist()
         self._max2 = self.max_step2.tolist()
-        self._prev = [[0.0, 0.0] for _ in range(self.n)]
+        self._prev = [[0.0, 0.0] for _ in range(self.n)]  # the previous window's predictions
+        self._leverage_lists: dict[tuple[bool, ...], list[float]] = {}
 
     # ----------------------------------------------------------------- basics
 
@@ -144,9 +146,13 @@ class Screen:
             self._leverages[key] = h
         return h
 
+    @property
+    def prev_p(self) -> np.ndarray:
+        """(N, 2) the previous window's predictions."""
+        return np.array(self._prev, dtype=float).reshape(self.n, 2)
+
     def _set_prev(self, p: np.ndarray) -> None:
-        self.prev_p = np.array(p, dtype=float)
-        self._prev = self.prev_p.tolist()
+        self._prev = np.asarray(p, dtype=float).tolist()
 
     def _count_window(self) -> None:
         self.noise.seen += 1
@@ -186,12 +192,14 @@ class Screen:
         if dof > 0 and total > self._thresholds[dof]:
             return False
         if dof > 0:
-            h = self.leverage(np.array(live, dtype=bool))
+            h = self._leverage_lists.get(live)
+            if h is None:
+                h = self._leverage_lists[live] = self.leverage(np.array(live)).tolist()
+            sig2 = nm.sig2_list
             for i, r2, floor, prop, m2 in terms:
-                if m2 > nm.sig2[i]:
+                if m2 > sig2[i]:
                     nm.sample(i, r2, floor, prop, h[i])
         self._prev = [[ux - a * y, uy + a * x] for x, y in self._xy]
-        self.prev_p = np.array(self._prev)
         self._count_window()
         return True
 
@@ -307,8 +315,8 @@ class Screen:
             r2 = np.sum((d - p) ** 2, axis=1)
             moving = np.maximum(np.sum(d * d, 1), np.sum(p * p, 1)) > self.noise.sig2
             h = self.leverage(used)
-            for i in np.flatnonzero(used & moving & ~suspect):
-                self.noise.sample(int(i), float(r2[i]), float(floor[i]), float(prop[i]), h[i])
+            for i in np.flatnonzero(used & moving & ~suspect).tolist():
+                self.noise.sample(i, float(r2[i]), float(floor[i]), float(prop[i]), float(h[i]))
         self._set_prev(p)
         self._count_window()
         return Decision(used=used, inflate=inflate, consistent=consistent)

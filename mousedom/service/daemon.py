@@ -75,9 +75,11 @@ class Daemon(SensorSlots, Publisher, ClientCommands, Reloader):
         self.notifier = notifier or Notifier()
         self.handle_signals = handle_signals
         self.selector = selectors.DefaultSelector()
-        # The sources have a selector of their own, watched through the main one only
-        # while a window waits for reports (see _plan).
-        self.src_sel = selectors.DefaultSelector()
+        # The sources have an epoll of their own, waited on with the main one only while a
+        # window waits for reports (see _select).  A bare epoll, not a selector: it is
+        # asked once per window, and selectors' Python layer cost more than the syscall.
+        self.src_poll = select.epoll()
+        self.slot_by_fd: dict[int, Slot] = {}
         self._watching = False
         self.server = Server(
             socket_path, config.server, self.selector, self._on_command, self._on_connect
@@ -234,7 +236,7 @@ class Daemon(SensorSlots, Publisher, ClientCommands, Reloader):
             # While a window waits for reports, the sources' own epoll descriptor is
             # waited on too: one select on both, no epoll_ctl per window to add and
             # remove it from the main one.
-            fds = [main, self.src_sel.fileno()] if self._watching else [main]
+            fds = [main, self.src_poll.fileno()] if self._watching else [main]
             ready, _, _ = select.select(fds, [], [], remaining)
             if main not in ready:
                 return []  # timed out, or a source is readable: nothing to dispatch
@@ -257,8 +259,10 @@ class Daemon(SensorSlots, Publisher, ClientCommands, Reloader):
         self._watching = on
 
     def _read_sources(self, now: float) -> None:
-        for key, _ in self.src_sel.select(0):
-            self._read_slot(key.data)
+        for fd, _ in self.src_poll.poll(0):
+            slot = self.slot_by_fd.get(fd)
+            if slot is not None:
+                self._read_slot(slot)
         for slot in self.slots:
             if slot.live and slot.paced:
                 self._read_slot(slot)
@@ -288,7 +292,7 @@ class Daemon(SensorSlots, Publisher, ClientCommands, Reloader):
         if self.handle_signals:
             self._restore_signals()
         self.selector.close()
-        self.src_sel.close()
+        self.src_poll.close()
         os.close(self._wake_r)
         wake_w, self._wake_w = self._wake_w, -1
         os.close(wake_w)

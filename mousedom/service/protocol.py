@@ -299,6 +299,14 @@ def _json_names(names: tuple[str, ...]) -> str:
     return json.dumps(list(names), separators=(",", ":"))
 
 
+_POSE_FINITE = (
+    '{"class":"POSE","t":%r,"x":%r,"y":%r,"theta":%r,"vx":%r,"vy":%r,"omega":%r,'
+    '"cov":[[%r,%r,%r],[%r,%r,%r],[%r,%r,%r]],"used":%d,"updating":%s,"missing":%s,'
+    '"excluded":%s,"suspect":%s,"consistent":%s}\n'
+)
+_POSE_ANY = _POSE_FINITE.replace("%r", "%s")  # values already written by _json_float
+
+
 def encode_pose(
     t: float,
     pose: tuple[float, float, float],
@@ -314,16 +322,29 @@ def encode_pose(
     """``encode(pose_message(...))`` byte for byte, without the dict and the generic JSON
     encoder: the daemon writes one per window (tests check both give the same bytes).
     Arguments are Python floats, ints and bools (``ndarray.tolist()``)."""
-    f = _json_float
     c0, c1, c2 = cov
+    values = (
+        round(float(t), 6), float(pose[0]), float(pose[1]), float(pose[2]),
+        float(twist[0]), float(twist[1]), float(twist[2]),
+        float(c0[0]), float(c0[1]), float(c0[2]), float(c1[0]), float(c1[1]), float(c1[2]),
+        float(c2[0]), float(c2[1]), float(c2[2]),
+    )  # fmt: skip
+    template = _POSE_FINITE
+    # One sum is NaN or inf if a value is (or if finite values overflow it): then each
+    # value is written on its own, null where JSON has no number.
+    if not math.isfinite(sum(values)):
+        template, values = _POSE_ANY, tuple(_json_float(v) for v in values)
     return (
-        f'{{"class":"POSE","t":{f(round(float(t), 6))},"x":{f(pose[0])},"y":{f(pose[1])},'
-        f'"theta":{f(pose[2])},"vx":{f(twist[0])},"vy":{f(twist[1])},"omega":{f(twist[2])},'
-        f'"cov":[[{f(c0[0])},{f(c0[1])},{f(c0[2])}],[{f(c1[0])},{f(c1[1])},{f(c1[2])}],'
-        f'[{f(c2[0])},{f(c2[1])},{f(c2[2])}]],"used":{int(used)},'
-        f'"updating":{"true" if updating else "false"},"missing":{_json_names(missing)},'
-        f'"excluded":{_json_names(excluded)},"suspect":{_json_names(suspect)},'
-        f'"consistent":{"true" if consistent else "false"}}}\n'
+        template
+        % (
+            *values,
+            int(used),
+            "true" if updating else "false",
+            _json_names(missing),
+            _json_names(excluded),
+            _json_names(suspect),
+            "true" if consistent else "false",
+        )
     ).encode()
 
 

@@ -1,14 +1,15 @@
 """The daemon's sensors: one slot per configured mouse, opened, read, lost and retried.
 
 A mixin of ``Daemon`` (one idea per file; the state is the daemon's own): it uses
-``self.slots``, ``self.src_sel``, ``self.tracker``, ``self.recording``, ``self.clock``,
-``self.source_factory`` and ``self.notifier``, and calls ``self._broadcast_sources``.
+``self.slots``, ``self.src_poll``, ``self.slot_by_fd``, ``self.tracker``, ``self.recording``,
+``self.clock``, ``self.source_factory`` and ``self.notifier``, and calls
+``self._broadcast_sources``.
 """
 
 from __future__ import annotations
 
 import logging
-import selectors
+import select
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -74,7 +75,8 @@ class SensorSlots:
             return
         slot.fd = fd if fd is not None and fd >= 0 and not slot.paced else None
         if slot.fd is not None:
-            self.src_sel.register(slot.fd, selectors.EVENT_READ, slot)
+            self.src_poll.register(slot.fd, select.EPOLLIN)
+            self.slot_by_fd[slot.fd] = slot
         slot.live = True
         slot.announced.pop("error", None)
         self.tracker.set_live(slot.index, True, now)
@@ -149,10 +151,11 @@ class SensorSlots:
 
     def _close_slot(self, slot: Slot) -> None:
         if slot.fd is not None:
+            self.slot_by_fd.pop(slot.fd, None)
             try:
-                self.src_sel.unregister(slot.fd)
-            except (KeyError, ValueError):
-                pass
+                self.src_poll.unregister(slot.fd)
+            except (OSError, ValueError):
+                pass  # not registered, or the epoll is closed already
             slot.fd = None
         slot.live = False
         slot.source.close()
