@@ -65,18 +65,20 @@ class OneWindowPath:
         evidence: tuple[list[float], list[bool]] | None = None,
     ) -> PoseBatch:
         """_solve for one window of a linear model (see mousedom.fusion.onewindow)."""
-        q, residual, idx, c3, ok = self._linear_one(counts, live)
+        # Every mouse's counts in body metres, once: the solve takes the live ones, the
+        # screen all (the products per mouse are the same whichever subset is asked).
+        d_all = onewindow.body_counts(self._to_body_rows, counts, range(self.n_mice))
+        q, residual, idx, c3, ok = self._linear_one(d_all, live)
         state, reason, consistent = self._fast_state.get(live), None, True
         screen = self.screen
         if screen is not None:
-            d_all = onewindow.body_counts(self._to_body_rows, counts, range(self.n_mice))
             d_pairs = [d_all[2 * i : 2 * i + 2] for i in range(self.n_mice)]
             if not screen.fast_one(d_pairs, q, live, evidence is not None):
                 scale, low = evidence if evidence is not None else (None, None)
                 dec = screen.decide(np.array(d_pairs), np.array(live, dtype=bool), scale, low)
                 used = tuple(dec.used.tolist())
                 if used != live:
-                    q, residual, idx, c3, ok = self._linear_one(counts, used)
+                    q, residual, idx, c3, ok = self._linear_one(d_all, used)
                 if dec.inflate != 1.0:
                     c3 = [[v * dec.inflate for v in row] for row in c3]
                 consistent = dec.consistent
@@ -102,14 +104,19 @@ class OneWindowPath:
                     residual, counts, state, reason, consistent, c3)  # fmt: skip
         return PoseBatch.from_rows([pose])
 
-    def _linear_one(self, counts: list, live: tuple[bool, ...]):
-        """(q, residual per mouse, used indices, q covariance, ok) of one window."""
+    def _linear_one(self, d_all: list[float], live: tuple[bool, ...]):
+        """(q, residual per mouse, used indices, q covariance, ok) of one window, from
+        every mouse's body-frame counts ``d_all`` (x1, y1, x2, ...)."""
         a_rows, b_rows, idx, c3, cols = self._linear_plan(live)
         residual = [[0.0, 0.0] for _ in range(self.n_mice)]
         q = [0.0, 0.0, 0.0]
         ok = b_rows is not None
         if ok:
-            d = onewindow.body_counts(self._to_body_rows, counts, idx)
+            d = (
+                d_all
+                if len(idx) == self.n_mice
+                else [v for i in idx for v in d_all[2 * i : 2 * i + 2]]
+            )
             qk, res = onewindow.linear(d, a_rows, b_rows)
             for c, v in zip(cols, qk, strict=True):
                 q[c] = v
