@@ -134,6 +134,33 @@ _line = st.tuples(
 )
 
 
+_evemu_line = st.tuples(
+    st.integers(0, 10**12 - 1), st.integers(0, 999999), st.integers(0, 0xFFFF),
+    st.integers(0, 0xFFFF), st.integers(-(2**31), 2**31 - 1),
+)  # fmt: skip
+_REGULAR = b"E: 12.000250 0002 0001 -0013\t# EV_REL / REL_Y   -13\n"
+
+
+@settings(max_examples=200, suppress_health_check=[HealthCheck.too_slow])
+@given(st.lists(_evemu_line, min_size=1, max_size=40), st.booleans())
+def test_regular_parser_takes_what_evemu_writes(lines, comments):
+    """Lines as evemu writes them (``%lu.%06u %04x %04x``, then ``%d`` (1.0-1.2) or
+    ``%04d<TAB># comment`` (1.3)) take the fixed-offset parser, with the line parser's
+    results."""
+    from mousedom.capture.evemu_lines import regular_events
+
+    text = ""
+    for sec, usec, ty, co, va in lines:
+        value = f"{va:04d}\t# EV_REL / REL_X   {va}" if comments else f"{va:d}"
+        text += f"E: {sec}.{usec:06d} {ty:04x} {co:04x} {value}\n"
+    block = text.encode()
+    regular = regular_events(block, 7)
+    slow = _slow_events("x", block, 7, at_eof=False)
+    assert regular is not None
+    for k in ("t", "typ", "code", "value", "line"):
+        np.testing.assert_array_equal(getattr(regular, k), getattr(slow, k))
+
+
 @settings(max_examples=200, suppress_health_check=[HealthCheck.too_slow])
 @given(st.lists(_line, min_size=1, max_size=40))
 def test_vectorised_parser_equals_line_parser(lines):
@@ -150,11 +177,20 @@ def test_vectorised_parser_equals_line_parser(lines):
         np.testing.assert_array_equal(getattr(fast, k), getattr(slow, k))
 
 
+@pytest.mark.parametrize("parser", ["fast_events", "regular_events", "general_events"])
 @settings(max_examples=300, suppress_health_check=[HealthCheck.too_slow])
-@given(st.binary(max_size=300))
-def test_vectorised_parser_never_accepts_what_the_line_parser_rejects(data):
+@given(data=st.one_of(
+    st.binary(max_size=300),
+    # near misses of evemu's own lines: one byte of a regular line changed
+    st.tuples(st.integers(0, 40), st.binary(min_size=1, max_size=1)).map(
+        lambda p: _REGULAR[: p[0]] + p[1] + _REGULAR[p[0] + 1 :]
+    ),
+))  # fmt: skip
+def test_vectorised_parser_never_accepts_what_the_line_parser_rejects(parser, data):
+    from mousedom.capture import evemu_lines
+
     block = data if data.endswith(b"\n") else data + b"\n"
-    fast = _fast_events(block, 1)
+    fast = getattr(evemu_lines, parser)(block, 1)
     try:
         slow = _slow_events("x", block, 1, at_eof=False)
     except CaptureError:
