@@ -84,7 +84,8 @@ class CountFunction:
                 for cols in zip(*self.pending, strict=True)
             )
         self.pending = []
-        cum = np.cumsum(np.stack([dx, dy]), axis=1)  # (2, n)
+        steps = np.stack([dx, dy])  # (2, n)
+        cum = np.cumsum(steps, axis=1)
         cx, cy = cum[:, -1].tolist()
         self.counts_in[0] += cx
         self.counts_in[1] += cy
@@ -93,13 +94,18 @@ class CountFunction:
         run_max = np.maximum.accumulate(np.concatenate([[self.knot_t], t]))[1:]
         self.backwards += int(np.count_nonzero(run_max > t))
         t = run_max
-        # Reports behind the closed frontier go into the first open window.
-        late = t < edge
-        if late.any():
-            self.late += int(np.count_nonzero(late))
+        # Reports behind the closed frontier go into the first open window.  t is now
+        # non-decreasing, so those are a prefix: found by bisection, not by a pass.
+        late = int(np.searchsorted(t, edge, side="left"))
+        if late:
+            self.late += late
             t = np.maximum(t, edge)
         prev = np.concatenate([[self.knot_t], t[:-1]])
-        start = np.maximum(np.maximum(prev, t - self.period), edge)
+        start = np.maximum(prev, t - self.period)
+        # max(..., edge) as well: start is non-decreasing, so only a prefix can be below.
+        below = int(np.searchsorted(start, edge, side="left"))
+        if below:
+            start[:below] = edge
 
         # Knot pairs: F holds its level until the report's span starts, then rises to it.
         cum += self.level()[:, None]
@@ -107,8 +113,8 @@ class CountFunction:
         new[0, 0::2] = start
         new[0, 1::2] = t
         new[1:, 1::2] = cum
-        new[1:, 0::2] = cum - np.stack([dx, dy])
-        self.knots = np.concatenate([self.knot_array(), new], axis=1)
+        new[1:, 0::2] = cum - steps
+        self.knots = np.concatenate([self.knot_array(), new], axis=1) if self.n_knots() else new
         self.knot_t = float(t[-1])
 
     def ingest_small(self, edge: float) -> None:
