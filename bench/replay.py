@@ -293,10 +293,10 @@ def main() -> None:
             ev_slow, _ = median_rate(lambda: read_only(evemu_specs), 1)
         finally:
             evemu_mod._fast_events = fast
-        peer, _ = median_rate(lambda: peer_loop(cfg, evemu_files), 1)
+        peer, _ = median_rate(lambda: peer_loop(cfg, evemu_files), args.repeat)
         floor, _ = median_rate(lambda: vectorised_floor(cfg, native_specs), args.repeat)
         quiet, _ = median_rate(lambda: quiet_replay(cfg, native_specs), args.repeat)
-        print(f"rates are medians of {args.repeat} runs (line-by-line parser, peer: 1 run)")
+        print(f"rates are medians of {args.repeat} runs (line-by-line parser: 1 run)")
         print(f"peer-style loop, evemu text   : {peer:12,.0f} reports/s (per line, 10 ms "
               "buckets, numpy lstsq per window, CSV)")  # fmt: skip
         print(f"native replay / peer          : {nat / peer:8.1f}x (target >= 20)")
