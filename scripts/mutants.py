@@ -110,6 +110,14 @@ MUTANTS = [
         "the fixed-offset evemu parser drops the value's sign",
     ),
     Mutant(
+        "evemu-block-lines",
+        "mousedom/capture/evemu.py",
+        "lines = len(ev)  # the fast",
+        "lines = len(ev) - 1  # the fast",
+        ("tests/test_capture_evemu.py",),
+        "an error after a few blocks is named by the wrong line number",
+    ),
+    Mutant(
         "evemu-general-sign",
         "mousedom/capture/evemu_lines.py",
         "value = _digits(b, s3 + 1 + (neg | pos), vend, 10, 10)\n",

@@ -120,6 +120,24 @@ def test_small_blocks_give_the_same_reports(tmp_path, comments, version):
         np.testing.assert_allclose(a, want, atol=5e-7)
 
 
+def test_small_blocks_name_the_right_line(tmp_path):
+    """Blocks taken by the vectorised parsers count their lines too: a bad line after
+    many small blocks is named by its own number."""
+    n = 400
+    text = format_evemu(np.arange(1, n + 1) * 0.001, np.ones(n, int), -np.ones(n, int))
+    lines = text.splitlines(keepends=True)
+    bad = len(lines) - 10  # 1-based number of the line made bad
+    lines[bad - 1] = "E: 0.390000 0002 00z0 1\n"
+    p = tmp_path / "m.evemu"
+    p.write_text("".join(lines))
+    cap = EvemuCapture(str(p), block_bytes=977)
+    with pytest.raises(CaptureError) as e:
+        for f in cap.feeds():
+            for _ in f.batches:
+                pass
+    assert f"m.evemu:{bad}:" in str(e.value)
+
+
 # ------------------------------------------------------------------ fast == slow parser
 
 _line = st.tuples(

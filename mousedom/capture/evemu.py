@@ -190,34 +190,37 @@ class EvemuCapture(Capture):
         self.reset_stats()
         return [Feed((0,), self._batches())]
 
-    def _blocks(self) -> Iterator[tuple[bytes, int, bool]]:
-        """(block of whole lines, number of its first line, at end of file)."""
+    def _blocks(self) -> Iterator[tuple[bytes | memoryview, bool]]:
+        """(block of whole lines, at end of file); the last may lack its newline.  A block
+        is a view of what was read, not a copy (the vectorised parsers read it as is)."""
         with _open(self.data_path) as f:
             f.seek(self._body_offset)
-            line = self._body_line
             carry = b""
             while True:
                 buf = f.read(self.block_bytes)
                 if not buf:
                     if carry:
-                        yield carry, line, True
+                        yield carry, True
                     return
                 buf = carry + buf
                 cut = buf.rfind(b"\n") + 1
                 carry = buf[cut:]
                 if cut:
-                    block = buf[:cut]
-                    self.bytes_done += len(block)
-                    yield block, line, False
-                    line += block.count(b"\n")
+                    self.bytes_done += cut
+                    yield memoryview(buf)[:cut], False
 
     def _batches(self) -> Iterator[Batch]:
         stats = self.stats[0]
         frames = FrameBatcher(0, stats)
         last_t = -np.inf
-        for block, first_line, at_eof in self._blocks():
+        first_line = self._body_line
+        for block, at_eof in self._blocks():
             ev = None if at_eof else _fast_events(block, first_line)
-            if ev is None:
+            if ev is not None:
+                lines = len(ev)  # the fast parsers take blocks of E: lines only
+            else:
+                block = bytes(block)
+                lines = block.count(b"\n")
                 try:
                     ev = _slow_events(self.path, block, first_line, at_eof=at_eof)
                 except _TornLine as torn:
@@ -225,7 +228,9 @@ class EvemuCapture(Capture):
                     self.warnings.append(
                         f"{self.path}:{torn.line}: last line cut off (truncated recording); skipped"
                     )
+                    first_line += lines
                     continue
+            first_line += lines
             if not len(ev):
                 continue
             self._check_time(ev, last_t)

@@ -1,8 +1,8 @@
 """evemu event lines -> event columns: two vectorised parsers and a careful one.
 
 ``fast_events`` parses a whole block of ``E:`` lines on its bytes as one numpy array:
-first as evemu writes them (``regular_events``: fixed widths after the decimal point,
-one optional tab comment), else with any blanks and widths (``general_events``);
+first as evemu writes them (``regular_events``, ``evemu_regular``: fixed offsets from
+the decimal point, one optional tab comment), else with any blanks and widths (``general_events``);
 ``slow_events`` goes line by line and names the first bad line.  The reader tries the
 fast one first and falls back to the slow one for any block it refuses, so the fast
 paths only have to be right, never clever about errors; the tests check that all agree.
@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from mousedom.capture.base import CaptureError
+from mousedom.capture.evemu_regular import regular_columns
 from mousedom.errors import located
 
 
@@ -65,71 +66,25 @@ def _digits(b: np.ndarray, begin: np.ndarray, end: np.ndarray, base: int, width:
     return value
 
 
-def fast_events(block: bytes, first_line: int) -> Events | None:
+def fast_events(block: bytes | memoryview, first_line: int) -> Events | None:
     """Parse a block of whole lines when every one is a plain E: line; else None."""
     ev = regular_events(block, first_line)
     return ev if ev is not None else general_events(block, first_line)
 
 
-_USEC_WEIGHTS = 10 ** np.arange(5, -1, -1, dtype=np.int64)
-_HEX_WEIGHTS = 16 ** np.arange(3, -1, -1, dtype=np.int64)
-
-
-def _fixed(b: np.ndarray, begin: np.ndarray, lut: np.ndarray, weights: np.ndarray):
-    """Integer fields of ``len(weights)`` digits at b[begin:] (one per line), or None if a
-    character is not a digit of ``lut``: one gather of an (n, width) matrix."""
-    digits = lut[b[begin[:, None] + np.arange(len(weights))]]
-    if (digits < 0).any():
+def regular_events(block: bytes | memoryview, first_line: int) -> Events | None:
+    """The lines as evemu writes them, parsed at fixed offsets (``evemu_regular``);
+    None for anything else (``general_events`` then decides)."""
+    columns = regular_columns(block)
+    if columns is None:
         return None
-    return digits @ weights
-
-
-def regular_events(block: bytes, first_line: int) -> Events | None:
-    """The lines as evemu writes them (``E: %lu.%06u %04x %04x %d``, from evemu 1.3 with
-    a tab and a ``#`` comment after the value) in fewer passes than ``general_events``:
-    each line has one decimal point, and everything after it up to the value sits at a
-    fixed offset from it.  None for anything else (general_events then decides)."""
-    b = np.frombuffer(block, dtype=np.uint8)
-    nl = np.flatnonzero(b == 10)
-    n = len(nl)
-    if n == 0 or nl[-1] != len(b) - 1:
-        return None
-    starts = np.empty(n, dtype=np.int64)
-    starts[0] = 0
-    starts[1:] = nl[:-1] + 1
-    dot = np.flatnonzero(b == 46)
-    # One point per line, after "E: " and a digit, and room for ".uuuuuu tttt cccc v".
-    if len(dot) != n or ((dot - starts) < 4).any() or ((nl - dot) < 19).any():
-        return None
-    if not ((b[starts] == 69) & (b[starts + 1] == 58) & (b[starts + 2] == 32)).all():
-        return None
-    if not ((b[dot + 7] == 32) & (b[dot + 12] == 32) & (b[dot + 17] == 32)).all():
-        return None
-    tabs = np.flatnonzero(b == 9)
-    if len(tabs) == 0:
-        vend = nl
-    elif len(tabs) == n and ((tabs > dot + 18) & (tabs < nl)).all() and (b[tabs + 1] == 35).all():
-        vend = tabs  # "value<TAB># comment"
-    else:
-        return None
-    sec = _digits(b, starts + 3, dot, 10, 12)
-    usec = _fixed(b, dot + 1, _DEC, _USEC_WEIGHTS)
-    typ = _fixed(b, dot + 8, _HEX, _HEX_WEIGHTS)
-    code = _fixed(b, dot + 13, _HEX, _HEX_WEIGHTS)
-    neg = b[dot + 18] == 45
-    pos = b[dot + 18] == 43
-    value = _digits(b, dot + 18 + (neg | pos), vend, 10, 10)
-    if sec is None or usec is None or typ is None or code is None or value is None:
-        return None
-    value = np.where(neg, -value, value)
-    if (value < -(2**31)).any() or (value >= 2**31).any():
-        return None
-    line = np.arange(first_line, first_line + n, dtype=np.int64)
+    sec, usec, typ, code, value = columns
+    line = np.arange(first_line, first_line + len(sec), dtype=np.int64)
     # the same operations as general_events (and the line parser) for six-digit fractions
     return Events(sec + usec / 1_000_000, typ, code, value, line)
 
 
-def general_events(block: bytes, first_line: int) -> Events | None:
+def general_events(block: bytes | memoryview, first_line: int) -> Events | None:
     """Parse a block of whole lines when every one is a plain E: line; else None.
 
     Everything happens on the block's bytes as one numpy array: line starts, the three
