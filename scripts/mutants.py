@@ -70,6 +70,14 @@ MUTANTS = [
         "a report reaches two report periods back (array ingest)",
     ),
     Mutant(
+        "sorted-shortcut-forgets-last-push",
+        "mousedom/fusion/countfunction.py",
+        "if not (t[0] >= self.knot_t and (t[1:] >= t[:-1]).all()):",
+        "if not ((t[1:] >= t[:-1]).all()):",
+        ("tests/test_tracker.py",),
+        "a push starting behind the previous one is not clamped (array ingest)",
+    ),
+    Mutant(
         "two-periods-back-list",
         "mousedom/fusion/countfunction.py",
         "            start = ti - period\n",

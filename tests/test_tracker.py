@@ -163,6 +163,25 @@ def test_late_and_backwards_reports_are_kept_and_counted():
     assert tr.stats()["front"] == {"late": 1, "backwards": 1}
 
 
+@pytest.mark.parametrize("small", [True, False])
+def test_a_push_that_starts_behind_the_last_one_is_clamped(monkeypatch, small):
+    """Each push in order, the second starting before the first ended (two reads of a
+    clock that stepped back): clamped to the last stamp and counted, by the list path
+    and by the array path (whose shortcut for sorted stamps must look across pushes)."""
+    if not small:
+        monkeypatch.setattr(Tracker, "_INGEST_SMALL", 0)
+    cfg = sim.rig_config(rig3())
+    tr = Tracker(cfg, t0=0.0)
+    tr.push("front", np.array([0.020, 0.030]), np.array([1.0, 1.0]), np.zeros(2))
+    assert tr.stats()["front"]["backwards"] == 0  # the first push becomes knots
+    tr.push("front", np.array([0.025, 0.026]), np.array([2.0, 4.0]), np.zeros(2))
+    out = tr.finish()
+    assert tr.stats()["front"]["backwards"] == 2
+    assert out.counts[:, 0, 0].sum() == pytest.approx(8.0)
+    # the clamped reports land at 0.030, in the window ending there
+    assert out.counts[np.isclose(out.t, 0.03), 0, 0].sum() == pytest.approx(7.0)
+
+
 def test_degraded_operation_keeps_going_with_rank_and_holds_without():
     res = sim.simulate(rig3(), sim.straight(0.5, 0.25))
     cfg = sim.rig_config(res.rig)

@@ -91,9 +91,11 @@ class CountFunction:
         self.counts_in[1] += cy
 
         # Time must not run backwards: clamp to the running maximum (counted, kept).
-        run_max = np.maximum.accumulate(np.concatenate([[self.knot_t], t]))[1:]
-        self.backwards += int(np.count_nonzero(run_max > t))
-        t = run_max
+        # Stamps in order (the usual case) are their own running maximum.
+        if not (t[0] >= self.knot_t and (t[1:] >= t[:-1]).all()):
+            run_max = np.maximum.accumulate(np.concatenate([[self.knot_t], t]))[1:]
+            self.backwards += int(np.count_nonzero(run_max > t))
+            t = run_max
         # Reports behind the closed frontier go into the first open window.  t is now
         # non-decreasing, so those are a prefix: found by bisection, not by a pass.
         late = int(np.searchsorted(t, edge, side="left"))

@@ -61,6 +61,11 @@ def _medians(samples: list[list[float]]) -> list[float]:
     return out
 
 
+def motion2(d: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """max(|d|^2, |p|^2) per mouse for readings and predictions (..., N, 2)."""
+    return np.maximum(np.sum(d * d, axis=-1), np.sum(p * p, axis=-1))
+
+
 class NoiseModel:
     def __init__(
         self, sigma: np.ndarray, rho: float, report_periods: np.ndarray, window: float
@@ -91,10 +96,12 @@ class NoiseModel:
     # ----------------------------------------------------------------- the variance
 
     def parts(
-        self, d: np.ndarray, p: np.ndarray, prev_p: np.ndarray
+        self, d: np.ndarray, p: np.ndarray, prev_p: np.ndarray, m2: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
-        """(floor, proportional) parts of s^2 for readings d and predictions p (..., N, 2)."""
-        m2 = np.maximum(np.sum(d * d, axis=-1), np.sum(p * p, axis=-1))
+        """(floor, proportional) parts of s^2 for readings d and predictions p (..., N, 2);
+        ``m2``, if given, is ``motion2(d, p)``."""
+        if m2 is None:
+            m2 = motion2(d, p)
         a2 = np.sum((p - prev_p) ** 2, axis=-1)
         floor = np.broadcast_to(self.lam_f * self.sig2, m2.shape)
         return floor, self.lam_r * (self.rho2 * m2 + self.gran2 * a2)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from mousedom.fusion.noisemodel import motion2
 from mousedom.fusion.robust import MISSING, TRACKING, Screen
 
 HORIZON = 16  # learning blocks of rows tested at once
@@ -104,13 +105,13 @@ def _fast_rows(sc: Screen, d, p, mask, lever) -> tuple[np.ndarray, tuple]:
     the row before it unaltered (a row after an altered one goes to ``decide``), and the
     noise model's samples of each row were it accepted."""
     prev_p = np.concatenate([sc.prev_p[None], p[:-1]])
-    floor, prop = sc.noise.parts(d, p, prev_p)
+    m2 = motion2(d, p)
+    floor, prop = sc.noise.parts(d, p, prev_p, m2)
     r2 = np.sum((d - p) ** 2, axis=2)
     t = np.sum(np.where(mask, r2 / (floor + prop), 0.0), axis=1)
     dof = 2 * mask.sum(axis=1) - sc.k
     thr = np.array(sc._thresholds)
     ok = (dof <= 0) | (t <= thr[np.maximum(dof, 0)])
-    m2 = np.maximum(np.sum(d * d, axis=2), np.sum(p * p, axis=2))
     ok &= ~np.any(mask & (m2 >= sc.max_step2), axis=1)
     samples = sc.noise.samples_for(r2, floor, prop, lever, mask & (m2 > sc.noise.sig2))
     return ok, samples
