@@ -1,6 +1,6 @@
 """Replay throughput (native and evemu) and peak memory of a long four-mouse capture.
 
-    /work/venv/bin/python bench/replay.py [--minutes 60] [--evemu-seconds 60] [--repeat 3]
+    .venv/bin/python bench/replay.py [--minutes 60] [--evemu-seconds 60] [--repeat 5]
 
 (defaults shown: the issue's one hour is the default run; it takes about 20 s)
 
@@ -8,7 +8,9 @@ Generates, in a temporary directory, a simulated rig of four mice at 1 kHz drivi
 for ``--minutes`` (60 = the issue's one hour, 14.4 M reports), as one native capture and
 (for ``--evemu-seconds``) as four evemu files.  Prints:
 
-- end-to-end replay (read, fuse, write CSV) in reports/s, median of ``--repeat`` runs,
+- end-to-end replay (read, fuse, write CSV) in reports/s, median of ``--repeat`` rounds
+  (in each round the peer, native, evemu, floor and no-CSV runs take turns, and the
+  ratios are medians of the per-round ratios),
   from native and from evemu, in this process;
 - baselines measured in the same run: the readers alone (no fusion), and evemu parsed by
   the line-by-line fallback parser instead of the vectorised one (ratio = speed-up);
@@ -217,6 +219,16 @@ def quiet_replay(cfg: Path, specs: list[tuple[str | None, str]]) -> tuple[float,
     return time.perf_counter() - t0, summary.reports
 
 
+def interleaved(runs: dict, counts: dict[str, int]) -> dict[str, float]:
+    """One round: each run once, in turn; reports/s by name (``counts`` gets the number
+    of reports of each)."""
+    out = {}
+    for name, fn in runs.items():
+        dt, counts[name] = fn()
+        out[name] = counts[name] / dt
+    return out
+
+
 def median_rate(fn, repeat: int) -> tuple[float, int]:
     rates, n = [], 0
     for _ in range(repeat):
@@ -258,7 +270,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--minutes", type=float, default=60.0, help="long capture length (1 h)")
     ap.add_argument("--evemu-seconds", type=float, default=60.0)
-    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--repeat", type=int, default=5)
     args = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="mousedom-bench-") as tmp:
         d = Path(tmp)
@@ -282,9 +294,28 @@ def main() -> None:
         evemu_specs = list(zip(NAMES, map(str, evemu_files), strict=True))
 
         libinput_specs = [(None, str(d / "all.yml"))]
-        nat, n_nat = median_rate(lambda: replay_once(cfg, native_specs), args.repeat)
+        # The runs the ratios are made of take turns, round by round, so that each ratio
+        # compares runs made within a second of each other on this shared machine: the
+        # ratios are the medians of the per-round ratios.
+        runs = {
+            "peer": lambda: peer_loop(cfg, evemu_files),
+            "native": lambda: replay_once(cfg, native_specs),
+            "evemu": lambda: replay_once(cfg, evemu_specs),
+            "floor": lambda: vectorised_floor(cfg, native_specs),
+            "quiet": lambda: quiet_replay(cfg, native_specs),
+        }
+        counts: dict[str, int] = {}
+        rounds = [interleaved(runs, counts) for _ in range(args.repeat)]
+        rate = {k: statistics.median(r[k] for r in rounds) for k in runs}
+        nat, ev, peer, floor, quiet = (
+            rate[k] for k in ("native", "evemu", "peer", "floor", "quiet")
+        )
+        n_nat, n_ev = counts["native"], counts["evemu"]
+
+        def ratio(a: str, b: str) -> float:
+            return statistics.median(r[a] / r[b] for r in rounds)
+
         li, n_li = median_rate(lambda: replay_once(cfg, libinput_specs), args.repeat)
-        ev, n_ev = median_rate(lambda: replay_once(cfg, evemu_specs), args.repeat)
         nat_read, _ = median_rate(lambda: read_only(native_specs), args.repeat)
         ev_read, _ = median_rate(lambda: read_only(evemu_specs), args.repeat)
         fast = evemu_mod._fast_events
@@ -293,18 +324,17 @@ def main() -> None:
             ev_slow, _ = median_rate(lambda: read_only(evemu_specs), 1)
         finally:
             evemu_mod._fast_events = fast
-        peer, _ = median_rate(lambda: peer_loop(cfg, evemu_files), args.repeat)
-        floor, _ = median_rate(lambda: vectorised_floor(cfg, native_specs), args.repeat)
-        quiet, _ = median_rate(lambda: quiet_replay(cfg, native_specs), args.repeat)
-        print(f"rates are medians of {args.repeat} runs (line-by-line parser: 1 run)")
+        print(f"{args.repeat} rounds, each running the peer, native, evemu, floor and "
+              "no-CSV replays in turn; rates and ratios are medians over the rounds "
+              "(line-by-line parser: 1 run)")  # fmt: skip
         print(f"peer-style loop, evemu text   : {peer:12,.0f} reports/s (per line, 10 ms "
               "buckets, numpy lstsq per window, CSV)")  # fmt: skip
-        print(f"native replay / peer          : {nat / peer:8.1f}x (target >= 20)")
-        print(f"evemu replay / peer           : {ev / peer:8.1f}x (target >= 5)")
+        print(f"native replay / peer          : {ratio('native', 'peer'):8.1f}x (target >= 20)")
+        print(f"evemu replay / peer           : {ratio('evemu', 'peer'):8.1f}x (target >= 5)")
         print(f"vectorised floor, native      : {floor:12,.0f} reports/s (read, count "
               "functions, lsq, exact steps; no covariance, no CSV)")  # fmt: skip
-        print(f"native replay without CSV     : {quiet:12,.0f} reports/s: {floor / quiet:.2f}x "
-              "the floor's time (target <= 1.5)")  # fmt: skip
+        print(f"native replay without CSV     : {quiet:12,.0f} reports/s: "
+              f"{ratio('floor', 'quiet'):.2f}x the floor's time (target <= 1.5)")  # fmt: skip
         print(f"replay end to end, native : {nat:12,.0f} reports/s  ({n_nat} reports)")
         print(f"replay end to end, evemu  : {ev:12,.0f} reports/s  ({n_ev} reports)")
         print(f"replay end to end, libinput record: {li:12,.0f} reports/s  ({n_li} reports)")
