@@ -41,16 +41,55 @@ _KEEP = 256  # samples per factor and mouse the estimate is the median of
 _MAX_FACTOR = 1e4
 
 
-def _medians(samples: list[list[float]]) -> list[float]:
-    """The median of each list: the middle value, or the mean of the two middle ones.
-    Lists of one length are sorted as one array (replay ends a block every second of
-    data, thousands of times a run, and the mice's lists are usually all full)."""
+class _Samples:
+    """One factor's samples from one mouse, oldest first.  The one-window path adds them a
+    float at a time, the array path an array at a time; both are kept as they come (a list
+    of floats, or the array) and joined into one array once per block, when the factor is
+    estimated: no conversion per sample either way."""
+
+    __slots__ = ("_chunks", "_n")
+
+    def __init__(self) -> None:
+        self._chunks: list = []  # lists of floats and arrays, in order
+        self._n = 0
+
+    def __len__(self) -> int:
+        return self._n
+
+    def append(self, value: float) -> None:
+        chunks = self._chunks
+        if chunks and type(chunks[-1]) is list:
+            chunks[-1].append(value)
+        else:
+            chunks.append([value])
+        self._n += 1
+
+    def extend(self, values: np.ndarray) -> None:
+        self._chunks.append(values)
+        self._n += len(values)
+
+    def newest(self, keep: int) -> np.ndarray:
+        """The newest ``keep`` samples as one array; older ones are forgotten."""
+        chunks = self._chunks
+        if len(chunks) == 1 and type(chunks[0]) is not list:
+            values = chunks[0]
+        else:
+            values = np.concatenate([np.asarray(c, dtype=float) for c in chunks] or [[]])
+        values = values[-keep:]
+        self._chunks, self._n = [values], len(values)
+        return values
+
+
+def _medians(samples: list[np.ndarray]) -> list[float]:
+    """The median of each array: the middle value, or the mean of the two middle ones.
+    Arrays of one length are sorted as one (replay ends a block every second of data,
+    thousands of times a run, and the mice's samples are usually all full)."""
     out: list[float] = [0.0] * len(samples)
     by_length: dict[int, list[int]] = {}
     for k, values in enumerate(samples):
         by_length.setdefault(len(values), []).append(k)
     for length, which in by_length.items():
-        rows = np.sort(np.array([samples[k] for k in which], dtype=float), axis=1)
+        rows = np.sort(np.stack([samples[k] for k in which]), axis=1)
         mid = length // 2
         if length % 2:
             middle = rows[:, mid]
@@ -80,8 +119,8 @@ class NoiseModel:
         self.lam_r = np.ones(self.n)
         self.seen = 0  # windows sampled in the current block
         self.version = 0  # bumped whenever a factor changes
-        self._floor: list[list[float]] = [[] for _ in range(self.n)]
-        self._prop: list[list[float]] = [[] for _ in range(self.n)]
+        self._floor = [_Samples() for _ in range(self.n)]
+        self._prop = [_Samples() for _ in range(self.n)]
         self._seen_len = [[0] * self.n, [0] * self.n]  # samples held at the last block's end
         self._sync()
 
@@ -138,10 +177,10 @@ class NoiseModel:
         for i in range(self.n):
             f = fl[rows, i][by_floor[rows, i]]
             if len(f):
-                self._floor[i] += f.tolist()
+                self._floor[i].extend(f)
             g = pr[rows, i][by_prop[rows, i]]
             if len(g):
-                self._prop[i] += g.tolist()
+                self._prop[i].extend(g)
 
     def end_block(self) -> None:
         """Re-estimate the factors from the last samples (module docstring); a factor
@@ -150,11 +189,9 @@ class NoiseModel:
         todo = []  # (factor's array, mouse, samples) whose estimate is due
         for k, (lam, samples) in enumerate(((self.lam_f, self._floor), (self.lam_r, self._prop))):
             for i in range(self.n):
-                got = samples[i]
-                if len(got) == self._seen_len[k][i]:
+                if len(samples[i]) == self._seen_len[k][i]:
                     continue  # no new evidence
-                if len(got) > _KEEP:
-                    del got[:-_KEEP]
+                got = samples[i].newest(_KEEP)
                 self._seen_len[k][i] = len(got)
                 if len(got) >= _MIN_SAMPLES:
                     todo.append((lam, i, got))
