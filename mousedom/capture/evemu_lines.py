@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from mousedom.capture.base import CaptureError
-from mousedom.capture.evemu_regular import regular_columns
+from mousedom.capture.evemu_regular import line_bounds, regular_columns
 from mousedom.errors import located
 
 
@@ -94,13 +94,11 @@ def general_events(block: bytes | memoryview, first_line: int) -> Events | None:
     parser takes over, so this path only has to be right, never clever about errors.
     """
     b = np.frombuffer(block, dtype=np.uint8)
-    nl = np.flatnonzero(b == 10)
-    n = len(nl)
-    if n == 0 or nl[-1] != len(b) - 1:
+    lines = line_bounds(b)
+    if lines is None:
         return None
-    starts = np.empty(n, dtype=np.int64)
-    starts[0] = 0
-    starts[1:] = nl[:-1] + 1
+    starts, nl = lines
+    n = len(nl)
     if ((nl - starts) < 11).any():  # "E: 0.0 0 0 0" is the shortest event line
         return None
     if not ((b[starts] == 69) & (b[starts + 1] == 58) & (b[starts + 2] == 32)).all():

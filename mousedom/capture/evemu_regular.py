@@ -122,17 +122,27 @@ def _left_aligned(words: _Words, begin: np.ndarray, width: np.ndarray):
     return value
 
 
+def line_bounds(b: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """(first byte, newline) of each line of a block of whole lines, or None if it does
+    not end with a newline (or is empty)."""
+    nl = np.flatnonzero(b == 10)
+    if len(nl) == 0 or nl[-1] != len(b) - 1:
+        return None
+    starts = np.empty(len(nl), dtype=np.int64)
+    starts[0] = 0
+    starts[1:] = nl[:-1] + 1
+    return starts, nl
+
+
 def regular_columns(block: bytes | memoryview):
     """(seconds, microseconds, type, code, value) int64 columns of a block of whole lines
     written as evemu writes them (module docstring), or None."""
     b = np.frombuffer(block, dtype=np.uint8)
-    nl = np.flatnonzero(b == 10)
-    n = len(nl)
-    if n == 0 or nl[-1] != len(b) - 1:
+    lines = line_bounds(b)
+    if lines is None:
         return None
-    starts = np.empty(n, dtype=np.int64)
-    starts[0] = 0
-    starts[1:] = nl[:-1] + 1
+    starts, nl = lines
+    n = len(nl)
     dot = np.flatnonzero(b == 46)
     # One point per line, after "E: " and 1 to 12 digits, and room for ".uuuuuu tttt cccc v".
     sec_w = dot - starts - 3 if len(dot) == n else None
