@@ -35,6 +35,7 @@ sys.path.insert(0, str(REPO))
 
 import numpy as np  # noqa: E402
 
+from mousedom.allocator import keep_freed_memory  # noqa: E402
 from mousedom.capture import DeviceInfo, NativeWriter, assign, open_capture  # noqa: E402
 from mousedom.capture import evemu as evemu_mod  # noqa: E402  (its _fast_events is swapped)
 from mousedom.capture.evemu import format_evemu  # noqa: E402
@@ -272,6 +273,9 @@ def main() -> None:
     ap.add_argument("--evemu-seconds", type=float, default=60.0)
     ap.add_argument("--repeat", type=int, default=5)
     args = ap.parse_args()
+    # As `mousedom replay` does (mousedom.allocator): every run in this process, the
+    # baselines too, reuses freed memory instead of faulting in fresh pages.
+    print(f"malloc keeps freed memory (as mousedom replay): {keep_freed_memory()}")
     with tempfile.TemporaryDirectory(prefix="mousedom-bench-") as tmp:
         d = Path(tmp)
         t0 = time.perf_counter()

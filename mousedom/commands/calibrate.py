@@ -14,6 +14,7 @@ import json
 import math
 import sys
 
+from mousedom.allocator import keep_freed_memory
 from mousedom.calibrate import calfile, report, session
 from mousedom.calibrate.inputs import load_captures
 from mousedom.calibrate.reference import WheelGeometry, read_reference
@@ -178,6 +179,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _setup(args: argparse.Namespace, names: list[str] | None = None):
+    keep_freed_memory()  # streams whole captures: see mousedom.allocator
     # Only what calibration uses is checked: no model needs to be solvable (one mouse on a
     # jig is a rig for CPI), and CPI needs no mount.
     cpi_only = args.func is run_cpi

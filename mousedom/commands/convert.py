@@ -15,6 +15,7 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
+from mousedom.allocator import keep_freed_memory
 from mousedom.capture import (
     Capture,
     CaptureError,
@@ -53,6 +54,7 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
+    keep_freed_memory()  # streams whole captures: see mousedom.allocator
     config_text = None
     if args.config:
         from mousedom.config import load_config

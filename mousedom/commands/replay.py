@@ -14,6 +14,7 @@ import sys
 import time
 from typing import TextIO
 
+from mousedom.allocator import keep_freed_memory
 from mousedom.capture import assign, parse_capture_arg
 from mousedom.capture.replay import CsvSink, Replay, Summary
 from mousedom.commands import _options as options
@@ -83,6 +84,7 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
+    keep_freed_memory()  # streams whole captures: see mousedom.allocator
     true_end = _true_end(args) if args.umbmark else None
     if args.umbmark and args.output == "-" and not args.umbmark_csv:
         # Both would go to stdout: the RUNS.csv row would become the pose CSV's last row.

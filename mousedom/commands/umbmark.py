@@ -7,6 +7,7 @@ import json
 import sys
 from pathlib import Path
 
+from mousedom.allocator import keep_freed_memory
 from mousedom.calibrate import calfile, report
 from mousedom.calibrate.umbmark import HEADER, parse_runs, umbmark
 from mousedom.commands import _options as options
@@ -48,6 +49,7 @@ def _read(path: str) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    keep_freed_memory()  # streams whole captures: see mousedom.allocator
     config = None
     if args.write:
         if not args.config:
