@@ -24,6 +24,7 @@ import numpy as np
 
 from mousedom.capture import Assignment, Capture, captures_of, mice_by_device, time_offset
 from mousedom.capture.base import DeviceStats, lagging_first
+from mousedom.capture.fixedpoint import fixed_bytes
 from mousedom.config import Config
 from mousedom.fusion.tracker import PoseBatch, Tracker
 
@@ -345,13 +346,14 @@ class CsvSink:
         out.write(",".join([*CSV_COLUMNS, *health_columns(names)]) + "\n")
 
     def __call__(self, b: PoseBatch) -> None:
-        floats = [c.tolist() for c in (b.t, b.x, b.y, b.theta, b.vx, b.vy, b.omega)]
-        # Formatting each row's floats with one %-operation is the fastest pure-Python
-        # way; the whole-number columns (used, ok, consistent, each mouse's state and
-        # reason) take few distinct values, so each distinct tail is formatted once.
+        n = len(b)
+        if not n:
+            return
+        # The whole-number columns (used, ok, consistent, each mouse's state and reason)
+        # take few distinct values: each distinct tail of a row is formatted once.
         ints = np.column_stack([b.used, b.ok, b.consistent]).astype(np.int64)
         if self.n:
-            both = np.stack([b.state, b.reason], axis=2).reshape(len(b), 2 * self.n)
+            both = np.stack([b.state, b.reason], axis=2).reshape(n, 2 * self.n)
             ints = np.column_stack([ints, both.astype(np.int64)])
         codes, inverse = _row_codes(ints, self.radix)
         tails = []
@@ -359,16 +361,37 @@ class CsvSink:
                              strict=True):  # fmt: skip
             tail = self._tails.get(code) if code >= 0 else None
             if tail is None:
-                tail = "," + ",".join(map(str, row)) + "\n"
+                tail = ",".join(map(str, row)) + "\n"
                 if code >= 0 and len(self._tails) < 4096:
                     self._tails[code] = tail
             tails.append(tail)
-        lines = map(_FLOATS.__mod__, zip(*floats, strict=True))
-        self.out.write("".join(map(add, lines, [tails[i] for i in inverse.tolist()])))
-        self.rows += len(b)
+        floats = np.column_stack([b.t, b.x, b.y, b.theta, b.vx, b.vy, b.omega])
+        fields = fixed_bytes(floats, _DIGITS)
+        if fields is None:
+            # Not finite, or too large for the array formatter: one %-operation per row.
+            lines = map(_FLOATS.__mod__, map(tuple, floats.tolist()))
+            self.out.write("".join(map(add, lines, [tails[i] for i in inverse.tolist()])))
+        else:
+            self.out.write(_join_rows(*fields, tails, inverse))
+        self.rows += n
 
 
-_FLOATS = _ROW[: _ROW.index(",%d")]
+def _join_rows(fields: np.ndarray, mask: np.ndarray, tails: list[str], inverse: np.ndarray) -> str:
+    """The rows' text: each row's float fields (with their separators), then its tail."""
+    n = len(fields)
+    raw = [t.encode("ascii") for t in tails]
+    width = max(map(len, raw))
+    table = np.zeros((len(raw), width), dtype=np.uint8)
+    for i, t in enumerate(raw):
+        table[i, : len(t)] = np.frombuffer(t, dtype=np.uint8)
+    lengths = np.array([len(t) for t in raw])
+    text = np.concatenate([fields.reshape(n, -1), table[inverse]], axis=1)
+    keep = np.concatenate([mask.reshape(n, -1), np.arange(width) < lengths[inverse, None]], axis=1)
+    return text[keep].tobytes().decode("ascii")
+
+
+_FLOATS = _ROW[: _ROW.index(",%d") + 1]  # with the comma before the tail
+_DIGITS = np.array([int(f[2]) for f in _FLOATS.split(",")[:-1]])  # decimals per float column
 
 
 def _row_codes(ints: np.ndarray, radix: int) -> tuple[np.ndarray, np.ndarray]:
