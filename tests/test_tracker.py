@@ -453,3 +453,26 @@ def test_many_live_reads_queued_without_a_poll_keep_every_count():
     for k in range(100):
         tracker.push("front", [0.001 * k], [1], [2])
     assert tracker.finish().counts.sum(axis=0)[0].tolist() == [100.0, 200.0]
+
+
+@pytest.mark.parametrize("scale", [1, 2**40])
+def test_integer_and_float_counts_close_the_same_windows(scale):
+    """Whole counts are summed as int64 (CountFunction.ingest), floats as floats: the same
+    windows bit for bit, and counts so large that an int64 sum could wrap or a float one
+    round (2**40 per report) take the float sum for both."""
+    res = sim.simulate(rig3(), sim.arc(0.3, 0.4, 0.12), seed=5)
+
+    def run(as_float):
+        tr = Tracker(sim.rig_config(res.rig), t0=0.0)
+        for name, r in res.reports.items():
+            dx, dy = (np.asarray(c, dtype=np.int64) * scale for c in (r.dx, r.dy))
+            if as_float:
+                dx, dy = dx.astype(float), dy.astype(float)
+            tr.push(name, r.t, dx, dy)
+        return tr.finish(), tr.counts_in
+
+    (a, a_in), (b, b_in) = run(False), run(True)
+    assert len(a) > 90
+    assert np.array_equal(a_in, b_in)
+    for key in ("x", "y", "theta", "counts"):
+        assert np.array_equal(getattr(a, key), getattr(b, key)), key

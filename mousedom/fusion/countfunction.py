@@ -21,6 +21,15 @@ from bisect import bisect_left, bisect_right
 import numpy as np
 
 
+def _exact_int_sums(steps: np.ndarray) -> bool:
+    """Every partial sum of each row is below 2**53 in magnitude: int64 cannot wrap, and a
+    float64 sum of the same integers is exact, so both give the same values."""
+    if not steps.size:
+        return True
+    biggest = max(int(steps.max()), -int(steps.min()))  # Python ints: no abs(-2**63)
+    return biggest * steps.shape[-1] < 2**53
+
+
 class CountFunction:
     """The not-yet-closed part of one mouse's cumulative count function."""
 
@@ -76,16 +85,19 @@ class CountFunction:
         if not self.pending:
             return
         if len(self.pending) == 1:
-            t, dx, dy = (np.asarray(c, dtype=np.float64) for c in self.pending[0])
+            t, dx, dy = (np.asarray(c) for c in self.pending[0])
         else:
-            # float64 always: a live read queues Python ints, which would make int arrays
-            t, dx, dy = (
-                np.concatenate(cols).astype(np.float64, copy=False)
-                for cols in zip(*self.pending, strict=True)
-            )
+            t, dx, dy = (np.concatenate(cols) for cols in zip(*self.pending, strict=True))
         self.pending = []
+        t = t.astype(np.float64, copy=False)
         steps = np.stack([dx, dy])  # (2, n)
-        cum = np.cumsum(steps, axis=1)
+        if steps.dtype.kind == "i" and _exact_int_sums(steps):
+            # Whole counts (captures, live reads): summed as integers, a tenth of the time
+            # of a float cumsum, and the same values.
+            cum = np.cumsum(steps, axis=1, dtype=np.int64).astype(np.float64)
+        else:
+            cum = np.cumsum(steps, axis=1, dtype=np.float64)
+        steps = steps.astype(np.float64, copy=False)
         cx, cy = cum[:, -1].tolist()
         self.counts_in[0] += cx
         self.counts_in[1] += cy
