@@ -36,6 +36,15 @@ from mousedom.fusion.tracker_one import OneWindowPath
 from mousedom.fusion.units import counts_matrices, sigma_metres
 
 
+def _counts_array(c) -> np.ndarray:
+    """Counts as an array: signed integers as they are (CountFunction.ingest sums them as
+    int64), anything else as float64."""
+    a = np.asarray(c)
+    if a.dtype.kind == "i":
+        return a
+    return np.asarray(c, dtype=np.float64)
+
+
 class Tracker(OneWindowPath):
     """Fuses the reports of a rig's mice into poses.  See the module docstring."""
 
@@ -120,8 +129,7 @@ class Tracker(OneWindowPath):
                 self._queue_small(self._mice[i], t[:], dx[:], dy[:])
                 return
         t = np.asarray(t, dtype=np.float64)
-        dx = np.asarray(dx, dtype=np.float64)
-        dy = np.asarray(dy, dtype=np.float64)
+        dx, dy = _counts_array(dx), _counts_array(dy)
         if not (t.ndim == 1 and t.shape == dx.shape == dy.shape):
             raise ValueError(f"push: t, dx, dy must be 1-D of one length, got "
                              f"{t.shape}, {dx.shape}, {dy.shape}")  # fmt: skip
