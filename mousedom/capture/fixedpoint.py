@@ -5,17 +5,20 @@ was a third of a native replay.  Here the digits come from integer arithmetic on
 they are exact: Python's %-format rounds the double's exact binary value to d decimals, half
 to even, and so does this.
 
-The fraction f = |x| - floor(|x|) is exact.  f * 10**d is split into two products that are
-exact in float64 (Veltkamp's split of f into 26 + 27 bits, times a scale of at most 21
-significant bits), whose sum is s + e exactly (Knuth's two-sum).  Rounding s to an integer r
-is then the exact answer unless s lies exactly half-way, where the sign of e decides, and
-e == 0 is a true tie (half to even, which ``np.rint`` did).
+The fraction f = |x| - floor(|x|) is exact.  s = f * 10**d rounded once, and r = rint(s)
+is the exact answer unless s lies exactly half-way between integers: the exact product is
+s + e, and only there does e decide (its sign; e == 0 is a true tie, half to even, which
+``np.rint`` did).  e comes from splitting f * 10**d into two products that are exact in
+float64 (Veltkamp's split of f into 26 + 27 bits, times a scale of at most 21 significant
+bits) and Knuth's two-sum of them.
 
 Values that are not finite or whose integer part has more than ``INT_DIGITS`` digits are
 not handled: ``fixed_bytes`` returns None and the caller formats those rows itself.
 """
 
 from __future__ import annotations
+
+import functools
 
 import numpy as np
 
@@ -38,22 +41,33 @@ def rounded_decimals(values: np.ndarray, digits: np.ndarray) -> tuple[np.ndarray
     a = np.abs(values)
     whole = np.floor(a)
     frac = a - whole  # exact
-    scale = 10.0 ** np.asarray(digits, dtype=np.float64)  # exact for d <= 22
-    c = frac * _SPLIT
-    hi = c - (c - frac)  # 26 bits
-    lo = frac - hi  # 27 bits
-    p1, p2 = hi * scale, lo * scale  # exact: 10**d has at most 21 significant bits for d <= 9
-    s = p1 + p2
-    b = s - p1
-    e = (p1 - (s - b)) + (p2 - b)  # p1 + p2 == s + e exactly
+    scale = np.broadcast_to(10.0 ** np.asarray(digits, dtype=np.float64), a.shape)
+    s = frac * scale  # the exact product, rounded once
     r = np.rint(s)
     diff = s - r  # exact; +-0.5 only when s is half-way and rint went to the even side
-    r += (diff == 0.5) & (e > 0)
-    r -= (diff == -0.5) & (e < 0)
+    half = np.flatnonzero(np.abs(diff) == 0.5)
+    if len(half):
+        # Half-way after rounding: the exact product's lost bits decide (rare: only there
+        # is the product's error looked at).
+        r_flat, diff_h = r.reshape(-1), diff.reshape(-1)[half]
+        e = _product_error(frac.reshape(-1)[half], scale.reshape(-1)[half], s.reshape(-1)[half])
+        r_flat[half] += ((diff_h > 0) & (e > 0)).astype(np.float64)
+        r_flat[half] -= ((diff_h < 0) & (e < 0)).astype(np.float64)
     carry = r >= scale
     r[carry] = 0.0
     whole += carry
     return whole.astype(np.int64), r.astype(np.int64)
+
+
+def _product_error(frac: np.ndarray, scale: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """e with frac * scale == s + e exactly, where s is the rounded product."""
+    c = frac * _SPLIT
+    hi = c - (c - frac)  # 26 bits
+    lo = frac - hi  # 27 bits
+    p1, p2 = hi * scale, lo * scale  # exact: 10**d has at most 21 significant bits for d <= 9
+    # two-sum of p1 + p2 (whose rounded sum is s, as the product's is)
+    b = s - p1
+    return (p1 - (s - b)) + (p2 - b)
 
 
 def fixed_bytes(
@@ -98,7 +112,7 @@ def fixed_bytes(
     keep = np.empty((n, k, 7), dtype=np.uint32)
     for w in range(3):
         keep[:, :, w] = _LEAD_MASKS[w][lead]
-    keep[:, :, 3:] = _tail_masks(digits, bool(sep))
+    keep[:, :, 3:] = _tail_masks(tuple(digits.tolist()), bool(sep))
     return words.view(np.uint8).reshape(n, -1), keep.view(bool).reshape(n, -1)
 
 
@@ -127,11 +141,14 @@ def _lead() -> list[np.ndarray]:
 _LEAD_MASKS = _lead()
 
 
-def _tail_masks(digits: np.ndarray, sep: bool) -> np.ndarray:
+@functools.lru_cache(maxsize=64)
+def _tail_masks(digits: tuple[int, ...], sep: bool) -> np.ndarray:
     """(k, 4): the masks of the last four words (point, decimals, separator) per column."""
     m = np.zeros((len(digits), 16), dtype=bool)
     m[:, _POINT - 12] = True
-    for j, d in enumerate(digits.tolist()):
+    for j, d in enumerate(digits):
         m[j, [i - 12 for i in _DEC[:d]]] = True
     m[:, _SEP - 12] = sep
-    return _word_masks(m)
+    words = _word_masks(m)
+    words.setflags(write=False)  # cached: shared by every call
+    return words
