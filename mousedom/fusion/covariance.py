@@ -39,13 +39,28 @@ def outer(u: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 
 def world_step_noise(theta_before: np.ndarray, jac: np.ndarray, q_cov: np.ndarray) -> np.ndarray:
-    """G_k = M Q M^T with M = blockdiag(R(theta_{k-1}), 1) @ d step / d q.  Shapes (n,3,3)."""
+    """G_k = M Q M^T with M = blockdiag(R(theta_{k-1}), 1) @ d step / d q.  Shapes (n,3,3).
+
+    Written out entry by entry on (n,) arrays: numpy's stacked matmul of 3x3 matrices
+    costs several times more per window than these few dozen whole-array operations."""
     c, s = np.cos(theta_before), np.sin(theta_before)
-    rot = np.zeros((len(theta_before), 3, 3))
-    rot[:, 0, 0], rot[:, 0, 1], rot[:, 1, 0], rot[:, 1, 1] = c, -s, s, c
-    rot[:, 2, 2] = 1.0
-    m = rot @ jac
-    return m @ q_cov @ np.swapaxes(m, 1, 2)
+    n = len(theta_before)
+    jac, q_cov = np.broadcast_to(jac, (n, 3, 3)), np.broadcast_to(q_cov, (n, 3, 3))
+    j = [[jac[:, r, k] for k in range(3)] for r in range(3)]
+    qc = [[q_cov[:, r, k] for k in range(3)] for r in range(3)]
+    m = [
+        [c * j[0][k] - s * j[1][k] for k in range(3)],
+        [s * j[0][k] + c * j[1][k] for k in range(3)],
+        j[2],
+    ]
+    mq = [[mi[0] * qc[0][k] + mi[1] * qc[1][k] + mi[2] * qc[2][k] for k in range(3)] for mi in m]
+    out = np.empty((n, 3, 3))
+    for r in range(3):
+        for k in range(r, 3):
+            g = mq[r][0] * m[k][0] + mq[r][1] * m[k][1] + mq[r][2] * m[k][2]
+            out[:, r, k] = g
+            out[:, k, r] = g
+    return out
 
 
 # Up to this many windows the plain recursion is cheaper than the cumulative sums (the
