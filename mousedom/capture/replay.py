@@ -380,11 +380,11 @@ def _join_rows(fields: np.ndarray, mask: np.ndarray, tails: list[str], inverse: 
     """The rows' text: each row's float fields (with their separators), then its tail."""
     n = len(fields)
     raw = [t.encode("ascii") for t in tails]
-    width = max(map(len, raw))
+    lengths = np.array([len(t) for t in raw])
+    width = int(lengths.max())
     table = np.zeros((len(raw), width), dtype=np.uint8)
     for i, t in enumerate(raw):
         table[i, : len(t)] = np.frombuffer(t, dtype=np.uint8)
-    lengths = np.array([len(t) for t in raw])
     text = np.concatenate([fields.reshape(n, -1), table[inverse]], axis=1)
     keep = np.concatenate([mask.reshape(n, -1), np.arange(width) < lengths[inverse, None]], axis=1)
     return text[keep].tobytes().decode("ascii")
