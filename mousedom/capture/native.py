@@ -259,9 +259,10 @@ class NativeCapture(Capture):
             self._first = float(stated)
         if self._first is False:
             first = None
-            for kind, _source, count, payload, offset in self._chunks(check_tail=False):
+            chunks = self._chunks(check_tail=False, head_only=8)
+            for kind, _source, count, payload, offset in chunks:
                 if kind in (MOTION, SERIAL) and count:  # both start with the f8 times
-                    if len(payload) < 8 * count:
+                    if len(payload) < 8:
                         raise CaptureError(
                             located(self.path, None, f"byte offset {offset}: chunk of "
                                     f"{count} reports holds only {len(payload)} bytes")
@@ -341,8 +342,13 @@ class NativeCapture(Capture):
                 motion, serial, pending = [], [], 0
         yield Batch(motion, serial, np.inf)
 
-    def _chunks(self, *, check_tail: bool) -> Iterator[tuple[int, int, int, bytes, int]]:
-        """(kind, source, count, payload, offset) of each whole chunk, in file order."""
+    def _chunks(
+        self, *, check_tail: bool, head_only: int | None = None
+    ) -> Iterator[tuple[int, int, int, bytes, int]]:
+        """(kind, source, count, payload, offset) of each whole chunk, in file order.
+
+        ``head_only``: a compressed payload is inflated only up to that many bytes (what
+        ``first_time`` reads: one stamp); the full read checks the rest of its data."""
         with _open(self.data_path) as f:
             f.seek(self._body_offset)
             reader = f
@@ -366,7 +372,10 @@ class NativeCapture(Capture):
                     return
                 if flags & ZLIB:
                     try:
-                        payload = zlib.decompress(payload)
+                        if head_only is None:
+                            payload = zlib.decompress(payload)
+                        else:
+                            payload = zlib.decompressobj().decompress(payload, head_only)
                     except zlib.error:
                         raise CaptureError(
                             located(self.path, None, f"byte offset {offset}: bad zlib data")
@@ -461,8 +470,9 @@ def _read_header(path: str, f: BinaryIO) -> tuple[dict[str, Any], int]:
 def _motion_columns(path: str, payload: bytes, count: int, offset: int):
     if len(payload) != 16 * count:
         raise CaptureError(
-            located(path, None, f"byte offset {offset}: motion chunk size does not match count")
-        )
+            located(path, None, f"byte offset {offset}: motion chunk of {count} reports holds "
+                    f"{len(payload)} bytes, not {16 * count}")
+        )  # fmt: skip
     t = np.frombuffer(payload, "<f8", count)
     dx = np.frombuffer(payload, "<i4", count, 8 * count).astype(np.int64)
     dy = np.frombuffer(payload, "<i4", count, 12 * count).astype(np.int64)

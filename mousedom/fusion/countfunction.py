@@ -90,18 +90,6 @@ class CountFunction:
             t, dx, dy = (np.concatenate(cols) for cols in zip(*self.pending, strict=True))
         self.pending = []
         t = t.astype(np.float64, copy=False)
-        steps = np.stack([dx, dy])  # (2, n)
-        if steps.dtype.kind == "i" and _exact_int_sums(steps):
-            # Whole counts (captures, live reads): summed as integers, a tenth of the time
-            # of a float cumsum, and the same values.
-            cum = np.cumsum(steps, axis=1, dtype=np.int64).astype(np.float64)
-        else:
-            cum = np.cumsum(steps, axis=1, dtype=np.float64)
-        steps = steps.astype(np.float64, copy=False)
-        cx, cy = cum[:, -1].tolist()
-        self.counts_in[0] += cx
-        self.counts_in[1] += cy
-
         # Time must not run backwards: clamp to the running maximum (counted, kept).
         # Stamps in order (the usual case) are their own running maximum.
         if not (t[0] >= self.knot_t and (t[1:] >= t[:-1]).all()):
@@ -122,13 +110,28 @@ class CountFunction:
             start[:below] = edge
 
         # Knot pairs: F holds its level until the report's span starts, then rises to it.
-        cum += self.level()[:, None]
-        new = np.empty((3, 2 * len(t)))
+        # The old knots and the new pairs are written into one array (no concatenation
+        # after), each count row straight into its strided place.
+        n_old = self.n_knots()
+        level = self.level().tolist()
+        knots = np.empty((3, n_old + 2 * len(t)))
+        if n_old:
+            knots[:, :n_old] = self.knot_array()
+        new = knots[:, n_old:]
         new[0, 0::2] = start
         new[0, 1::2] = t
-        new[1:, 1::2] = cum
-        new[1:, 0::2] = cum - steps
-        self.knots = np.concatenate([self.knot_array(), new], axis=1) if self.n_knots() else new
+        for row, (steps, lv) in enumerate(zip((dx, dy), level, strict=True), start=1):
+            if steps.dtype.kind == "i" and _exact_int_sums(steps):
+                # Whole counts (captures, live reads): summed as integers, a tenth of the
+                # time of a float cumsum, and the same values.
+                cum = np.cumsum(steps, dtype=np.int64).astype(np.float64)
+            else:
+                cum = np.cumsum(steps, dtype=np.float64)
+            self.counts_in[row - 1] += float(cum[-1])
+            np.add(cum, lv, out=new[row, 1::2])
+            # (cum + level) - step, the step taken as float64 (exact for whole counts)
+            np.subtract(new[row, 1::2], steps, out=new[row, 0::2], dtype=np.float64)
+        self.knots = knots
         self.knot_t = float(t[-1])
 
     def ingest_small(self, edge: float) -> None:

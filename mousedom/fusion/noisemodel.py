@@ -102,9 +102,16 @@ def _medians(samples: list[np.ndarray]) -> list[float]:
     return out
 
 
+def norm2(v: np.ndarray) -> np.ndarray:
+    """|v|^2 of 2-vectors (..., 2): the same value as ``np.sum(v * v, axis=-1)`` (x^2 + y^2
+    either way), several times faster (numpy's reduction over an axis of two is slow)."""
+    x, y = v[..., 0], v[..., 1]
+    return x * x + y * y
+
+
 def motion2(d: np.ndarray, p: np.ndarray) -> np.ndarray:
     """max(|d|^2, |p|^2) per mouse for readings and predictions (..., N, 2)."""
-    return np.maximum(np.sum(d * d, axis=-1), np.sum(p * p, axis=-1))
+    return np.maximum(norm2(d), norm2(p))
 
 
 class NoiseModel:
@@ -143,7 +150,7 @@ class NoiseModel:
         ``m2``, if given, is ``motion2(d, p)``."""
         if m2 is None:
             m2 = motion2(d, p)
-        a2 = np.sum((p - prev_p) ** 2, axis=-1)
+        a2 = norm2(p - prev_p)
         floor = np.broadcast_to(self.lam_f * self.sig2, m2.shape)
         return floor, self.lam_r * (self.rho2 * m2 + self.gran2 * a2)
 

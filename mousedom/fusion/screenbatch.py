@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mousedom.fusion.noisemodel import motion2
+from mousedom.fusion.noisemodel import motion2, norm2
 from mousedom.fusion.robust import MISSING, TRACKING, Screen
 
 HORIZON = 16  # learning blocks of rows tested at once
@@ -106,7 +106,7 @@ def _fast_rows(sc: Screen, d, p, mask, lever) -> tuple[np.ndarray, tuple]:
     prev_p = np.concatenate([sc.prev_p[None], p[:-1]])
     m2 = motion2(d, p)
     floor, prop = sc.noise.parts(d, p, prev_p, m2)
-    r2 = np.sum((d - p) ** 2, axis=2)
+    r2 = norm2(d - p)
     t = np.sum(np.where(mask, r2 / (floor + prop), 0.0), axis=1)
     dof = 2 * mask.sum(axis=1) - sc.k
     thr = np.array(sc._thresholds)
