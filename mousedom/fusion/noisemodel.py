@@ -68,6 +68,10 @@ class _Samples:
         self._chunks.append(values)
         self._n += len(values)
 
+    def reset(self, values: np.ndarray) -> None:
+        """Hold exactly ``values`` (oldest first)."""
+        self._chunks, self._n = [values], len(values)
+
     def newest(self, keep: int) -> np.ndarray:
         """The newest ``keep`` samples as one array; older ones are forgotten."""
         chunks = self._chunks
@@ -90,13 +94,14 @@ def _medians(samples: list[np.ndarray]) -> list[float]:
         by_length.setdefault(len(values), []).append(k)
     for length, which in by_length.items():
         mid = length // 2
-        # The middle one or two in place (a partition: the same values as a full sort)
-        kth = [mid] if length % 2 else [mid - 1, mid]
-        rows = np.partition(np.stack([samples[k] for k in which]), kth, axis=1)
+        # The middle value in place (a partition: the same values as a full sort); the one
+        # below it of an even length is the largest of the part before (one partition and
+        # a max cost a third of a partition at two places).
+        rows = np.partition(np.stack([samples[k] for k in which]), mid, axis=1)
         if length % 2:
             middle = rows[:, mid]
         else:
-            middle = 0.5 * (rows[:, mid - 1] + rows[:, mid])
+            middle = 0.5 * (rows[:, :mid].max(axis=1) + rows[:, mid])
         for k, v in zip(which, middle.tolist(), strict=True):
             out[k] = v
     return out
@@ -194,17 +199,31 @@ class NoiseModel:
     def end_block(self) -> None:
         """Re-estimate the factors from the last samples (module docstring); a factor
         without new samples since the last block stays as it is."""
-        changed = False
         todo = []  # (factor's array, mouse, samples) whose estimate is due
+        for k, lam, i, samples in self._series():
+            if len(samples) == self._seen_len[k][i]:
+                continue  # no new evidence
+            got = samples.newest(_KEEP)
+            self._seen_len[k][i] = len(got)
+            if len(got) >= _MIN_SAMPLES:
+                todo.append((lam, i, got))
+        changed = self._update(todo, _medians([got for _, _, got in todo]))
+        self.seen = 0
+        if changed:
+            self.version += 1
+            self._sync()
+
+    def _series(self):
+        """(0 floor / 1 proportional, factor array, mouse, its samples) of every factor."""
         for k, (lam, samples) in enumerate(((self.lam_f, self._floor), (self.lam_r, self._prop))):
             for i in range(self.n):
-                if len(samples[i]) == self._seen_len[k][i]:
-                    continue  # no new evidence
-                got = samples[i].newest(_KEEP)
-                self._seen_len[k][i] = len(got)
-                if len(got) >= _MIN_SAMPLES:
-                    todo.append((lam, i, got))
-        for (lam, i, _), est in zip(todo, _medians([got for _, _, got in todo]), strict=True):
+                yield k, lam, i, samples[i]
+
+    @staticmethod
+    def _update(todo: list, estimates: list[float]) -> bool:
+        """Move each due factor towards its estimate; whether any changed."""
+        changed = False
+        for (lam, i, _), est in zip(todo, estimates, strict=True):
             new = est if est > lam[i] else math.sqrt(lam[i] * max(est, 0.0))
             new = min(_MAX_FACTOR, max(1.0, new))
             # a step of under 5 % is noise of the median, not news: kept as it is
@@ -212,7 +231,72 @@ class NoiseModel:
             if abs(new - lam[i]) > 0.05 * lam[i]:
                 lam[i] = new
                 changed = True
-        self.seen = 0
-        if changed:
+        return changed
+
+    def extend_blocks(self, values: tuple | None, start: int, stop: int) -> int:
+        """Rows [start, stop) of ``samples_for``'s arrays accepted one after the other (None:
+        rows that give no samples), with ``end_block`` wherever a block ends among them:
+        the same samples, trims and factors as ``extend`` and ``end_block`` called window
+        by window, but every block's medians taken at once.  Stops after the first block
+        end that changes a factor (later rows' samples were made with the old ones);
+        returns the row it stopped before (``stop`` if no factor changed)."""
+        first_end = start + self.block - self.seen
+        if first_end > stop:  # no block ends here
+            if values is not None:
+                self.extend(values, slice(start, stop))
+            self.seen += stop - start
+            return stop
+        ends = list(range(first_end, stop + 1, self.block))
+        last = ends[-1]
+        # Per factor series: everything held (untrimmed) and the new samples up to the last
+        # block end, as one array, and where each block end falls in it.
+        plan = []  # (k, i, store, joined, new samples at each end, trims)
+        windows = []  # (block, factor array, mouse, samples) whose median is due
+        for k, lam, i, store in self._series():
+            held = len(store)
+            joined = store.newest(held)  # all it holds, untrimmed
+            at_end = [0] * len(ends)
+            if values is not None:
+                col, ok = (values[0], values[1]) if k == 0 else (values[2], values[3])
+                ok_rows = ok[start:last, i]
+                if ok_rows.any():
+                    joined = np.concatenate([joined, col[start:last, i][ok_rows]])
+                    at_end = np.cumsum(ok_rows)[[e - start - 1 for e in ends]].tolist()
+            # What end_block would do at each end: trim to the newest _KEEP where there is
+            # new evidence, estimate where enough is held.
+            lo, seen_len, trims = 0, self._seen_len[k][i], []
+            for blk, new in enumerate(at_end):
+                hi = held + new
+                if hi - lo == seen_len:
+                    trims.append(None)  # no new evidence: neither trimmed nor estimated
+                    continue
+                lo = max(lo, hi - _KEEP)
+                seen_len = hi - lo
+                trims.append((lo, hi))
+                if seen_len >= _MIN_SAMPLES:
+                    windows.append((blk, lam, i, joined[lo:hi]))
+            plan.append((k, i, store, joined, at_end, trims))
+        medians = _medians([w for *_, w in windows])
+        due: list[list] = [[] for _ in ends]
+        for (blk, lam, i, _), est in zip(windows, medians, strict=True):
+            due[blk].append(((lam, i, None), est))
+        done, changed = len(ends) - 1, False  # the last block end passed
+        for blk, todo in enumerate(due):
+            if todo and self._update([t for t, _ in todo], [e for _, e in todo]):
+                done, changed = blk, True
+                break
+        for k, i, store, joined, at_end, trims in plan:
+            kept = [t for t in trims[: done + 1] if t is not None]
+            lo = kept[-1][0] if kept else 0
+            store.reset(joined[lo : len(joined) - at_end[-1] + at_end[done]])
+            if kept:
+                self._seen_len[k][i] = kept[-1][1] - kept[-1][0]
+        end, self.seen = ends[done], 0
+        if changed:  # the caller goes on from here, with the new factors' arrays
             self.version += 1
             self._sync()
+            return end
+        if values is not None and end < stop:
+            self.extend(values, slice(end, stop))
+        self.seen = stop - end
+        return stop

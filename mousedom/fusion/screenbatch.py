@@ -4,8 +4,9 @@ Replay closes millions of windows at once.  Where nothing happens (every mouse t
 no sensor evidence, the test passed) a run of windows is accepted with a few array
 operations; each window where something does happen, and the one after it, goes through
 ``Screen.decide``, the exact path the daemon takes too.  Runs never cross the end of one
-of the noise model's learning blocks, so its factors change at the same windows as in the
-daemon, and replay and daemon decide alike.
+of the noise model's learning blocks unchecked: a run of accepted windows ends its blocks
+all at once (``NoiseModel.extend_blocks``) and stops where a factor changes, so the factors
+change at the same windows as in the daemon, and replay and daemon decide alike.
 """
 
 from __future__ import annotations
@@ -59,35 +60,30 @@ def screen(
             fast, samples = _fast_rows(sc, d[i:horizon], p[i:horizon], mask[i:horizon],
                                        lever[i:horizon])  # fmt: skip
             bad = np.flatnonzero(~fast | evidence[i:horizon]) + i
-        chunk_end = min(horizon, i + sc.noise.block - sc.noise.seen)
-        j = i
-        while j < chunk_end:
-            steady = sc.steady()
-            if steady is not None and not prev_altered:
-                code = sum(1 << k for k, v in enumerate(steady) if v)
-                if codes[j] == code:
-                    stop = min(_next(bad, j, chunk_end), _next(changes, j + 1, chunk_end))
-                    if stop > j:
-                        if sc.dof(int(mask[j].sum())) > 0:
-                            sc.noise.extend(samples, slice(j - base, stop - base))
-                        sc._set_prev(p[stop - 1])
-                        sc.noise.seen += stop - j
-                        j = stop
-                        continue
-            sq = None if squal_scale is None else squal_scale[j]
-            lq = None if low_quality is None else low_quality[j]
-            dec = sc.decide(d[j], mask[j], sq, lq)
-            used[j] = dec.used
-            inflate[j] = dec.inflate
-            consistent[j] = dec.consistent
-            state[j] = [h.state for h in sc.health]
-            reason[j] = [h.reason for h in sc.health]
-            # the next window's changes are from this one's own solution: decide it too
-            prev_altered = not np.array_equal(dec.used, mask[j])
-            j += 1
-        i = chunk_end
-        if sc.noise.seen >= sc.noise.block:
-            sc.noise.end_block()
+        steady = sc.steady()
+        if steady is not None and not prev_altered:
+            code = sum(1 << k for k, v in enumerate(steady) if v)
+            if codes[i] == code:
+                stop = min(_next(bad, i, horizon), _next(changes, i + 1, horizon))
+                if stop > i:
+                    # A run of accepted rows, across learning blocks: up to the first
+                    # block end that changes a factor (the arrays are then made again).
+                    values = samples if sc.dof(int(mask[i].sum())) > 0 else None
+                    stop = sc.noise.extend_blocks(values, i - base, stop - base) + base
+                    sc._set_prev(p[stop - 1])
+                    i = stop
+                    continue
+        sq = None if squal_scale is None else squal_scale[i]
+        lq = None if low_quality is None else low_quality[i]
+        dec = sc.decide(d[i], mask[i], sq, lq)
+        used[i] = dec.used
+        inflate[i] = dec.inflate
+        consistent[i] = dec.consistent
+        state[i] = [h.state for h in sc.health]
+        reason[i] = [h.reason for h in sc.health]
+        # the next window's changes are from this one's own solution: decide it too
+        prev_altered = not np.array_equal(dec.used, mask[i])
+        i += 1
     return used, inflate, consistent, state, reason
 
 

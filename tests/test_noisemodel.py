@@ -1,0 +1,83 @@
+"""The noise model's learning (mousedom.fusion.noisemodel): its batch paths equal its
+window-by-window one."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from mousedom.fusion.noisemodel import NoiseModel, _medians, norm2
+
+
+def _model(n: int) -> NoiseModel:
+    # window 0.05 s: blocks of 20 windows, so a few hundred rows cross many block ends
+    return NoiseModel(np.full(n, 1e-5), 0.03, np.full(n, 0.001), 0.05)
+
+
+def _state(nm: NoiseModel) -> tuple:
+    held = [s.newest(len(s)).tolist() for s in (*nm._floor, *nm._prop)]
+    return (nm.lam_f.tolist(), nm.lam_r.tolist(), nm.version, nm.seen, nm._seen_len, held)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    n=st.integers(1, 4),
+    rows=st.integers(1, 400),
+    seen=st.integers(0, 19),
+    before=st.integers(0, 300),
+    start=st.integers(0, 30),
+    scale_step=st.integers(0, 400),
+    seed=st.integers(0, 2**32 - 1),
+    sampling=st.booleans(),
+)
+def test_extend_blocks_is_extend_and_end_block_window_by_window(
+    n, rows, seen, before, start, scale_step, seed, sampling
+):
+    """Rows accepted in one run: the same samples held, factors and version as the
+    per-window path, which stops after the first block end that changes a factor."""
+    rng = np.random.default_rng(seed)
+    a, b = _model(n), _model(n)
+    for nm in (a, b):  # the same history: samples of earlier blocks and of this one
+        r = np.random.default_rng(seed + 1)
+        for _ in range(before):
+            i = int(r.integers(n))
+            nm.sample(i, float(r.exponential(2e-10)), 1e-8, float(r.uniform(0, 4e-8)), 0.3)
+            if r.random() < 0.05:
+                nm.end_block()
+        nm.seen = seen
+    total = start + rows
+    # values whose level jumps at row scale_step: the medians move, a factor changes there
+    level = np.where(np.arange(total) < scale_step, 1.0, 50.0)[:, None]
+    fl = rng.exponential(1.0, (total, n)) * level * 100.0
+    pr = rng.exponential(1.0, (total, n)) * level
+    by_floor = rng.random((total, n)) < 0.7
+    by_prop = rng.random((total, n)) < 0.5
+    values = (fl, by_floor, pr, by_prop) if sampling else None
+
+    expected_stop = total
+    for j in range(start, total):
+        v0 = a.version
+        if values is not None:
+            a.extend(values, slice(j, j + 1))
+        a.seen += 1
+        if a.seen >= a.block:
+            a.end_block()
+            if a.version != v0:
+                expected_stop = j + 1
+                break
+    got_stop = b.extend_blocks(values, start, total)
+    assert got_stop == expected_stop
+    assert _state(b) == _state(a)
+
+
+def test_medians_of_one_length_are_numpys_medians():
+    rng = np.random.default_rng(3)
+    for length in (10, 11, 255, 256):
+        arrays = [rng.standard_normal(length) for _ in range(7)]
+        assert _medians(arrays) == [float(np.median(x)) for x in arrays]
+
+
+def test_norm2_is_the_sum_of_squares_bit_for_bit():
+    v = np.random.default_rng(4).standard_normal((50, 4, 2)) * 1e3
+    assert np.array_equal(norm2(v), np.sum(v * v, axis=-1))
