@@ -199,14 +199,14 @@ class NoiseModel:
     def end_block(self) -> None:
         """Re-estimate the factors from the last samples (module docstring); a factor
         without new samples since the last block stays as it is."""
-        todo = []  # (factor's array, mouse, samples) whose estimate is due
-        for k, lam, i, samples in self._series():
+        todo = []  # (0 floor / 1 proportional, mouse, samples) whose estimate is due
+        for k, i, samples in self._series():
             if len(samples) == self._seen_len[k][i]:
                 continue  # no new evidence
             got = samples.newest(_KEEP)
             self._seen_len[k][i] = len(got)
             if len(got) >= _MIN_SAMPLES:
-                todo.append((lam, i, got))
+                todo.append((k, i, got))
         changed = self._update(todo, _medians([got for _, _, got in todo]))
         self.seen = 0
         if changed:
@@ -214,16 +214,19 @@ class NoiseModel:
             self._sync()
 
     def _series(self):
-        """(0 floor / 1 proportional, factor array, mouse, its samples) of every factor."""
-        for k, (lam, samples) in enumerate(((self.lam_f, self._floor), (self.lam_r, self._prop))):
+        """(0 floor / 1 proportional, mouse, its samples) of every factor."""
+        for k, samples in enumerate((self._floor, self._prop)):
             for i in range(self.n):
-                yield k, lam, i, samples[i]
+                yield k, i, samples[i]
 
-    @staticmethod
-    def _update(todo: list, estimates: list[float]) -> bool:
-        """Move each due factor towards its estimate; whether any changed."""
+    def _update(self, todo: list, estimates: list[float]) -> bool:
+        """Move each due factor (todo: (0 floor / 1 proportional, mouse, ...)) towards its
+        estimate; whether any changed.  On Python floats: numpy's scalars cost ten times
+        as much for the same IEEE operations."""
+        lams = (self.lam_f.tolist(), self.lam_r.tolist())
         changed = False
-        for (lam, i, _), est in zip(todo, estimates, strict=True):
+        for (k, i, _), est in zip(todo, estimates, strict=True):
+            lam = lams[k]
             new = est if est > lam[i] else math.sqrt(lam[i] * max(est, 0.0))
             new = min(_MAX_FACTOR, max(1.0, new))
             # a step of under 5 % is noise of the median, not news: kept as it is
@@ -231,6 +234,8 @@ class NoiseModel:
             if abs(new - lam[i]) > 0.05 * lam[i]:
                 lam[i] = new
                 changed = True
+        if changed:
+            self.lam_f[:], self.lam_r[:] = lams
         return changed
 
     def extend_blocks(self, values: tuple | None, start: int, stop: int) -> int:
@@ -251,8 +256,8 @@ class NoiseModel:
         # Per factor series: everything held (untrimmed) and the new samples up to the last
         # block end, as one array, and where each block end falls in it.
         plan = []  # (k, i, store, joined, new samples at each end, trims)
-        windows = []  # (block, factor array, mouse, samples) whose median is due
-        for k, lam, i, store in self._series():
+        windows = []  # (block, 0 floor / 1 proportional, mouse, samples) whose median is due
+        for k, i, store in self._series():
             held = len(store)
             joined = store.newest(held)  # all it holds, untrimmed
             at_end = [0] * len(ends)
@@ -274,12 +279,12 @@ class NoiseModel:
                 seen_len = hi - lo
                 trims.append((lo, hi))
                 if seen_len >= _MIN_SAMPLES:
-                    windows.append((blk, lam, i, joined[lo:hi]))
+                    windows.append((blk, k, i, joined[lo:hi]))
             plan.append((k, i, store, joined, at_end, trims))
         medians = _medians([w for *_, w in windows])
         due: list[list] = [[] for _ in ends]
-        for (blk, lam, i, _), est in zip(windows, medians, strict=True):
-            due[blk].append(((lam, i, None), est))
+        for (blk, k, i, _), est in zip(windows, medians, strict=True):
+            due[blk].append(((k, i, None), est))
         done, changed = len(ends) - 1, False  # the last block end passed
         for blk, todo in enumerate(due):
             if todo and self._update([t for t, _ in todo], [e for _, e in todo]):
