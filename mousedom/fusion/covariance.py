@@ -33,11 +33,6 @@ class CovarianceState:
     position: np.ndarray = field(default_factory=lambda: np.zeros(2))
 
 
-def outer(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Batched outer products of (n,2) vectors."""
-    return u[:, :, None] * v[:, None, :]
-
-
 def world_step_noise(theta_before: np.ndarray, jac: np.ndarray, q_cov: np.ndarray) -> np.ndarray:
     """G_k = M Q M^T with M = blockdiag(R(theta_{k-1}), 1) @ d step / d q.  Shapes (n,3,3).
 
@@ -105,34 +100,37 @@ def propagate(
     rel = positions - state.position
     g = np.concatenate([state.cov[None], noise])
     b = _perp(np.concatenate([np.zeros((1, 2)), rel]))
-    gpp = g[:, :2, :2]
-    gpt = g[:, :2, 2]
-    gtt = g[:, 2, 2]
-    s1 = np.cumsum(gpp, axis=0)[1:]
-    s2 = np.cumsum(gpt, axis=0)[1:]
-    s3 = np.cumsum(b[:, :, None] * gpt[:, None, :], axis=0)[1:]
-    s4 = np.cumsum(gtt)[1:]
-    s5 = np.cumsum(gtt[:, None] * b, axis=0)[1:]
-    s6 = np.cumsum(gtt[:, None, None] * b[:, :, None] * b[:, None, :], axis=0)[1:]
-    # Row 0 is the carried input, so every window's cumulative sum includes it.
     a = _perp(rel)
-    pp = (
-        s1
-        + outer(a, s2)
-        - s3
-        + outer(s2, a)
-        - np.swapaxes(s3, 1, 2)
-        + s4[:, None, None] * outer(a, a)
-        - outer(a, s5)
-        - outer(s5, a)
-        + s6
-    )
-    pt = s2 + a * s4[:, None] - s5
+    # Row 0 is the carried input, so every window's cumulative sum includes it.  Each entry
+    # is its own (n,) array, computed in the order of the matrix expression
+    #   pp = s1 + a s2^T - s3 + s2 a^T - s3^T + s4 a a^T - a s5^T - s5 a^T + s6
+    # (so the same values as the (n,2,2) one): numpy's operations over trailing axes of
+    # two cost several times as much per element.
+    cum = np.cumsum
+    gtt = g[:, 2, 2]
+    ai, bi = (a[:, 0], a[:, 1]), (b[:, 0], b[:, 1])
+    gpt = (g[:, 0, 2], g[:, 1, 2])
+    gtb = (gtt * bi[0], gtt * bi[1])
+    s2 = (cum(gpt[0])[1:], cum(gpt[1])[1:])
+    s4 = cum(gtt)[1:]
+    s5 = (cum(gtb[0])[1:], cum(gtb[1])[1:])
+
+    def pp(i: int, j: int) -> np.ndarray:
+        s1 = cum(g[:, i, j])[1:]
+        s3_ij = cum(bi[i] * gpt[j])[1:]
+        s3_ji = s3_ij if i == j else cum(bi[j] * gpt[i])[1:]
+        s6 = cum(gtb[i] * bi[j])[1:]
+        return (
+            s1 + ai[i] * s2[j] - s3_ij + s2[i] * ai[j] - s3_ji + s4 * (ai[i] * ai[j])
+            - ai[i] * s5[j] - s5[i] * ai[j] + s6
+        )  # fmt: skip
+
     out = np.empty((n, 3, 3))
-    out[:, :2, :2] = pp
-    out[:, :2, 2] = pt
-    out[:, 2, :2] = pt
+    out[:, 0, 0] = pp(0, 0)
+    out[:, 1, 1] = pp(1, 1)
+    # Symmetrised: rounding makes the two sides differ, consumers rely on it being exact.
+    out[:, 0, 1] = out[:, 1, 0] = 0.5 * (pp(0, 1) + pp(1, 0))
+    for i in range(2):
+        out[:, i, 2] = out[:, 2, i] = s2[i] + ai[i] * s4 - s5[i]
     out[:, 2, 2] = s4
-    # Symmetrise away rounding so consumers can rely on it.
-    out = 0.5 * (out + np.swapaxes(out, 1, 2))
     return out, CovarianceState(cov=out[-1].copy(), position=positions[-1].copy())
