@@ -151,13 +151,13 @@ class NoiseModel:
     def parts(
         self, d: np.ndarray, p: np.ndarray, prev_p: np.ndarray, m2: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
-        """(floor, proportional) parts of s^2 for readings d and predictions p (..., N, 2);
-        ``m2``, if given, is ``motion2(d, p)``."""
+        """(floor (N,), proportional (..., N)) parts of s^2 for readings d and predictions p
+        (..., N, 2); ``m2``, if given, is ``motion2(d, p)``."""
         if m2 is None:
             m2 = motion2(d, p)
         a2 = norm2(p - prev_p)
-        floor = np.broadcast_to(self.lam_f * self.sig2, m2.shape)
-        return floor, self.lam_r * (self.rho2 * m2 + self.gran2 * a2)
+        # the floor per mouse (N,): it broadcasts against the (..., N) proportional part
+        return self.lam_f * self.sig2, self.lam_r * (self.rho2 * m2 + self.gran2 * a2)
 
     # ----------------------------------------------------------------- learning
 

@@ -103,13 +103,24 @@ def _fast_rows(sc: Screen, d, p, mask, lever) -> tuple[np.ndarray, tuple]:
     m2 = motion2(d, p)
     floor, prop = sc.noise.parts(d, p, prev_p, m2)
     r2 = norm2(d - p)
-    t = np.sum(np.where(mask, r2 / (floor + prop), 0.0), axis=1)
-    dof = 2 * mask.sum(axis=1) - sc.k
+    t = _row_sum(np.where(mask, r2 / (floor + prop), 0.0))
+    dof = 2 * _row_sum(mask.astype(np.int64)) - sc.k
     thr = np.array(sc._thresholds)
     ok = (dof <= 0) | (t <= thr[np.maximum(dof, 0)])
-    ok &= ~np.any(mask & (m2 >= sc.max_step2), axis=1)
+    saturated = mask & (m2 >= sc.max_step2)
+    for i in range(saturated.shape[1]):
+        ok &= ~saturated[:, i]
     samples = sc.noise.samples_for(r2, floor, prop, lever, mask & (m2 > sc.noise.sig2))
     return ok, samples
+
+
+def _row_sum(a: np.ndarray) -> np.ndarray:
+    """Each row's sum, column after column: the order of the one-window path's sum (and of
+    numpy's own over a short axis), without numpy's slow reduction over an axis of a few."""
+    total = a[:, 0].copy()
+    for i in range(1, a.shape[1]):
+        total += a[:, i]
+    return total
 
 
 def _next(sorted_idx: np.ndarray, i: int, n: int) -> int:
