@@ -84,6 +84,18 @@ class _Samples:
         return values
 
 
+def _middles(rows: np.ndarray) -> np.ndarray:
+    """The median of each row of a 2-D array (see _medians)."""
+    mid = rows.shape[1] // 2
+    # The middle value in place (a partition: the same values as a full sort); the one
+    # below it of an even length is the largest of the part before (one partition and a
+    # max cost a third of a partition at two places).
+    rows = np.partition(rows, mid, axis=1)
+    if rows.shape[1] % 2:
+        return rows[:, mid]
+    return 0.5 * (rows[:, :mid].max(axis=1) + rows[:, mid])
+
+
 def _medians(samples: list[np.ndarray]) -> list[float]:
     """The median of each array: the middle value, or the mean of the two middle ones.
     Arrays of one length are partitioned as one (replay ends a block every second of data,
@@ -92,19 +104,21 @@ def _medians(samples: list[np.ndarray]) -> list[float]:
     by_length: dict[int, list[int]] = {}
     for k, values in enumerate(samples):
         by_length.setdefault(len(values), []).append(k)
-    for length, which in by_length.items():
-        mid = length // 2
-        # The middle value in place (a partition: the same values as a full sort); the one
-        # below it of an even length is the largest of the part before (one partition and
-        # a max cost a third of a partition at two places).
-        rows = np.partition(np.stack([samples[k] for k in which]), mid, axis=1)
-        if length % 2:
-            middle = rows[:, mid]
-        else:
-            middle = 0.5 * (rows[:, :mid].max(axis=1) + rows[:, mid])
+    for which in by_length.values():
+        middle = _middles(np.stack([samples[k] for k in which]))
         for k, v in zip(which, middle.tolist(), strict=True):
             out[k] = v
     return out
+
+
+def _moved(lam: np.ndarray, est: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each factor moved towards its estimate (module docstring: at once up, by half-steps
+    down, within [1, _MAX_FACTOR]), and whether it moves at all: a step of under 5 % is
+    noise of the median, not news, and is not taken (replay's arrays of the common case
+    stay valid).  A NaN estimate leaves the factor at 1."""
+    new = np.where(est > lam, est, np.sqrt(lam * np.maximum(est, 0.0)))
+    new = np.minimum(_MAX_FACTOR, np.fmax(1.0, new))
+    return new, np.abs(new - lam) > 0.05 * lam
 
 
 def norm2(v: np.ndarray) -> np.ndarray:
@@ -207,7 +221,12 @@ class NoiseModel:
             self._seen_len[k][i] = len(got)
             if len(got) >= _MIN_SAMPLES:
                 todo.append((k, i, got))
-        changed = self._update(todo, _medians([got for _, _, got in todo]))
+        changed = False
+        if todo:
+            which = np.array([(k, i) for k, i, _ in todo]).reshape(-1, 2)
+            new, moved = _moved(self._factors(which), np.array(_medians([g for *_, g in todo])))
+            self._apply(which[moved], new[moved])
+            changed = bool(moved.any())
         self.seen = 0
         if changed:
             self.version += 1
@@ -219,24 +238,13 @@ class NoiseModel:
             for i in range(self.n):
                 yield k, i, samples[i]
 
-    def _update(self, todo: list, estimates: list[float]) -> bool:
-        """Move each due factor (todo: (0 floor / 1 proportional, mouse, ...)) towards its
-        estimate; whether any changed.  On Python floats: numpy's scalars cost ten times
-        as much for the same IEEE operations."""
-        lams = (self.lam_f.tolist(), self.lam_r.tolist())
-        changed = False
-        for (k, i, _), est in zip(todo, estimates, strict=True):
-            lam = lams[k]
-            new = est if est > lam[i] else math.sqrt(lam[i] * max(est, 0.0))
-            new = min(_MAX_FACTOR, max(1.0, new))
-            # a step of under 5 % is noise of the median, not news: kept as it is
-            # (and replay's arrays of the common case stay valid)
-            if abs(new - lam[i]) > 0.05 * lam[i]:
-                lam[i] = new
-                changed = True
-        if changed:
-            self.lam_f[:], self.lam_r[:] = lams
-        return changed
+    def _factors(self, which: np.ndarray) -> np.ndarray:
+        """The current factor of each (0 floor / 1 proportional, mouse) row of ``which``."""
+        return np.where(which[:, 0] == 0, self.lam_f[which[:, 1]], self.lam_r[which[:, 1]])
+
+    def _apply(self, which: np.ndarray, new: np.ndarray) -> None:
+        for (k, i), v in zip(which.tolist(), new.tolist(), strict=True):
+            (self.lam_f if k == 0 else self.lam_r)[i] = v
 
     def extend_blocks(self, values: tuple | None, start: int, stop: int) -> int:
         """Rows [start, stop) of ``samples_for``'s arrays accepted one after the other (None:
@@ -256,7 +264,9 @@ class NoiseModel:
         # Per factor series: everything held (untrimmed) and the new samples up to the last
         # block end, as one array, and where each block end falls in it.
         plan = []  # (k, i, store, joined, new samples at each end, trims)
-        windows = []  # (block, 0 floor / 1 proportional, mouse, samples) whose median is due
+        due = []  # (block, k, i) of each estimate due, full windows first
+        full = []  # (series, lo) of the full windows (_KEEP samples)
+        short = []  # samples of the windows not full (a mouse's first seconds)
         for k, i, store in self._series():
             held = len(store)
             joined = store.newest(held)  # all it holds, untrimmed
@@ -278,18 +288,30 @@ class NoiseModel:
                 lo = max(lo, hi - _KEEP)
                 seen_len = hi - lo
                 trims.append((lo, hi))
-                if seen_len >= _MIN_SAMPLES:
-                    windows.append((blk, k, i, joined[lo:hi]))
+                if seen_len == _KEEP:
+                    full.append((len(plan), lo))
+                    due.insert(len(full) - 1, (blk, k, i))
+                elif seen_len >= _MIN_SAMPLES:
+                    short.append(joined[lo:hi])
+                    due.append((blk, k, i))
             plan.append((k, i, store, joined, at_end, trims))
-        medians = _medians([w for *_, w in windows])
-        due: list[list] = [[] for _ in ends]
-        for (blk, k, i, _), est in zip(windows, medians, strict=True):
-            due[blk].append(((k, i, None), est))
-        done, changed = len(ends) - 1, False  # the last block end passed
-        for blk, todo in enumerate(due):
-            if todo and self._update([t for t, _ in todo], [e for _, e in todo]):
-                done, changed = blk, True
-                break
+        est = np.empty(len(due))
+        if full:
+            # every full window gathered from one array: one partition for all
+            series = np.concatenate([p[3] for p in plan])
+            offsets = np.cumsum([0] + [len(p[3]) for p in plan[:-1]])
+            starts = np.array([offsets[s] + lo for s, lo in full])
+            est[: len(full)] = _middles(series[starts[:, None] + np.arange(_KEEP)])
+        est[len(full) :] = _medians(short)
+        # The factors stay as they are up to the first block end that moves one.
+        done, changed = len(ends) - 1, False
+        if due:
+            info = np.array(due).reshape(-1, 3)
+            new, moved = _moved(self._factors(info[:, 1:]), est)
+            if moved.any():
+                done, changed = int(info[moved, 0].min()), True
+                take = moved & (info[:, 0] == done)
+                self._apply(info[take, 1:], new[take])
         for k, i, store, joined, at_end, trims in plan:
             kept = [t for t in trims[: done + 1] if t is not None]
             lo = kept[-1][0] if kept else 0
