@@ -261,63 +261,57 @@ class NoiseModel:
             return stop
         ends = list(range(first_end, stop + 1, self.block))
         last = ends[-1]
-        # Per factor series: everything held (untrimmed) and the new samples up to the last
-        # block end, as one array, and where each block end falls in it.
-        plan = []  # (k, i, store, joined, new samples at each end, trims)
-        due = []  # (block, k, i) of each estimate due, full windows first
-        full = []  # (series, lo) of the full windows (_KEEP samples)
-        short = []  # samples of the windows not full (a mouse's first seconds)
-        for k, i, store in self._series():
-            held = len(store)
-            joined = store.newest(held)  # all it holds, untrimmed
-            at_end = [0] * len(ends)
-            if values is not None:
-                col, ok = (values[0], values[1]) if k == 0 else (values[2], values[3])
-                ok_rows = ok[start:last, i]
-                if ok_rows.any():
-                    joined = np.concatenate([joined, col[start:last, i][ok_rows]])
-                    at_end = np.cumsum(ok_rows)[[e - start - 1 for e in ends]].tolist()
-            # What end_block would do at each end: trim to the newest _KEEP where there is
-            # new evidence, estimate where enough is held.
-            lo, seen_len, trims = 0, self._seen_len[k][i], []
-            for blk, new in enumerate(at_end):
-                hi = held + new
-                if hi - lo == seen_len:
-                    trims.append(None)  # no new evidence: neither trimmed nor estimated
-                    continue
-                lo = max(lo, hi - _KEEP)
-                seen_len = hi - lo
-                trims.append((lo, hi))
-                if seen_len == _KEEP:
-                    full.append((len(plan), lo))
-                    due.insert(len(full) - 1, (blk, k, i))
-                elif seen_len >= _MIN_SAMPLES:
-                    short.append(joined[lo:hi])
-                    due.append((blk, k, i))
-            plan.append((k, i, store, joined, at_end, trims))
-        est = np.empty(len(due))
-        if full:
-            # every full window gathered from one array: one partition for all
-            series = np.concatenate([p[3] for p in plan])
-            offsets = np.cumsum([0] + [len(p[3]) for p in plan[:-1]])
-            starts = np.array([offsets[s] + lo for s, lo in full])
-            est[: len(full)] = _middles(series[starts[:, None] + np.arange(_KEEP)])
-        est[len(full) :] = _medians(short)
+        # The factor series (floor of each mouse, then proportional) are the columns: every
+        # array below is (block end, series).  Each series' samples, everything held
+        # (untrimmed) and then the new ones up to the last block end, are one stretch of
+        # ``joined``; ``hi`` is where each block end falls in its series.
+        stores = [*self._floor, *self._prop]
+        held = np.array([len(st) for st in stores])
+        parts = [st.newest(len(st)) for st in stores]
+        at = np.array(ends) - start - 1
+        if values is None:
+            new_at = np.zeros((len(ends), len(stores)), dtype=np.int64)
+        else:
+            ok = np.concatenate([values[1][start:last], values[3][start:last]], axis=1)
+            cols = np.concatenate([values[0][start:last], values[2][start:last]], axis=1)
+            new_at = np.cumsum(ok, axis=0)[at]
+            fresh = np.split(cols.T[ok.T], np.cumsum(new_at[-1])[:-1])  # per series, in order
+            parts = [x for pair in zip(parts, fresh, strict=True) for x in pair]
+        joined = np.concatenate(parts)
+        offset = np.concatenate([[0], np.cumsum(held + new_at[-1])[:-1]])
+        hi = held + new_at
+        # What end_block would do at each end: where there is new evidence since the last
+        # end, trim to the newest _KEEP (lo: the first sample kept) and estimate if enough.
+        fresh_evidence = np.empty(hi.shape, dtype=bool)
+        fresh_evidence[0] = hi[0] != np.array(self._seen_len[0] + self._seen_len[1])
+        fresh_evidence[1:] = hi[1:] != hi[:-1]
+        lo = np.maximum(np.maximum.accumulate(np.where(fresh_evidence, hi - _KEEP, 0)), 0)
+        size = hi - lo
+        due = fresh_evidence & (size >= _MIN_SAMPLES)
+        est = np.zeros(hi.shape)
+        full = due & (size == _KEEP)
+        if full.any():  # every full window gathered from ``joined``: one partition for all
+            first = (offset + lo)[full]
+            est[full] = _middles(joined[first[:, None] + np.arange(_KEEP)])
+        short = due & ~full
+        if short.any():
+            spans = zip((offset + lo)[short].tolist(), (offset + hi)[short].tolist(), strict=True)
+            est[short] = _medians([joined[a:b] for a, b in spans])
         # The factors stay as they are up to the first block end that moves one.
-        done, changed = len(ends) - 1, False
-        if due:
-            info = np.array(due).reshape(-1, 3)
-            new, moved = _moved(self._factors(info[:, 1:]), est)
-            if moved.any():
-                done, changed = int(info[moved, 0].min()), True
-                take = moved & (info[:, 0] == done)
-                self._apply(info[take, 1:], new[take])
-        for k, i, store, joined, at_end, trims in plan:
-            kept = [t for t in trims[: done + 1] if t is not None]
-            lo = kept[-1][0] if kept else 0
-            store.reset(joined[lo : len(joined) - at_end[-1] + at_end[done]])
-            if kept:
-                self._seen_len[k][i] = kept[-1][1] - kept[-1][0]
+        lam = np.concatenate([self.lam_f, self.lam_r])
+        new, moved = _moved(np.broadcast_to(lam, hi.shape), est)
+        moved &= due
+        changed = bool(moved.any())
+        done = int(np.flatnonzero(moved.any(axis=1))[0]) if changed else len(ends) - 1
+        if changed:
+            self.lam_f[:], self.lam_r[:] = np.split(np.where(moved[done], new[done], lam), 2)
+        # Each series as end_block would have left it at block end ``done``.
+        trimmed = fresh_evidence[: done + 1].any(axis=0).tolist()
+        for k, (st, a, b) in enumerate(zip(stores, (offset + lo[done]).tolist(),
+                                           (offset + hi[done]).tolist(), strict=True)):  # fmt: skip
+            st.reset(joined[a:b])
+            if trimmed[k]:
+                self._seen_len[k // self.n][k % self.n] = b - a
         end, self.seen = ends[done], 0
         if changed:  # the caller goes on from here, with the new factors' arrays
             self.version += 1
