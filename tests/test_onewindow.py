@@ -28,7 +28,7 @@ def test_scalar_step_and_jacobian_equal_the_array_functions(ux, uy, a, method):
     m = rng.normal(0, 0.1, (3, 3))
     q_cov = m @ m.T
     theta = float(rng.uniform(-7, 7))
-    want_g = covariance.world_step_noise(np.array([theta]), integrate.step_jacobian(q), q_cov)
+    want_g = covariance.world_step_noise(np.array([theta]), integrate.step_partials(q), q_cov)
     got_g = onewindow.noise(theta, ux, uy, a, q_cov)
     assert np.allclose(got_g, want_g[0], rtol=1e-12, atol=1e-14)
 

@@ -476,3 +476,25 @@ def test_integer_and_float_counts_close_the_same_windows(scale):
     assert np.array_equal(a_in, b_in)
     for key in ("x", "y", "theta", "counts"):
         assert np.array_equal(getattr(a, key), getattr(b, key)), key
+
+
+def test_world_step_noise_is_m_q_m_transposed():
+    """G = M Q M^T with M = blockdiag(R(theta), 1) d(step)/dq, against numpy's matmul."""
+    from mousedom.fusion import integrate
+    from mousedom.fusion.covariance import world_step_noise
+
+    rng = np.random.default_rng(7)
+    n = 500
+    q = rng.normal(0, 0.02, (n, 3)) * np.array([1, 1, 20])
+    theta = rng.uniform(-7, 7, n)
+    a = rng.normal(0, 1e-3, (n, 3, 3))
+    q_cov = a @ np.swapaxes(a, 1, 2)
+    rot = np.zeros((n, 3, 3))
+    rot[:, 0, 0] = rot[:, 1, 1] = np.cos(theta)
+    rot[:, 1, 0], rot[:, 0, 1] = np.sin(theta), -np.sin(theta)
+    rot[:, 2, 2] = 1.0
+    m = rot @ integrate.step_jacobian(q)
+    want = m @ q_cov @ np.swapaxes(m, 1, 2)
+    got = world_step_noise(theta, integrate.step_partials(q), q_cov)
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-22)
+    assert np.array_equal(got, np.swapaxes(got, 1, 2))

@@ -33,28 +33,33 @@ class CovarianceState:
     position: np.ndarray = field(default_factory=lambda: np.zeros(2))
 
 
-def world_step_noise(theta_before: np.ndarray, jac: np.ndarray, q_cov: np.ndarray) -> np.ndarray:
-    """G_k = M Q M^T with M = blockdiag(R(theta_{k-1}), 1) @ d step / d q.  Shapes (n,3,3).
+def world_step_noise(
+    theta_before: np.ndarray, partials: tuple[np.ndarray, ...], q_cov: np.ndarray
+) -> np.ndarray:
+    """G_k = M Q M^T with M = blockdiag(R(theta_{k-1}), 1) J, shapes (n,3,3), for the exact
+    step's Jacobian J = [[S, -C, dx/da], [C, S, dy/da], [0, 0, 1]] given by its entries
+    ``partials`` = (S, C, dx/da, dy/da) (``integrate.step_partials``).
 
     Written out entry by entry on (n,) arrays: numpy's stacked matmul of 3x3 matrices
-    costs several times more per window than these few dozen whole-array operations."""
-    c, s = np.cos(theta_before), np.sin(theta_before)
+    costs several times more per window.  M's last row is (0, 0, 1), so the terms it
+    would multiply by 0 are left out and those by 1 taken as they are (the values of the
+    full product, but for the sign of a zero)."""
+    s, c, jx, jy = partials
+    ct, st = np.cos(theta_before), np.sin(theta_before)
+    m0 = (ct * s - st * c, ct * -c - st * s, ct * jx - st * jy)
+    m1 = (st * s + ct * c, st * -c + ct * s, st * jx + ct * jy)
     n = len(theta_before)
-    jac, q_cov = np.broadcast_to(jac, (n, 3, 3)), np.broadcast_to(q_cov, (n, 3, 3))
-    j = [[jac[:, r, k] for k in range(3)] for r in range(3)]
-    qc = [[q_cov[:, r, k] for k in range(3)] for r in range(3)]
-    m = [
-        [c * j[0][k] - s * j[1][k] for k in range(3)],
-        [s * j[0][k] + c * j[1][k] for k in range(3)],
-        j[2],
-    ]
-    mq = [[mi[0] * qc[0][k] + mi[1] * qc[1][k] + mi[2] * qc[2][k] for k in range(3)] for mi in m]
+    qc = np.broadcast_to(q_cov, (n, 3, 3))
+    q = [[qc[:, r, k] for k in range(3)] for r in range(3)]
+    mq0 = [m0[0] * q[0][k] + m0[1] * q[1][k] + m0[2] * q[2][k] for k in range(3)]
+    mq1 = [m1[0] * q[0][k] + m1[1] * q[1][k] + m1[2] * q[2][k] for k in range(3)]
     out = np.empty((n, 3, 3))
-    for r in range(3):
-        for k in range(r, 3):
-            g = mq[r][0] * m[k][0] + mq[r][1] * m[k][1] + mq[r][2] * m[k][2]
-            out[:, r, k] = g
-            out[:, k, r] = g
+    out[:, 0, 0] = mq0[0] * m0[0] + mq0[1] * m0[1] + mq0[2] * m0[2]
+    out[:, 0, 1] = out[:, 1, 0] = mq0[0] * m1[0] + mq0[1] * m1[1] + mq0[2] * m1[2]
+    out[:, 1, 1] = mq1[0] * m1[0] + mq1[1] * m1[1] + mq1[2] * m1[2]
+    out[:, 0, 2] = out[:, 2, 0] = mq0[2]
+    out[:, 1, 2] = out[:, 2, 1] = mq1[2]
+    out[:, 2, 2] = q[2][2]
     return out
 
 

@@ -105,13 +105,9 @@ def body_step(q: np.ndarray, method: str = "exact") -> np.ndarray:
     return out
 
 
-def step_jacobian(q: np.ndarray) -> np.ndarray:
-    """d(exact step)/dq, shape (n, 3, 3): rows (dx, dy, dtheta), columns (u_x, u_y, a).
-
-    With h = a/2: S = sinc(h) cos h, C = sinc(h) sin h, so
-    dS/da = (sinc'(h) cos h - sinc(h) sin h)/2 and dC/da = (sinc'(h) sin h + sinc(h) cos h)/2,
-    both free of cancellation thanks to the series of sinc'.
-    """
+def step_partials(q: np.ndarray) -> tuple[np.ndarray, ...]:
+    """(S, C, dx/da, dy/da) of each window: the exact step's Jacobian by q is
+    [[S, -C, dx/da], [C, S, dy/da], [0, 0, 1]] (see ``step_jacobian``)."""
     q = _as_q(q)
     ux, uy, a = q[:, 0], q[:, 1], q[:, 2]
     h = 0.5 * a
@@ -120,13 +116,24 @@ def step_jacobian(q: np.ndarray) -> np.ndarray:
     s, c = sn * ch, sn * sh
     ds = 0.5 * (dsn * ch - sn * sh)
     dc = 0.5 * (dsn * sh + sn * ch)
-    jac = np.zeros((len(q), 3, 3))
+    return s, c, ux * ds - uy * dc, ux * dc + uy * ds
+
+
+def step_jacobian(q: np.ndarray) -> np.ndarray:
+    """d(exact step)/dq, shape (n, 3, 3): rows (dx, dy, dtheta), columns (u_x, u_y, a).
+
+    With h = a/2: S = sinc(h) cos h, C = sinc(h) sin h, so
+    dS/da = (sinc'(h) cos h - sinc(h) sin h)/2 and dC/da = (sinc'(h) sin h + sinc(h) cos h)/2,
+    both free of cancellation thanks to the series of sinc'.
+    """
+    s, c, dx_da, dy_da = step_partials(q)
+    jac = np.zeros((len(s), 3, 3))
     jac[:, 0, 0] = s
     jac[:, 0, 1] = -c
-    jac[:, 0, 2] = ux * ds - uy * dc
+    jac[:, 0, 2] = dx_da
     jac[:, 1, 0] = c
     jac[:, 1, 1] = s
-    jac[:, 1, 2] = ux * dc + uy * ds
+    jac[:, 1, 2] = dy_da
     jac[:, 2, 2] = 1.0
     return jac
 

@@ -399,7 +399,7 @@ class Tracker(OneWindowPath):
         steps = integrate.body_step(q, self.integrator)
         poses = integrate.compose(np.array(self._pose), steps)
         theta_before = np.concatenate([[self._pose[2]], poses[:-1, 2]])
-        noise = world_step_noise(theta_before, integrate.step_jacobian(q), sol.cov)
+        noise = world_step_noise(theta_before, integrate.step_partials(q), sol.cov)
         state = CovarianceState(cov=np.array(self._cov), position=np.array(self._cov_at))
         cov, state = propagate(state, poses[:, :2], noise)
         self._cov, self._cov_at = state.cov.tolist(), state.position.tolist()
