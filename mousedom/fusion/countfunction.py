@@ -92,17 +92,20 @@ class CountFunction:
         t = t.astype(np.float64, copy=False)
         # Time must not run backwards: clamp to the running maximum (counted, kept).
         # Stamps in order (the usual case) are their own running maximum.
-        if not (t[0] >= self.knot_t and (t[1:] >= t[:-1]).all()):
+        prev = np.concatenate([[self.knot_t], t[:-1]])  # each report's previous stamp
+        moved = False
+        if not (t >= prev).all():
             run_max = np.maximum.accumulate(np.concatenate([[self.knot_t], t]))[1:]
             self.backwards += int(np.count_nonzero(run_max > t))
-            t = run_max
+            t, moved = run_max, True
         # Reports behind the closed frontier go into the first open window.  t is now
         # non-decreasing, so those are a prefix: found by bisection, not by a pass.
         late = int(np.searchsorted(t, edge, side="left"))
         if late:
             self.late += late
-            t = np.maximum(t, edge)
-        prev = np.concatenate([[self.knot_t], t[:-1]])
+            t, moved = np.maximum(t, edge), True
+        if moved:
+            prev = np.concatenate([[self.knot_t], t[:-1]])
         start = np.maximum(prev, t - self.period)
         # max(..., edge) as well: start is non-decreasing, so only a prefix can be below.
         below = int(np.searchsorted(start, edge, side="left"))
@@ -122,7 +125,7 @@ class CountFunction:
         new[0, 1::2] = t
         for row, (steps, lv) in enumerate(zip((dx, dy), level, strict=True), start=1):
             if steps.dtype.kind == "i" and _exact_int_sums(steps):
-                # Whole counts (captures, live reads): summed as integers, a tenth of the
+                # Whole counts (captures, live reads): summed as integers, a fifth of the
                 # time of a float cumsum, and the same values.
                 cum = np.cumsum(steps, dtype=np.int64).astype(np.float64)
             else:
