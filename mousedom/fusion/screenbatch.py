@@ -16,7 +16,8 @@ import numpy as np
 from mousedom.fusion.noisemodel import motion2, norm2
 from mousedom.fusion.robust import MISSING, TRACKING, Screen
 
-HORIZON = 16  # learning blocks of rows tested at once
+HORIZON = 16  # learning blocks of rows tested at once after the factors changed
+HORIZON_MAX = 64  # and once they stayed as they were (bounded: (rows, mice) temporaries)
 
 
 def screen(
@@ -50,13 +51,19 @@ def screen(
     i = 0
     prev_altered = False
     version, horizon = None, 0
+    # Blocks per horizon: one while nothing is learnt yet (the first block's end nearly
+    # always moves the floor's factor, and rows made ahead of it would be made again), the
+    # most once a horizon ended with the factors unchanged (fewer calls), HORIZON after one
+    # that changed them.
+    blocks = 1 if sc.noise.version == 0 else HORIZON
     while i < n:
         if version != sc.noise.version or i >= horizon:
-            # The common case's test and the noise model's samples for the rows ahead
-            # (HORIZON blocks), with the factors as they are; again when a block's end
-            # changes them.
+            # The common case's test and the noise model's samples for the rows ahead,
+            # with the factors as they are; again when a block's end changes them.
+            if version is not None:
+                blocks = HORIZON if version != sc.noise.version else HORIZON_MAX
             version, base = sc.noise.version, i
-            horizon = min(n, i + HORIZON * sc.noise.block)
+            horizon = min(n, i + blocks * sc.noise.block)
             fast, samples = _fast_rows(sc, d[i:horizon], p[i:horizon], mask[i:horizon],
                                        lever[i:horizon])  # fmt: skip
             bad = np.flatnonzero(~fast | evidence[i:horizon]) + i
