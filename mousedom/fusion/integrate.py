@@ -80,16 +80,20 @@ def exp_coefficients(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return s * np.cos(h), s * np.sin(h)
 
 
-def body_step(q: np.ndarray, method: str = "exact") -> np.ndarray:
+def body_step(
+    q: np.ndarray, method: str = "exact", coefficients: tuple | None = None
+) -> np.ndarray:
     """Body-frame step (dx, dy, dtheta) of each window with twist increment q (n, 3).
 
     ``exact`` is the SE(2) exponential V(a) u; ``taylor``, ``euler`` and ``midpoint`` are the
     approximations of Hong and of the McGill notes (see the module docstring).
+    ``coefficients``: the exact step's (S, C) when already made (``step_partials`` makes
+    them too).
     """
     q = _as_q(q)
     ux, uy, a = q[:, 0], q[:, 1], q[:, 2]
     if method == "exact":
-        s, c = exp_coefficients(a)
+        s, c = exp_coefficients(a) if coefficients is None else coefficients
     elif method == "taylor":
         s, c = 1.0 - a * a / 6.0, 0.5 * a
     elif method == "euler":

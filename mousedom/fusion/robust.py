@@ -208,11 +208,13 @@ class Screen:
     def predict(self, q: np.ndarray) -> np.ndarray:
         """Each mouse's displacement (..., N, 2) under body twist increments q (..., 3)."""
         q = np.asarray(q, dtype=float)
-        x, y = self.positions[:, 0], self.positions[:, 1]
-        return np.stack(
-            [q[..., None, 0] - q[..., None, 2] * y, q[..., None, 1] + q[..., None, 2] * x],
-            axis=-1,
-        )
+        ux, uy, a = q[..., 0], q[..., 1], q[..., 2]
+        # mouse by mouse into the (..., N, 2) array: numpy is slow over short trailing axes
+        out = np.empty((*q.shape[:-1], self.n, 2))
+        for i, (x, y) in enumerate(self._xy):
+            out[..., i, 0] = ux - a * y
+            out[..., i, 1] = uy + a * x
+        return out
 
     def _solve(self, d: np.ndarray, used: np.ndarray) -> np.ndarray | None:
         """q (3,) by the configured weights on the ``used`` mice; None without rank."""
