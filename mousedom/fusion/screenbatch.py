@@ -47,7 +47,10 @@ def screen(
         evidence |= np.any(mask & (squal_scale != 1.0), axis=1)
     if low_quality is not None:
         evidence |= np.any(mask & low_quality, axis=1)
-    lever = _leverages(sc, mask, codes)
+    # each row's leverages (its live pattern's): one pattern throughout, the usual case,
+    # needs no unique over the rows
+    lever = _leverages(sc, mask, codes) if len(changes) else np.broadcast_to(
+        sc.leverage(mask[0]), mask.shape)  # fmt: skip
     i = 0
     prev_altered = False
     version, horizon = None, 0
