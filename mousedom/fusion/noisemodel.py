@@ -272,10 +272,11 @@ class NoiseModel:
         if values is None:
             new_at = np.zeros((len(ends), len(stores)), dtype=np.int64)
         else:
-            ok = np.concatenate([values[1][start:last], values[3][start:last]], axis=1)
-            cols = np.concatenate([values[0][start:last], values[2][start:last]], axis=1)
-            new_at = np.cumsum(ok, axis=0)[at]
-            fresh = np.split(cols.T[ok.T], np.cumsum(new_at[-1])[:-1])  # per series, in order
+            # (series, row) here: each series' samples are then contiguous, in row order
+            ok = np.concatenate([values[1][start:last].T, values[3][start:last].T])
+            cols = np.concatenate([values[0][start:last].T, values[2][start:last].T])
+            new_at = np.cumsum(ok, axis=1)[:, at].T
+            fresh = np.split(cols[ok], np.cumsum(new_at[-1])[:-1])  # per series, in order
             parts = [x for pair in zip(parts, fresh, strict=True) for x in pair]
         joined = np.concatenate(parts)
         offset = np.concatenate([[0], np.cumsum(held + new_at[-1])[:-1]])
@@ -299,7 +300,7 @@ class NoiseModel:
             est[short] = _medians([joined[a:b] for a, b in spans])
         # The factors stay as they are up to the first block end that moves one.
         lam = np.concatenate([self.lam_f, self.lam_r])
-        new, moved = _moved(np.broadcast_to(lam, hi.shape), est)
+        new, moved = _moved(lam[None, :], est)
         moved &= due
         changed = bool(moved.any())
         done = int(np.flatnonzero(moved.any(axis=1))[0]) if changed else len(ends) - 1
