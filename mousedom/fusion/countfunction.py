@@ -182,19 +182,24 @@ class CountFunction:
 
     # ------------------------------------------------------------------ closing windows
 
-    def close(self, edges: np.ndarray) -> np.ndarray:
+    def close(self, edges: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """Counts (n, 2) of the windows between consecutive ``edges`` (arrays), after which
-        the anchor moves to the last edge.  The first edge is the current anchor."""
-        counts = np.zeros((len(edges) - 1, 2))
-        if self.n_knots():
-            # F is relative to the closed frontier, so its value there is 0.
-            kt, kfx, kfy = self.knot_array()
-            counts[:, 0] = np.interp(edges[1:], kt, kfx)
-            counts[:, 1] = np.interp(edges[1:], kt, kfy)
-            last = counts[-1].copy()
-            if len(counts) > 1:
-                counts[1:] -= counts[:-1].copy()  # cumulative -> per window
-            self._rebase(float(edges[-1]), last)
+        the anchor moves to the last edge.  The first edge is the current anchor.  ``out``:
+        an (n, 2) array (a view is fine) to write them into."""
+        counts = np.empty((len(edges) - 1, 2)) if out is None else out
+        if not self.n_knots():
+            counts[:] = 0.0
+            return counts
+        # F is relative to the closed frontier, so its value there is 0: the first window's
+        # counts are F at its end, each later one's the difference of F at its two ends.
+        kt, kfx, kfy = self.knot_array()
+        last = []
+        for axis, kf in enumerate((kfx, kfy)):
+            f = np.interp(edges[1:], kt, kf)
+            counts[0, axis] = f[0]
+            np.subtract(f[1:], f[:-1], out=counts[1:, axis])
+            last.append(f[-1])
+        self._rebase(float(edges[-1]), np.array(last))
         return counts
 
     def _rebase(self, edge: float, level: np.ndarray) -> None:

@@ -371,7 +371,7 @@ class Tracker(OneWindowPath):
         mask = np.ones((n, self.n_mice), dtype=bool)
         end_t = float(edges[-1])
         for i, m in enumerate(self._mice):
-            counts[:, i] = m.close(edges)
+            m.close(edges, out=counts[:, i])
             if m.dead:
                 for start, end in m.dead:
                     mask[(edges[:-1] < end) & (edges[1:] > start), i] = False
