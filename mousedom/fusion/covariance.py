@@ -107,10 +107,10 @@ def propagate(
     b = _perp(np.concatenate([np.zeros((1, 2)), rel]))
     a = _perp(rel)
     # Row 0 is the carried input, so every window's cumulative sum includes it.  Each entry
-    # is its own (n,) array, computed in the order of the matrix expression
+    # is its own (n,) array, computed from the matrix expression
     #   pp = s1 + a s2^T - s3 + s2 a^T - s3^T + s4 a a^T - a s5^T - s5 a^T + s6
-    # (so the same values as the (n,2,2) one): numpy's operations over trailing axes of
-    # two cost several times as much per element.
+    # (the diagonal in its order): numpy's operations over trailing axes of two cost
+    # several times as much per element.
     cum = np.cumsum
     gtt = g[:, 2, 2]
     ai, bi = (a[:, 0], a[:, 1]), (b[:, 0], b[:, 1])
@@ -133,8 +133,14 @@ def propagate(
     out = np.empty((n, 3, 3))
     out[:, 0, 0] = pp(0, 0)
     out[:, 1, 1] = pp(1, 1)
-    # Symmetrised: rounding makes the two sides differ, consumers rely on it being exact.
-    out[:, 0, 1] = out[:, 1, 0] = 0.5 * (pp(0, 1) + pp(1, 0))
+    # The off-diagonal entry once, as the mean of pp's two (equal but for rounding) sides:
+    # exactly symmetric, as consumers rely on, for half of their work.
+    a0, a1 = ai
+    out[:, 0, 1] = out[:, 1, 0] = (
+        cum(g[:, 0, 1])[1:] + (a0 * s2[1] + s2[0] * a1) - (cum(bi[0] * gpt[1])[1:]
+        + cum(bi[1] * gpt[0])[1:]) + s4 * (a0 * a1) - (a0 * s5[1] + s5[0] * a1)
+        + cum(gtb[0] * bi[1])[1:]
+    )  # fmt: skip
     for i in range(2):
         out[:, i, 2] = out[:, 2, i] = s2[i] + ai[i] * s4 - s5[i]
     out[:, 2, 2] = s4
