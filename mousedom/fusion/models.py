@@ -94,7 +94,10 @@ def solve(
     cov = np.zeros((n, 3, 3))
     residual = np.zeros((n, nm, 2))
     ok = np.zeros(n, dtype=bool)
-    used = np.full(n, nm, dtype=int) if mask is None else mask.sum(axis=1).astype(int)
+    if mask is None or mask.all():  # every mouse live (the usual case): no row sums
+        used = np.full(n, nm, dtype=int)
+    else:
+        used = mask.sum(axis=1).astype(int)
 
     for live, rows in _patterns(mask, n, nm):
         if not live.any():

@@ -293,7 +293,7 @@ class NoiseModel:
         full = due & (size == _KEEP)
         if full.any():  # every full window gathered from ``joined``: one partition for all
             first = (offset + lo)[full]
-            est[full] = _middles(joined[first[:, None] + np.arange(_KEEP)])
+            est[full] = _middles(np.lib.stride_tricks.sliding_window_view(joined, _KEEP)[first])
         short = due & ~full
         if short.any():
             spans = zip((offset + lo)[short].tolist(), (offset + hi)[short].tolist(), strict=True)

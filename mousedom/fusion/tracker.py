@@ -443,7 +443,8 @@ class Tracker(OneWindowPath):
         used, inflate, consistent, state, reason = screenbatch.screen(
             self.screen, d, mask, q, scale, low
         )
-        changed = np.flatnonzero(np.any(used != mask, axis=1))
+        altered = used != mask
+        changed = np.flatnonzero(np.any(altered, axis=1)) if altered.any() else []
         if len(changed) or np.any(inflate != 1.0):
             q, cov, res = sol.q.copy(), sol.cov.copy(), sol.residual.copy()
             n_used, ok = sol.used.copy(), sol.ok.copy()
