@@ -81,3 +81,35 @@ def test_medians_of_one_length_are_numpys_medians():
 def test_norm2_is_the_sum_of_squares_bit_for_bit():
     v = np.random.default_rng(4).standard_normal((50, 4, 2)) * 1e3
     assert np.array_equal(norm2(v), np.sum(v * v, axis=-1))
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    ratio=st.one_of(
+        st.floats(0.85, 1.1),
+        st.sampled_from([0.9025, 0.9025 * (1 + 1e-6), 1.05, 1.05 * (1 - 1e-6), 0.0, -1.0]),
+    ),
+    lam=st.floats(1.0, 1e4),
+    length=st.sampled_from([255, 256]),
+    spread=st.floats(0.0, 0.5),
+    nans=st.integers(0, 140),
+    seed=st.integers(0, 2**32 - 1),
+)
+def test_estimates_move_a_factor_exactly_where_the_median_does(
+    ratio, lam, length, spread, nans, seed
+):
+    """The counting shortcut (median surely in the band that moves nothing) decides as the
+    exact median does, near the band's edges too, with NaN among the samples."""
+    from mousedom.fusion.noisemodel import _estimates, _middles, _moved
+
+    rng = np.random.default_rng(seed)
+    rows = ratio * lam * (1.0 + spread * rng.standard_normal((6, length)))
+    rows[:, 0] = ratio * lam  # values on the bounds themselves
+    rows[rng.random(rows.shape) < nans / length] = np.nan
+    lams = np.full(6, lam)
+    exact = _middles(rows.copy())
+    got = _estimates(rows, lams)
+    new_exact, moved_exact = _moved(lams, exact)
+    new_got, moved_got = _moved(lams, got)
+    assert moved_got.tolist() == moved_exact.tolist()
+    assert np.array_equal(new_got[moved_got], new_exact[moved_exact])
