@@ -140,8 +140,13 @@ class Tracker(OneWindowPath):
             # A live read's few reports: queued as floats, which ingest_small wants.
             self._queue_small(m, t.tolist(), dx.tolist(), dy.tolist())
             return
-        # One sum each is NaN or inf if any element is: cheaper than isfinite per element.
-        if not math.isfinite(t.sum() + dx.sum() + dy.sum()):
+        # One sum each is NaN or inf if any element is: cheaper than isfinite per element
+        # (integer counts are finite: only float ones are summed).
+        total = t.sum()
+        for c in (dx, dy):
+            if c.dtype.kind != "i":
+                total += c.sum()
+        if not math.isfinite(total):
             raise ValueError("push: times and counts must be finite numbers")
         self._start(t[0])
         m.pending.append((t, dx, dy))
