@@ -47,10 +47,12 @@ def screen(
         evidence |= np.any(mask & (squal_scale != 1.0), axis=1)
     if low_quality is not None:
         evidence |= np.any(mask & low_quality, axis=1)
-    # each row's leverages (its live pattern's): one pattern throughout, the usual case,
-    # needs no unique over the rows
-    lever = _leverages(sc, mask, codes) if len(changes) else np.broadcast_to(
-        sc.leverage(mask[0]), mask.shape)  # fmt: skip
+    # Each row's live pattern and its leverages; one pattern throughout (the usual case)
+    # is passed to the common case's test as one row.
+    if len(changes):
+        row_mask, lever = mask, _leverages(sc, mask, codes)
+    else:
+        row_mask, lever = mask[0], sc.leverage(mask[0])
     i = 0
     prev_altered = False
     version, horizon = None, 0
@@ -67,8 +69,9 @@ def screen(
                 blocks = HORIZON if version != sc.noise.version else HORIZON_MAX
             version, base = sc.noise.version, i
             horizon = min(n, i + blocks * sc.noise.block)
-            fast, samples = _fast_rows(sc, d[i:horizon], p[i:horizon], mask[i:horizon],
-                                       lever[i:horizon])  # fmt: skip
+            rows = slice(i, horizon) if row_mask.ndim == 2 else slice(None)
+            fast, samples = _fast_rows(sc, d[i:horizon], p[i:horizon], row_mask[rows],
+                                       lever[rows])  # fmt: skip
             bad = np.flatnonzero(~fast | evidence[i:horizon]) + i
         steady = sc.steady()
         if steady is not None and not prev_altered:
@@ -108,15 +111,20 @@ def _leverages(sc: Screen, mask: np.ndarray, codes: np.ndarray) -> np.ndarray:
 def _fast_rows(sc: Screen, d, p, mask, lever) -> tuple[np.ndarray, tuple]:
     """The common case's test for every row at once, each row's previous window taken as
     the row before it unaltered (a row after an altered one goes to ``decide``), and the
-    noise model's samples of each row were it accepted."""
+    noise model's samples of each row were it accepted.  ``mask`` and ``lever`` are (rows,
+    N), or (N,) when every row has that live pattern (the usual case: fewer operations)."""
     prev_p = np.concatenate([sc.prev_p[None], p[:-1]])
     m2 = motion2(d, p)
     floor, prop = sc.noise.parts(d, p, prev_p, m2)
     r2 = norm2(d - p)
     t = _row_sum(np.where(mask, r2 / (floor + prop), 0.0))
-    dof = 2 * _row_sum(mask.astype(np.int64)) - sc.k
     thr = np.array(sc._thresholds)
-    ok = (dof <= 0) | (t <= thr[np.maximum(dof, 0)])
+    if mask.ndim == 1:
+        dof = 2 * int(mask.sum()) - sc.k
+        ok = np.full(len(t), True) if dof <= 0 else t <= thr[dof]
+    else:
+        dof = 2 * _row_sum(mask.astype(np.int64)) - sc.k
+        ok = (dof <= 0) | (t <= thr[np.maximum(dof, 0)])
     saturated = mask & (m2 >= sc.max_step2)
     for i in range(saturated.shape[1]):
         ok &= ~saturated[:, i]
