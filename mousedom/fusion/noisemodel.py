@@ -98,9 +98,12 @@ def _middles(rows: np.ndarray) -> np.ndarray:
 
 # A median within [_STAYS_LOW, _STAYS_HIGH] times its factor cannot move it (see _moved: a
 # factor moves when its estimate is over 1.05 times it, or under 0.95^2 times it), with a
-# margin far wider than rounding.
+# margin far wider than rounding.  Most factors sit at 1 (a config's sigma is a generous
+# guess), where no estimate below can move them.
 _STAYS_LOW = 0.9025 * (1.0 + 1e-6)
 _STAYS_HIGH = 1.05 * (1.0 - 1e-6)
+# A factor this close to 1 cannot fall by 5 % (it never goes below 1): no low bound.
+_CANNOT_FALL = (1.0 / 0.95) * (1.0 - 1e-6)
 
 
 def _estimates(rows: np.ndarray, lam: np.ndarray) -> np.ndarray:
@@ -112,7 +115,8 @@ def _estimates(rows: np.ndarray, lam: np.ndarray) -> np.ndarray:
     Two comparisons per value instead of a partition: in a steady run hardly any row
     needs the partition."""
     half = rows.shape[1] // 2
-    below = np.count_nonzero(rows < (_STAYS_LOW * lam)[:, None], axis=1)
+    low = np.where(lam <= _CANNOT_FALL, -np.inf, _STAYS_LOW * lam)
+    below = np.count_nonzero(rows < low[:, None], axis=1)
     at_most = np.count_nonzero(rows <= (_STAYS_HIGH * lam)[:, None], axis=1)
     odd = rows.shape[1] % 2
     stays = (below <= half - 1 + odd) & (at_most >= half + 1)
