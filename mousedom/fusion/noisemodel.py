@@ -106,23 +106,32 @@ _STAYS_HIGH = 1.05 * (1.0 - 1e-6)
 _CANNOT_FALL = (1.0 / 0.95) * (1.0 - 1e-6)
 
 
-def _estimates(rows: np.ndarray, lam: np.ndarray) -> np.ndarray:
-    """For _moved: each row's median where it may move the row's factor ``lam``, the factor
-    itself where the median surely lies in the band that leaves it as it is.  Counting
-    decides that: the median of an even number L of values is at least a if fewer than
-    L/2 of them are below a, and at most b if more than L/2 are at most b (an odd L: its
-    middle one, the same counts).  NaN counts as above every bound, as in the partition.
-    Two comparisons per value instead of a partition: in a steady run hardly any row
-    needs the partition."""
-    half = rows.shape[1] // 2
-    low = np.where(lam <= _CANNOT_FALL, -np.inf, _STAYS_LOW * lam)
-    below = np.count_nonzero(rows < low[:, None], axis=1)
-    at_most = np.count_nonzero(rows <= (_STAYS_HIGH * lam)[:, None], axis=1)
-    odd = rows.shape[1] % 2
-    stays = (below <= half - 1 + odd) & (at_most >= half + 1)
-    out = lam.copy()
+def _estimates(
+    joined: np.ndarray, sizes: np.ndarray, lam: np.ndarray, first: np.ndarray, series: np.ndarray
+) -> np.ndarray:
+    """For _moved: the median of each window of _KEEP samples where it may move its factor,
+    the factor itself where the median surely lies in the band that leaves it as it is.
+
+    ``joined`` holds the series one after the other (``sizes`` samples each, factors
+    ``lam``); window k starts at ``first[k]`` in series ``series[k]``.  Counting decides:
+    the median of an even number L of values is at least a if fewer than L/2 of them are
+    below a, and at most b if more than L/2 are at most b (an odd L: its middle one, the
+    same counts); running counts over ``joined`` give every window's at once.  NaN counts
+    as above every bound, as in the partition.  In a steady run hardly any window needs
+    its partition."""
+    low = np.repeat(np.where(lam <= _CANNOT_FALL, -np.inf, _STAYS_LOW * lam), sizes)
+    high = np.repeat(_STAYS_HIGH * lam, sizes)
+    below = np.concatenate([[0], np.cumsum(joined < low)])
+    at_most = np.concatenate([[0], np.cumsum(joined <= high)])
+    end = first + _KEEP
+    half, odd = _KEEP // 2, _KEEP % 2
+    stays = (below[end] - below[first] <= half - 1 + odd) & (
+        at_most[end] - at_most[first] >= half + 1
+    )
+    out = lam[series]
     if not stays.all():
-        out[~stays] = _middles(rows[~stays])
+        windows = np.lib.stride_tricks.sliding_window_view(joined, _KEEP)
+        out[~stays] = _middles(windows[first[~stays]])
     return out
 
 
@@ -322,12 +331,9 @@ class NoiseModel:
         lam = np.concatenate([self.lam_f, self.lam_r])
         est = np.zeros(hi.shape)
         full = due & (size == _KEEP)
-        if full.any():  # every full window gathered from ``joined``
-            first = (offset + lo)[full]
-            est[full] = _estimates(
-                np.lib.stride_tricks.sliding_window_view(joined, _KEEP)[first],
-                np.broadcast_to(lam, hi.shape)[full],
-            )
+        if full.any():
+            est[full] = _estimates(joined, held + new_at[-1], lam, (offset + lo)[full],
+                                   np.nonzero(full)[1])  # fmt: skip
         short = due & ~full
         if short.any():
             spans = zip((offset + lo)[short].tolist(), (offset + hi)[short].tolist(), strict=True)
