@@ -188,7 +188,7 @@ class NoiseModel:
         self.version = 0  # bumped whenever a factor changes
         self._floor = [_Samples() for _ in range(self.n)]
         self._prop = [_Samples() for _ in range(self.n)]
-        self._seen_len = [[0] * self.n, [0] * self.n]  # samples held at the last block's end
+        self._seen_len = [0] * (2 * self.n)  # samples each series held at the last block end
         self._sync()
 
     def _sync(self) -> None:
@@ -252,38 +252,32 @@ class NoiseModel:
     def end_block(self) -> None:
         """Re-estimate the factors from the last samples (module docstring); a factor
         without new samples since the last block stays as it is."""
-        todo = []  # (0 floor / 1 proportional, mouse, samples) whose estimate is due
-        for k, i, samples in self._series():
-            if len(samples) == self._seen_len[k][i]:
+        due, got = [], []  # the series whose estimate is due, and their samples
+        for k, store in enumerate(self._stores()):
+            if len(store) == self._seen_len[k]:
                 continue  # no new evidence
-            got = samples.newest(_KEEP)
-            self._seen_len[k][i] = len(got)
-            if len(got) >= _MIN_SAMPLES:
-                todo.append((k, i, got))
+            samples = store.newest(_KEEP)
+            self._seen_len[k] = len(samples)
+            if len(samples) >= _MIN_SAMPLES:
+                due.append(k)
+                got.append(samples)
         changed = False
-        if todo:
-            which = np.array([(k, i) for k, i, _ in todo]).reshape(-1, 2)
-            new, moved = _moved(self._factors(which), np.array(_medians([g for *_, g in todo])))
-            self._apply(which[moved], new[moved])
-            changed = bool(moved.any())
+        if due:
+            lam = np.concatenate([self.lam_f, self.lam_r])
+            new, moved = _moved(lam[due], np.array(_medians(got)))
+            if moved.any():
+                lam[np.array(due)[moved]] = new[moved]
+                self.lam_f[:], self.lam_r[:] = np.split(lam, 2)
+                changed = True
         self.seen = 0
         if changed:
             self.version += 1
             self._sync()
 
-    def _series(self):
-        """(0 floor / 1 proportional, mouse, its samples) of every factor."""
-        for k, samples in enumerate((self._floor, self._prop)):
-            for i in range(self.n):
-                yield k, i, samples[i]
-
-    def _factors(self, which: np.ndarray) -> np.ndarray:
-        """The current factor of each (0 floor / 1 proportional, mouse) row of ``which``."""
-        return np.where(which[:, 0] == 0, self.lam_f[which[:, 1]], self.lam_r[which[:, 1]])
-
-    def _apply(self, which: np.ndarray, new: np.ndarray) -> None:
-        for (k, i), v in zip(which.tolist(), new.tolist(), strict=True):
-            (self.lam_f if k == 0 else self.lam_r)[i] = v
+    def _stores(self) -> list[_Samples]:
+        """Every factor's samples: the floor's of each mouse, then the proportional ones
+        (the order of ``_seen_len`` and of the factors' concatenation)."""
+        return [*self._floor, *self._prop]
 
     def extend_blocks(self, values: tuple | None, start: int, stop: int) -> int:
         """Rows [start, stop) of ``samples_for``'s arrays accepted one after the other (None:
@@ -304,7 +298,7 @@ class NoiseModel:
         # array below is (block end, series).  Each series' samples, everything held
         # (untrimmed) and then the new ones up to the last block end, are one stretch of
         # ``joined``; ``hi`` is where each block end falls in its series.
-        stores = [*self._floor, *self._prop]
+        stores = self._stores()
         held = np.array([len(st) for st in stores])
         parts = [st.newest(len(st)) for st in stores]
         at = np.array(ends) - start - 1
@@ -323,7 +317,7 @@ class NoiseModel:
         # What end_block would do at each end: where there is new evidence since the last
         # end, trim to the newest _KEEP (lo: the first sample kept) and estimate if enough.
         fresh_evidence = np.empty(hi.shape, dtype=bool)
-        fresh_evidence[0] = hi[0] != np.array(self._seen_len[0] + self._seen_len[1])
+        fresh_evidence[0] = hi[0] != np.array(self._seen_len)
         fresh_evidence[1:] = hi[1:] != hi[:-1]
         lo = np.maximum(np.maximum.accumulate(np.where(fresh_evidence, hi - _KEEP, 0)), 0)
         size = hi - lo
@@ -351,7 +345,7 @@ class NoiseModel:
                                            (offset + hi[done]).tolist(), strict=True)):  # fmt: skip
             st.reset(joined[a:b])
             if trimmed[k]:
-                self._seen_len[k // self.n][k % self.n] = b - a
+                self._seen_len[k] = b - a
         end, self.seen = ends[done], 0
         if changed:  # the caller goes on from here, with the new factors' arrays
             self.version += 1
