@@ -125,7 +125,7 @@ class CountFunction:
         new[0, 1::2] = t
         for row, (steps, lv) in enumerate(zip((dx, dy), level, strict=True), start=1):
             if steps.dtype.kind == "i" and _exact_int_sums(steps):
-                # Whole counts (captures, live reads): summed as integers, a fifth of the
+                # Whole counts (captures, live reads): summed as integers, under half the
                 # time of a float cumsum, and the same values.
                 cum = np.cumsum(steps, dtype=np.int64).astype(np.float64)
             else:
