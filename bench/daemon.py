@@ -4,13 +4,17 @@
 
 A feeder process writes each mouse's reports (REL_X, REL_Y, SYN_REPORT; 72 bytes) into its
 FIFO when due, stamped with the CLOCK_MONOTONIC time of the write, as the kernel stamps a
-real mouse's events.  Three readers of the same load take turns, each round all three:
+real mouse's events.  Four readers of the same load take turns, each round all four:
 
 - the floor: a reader that wakes at the output rate (100 Hz) and reads all the FIFOs,
   discarding the bytes: the least any design that batches per window can pay;
 - a peer-style daemon: a plain Python loop that wakes for every report (poll on the
   FIFOs), sums its counts, and per window solves the least squares with numpy and writes a
   JSON pose line to a client;
+- the Python minimum: what a pure-Python daemon of this design cannot do without (one wake
+  and one read per FIFO per window, counts summed, a fixed pseudo-inverse, a chi-square,
+  the arc, the covariance, a 16-float line sent; see MINIMUM): how near the floor Python
+  can come at all;
 - ``mousedom run`` (the evdev source's FIFO hook), with a client reading POSE lines.
 
 Figures: each one's CPU (from /proc/PID/schedstat) as % of one core, medians over the
@@ -326,6 +330,91 @@ while time.monotonic() < end:
         next_t += period
 """
 
+# The least a pure-Python fusion daemon of this design can do per window, with nothing a
+# robot user would miss removed only where it costs per report: wake at the output rate,
+# one read per FIFO, the counts summed (no split of a report across a window edge), the
+# least squares by a fixed pseudo-inverse, a chi-square of the residual (the fault test's
+# arithmetic, no noise model, no health states), the exact arc, the covariance F P F' + Q,
+# one POSE-sized JSON line of 16 floats sent to a client.  It shows how near the floor a
+# Python daemon can come at all: mousedom adds report splitting, the learnt noise model,
+# health, the silence rule, reconnection and the full POSE.
+MINIMUM = r"""
+import json, math, os, socket, struct, sys, time
+rate, sock_path, xy = float(sys.argv[1]), sys.argv[2], json.loads(sys.argv[3])
+fds = [os.open(p, os.O_RDONLY | os.O_NONBLOCK) for p in sys.argv[4:]]
+n = len(fds)
+A = []
+for x, y in xy:
+    A += [(1.0, 0.0, -y), (0.0, 1.0, x)]
+# pinv = (A'A)^-1 A' once, as row lists (3 x 2n)
+ata = [[sum(r[i] * r[j] for r in A) for j in range(3)] for i in range(3)]
+a, b, c = ata
+det = (a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0])
+       + a[2] * (b[0] * c[1] - b[1] * c[0]))
+inv = [[(ata[(j + 1) % 3][(i + 1) % 3] * ata[(j + 2) % 3][(i + 2) % 3]
+         - ata[(j + 1) % 3][(i + 2) % 3] * ata[(j + 2) % 3][(i + 1) % 3]) / det
+        for j in range(3)] for i in range(3)]
+pinv = [[sum(inv[i][k] * r[k] for k in range(3)) for r in A] for i in range(3)]
+srv = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+srv.bind(sock_path)
+srv.listen(1)
+client, _ = srv.accept()
+unpack = struct.Struct("<qqIi").iter_unpack  # sec, usec, type | code << 16, value
+scale = 0.0254 / 1000.0
+KX, KY = 2 | (0 << 16), 2 | (1 << 16)
+x = y = th = 0.0
+P = [[0.0] * 3 for _ in range(3)]
+q2 = (scale * 0.5) ** 2
+period = 1.0 / rate
+tick = time.monotonic()
+rest = [b""] * n
+line = ('{"class":"POSE","t":%r,"x":%r,"y":%r,"theta":%r,"vx":%r,"vy":%r,"omega":%r,'
+        '"cov":[%r,%r,%r,%r,%r,%r,%r,%r,%r],"used":%d,"updating":true}\n')
+end = float(os.environ["BENCH_END"])
+while time.monotonic() < end:
+    tick += period
+    delay = tick - time.monotonic()
+    if delay > 0:
+        time.sleep(delay)
+    d = []
+    for i, fd in enumerate(fds):
+        sx = sy = 0
+        try:
+            data = rest[i] + os.read(fd, 65536)
+        except BlockingIOError:
+            data = rest[i]
+        k = len(data) - len(data) % 24
+        rest[i] = data[k:]
+        for sec, usec, key, value in unpack(data[:k]):
+            if key == KX:
+                sx += value
+            elif key == KY:
+                sy += value
+        d += (sx * scale, -sy * scale)
+    q = [sum(p * v for p, v in zip(row, d)) for row in pinv]
+    chi2 = 0.0
+    for row, v in zip(A, d):
+        r = v - (row[0] * q[0] + row[1] * q[1] + row[2] * q[2])
+        chi2 += r * r
+    ok = chi2 < 9.0 * q2 * len(d)
+    s, co = math.sin(th), math.cos(th)
+    dth = q[2]
+    if abs(dth) > 1e-12:
+        k1, k2 = math.sin(dth) / dth, (1.0 - math.cos(dth)) / dth
+    else:
+        k1, k2 = 1.0, dth / 2
+    bx, by = k1 * q[0] - k2 * q[1], k2 * q[0] + k1 * q[1]
+    x += co * bx - s * by
+    y += s * bx + co * by
+    F = [[1.0, 0.0, -(s * bx + co * by)], [0.0, 1.0, co * bx - s * by], [0.0, 0.0, 1.0]]
+    FP = [[sum(F[i][k] * P[k][j] for k in range(3)) for j in range(3)] for i in range(3)]
+    P = [[sum(FP[i][k] * F[j][k] for k in range(3)) + (q2 if i == j else 0.0)
+          for j in range(3)] for i in range(3)]
+    th += dth
+    client.sendall((line % (round(tick, 6), x, y, th, q[0] * rate, q[1] * rate, dth * rate,
+                            *P[0], *P[1], *P[2], n if ok else 0)).encode())
+"""
+
 
 def _measure(proc: subprocess.Popen, seconds: float) -> tuple[float, float, float]:
     time.sleep(1.2)  # warm-up: the feeder starts
@@ -378,6 +467,34 @@ def run_peer(d: Path, seconds: float, rate_hz: float) -> dict:
     return {"cpu": cpu, "poses": len(lines)}
 
 
+def run_minimum(d: Path, seconds: float, rate_hz: float) -> dict:
+    """The least a Python fusion daemon of this design does (MINIMUM above)."""
+    fifos = [d / f"m{m}.fifo" for m in MICE]
+    for f in fifos:
+        os.mkfifo(f)
+    sock_path = d / "minimum.sock"
+    env = dict(os.environ, BENCH_END=str(time.monotonic() + seconds + 4.0))
+    xy = json.dumps([[float(x), float(y)] for x, y in positions(len(MICE))])
+    proc = subprocess.Popen([sys.executable, "-c", MINIMUM, str(rate_hz), str(sock_path), xy,
+                             *map(str, fifos)], env=env)  # fmt: skip
+    while not sock_path.exists():
+        time.sleep(0.01)
+    client = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    client.connect(str(sock_path))
+    lines: list[bytes] = []
+    th = threading.Thread(target=lambda: lines.extend(client.makefile("rb")), daemon=True)
+    th.start()
+    feed = start_feeder(fifos, seconds + 1.5, d / "mstamps.npz")
+    cpu, _, _ = _measure(proc, seconds)
+    feed.wait()
+    proc.kill()
+    proc.wait()
+    client.close()
+    if len(lines) < 2 or not json.loads(lines[-2])["used"]:  # the last may be cut
+        raise SystemExit("the minimum reader sent no pose, or its fault test failed")
+    return {"cpu": cpu, "poses": len(lines)}
+
+
 def tracker_cost(d: Path, rate_hz: float, windows: int = 2000) -> float:
     """Seconds of CPU per window that the tracker alone takes for this load (in-process):
     a push of one window's reports per mouse, the silence-rule calls and the poll."""
@@ -412,16 +529,18 @@ def main() -> None:
         feeder(paths, float(seconds), out, float(report_hz))
         return
     configure(args.mice, args.report_hz)
-    ours, floors, peers = [], [], []
+    ours, floors, peers, minima = [], [], [], []
     with tempfile.TemporaryDirectory(prefix="mousedom-bench-") as tmp:
         for r in range(args.rounds):
             d = Path(tmp) / f"round{r}"
             d.mkdir()
             floors.append(run_floor(d, args.seconds, args.rate_hz))
             peers.append(run_peer(d, args.seconds, args.rate_hz))
+            minima.append(run_minimum(d, args.seconds, args.rate_hz))
             ours.append(run_daemon(d, args.seconds, args.rate_hz))
             print(f"round {r + 1}: floor {100 * floors[-1]['cpu']:.2f} %, peer "
-                  f"{100 * peers[-1]['cpu']:.2f} %, mousedom {100 * ours[-1]['cpu']:.2f} %, "
+                  f"{100 * peers[-1]['cpu']:.2f} %, minimum {100 * minima[-1]['cpu']:.2f} %, "
+                  f"mousedom {100 * ours[-1]['cpu']:.2f} %, "
                   f"latency p99 {np.percentile(ours[-1]['lat_ms'], 99):.3f} ms",
                   flush=True)  # fmt: skip
         per_window = tracker_cost(Path(tmp), args.rate_hz)
@@ -431,11 +550,14 @@ def main() -> None:
 
     to_floor = float(np.median([o["cpu"] / f["cpu"] for o, f in zip(ours, floors, strict=True)]))
     to_peer = float(np.median([o["cpu"] / p["cpu"] for o, p in zip(ours, peers, strict=True)]))
+    min_floor = float(np.median([m["cpu"] / f["cpu"] for m, f in zip(minima, floors, strict=True)]))
     lat = np.concatenate([r["lat_ms"] for r in ours])
     print(f"{args.mice} mice x {args.report_hz:g} Hz through FIFOs, POSE at {args.rate_hz:g} Hz,"
           f" {args.rounds} rounds x {args.seconds:g} s measured (medians)")  # fmt: skip
     print(f"floor (100 Hz batched reader)  {med(floors):6.2f} % of one core")
     print(f"peer-style daemon              {med(peers):6.2f} %")
+    print(f"Python minimum (see MINIMUM)   {med(minima):6.2f} %   ratio to the floor "
+          f"{min_floor:.2f}")  # fmt: skip
     print(
         f"mousedom run                   {med(ours):6.2f} %   ratio to the floor "
         f"{to_floor:.2f} (target <= 2), to the peer {to_peer:.2f} (target <= 0.5)"
