@@ -353,3 +353,49 @@ def test_a_second_daemon_on_a_taken_socket_opens_no_sensor(inproc, tmp_path):
         second.run()
     assert opened == []
     assert os.path.exists(first.server.path)  # the first one's socket is untouched
+
+
+def _pose_row(k: int, residual, state, ok=True):
+    from mousedom.fusion.posebatch import PoseRow
+
+    eye = [[1e-6, 0.0, 0.0], [0.0, 1e-6, 0.0], [0.0, 0.0, 1e-6]]
+    n = len(residual)
+    return PoseRow(0.02 * k, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, eye, n, ok, residual,
+                   [(0.0, 0.0)] * n, state, (0,) * n, True, eye)  # fmt: skip
+
+
+@pytest.mark.parametrize("windows", [3, 1000])
+def test_source_residual_and_state_are_those_of_the_published_windows(tmp_path, windows):
+    """SOURCE's residual is the RMS over the windows published since the last SOURCE of
+    each mouse's residual norm (ok windows only, NaN skipped), and its state the last
+    window's: however many windows wait (past the bound that folds them early)."""
+    from mousedom.fusion import robust
+    from mousedom.fusion.posebatch import PoseBatch
+
+    mounts = {"a": (0.1, 0.0), "b": (-0.1, 0.0)}
+    sources = {n: PipeSource(n) for n in mounts}
+    d = Daemon(_config("lsq", mounts), str(tmp_path / "d.sock"),
+               source_factory=lambda m, clock: sources[m.name], handle_signals=False)  # fmt: skip
+    d.tracker = d._tracker_class(d.config, t0=0.0)
+    d.slots = [d._new_slot(i, m) for i, m in enumerate(d.config.mice)]
+    for slot in d.slots:
+        d._try_open(slot, 0.0)
+    rng = np.random.default_rng(windows)
+    rows, sums = [], np.zeros(2)
+    for k in range(windows):
+        res = rng.normal(0.0, 1e-4, (2, 2))
+        ok = k % 7 != 3
+        if k == 1:
+            res[1, 0] = np.nan  # not finite: not counted
+        if ok:
+            sums += np.where(np.isfinite(res).all(axis=1), (res**2).sum(axis=1), 0.0)
+        rows.append(_pose_row(k, res.tolist(), (robust.TRACKING, robust.SUSPECT), ok))
+    counted = [sum(r.ok and np.isfinite(r.residual[i]).all() for r in rows) for i in range(2)]
+    for k in range(0, windows, 2):  # two windows per batch
+        d._publish(PoseBatch.from_rows(rows[k : k + 2]))
+    assert d.poses == windows
+    a, b = d._source_messages(now=1.0)
+    assert a["residual"] == pytest.approx((sums[0] / counted[0]) ** 0.5, rel=1e-12)
+    assert b["residual"] == pytest.approx((sums[1] / counted[1]) ** 0.5, rel=1e-12)
+    assert (a["state"], b["state"]) == ("tracking", "suspect")
+    assert len(d._window_residuals) == 0

@@ -85,6 +85,12 @@ class Daemon(SensorSlots, Publisher, ClientCommands, Reloader):
             socket_path, config.server, self.selector, self._on_command, self._on_connect
         )
         self.slots: list[Slot] = []
+        self.missing_names: tuple[str, ...] = ()  # see _live_changed
+        self._names_by_state: dict[tuple, tuple] = {}
+        # Each window's residuals and the last window's health, folded into the slots
+        # when a SOURCE message is made (see Publisher._fold_window_health).
+        self._window_residuals: list = []
+        self._last_health: tuple | None = None
         self.record_path = record
         self.recording: Any = None  # live_record.Recording while --record is on
         # Where else each window goes (ROS 2 over DDS, an MCAP file): publish(row),
@@ -155,6 +161,7 @@ class Daemon(SensorSlots, Publisher, ClientCommands, Reloader):
             now = self.clock()
             self.tracker = self._tracker_class(self.config, t0=now)
             self.slots = [self._new_slot(i, m) for i, m in enumerate(self.config.mice)]
+            self._live_changed()
             for slot in self.slots:
                 self._try_open(slot, now)
             # Nothing stamped before the start is still to come; this also gives the

@@ -1,8 +1,9 @@
 """What the daemon sends: POSE lines for every closed window, SOURCE health messages.
 
-A mixin of ``Daemon``: it uses ``self.slots``, ``self.server``, ``self.tracker`` and
-``self.config``, and keeps the POSE counters ``self.poses``, ``self.last_pose_t`` and
-``self.not_updated``.
+A mixin of ``Daemon``: it uses ``self.slots``, ``self.server``, ``self.tracker``,
+``self.config`` and ``self.missing_names``, and keeps the POSE counters ``self.poses``,
+``self.last_pose_t`` and ``self.not_updated``, and the windows' residuals and health until
+a SOURCE message folds them into the slots.
 """
 
 from __future__ import annotations
@@ -20,20 +21,28 @@ log = logging.getLogger("mousedom.service.daemon")
 class Publisher:
     """POSE and SOURCE out to the socket's clients (see the module docstring)."""
 
+    # Windows whose residuals wait to be folded into the slots: a bound for a loop that
+    # publishes without ever making a SOURCE message (they come once a second).
+    _RESIDUALS_HELD = 256
+
     def _publish(self, batch: PoseBatch) -> None:
-        if not len(batch):
-            return
-        missing = tuple(s.name for s in self.slots if not s.live)
-        tolerance = 0.5 / self.config.rate_hz
         # Rows of Python values (the one-window path makes them without numpy) and a POSE
-        # line without a dict and json.dumps: the daemon publishes every window.
-        for pose in batch.rows():
+        # line without a dict and json.dumps: the daemon publishes every window, so what
+        # only the SOURCE messages need (residuals, health) is folded in when they are made.
+        rows = batch.rows()
+        if not rows:
+            return
+        missing = self.missing_names
+        tolerance = 0.5 / self.config.rate_hz
+        residuals = self._window_residuals
+        names_by_state = self._names_by_state
+        for pose in rows:
             if pose.ok:
-                for slot, (rx, ry) in zip(self.slots, pose.residual, strict=False):
-                    if rx - rx == 0.0 and ry - ry == 0.0:  # both finite
-                        slot.residual_sq += rx * rx + ry * ry
-                        slot.residual_n += 1
-            excluded, suspect = self._health_names(pose.state)
+                residuals.append(pose.residual)
+            try:
+                names = names_by_state[pose.state]
+            except (KeyError, TypeError):  # a new pattern, or a list (rows from arrays)
+                names = self._health_names(pose.state)
             line = encode_pose(
                 pose.t,
                 (pose.x, pose.y, pose.theta),
@@ -42,8 +51,8 @@ class Publisher:
                 pose.used,
                 pose.ok,
                 missing,
-                excluded,
-                suspect,
+                names[0],
+                names[1],
                 pose.consistent,
             )
             self.poses += 1
@@ -52,25 +61,41 @@ class Publisher:
             self.server.broadcast_pose(pose.t, line, tolerance)
             if self.outputs:
                 self._to_outputs("publish", pose)
-        last = batch.rows()[-1]
-        for slot, st, why in zip(self.slots, last.state, last.reason, strict=False):
-            slot.health_state, slot.health_reason = int(st), int(why)
+        last = rows[-1]
+        self._last_health = (last.state, last.reason)
+        if len(residuals) > self._RESIDUALS_HELD:
+            self._fold_window_health()
 
     def _health_names(self, state) -> tuple[tuple[str, ...], tuple[str, ...]]:
-        """(excluded, suspect) sensor names for a window's per-mouse states (cached: a rig
-        has few patterns, and this runs for every window)."""
-        cache = self.__dict__.setdefault("_names_by_state", {})
-        key = (tuple(s.name for s in self.slots), tuple(state))
-        names = cache.get(key)
+        """(excluded, suspect) sensor names for a window's per-mouse states (cached per
+        pattern: a rig has few, and this runs for every window)."""
+        key = tuple(state)  # rows from arrays hold lists
+        names = self._names_by_state.get(key)
         if names is None:
-            ex = tuple(s.name for s, v in zip(self.slots, state, strict=False)
+            ex = tuple(s.name for s, v in zip(self.slots, key, strict=False)
                        if v == robust.EXCLUDED)  # fmt: skip
-            su = tuple(s.name for s, v in zip(self.slots, state, strict=False)
+            su = tuple(s.name for s, v in zip(self.slots, key, strict=False)
                        if v == robust.SUSPECT)  # fmt: skip
-            names = cache[key] = (ex, su)
+            names = self._names_by_state[key] = (ex, su)
         return names
 
+    def _fold_window_health(self) -> None:
+        """The held windows' residuals into each slot's sums, and the last window's health
+        into the slots' states (per mouse index: called before the slots change)."""
+        for residual in self._window_residuals:
+            for slot, (rx, ry) in zip(self.slots, residual, strict=False):
+                if rx - rx == 0.0 and ry - ry == 0.0:  # both finite
+                    slot.residual_sq += rx * rx + ry * ry
+                    slot.residual_n += 1
+        self._window_residuals.clear()
+        if self._last_health is not None:
+            state, reason = self._last_health
+            for slot, st, why in zip(self.slots, state, reason, strict=False):
+                slot.health_state, slot.health_reason = int(st), int(why)
+            self._last_health = None
+
     def _source_messages(self, now: float) -> list[dict[str, Any]]:
+        self._fold_window_health()
         out = []
         for slot in self.slots:
             h = slot.source.health

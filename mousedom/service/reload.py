@@ -61,7 +61,9 @@ class Reloader:
             log.warning("the mice changed: recording %s stops here", self.recording.path)
             self._record(self.recording.close)
             self.recording = None
+        self._fold_window_health()  # the old slots' last windows, before they move
         self.config, self.tracker, self.slots = new, tracker, slots
+        self._live_changed()
         for slot in slots:
             if slot.live:
                 tracker.set_live(slot.index, True, now)

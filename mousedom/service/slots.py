@@ -78,6 +78,7 @@ class SensorSlots:
             self.src_poll.register(slot.fd, select.EPOLLIN)
             self.slot_by_fd[slot.fd] = slot
         slot.live = True
+        self._live_changed()
         slot.announced.pop("error", None)
         self.tracker.set_live(slot.index, True, now)
         log.info("%s: open (%s)", slot.name, slot.source.kind)
@@ -158,7 +159,15 @@ class SensorSlots:
                 pass  # not registered, or the epoll is closed already
             slot.fd = None
         slot.live = False
+        self._live_changed()
         slot.source.close()
+
+    def _live_changed(self) -> None:
+        """What the POSE lines say of the sensors, kept here rather than made per window:
+        the names of those not live, and the health names per pattern of states (a new
+        set of slots may name them differently)."""
+        self.missing_names = tuple(s.name for s in self.slots if not s.live)
+        self._names_by_state = {}
 
     def _sources_changed(self, now: float) -> None:
         self._broadcast_sources(now)
