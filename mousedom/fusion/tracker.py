@@ -166,7 +166,8 @@ class Tracker(OneWindowPath):
             finite = False  # not real numbers (str, None, complex...)
         if not finite:
             raise ValueError("push: times and counts must be finite numbers")
-        self._start(t[0])
+        if self.t0 is None:  # _start, inline: this runs per source per window
+            self.t0 = float(t[0])
         m.pending.append((t, dx, dy))
         last = max(t)
         if last > m.last_t:
@@ -198,6 +199,17 @@ class Tracker(OneWindowPath):
             m = self._mice[self._index(mouse)]
             m.complete = max(m.complete, t)
             self._complete_all = max(self._complete_all, t)
+
+    def complete_each(self, until: list[tuple[int, float]]) -> None:
+        """``complete_until(t, mouse=i)`` for each (i, t): the daemon's call per window."""
+        for i, t in until:
+            if self.t0 is None:
+                self.t0 = float(t)
+            m = self._mice[i]
+            if t > m.complete:  # max(m.complete, t), as complete_until, without the call
+                m.complete = t
+            if t > self._complete_all:
+                self._complete_all = t
 
     def set_live(self, mouse: int | str, live: bool, t: float) -> None:
         """A sensor vanished (live=False) or came back at time t.

@@ -269,14 +269,16 @@ class Daemon(SensorSlots, Publisher, ClientCommands, Reloader):
         for fd, _ in self.src_poll.poll(0):
             slot = self.slot_by_fd.get(fd)
             if slot is not None:
-                self._read_slot(slot)
+                self._read_slot(slot, now)
+        completes = []
         for slot in self.slots:
             if slot.live and slot.paced:
-                self._read_slot(slot)
-        live = [slot for slot in self.slots if slot.live]
-        for slot in live:
-            self.tracker.complete_until(now - slot.latency, mouse=slot.index)
-        if not live:
+                self._read_slot(slot, now)
+            if slot.live:  # (a paced read may have lost it)
+                completes.append((slot.index, now - slot.latency))
+        if completes:
+            self.tracker.complete_each(completes)
+        else:
             # Nothing can report: windows close on time, as "not updated" (the pose holds).
             self.tracker.complete_until(now)
 

@@ -101,8 +101,9 @@ class SensorSlots:
                 slot.source.health.error = why
                 raise SourceUnavailable(why)
 
-    def _read_slot(self, slot: Slot) -> None:
-        now = self.clock()
+    def _read_slot(self, slot: Slot, now: float | None = None) -> None:
+        if now is None:
+            now = self.clock()
         self.source_reads += 1
         try:
             batches = slot.source.read(now)
@@ -116,9 +117,10 @@ class SensorSlots:
             self._gone(slot, now, f"read failed: {e}")
             return
         for batch in batches:
-            if len(batch):
+            t, dx, dy = batch.columns()
+            if len(t):
                 # As the source holds them: a live read's lists go on without numpy.
-                self.tracker.push(slot.index, *batch.columns())
+                self.tracker.push(slot.index, t, dx, dy)
                 if batch.quality is not None:
                     self.tracker.push_quality(slot.index, *batch.quality)
                 if self.recording is not None:

@@ -154,25 +154,22 @@ class Source(ABC):
             self.health.error = str(e) or "device gone"
             self.close()
             raise
-        for b in batches:
-            self._count(b, now)
-        return batches
-
-    def _count(self, batch: Reports, now: float) -> None:
-        t = batch.columns()[0]
-        n = len(t)
-        if not n:
-            return
         health = self.health
-        health.reports += n
-        health.last_t = float(t[-1])
-        # Report rate over a sliding ~1 s span: cheap and good enough for status.
-        t0 = self._rate_t0
-        if t0 is None or now - t0 > 1.0:
-            if t0 is not None and now > t0:
-                health.rate_hz = self._rate_n / (now - t0)
-            self._rate_t0, self._rate_n = now, 0
-        self._rate_n += n
+        for b in batches:  # counted here, not in a helper: this runs per source per window
+            t = b.columns()[0]
+            n = len(t)
+            if not n:
+                continue
+            health.reports += n
+            health.last_t = float(t[-1])
+            # Report rate over a sliding ~1 s span: cheap and good enough for status.
+            t0 = self._rate_t0
+            if t0 is None or now - t0 > 1.0:
+                if t0 is not None and now > t0:
+                    health.rate_hz = self._rate_n / (now - t0)
+                self._rate_t0, self._rate_n = now, 0
+            self._rate_n += n
+        return batches
 
     @abstractmethod
     def _open(self) -> None: ...
