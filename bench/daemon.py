@@ -551,13 +551,14 @@ def main() -> None:
     to_floor = float(np.median([o["cpu"] / f["cpu"] for o, f in zip(ours, floors, strict=True)]))
     to_peer = float(np.median([o["cpu"] / p["cpu"] for o, p in zip(ours, peers, strict=True)]))
     min_floor = float(np.median([m["cpu"] / f["cpu"] for m, f in zip(minima, floors, strict=True)]))
+    min_peer = float(np.median([m["cpu"] / p["cpu"] for m, p in zip(minima, peers, strict=True)]))
     lat = np.concatenate([r["lat_ms"] for r in ours])
     print(f"{args.mice} mice x {args.report_hz:g} Hz through FIFOs, POSE at {args.rate_hz:g} Hz,"
           f" {args.rounds} rounds x {args.seconds:g} s measured (medians)")  # fmt: skip
     print(f"floor (100 Hz batched reader)  {med(floors):6.2f} % of one core")
     print(f"peer-style daemon              {med(peers):6.2f} %")
     print(f"Python minimum (see MINIMUM)   {med(minima):6.2f} %   ratio to the floor "
-          f"{min_floor:.2f}")  # fmt: skip
+          f"{min_floor:.2f}, to the peer {min_peer:.2f}")  # fmt: skip
     print(
         f"mousedom run                   {med(ours):6.2f} %   ratio to the floor "
         f"{to_floor:.2f} (target <= 2), to the peer {to_peer:.2f} (target <= 0.5)"
