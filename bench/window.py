@@ -1,0 +1,196 @@
+"""The daemon's window, phase by phase, in process: CPU after a sleep, and code touched.
+
+    .venv/bin/python bench/window.py [--mice 4] [--report-hz 1000] [--windows 400]
+
+A real ``Daemon`` (real FIFOs as its evdev sources, its socket, one client in a child
+process) is driven window by window from here, without its loop: each window's reports
+are written into the FIFOs, the process sleeps 10 ms as the daemon does between windows,
+and then the three phases of a window run as the loop runs them:
+
+- read: ``_read_sources`` (one read per source, decoding, the tracker's queue);
+- poll: ``Tracker.poll`` (the count functions, the solve, the fault test, the covariance);
+- publish: ``_publish`` (the POSE line, the send to the client).
+
+Prints each phase's thread CPU time (median over the windows after the first tenth), and
+for one window after the warm-up the bytecode it runs: distinct instructions (a window's
+cost after a sleep follows how much code and data it touches, see docs/performance.md),
+instructions executed and code objects.  The instruction counts are exact and the same
+on any machine, so a change to the per-window path can be judged by them where the CPU
+figures are too noisy.  Stamps are those of the window (a virtual clock), so the wait
+for reports is not part of it: ``bench/daemon.py`` measures the whole daemon.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "bench"))
+
+import daemon as bench_daemon  # noqa: E402  (bench/daemon.py: its rig config)
+import numpy as np  # noqa: E402
+
+from mousedom.config import load_config  # noqa: E402
+from mousedom.service.daemon import Daemon  # noqa: E402
+from mousedom.sources.events import EV_REL, EV_SYN, EVENT_DTYPE, SYN_REPORT  # noqa: E402
+
+PERIOD = 0.01  # POSE at 100 Hz
+T0 = 1000.0  # the virtual clock's start
+CLIENT = "import socket, sys\ns = socket.socket(socket.AF_UNIX)\ns.connect(sys.argv[1])\n" \
+         "while s.recv(65536):\n    pass\n"  # fmt: skip
+
+
+def reports(times: list[float], dx: int, dy: int) -> bytes:
+    """REL_X, REL_Y, SYN_REPORT per stamp, as the kernel writes them."""
+    n = len(times)
+    ev = np.zeros(3 * n, dtype=EVENT_DTYPE)
+    usec = np.round(np.asarray(times) * 1e6).astype(np.int64)
+    for j in range(3):
+        ev["sec"][j::3], ev["usec"][j::3] = usec // 1_000_000, usec % 1_000_000
+    ev["type"] = [EV_REL, EV_REL, EV_SYN] * n
+    ev["code"] = [0, 1, SYN_REPORT] * n
+    ev["value"] = [dx, dy, 0] * n
+    return ev.tobytes()
+
+
+class Rig:
+    """A daemon with its sources open on FIFOs and a client on its socket."""
+
+    def __init__(self, d: Path, n_mice: int, report_hz: float) -> None:
+        bench_daemon.configure(n_mice, report_hz)
+        self.n_mice, self.report_hz = n_mice, report_hz
+        fifos = [d / f"{m}.fifo" for m in bench_daemon.MICE]
+        for f in fifos:
+            os.mkfifo(f)
+        config = load_config(bench_daemon.write_config(d, fifos, 1.0 / PERIOD))
+        self.now = T0
+        self.daemon = dm = Daemon(config, str(d / "d.sock"), clock=lambda: self.now,
+                                  handle_signals=False)  # fmt: skip
+        # A FIFO opens for writing only once it has a reader: hold one while the daemon
+        # opens its own.
+        held = [os.open(f, os.O_RDONLY | os.O_NONBLOCK) for f in fifos]
+        self.writers = [os.open(f, os.O_WRONLY | os.O_NONBLOCK) for f in fifos]
+        dm.server.refuse_if_taken()
+        dm.tracker = dm._tracker_class(dm.config, t0=T0)
+        dm.slots = [dm._new_slot(i, m) for i, m in enumerate(dm.config.mice)]
+        dm._live_changed()
+        for slot in dm.slots:
+            dm._try_open(slot, T0)
+        for fd in held:
+            os.close(fd)
+        dm.tracker.complete_until(T0 - max(s.latency for s in dm.slots))
+        dm.server.open()
+        self.client = subprocess.Popen([sys.executable, "-c", CLIENT, str(d / "d.sock")])
+        deadline = time.monotonic() + 10
+        while not dm.server.clients:
+            for key, mask in dm.selector.select(0.01):
+                key.data(mask)
+            if time.monotonic() > deadline:
+                raise SystemExit("the client did not connect")
+        self.k = 0
+
+    def feed(self) -> None:
+        """Window k's reports, each mouse's last one just past the window's end."""
+        start = T0 + self.k * PERIOD
+        per = max(1, round(self.report_hz * PERIOD))
+        for i, fd in enumerate(self.writers):
+            phase = (i + 0.5) / (self.n_mice * self.report_hz)
+            os.write(fd, reports([start + phase + j / self.report_hz
+                                  for j in range(1, per + 1)], 1, -3))  # fmt: skip
+        self.now = start + PERIOD + 1.0 / self.report_hz + 0.0031  # past the silence rule
+        self.k += 1
+
+    def phases(self):
+        dm = self.daemon
+        box = []
+        return (
+            ("read", lambda: dm._read_sources(self.now)),
+            ("poll", lambda: box.append(dm.tracker.poll())),
+            ("publish", lambda: dm._publish(box.pop())),
+        )
+
+    def close(self) -> None:
+        self.client.kill()
+        self.client.wait()
+
+
+def timed(rig: Rig, windows: int) -> dict[str, list[int]]:
+    costs: dict[str, list[int]] = collections.defaultdict(list)
+    clock = time.thread_time_ns
+    for w in range(windows):
+        rig.feed()
+        time.sleep(PERIOD)
+        total = 0
+        for name, run in rig.phases():
+            t0 = clock()
+            run()
+            spent = clock() - t0
+            total += spent
+            if w >= windows // 10:
+                costs[name].append(spent)
+        if w >= windows // 10:
+            costs["window"].append(total)
+    return costs
+
+
+def footprint(rig: Rig) -> dict[str, tuple[int, int, int]]:
+    """(distinct instructions, instructions executed, code objects) per phase, one window."""
+    rig.feed()
+    out = {}
+    for name, run in rig.phases():
+        seen: collections.Counter = collections.Counter()
+
+        def tracer(frame, event, arg, seen=seen):
+            frame.f_trace_opcodes = True
+            if event == "opcode":
+                seen[(frame.f_code, frame.f_lasti)] += 1
+            return tracer
+
+        sys.settrace(tracer)
+        try:
+            run()
+        finally:
+            sys.settrace(None)
+        out[name] = (len(seen), sum(seen.values()), len({code for code, _ in seen}))
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--mice", type=int, default=4)
+    ap.add_argument("--report-hz", type=float, default=1000.0)
+    ap.add_argument("--windows", type=int, default=400)
+    args = ap.parse_args()
+    with tempfile.TemporaryDirectory(prefix="mousedom-window-") as tmp:
+        rig = Rig(Path(tmp), args.mice, args.report_hz)
+        try:
+            costs = timed(rig, args.windows)
+            code = footprint(rig)
+        finally:
+            rig.close()
+    if rig.daemon.poses != rig.k:
+        raise SystemExit(f"{rig.daemon.poses} poses for {rig.k} windows: the rig is off")
+    print(f"{args.mice} mice x {args.report_hz:g} Hz, POSE at {1 / PERIOD:g} Hz, "
+          f"{args.windows} windows, each after a {PERIOD * 1e3:g} ms sleep")  # fmt: skip
+    print(f"{'phase':10s}{'CPU us (median)':>17s}{'distinct instr.':>17s}{'executed':>10s}"
+          f"{'code objects':>14s}")  # fmt: skip
+    for name in ("read", "poll", "publish"):
+        distinct, executed, objects = code[name]
+        print(f"{name:10s}{statistics.median(costs[name]) / 1e3:17.1f}{distinct:17d}"
+              f"{executed:10d}{objects:14d}")  # fmt: skip
+    total = [sum(v[i] for v in code.values()) for i in range(3)]  # (code objects: per phase)
+    print(f"{'window':10s}{statistics.median(costs['window']) / 1e3:17.1f}{total[0]:17d}"
+          f"{total[1]:10d}{total[2]:14d}")  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()
