@@ -84,6 +84,49 @@ def bulk(a: FrameAssembler, buf: bytes):
     return f.t.tolist(), f.dx.tolist(), f.dy.tolist(), rest
 
 
+# Reads of whole REL_X, REL_Y, SYN_REPORT frames (a mouse moving on both axes): what
+# FrameAssembler._xy_frames slices apart.
+# Each event's own stamp: the kernel gives a frame's events one, but the frame's time is
+# its SYN_REPORT's whatever they hold.
+stamps3 = stamp.map(lambda ts: (ts, ts, ts)) | st.tuples(stamp, stamp, stamp)
+xy_frames = st.lists(st.tuples(stamps3, value, value), min_size=1, max_size=40).map(
+    lambda frames: [
+        row
+        for (tx, ty, ts), vx, vy in frames
+        for row in ((tx, (EV_REL, REL_X), vx), (ty, (EV_REL, REL_Y), vy),
+                    (ts, (EV_SYN, SYN_REPORT), 0))
+    ]
+)  # fmt: skip
+
+
+@settings(max_examples=200, deadline=None)
+@given(xy_frames, st.lists(st.integers(0, 40), max_size=6), st.integers(0, 71), st.booleans())
+def test_whole_xy_frames_are_sliced_exactly_as_the_loop_reads_them(rows, frame_cuts, skew, open_):
+    """Reads cut at frame boundaries take the sliced path (checked), others and reads after
+    an open frame the loop; frames, times (bit for bit), statistics and leftovers agree
+    with the vectorised path either way."""
+    data = to_bytes(rows)
+    if open_:  # a frame left open by an earlier read: its REL_X joins the first frame
+        data = to_bytes([((0, 5), (EV_REL, REL_X), 7)]) + data
+    ref, new = FrameAssembler(0), FrameAssembler()
+    sliced = []
+    real = new._xy_frames
+    new._xy_frames = lambda buf, n: sliced.append(real(buf, n)) or sliced[-1]
+    rest_ref = rest_new = b""
+    frames = len(data) // 72
+    offsets = [72 * (c % (frames + 1)) + (skew if i == 0 else 0) for i, c in enumerate(frame_cuts)]
+    for chunk in cut(data, offsets):
+        t0, x0, y0, rest_ref = bulk(ref, rest_ref + chunk)
+        t1, x1, y1, rest_new = new.feed_bytes(rest_new + chunk)
+        assert np.array(t1, dtype=np.float64).tobytes() == np.array(t0).tobytes()
+        assert (x1, y1, rest_new) == (x0, y0, rest_ref)
+        assert all(type(v) is float for v in t1) and all(type(v) is int for v in x1 + y1)
+        assert new.stats == ref.stats
+        assert new.open_frame_events == ref.open_frame_events
+    if not open_ and not skew:
+        assert any(r is not None for r in sliced)  # the sliced path was taken
+
+
 @settings(max_examples=300, deadline=None)
 @given(records, st.lists(st.integers(0, 24 * 120), max_size=10), st.randoms())
 def test_feed_bytes_equals_the_numpy_path(rows, offsets, rnd):
