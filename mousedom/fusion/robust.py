@@ -162,11 +162,12 @@ class Screen:
     # ----------------------------------------------------------------- common case
 
     def fast_one(
-        self, d: list[list[float]], q: list[float], live: tuple[bool, ...], evidence: bool
+        self, d: list[float], q: list[float], live: tuple[bool, ...], evidence: bool
     ) -> bool:
         """The common case on floats: True (and the window is accepted as solved) when the
         state is steady for ``live``, no sensor evidence (SQUAL, overflow) is in the window,
-        no mouse is beyond its speed and the test passes."""
+        no mouse is beyond its speed and the test passes.  ``d``: every mouse's body-frame
+        displacement, flattened (x1, y1, x2, ...)."""
         if evidence or live != self.steady():
             return False
         ux, uy, a = q
@@ -177,7 +178,7 @@ class Screen:
             if not live[i]:
                 continue
             px, py = ux - a * y, uy + a * x
-            dx, dy = d[i]
+            dx, dy = d[2 * i], d[2 * i + 1]
             m2 = max(dx * dx + dy * dy, px * px + py * py)
             if m2 >= self._max2[i]:
                 return False  # saturated: decide

@@ -91,7 +91,7 @@ class Tracker(OneWindowPath):
                 config.robust,
                 np.array([m.max_speed or math.inf for m in config.mice]),
             )  # fmt: skip
-        self._fast_state = {}  # live pattern -> the steady state row (tracking / missing)
+        self._steady_rows = {}  # live pattern -> (state, reason) of the common case
         self.evidence = SensorEvidence(
             [1.0 / m.report_hz for m in config.mice], [m.min_squal for m in config.mice]
         )

@@ -69,28 +69,30 @@ class OneWindowPath:
         # screen all (the products per mouse are the same whichever subset is asked).
         d_all = onewindow.body_counts(self._to_body_rows, counts, range(self.n_mice))
         q, residual, idx, c3, ok = self._linear_one(d_all, live)
-        state, reason, consistent = self._fast_state.get(live), None, True
+        consistent = True
         screen = self.screen
-        if screen is not None:
-            d_pairs = [d_all[2 * i : 2 * i + 2] for i in range(self.n_mice)]
-            if not screen.fast_one(d_pairs, q, live, evidence is not None):
-                scale, low = evidence if evidence is not None else (None, None)
-                dec = screen.decide(np.array(d_pairs), np.array(live, dtype=bool), scale, low)
-                used = tuple(dec.used.tolist())
-                if used != live:
-                    q, residual, idx, c3, ok = self._linear_one(d_all, used)
-                if dec.inflate != 1.0:
-                    c3 = [[v * dec.inflate for v in row] for row in c3]
-                consistent = dec.consistent
-                state = None
-            if state is None:
-                state = tuple(h.state for h in screen.health)
-                reason = tuple(h.reason for h in screen.health)
-        if state is None or reason is None:
-            state = state or tuple(robust.TRACKING if v else robust.MISSING for v in live)
-            if screen is not None and live == screen.steady():
-                self._fast_state[live] = state
-            reason = (0,) * self.n_mice
+        if screen is None or screen.fast_one(d_all, q, live, evidence is not None):
+            # The common case (or no screen): every live mouse tracking, the rest missing,
+            # and no reason for either (robust's health gives no other to those states).
+            rows = self._steady_rows.get(live)
+            if rows is None:
+                rows = self._steady_rows[live] = (
+                    tuple(robust.TRACKING if v else robust.MISSING for v in live),
+                    (robust.NONE,) * self.n_mice,
+                )
+            state, reason = rows
+        else:
+            scale, low = evidence if evidence is not None else (None, None)
+            d_pairs = np.array(d_all).reshape(self.n_mice, 2)
+            dec = screen.decide(d_pairs, np.array(live, dtype=bool), scale, low)
+            used = tuple(dec.used.tolist())
+            if used != live:
+                q, residual, idx, c3, ok = self._linear_one(d_all, used)
+            if dec.inflate != 1.0:
+                c3 = [[v * dec.inflate for v in row] for row in c3]
+            consistent = dec.consistent
+            state = tuple(h.state for h in screen.health)
+            reason = tuple(h.reason for h in screen.health)
         ux, uy, a = q
         sx, sy = onewindow.body_step(ux, uy, a, self.integrator)
         x0, y0, th0 = self._pose
