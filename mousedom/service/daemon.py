@@ -80,12 +80,13 @@ class Daemon(SensorSlots, Publisher, ClientCommands, Reloader):
         # asked once per window, and selectors' Python layer cost more than the syscall.
         self.src_poll = select.epoll()
         self.slot_by_fd: dict[int, Slot] = {}
-        self._watching = False
+        self._watching = False  # wake on readable sources (a window is due, not closed yet)
         self.server = Server(
             socket_path, config.server, self.selector, self._on_command, self._on_connect
         )
         self.slots: list[Slot] = []
         self.missing_names: tuple[str, ...] = ()  # see _live_changed
+        self.plan_slots: list[tuple] = []
         self._names_by_state: dict[tuple, tuple] = {}
         # Each window's residuals and the last window's health, folded into the slots
         # when a SOURCE message is made (see Publisher._fold_window_health).
@@ -195,9 +196,10 @@ class Daemon(SensorSlots, Publisher, ClientCommands, Reloader):
         while not self._stop:
             now = self.clock()
             wake_at, give_up = self._plan()
-            watching = now >= wake_at
-            self._watch_sources(watching)
-            retry = min((s.retry_at for s in self.slots if not s.live), default=math.inf)
+            watching = self._watching = now >= wake_at  # (see _select)
+            retry = math.inf
+            if self.missing_names:  # a sensor to look for again
+                retry = min(s.retry_at for s in self.slots if not s.live)
             deadline = min(give_up if watching else wake_at, next_status, next_watchdog, retry)
             events = self._select(deadline)
             self.wakes += 1
@@ -252,18 +254,8 @@ class Daemon(SensorSlots, Publisher, ClientCommands, Reloader):
     def _plan(self) -> tuple[float, float]:
         end = self.tracker.frontier_time + 1.0 / self.config.rate_hz
         return plan_wake(
-            end,
-            [
-                (1.0 / s.mouse.report_hz, s.latency, None if s.paced else s.source.health.last_t)
-                for s in self.slots
-                if s.live
-            ],
+            end, [(period, latency, h and h.last_t) for period, latency, h in self.plan_slots]
         )
-
-    def _watch_sources(self, on: bool) -> None:
-        """Wake on readable sources only while a window is due but not closed yet (see
-        _select)."""
-        self._watching = on
 
     def _read_sources(self, now: float) -> None:
         for fd, _ in self.src_poll.poll(0):

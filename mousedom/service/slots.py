@@ -166,10 +166,17 @@ class SensorSlots:
 
     def _live_changed(self) -> None:
         """What the POSE lines say of the sensors, kept here rather than made per window:
-        the names of those not live, and the health names per pattern of states (a new
-        set of slots may name them differently)."""
+        the names of those not live, the health names per pattern of states (a new set
+        of slots may name them differently) and what the wake planning reads."""
         self.missing_names = tuple(s.name for s in self.slots if not s.live)
         self._names_by_state = {}
+        # What the wake planning needs of each live sensor: (report period, latency, the
+        # health whose last_t is its last report, or None for a paced source).
+        self.plan_slots = [
+            (1.0 / s.mouse.report_hz, s.latency, None if s.paced else s.source.health)
+            for s in self.slots
+            if s.live
+        ]
 
     def _sources_changed(self, now: float) -> None:
         self._broadcast_sources(now)
