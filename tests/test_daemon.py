@@ -265,6 +265,9 @@ def test_reload_swaps_changed_mice_and_keeps_the_pose(tmp_path):
         assert len(made) == 4  # a, b at start; new b and c on reload
         assert (pose["x"], pose["y"]) == (3.0, -1.0)
         assert Conn(d.server.path).read()["sensors"] == ["a", "b", "c"]
+        # what the loop keeps of the slots follows them (the wake planning, POSE "missing")
+        assert [id(h) for _, _, h in d.plan_slots] == [id(s.source.health) for s in d.slots]
+        assert d.missing_names == () and pose["missing"] == []
     finally:
         d.request_stop()
         th.join(5)
