@@ -151,6 +151,33 @@ def test_a_silent_mouse_holds_windows_until_declared_complete():
     assert len(out) == 9
 
 
+@pytest.mark.parametrize("report_hz", [60.0, 125.0, 500.0, 1000.0, 8000.0])
+def test_a_window_closes_once_every_silent_mouse_is_complete_a_report_period_past_it(
+    report_hz,
+):
+    """A silent mouse's motion is final up to its completion time less its own report
+    period (a later report covers at most one period back), not the window's: window k
+    closes once every mouse is complete to its end plus the report period, not before."""
+    from mousedom.config import parse_config
+
+    mice = "".join(
+        f"  {n}: {{cpi: 1000, mount: {{x: {x}, y: {y}}}, report_hz: {report_hz}}}\n"
+        for n, x, y in (("a", 0.1, 0.0), ("b", -0.1, 0.0), ("c", 0.0, 0.1))
+    )
+    cfg = parse_config(f"rate_hz: 100\nmodel: lsq\nmice:\n{mice}", need_sources=False)
+    tr = Tracker(cfg, t0=0.0)
+    report_period = 1.0 / report_hz
+    closed = 0
+    for k in range(1, 6):
+        end = 0.01 * k
+        tr.complete_until(end + 0.75 * report_period)  # final up to a quarter before the end
+        closed += len(tr.poll())
+        assert closed == k - 1
+        tr.complete_until(end + 1.25 * report_period)
+        closed += len(tr.poll())
+        assert closed == k
+
+
 def test_late_and_backwards_reports_are_kept_and_counted():
     cfg = sim.rig_config(rig3())
     tr = Tracker(cfg, t0=0.0)

@@ -97,6 +97,8 @@ class Screen:
         self.readmit = max(1, math.ceil(settings.readmit_s / window - 1e-9))
         self.readmit_evidence = max(1, self.readmit // 5)
         self.health = [MouseHealth() for _ in range(self.n)]
+        self._steady: tuple[bool, ...] | None = None
+        self._steady_known = False  # _steady is that of the health as it is
         self._thresholds = [math.inf] + [self.threshold(k) for k in range(1, 2 * self.n + 1)]
         self._leverages: dict[bytes, np.ndarray] = {}
         # Python copies for fast_one, which must not touch numpy: the daemon runs it once
@@ -117,7 +119,14 @@ class Screen:
 
     def steady(self) -> tuple[bool, ...] | None:
         """The live pattern under which the common case applies (every tracking mouse
-        live, every missing one not), or None while some mouse is suspect or excluded."""
+        live, every missing one not), or None while some mouse is suspect or excluded.
+        Kept until the health changes (``_update``): fast_one asks every window."""
+        if self._steady_known:
+            return self._steady
+        self._steady, self._steady_known = self._steady_of_health(), True
+        return self._steady
+
+    def _steady_of_health(self) -> tuple[bool, ...] | None:
         out = []
         for h in self.health:
             if h.state == TRACKING:
@@ -168,7 +177,7 @@ class Screen:
         state is steady for ``live``, no sensor evidence (SQUAL, overflow) is in the window,
         no mouse is beyond its speed and the test passes.  ``d``: every mouse's body-frame
         displacement, flattened (x1, y1, x2, ...)."""
-        if evidence or live != self.steady():
+        if evidence or live != (self._steady if self._steady_known else self.steady()):
             return False
         ux, uy, a = q
         nm = self.noise
@@ -380,6 +389,7 @@ class Screen:
 
     def _update(self, d, p, live, used, suspect, reason, consistent, floor, prop) -> None:
         """Health after the window: exclusions, suspicion, re-admission (module step 4)."""
+        self._steady_known = False
         s2 = floor + prop
         m2 = np.maximum(np.sum(d * d, axis=1), np.sum(p * p, axis=1))
         not_proportional = s2 - self.noise.lam_r * self.noise.rho2 * m2

@@ -173,14 +173,20 @@ class Tracker(OneWindowPath):
         if last > m.last_t:
             m.last_t = last
 
-    def _ingest(self, m: CountFunction) -> None:
-        """Turn a mouse's queued reports into knots (floats for a few, arrays for many)."""
-        if not m.pending:
+    def _ingest(self, m: CountFunction, edge: float | None = None) -> None:
+        """Turn a mouse's queued reports into knots (floats for a few, arrays for many);
+        ``edge``: the closed frontier, if the caller has it."""
+        pending = m.pending
+        if not pending:
             return
-        if m.queued() <= self._INGEST_SMALL and m.n_knots() <= self._KNOTS_SMALL:
-            m.ingest_small(self.frontier_time)
+        if edge is None:
+            edge = self.frontier_time
+        # one read's reports (the daemon's case) without summing over the queue
+        queued = len(pending[0][0]) if len(pending) == 1 else m.queued()
+        if queued <= self._INGEST_SMALL and len(m.knots[0]) <= self._KNOTS_SMALL:
+            m.ingest_small(edge)
         else:
-            m.ingest(self.frontier_time)
+            m.ingest(edge)
 
     # Up to this many queued reports (and knots already held), reports become knots on
     # Python floats and lists (the daemon's few reports per window); tests set it to 0 to
@@ -286,10 +292,18 @@ class Tracker(OneWindowPath):
         """Close every window that no future report can change."""
         if self.t0 is None:
             return PoseBatch.empty(self.n_mice)
-        target = min(
-            (m.frontier() if m.live else self._complete_all for m in self._mice),
-            default=self._complete_all,
-        )
+        # The earliest frontier of the live mice (CountFunction.frontier and .live, inline:
+        # this runs per window); a mouse that is not live waits for nothing.
+        target = math.inf if self._mice else self._complete_all
+        for m in self._mice:
+            if m.dead and m.dead[-1][1] == math.inf:
+                f = self._complete_all
+            else:
+                f = m.complete - m.period  # (the mouse's report period)
+                if m.last_t > f:
+                    f = m.last_t
+            if f < target:
+                target = f
         if not math.isfinite(target):
             return PoseBatch.empty(self.n_mice)
         return self._close_until(self._windows_ending_by(target))
@@ -374,13 +388,14 @@ class Tracker(OneWindowPath):
         k_old = self._closed
         if k_new <= k_old:
             return PoseBatch.empty(self.n_mice)
+        edge = self.frontier_time
+        small = k_new - k_old <= self._SMALL and self.n_mice > 0
         for m in self._mice:
-            self._ingest(m)
-        if (
-            k_new - k_old <= self._SMALL
-            and self.n_mice
-            and all(m.n_knots() <= self._KNOTS_SMALL for m in self._mice)
-        ):
+            if m.pending:
+                self._ingest(m, edge)
+            if len(m.knots[0]) > self._KNOTS_SMALL:  # (n_knots, for lists or the array)
+                small = False
+        if small:
             return self._close_one()
         n = k_new - k_old
         edges = self.t0 + self.period * np.arange(k_old, k_new + 1)

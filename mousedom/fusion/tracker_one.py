@@ -23,13 +23,17 @@ class OneWindowPath:
     def _close_one(self) -> PoseBatch:
         """_close_until for the next window on Python floats: the daemon's case."""
         k = self._closed
-        start, end = self._edge(k), self._edge(k + 1)
-        counts = [m.close_one(end) for m in self._mice]
-        live = tuple([m.live_in(start, end) for m in self._mice])
-        self._closed = k + 1
-        for acc, (cx, cy) in zip(self._counts_out, counts, strict=True):
+        t0, period = self.t0, self.period
+        start, end = t0 + period * k, t0 + period * (k + 1)  # as _edge(k), _edge(k + 1)
+        counts, live = [], []
+        for m, acc in zip(self._mice, self._counts_out, strict=True):
+            cx, cy = m.close_one(end)
+            counts.append((cx, cy))
             acc[0] += cx  # floats, not an array: numpy's += of a list cost 3 us a window
             acc[1] += cy
+            live.append(not m.dead or m.live_in(start, end))
+        live = tuple(live)
+        self._closed = k + 1
         evidence = self.evidence.window(start, end) if self.evidence else None
         if self.model == "bonarini":  # numerical linearisation: the array path
             ev = None if evidence is None else (np.array([evidence[0]]), np.array([evidence[1]]))
