@@ -441,41 +441,16 @@ def run_floor(d: Path, seconds: float, rate_hz: float) -> dict:
     return {"cpu": cpu}
 
 
-def run_peer(d: Path, seconds: float, rate_hz: float) -> dict:
-    """A peer-style daemon: a wake per report, numpy least squares per window."""
-    fifos = [d / f"p{m}.fifo" for m in MICE]
+def _run_script_reader(d: Path, name: str, script: str, seconds: float, rate_hz: float):
+    """Run a baseline reader (a script taking rate, socket, mounts and FIFOs) on its own
+    FIFOs with a client on its socket; returns (CPU share, the lines it sent)."""
+    fifos = [d / f"{name}-{m}.fifo" for m in MICE]
     for f in fifos:
         os.mkfifo(f)
-    sock_path = d / "peer.sock"
+    sock_path = d / f"{name}.sock"
     env = dict(os.environ, BENCH_END=str(time.monotonic() + seconds + 4.0))
     xy = json.dumps([[float(x), float(y)] for x, y in positions(len(MICE))])
-    proc = subprocess.Popen([sys.executable, "-c", PEER, str(rate_hz), str(sock_path), xy,
-                             *map(str, fifos)], env=env)  # fmt: skip
-    while not sock_path.exists():
-        time.sleep(0.01)
-    client = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    client.connect(str(sock_path))
-    lines = []
-    th = threading.Thread(target=lambda: lines.extend(client.makefile("rb")), daemon=True)
-    th.start()
-    feed = start_feeder(fifos, seconds + 1.5, d / "pstamps.npz")
-    cpu, wall0, wall1 = _measure(proc, seconds)
-    feed.wait()
-    proc.kill()
-    proc.wait()
-    client.close()
-    return {"cpu": cpu, "poses": len(lines)}
-
-
-def run_minimum(d: Path, seconds: float, rate_hz: float) -> dict:
-    """The least a Python fusion daemon of this design does (MINIMUM above)."""
-    fifos = [d / f"m{m}.fifo" for m in MICE]
-    for f in fifos:
-        os.mkfifo(f)
-    sock_path = d / "minimum.sock"
-    env = dict(os.environ, BENCH_END=str(time.monotonic() + seconds + 4.0))
-    xy = json.dumps([[float(x), float(y)] for x, y in positions(len(MICE))])
-    proc = subprocess.Popen([sys.executable, "-c", MINIMUM, str(rate_hz), str(sock_path), xy,
+    proc = subprocess.Popen([sys.executable, "-c", script, str(rate_hz), str(sock_path), xy,
                              *map(str, fifos)], env=env)  # fmt: skip
     while not sock_path.exists():
         time.sleep(0.01)
@@ -484,12 +459,24 @@ def run_minimum(d: Path, seconds: float, rate_hz: float) -> dict:
     lines: list[bytes] = []
     th = threading.Thread(target=lambda: lines.extend(client.makefile("rb")), daemon=True)
     th.start()
-    feed = start_feeder(fifos, seconds + 1.5, d / "mstamps.npz")
+    feed = start_feeder(fifos, seconds + 1.5, d / f"{name}-stamps.npz")
     cpu, _, _ = _measure(proc, seconds)
     feed.wait()
     proc.kill()
     proc.wait()
     client.close()
+    return cpu, lines
+
+
+def run_peer(d: Path, seconds: float, rate_hz: float) -> dict:
+    """A peer-style daemon: a wake per report, numpy least squares per window."""
+    cpu, lines = _run_script_reader(d, "peer", PEER, seconds, rate_hz)
+    return {"cpu": cpu, "poses": len(lines)}
+
+
+def run_minimum(d: Path, seconds: float, rate_hz: float) -> dict:
+    """The least a Python fusion daemon of this design does (MINIMUM above)."""
+    cpu, lines = _run_script_reader(d, "minimum", MINIMUM, seconds, rate_hz)
     if len(lines) < 2 or not json.loads(lines[-2])["used"]:  # the last may be cut
         raise SystemExit("the minimum reader sent no pose, or its fault test failed")
     return {"cpu": cpu, "poses": len(lines)}
