@@ -292,16 +292,11 @@ class Tracker(OneWindowPath):
         """Close every window that no future report can change."""
         if self.t0 is None:
             return PoseBatch.empty(self.n_mice)
-        # The earliest frontier of the live mice (CountFunction.frontier and .live, inline:
-        # this runs per window); a mouse that is not live waits for nothing.
+        # The earliest frontier of the live mice (a mouse that is not live waits for
+        # nothing); a loop, not min() of a generator: this runs every window.
         target = math.inf if self._mice else self._complete_all
         for m in self._mice:
-            if m.dead and m.dead[-1][1] == math.inf:
-                f = self._complete_all
-            else:
-                f = m.complete - m.period  # (the mouse's report period)
-                if m.last_t > f:
-                    f = m.last_t
+            f = m.frontier() if m.live else self._complete_all
             if f < target:
                 target = f
         if not math.isfinite(target):
