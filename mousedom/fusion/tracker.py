@@ -166,8 +166,7 @@ class Tracker(OneWindowPath):
             finite = False  # not real numbers (str, None, complex...)
         if not finite:
             raise ValueError("push: times and counts must be finite numbers")
-        if self.t0 is None:  # _start, inline: this runs per source per window
-            self.t0 = float(t[0])
+        self._start(t[0])
         m.pending.append((t, dx, dy))
         last = max(t)
         if last > m.last_t:
@@ -202,20 +201,16 @@ class Tracker(OneWindowPath):
             for m in self._mice:
                 m.complete = max(m.complete, t)
         else:
-            m = self._mice[self._index(mouse)]
-            m.complete = max(m.complete, t)
-            self._complete_all = max(self._complete_all, t)
+            self.complete_each([(self._index(mouse), t)])
 
     def complete_each(self, until: list[tuple[int, float]]) -> None:
-        """``complete_until(t, mouse=i)`` for each (i, t): the daemon's call per window."""
+        """For each (mouse index i, t): every report of mouse i stamped <= t has been
+        pushed.  One call for all the live mice: the daemon's, every window."""
         for i, t in until:
-            if self.t0 is None:
-                self.t0 = float(t)
+            self._start(t)
             m = self._mice[i]
-            if t > m.complete:  # max(m.complete, t), as complete_until, without the call
-                m.complete = t
-            if t > self._complete_all:
-                self._complete_all = t
+            m.complete = max(m.complete, t)
+            self._complete_all = max(self._complete_all, t)
 
     def set_live(self, mouse: int | str, live: bool, t: float) -> None:
         """A sensor vanished (live=False) or came back at time t.

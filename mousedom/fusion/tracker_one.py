@@ -23,8 +23,7 @@ class OneWindowPath:
     def _close_one(self) -> PoseBatch:
         """_close_until for the next window on Python floats: the daemon's case."""
         k = self._closed
-        t0, period = self.t0, self.period
-        start, end = t0 + period * k, t0 + period * (k + 1)  # as _edge(k), _edge(k + 1)
+        start, end = self._edge(k), self._edge(k + 1)
         counts, live = [], []
         for m, acc in zip(self._mice, self._counts_out, strict=True):
             cx, cy = m.close_one(end)
