@@ -254,6 +254,87 @@ def _run_capture(case: Case, tmp: str) -> str:
     return ""
 
 
+# --------------------------------------------------------------------------- round trips
+
+
+def _roundtrip_valid(rng: random.Random) -> Case:
+    """One to three valid text captures (evemu, libinput record with 1-3 devices, in any
+    dress, SYN_DROPPED frames of either sign), to be converted into one native capture."""
+    files = []
+    for _ in range(rng.randint(1, 3)):
+        maker = rng.choice([_evemu_valid, _libinput_valid])
+        case = maker(rng)
+        files.append((case.target, case.suffix, case.data))
+    return Case("roundtrip", "valid", json.dumps(
+        [[t, s, d.hex()] for t, s, d in files]).encode(), None, ".json")  # fmt: skip
+
+
+def _motion_of(cap) -> dict[int, tuple]:
+    import numpy as np
+
+    got: dict[int, list] = {}
+    for feed in cap.feeds():
+        for batch in feed.batches:
+            for m in batch.motion:
+                got.setdefault(m.device, []).append(m)
+    return {
+        d: tuple(np.concatenate([getattr(m, a) for m in ms]) for a in ("t", "dx", "dy"))
+        for d, ms in got.items()
+    }
+
+
+def _run_roundtrip(case: Case, tmp: str) -> str:
+    """convert -> native -> read back: every device's reports (times to the microsecond,
+    counts exactly) and its counters (frames, dropped, lost counts of either sign) as the
+    inputs gave them."""
+    import numpy as np
+
+    from mousedom.capture import open_capture, time_offset
+    from mousedom.commands.convert import convert
+
+    if case.kind != "valid":
+        return _run_capture(Case("native", case.kind, case.data, None, ".mdcap"), tmp)
+    inputs = []
+    for k, (target, suffix, data) in enumerate(json.loads(case.data)):
+        path = os.path.join(tmp, f"in{k}.{target}{suffix}")
+        with open(path, "wb") as f:
+            f.write(bytes.fromhex(data))
+        inputs.append((None, open_capture(path)))
+    out = os.path.join(tmp, "out.mdcap")
+    convert(inputs, out, compress=bool(len(inputs) % 2))
+    want_motion, want_stats = [], []
+    # Epoch times are rebased when the inputs mix time bases (the replay would do the same).
+    offset, _ = time_offset([cap for _, cap in inputs])
+    mixed = len({cap.time_base for _, cap in inputs}) > 1
+    for _, cap in inputs:
+        motion = _motion_of(cap)  # (re)streams the capture, so its stats are whole
+        sub = offset if mixed and cap.time_base == "epoch" else 0.0
+        for d, dev in enumerate(cap.devices):
+            if dev.rel_xy is False:
+                continue
+            m = motion.get(d)
+            want_motion.append(None if m is None or not len(m[0]) else (m[0] - sub, m[1], m[2]))
+            want_stats.append(cap.stats[d])
+    back = open_capture(out)
+    got_motion = _motion_of(back)
+    if len(back.devices) != len(want_motion):
+        return f"{len(want_motion)} devices written, {len(back.devices)} read back"
+    for d, want in enumerate(want_motion):
+        got = got_motion.get(d)
+        got = None if got is None or not len(got[0]) else got
+        if (want is None) != (got is None):
+            return f"device {d}: reports written {want is not None}, read {got is not None}"
+        if want is not None:
+            t_ok = np.array_equal(np.round(want[0] * 1e6), np.round(got[0] * 1e6))
+            if not (t_ok and np.array_equal(want[1], got[1]) and np.array_equal(want[2], got[2])):
+                return f"device {d}: reports differ after the round trip"
+        a, b = want_stats[d], back.stats[d]
+        for name in ("frames", "dropped_frames", "lost_x", "lost_y", "net_x", "net_y", "skipped"):
+            if getattr(a, name) != getattr(b, name):
+                return f"device {d}: {name} {getattr(a, name)} written, {getattr(b, name)} read"
+    return ""
+
+
 # --------------------------------------------------------------------------- ADNS bytes
 
 
@@ -423,6 +504,7 @@ _MAKERS: dict[str, tuple[Callable[[random.Random], Case], Callable[[Case, str], 
     "evemu": (_evemu_valid, _run_capture),
     "libinput": (_libinput_valid, _run_capture),
     "native": (_native_valid, _run_capture),
+    "roundtrip": (_roundtrip_valid, _run_roundtrip),
     "adns": (_adns_valid, _run_adns),
     "config": (_config_valid, _run_config),
     "csv": (_csv_valid, _run_csv),
@@ -474,6 +556,8 @@ def _damage_native_chunk(rng: random.Random, raw: bytes) -> bytes:
 def make_case(target: str, seed: int) -> Case:
     rng = random.Random(f"{target}:{seed}")
     case = _MAKERS[target][0](rng)
+    if target == "roundtrip":
+        return case  # its inputs are valid: the round trip is what is tried
     if target == "native" and rng.random() < 0.3:
         return Case(target, "damaged", _damage_native_chunk(rng, case.data), None, case.suffix)
     if rng.random() < 0.6:

@@ -512,3 +512,61 @@ def test_record_through_a_link_writes_nothing_anywhere(tmp_path):
     )
     assert r.returncode != 0 and "symbolic link" in r.stderr
     assert target.read_bytes() == b"precious"
+
+
+def _events_with_drops(seed: int, t0: float) -> tuple[bytes, int, int, int, int]:
+    """Raw input_event bytes of 300 frames, some cut by SYN_DROPPED (their counts, of
+    either sign, are lost by the kernel's rule); (bytes, kept x, kept y, lost x, lost y)."""
+    from mousedom.sources.events import EV_REL, EV_SYN, REL_X, REL_Y, SYN_DROPPED, SYN_REPORT
+    from mousedom.sources.events import encode_input_events as enc
+
+    rng = np.random.default_rng(seed)
+    rows: list[tuple[float, int, int, int]] = []
+    kept = [0, 0]
+    lost = [0, 0]
+    for k in range(300):
+        t = t0 + k * 0.001
+        dx, dy = (int(v) for v in rng.integers(-40, 41, 2))
+        drop = rng.random() < 0.1
+        rows += [(t, EV_REL, REL_X, dx), (t, EV_REL, REL_Y, dy)]
+        if drop:
+            rows.append((t, EV_SYN, SYN_DROPPED, 0))
+        rows.append((t, EV_SYN, SYN_REPORT, 0))
+        acc = lost if drop else kept
+        acc[0] += dx
+        acc[1] += dy
+    t, typ, code, val = (np.array(c) for c in zip(*rows, strict=True))
+    return enc(t, typ, code, val), kept[0], kept[1], lost[0], lost[1]
+
+
+def test_record_then_replay_keeps_every_count_with_dropped_frames(tmp_path):
+    """Round trip (issue 26): what ``record`` writes, SYN_DROPPED frames of any sign
+    included, replays with exit 0, and its reports plus its counted losses are what the
+    mouse sent, for several seeds."""
+    for seed in range(3):
+        d = tmp_path / str(seed)
+        d.mkdir()
+        f = fifos(d, "a", "b")
+        cfg = rig(d, f)
+        out = d / "run.mdcap"
+        p = start("record", "--config", str(cfg), "-o", str(out), "--status-interval", "0")
+        sent = {}
+        try:
+            ws = {n: os.open(path, os.O_WRONLY) for n, path in f.items()}
+            for k, (n, w) in enumerate(ws.items()):
+                data, *sent[n] = _events_with_drops(seed * 10 + k, time.monotonic())
+                for lo in range(0, len(data), 24 * 97):  # reads cut anywhere in a frame
+                    os.write(w, data[lo : lo + 24 * 97])
+            time.sleep(0.4)
+            err = stop(p, signal.SIGINT)
+            for w in ws.values():
+                os.close(w)
+        finally:
+            p.kill()
+        assert p.returncode == 0, err
+        r = run_mousedom("replay", "--config", str(cfg), "--capture", str(out), "-o", "-")
+        assert r.returncode == 0, r.stderr
+        cap, motion, _ = read_capture(out)
+        for i, dev in enumerate(cap.devices):
+            st = cap.stats[i]
+            assert [st.net_x, st.net_y, st.lost_x, st.lost_y] == sent[dev.mouse], (seed, dev)

@@ -59,7 +59,16 @@ MOTION, SERIAL, NOTE, SYNC = 1, 2, 3, 4
 KINDS = (MOTION, SERIAL, NOTE, SYNC)
 ZLIB = 1
 MAX_CHUNK = 64 << 20  # larger payloads are corruption, not data
+# A compressed chunk may inflate to at most this many times its stored size (and never past
+# MAX_CHUNK).  What the writer stores inflates about 2:1 (motion columns) to 5:1 (serial
+# bytes of an idle sensor); zlib itself reaches 1032:1, which is how a 1 MB file could
+# claim a gigabyte of reports.  The bound makes what a file can cost follow its size.
+MAX_INFLATE_RATIO = 100
+INFLATE_SLACK = 4096  # tiny chunks (a NOTE, a SYNC) are not held to the ratio
 NOTE_FIELDS = SOURCE_COUNTERS
+# Counts inside dropped frames are sums of REL values: they carry a sign (a dropped frame
+# of REL_X -7 is lost_x -7).  Every other counter counts things and is never negative.
+SIGNED_NOTE_FIELDS = frozenset({"lost_x", "lost_y"})
 
 
 # --------------------------------------------------------------------------- writer
@@ -166,6 +175,12 @@ class NativeWriter:
     def note(self, device: int, stats: DeviceStats) -> None:
         """Record what the source skipped or dropped (for a converted capture's summary)."""
         body = {k: getattr(stats, k) for k in NOTE_FIELDS}
+        try:
+            note_counters(body)  # the reader's rule: never write what it would refuse
+        except ValueError as e:
+            raise CaptureError(
+                f"device {self.devices[device].name!r}: its counters cannot be recorded: {e}"
+            ) from None
         self._chunk(NOTE, device, 1, json.dumps(body, sort_keys=True).encode())
 
     def sync(self, complete: float) -> None:
@@ -323,11 +338,10 @@ class NativeCapture(Capture):
                 pending += count
             elif kind == NOTE:
                 try:
-                    note = json.loads(payload)
-                    st.merge(DeviceStats(**{k: _counter(note.get(k, 0)) for k in NOTE_FIELDS}))
-                except (ValueError, TypeError, AttributeError, RecursionError):
+                    st.merge(DeviceStats(**note_counters(json.loads(payload))))
+                except (ValueError, RecursionError) as e:
                     raise CaptureError(
-                        located(self.path, None, f"byte offset {offset}: malformed note")
+                        located(self.path, None, f"byte offset {offset}: malformed note: {e}")
                     ) from None
             elif kind == SYNC:
                 (w,) = struct.unpack("<d", payload[:8]) if len(payload) == 8 else (np.nan,)
@@ -371,19 +385,42 @@ class NativeCapture(Capture):
                         self._bad_chunk(offset, bad)
                     return
                 if flags & ZLIB:
-                    try:
-                        if head_only is None:
-                            payload = zlib.decompress(payload)
-                        else:
-                            payload = zlib.decompressobj().decompress(payload, head_only)
-                    except zlib.error:
-                        raise CaptureError(
-                            located(self.path, None, f"byte offset {offset}: bad zlib data")
-                        ) from None
+                    payload = self._inflate(payload, kind, count, offset, head_only)
                 yield kind, source, count, payload, offset
                 offset += CHUNK.size + size
                 if check_tail:
                     self.bytes_done = offset
+
+    def _inflate(
+        self, stored: bytes, kind: int, count: int, offset: int, head_only: int | None
+    ) -> bytes:
+        """A compressed payload inflated, never past what its kind and stored size allow
+        (CaptureError naming the offset otherwise): the work a chunk causes is bounded by
+        its size on disk, not by what it claims."""
+        limit = min(MAX_CHUNK, MAX_INFLATE_RATIO * len(stored) + INFLATE_SLACK)
+        if kind == MOTION:
+            limit = min(limit, 16 * count)  # exactly this, or _motion_columns refuses it
+        d = zlib.decompressobj()
+        try:
+            if head_only is not None:
+                return d.decompress(stored, head_only)
+            out = d.decompress(stored, limit + 1)
+        except zlib.error:
+            raise CaptureError(
+                located(self.path, None, f"byte offset {offset}: bad zlib data")
+            ) from None
+        if len(out) > limit or d.unconsumed_tail:
+            raise CaptureError(
+                located(self.path, None, f"byte offset {offset}: a chunk of {len(stored)} "
+                        f"compressed bytes inflates past {limit} bytes (at most "
+                        f"{MAX_INFLATE_RATIO}x its size, {16 * count} for {count} reports): "
+                        "a decompression bomb, not a capture")
+            )  # fmt: skip
+        if not d.eof:
+            raise CaptureError(
+                located(self.path, None, f"byte offset {offset}: bad zlib data (cut short)")
+            )
+        return out
 
     def _bad_chunk(self, offset: int, why: str) -> None:
         """A torn tail is a warning; a bad chunk with good ones after it is an error."""
@@ -485,11 +522,22 @@ def _plausible_time(t: float) -> bool:
     return bool(abs(t) < MAX_TIME_S)  # False for NaN and inf
 
 
-def _counter(v) -> int:
-    """A NOTE counter: a non-negative integer that floats hold exactly (ValueError else)."""
-    if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v < 2**53:
-        raise ValueError(f"not a counter: {v!r}")
-    return v
+def note_counters(note: object) -> dict[str, int]:
+    """A NOTE's counters, checked (ValueError naming the first bad one): the one rule that
+    the writer applies before writing and the reader when reading.
+
+    Each is an integer that floats hold exactly (below 2**53 in size); the counts lost in
+    dropped frames may be negative, every other counter may not.  A missing key is 0."""
+    if not isinstance(note, dict):
+        raise ValueError("not a JSON object")
+    out = {}
+    for k in NOTE_FIELDS:
+        v = note.get(k, 0)
+        low = -(2**53) if k in SIGNED_NOTE_FIELDS else 0
+        if isinstance(v, bool) or not isinstance(v, int) or not low <= v < 2**53:
+            raise ValueError(f"{k}: not a counter: {v!r}")
+        out[k] = v
+    return out
 
 
 def _serial_pieces(path: str, payload: bytes, count: int, offset: int):

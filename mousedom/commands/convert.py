@@ -114,6 +114,7 @@ def _convert_into(
 
     def write(target: str) -> None:
         stats.update(convert(inputs, target, config_text=config_text, compress=compress))
+        read_back(target, output, stats["written"])
 
     if os.path.exists(output) and not os.path.isfile(output):
         try:
@@ -188,6 +189,7 @@ def convert(
         if d.mouse is not None:
             seen[d.mouse] = d
     reports = 0
+    written = [[0, 0, 0] for _ in devices]  # per output device: reports, net x, net y
     # The inputs' first event (not first report) anchors the replay's window grid and the
     # epoch rebasing: keep it, so that replaying the result gives the very same poses.
     firsts = [
@@ -213,6 +215,10 @@ def convert(
                     t = mo.t - st.sub if st.sub else mo.t
                     w.motion(st.out[mo.device], t, mo.dx, mo.dy)
                     reports += len(mo.t)
+                    tally = written[st.out[mo.device]]
+                    tally[0] += len(mo.t)
+                    tally[1] += int(mo.dx.sum())
+                    tally[2] += int(mo.dy.sum())
             for chunk in batch.serial:  # raw ADNS-3080 bytes are kept as they are
                 if chunk.device in st.out:
                     w.serial_many(st.out[chunk.device], (chunk.t - st.sub).tolist(), chunk.data)
@@ -229,4 +235,24 @@ def convert(
         w.sync(math.inf)
     for _, cap in inputs:
         warnings += cap.warnings
-    return {"devices": len(devices), "reports": reports, "warnings": warnings}
+    return {"devices": len(devices), "reports": reports, "warnings": warnings, "written": written}
+
+
+def read_back(path: str, output: str, written: list[list[int]]) -> None:
+    """Read the capture just written and check that it gives back every report and count
+    (UserError otherwise, and the output is not kept): a writer must never exit 0 with a
+    file its reader refuses or reads differently."""
+    try:
+        cap = open_capture(path)
+        for feed in cap.feeds():
+            for _ in feed.batches:
+                pass
+    except CaptureError as e:
+        raise UserError(f"{output}: the capture written does not read back ({e}); "
+                        "not kept: please report this") from None  # fmt: skip
+    got = [[s.reports, s.net_x, s.net_y] for s in cap.stats]
+    if got != written:
+        raise UserError(
+            f"{output}: the capture written reads back as {got} (reports, net x, net y per "
+            f"device), not {written}; not kept: please report this"
+        )
