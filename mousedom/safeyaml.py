@@ -20,6 +20,8 @@ from typing import Any
 
 import yaml
 
+from mousedom import saferead
+
 MAX_BYTES = 4 << 20  # a config or a recording's device header; event lists are not YAML-parsed
 MAX_DEPTH = 32  # a rig config is 4 deep; libinput headers 5
 MAX_NODES = 200_000  # nodes after alias expansion
@@ -56,7 +58,7 @@ Loader.add_constructor("tag:yaml.org,2002:int", Loader.construct_yaml_int)
 def read_text(path: str | os.PathLike[str], max_bytes: int = MAX_BYTES) -> str:
     """A YAML file's text, refusing before reading it when it is larger than the limit
     (an OSError with EFBIG, so callers' ``e.strerror`` says why)."""
-    with open(path, "rb") as f:
+    with saferead.open_regular(path) as f:  # a FIFO swapped in must not block a reload
         size = os.fstat(f.fileno()).st_size
         data = f.read(max_bytes + 1)
     if size > max_bytes or len(data) > max_bytes:

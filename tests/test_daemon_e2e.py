@@ -434,3 +434,39 @@ def test_a_lifted_mouse_is_excluded_in_pose_and_source(rig_run):
     front = next(s for s in (c.until("SOURCE") for _ in range(3)) if s["name"] == "front")
     assert front["state"] == "excluded" and front["reason"] == "silent while others move"
     assert front["excluded"] is True and front["connected"] is True
+
+
+def test_a_reload_from_a_fifo_or_device_is_refused_and_never_blocks(rig_run, tmp_path):
+    """Issue 26: SIGHUP with the config or the calibration file replaced by a FIFO blocked
+    the daemon in open() (no POSE, SIGTERM ignored) until something wrote to it.  Now the
+    file is opened non-blocking and checked: the reload is refused naming what the file is,
+    the pose goes on, SIGTERM stops the daemon at once."""
+    cal = tmp_path / "cal.yaml"
+    cal.write_text("mice: {}\n")
+    run = rig_run(sim.straight(1.5, 0.1), extra=f"calibration: {cal}\n")
+    c = Conn(run.daemon.socket_path)
+    c.until("VERSION")
+    good = run.config.read_text()
+    for victim, what in ((run.config, "FIFO"), (cal, "FIFO"), (run.config, "character device")):
+        victim.unlink()
+        if what == "FIFO":
+            os.mkfifo(victim)
+        else:
+            os.symlink("/dev/zero", victim)
+        run.daemon.signal(signal.SIGHUP)
+        deadline = time.monotonic() + 5
+        while "reload failed" not in run.daemon.log() and time.monotonic() < deadline:
+            c.poses(0.1)
+        log = run.daemon.log()
+        assert "reload failed, keeping the running config" in log, log
+        assert f"{victim}" in log and f"is a {what}" in log, log
+        assert len(c.poses(0.3)) >= 5 and run.daemon.proc.poll() is None
+        victim.unlink()
+        if victim == run.config:
+            victim.write_text(good)
+        else:
+            victim.write_text("mice: {}\n")
+        run.daemon.stderr_path.write_text("")
+    t = time.monotonic()
+    run.daemon.signal(signal.SIGTERM)
+    assert run.daemon.proc.wait(5) == 0 and time.monotonic() - t < 1.0

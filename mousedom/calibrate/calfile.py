@@ -19,12 +19,11 @@ import copy
 import os
 import sys
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 import yaml
 
-from mousedom import safewrite, safeyaml
+from mousedom import saferead, safewrite, safeyaml
 from mousedom.config import Config, load_config
 from mousedom.errors import UserError
 
@@ -111,7 +110,7 @@ def store(config: Config, update: Callable[[dict[str, Any]], dict[str, Any]]) ->
     """
     path = config.calibration
     try:
-        old: bytes | None = Path(path).read_bytes()
+        old: bytes | None = saferead.read_bytes(path)
     except OSError:
         old = None  # not written yet (read_calibration says why if it is unreadable)
     data = read_calibration(path)

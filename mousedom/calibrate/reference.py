@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mousedom import saferead
 from mousedom.calibrate.csvtext import content_lines, fields, finite, header_names
 from mousedom.config import WheelsConfig
 from mousedom.errors import UserError, located
@@ -89,8 +90,7 @@ def parse_reference(text: str, path: str | None = None) -> Reference:
 
 def read_reference(path: str) -> Reference:
     try:
-        with open(path, encoding="utf-8") as f:
-            text = f.read()
+        text = saferead.read_text(path)
     except FileNotFoundError:
         raise UserError(f"{path}: reference file not found") from None
     except UnicodeDecodeError as e:

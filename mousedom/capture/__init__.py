@@ -35,6 +35,7 @@ from mousedom.capture.libinput import LibinputCapture, looks_like_libinput
 from mousedom.capture.native import NativeCapture, NativeWriter, is_native
 from mousedom.capture.plain import BOM, compression, discard, plain_copy
 from mousedom.config import Config, EvdevMatch, MouseConfig
+from mousedom.saferead import kind_of, open_regular
 from mousedom.sources.base import Reports
 
 __all__ = [
@@ -68,10 +69,10 @@ def sniff(path: str, data_path: str | None = None) -> str:
                 raise IsADirectoryError
             # A pipe would lose what the sniffing read: the readers open the file again.
             raise CaptureError(
-                f"{path}: not a regular file (a pipe?); a capture is read more than once, "
-                "save it to a file first"
+                f"{path}: is {kind_of(os.stat(path).st_mode)}, not a regular file; a capture "
+                "is read more than once, save it to a file first"
             )
-        with open(data_path or path, "rb") as f:
+        with open_regular(data_path or path) as f:
             prefix = f.read(65536)
     except FileNotFoundError:
         if path.endswith(".desc") or path.endswith(".events"):

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from mousedom.errors import UserError
+from mousedom.saferead import NotRegularFile, open_regular
 from mousedom.sources.events import AssemblerStats, FrameAssembler
 
 
@@ -35,11 +36,13 @@ class CaptureError(UserError):
 def open_binary(path: str):
     """Open a capture for reading; a missing or unreadable file is a CaptureError."""
     try:
-        return open(path, "rb")
+        return open_regular(path)
     except FileNotFoundError:
         raise CaptureError(f"{path}: capture file not found") from None
     except IsADirectoryError:
         raise CaptureError(f"{path}: is a directory, not a capture") from None
+    except NotRegularFile as e:
+        raise CaptureError(f"{path}: {e.strerror}; a capture is read from a file") from None
     except OSError as e:
         raise CaptureError(f"{path}: cannot read: {e.strerror}") from None
 

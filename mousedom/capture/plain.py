@@ -24,6 +24,7 @@ from collections.abc import Iterator
 from typing import BinaryIO
 
 from mousedom.capture.base import CaptureError
+from mousedom.saferead import open_regular
 
 BLOCK = 1 << 20
 # Decompressed size beyond which a file is taken as a decompression bomb, not a capture
@@ -92,12 +93,12 @@ def plain_copy(path: str) -> tuple[str | None, str | None]:
 
     A compressed stream cut off at its end (a recording piped into gzip when the robot
     lost power) keeps what it held, with a warning, as an uncompressed torn file would."""
-    with open(path, "rb") as f:
+    with open_regular(path) as f:
         prefix = f.read(8)
     kind = compression(prefix)
     if kind is None and (prefix.startswith(NATIVE_MAGIC) or not _needs_text_repair(path)):
         return None, None
-    with open(path, "rb") as src:
+    with open_regular(path) as src:
         pieces = _decompress(src, kind) if kind else iter(lambda: src.read(BLOCK), b"")
         limit = MAX_PLAIN_BYTES
         if kind:
@@ -115,7 +116,7 @@ def discard(copy: str | None) -> None:
 
 def _needs_text_repair(path: str) -> bool:
     """A BOM at the start, or a CR anywhere (memchr speed: a cheap pass over the file)."""
-    with open(path, "rb") as f:
+    with open_regular(path) as f:
         first = True
         while block := f.read(BLOCK):
             if first and block.startswith(BOM):

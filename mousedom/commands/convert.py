@@ -13,8 +13,8 @@ import math
 import os
 import sys
 from dataclasses import dataclass
-from pathlib import Path
 
+from mousedom import saferead
 from mousedom.allocator import keep_freed_memory
 from mousedom.capture import (
     Capture,
@@ -60,7 +60,7 @@ def run(args) -> int:
         from mousedom.config import load_config
 
         load_config(args.config, need_sources=False)  # refuse a broken config early
-        config_text = Path(args.config).read_text()
+        config_text = saferead.read_text(args.config)
     inputs: list[tuple[str | None, Capture]] = []
     for arg in args.capture:
         name, path = parse_capture_arg(arg)

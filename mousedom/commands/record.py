@@ -24,8 +24,8 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from pathlib import Path
 
+from mousedom import saferead
 from mousedom.commands import _options as options
 from mousedom.config import Config, MouseConfig, load_config
 from mousedom.errors import UserError
@@ -393,7 +393,7 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"{args.output}: is the config file {args.config}; not overwriting it")
     if os.path.exists(args.output) and not args.force:
         raise UserError(f"{args.output}: exists; not overwriting a recording (use --force)")
-    config_text = Path(args.config).read_text()
+    config_text = saferead.read_text(args.config)
     if args.duration is not None and not (args.duration > 0 and math.isfinite(args.duration)):
         raise UserError(f"--duration: must be a positive number of seconds, got {args.duration}")
     if not (args.status_interval >= 0 and math.isfinite(args.status_interval)):

@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from pathlib import Path
 
+from mousedom import saferead
 from mousedom.allocator import keep_freed_memory
 from mousedom.calibrate import calfile, report
 from mousedom.calibrate.umbmark import HEADER, parse_runs, umbmark
@@ -37,7 +37,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _read(path: str) -> str:
     try:
         # Bytes, decoded here: binary garbage is one clear line whatever the locale.
-        raw = sys.stdin.buffer.read() if path == "-" else Path(path).read_bytes()
+        raw = sys.stdin.buffer.read() if path == "-" else saferead.read_bytes(path)
         return raw.decode("utf-8")
     except FileNotFoundError:
         raise UserError(f"{path}: file not found") from None

@@ -10,10 +10,10 @@ bench tool that keeps a serial sensor's raw bytes too.)
 from __future__ import annotations
 
 import logging
-from pathlib import Path
 
 import numpy as np
 
+from mousedom import saferead
 from mousedom.capture.base import DeviceInfo
 from mousedom.capture.native import NativeWriter
 from mousedom.config import Config, MouseConfig
@@ -39,8 +39,8 @@ class Recording:
         text = None
         if config.path:
             try:
-                text = Path(config.path).read_text()
-            except OSError:
+                text = saferead.read_text(config.path)
+            except (OSError, UnicodeDecodeError):
                 text = None
         try:
             self.writer = NativeWriter(
