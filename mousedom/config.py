@@ -115,6 +115,7 @@ class ServerConfig:
     max_clients: int = 32
     queue_lines: int = 256
     max_line: int = 4096
+    idle_timeout_s: float = 10.0  # output waiting this long, nothing sent: the client goes
 
 
 @dataclass(frozen=True)
@@ -172,7 +173,7 @@ TOP_KEYS = ("rate_hz", "model", "integrator", "mice", "server", "wheels", "calib
 MOUSE_KEYS = ("cpi", "mount", "flip", "sigma", "report_hz", "evdev", "serial", "replay",
               "max_speed", "min_squal")  # fmt: skip
 SERVER_KEYS = ("socket", "mode", "group", "control_uids", "control_gids", "max_clients",
-               "queue_lines", "max_line")  # fmt: skip
+               "queue_lines", "max_line", "idle_timeout_s")  # fmt: skip
 
 
 # --------------------------------------------------------------------------- sections
@@ -339,6 +340,7 @@ def _server(r: Reader) -> ServerConfig:
         max_clients=s.integer("max_clients", 32, minimum=1),
         queue_lines=s.integer("queue_lines", 256, minimum=1),
         max_line=s.integer("max_line", 4096, minimum=64),
+        idle_timeout_s=s.number("idle_timeout_s", 10.0, within=(0.5, 86400.0)),
     )
     s.finish()
     return server

@@ -51,8 +51,11 @@ class Harness:
 
     def _loop(self) -> None:
         while not self.stop:
-            for key, mask in self.sel.select(0.1):
+            events = self.sel.select(0.05)
+            self.server.tick(time.monotonic())
+            for key, mask in events:
                 key.data(mask)
+            self.server.serve_backlog()
             while not self.jobs.empty():
                 self.jobs.get()()
 
@@ -208,16 +211,25 @@ def test_client_limit(harness):
 
 
 def test_stalled_client_is_dropped_and_others_keep_receiving(harness):
-    h = harness(queue_lines=8)
+    """A client that reads nothing keeps only the latest POSE waiting (never a backlog), and
+    goes once its output has waited idle_timeout_s of running time; the reader gets all."""
+    h = harness(queue_lines=8, idle_timeout_s=0.6)
     stalled, reader = Peer(h.server.path), Peer(h.server.path)
     stalled.read(), reader.read()
-    line = encode({"class": "POSE", "pad": "x" * 400})
     got = 0
-    for _ in range(600):  # ~250 kB: more than the kernel buffers plus 8 queued lines
-        h.call(lambda: h.server.broadcast_pose(0.0, line, 0.0))
-        assert reader.read()["class"] == "POSE"
+    for k in range(600):  # ~250 kB: more than the kernel buffers
+        line = encode({"class": "POSE", "k": k, "pad": "x" * 400})
+        h.call(lambda line=line: h.server.broadcast_pose(0.0, line, 0.0))
+        assert reader.read()["k"] == k
         got += 1
-    assert got == 600
+    assert got == 600 and h.server.dropped == 0  # not yet: it has not waited long enough
+    held = [c for c in h.server.clients.values() if c.pose is not None]
+    assert len(held) == 1 and json.loads(held[0].pose)["k"] == 599 and not held[0].queue
+    deadline = time.monotonic() + 5
+    while h.server.dropped == 0 and time.monotonic() < deadline:
+        h.call(lambda: h.server.broadcast_pose(0.0, encode({"class": "POSE", "k": -1}), 0.0))
+        assert reader.read()["k"] == -1
+        time.sleep(0.05)
     assert h.server.dropped == 1 and len(h.server.clients) == 1
     # The stalled peer gets what was in the kernel buffer, then end of file.
     stalled.sock.settimeout(3)
@@ -225,6 +237,40 @@ def test_stalled_client_is_dropped_and_others_keep_receiving(harness):
     while stalled.file.readline():
         n += 1
     assert 0 < n < 600
+
+
+def test_after_a_stall_a_reading_client_gets_the_latest_pose_and_stays(harness):
+    """Issue 26: after the loop stalled, the backlog of windows went to every client and
+    all were dropped together.  Now each keeps only the latest POSE beyond what the kernel
+    holds, the daemon's stall does not count against it, and a client that reads again
+    gets that latest POSE next (after its owed SOURCE lines) and stays connected."""
+    h = harness(queue_lines=8, idle_timeout_s=1.0)
+    clients = [Peer(h.server.path) for _ in range(5)]
+    for c in clients:
+        c.read()
+    stall = {"at": None}
+
+    def backlog() -> None:
+        # The daemon was stopped for 9 s: its clock jumps, then 450 windows close at once.
+        h.server.tick(time.monotonic() + 9.0)
+        h.server.broadcast(encode({"class": "SOURCE", "name": "m"}))
+        for k in range(450):
+            h.server.broadcast_pose(k * 0.02, encode({"class": "POSE", "k": k, "p": "x" * 300}),
+                                    0.0)  # fmt: skip
+        stall["at"] = h.server.running
+
+    h.call(backlog)
+    assert stall["at"] is not None and h.server.dropped == 0
+    for c in clients:
+        seen = []
+        while True:
+            m = c.read()
+            seen.append(m)
+            if m.get("k") == 449:
+                break
+        assert any(m["class"] == "SOURCE" for m in seen)  # what it was owed
+        assert len(seen) < 200  # what the kernel held, then the latest: not the backlog
+    assert len(h.server.clients) == 5 and h.server.dropped == 0
 
 
 def test_client_rate_decimates_poses(harness):

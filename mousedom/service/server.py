@@ -1,8 +1,19 @@
 """The Unix-socket publisher: listening socket, clients, bounded queues, permissions.
 
-The server never blocks the fusion.  Every socket is non-blocking; what a client cannot take
-right now waits in its own queue of at most ``queue_lines`` lines, and a client whose queue
-is full is dropped (a stalled reader is not worth one late pose for the others).  Commands
+The server never blocks the fusion, and no client starves another (docs/protocol.md,
+"Limits").  Every socket is non-blocking.  What a client cannot take right now waits: the
+lines it is owed (VERSION, SOURCE, replies, ERROR) in order, at most ``queue_lines`` of
+them, and of the POSEs only the latest, which replaces an older one still waiting.  So after
+any stall (the daemon's or the client's) a reading client gets the freshest pose next, not
+a backlog.  A client is dropped only for not reading while the daemon runs: its owed lines
+overflow, or its output has waited ``idle_timeout_s`` of the daemon's running time (a
+stall of the daemon itself does not count against anyone) while it sent nothing either.
+
+The work one client can cause per loop iteration is bounded (``Budget``): a few accepts
+per wake-up, one read of ``READ_BYTES`` and ``LINES_PER_TURN`` lines per client (the rest
+waits for the next iteration), and lines that carry nothing (blank, or answered with an
+ERROR) draw on a small allowance that refills with time; a client that exhausts it is
+dropped.  Commands
 are parsed by ``mousedom.service.protocol``; the ones that move the pose are allowed only to
 the uids and gids of ``server.control_uids/control_gids`` (and the daemon's own uid), read from the
 peer with SO_PEERCRED.  The daemon owns the selector and calls ``Server.handle_event`` for
@@ -42,6 +53,16 @@ SOCKET_NAME = "mousedom.sock"
 # Small kernel send buffers make a stalled client show up in its queue within a second or
 # two instead of after the kernel has swallowed minutes of poses.
 SNDBUF = 32 * 1024
+# What one client may cause per loop iteration (see the module docstring).
+ACCEPTS_PER_TURN = 4
+READ_BYTES = 4096
+LINES_PER_TURN = 16
+# Lines that carry nothing: a burst of this many, then this many a second.
+JUNK_BURST = 64
+JUNK_PER_S = 8.0
+# A gap between two loop iterations longer than this is the daemon's own stall (SIGSTOP, a
+# VM pause, swapping): only this much of it counts as running time.
+MAX_TICK_S = 0.25
 
 
 def default_socket_path(environ: dict[str, str] | None = None, uid: int | None = None) -> str:
@@ -73,9 +94,14 @@ class Client:
         self.pid, self.uid, self.gid = peer_credentials(sock)
         self.control = control
         self.rx = LineBuffer(settings.max_line)
-        self.queue: deque[bytes] = deque()
+        self.lines: deque[bytes | TooLong] = deque()  # read, not yet answered (LINES_PER_TURN)
+        self.queue: deque[bytes] = deque()  # lines owed, in order
+        self.pose: bytes | None = None  # the latest POSE not yet handed to the kernel
         self.queue_limit = settings.queue_lines
-        self.partial = b""  # the unsent tail of the line being written
+        self.partial = b""  # the unsent tail of the line(s) being written
+        self.waiting_since: float | None = None  # running time since output has waited
+        self.junk = float(JUNK_BURST)  # allowance for lines that carry nothing
+        self.junk_t = 0.0  # running time of the allowance's last refill
         self.want_write = False  # registered for EVENT_WRITE (a tail is waiting)
         self.period = 0.0  # seconds between POSEs for this client; 0: every pose
         self.paused = False  # rate 0: no POSE at all
@@ -130,8 +156,14 @@ class Server:
         self.on_connect = on_connect
         self.clients: dict[int, Client] = {}
         self.listener: socket.socket | None = None
-        self.dropped = 0  # clients dropped for a full queue
+        self.dropped = 0  # clients dropped for not reading (owed lines overflowing, idle)
         self.refused = 0  # clients refused for the client limit
+        # The daemon's running time: wall time with its own stalls cut to MAX_TICK_S, so a
+        # paused daemon never blames its clients for what it did not send.
+        self.running = 0.0
+        self._last_tick: float | None = None
+        self._next_check = 0.0
+        self.backlog: set[Client] = set()  # clients with read lines still to answer
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -251,7 +283,7 @@ class Server:
 
     def _accept(self, events: int) -> None:
         assert self.listener is not None
-        while True:
+        for _ in range(ACCEPTS_PER_TURN):  # the rest wait in the listen backlog
             try:
                 sock, _ = self.listener.accept()
             except (BlockingIOError, InterruptedError):
@@ -275,6 +307,7 @@ class Server:
                     pass
                 sock.close()
                 continue
+            client.junk_t = self.running
             self.clients[client.fd] = client
             self.selector.register(sock, selectors.EVENT_READ, self._make_handler(client))
             log.debug("connected %r (control=%s)", client, client.control)
@@ -303,8 +336,11 @@ class Server:
         self.drop(client, f"internal error: {type(error).__name__}")
 
     def _read(self, client: Client) -> None:
+        if client.lines:
+            self._answer_some(client)  # its earlier lines first; the socket waits
+            return
         try:
-            data = client.sock.recv(65536)
+            data = client.sock.recv(READ_BYTES)
         except (BlockingIOError, InterruptedError):
             return
         except OSError as e:
@@ -313,20 +349,52 @@ class Server:
         if not data:
             self.drop(client, None)
             return
-        for line in client.rx.feed(data):
+        client.waiting_since = None  # it talks to us: not idle
+        client.lines.extend(client.rx.feed(data))
+        self._answer_some(client)
+
+    def _answer_some(self, client: Client) -> None:
+        """Answer up to LINES_PER_TURN of a client's lines; the rest wait in ``backlog``."""
+        lines = client.lines
+        for _ in range(min(len(lines), LINES_PER_TURN)):
             if client.fd not in self.clients:
                 return
-            for msg in self._answer(client, line):
+            for msg in self._answer(client, lines.popleft()):
                 self.send(client, encode(msg))
+        if lines and client.fd in self.clients:
+            self.backlog.add(client)
+        else:
+            self.backlog.discard(client)
+
+    def serve_backlog(self) -> None:
+        """One turn for each client with lines read but not yet answered (the daemon calls
+        this once per loop iteration: such a client's socket may not wake it again)."""
+        for client in list(self.backlog):
+            self.backlog.discard(client)
+            if client.fd in self.clients:
+                self._answer_some(client)
+
+    def _junk(self, client: Client) -> None:
+        """A line that carried nothing: it draws on the client's allowance."""
+        c = client
+        c.junk = min(JUNK_BURST, c.junk + (self.running - c.junk_t) * JUNK_PER_S) - 1.0
+        c.junk_t = self.running
+        if c.junk < 0:
+            self.dropped += 1
+            self.drop(c, f"sends lines that carry nothing (blank or bad) faster than "
+                         f"{JUNK_PER_S:g} a second")  # fmt: skip
 
     def _answer(self, client: Client, line: bytes | TooLong) -> list[dict[str, Any]]:
         if isinstance(line, TooLong):
+            self._junk(client)
             return [error_message(f"line too long ({line.size} > {client.rx.max_line} bytes)")]
         if not line.strip():
+            self._junk(client)
             return []
         try:
             cmd = parse_command(line)
         except ProtocolError as e:
+            self._junk(client)
             return [error_message(str(e), e.id)]
         if cmd.name in POSE_MOVING and not client.control:
             log.warning("%r may not %s the pose (server.control_uids/gids)", client, cmd.name)
@@ -342,20 +410,32 @@ class Server:
     # ------------------------------------------------------------------ output
 
     def send(self, client: Client, line: bytes) -> None:
-        """Queue one line for a client; drop the client when its queue is full."""
+        """Queue one line the client is owed; drop the client when its owed lines overflow
+        (it has not read for that long)."""
         if client.fd not in self.clients:
             return
-        if len(client.queue) >= client.queue_limit:
-            self.dropped += 1
-            self.drop(client, f"queue full ({client.queue_limit} lines): client not reading")
-            return
-        if not client.queue and not client.partial:
+        if not client.queue and not client.partial and client.pose is None:
             # Nothing waiting (the usual case): the line goes out now, without the queue.
             client.partial = line
             client.lines_out += 1
             self._flush(client)
             return
+        if len(client.queue) >= client.queue_limit:
+            self.dropped += 1
+            self.drop(client, f"queue full ({client.queue_limit} lines): client not reading")
+            return
         client.queue.append(line)
+
+    def send_pose(self, client: Client, line: bytes) -> None:
+        """A POSE: sent now if nothing waits, else it replaces the POSE waiting (if any)."""
+        if client.fd not in self.clients:
+            return
+        if not client.queue and not client.partial and client.pose is None:
+            client.partial = line
+            client.lines_out += 1
+            self._flush(client)
+            return
+        client.pose = line
 
     def broadcast(self, line: bytes) -> None:
         for client in list(self.clients.values()):
@@ -366,18 +446,22 @@ class Server:
         n = 0
         for client in list(self.clients.values()):
             if client.wants_pose(t, tolerance):
-                self.send(client, line)
+                self.send_pose(client, line)
                 n += 1
         return n
 
     def _flush(self, client: Client) -> None:
         sock = client.sock
-        while client.partial or client.queue:
+        while client.partial or client.queue or client.pose is not None:
             if not client.partial:
                 # Several lines per send: fewer syscalls when a client lags a little.
-                chunk = [client.queue.popleft()]
+                # The lines owed go first, then the latest POSE.
+                chunk = []
                 while client.queue and len(chunk) < 64:
                     chunk.append(client.queue.popleft())
+                if not client.queue and client.pose is not None:
+                    chunk.append(client.pose)
+                    client.pose = None
                 client.partial = b"".join(chunk)
                 client.lines_out += len(chunk)
             try:
@@ -389,7 +473,28 @@ class Server:
                 self.drop(client, None if quiet else f"write error: {e}")
                 return
             client.partial = client.partial[n:]
-        self._want_write(client, bool(client.partial or client.queue))
+            client.waiting_since = None  # it takes what it is sent
+        waiting = bool(client.partial or client.queue or client.pose is not None)
+        if waiting and client.waiting_since is None:
+            client.waiting_since = self.running
+        self._want_write(client, waiting)
+
+    def tick(self, now: float) -> None:
+        """Once per loop iteration: advance the running time (a stall of the daemon counts
+        for at most MAX_TICK_S) and, a few times a second, drop clients whose output has
+        waited ``idle_timeout_s`` of it while they sent nothing."""
+        if self._last_tick is not None:
+            self.running += min(max(now - self._last_tick, 0.0), MAX_TICK_S)
+        self._last_tick = now
+        if self.running < self._next_check:
+            return
+        self._next_check = self.running + 0.1
+        limit = self.settings.idle_timeout_s
+        for client in list(self.clients.values()):
+            since = client.waiting_since
+            if since is not None and self.running - since > limit:
+                self.dropped += 1
+                self.drop(client, f"idle: took nothing and sent nothing for {limit:g} s")
 
     def _want_write(self, client: Client, want: bool) -> None:
         if want == client.want_write:
@@ -402,6 +507,7 @@ class Server:
     def drop(self, client: Client, reason: str | None) -> None:
         if self.clients.pop(client.fd, None) is None:
             return
+        self.backlog.discard(client)
         if reason:
             log.warning("dropping %r: %s", client, reason)
         else:
