@@ -346,3 +346,41 @@ def test_a_client_rate_keeps_its_phase_and_restarts_after_falling_behind():
     finally:
         a.close()
         b.close()
+
+
+def test_lines_that_carry_nothing_use_up_an_allowance(harness):
+    """Blank lines get no reply, so no queue ever filled and a flood of them was never
+    dropped; now they (and bad lines) draw on an allowance that refills slowly."""
+    from mousedom.service.server import JUNK_BURST
+
+    h = harness()
+    flooder, fine = Peer(h.server.path), Peer(h.server.path)
+    flooder.read(), fine.read()
+    flooder.send(b"\n" * (JUNK_BURST - 8))
+    fine.send(b"\n" * 4 + b'{"cmd": "status"}\n')
+    assert fine.read()["cmd"] == "status"
+    time.sleep(0.2)
+    assert h.server.dropped == 0  # a burst is allowed
+    try:
+        flooder.send(b"\n" * 64)
+    except OSError:
+        pass
+    deadline = time.monotonic() + 3
+    while h.server.dropped == 0 and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert h.server.dropped == 1 and len(h.server.clients) == 1
+    fine.send(b'{"cmd": "status"}\n')
+    assert fine.read()["cmd"] == "status"
+
+
+def test_one_client_gets_a_bounded_turn_per_wake(harness):
+    """A client's lines beyond LINES_PER_TURN wait for the next wake (backlog); all are
+    answered in order in the end."""
+    from mousedom.service.server import LINES_PER_TURN
+
+    h = harness(control_uids=(os.getuid(),))
+    p = Peer(h.server.path)
+    p.read()
+    n = LINES_PER_TURN * 5
+    p.send(b"".join(b'{"cmd": "status", "id": %d}\n' % k for k in range(n)))
+    assert [p.read()["id"] for _ in range(n)] == list(range(n))

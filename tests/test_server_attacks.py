@@ -1,0 +1,36 @@
+"""Fairness under attack (issue 26): a running daemon (the demo rig at 50 Hz, looping)
+is attacked through its socket by separate processes while a healthy client, in a process
+of its own, measures the gaps between the POSE lines it receives (scripts/attack.py).
+
+Before the budgets, a connect/close flood gave the healthy client gaps of 0.7-0.9 s and
+four clients sending bare newlines gaps over 100 ms; 32 idle connections held every
+client slot for ever.  Each attack runs for a bounded time here; longer runs:
+``python scripts/attack.py --seconds 30``."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+from conftest import REPO, mousedom_env
+
+
+
+@pytest.mark.parametrize("attack", ["connect", "newlines", "status", "badlines", "idle"])
+def test_a_healthy_client_keeps_its_poses_under_attack(attack):
+    proc = subprocess.run(
+        [sys.executable, str(REPO / "scripts" / "attack.py"), "--seconds", "2",
+         "--attack", attack, "--idle-timeout", "2", "--json"],
+        capture_output=True, text=True, timeout=120, env=mousedom_env(),
+    )  # fmt: skip
+    rows = [json.loads(line) for line in proc.stdout.splitlines() if line.startswith("{")]
+    assert len(rows) == 1, proc.stdout + proc.stderr
+    row = rows[0]
+    assert not row["dropped"], row
+    assert row["poses"] >= 80, row  # 2 s at 50 Hz, and more
+    assert row["worst_gap_ms"] < 50.0, row
+    if attack == "idle":
+        assert row["new_client_after_idle"] is True, row
+    assert proc.returncode == 0, proc.stdout + proc.stderr
