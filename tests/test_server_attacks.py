@@ -17,7 +17,6 @@ import pytest
 from conftest import REPO, mousedom_env
 
 
-
 @pytest.mark.parametrize("attack", ["connect", "newlines", "status", "badlines", "idle"])
 def test_a_healthy_client_keeps_its_poses_under_attack(attack):
     proc = subprocess.run(
