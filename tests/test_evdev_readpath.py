@@ -5,6 +5,7 @@ arbitrary event streams cut at arbitrary byte offsets."""
 
 from __future__ import annotations
 
+import math
 import os
 
 import numpy as np
@@ -64,6 +65,17 @@ framed = st.lists(frame, max_size=30).map(
     ]
 )
 records = loose | framed
+
+
+@pytest.fixture(autouse=True)
+def _stamps_on_their_own_clock(monkeypatch):
+    """These tests write stamps on a clock of their own (0 to 101 s) and read at time 0:
+    the bound of stamps against the read's time (sources.base.STAMP_AHEAD_S) is lifted
+    here and tested in test_stamps.py."""
+    from mousedom.sources import base
+
+    monkeypatch.setattr(base, "STAMP_AHEAD_S", math.inf)
+    monkeypatch.setattr(base, "STAMP_BEHIND_S", math.inf)
 
 
 def to_bytes(rows) -> bytes:

@@ -3,6 +3,7 @@ input_event bytes; unplug (the writer closes) and reattach; matching via a fake 
 
 from __future__ import annotations
 
+import math
 import os
 import struct
 import threading
@@ -19,6 +20,17 @@ from mousedom.errors import UserError
 from mousedom.sources.base import SourceGone, SourceUnavailable
 from mousedom.sources.evdev import CLOCK_MONOTONIC, EVIOCSCLOCKID, EvdevSource
 from mousedom.sources.events import EV_KEY, EV_REL, EV_SYN, REL_X, SYN_DROPPED, encode_input_events
+
+
+@pytest.fixture(autouse=True)
+def _stamps_on_their_own_clock(monkeypatch):
+    """These tests write stamps on a clock of their own (0 to 101 s) and read at time 0:
+    the bound of stamps against the read's time (sources.base.STAMP_AHEAD_S) is lifted
+    here and tested in test_stamps.py."""
+    from mousedom.sources import base
+
+    monkeypatch.setattr(base, "STAMP_AHEAD_S", math.inf)
+    monkeypatch.setattr(base, "STAMP_BEHIND_S", math.inf)
 
 
 def mouse(**match) -> MouseConfig:

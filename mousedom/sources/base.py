@@ -17,6 +17,47 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 
+# A report's stamp is a time on the host's CLOCK_MONOTONIC, taken at or before the read that
+# delivers it.  A stamp beyond these bounds of the read's own time is a fault of the source
+# (a FIFO writer's bug, a stream read out of step with its 24-byte records, a clock that
+# was stepped): it is re-stamped to the read's time, so its counts are kept, the source's
+# health says so, and no window grid is stretched to the far time (a stamp 1e6 s ahead
+# once made the daemon close windows for ever).  Behind: a daemon stopped for a while
+# (SIGSTOP, a VM pause) reads reports the kernel stamped that long ago, which are true.
+STAMP_AHEAD_S = 1.0
+STAMP_BEHIND_S = 60.0
+
+
+def bound_stamps(t: list[float], now: float) -> tuple[int, float]:
+    """Re-stamp, in place, the stamps of ``t`` outside [now - STAMP_BEHIND_S, now +
+    STAMP_AHEAD_S] to ``now``; (how many, the largest distance from ``now``, 0.0 if none).
+    Stamps that are not finite numbers count as infinitely far."""
+    lo, hi = now - STAMP_BEHIND_S, now + STAMP_AHEAD_S
+    if t and lo <= min(t) and max(t) <= hi:  # the usual case: one pass each, in C
+        return 0, 0.0
+    n, worst = 0, 0.0
+    for i, v in enumerate(t):
+        if not lo <= v <= hi:  # NaN fails this too
+            n += 1
+            off = abs(v - now)
+            worst = max(worst, off if off == off else float("inf"))
+            t[i] = now
+    return n, worst
+
+
+def bound_stamp_array(t: np.ndarray, now: float) -> tuple[np.ndarray, int, float]:
+    """``bound_stamps`` for an array (a copy when anything is re-stamped)."""
+    lo, hi = now - STAMP_BEHIND_S, now + STAMP_AHEAD_S
+    bad = ~((t >= lo) & (t <= hi))
+    if not bad.any():
+        return t, 0, 0.0
+    off = np.abs(t[bad] - now)
+    worst = float(np.nanmax(off)) if np.isfinite(off).any() else float("inf")
+    if np.isnan(off).any():
+        worst = float("inf")
+    return np.where(bad, now, t), int(bad.sum()), worst
+
+
 class SourceUnavailable(Exception):
     """The device cannot be opened now (absent, no permission); retry later."""
 
@@ -133,6 +174,23 @@ class Source(ABC):
         self.health = SourceHealth(name=name, kind=self.kind)
         self._rate_t0: float | None = None
         self._rate_n = 0
+        self.stamps_restamped = 0  # reports whose stamp was far from the clock (see above)
+
+    def _far_stamps(self, n: int, worst: float) -> None:
+        """Count re-stamped reports and say so in the health (SOURCE, the log once)."""
+        if not n:
+            return
+        first = not self.stamps_restamped
+        self.stamps_restamped += n
+        self.health.extra["stamps_restamped"] = self.stamps_restamped
+        self.health.error = (
+            f"{self.stamps_restamped} report(s) stamped far from the clock (up to "
+            f"{worst:.3g} s): re-stamped on arrival, counts kept"
+        )
+        if first:
+            import logging
+
+            logging.getLogger(__name__).warning("%s: %s", self.name, self.health.error)
 
     def open(self) -> None:
         """Open (or reopen) the device; raises SourceUnavailable when it is not there."""
@@ -160,6 +218,13 @@ class Source(ABC):
             n = len(t)
             if not n:
                 continue
+            if type(t) is list:
+                far = bound_stamps(t, now)
+            else:
+                b._t, *far = bound_stamp_array(t, now)
+                t = b._t
+            if far[0]:
+                self._far_stamps(*far)
             health.reports += n
             health.last_t = float(t[-1])
             # Report rate over a sliding ~1 s span: cheap and good enough for status.

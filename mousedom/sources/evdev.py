@@ -34,7 +34,14 @@ from typing import Any
 import numpy as np
 
 from mousedom.config import EvdevMatch, MouseConfig
-from mousedom.sources.base import Reports, Source, SourceGone, SourceUnavailable
+from mousedom.sources.base import (
+    Reports,
+    Source,
+    SourceGone,
+    SourceUnavailable,
+    bound_stamp_array,
+    bound_stamps,
+)
 from mousedom.sources.discovery import (
     AmbiguousDevice,
     DeviceInfo,
@@ -241,7 +248,7 @@ class EvdevSource(Source):
                 break
         buf = b"".join(chunks)  # one chunk (the usual case): that same object, no copy
         if gone is None and len(buf) <= self.small_read:
-            return self._small(buf)
+            return self._small(buf, now)
         events, self._rest = decode_input_events(buf)
         frames = self.assembler.feed_events(events)
         if gone is not None:
@@ -255,14 +262,18 @@ class EvdevSource(Source):
         self._gone = gone  # raised by the next call, after these frames are delivered
         if not len(frames):
             return []
-        t, back = _clamp_forward(frames.t, self._last_t)
+        # Far stamps first: one must not become the floor that every later stamp is
+        # raised to (see base.STAMP_AHEAD_S).
+        bounded, *far = bound_stamp_array(frames.t, now)
+        self._far_stamps(*far)
+        t, back = _clamp_forward(bounded, self._last_t)
         if back:
             self.time_backwards += back
             self._update_health()
         self._last_t = float(t[-1])
         return [Reports(self.name, t, frames.dx.astype(np.float64), frames.dy)]
 
-    def _small(self, buf: bytes) -> list[Reports]:
+    def _small(self, buf: bytes, now: float) -> list[Reports]:
         """A live read of a few frames: the same results as the bulk path below (the
         property tests compare them), on Python lists without a numpy call; the lists go
         to the tracker as they are (``Reports.from_lists``)."""
@@ -270,6 +281,7 @@ class EvdevSource(Source):
         if not t:
             self._update_health()
             return []
+        self._far_stamps(*bound_stamps(t, now))
         back = _clamp_list(t, self._last_t)
         if back:
             self.time_backwards += back
