@@ -16,7 +16,6 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-
 # A report's stamp is a time on the host's CLOCK_MONOTONIC, taken at or before the read that
 # delivers it.  A stamp beyond these bounds of the read's own time is a fault of the source
 # (a FIFO writer's bug, a stream read out of step with its 24-byte records, a clock that
