@@ -32,6 +32,7 @@ try:  # libyaml's parser when present: faster, and the same events
 except AttributeError:  # pragma: no cover - depends on how PyYAML was built
     _Parser = yaml.SafeLoader
 
+_OCTAL_LOOKING = re.compile(r"^[-+]?0[0-7_]+$")
 _TRAILING_TAB = re.compile(r"[ \t]*\t[ \t]*$", re.MULTILINE)
 
 
@@ -43,6 +44,15 @@ class Loader(yaml.SafeLoader):
     """SafeLoader whose integers are bounded in length (what the limit check cannot see)."""
 
     def construct_yaml_int(self, node: yaml.ScalarNode) -> int:
+        if _OCTAL_LOOKING.match(str(node.value)):
+            # YAML 1.1 (PyYAML's) reads 0450 as octal 296; YAML 1.2 and every person as 450.
+            raise LimitError(
+                problem=f"{node.value}: a number with a leading zero is ambiguous (YAML 1.1 "
+                f"reads it as octal, {int(str(node.value).replace('_', ''), 8)}); write it "
+                "without the zero, or quote it where an octal file mode is meant "
+                '(mode: "0660")',
+                problem_mark=node.start_mark,
+            )
         digits = len(str(node.value))
         if digits > MAX_INT_DIGITS:
             raise LimitError(

@@ -187,7 +187,7 @@ def test_cpi_bad_inputs(cpi_session):
         run_mousedom(
             "calibrate", "cpi", "--config", str(bad), "--capture", left, "--distance", "-1"
         ),
-        "must be a positive number",
+        "must be a length between 0.0001 and 1e7 m",
     )
 
 
@@ -394,7 +394,7 @@ def test_distance_json_and_write(tmp_path):
     )
     fails(
         calib("distance", cfg, *caps, "--angle", "0"),
-        "non-zero",
+        "between 0.1 and 36000 degrees",
     )
     # Regression: the angle in radians (1.5708 for 90 deg) gave D = 15.5 m and no word.
     p = ok(calib("distance", cfg, *caps, "--angle", "1.5708"))

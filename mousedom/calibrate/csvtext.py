@@ -10,6 +10,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+import re
 
 from mousedom.errors import UserError, located
 
@@ -38,13 +39,28 @@ def header_names(line: str, path: str | None = None, lineno: int | None = None) 
     return [c.strip().lower() for c in fields(line, path, lineno)]
 
 
-def finite(raw: str, path: str | None, line: int, column: str) -> float:
-    """``raw`` as a finite float, or a UserError naming file, line and column."""
+# A number as people and spreadsheets write one: ASCII digits only.  float() also takes
+# "1_0", Arabic-Indic and full-width digits, "nan" and "infinity": none is a measurement.
+_NUMBER = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?", re.ASCII)
+# No value in these files comes near it (times are below 1e10 s, lengths below 1e4 m);
+# beyond it sums and squares overflow to inf.
+MAX_ABS = 1e12
+
+
+def finite(raw: str, path: str | None, line: int, column: str, max_abs: float = MAX_ABS) -> float:
+    """``raw`` as a finite float of at most ``max_abs`` in size, written in ASCII decimal
+    notation, or a UserError naming file, line and column."""
     raw = raw.strip()
-    try:
-        v = float(raw)
-    except ValueError:
-        raise UserError(located(path, line, f"not a number: {raw!r}", column)) from None
-    if not math.isfinite(v):
-        raise UserError(located(path, line, f"not a finite number: {raw!r}", column))
+    if not _NUMBER.fullmatch(raw):
+        try:
+            infinite = not math.isfinite(float(raw))  # nan, inf, infinity
+        except ValueError:
+            infinite = False
+        what = "not a finite number" if infinite else "not a number"
+        raise UserError(located(path, line, f"{what}: {raw!r}", column))
+    v = float(raw)
+    if abs(v) > max_abs:
+        raise UserError(
+            located(path, line, f"not a plausible number: {raw!r} (at most {max_abs:g})", column)
+        )
     return v

@@ -88,6 +88,9 @@ def umbmark_row(direction: str, final_pose: Sequence[float], true_pose: Sequence
     return f"{direction},{dx:.6f},{dy:.6f}"
 
 
+MAX_END_ERROR_M = 1e4
+
+
 def parse_runs(text: str, path: str | None = None) -> tuple[list[str], np.ndarray]:
     """Parse RUNS.csv text; errors name the file, line and column."""
     lines = content_lines(text)
@@ -120,5 +123,6 @@ def parse_runs(text: str, path: str | None = None) -> tuple[list[str], np.ndarra
         if d not in DIRECTIONS:
             raise UserError(located(path, no, f"must be cw or ccw, got {d!r}", "direction"))
         directions.append(d)
-        errors.append([finite(row[col[c]], path, no, c) for c in ("dx", "dy")])
+        # An end error of a 4 m square: metres, not light years (1e308 printed "inf m").
+        errors.append([finite(row[col[c]], path, no, c, MAX_END_ERROR_M) for c in ("dx", "dy")])
     return directions, np.asarray(errors, dtype=float).reshape(-1, 2)

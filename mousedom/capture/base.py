@@ -78,8 +78,30 @@ class DeviceInfo:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> DeviceInfo:
+        """A device as a native header holds it; ValueError naming the first field of the
+        wrong type (a header is input like any other: ``"extra": 5`` must not reach code
+        that takes it for a mapping)."""
+        if not isinstance(d, dict):
+            raise ValueError(f"a device is {type(d).__name__}, not an object")
         known = {k: d[k] for k in cls.__dataclass_fields__ if k in d}
+        for key, v in known.items():
+            want = _DEVICE_FIELD_TYPES[key]
+            if isinstance(v, bool) and bool not in want or not isinstance(v, want):
+                names = " or ".join("null" if t is type(None) else t.__name__ for t in want)
+                raise ValueError(f"device field {key!r} is {v!r}, not {names}")
+        if not known.get("name"):
+            raise ValueError("a device has no name")
+        if known.get("kind", "evdev") not in ("evdev", "serial"):
+            raise ValueError(f"device kind {known['kind']!r} is not 'evdev' or 'serial'")
         return cls(**known)
+
+
+_NONE = type(None)
+_DEVICE_FIELD_TYPES: dict[str, tuple[type, ...]] = {
+    "name": (str,), "kind": (str,), "bus": (int, _NONE), "vendor": (int, _NONE),
+    "product": (int, _NONE), "version": (int, _NONE), "phys": (str, _NONE),
+    "uniq": (str, _NONE), "mouse": (str, _NONE), "rel_xy": (bool, _NONE), "extra": (dict,),
+}  # fmt: skip
 
 
 def sec_usec(t: np.ndarray) -> tuple[list[int], list[int]]:

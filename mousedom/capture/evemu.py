@@ -31,6 +31,7 @@ import numpy as np
 
 from mousedom.capture.base import (
     EPOCH_THRESHOLD,
+    MAX_TIME_S,
     Batch,
     Capture,
     CaptureError,
@@ -45,6 +46,7 @@ from mousedom.capture.evemu_lines import TornLine as _TornLine
 from mousedom.capture.evemu_lines import _show, event_line
 from mousedom.capture.evemu_lines import fast_events as _fast_events
 from mousedom.capture.evemu_lines import slow_events as _slow_events
+from mousedom.capture.plain import BOM
 from mousedom.errors import located
 from mousedom.sources.events import EV_REL, REL_X, REL_Y
 
@@ -240,6 +242,12 @@ class EvemuCapture(Capture):
 
     def _check_time(self, ev: _Events, last_t: float) -> None:
         t = ev.t
+        if t[-1] >= MAX_TIME_S and t[0] >= last_t and not (np.diff(t) < 0).any():
+            k = int(np.argmax(t >= MAX_TIME_S))  # in order: the first one past the bound
+            raise CaptureError(
+                located(self.path, int(ev.line[k]), f"time {t[k]:.6f} s is past "
+                        f"{MAX_TIME_S:g} s (year 2286): not a time any clock gives")
+            )  # fmt: skip
         if t[0] >= last_t and (len(t) < 2 or not (np.diff(t) < 0).any()):
             return
         prev = np.concatenate([[last_t], t[:-1]])
@@ -255,9 +263,16 @@ class EvemuCapture(Capture):
         )
 
 
+MAX_DESC_BYTES = 1 << 20  # a device description is a few kilobytes
+
+
 def _read_lines(path: str) -> list[bytes]:
+    """A .desc file's lines, its UTF-8 byte order mark dropped (as in every text capture)."""
     with _open(path) as f:
-        return f.read().splitlines(keepends=True)
+        data = f.read(MAX_DESC_BYTES + 1)
+    if len(data) > MAX_DESC_BYTES:
+        raise CaptureError(f"{path}: larger than {MAX_DESC_BYTES} bytes: not a device description")
+    return data.removeprefix(BOM).splitlines(keepends=True)
 
 
 def _firstevent_line(lines: list[bytes]) -> int:

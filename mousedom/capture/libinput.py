@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import re
 import warnings
+import weakref
 from collections.abc import Iterator
 
 import numpy as np
@@ -48,6 +49,8 @@ from mousedom.capture.base import (
     sec_usec,
 )
 from mousedom.capture.base import open_binary as _open
+from mousedom.capture.libinput_layout import relayout
+from mousedom.capture.plain import discard
 from mousedom.errors import located
 from mousedom.sources.events import EV_REL, REL_X, REL_Y
 
@@ -57,7 +60,11 @@ KNOWN_VERSIONS = (1,)
 MAX_SECONDS = 3_155_760_000
 BLOCK_BYTES = 4 << 20
 
-_DEVICE = re.compile(rb"(?m)^[ \t]*- node:")
+_DEVICE = re.compile(rb"(?m)^[ \t]*- node[ \t]*:")
+# What the line scan cannot read (capture.libinput_layout re-lays such files out): a
+# device written as a flow mapping, an event row as a block list ("- - 0").
+_FLOW_DEVICE = re.compile(rb"(?m)^[ \t]*- \{[ \t]*[\"']?node[\"']?[ \t]*:")
+_BLOCK_ROW = re.compile(rb"(?m)^[ \t]*- - ")
 _EVENTS = re.compile(rb"(?m)^[ \t]+events:[ \t]*(?:#.*)?$")
 _COMMENT = re.compile(rb"[ \t]*#[^\n]*")
 _ROW = re.compile(rb"(?m)^[ \t]*- \[([^\]\n]*)\][ \t]*$")
@@ -111,11 +118,15 @@ class LibinputCapture(Capture):
         self.block_bytes = block_bytes
         self.time_base = "relative"
         self._spans = self._index()
-        with _open(self.data_path) as f:
-            top_text = f.read(self._spans[0].start if self._spans else self._size)
-        top = self._yaml(top_text, 1)
-        if not isinstance(top, dict):
-            raise CaptureError(located(path, 1, "not a libinput record file (no top mapping)"))
+        top_text, top = self._top()
+        if self._other_layout(top):
+            # The same YAML in another layout (see capture.libinput_layout): read through a
+            # copy in the recorder's own layout, removed with this capture.
+            copy = relayout(path, self.data_path)
+            weakref.finalize(self, discard, copy)
+            self.data_path = copy
+            self._spans = self._index()
+            top_text, top = self._top()
         version = top.get("version")
         if version not in KNOWN_VERSIONS:
             raise CaptureError(
@@ -133,6 +144,29 @@ class LibinputCapture(Capture):
         self.reset_stats()
 
     # ----------------------------------------------------------------- structure
+
+    def _top(self) -> tuple[bytes, dict]:
+        """The text before the first device and its YAML (the whole file if no device)."""
+        with _open(self.data_path) as f:
+            top_text = f.read(self._spans[0].start if self._spans else self._size)
+        top = self._yaml(top_text, 1)
+        if not isinstance(top, dict):
+            raise CaptureError(located(self.path, 1, "not a libinput record file (no top mapping)"))
+        return top_text, top
+
+    def _other_layout(self, top: dict) -> bool:
+        """Whether the line scan missed what the document holds: devices where it found
+        none, fewer or more than ``ndevices``, a device as a flow mapping, rows as block
+        lists."""
+        if not self._spans:
+            return bool(top.get("devices"))
+        n = top.get("ndevices")
+        if isinstance(n, int) and not isinstance(n, bool) and n != len(self._spans):
+            return True
+        with _open(self.data_path) as f:
+            f.seek(self._spans[0].start)
+            head = f.read(1 << 16)
+        return bool(_FLOW_DEVICE.search(head) or _BLOCK_ROW.search(head))
 
     def _index(self) -> list[_Span]:
         spans: list[_Span] = []

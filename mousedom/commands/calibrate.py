@@ -13,6 +13,7 @@ import argparse
 import json
 import math
 import sys
+from typing import Any
 
 from mousedom.allocator import keep_freed_memory
 from mousedom.calibrate import calfile, report, session
@@ -41,7 +42,11 @@ def _argument(convert, ok, requirement: str, kind: str = "number"):
 
 
 _positive = _argument(float, lambda v: v > 0 and math.isfinite(v), "a positive number")
-_nonzero = _argument(float, lambda v: v != 0 and math.isfinite(v), "a non-zero number")
+# Lengths a rig can have (a push, a wheel, a track): past these the arithmetic overflows
+# (1e300 m) or divides by nothing (1e-300 m) and prints inf.
+_length = _argument(float, lambda v: 1e-4 <= v <= 1e7, "a length between 0.0001 and 1e7 m")
+_angle = _argument(float, lambda v: 0.1 <= abs(v) <= 36000, "between 0.1 and 36000 degrees")
+_ticks = _argument(float, lambda v: 1 <= v <= 1e9, "between 1 and 1e9 ticks")
 _count = _argument(int, lambda v: v >= 1, "1 or more", kind="whole number")
 _window = _argument(float, lambda v: v >= 0 and math.isfinite(v), "0 (one window per run) or more")
 
@@ -106,7 +111,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "the mouse's axes (Bonarini et al. 2004, section 4.2): one run per push.",
     )
     c.add_argument(
-        "--distance", type=_positive, required=True, metavar="METRES", help="length of each push"
+        "--distance", type=_length, required=True, metavar="METRES", help="length of each push"
     )
     c.add_argument(
         "--axis",
@@ -126,7 +131,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     d.add_argument(
         "--angle",
-        type=_nonzero,
+        type=_angle,
         required=True,
         metavar="DEGREES",
         help="the known angle of each turn",
@@ -163,14 +168,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="window length inside runs (0: one window per run; default 0.25)",
     )
     wheels = "for a t,left,right reference (or the config's wheels: section)"
+    m.add_argument("--wheel-radius", type=_length, metavar="METRES", help=f"wheel radius, {wheels}")
     m.add_argument(
-        "--wheel-radius", type=_positive, metavar="METRES", help=f"wheel radius, {wheels}"
+        "--ticks-per-rev", type=_ticks, metavar="TICKS", help=f"encoder ticks per turn, {wheels}"
     )
     m.add_argument(
-        "--ticks-per-rev", type=_positive, metavar="TICKS", help=f"encoder ticks per turn, {wheels}"
-    )
-    m.add_argument(
-        "--track", type=_positive, metavar="METRES", help=f"distance between the wheels, {wheels}"
+        "--track", type=_length, metavar="METRES", help=f"distance between the wheels, {wheels}"
     )
     m.set_defaults(func=run_mounts)
 
@@ -231,6 +234,12 @@ def _live(config: Config, names: list[str], args: argparse.Namespace):
 def _emit(
     args: argparse.Namespace, doc: dict, lines: list[str], s: session.Session, warnings: list[str]
 ) -> None:
+    bad = _not_finite(doc)
+    if bad is not None:
+        raise UserError(
+            f"the result is not a finite number ({bad}): the runs or the arguments "
+            "(--distance, --angle) cannot give a calibration"
+        )
     text_out = sys.stderr if args.json else sys.stdout
     for line in lines:
         print(line, file=text_out)
@@ -240,6 +249,23 @@ def _emit(
         print(f"mousedom: warning: {w}", file=sys.stderr)
     if args.json:
         print(json.dumps(doc, indent=2))
+
+
+def _not_finite(doc: Any, path: str = "") -> str | None:
+    """The JSON path of the first non-finite number in a result, or None."""
+    if isinstance(doc, float) and not math.isfinite(doc):
+        return f"{path or 'value'} = {doc}"
+    if isinstance(doc, dict):
+        items: Any = doc.items()
+    elif isinstance(doc, (list, tuple)):
+        items = enumerate(doc)
+    else:
+        return None
+    for k, v in items:
+        found = _not_finite(v, f"{path}.{k}" if path else str(k))
+        if found:
+            return found
+    return None
 
 
 FORCE_HELP = "with --write: store the result even though its runs disagree"

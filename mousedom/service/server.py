@@ -50,6 +50,7 @@ from mousedom.service.protocol import (
 log = logging.getLogger(__name__)
 
 SOCKET_NAME = "mousedom.sock"
+MAX_SOCKET_PATH = 107  # sizeof(sockaddr_un.sun_path) on Linux, less its terminating NUL
 # Small kernel send buffers make a stalled client show up in its queue within a second or
 # two instead of after the kernel has swallowed minutes of poses.
 SNDBUF = 32 * 1024
@@ -167,7 +168,17 @@ class Server:
 
     # ------------------------------------------------------------------ lifecycle
 
+    def _check_path(self) -> None:
+        size = len(os.fsencode(self.path))
+        if size > MAX_SOCKET_PATH:
+            raise UserError(
+                f"{self.path}: the socket path is {size} bytes, longer than the "
+                f"{MAX_SOCKET_PATH} a Unix socket's address holds; give a shorter --socket "
+                "or server.socket"
+            )
+
     def open(self) -> None:
+        self._check_path()
         directory = os.path.dirname(self.path) or "."
         try:
             os.makedirs(directory, mode=0o755, exist_ok=True)
@@ -197,7 +208,7 @@ class Server:
             sock.bind(self.path)
         except OSError as e:
             sock.close()
-            raise UserError(f"{self.path}: cannot bind the socket: {e.strerror}") from None
+            raise UserError(f"{self.path}: cannot bind the socket: {e.strerror or e}") from None
         finally:
             os.umask(old_umask)
         try:
@@ -216,6 +227,7 @@ class Server:
     def refuse_if_taken(self) -> None:
         """UserError if another daemon listens at the path already: checked before the
         sensors are opened, so that a second daemon grabs no device on its way out."""
+        self._check_path()
         try:
             if not stat.S_ISSOCK(os.lstat(self.path).st_mode):
                 return  # open() says what is wrong with it
