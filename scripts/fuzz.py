@@ -2,8 +2,10 @@
 """Fuzz every parser of mousedom for a while: ``scripts/fuzz.py --cases N --seed S``.
 
 Cases come from ``tests/fuzz_targets.py`` (valid inputs in many dresses with a known
-truth, and damaged ones), spread evenly over the targets (evemu, libinput, native, ADNS
-bytes, config YAML, REF/RUNS CSV, protocol lines).  The closing line is the figure:
+truth, and damaged ones) and ``tests/fuzz_hostile.py``, spread evenly over the targets:
+evemu, libinput, native, round trips (convert -> native -> read back), libinput in other
+layouts of the same YAML, decompression bombs, hostile stamps through a real pipe, ADNS
+bytes, config YAML, REF/RUNS CSV, protocol lines.  The closing line is the figure:
 
     fuzz: N cases, C crashes, H hangs, W wrong counts (seed S, T s)
 

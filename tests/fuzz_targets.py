@@ -31,6 +31,8 @@ import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from fuzz_hostile import HOSTILE
+
 HANG_S = 10.0
 
 
@@ -510,6 +512,7 @@ _MAKERS: dict[str, tuple[Callable[[random.Random], Case], Callable[[Case, str], 
     "csv": (_csv_valid, _run_csv),
     "protocol": (_protocol_valid, _run_protocol),
 }
+_MAKERS.update(HOSTILE)
 TARGETS = tuple(_MAKERS)
 
 
@@ -556,8 +559,8 @@ def _damage_native_chunk(rng: random.Random, raw: bytes) -> bytes:
 def make_case(target: str, seed: int) -> Case:
     rng = random.Random(f"{target}:{seed}")
     case = _MAKERS[target][0](rng)
-    if target == "roundtrip":
-        return case  # its inputs are valid: the round trip is what is tried
+    if target in ("roundtrip", "bomb", "stamps"):
+        return case  # hostile or valid by construction: that is what is tried
     if target == "native" and rng.random() < 0.3:
         return Case(target, "damaged", _damage_native_chunk(rng, case.data), None, case.suffix)
     if rng.random() < 0.6:

@@ -94,6 +94,13 @@ def looks_like_libinput(prefix: bytes) -> bool:
         head.startswith(b"# libinput record")
         or (re.search(rb"(?m)^version:\s*\d", prefix) is not None and b"devices:" in prefix)
         or re.search(rb"(?m)^ndevices:", prefix) is not None
+        # one flow mapping (or JSON) of the same document
+        or re.match(rb"\s*\{\s*[\"']?(?:devices|version|ndevices)[\"']?\s*:", head) is not None
+        # re-dumped with sorted keys: "devices:" first, version and ndevices at the end
+        or (
+            re.search(rb"(?m)^devices:", prefix) is not None
+            and re.search(rb"(?m)^[ \t-]*evdev:", prefix) is not None
+        )
     )
 
 
