@@ -470,3 +470,32 @@ def test_a_reload_from_a_fifo_or_device_is_refused_and_never_blocks(rig_run, tmp
     t = time.monotonic()
     run.daemon.signal(signal.SIGTERM)
     assert run.daemon.proc.wait(5) == 0 and time.monotonic() - t < 1.0
+
+
+def test_after_a_stall_every_reading_client_gets_the_latest_pose_and_stays(rig_run):
+    """Issue 26: after the loop stalled 6-9 s the daemon closed the backlog of windows at
+    once, queued every POSE to every client, and dropped all 20 healthy readers together.
+    Now each client's queue holds only the latest POSE beyond its kernel buffer, and the
+    daemon's own stall does not count against anyone."""
+    run = rig_run(sim.straight(20.0, 0.05), extra="server: {queue_lines: 16}\n")
+    clients = [Conn(run.daemon.socket_path) for _ in range(20)]
+    for c in clients:
+        c.until("VERSION")
+        c.poses(0.05)
+    run.daemon.signal(signal.SIGSTOP)
+    time.sleep(7.0)
+    run.daemon.signal(signal.SIGCONT)
+    time.sleep(1.0)  # the backlog (350 windows) closes at once
+    counts, lasts, walls = [], [], []
+    for c in clients:  # each reads what the kernel held, then the freshest, then the rate
+        poses = c.poses(0.4)
+        counts.append(len(poses))
+        lasts.append(poses[-1]["t"])
+        walls.append(time.monotonic())
+    assert max(counts) < 200, counts  # not the backlog: what 32 KiB holds, and fresh ones
+    # Each ends its read on a pose as fresh as the one before it, a read later.
+    lag = [(lasts[k] - lasts[0]) - (walls[k] - walls[0]) for k in range(len(clients))]
+    assert max(map(abs, lag)) < 0.15, lag
+    for c in clients:  # all still connected, at the rate
+        assert len(c.poses(0.3)) >= 5
+    assert "dropping" not in run.daemon.log(), run.daemon.log()

@@ -137,7 +137,8 @@ class Publisher:
         if not self.server.clients:
             return
         for msg in self._source_messages(now):
-            self.server.broadcast(encode(msg))
+            # A sensor's state: a newer SOURCE replaces one still waiting for a client.
+            self.server.broadcast_state(f"SOURCE {msg['name']}", encode(msg))
 
     def _pose_now(self) -> dict[str, float]:
         x, y, theta = (float(v) for v in self.tracker.pose)

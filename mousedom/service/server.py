@@ -97,6 +97,7 @@ class Client:
         self.rx = LineBuffer(settings.max_line)
         self.lines: deque[bytes | TooLong] = deque()  # read, not yet answered (LINES_PER_TURN)
         self.queue: deque[bytes] = deque()  # lines owed, in order
+        self.states: dict[str, bytes] = {}  # the latest SOURCE per sensor, not yet sent
         self.pose: bytes | None = None  # the latest POSE not yet handed to the kernel
         self.queue_limit = settings.queue_lines
         self.partial = b""  # the unsent tail of the line(s) being written
@@ -426,7 +427,7 @@ class Server:
         (it has not read for that long)."""
         if client.fd not in self.clients:
             return
-        if not client.queue and not client.partial and client.pose is None:
+        if not client.queue and not client.partial and client.pose is None and not client.states:
             # Nothing waiting (the usual case): the line goes out now, without the queue.
             client.partial = line
             client.lines_out += 1
@@ -442,12 +443,30 @@ class Server:
         """A POSE: sent now if nothing waits, else it replaces the POSE waiting (if any)."""
         if client.fd not in self.clients:
             return
-        if not client.queue and not client.partial and client.pose is None:
+        if not client.queue and not client.partial and client.pose is None and not client.states:
             client.partial = line
             client.lines_out += 1
             self._flush(client)
             return
         client.pose = line
+
+    def broadcast_state(self, key: str, line: bytes) -> None:
+        """A state line (a sensor's SOURCE) to every client: sent now where nothing waits,
+        else it replaces the line of the same ``key`` still waiting: a client that lags
+        gets each sensor's latest state, not a backlog of them."""
+        for client in list(self.clients.values()):
+            if (
+                not client.queue
+                and not client.partial
+                and client.pose is None
+                and not client.states
+            ):
+                client.partial = line
+                client.lines_out += 1
+                self._flush(client)
+            else:
+                client.states[key] = line
+                self._want_write(client, True)
 
     def broadcast(self, line: bytes) -> None:
         for client in list(self.clients.values()):
@@ -464,13 +483,17 @@ class Server:
 
     def _flush(self, client: Client) -> None:
         sock = client.sock
-        while client.partial or client.queue or client.pose is not None:
+        while client.partial or client.queue or client.pose is not None or client.states:
             if not client.partial:
                 # Several lines per send: fewer syscalls when a client lags a little.
-                # The lines owed go first, then the latest POSE.
+                # The lines owed go first, then the sensors' latest states, then the
+                # latest POSE.
                 chunk = []
                 while client.queue and len(chunk) < 64:
                     chunk.append(client.queue.popleft())
+                if not client.queue and client.states:
+                    chunk += client.states.values()
+                    client.states = {}
                 if not client.queue and client.pose is not None:
                     chunk.append(client.pose)
                     client.pose = None
@@ -486,7 +509,7 @@ class Server:
                 return
             client.partial = client.partial[n:]
             client.waiting_since = None  # it takes what it is sent
-        waiting = bool(client.partial or client.queue or client.pose is not None)
+        waiting = bool(client.partial or client.queue or client.pose is not None or client.states)
         if waiting and client.waiting_since is None:
             client.waiting_since = self.running
         self._want_write(client, waiting)
