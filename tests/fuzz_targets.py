@@ -260,11 +260,17 @@ def _run_capture(case: Case, tmp: str) -> str:
 
 
 def _roundtrip_valid(rng: random.Random) -> Case:
-    """One to three valid text captures (evemu, libinput record with 1-3 devices, in any
-    dress, SYN_DROPPED frames of either sign), to be converted into one native capture."""
+    """One to three valid captures (evemu, libinput record with 1-3 devices in its own or
+    another layout, native; text in any dress; SYN_DROPPED frames of either sign), to be
+    converted into one native capture."""
+    from fuzz_hostile import layout_valid
+
     files = []
+    makers = [_evemu_valid, _libinput_valid, _native_valid, layout_valid]
     for _ in range(rng.randint(1, 3)):
-        maker = rng.choice([_evemu_valid, _libinput_valid])
+        maker = rng.choice(makers)
+        if maker is _native_valid:
+            makers.remove(_native_valid)  # its mouse names are fixed: one such file a case
         case = maker(rng)
         files.append((case.target, case.suffix, case.data))
     return Case("roundtrip", "valid", json.dumps(
