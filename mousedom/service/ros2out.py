@@ -19,6 +19,7 @@ import logging
 import os
 import time
 from typing import Any
+from xml.sax.saxutils import quoteattr
 
 from mousedom.config import Ros2Config
 from mousedom.errors import UserError
@@ -27,6 +28,51 @@ from mousedom.service import ros2conv as conv
 from mousedom.service import ros2msgs as msgs
 
 log = logging.getLogger("mousedom.service.ros2")
+
+# ROS 2's default middleware, Fast DDS (RTPS vendor id 1.15), builds the XTypes TypeObjects
+# of ROS messages with collection element flags 0 (no try-construct bit) where cyclonedds
+# sets TRY_CONSTRUCT1: every type holding an array or a sequence (Odometry's covariance[36],
+# DiagnosticArray's status[], TFMessage's transforms[]) gets another TypeIdentifier on each
+# side; Cyclone then asks Fast DDS for its types over type lookup, rejects them as invalid
+# (element flags 0) or cannot resolve them, and never matches the ROS 2 reader.  Fast DDS
+# ignores other vendors' type information and matches on the type name: this makes Cyclone
+# do the same with Fast DDS's (a user's $CYCLONEDDS_URI, read after it, may say otherwise).
+DDS_COMPAT = (
+    '<CycloneDDS><Domain id="any"><Compatibility>'
+    "<IgnoreTypeInformation>1.15</IgnoreTypeInformation>"
+    "</Compatibility></Domain></CycloneDDS>"
+)
+
+
+def dds_config(environ: dict[str, str] | None = None) -> str:
+    """The Cyclone DDS configuration of our domain: what ROS 2's discovery variables ask
+    (as rmw_cyclonedds_cpp reads them), DDS_COMPAT, then the user's $CYCLONEDDS_URI (a list
+    of files and XML fragments, the later overriding the earlier)."""
+    env = os.environ if environ is None else environ
+    scope = env.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "").strip().upper()
+    if not scope and env.get("ROS_LOCALHOST_ONLY", "").strip() == "1":
+        scope = "LOCALHOST"  # the older variable, as rmw reads it when the range is unset
+    peers = [p.strip() for p in env.get("ROS_STATIC_PEERS", "").split(";") if p.strip()]
+    parts = []
+    if scope in ("LOCALHOST", "OFF") or peers:
+        # ROS nodes limited to this host find their peers by unicast on the well-known
+        # ports (7410 + 2 * index in domain 0): take one, and announce to theirs.  OFF:
+        # no automatic discovery at all, only the static peers.
+        localhost = scope == "LOCALHOST"
+        unicast = scope in ("LOCALHOST", "OFF")
+        xml = "<General><AllowMulticast>false</AllowMulticast></General>" if unicast else ""
+        xml += ("<Discovery><ParticipantIndex>auto</ParticipantIndex>"
+                "<MaxAutoParticipantIndex>32</MaxAutoParticipantIndex><Peers>")  # fmt: skip
+        for peer in (["localhost"] if localhost else []) + peers:
+            xml += f"<Peer address={quoteattr(peer)}/>"
+        xml += "</Peers></Discovery>"
+        parts.append(f'<CycloneDDS><Domain id="any">{xml}</Domain></CycloneDDS>')
+    parts.append(DDS_COMPAT)
+    user = env.get("CYCLONEDDS_URI", "").strip()
+    if user:
+        parts.append(user)
+    return ",".join(parts)
+
 
 INSTALL_HINT = (
     "the ROS 2 output needs cyclonedds, which is not installed: "
@@ -77,7 +123,8 @@ class Ros2Output:
 
     def __init__(self, cfg: Ros2Config, sensors: tuple[str, ...], rate_hz: float) -> None:
         require()
-        from cyclonedds.domain import DomainParticipant
+        from cyclonedds.core import DDSException
+        from cyclonedds.domain import Domain, DomainParticipant
         from cyclonedds.pub import DataWriter
         from cyclonedds.qos import Policy, Qos
         from cyclonedds.topic import Topic
@@ -87,6 +134,13 @@ class Ros2Output:
         self.domain = domain_id(cfg)
         self.rep = conv.Rep105()
         types = msgs.idl_types()
+        try:
+            # made first, the domain has our configuration; the participant joins it
+            self.dds_domain: Any = Domain(self.domain, dds_config())
+        except DDSException:
+            self.dds_domain = None  # this process has the domain already: its config stands
+            log.warning("DDS domain %d exists already: ROS 2 nodes using Fast DDS may not "
+                        "receive our topics", self.domain)  # fmt: skip
         self.participant = DomainParticipant(self.domain)
 
         def writer(topic: str, name: str, depth: int):
@@ -158,3 +212,4 @@ class Ros2Output:
         self.odom = self.tf = self.diag = None
         self.counts = []
         self.participant = None
+        self.dds_domain = None
