@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -135,6 +136,7 @@ class Ros2Config:
     diagnostics: bool = True
     counts: bool = False  # per-mouse counts of each window on <namespace>/mousedom/<mouse>/counts
     stamps: str = "system"  # system (ROS time, what tf and Nav2 compare with) | monotonic
+    node_name: str = "mousedom"  # the node ROS 2 tools list (in the namespace, or /)
 
 
 STAMPS = ("system", "monotonic")
@@ -409,7 +411,11 @@ def _ros2(r: Reader) -> Ros2Config:
         diagnostics=s.boolean("diagnostics", d.diagnostics),
         counts=s.boolean("counts", d.counts),
         stamps=s.choice("stamps", STAMPS, d.stamps),
+        node_name=s.string("node_name") if s.has("node_name") else d.node_name,
     )
+    if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]{0,254}", cfg.node_name):
+        raise s.err("node_name", "must be a ROS 2 node name (letters, digits and _, not "
+                    f"starting with a digit), got {shown(cfg.node_name)}")  # fmt: skip
     enabled = s.boolean("enabled", True)
     s.finish()
     return cfg if enabled else None

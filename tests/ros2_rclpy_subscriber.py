@@ -6,7 +6,8 @@ Runs in its own venv (the ROS 2 wheels from PyPI: ros-rclpy, ros-nav-msgs, ...),
 rmw_fastrtps_cpp unless RMW_IMPLEMENTATION says otherwise.  Subscribes with rclcpp's
 default QoS (reliable, volatile, keep last 10) and writes every message received as one
 JSON line {"topic", "t_recv", "msg"} to OUT.jsonl for SECONDS; then the node names it saw
-(``get_node_names``) as a last line {"nodes": [...]}.
+and each one's publishers as a last line {"nodes": [[name, namespace], ...],
+"publishers": {"/ns/name": [[topic, [types]], ...]}}.
 """
 
 import importlib
@@ -54,7 +55,12 @@ def main() -> None:
     end = time.monotonic() + seconds
     while time.monotonic() < end:
         rclpy.spin_once(node, timeout_sec=0.05)
-    out.write(json.dumps({"nodes": node.get_node_names()}) + "\n")
+    graph = {"nodes": node.get_node_names_and_namespaces()}
+    graph["publishers"] = {
+        f"{ns.rstrip('/')}/{name}": node.get_publisher_names_and_types_by_node(name, ns)
+        for name, ns in graph["nodes"]
+    }
+    out.write(json.dumps(graph) + "\n")
     out.close()
     node.destroy_node()
     rclpy.shutdown()

@@ -130,12 +130,18 @@ def test_an_rclpy_node_on_fast_dds_receives_odom_and_diagnostics(ros2, tmp_path,
     assert proc.returncode == 0, stdout + stderr + (tmp_path / "daemon.log").read_text()
     lines = [json.loads(x) for x in out.read_text().splitlines()]
     assert "nodes" in lines[-1], stdout + stderr
-    nodes = lines[-1]["nodes"]
+    nodes = [tuple(n) for n in lines[-1]["nodes"]]
+    publishers = lines[-1]["publishers"]
     odoms = [x["msg"] for x in lines[:-1] if x["topic"] == "/odom"]
     diags = [x["msg"] for x in lines[:-1] if x["topic"] == "/diagnostics"]
     assert len(odoms) > 100, (len(odoms), stderr)  # 50 Hz for several seconds
     assert len(diags) >= 3, len(diags)
-    assert "mousedom_interop_test" in nodes
+    # mousedom is a node of the graph (ros2 node list), with its publishers
+    assert ("mousedom_interop_test", "/") in nodes and ("mousedom", "/") in nodes, nodes
+    topics = dict((t, types) for t, types in publishers["/mousedom"])
+    assert topics["/odom"] == ["nav_msgs/msg/Odometry"], topics
+    assert topics["/tf"] == ["tf2_msgs/msg/TFMessage"], topics
+    assert topics["/diagnostics"] == ["diagnostic_msgs/msg/DiagnosticArray"], topics
     by_t = {round(o["header"]["stamp"]["sec"] + o["header"]["stamp"]["nanosec"] * 1e-9, 6): o
             for o in odoms}  # fmt: skip
     matched = [(p, by_t[round(p["t"], 6)]) for p in poses if round(p["t"], 6) in by_t]

@@ -161,6 +161,12 @@ class Ros2Output:
         self.counts = []
         if cfg.counts:
             self.counts = [writer(f"/mousedom/{s}/counts", msgs.COUNTS, 10) for s in sensors]
+        # The node in the ROS 2 graph (ros2 node list): its writers are ours.
+        from mousedom.service.ros2graph import NodeAnnouncer
+
+        self.graph = NodeAnnouncer(self.participant, cfg.node_name, cfg.namespace or "/")
+        mine = [w for w in (self.odom, self.tf, self.diag, *self.counts) if w is not None]
+        self.graph.announce([], [w.writer for w in mine])
         self.sent = 0
         # CDR packed per window (ros2cdr: byte for byte what cyclonedds would serialise)
         self.odom_cdr = cdr.OdometryCdr(cfg.odom_frame, cfg.base_frame)
@@ -209,6 +215,7 @@ class Ros2Output:
             self.diag.write(cdr.diagnostics(st, conv.diagnostics(st, messages)))
 
     def close(self) -> None:
+        self.graph = None
         self.odom = self.tf = self.diag = None
         self.counts = []
         self.participant = None
