@@ -82,8 +82,11 @@ def main() -> None:
     for arg in sys.argv[3:]:
         topic, typename = arg.split("=")
         depth = 100 if topic.endswith("/tf") else 10
+        # /tf_static as tf2's static listener: transient local, the samples sent before
+        durability = (Policy.Durability.TransientLocal if topic.endswith("/tf_static")
+                      else Policy.Durability.Volatile)  # fmt: skip
         qos = Qos(Policy.Reliability.Reliable(duration(milliseconds=100)),
-                  Policy.Durability.Volatile, Policy.History.KeepLast(depth))  # fmt: skip
+                  durability, Policy.History.KeepLast(depth))  # fmt: skip
         readers.append((topic, DataReader(dp, Topic(dp, "rt" + topic, make(typename), qos=qos),
                                           qos)))  # fmt: skip
     print("ready", flush=True)

@@ -198,7 +198,7 @@ def test_odometry_and_tf_reach_a_ros2_subscriber(tmp_path, dds_env, distro):
              "publish_map_tf: true}\n")  # fmt: skip
     config = write_rig_config(tmp_path / "rig.yaml", rig, fifos, extra, rate_hz=50.0)
     sub = Subscriber(distro, domain, env, "/odom=nav_msgs/msg/Odometry",
-                     "/tf=tf2_msgs/msg/TFMessage",
+                     "/tf=tf2_msgs/msg/TFMessage", "/tf_static=tf2_msgs/msg/TFMessage",
                      "/diagnostics=diagnostic_msgs/msg/DiagnosticArray")  # fmt: skip
     daemon = DaemonProcess(config, tmp_path / "run" / "mousedom.sock", env=env)
     feeder = None
@@ -250,6 +250,16 @@ def test_odometry_and_tf_reach_a_ros2_subscriber(tmp_path, dds_env, distro):
         x_odom = later[-1]["pose"]["pose"]["position"]["x"]
         assert map_odom["translation"]["x"] == pytest.approx(5.0 - last_odom, abs=0.05)
         assert x_odom < 2.0  # odom still near where the robot drove, not at 5 m
+        # Each mouse's mount on /tf_static: base_link -> <mouse>_mouse, yaw as configured.
+        (static,) = sub.wait_for("/tf_static", 1)
+        mounts = {t["child_frame_id"]: t for t in static["transforms"]}
+        assert set(mounts) == {f"{m.name}_mouse" for m in rig.mice}
+        for m in rig.mice:
+            tr = mounts[f"{m.name}_mouse"]
+            assert tr["header"]["frame_id"] == "base_link"
+            got = tr["transform"]["translation"]
+            assert (got["x"], got["y"]) == pytest.approx((m.x, m.y), abs=1e-9)
+            assert _yaw(tr["transform"]["rotation"]) == pytest.approx(math.radians(m.yaw), abs=1e-9)
         diags = sub.wait_for("/diagnostics", 1)
         names = {s["name"] for s in diags[-1]["status"]}
         assert names == {"mousedom: front", "mousedom: left", "mousedom: right"}
@@ -489,3 +499,27 @@ def test_writers_announce_their_type_hash(tmp_path, dds_env, monkeypatch):
         assert userdata == f"typehash={ros2msgs.TYPE_HASHES[ros2msgs.ODOMETRY]};".encode()
     finally:
         out.close()
+
+
+@pytest.mark.parametrize("yaw", [0.0, 0.7, -2.5, math.pi])
+@pytest.mark.parametrize("flip", [False, True])
+def test_a_mounts_static_transform_turns_the_mouse_axes_as_configured(yaw, flip):
+    """base -> <mouse>_mouse: the mouse's x (toward its buttons) is the body direction at
+    its yaw; its y is to the left of that, or to the right for a mirrored sensor (a half
+    turn about its x axis: upside down)."""
+    tr = ros2conv.mount_transform(
+        "base_link", "front", 0.1, -0.2, yaw, flip, ros2conv.stamp(1.0, 0)
+    )
+    q = tr["transform"]["rotation"]
+    w, x, y, z = q["w"], q["x"], q["y"], q["z"]
+    assert w * w + x * x + y * y + z * z == pytest.approx(1.0)
+    rot = np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ])  # fmt: skip
+    fwd = np.array([math.cos(yaw), math.sin(yaw), 0.0])
+    left = np.array([-math.sin(yaw), math.cos(yaw), 0.0])
+    np.testing.assert_allclose(rot @ [1, 0, 0], fwd, atol=1e-12)
+    np.testing.assert_allclose(rot @ [0, 1, 0], -left if flip else left, atol=1e-12)
+    assert tr["child_frame_id"] == "front_mouse" and tr["header"]["frame_id"] == "base_link"

@@ -142,6 +142,7 @@ def test_an_rclpy_node_on_fast_dds_receives_odom_and_diagnostics(ros2, tmp_path,
     assert topics["/odom"] == ["nav_msgs/msg/Odometry"], topics
     assert topics["/tf"] == ["tf2_msgs/msg/TFMessage"], topics
     assert topics["/diagnostics"] == ["diagnostic_msgs/msg/DiagnosticArray"], topics
+    assert topics["/tf_static"] == ["tf2_msgs/msg/TFMessage"], topics
     by_t = {round(o["header"]["stamp"]["sec"] + o["header"]["stamp"]["nanosec"] * 1e-9, 6): o
             for o in odoms}  # fmt: skip
     matched = [(p, by_t[round(p["t"], 6)]) for p in poses if round(p["t"], 6) in by_t]

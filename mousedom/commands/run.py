@@ -117,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
         if config.ros2 is not None:
             from mousedom.service.ros2out import Ros2Output
 
-            outputs.append(Ros2Output(config.ros2, config.names, config.rate_hz))
+            outputs.append(Ros2Output(config.ros2, config.names, config.rate_hz, config.mice))
         if args.record_mcap:
             from mousedom.config import Ros2Config
             from mousedom.service.mcapout import McapRecorder, system_offset

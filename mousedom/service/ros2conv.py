@@ -143,6 +143,28 @@ def transform(parent: str, child: str, st: dict[str, int], pose: Pose2) -> dict[
     }
 
 
+def mouse_frame(name: str) -> str:
+    """The TF frame of a mouse's sensor (on /tf_static under the base frame)."""
+    return f"{name}_mouse"
+
+
+def mount_transform(
+    base: str, name: str, x: float, y: float, yaw: float, flip: bool, st: dict[str, int]
+) -> dict[str, Any]:
+    """A mouse's mount as a static transform base -> its frame: x forward toward the
+    mouse's buttons, y to its left, z up; a mirrored sensor (``flip``) is the same mouse
+    turned upside down, a half turn about its x axis (its y and z reversed)."""
+    if flip:  # yaw, then a half turn about x: (w, x, y, z) = (0, cos(yaw/2), sin(yaw/2), 0)
+        rot = {"x": math.cos(0.5 * yaw), "y": math.sin(0.5 * yaw), "z": 0.0, "w": 0.0}
+    else:
+        rot = quaternion(yaw)
+    return {
+        "header": header(base, st),
+        "child_frame_id": mouse_frame(name),
+        "transform": {"translation": {"x": x, "y": y, "z": 0.0}, "rotation": rot},
+    }
+
+
 # diagnostic_msgs/msg/DiagnosticStatus levels
 OK, WARN, ERROR, STALE = 0, 1, 2, 3
 _LEVEL = {"tracking": OK, "suspect": WARN, "excluded": ERROR, "missing": ERROR, "gone": ERROR}

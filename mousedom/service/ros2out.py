@@ -21,7 +21,7 @@ import time
 from typing import Any
 from xml.sax.saxutils import quoteattr
 
-from mousedom.config import Ros2Config
+from mousedom.config import MouseConfig, Ros2Config
 from mousedom.errors import UserError
 from mousedom.service import ros2cdr as cdr
 from mousedom.service import ros2conv as conv
@@ -121,7 +121,14 @@ class _RawWriter:
 class Ros2Output:
     """One DDS participant and its writers; ``publish`` per window (see the module)."""
 
-    def __init__(self, cfg: Ros2Config, sensors: tuple[str, ...], rate_hz: float) -> None:
+    def __init__(
+        self,
+        cfg: Ros2Config,
+        sensors: tuple[str, ...],
+        rate_hz: float,
+        mice: tuple[MouseConfig, ...] = (),
+    ) -> None:
+        """``mice``: their mounts go on /tf_static (base frame -> <mouse>_mouse)."""
         require()
         from cyclonedds.core import DDSException
         from cyclonedds.domain import Domain, DomainParticipant
@@ -161,12 +168,33 @@ class Ros2Output:
         self.counts = []
         if cfg.counts:
             self.counts = [writer(f"/mousedom/{s}/counts", msgs.COUNTS, 10) for s in sensors]
+        # Each mouse's mount, once, kept for late joiners (as tf2's static broadcaster):
+        # RViz draws the mice where the config puts them.
+        self.tf_static = None
+        if mice:
+            static = Qos(
+                Policy.Reliability.Reliable(duration(milliseconds=100)),
+                Policy.Durability.TransientLocal,
+                Policy.History.KeepLast(1),
+            )
+            topic = Topic(self.participant, "rt" + conv.topic(cfg, "/tf_static"), types[msgs.TF],
+                          qos=static)  # fmt: skip
+            hashed = Qos(
+                *static, Policy.Userdata(f"typehash={msgs.TYPE_HASHES[msgs.TF]};".encode())
+            )
+            self.tf_static = DataWriter(self.participant, topic, hashed)
+            st = conv.stamp(time.monotonic(), self._offset())
+            mounts = [conv.mount_transform(cfg.base_frame, m.name, m.mount.x, m.mount.y,
+                                           m.mount.yaw, m.flip, st) for m in mice]  # fmt: skip
+            self.tf_static.write(msgs.build(msgs.TF, {"transforms": mounts}))
         # The node in the ROS 2 graph (ros2 node list): its writers are ours.
         from mousedom.service.ros2graph import NodeAnnouncer
 
         self.graph = NodeAnnouncer(self.participant, cfg.node_name, cfg.namespace or "/")
-        mine = [w for w in (self.odom, self.tf, self.diag, *self.counts) if w is not None]
-        self.graph.announce([], [w.writer for w in mine])
+        mine = [w.writer for w in (self.odom, self.tf, self.diag, *self.counts) if w is not None]
+        if self.tf_static is not None:
+            mine.append(self.tf_static)
+        self.graph.announce([], mine)
         self.sent = 0
         # CDR packed per window (ros2cdr: byte for byte what cyclonedds would serialise)
         self.odom_cdr = cdr.OdometryCdr(cfg.odom_frame, cfg.base_frame)
@@ -215,7 +243,7 @@ class Ros2Output:
             self.diag.write(cdr.diagnostics(st, conv.diagnostics(st, messages)))
 
     def close(self) -> None:
-        self.graph = None
+        self.graph = self.tf_static = None
         self.odom = self.tf = self.diag = None
         self.counts = []
         self.participant = None
