@@ -30,7 +30,17 @@ LAYERS = [
     {"capture"},
     {"sources"},
     {"fusion"},
-    {"config", "yamldoc", "errors", "safeyaml", "safewrite", "invocation", "allocator", "__init__"},
+    {
+        "config",
+        "yamldoc",
+        "errors",
+        "safeyaml",
+        "safewrite",
+        "saferead",
+        "invocation",
+        "allocator",
+        "__init__",
+    },
 ]
 ALLOWED_UP = {("config", "mousedom.fusion.geometry")}
 
