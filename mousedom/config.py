@@ -137,6 +137,7 @@ class Ros2Config:
     counts: bool = False  # per-mouse counts of each window on <namespace>/mousedom/<mouse>/counts
     stamps: str = "system"  # system (ROS time, what tf and Nav2 compare with) | monotonic
     node_name: str = "mousedom"  # the node ROS 2 tools list (in the namespace, or /)
+    optional: bool = False  # True: if DDS cannot start, log it and run without ROS 2
 
 
 STAMPS = ("system", "monotonic")
@@ -412,6 +413,7 @@ def _ros2(r: Reader) -> Ros2Config:
         counts=s.boolean("counts", d.counts),
         stamps=s.choice("stamps", STAMPS, d.stamps),
         node_name=s.string("node_name") if s.has("node_name") else d.node_name,
+        optional=s.boolean("optional", d.optional),
     )
     if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]{0,254}", cfg.node_name):
         raise s.err("node_name", "must be a ROS 2 node name (letters, digits and _, not "

@@ -74,3 +74,49 @@ def test_systemd_analyze_security_score():
     m = re.search(r"Overall exposure level for mousedom\.service: (\d+\.\d+)", text)
     assert m, text
     assert float(m.group(1)) <= 2.0, text
+
+
+DROP_IN = UNIT.parent / "mousedom.service.d" / "ros2.conf"
+
+
+def _unit_with_drop_in(tmp_path: Path) -> Path:
+    """The unit (command at /bin/true: only its settings matter here) and the ROS 2
+    drop-in, laid out as systemd finds them."""
+    unit = tmp_path / "mousedom.service"
+    unit.write_text(UNIT.read_text().replace("/usr/bin/mousedom", "/bin/true"))
+    (tmp_path / "mousedom.service.d").mkdir()
+    shutil.copy(DROP_IN, tmp_path / "mousedom.service.d" / "ros2.conf")
+    return unit
+
+
+def test_the_ros2_drop_in_parses_and_opens_only_the_network(tmp_path):
+    """Issue 25: the shipped unit blocks DDS (PrivateNetwork, AF_UNIX only, IPAddressDeny);
+    the drop-in for robots that publish to ROS 2 must parse with the unit and open the
+    network and nothing else (the security report differs in those lines only)."""
+    tool = _analyze()
+    unit = _unit_with_drop_in(tmp_path)
+    out = subprocess.run([tool, "verify", str(unit)], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert "mousedom.service" not in out.stderr, out.stderr
+
+    def report(path: Path) -> dict[str, str]:
+        text = subprocess.run(
+            [tool, "security", "--offline=yes", "--no-pager", str(path)],
+            capture_output=True, text=True, timeout=60,
+        ).stdout  # fmt: skip
+        rows = {}
+        for line in text.splitlines():
+            m = re.match(r"\s*([✓✗])\s+(\S+)", line)
+            if m:
+                rows[m.group(2)] = m.group(1)
+        return rows
+
+    plain = tmp_path / "plain"
+    plain.mkdir()
+    (plain / "mousedom.service").write_text(unit.read_text())
+    before, after = report(plain / "mousedom.service"), report(unit)
+    changed = {k for k in before if before[k] != after.get(k)}
+    assert changed and all(
+        k.startswith(("PrivateNetwork", "RestrictAddressFamilies", "IPAddress")) for k in changed
+    ), changed
+    assert after["PrivateNetwork="] == "✗"  # the network is open now

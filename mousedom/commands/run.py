@@ -115,9 +115,14 @@ def run(args: argparse.Namespace) -> int:
     outputs = []
     try:
         if config.ros2 is not None:
-            from mousedom.service.ros2out import Ros2Output
+            from mousedom.service.ros2out import Ros2Output, Ros2Unavailable
 
-            outputs.append(Ros2Output(config.ros2, config.names, config.rate_hz, config.mice))
+            try:
+                outputs.append(Ros2Output(config.ros2, config.names, config.rate_hz, config.mice))
+            except Ros2Unavailable as e:
+                if not config.ros2.optional:
+                    raise
+                log.error("%s; going on without it (outputs.ros2.optional)", e)
         if args.record_mcap:
             from mousedom.config import Ros2Config
             from mousedom.service.mcapout import McapRecorder, system_offset

@@ -15,9 +15,13 @@ sensor from the fault-tolerant fusion's health.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
+import sys
+import tempfile
 import time
+from collections.abc import Callable, Iterator
 from typing import Any
 from xml.sax.saxutils import quoteattr
 
@@ -99,6 +103,58 @@ def domain_id(cfg: Ros2Config, environ: dict[str, str] | None = None) -> int:
     return int(raw)
 
 
+class Ros2Unavailable(UserError):
+    """No DDS participant could be made: the ROS 2 output cannot start (the message says
+    why and where docs/ros2.md says what to do)."""
+
+
+DOCS = 'docs/ros2.md, "When the ROS 2 output cannot start"'
+
+
+@contextlib.contextmanager
+def _dds_stderr() -> Iterator[Callable[[], str]]:
+    """Catch what Cyclone DDS writes to file descriptor 2 (its own C code says why it
+    failed: a config error, no interface) while the participant is made; yields a function
+    giving that text.  What it wrote is passed on to stderr afterwards, as it would be,
+    unless the block failed: then the one error line that names the cause carries it."""
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError):
+        yield lambda: ""
+        return
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), 2)
+        failed = True
+        try:
+            yield lambda: _read_back(tmp)
+            failed = False
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            text = _read_back(tmp)
+            if text and not failed:  # on failure the error message carries it
+                sys.stderr.write(text)
+
+
+def _read_back(tmp: Any) -> str:
+    tmp.seek(0)
+    return tmp.read(65536).decode("utf-8", "replace")
+
+
+def _why_no_participant(domain: int, said: str) -> str:
+    # Cyclone's lines: "<time> [<domain>] <thread>: <message>"
+    lines = [ln.split(": ", 1)[-1].strip() for ln in said.splitlines() if ln.strip()]
+    cause = "; ".join(dict.fromkeys(lines)) or "Cyclone DDS gave no reason"
+    hint = ""
+    if "interfaces" in cause:
+        hint = (" (no usable network interface: under systemd, the unit's network "
+                "restrictions need the ros2 drop-in)")  # fmt: skip
+    elif "config" in cause:
+        hint = " (check CYCLONEDDS_URI)"
+    return f"ROS 2 output: no DDS participant on domain {domain}: {cause}{hint}; see {DOCS}"
+
+
 class _RawWriter:
     """A DataWriter fed CDR bytes: cyclonedds' ``write`` wants an object of the topic's
     type and calls its ``serialize``; this hands it one whose ``serialize`` is the bytes."""
@@ -141,14 +197,20 @@ class Ros2Output:
         self.domain = domain_id(cfg)
         self.rep = conv.Rep105()
         types = msgs.idl_types()
-        try:
-            # made first, the domain has our configuration; the participant joins it
-            self.dds_domain: Any = Domain(self.domain, dds_config())
-        except DDSException:
-            self.dds_domain = None  # this process has the domain already: its config stands
-            log.warning("DDS domain %d exists already: ROS 2 nodes using Fast DDS may not "
-                        "receive our topics", self.domain)  # fmt: skip
-        self.participant = DomainParticipant(self.domain)
+        with _dds_stderr() as said:
+            try:
+                # made first, the domain has our configuration; the participant joins it
+                self.dds_domain: Any = Domain(self.domain, dds_config())
+            except DDSException:
+                self.dds_domain = None  # exists already in this process, or a bad config
+            try:
+                self.participant = DomainParticipant(self.domain)
+            except DDSException:
+                raise Ros2Unavailable(_why_no_participant(self.domain, said())) from None
+        if self.dds_domain is None:
+            log.warning("DDS domain %d existed already in this process: its configuration "
+                        "stands (ROS 2 nodes on Fast DDS may not receive our topics)",
+                        self.domain)  # fmt: skip
 
         def writer(topic: str, name: str, depth: int):
             qos = Qos(
