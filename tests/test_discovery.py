@@ -172,3 +172,30 @@ def test_scan_without_sysfs_falls_back_to_python_evdev(tmp_path):
     shutil.rmtree(tmp_path / "sys")
     s = scan(paths(tmp_path))
     assert s.present and s.nodes == 2 and s.devices == []
+
+
+def test_a_fifo_or_device_in_a_fake_sysfs_tree_never_blocks_the_scan(tmp_path):
+    """Issue 26: every file read by name is a regular file.  A sysfs attribute replaced by
+    a FIFO (nothing ever writes it) or a link to /dev/zero is read as empty, and the scan
+    finishes."""
+    import os
+    import threading
+
+    from test_evdev_fakes import add_device, paths
+
+    from mousedom.sources.discovery import scan
+
+    add_device(tmp_path, 3, "Fine Mouse")
+    add_device(tmp_path, 4, "Odd Mouse")
+    attrs = tmp_path / "sys" / "class" / "input" / "event4" / "device"
+    (attrs / "name").unlink()
+    os.mkfifo(attrs / "name")
+    (attrs / "phys").unlink()
+    (attrs / "phys").symlink_to("/dev/zero")
+    result = {}
+    t = threading.Thread(target=lambda: result.update(s=scan(paths(tmp_path))), daemon=True)
+    t.start()
+    t.join(10)
+    assert not t.is_alive(), "the scan blocked"
+    names = sorted(d.name for d in result["s"].devices)
+    assert "Fine Mouse" in names

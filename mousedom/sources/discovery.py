@@ -25,6 +25,7 @@ from typing import Any
 
 from mousedom.config import EvdevMatch
 from mousedom.errors import UserError
+from mousedom.saferead import read_bytes
 
 BUS_NAMES = {
     0x01: "pci",
@@ -246,8 +247,10 @@ def join_group_hint(dev: DeviceInfo) -> str:
 
 
 def _read(path: Path) -> str:
+    """A sysfs attribute (a page at most): regular files only, so that a scan of a tree
+    given with --root never blocks on a FIFO nor reads a device without end."""
     try:
-        return path.read_text(errors="replace").strip()
+        return read_bytes(path, 4096)[:4096].decode("utf-8", "replace").strip()
     except OSError:
         return ""
 
