@@ -138,6 +138,7 @@ class Ros2Config:
     stamps: str = "system"  # system (ROS time, what tf and Nav2 compare with) | monotonic
     node_name: str = "mousedom"  # the node ROS 2 tools list (in the namespace, or /)
     optional: bool = False  # True: if DDS cannot start, log it and run without ROS 2
+    initialpose: bool = False  # True: /initialpose (RViz's 2D Pose Estimate) fixes the pose
 
 
 STAMPS = ("system", "monotonic")
@@ -414,6 +415,7 @@ def _ros2(r: Reader) -> Ros2Config:
         stamps=s.choice("stamps", STAMPS, d.stamps),
         node_name=s.string("node_name") if s.has("node_name") else d.node_name,
         optional=s.boolean("optional", d.optional),
+        initialpose=s.boolean("initialpose", d.initialpose),
     )
     if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]{0,254}", cfg.node_name):
         raise s.err("node_name", "must be a ROS 2 node name (letters, digits and _, not "

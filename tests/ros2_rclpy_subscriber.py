@@ -12,6 +12,8 @@ and each one's publishers as a last line {"nodes": [[name, namespace], ...],
 
 import importlib
 import json
+import math
+import os
 import sys
 import time
 
@@ -51,10 +53,28 @@ def main() -> None:
             out.write(json.dumps(line) + "\n")
 
         node.create_subscription(cls, topic, callback, qos)
+    # RViz's "2D Pose Estimate", when asked: $INITIALPOSE = "x,y,yaw,after_s"
+    fix = os.environ.get("INITIALPOSE")
+    pub = None
+    if fix:
+        from geometry_msgs.msg import PoseWithCovarianceStamped
+
+        fx, fy, fyaw, after = (float(v) for v in fix.split(","))
+        pub = node.create_publisher(PoseWithCovarianceStamped, "/initialpose", 10)
+        msg = PoseWithCovarianceStamped()
+        msg.header.frame_id = "map"
+        msg.pose.pose.position.x, msg.pose.pose.position.y = fx, fy
+        msg.pose.pose.orientation.z = math.sin(fyaw / 2)
+        msg.pose.pose.orientation.w = math.cos(fyaw / 2)
+        sent_at = time.monotonic() + after
     print("ready", flush=True)
     end = time.monotonic() + seconds
     while time.monotonic() < end:
         rclpy.spin_once(node, timeout_sec=0.05)
+        if pub is not None and time.monotonic() >= sent_at:
+            pub.publish(msg)
+            out.write(json.dumps({"topic": "/initialpose", "t_sent": time.monotonic()}) + "\n")
+            pub = None
     graph = {"nodes": node.get_node_names_and_namespaces()}
     graph["publishers"] = {
         f"{ns.rstrip('/')}/{name}": node.get_publisher_names_and_types_by_node(name, ns)

@@ -64,11 +64,11 @@ def ros2():
     return ROS_PY
 
 
-def _config(tmp: Path, domain: int) -> Path:
+def _config(tmp: Path, domain: int, extra: str = "") -> Path:
     demo = (REPO / "mousedom" / "data" / "demo-rig.yaml").read_text()
     demo = demo.replace("demo-rig.mdcap", str(REPO / "mousedom" / "data" / "demo-rig.mdcap"))
     cfg = tmp / "rig.yaml"
-    cfg.write_text(demo + f"outputs:\n  ros2: {{domain_id: {domain}, stamps: monotonic}}\n")
+    cfg.write_text(demo + f"outputs:\n  ros2: {{domain_id: {domain}, stamps: monotonic{extra}}}\n")
     return cfg
 
 
@@ -76,10 +76,13 @@ def _yaw(q: dict) -> float:
     return math.atan2(2 * (q["w"] * q["z"] + q["x"] * q["y"]), 1 - 2 * (q["y"] ** 2 + q["z"] ** 2))
 
 
-@pytest.mark.parametrize("discovery", ["default", "LOCALHOST", "ROS_LOCALHOST_ONLY"])
-def test_an_rclpy_node_on_fast_dds_receives_odom_and_diagnostics(ros2, tmp_path, discovery):
+def _run_pair(
+    ros2: str, tmp_path: Path, discovery: str, extra_cfg: str = "", env_extra: dict | None = None
+) -> tuple[list[dict], list[dict], str]:
+    """The daemon and the rclpy node in one loopback-only namespace for a few seconds;
+    (the POSE lines read from the socket, the node's lines, its stderr)."""
     domain = random.Random().randrange(1, 100)
-    cfg = _config(tmp_path, domain)
+    cfg = _config(tmp_path, domain, extra_cfg)
     sock = tmp_path / "run" / "mousedom.sock"
     out = tmp_path / "rclpy.jsonl"
     env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
@@ -90,7 +93,7 @@ def test_an_rclpy_node_on_fast_dds_receives_odom_and_diagnostics(ros2, tmp_path,
     elif discovery == "ROS_LOCALHOST_ONLY":
         env["ROS_LOCALHOST_ONLY"] = "1"
     env["RMW_IMPLEMENTATION"] = "rmw_fastrtps_cpp"
-    env["MOUSEDOM_TEST_DOMAIN"] = str(domain)
+    env.update(env_extra or {})
     seconds = 8.0
     script = (
         NETNS + f"{sys.executable} -m mousedom run --config {cfg} --socket {sock} "
@@ -116,6 +119,7 @@ def test_an_rclpy_node_on_fast_dds_receives_odom_and_diagnostics(ros2, tmp_path,
                 while not stop.is_set():
                     m = c.read()
                     if m["class"] == "POSE":
+                        m["t_recv"] = time.monotonic()
                         poses.append(m)
             except (EOFError, OSError, ValueError):
                 pass
@@ -127,9 +131,16 @@ def test_an_rclpy_node_on_fast_dds_receives_odom_and_diagnostics(ros2, tmp_path,
     finally:
         if proc.poll() is None:
             proc.kill()
-    assert proc.returncode == 0, stdout + stderr + (tmp_path / "daemon.log").read_text()
+    log = (tmp_path / "daemon.log").read_text()
+    assert proc.returncode == 0, stdout + stderr + log
     lines = [json.loads(x) for x in out.read_text().splitlines()]
     assert "nodes" in lines[-1], stdout + stderr
+    return poses, lines, stderr + log
+
+
+@pytest.mark.parametrize("discovery", ["default", "LOCALHOST", "ROS_LOCALHOST_ONLY"])
+def test_an_rclpy_node_on_fast_dds_receives_odom_and_diagnostics(ros2, tmp_path, discovery):
+    poses, lines, stderr = _run_pair(ros2, tmp_path, discovery)
     nodes = [tuple(n) for n in lines[-1]["nodes"]]
     publishers = lines[-1]["publishers"]
     odoms = [x["msg"] for x in lines[:-1] if x["topic"] == "/odom"]
@@ -161,3 +172,28 @@ def test_an_rclpy_node_on_fast_dds_receives_odom_and_diagnostics(ros2, tmp_path,
     names = {s["name"] for s in diags[-1]["status"]}
     assert names == {"mousedom: front", "mousedom: left", "mousedom: right"}
     assert all(s["level"] == 0 for s in diags[-1]["status"])
+
+
+def test_rviz_initialpose_from_rclpy_fixes_the_pose_and_moves_map_to_odom(ros2, tmp_path):
+    """/initialpose (RViz's "2D Pose Estimate", geometry_msgs/PoseWithCovarianceStamped in
+    the map frame) from an rclpy node is an absolute fix when the config allows it: the
+    socket's POSE jumps there, while /odom stays continuous (REP-105)."""
+    target = (3.0, -2.0, 1.2)
+    poses, lines, stderr = _run_pair(
+        ros2, tmp_path, "default", ", initialpose: true",
+        {"INITIALPOSE": ",".join(map(str, (*target, 4.0)))},
+    )  # fmt: skip
+    sent = [x["t_sent"] for x in lines if x.get("topic") == "/initialpose"]
+    assert len(sent) == 1
+    assert "pose set to (3.000, -2.000, 1.200) by Ros2Output" in stderr, stderr
+    after = [p for p in poses if p["t_recv"] > sent[0] + 0.5]
+    before = [p for p in poses if p["t_recv"] < sent[0]]
+    assert before and after
+    assert abs(before[-1]["x"] - target[0]) > 1.0  # it was elsewhere
+    first = after[0]  # then about there, moved on by at most what the robot drove since
+    assert math.hypot(first["x"] - target[0], first["y"] - target[1]) < 0.3, first
+    assert abs(math.remainder(first["theta"] - target[2], math.tau)) < 0.3, first
+    odoms = [x["msg"]["pose"]["pose"]["position"] for x in lines[:-1] if x["topic"] == "/odom"]
+    steps = [math.hypot(b["x"] - a["x"], b["y"] - a["y"])
+             for a, b in zip(odoms, odoms[1:], strict=False)]  # fmt: skip
+    assert max(steps) < 0.05  # odom never jumps

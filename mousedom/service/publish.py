@@ -63,6 +63,8 @@ class Publisher:
                 self._to_outputs("publish", pose)
         last = rows[-1]
         self._last_health = (last.state, last.reason)
+        if self.outputs:
+            self._absolute_fixes()
         if len(residuals) > self._RESIDUALS_HELD:
             self._fold_window_health()
 
@@ -128,6 +130,26 @@ class Publisher:
                     out.close()
                 except Exception:  # noqa: BLE001
                     pass
+
+    def _absolute_fixes(self) -> None:
+        """Poses an output was told from outside (ROS 2's /initialpose), applied as the
+        socket's fix of all three coordinates is: map -> odom takes the jump (REP-105)."""
+        for out in list(self.outputs):
+            fixes = getattr(out, "fixes", None)
+            if fixes is None:
+                continue
+            try:
+                asked = fixes()
+            except Exception as e:  # noqa: BLE001 - as _to_outputs: that output stops
+                log.error("output %s failed (%s); it is stopped", type(out).__name__, e)
+                self.outputs.remove(out)
+                continue
+            for x, y, theta in asked:
+                before = self.tracker.pose
+                self.tracker.fix(x=x, y=y, theta=theta)
+                log.info("pose set to (%.3f, %.3f, %.3f) by %s", x, y, theta,
+                         type(out).__name__)  # fmt: skip
+                self._moved(before)
 
     def _output_sources(self, now: float) -> None:
         if self.outputs:

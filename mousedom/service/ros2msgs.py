@@ -57,6 +57,9 @@ FIELDS: dict[str, tuple[tuple[str, str], ...]] = {
     "diagnostic_msgs/DiagnosticArray": (
         ("std_msgs/Header", "header"), ("diagnostic_msgs/DiagnosticStatus[]", "status"),
     ),
+    "geometry_msgs/PoseWithCovarianceStamped": (
+        ("std_msgs/Header", "header"), ("geometry_msgs/PoseWithCovariance", "pose"),
+    ),
     "geometry_msgs/Vector3Stamped": (
         ("std_msgs/Header", "header"), ("geometry_msgs/Vector3", "vector"),
     ),
@@ -79,6 +82,7 @@ ODOMETRY = "nav_msgs/Odometry"
 TF = "tf2_msgs/TFMessage"
 DIAGNOSTICS = "diagnostic_msgs/DiagnosticArray"
 COUNTS = "geometry_msgs/Vector3Stamped"
+INITIALPOSE = "geometry_msgs/PoseWithCovarianceStamped"  # read, not published
 
 
 def _base(ftype: str) -> str:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import os
 import sys
 import tempfile
@@ -249,6 +250,19 @@ class Ros2Output:
             mounts = [conv.mount_transform(cfg.base_frame, m.name, m.mount.x, m.mount.y,
                                            m.mount.yaw, m.flip, st) for m in mice]  # fmt: skip
             self.tf_static.write(msgs.build(msgs.TF, {"transforms": mounts}))
+        # RViz's "2D Pose Estimate": an absolute pose in the map frame (allowed by config)
+        self.initialpose = None
+        if cfg.initialpose:
+            from cyclonedds.sub import DataReader
+
+            rq = Qos(
+                Policy.Reliability.Reliable(duration(milliseconds=100)),
+                Policy.Durability.Volatile,
+                Policy.History.KeepLast(10),
+            )
+            topic = Topic(self.participant, "rt" + conv.topic(cfg, "/initialpose"),
+                          types[msgs.INITIALPOSE], qos=rq)  # fmt: skip
+            self.initialpose = DataReader(self.participant, topic, rq)
         # The node in the ROS 2 graph (ros2 node list): its writers are ours.
         from mousedom.service.ros2graph import NodeAnnouncer
 
@@ -256,7 +270,7 @@ class Ros2Output:
         mine = [w.writer for w in (self.odom, self.tf, self.diag, *self.counts) if w is not None]
         if self.tf_static is not None:
             mine.append(self.tf_static)
-        self.graph.announce([], mine)
+        self.graph.announce([self.initialpose] if self.initialpose is not None else [], mine)
         self.sent = 0
         # CDR packed per window (ros2cdr: byte for byte what cyclonedds would serialise)
         self.odom_cdr = cdr.OdometryCdr(cfg.odom_frame, cfg.base_frame)
@@ -294,6 +308,27 @@ class Ros2Output:
             w.write(enc.encode(st, conv.counts(st, name, cx, cy)))
         self.sent += 1
 
+    def fixes(self) -> list[conv.Pose2]:
+        """The poses /initialpose asked for since the last call (map frame: x, y, yaw);
+        one in another frame, or not finite, or beyond what a pose may be, is logged and
+        left out."""
+        if self.initialpose is None:
+            return []
+        out = []
+        for m in self.initialpose.take(N=16):
+            frame = m.header.frame_id
+            p, q = m.pose.pose.position, m.pose.pose.orientation
+            yaw = math.atan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y * q.y + q.z * q.z))
+            pose = (float(p.x), float(p.y), yaw)
+            if frame not in ("", self.cfg.map_frame):
+                log.warning("/initialpose in frame %r ignored: it must be %r", frame,
+                            self.cfg.map_frame)  # fmt: skip
+            elif not all(math.isfinite(v) and abs(v) <= 1e7 for v in pose):
+                log.warning("/initialpose %r ignored: not a finite pose", pose)
+            else:
+                out.append(pose)
+        return out
+
     def moved(self, before: conv.Pose2, after: conv.Pose2) -> None:
         """The socket's reset or fix moved the pose: map -> odom takes the jump."""
         self.rep.moved(before, after)
@@ -305,7 +340,7 @@ class Ros2Output:
             self.diag.write(cdr.diagnostics(st, conv.diagnostics(st, messages)))
 
     def close(self) -> None:
-        self.graph = self.tf_static = None
+        self.graph = self.tf_static = self.initialpose = None
         self.odom = self.tf = self.diag = None
         self.counts = []
         self.participant = None
