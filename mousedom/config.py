@@ -141,6 +141,14 @@ class Ros2Config:
     initialpose: bool = False  # True: /initialpose (RViz's 2D Pose Estimate) fixes the pose
 
 
+@dataclass(frozen=True)
+class FoxgloveConfig:
+    """The optional Foxglove live view (docs/ros2.md); ``outputs: {foxglove: {...}}``."""
+
+    host: str = "127.0.0.1"  # localhost only unless said: the view has no access control
+    port: int = 8765
+
+
 STAMPS = ("system", "monotonic")
 ROS2_KEYS = tuple(f for f in Ros2Config.__dataclass_fields__)
 
@@ -157,6 +165,7 @@ class Config:
     path: str | None = None  # where this config was read from
     robust: RobustConfig = field(default_factory=RobustConfig)
     ros2: Ros2Config | None = None  # outputs.ros2: None means no DDS output
+    foxglove: FoxgloveConfig | None = None  # outputs.foxglove: None means no live view
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -365,8 +374,8 @@ def _robust(r: Reader) -> RobustConfig:
     return robust
 
 
-def _outputs(r: Reader) -> Ros2Config | None:
-    o = r.sub("outputs", ("ros2",))
+def _outputs(r: Reader) -> tuple[Ros2Config | None, FoxgloveConfig | None]:
+    o = r.sub("outputs", ("ros2", "foxglove"))
     ros2 = None
     if o.has("ros2"):
         v = o.raw("ros2")
@@ -376,8 +385,27 @@ def _outputs(r: Reader) -> Ros2Config | None:
             ros2 = Ros2Config()
         else:
             ros2 = _ros2(o)
+    fox = None
+    if o.has("foxglove"):
+        v = o.raw("foxglove")
+        if v is True:
+            fox = FoxgloveConfig()
+        elif v is not False and v is not None:
+            fox = _foxglove(o)
     o.finish()
-    return ros2
+    return ros2, fox
+
+
+def _foxglove(r: Reader) -> FoxgloveConfig | None:
+    s = r.sub("foxglove", ("enabled", "host", "port"))
+    d = FoxgloveConfig()
+    port = s.integer("port", d.port, minimum=0)
+    if port > 65535:
+        raise s.err("port", f"must be a TCP port (0 to 65535), got {port}")
+    cfg = FoxgloveConfig(host=s.string("host") or d.host, port=port)
+    enabled = s.boolean("enabled", True)
+    s.finish()
+    return cfg if enabled else None
 
 
 def _ros2(r: Reader) -> Ros2Config:
@@ -512,7 +540,8 @@ def parse_config(
     server = (doc.attempt(_server, top) if top.has("server") else None) or ServerConfig()
     wheels = doc.attempt(_wheels, top) if top.has("wheels") else None
     robust = (doc.attempt(_robust, top) if top.has("robust") else None) or RobustConfig()
-    ros2 = doc.attempt(_outputs, top) if top.has("outputs") else None
+    outputs = doc.attempt(_outputs, top) if top.has("outputs") else None
+    ros2, foxglove = outputs or (None, None)
     calibration = doc.attempt(top.string, "calibration")
     calibration_path = str(base_dir / calibration) if calibration else None
     doc.raise_problems()
@@ -546,6 +575,7 @@ def parse_config(
         path=path,
         robust=robust,
         ros2=ros2,
+        foxglove=foxglove,
     )
 
 

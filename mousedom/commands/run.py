@@ -123,6 +123,10 @@ def run(args: argparse.Namespace) -> int:
                 if not config.ros2.optional:
                     raise
                 log.error("%s; going on without it (outputs.ros2.optional)", e)
+        if config.foxglove is not None:
+            from mousedom.service.foxgloveout import FoxgloveOutput
+
+            outputs.append(FoxgloveOutput(config.foxglove, config.names, config.mice))
         if args.record_mcap:
             from mousedom.config import Ros2Config
             from mousedom.service.mcapout import McapRecorder, system_offset

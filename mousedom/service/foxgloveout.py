@@ -1,0 +1,184 @@
+"""A live view without ROS: the daemon's pose in Foxglove, over Foxglove's WebSocket protocol.
+
+``foxglove-sdk`` (the ``foxglove`` extra) serves the protocol; Foxglove (the desktop app or
+app.foxglove.dev) connects with "Open connection" -> "Foxglove WebSocket" ->
+``ws://localhost:8765`` (docs/ros2.md, "Foxglove without ROS").  Opt in with ``outputs:
+{foxglove: {}}``; it listens on 127.0.0.1 unless the config says otherwise.
+
+Channels, in Foxglove's own schemas (its 3D panel draws them as they are):
+
+- ``/mousedom/pose``: ``foxglove.PoseInFrame`` in the odom frame, every window;
+- ``/tf``: ``foxglove.FrameTransforms``: odom -> base_link every window, base_link ->
+  <mouse>_mouse (each mouse's mount) once a second;
+- ``/mousedom/path``: ``foxglove.PosesInFrame``, the path so far (a pose every 0.1 s of
+  motion, the last ``PATH_POSES``), twice a second;
+- ``/mousedom/mice``: JSON, every window: each mouse's counts in the window (REL_X and
+  REL_Y as the mouse reported them, split at the window's edges) and its state (tracking,
+  suspect, excluded, missing);
+- ``/mousedom/sources``: JSON, the SOURCE messages of the socket, once a second.
+
+Times are the daemon's (monotonic) stamps, as the socket's POSE carries them.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import deque
+from typing import Any
+
+from mousedom.config import FoxgloveConfig, MouseConfig
+from mousedom.errors import UserError
+from mousedom.fusion import robust
+
+log = logging.getLogger(__name__)
+
+INSTALL_HINT = (
+    "the Foxglove live view needs foxglove-sdk, which is not installed: "
+    "pip install 'mousedom[foxglove]' (or: pip install foxglove-sdk)"
+)
+PATH_POSES = 3000
+PATH_STEP_S = 0.1
+
+MICE_SCHEMA = {
+    "type": "object",
+    "properties": {
+        "t": {"type": "number"},
+        "mice": {
+            "type": "array",
+            "items": {
+                "type": "object",
+                "properties": {
+                    "name": {"type": "string"},
+                    "dx": {"type": "number"},
+                    "dy": {"type": "number"},
+                    "state": {"type": "string"},
+                },
+            },
+        },
+    },
+}
+SOURCES_SCHEMA = {"type": "object", "properties": {"t": {"type": "number"}, "sources": {}}}
+
+
+def require() -> None:
+    try:
+        import foxglove  # noqa: F401
+    except ImportError:
+        raise UserError(INSTALL_HINT) from None
+
+
+def _time(t: float) -> Any:
+    from foxglove.messages import Timestamp
+
+    ns = max(0, round(t * 1e9))
+    return Timestamp(ns // 1_000_000_000, ns % 1_000_000_000)
+
+
+def _quat(yaw: float) -> Any:
+    from foxglove.messages import Quaternion
+
+    return Quaternion(x=0.0, y=0.0, z=math.sin(0.5 * yaw), w=math.cos(0.5 * yaw))
+
+
+class FoxgloveOutput:
+    """A Foxglove WebSocket server and its channels; ``publish`` per window."""
+
+    def __init__(
+        self, cfg: FoxgloveConfig, sensors: tuple[str, ...], mice: tuple[MouseConfig, ...] = ()
+    ) -> None:
+        require()
+        import foxglove
+        from foxglove.channels import (
+            FrameTransformsChannel,
+            PoseInFrameChannel,
+            PosesInFrameChannel,
+        )
+
+        self.cfg, self.sensors, self.mice = cfg, sensors, mice
+        self.ctx = foxglove.Context()
+        try:
+            self.server = foxglove.start_server(
+                name="mousedom", host=cfg.host, port=cfg.port, context=self.ctx
+            )
+        except Exception as e:  # noqa: BLE001 - the SDK's errors carry the OS's reason
+            raise UserError(
+                f"Foxglove live view: cannot listen on {cfg.host}:{cfg.port}: {e} "
+                "(outputs.foxglove.port)"
+            ) from None
+        ctx = self.ctx
+        self.pose_ch = PoseInFrameChannel("/mousedom/pose", context=ctx)
+        self.tf_ch = FrameTransformsChannel("/tf", context=ctx)
+        self.path_ch = PosesInFrameChannel("/mousedom/path", context=ctx)
+        self.mice_ch = foxglove.Channel("/mousedom/mice", schema=MICE_SCHEMA,
+                                        message_encoding="json", context=ctx)  # fmt: skip
+        self.sources_ch = foxglove.Channel("/mousedom/sources", schema=SOURCES_SCHEMA,
+                                           message_encoding="json", context=ctx)  # fmt: skip
+        self.path: deque[tuple[float, float, float]] = deque(maxlen=PATH_POSES)
+        self._path_t = -math.inf
+        self._path_sent = -math.inf
+        self._mounts_sent = -math.inf
+        self.port = self.server.port
+        log.info("Foxglove live view on ws://%s:%d", cfg.host, self.port)
+
+    def _pose(self, x: float, y: float, yaw: float) -> Any:
+        from foxglove.messages import Pose, Vector3
+
+        return Pose(position=Vector3(x=x, y=y, z=0.0), orientation=_quat(yaw))
+
+    def publish(self, row: Any) -> None:
+        """One window: the pose, odom -> base_link, each mouse's counts and state; the
+        mounts and the path at their own slower rates."""
+        from foxglove.messages import FrameTransform, FrameTransforms, PoseInFrame, Vector3
+
+        t = float(row.t)
+        stamp = _time(t)
+        x, y, yaw = float(row.x), float(row.y), float(row.theta)
+        self.pose_ch.log(PoseInFrame(timestamp=stamp, frame_id="odom",
+                                     pose=self._pose(x, y, yaw)))  # fmt: skip
+        transforms = [FrameTransform(timestamp=stamp, parent_frame_id="odom",
+                                     child_frame_id="base_link",
+                                     translation=Vector3(x=x, y=y, z=0.0),
+                                     rotation=_quat(yaw))]  # fmt: skip
+        if t - self._mounts_sent >= 1.0:
+            self._mounts_sent = t
+            for m in self.mice:
+                transforms.append(FrameTransform(
+                    timestamp=stamp, parent_frame_id="base_link",
+                    child_frame_id=f"{m.name}_mouse",
+                    translation=Vector3(x=m.mount.x, y=m.mount.y, z=0.0),
+                    rotation=_quat(m.mount.yaw)))  # fmt: skip
+        self.tf_ch.log(FrameTransforms(transforms=transforms))
+        states = list(row.state) if row.state is not None else []
+        counts = list(row.counts) if row.counts is not None else []
+        mice = []
+        for k, name in enumerate(self.sensors):
+            cx, cy = counts[k] if k < len(counts) else (0.0, 0.0)
+            state = robust.STATES[int(states[k])] if k < len(states) else None
+            mice.append({"name": name, "dx": float(cx), "dy": float(cy), "state": state})
+        self.mice_ch.log({"t": t, "mice": mice})
+        if t - self._path_t >= PATH_STEP_S:
+            self._path_t = t
+            self.path.append((x, y, yaw))
+        if t - self._path_sent >= 0.5:
+            self._path_sent = t
+            self._send_path(stamp)
+
+    def _send_path(self, stamp: Any) -> None:
+        from foxglove.messages import PosesInFrame
+
+        poses = [self._pose(px, py, pyaw) for px, py, pyaw in self.path]
+        self.path_ch.log(PosesInFrame(timestamp=stamp, frame_id="odom", poses=poses))
+
+    def moved(self, before: Any, after: Any) -> None:
+        """The socket's reset or fix: the path starts again from the new pose."""
+        self.path.clear()
+        self._path_t = -math.inf
+
+    def sources(self, messages: list[dict[str, Any]], t: float) -> None:
+        self.sources_ch.log({"t": t, "sources": messages})
+
+    def close(self) -> None:
+        server, self.server = getattr(self, "server", None), None
+        if server is not None:
+            server.stop()
