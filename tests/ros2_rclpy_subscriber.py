@@ -42,7 +42,7 @@ def main() -> None:
         pkg, _, name = typ.split("/")
         cls = getattr(importlib.import_module(f"{pkg}.msg"), name)
         qos = QoSProfile(
-            depth=10,
+            depth=100 if topic.endswith("/tf") else 10,
             reliability=ReliabilityPolicy.RELIABLE,
             durability=DurabilityPolicy.VOLATILE,
             history=HistoryPolicy.KEEP_LAST,

@@ -30,10 +30,7 @@ from conftest import REPO
 from daemon_fixtures import Conn
 
 ROS_PY = os.environ.get("MOUSEDOM_ROS2_PYTHON") or str(REPO / ".ros-venv" / "bin" / "python")
-INSTALL = (
-    "python3.12 -m venv .ros-venv && .ros-venv/bin/pip install ros-rclpy ros-nav-msgs "
-    "ros-diagnostic-msgs ros-std-srvs ros-sensor-msgs ros-rmw-fastrtps-cpp"
-)
+INSTALL = "bash scripts/ros2_venv.sh"
 NETNS = "ip link set lo up; ip link set lo multicast on; ip route add 224.0.0.0/4 dev lo; "
 
 
@@ -41,7 +38,8 @@ def _why_not() -> str | None:
     if not os.path.exists(ROS_PY):
         return f"no ROS 2 venv at {ROS_PY} (make one: {INSTALL})"
     probe = subprocess.run(
-        [ROS_PY, "-c", "import rclpy, nav_msgs.msg, diagnostic_msgs.msg"],
+        ["env", *_tf2_env(ROS_PY).split(), ROS_PY, "-c",
+         "import rclpy, nav_msgs.msg, diagnostic_msgs.msg, tf2_msgs.msg"],
         capture_output=True, text=True, timeout=60,
     )  # fmt: skip
     if probe.returncode != 0:
@@ -62,6 +60,16 @@ def ros2():
             pytest.fail(f"MOUSEDOM_REQUIRE_ROS2 is set, but {why}")
         pytest.skip(why)
     return ROS_PY
+
+
+def _tf2_env(ros_py: str) -> str:
+    """The environment (as shell assignments) in which the ROS 2 venv's python finds the
+    tf2_msgs that scripts/ros2_venv.sh generated: TFMessage has no wheel."""
+    venv = Path(os.path.abspath(ros_py)).parent.parent  # not resolved: bin/python is a link
+    prefix = venv / "opt" / "tf2_msgs"
+    site = next(prefix.glob("lib/python3*/site-packages"), prefix)
+    return (f"PYTHONPATH={site} LD_LIBRARY_PATH={prefix / 'lib'} "
+            f"AMENT_PREFIX_PATH={prefix}:{venv}")  # fmt: skip
 
 
 def _config(tmp: Path, domain: int, extra: str = "") -> Path:
@@ -98,9 +106,10 @@ def _run_pair(
     script = (
         NETNS + f"{sys.executable} -m mousedom run --config {cfg} --socket {sock} "
         f"2>{tmp_path / 'daemon.log'} & daemon=$!; "
-        f"ROS_DOMAIN_ID={domain} {ros2} {REPO / 'tests' / 'ros2_rclpy_subscriber.py'} "
-        f"{seconds} {out} /odom=nav_msgs/msg/Odometry "
-        "/diagnostics=diagnostic_msgs/msg/DiagnosticArray; "
+        f"ROS_DOMAIN_ID={domain} {_tf2_env(ros2)} {ros2} "
+        f"{REPO / 'tests' / 'ros2_rclpy_subscriber.py'} {seconds} {out} "
+        "/odom=nav_msgs/msg/Odometry /diagnostics=diagnostic_msgs/msg/DiagnosticArray "
+        "/tf=tf2_msgs/msg/TFMessage; "
         "kill -TERM $daemon; wait $daemon"
     )
     proc = subprocess.Popen(["unshare", "-n", "bash", "-c", script], env=env,
@@ -169,6 +178,21 @@ def test_an_rclpy_node_on_fast_dds_receives_odom_and_diagnostics(ros2, tmp_path,
         cov = np.array(o["pose"]["covariance"]).reshape(6, 6)
         np.testing.assert_allclose(cov[np.ix_([0, 1, 5], [0, 1, 5])], p["cov"],
                                    rtol=1e-9, atol=1e-15)  # fmt: skip
+    # /tf through rclpy too (tf2_msgs generated with the wheels' rosidl tools)
+    tfs = [x["msg"] for x in lines[:-1] if x["topic"] == "/tf"]
+    assert len(tfs) > 100, len(tfs)
+    tf_by_t = {}
+    for m in tfs:
+        for tr in m["transforms"]:
+            st = tr["header"]["stamp"]
+            assert (tr["header"]["frame_id"], tr["child_frame_id"]) == ("odom", "base_link")
+            tf_by_t[round(st["sec"] + st["nanosec"] * 1e-9, 6)] = tr["transform"]
+    tf_matched = [(p, tf_by_t[round(p["t"], 6)]) for p in poses if round(p["t"], 6) in tf_by_t]
+    assert len(tf_matched) > 100, len(tf_matched)
+    for p, tr in tf_matched:
+        assert (tr["translation"]["x"], tr["translation"]["y"]) == pytest.approx(
+            (p["x"], p["y"]), abs=1e-9)  # fmt: skip
+        assert _yaw(tr["rotation"]) == pytest.approx(p["theta"], abs=1e-9)
     names = {s["name"] for s in diags[-1]["status"]}
     assert names == {"mousedom: front", "mousedom: left", "mousedom: right"}
     assert all(s["level"] == 0 for s in diags[-1]["status"])
