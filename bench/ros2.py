@@ -1,6 +1,7 @@
 """The ROS 2 output's cost and latency: the daemon with and without DDS, same load.
 
     .venv/bin/python bench/ros2.py [--seconds 8] [--rounds 3] [--rate-hz 100]
+                                   [--subscriber rclpy|cyclone]
 
 Four mice at 1000 Hz through FIFOs (bench/daemon.py's feeder and rig), POSE at 100 Hz.
 Rounds alternate the daemon without an output and with ``outputs: {ros2: ...}`` (Odometry
@@ -9,6 +10,11 @@ a subscriber in its own process.  Printed: the daemon's CPU (% of one core) for 
 medians and the median of the per-round ratio; for the DDS run, the latency from the stamp
 of the report that let a window close (c(T), as bench/daemon.py) to the subscriber's
 receipt of that window's Odometry, and from the window's end T itself, p50 and p99.
+
+The subscriber is a real ROS 2 node by default: rclpy on rmw_fastrtps_cpp from the venv
+``bash scripts/ros2_venv.sh`` makes (``--ros2-python``), both sides limited to this host
+with ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``; ``--subscriber cyclone`` takes a Cyclone
+DDS reader in this project's venv instead, over loopback.
 """
 
 from __future__ import annotations
@@ -68,6 +74,30 @@ out.close()
 """
 
 
+def rclpy_subscriber(ros_py: str, domain: int, log: Path, seconds: float, env: dict):
+    """tests/ros2_rclpy_subscriber.py for /odom; its JSON lines become (stamp, arrival)."""
+    sys.path.insert(0, str(ROOT / "tests"))
+    from test_ros2_interop import _tf2_env
+
+    cmd = ["env", f"ROS_DOMAIN_ID={domain}", "RMW_IMPLEMENTATION=rmw_fastrtps_cpp",
+           *_tf2_env(ros_py).split(), ros_py, str(ROOT / "tests" / "ros2_rclpy_subscriber.py"),
+           str(seconds), str(log) + ".jsonl", "/odom=nav_msgs/msg/Odometry"]  # fmt: skip
+    return subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+                            env=env)  # fmt: skip
+
+
+def rclpy_received(log: Path) -> np.ndarray:
+    import json
+
+    rows = []
+    for line in Path(str(log) + ".jsonl").read_text().splitlines():
+        m = json.loads(line)
+        if m.get("topic") == "/odom":
+            st = m["msg"]["header"]["stamp"]
+            rows.append((st["sec"] + st["nanosec"] * 1e-9, m["t_recv"]))
+    return np.array(rows).reshape(-1, 2)
+
+
 def latencies(run: dict, received: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(from c(T), from T) in ms for the Odometry received in the measured interval."""
     wall0, wall1 = run["window"]
@@ -92,8 +122,19 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=8.0)
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--rate-hz", type=float, default=100.0)
+    ap.add_argument("--subscriber", choices=("rclpy", "cyclone"), default="rclpy")
+    ap.add_argument("--ros2-python", default=str(ROOT / ".ros-venv" / "bin" / "python"),
+                    help="the ROS 2 venv's python (bash scripts/ros2_venv.sh)")  # fmt: skip
     args = ap.parse_args()
-    os.environ["CYCLONEDDS_URI"] = LOOPBACK
+    rclpy = args.subscriber == "rclpy"
+    if rclpy:
+        if not os.path.exists(args.ros2_python):
+            ap.error(f"{args.ros2_python}: no ROS 2 venv (bash scripts/ros2_venv.sh), "
+                     "or --subscriber cyclone")  # fmt: skip
+        os.environ.pop("CYCLONEDDS_URI", None)
+        os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"  # nothing leaves the host
+    else:
+        os.environ["CYCLONEDDS_URI"] = LOOPBACK
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     plain, dds, beyond, total = [], [], [], []
     for k in range(args.rounds):
@@ -107,18 +148,22 @@ def main() -> None:
             holder = {}
 
             def start_sub(domain=domain, log=log, holder=holder) -> None:
-                sub = subprocess.Popen([sys.executable, "-c", SUBSCRIBER, str(domain), str(log)],
-                                       stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                       text=True, env=env)  # fmt: skip
+                if rclpy:
+                    sub = rclpy_subscriber(args.ros2_python, domain, log, args.seconds + 6, env)
+                else:
+                    sub = subprocess.Popen(
+                        [sys.executable, "-c", SUBSCRIBER, str(domain), str(log)],
+                        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env,
+                    )  # fmt: skip
                 assert sub.stdout.readline().strip() == "ready"
                 holder["sub"] = sub
-                time.sleep(0.5)  # discovery
+                time.sleep(1.0)  # discovery
 
             run = run_daemon(d, args.seconds, args.rate_hz, extra, on_ready=start_sub)
             sub = holder["sub"]
             sub.stdin.close()
-            sub.wait(10)
-            received = np.loadtxt(log).reshape(-1, 2)
+            sub.wait(args.seconds + 20)
+            received = rclpy_received(log) if rclpy else np.loadtxt(log).reshape(-1, 2)
             b, t = latencies(run, received)
             beyond.append(b)
             total.append(t)
@@ -131,8 +176,9 @@ def main() -> None:
     ratio = float(np.median([b["cpu"] / a["cpu"] for a, b in zip(plain, dds, strict=True)]))
     b = np.concatenate(beyond)
     t = np.concatenate(total)
+    who = "rclpy on rmw_fastrtps_cpp" if rclpy else "a Cyclone DDS reader"
     print(f"four mice at 1000 Hz, POSE at {args.rate_hz:g} Hz, {args.rounds} rounds of "
-          f"{args.seconds:g} s (medians)")  # fmt: skip
+          f"{args.seconds:g} s (medians); subscriber: {who}")  # fmt: skip
     print(f"daemon CPU without DDS     {cp:.2f} % of one core")
     print(f"daemon CPU with DDS        {cd:.2f} % (ratio {ratio:.2f}, per round)")
     print(

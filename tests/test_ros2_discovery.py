@@ -62,3 +62,16 @@ def test_ros_discovery_variables_as_rmw_reads_them():
 def test_peer_names_cannot_break_the_xml():
     allowed, peers = _discovery({"ROS_STATIC_PEERS": 'a"/><x y="1'})
     assert peers == ['a"/><x y="1']
+
+
+def test_localhost_announces_loopback_locators_only():
+    """On a host with a network, Cyclone would announce the locators of its chosen
+    interface; peers limited to this host look on 127.0.0.1 only."""
+
+    def interfaces(env):
+        return [i.get("address") for f in _fragments(dds_config(env))
+                for i in f.iterfind("./Domain/General/Interfaces/NetworkInterface")]  # fmt: skip
+
+    assert interfaces({"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}) == ["127.0.0.1"]
+    assert interfaces({"ROS_LOCALHOST_ONLY": "1"}) == ["127.0.0.1"]
+    assert interfaces({}) == [] and interfaces({"ROS_AUTOMATIC_DISCOVERY_RANGE": "OFF"}) == []

@@ -65,7 +65,14 @@ def dds_config(environ: dict[str, str] | None = None) -> str:
         # no automatic discovery at all, only the static peers.
         localhost = scope == "LOCALHOST"
         unicast = scope in ("LOCALHOST", "OFF")
-        xml = "<General><AllowMulticast>false</AllowMulticast></General>" if unicast else ""
+        xml = ""
+        if unicast:
+            # LOCALHOST: the loopback interface only, so that the locators we announce are
+            # 127.0.0.1, where peers limited to this host (Fast DDS's well-known unicast
+            # ports) look for us; on a host with a network Cyclone would otherwise pick it.
+            lo = '<Interfaces><NetworkInterface address="127.0.0.1"/></Interfaces>'
+            xml = (f"<General>{lo if localhost else ''}"
+                   "<AllowMulticast>false</AllowMulticast></General>")  # fmt: skip
         xml += ("<Discovery><ParticipantIndex>auto</ParticipantIndex>"
                 "<MaxAutoParticipantIndex>32</MaxAutoParticipantIndex><Peers>")  # fmt: skip
         for peer in (["localhost"] if localhost else []) + peers:
