@@ -332,7 +332,7 @@ def test_replay_mcap_reads_back_with_mcap_and_rosbags(tmp_path):
         ]
         tf = [bag.deserialize(raw, c.msgtype)
               for c, _, raw in bag.messages(connections=[conns["/tf"]])]  # fmt: skip
-    assert len(got) == len(rows["t"]) and got[0].header.frame_id == "left"
+    assert len(got) == len(rows["t"]) and got[0].header.frame_id == "left_mouse"
     assert tf[-1].transforms[0].transform.translation.x == pytest.approx(rows["x"][-1], abs=1e-9)
     # every count of the capture is in the recording (the demo's left mouse)
     total = sum(m.vector.y for m in got)
@@ -431,8 +431,8 @@ def test_packed_cdr_is_byte_for_byte_cyclonedds():
         want = ros2msgs.build(ros2msgs.TF, {"transforms": tfs}).serialize()
         assert ros2cdr.TfCdr(pairs).encode(st, tfs) == want
         v = ros2conv.counts(st, child, 3, -7)
-        assert ros2cdr.Vector3StampedCdr(child).encode(st, v) == ros2msgs.build(
-            ros2msgs.COUNTS, v).serialize()  # fmt: skip
+        enc = ros2cdr.Vector3StampedCdr(ros2conv.mouse_frame(child))
+        assert enc.encode(st, v) == ros2msgs.build(ros2msgs.COUNTS, v).serialize()
     sources = [
         {"name": "front", "connected": True, "live": True, "state": "tracking",
          "rate_hz": 125.0, "residual": 1e-5, "kind": "evdev", "node": "/dev/input/event3"},

@@ -31,6 +31,7 @@ from daemon_fixtures import Conn
 
 ROS_PY = os.environ.get("MOUSEDOM_ROS2_PYTHON") or str(REPO / ".ros-venv" / "bin" / "python")
 INSTALL = "bash scripts/ros2_venv.sh"
+MICE = ("front", "left", "right")  # the demo rig's
 NETNS = "ip link set lo up; ip link set lo multicast on; ip route add 224.0.0.0/4 dev lo; "
 
 
@@ -109,7 +110,9 @@ def _run_pair(
         f"ROS_DOMAIN_ID={domain} {_tf2_env(ros2)} {ros2} "
         f"{REPO / 'tests' / 'ros2_rclpy_subscriber.py'} {seconds} {out} "
         "/odom=nav_msgs/msg/Odometry /diagnostics=diagnostic_msgs/msg/DiagnosticArray "
-        "/tf=tf2_msgs/msg/TFMessage; "
+        "/tf=tf2_msgs/msg/TFMessage "
+        + " ".join(f"/mousedom/{m}/counts=geometry_msgs/msg/Vector3Stamped" for m in MICE)
+        + "; "
         "kill -TERM $daemon; wait $daemon"
     )
     proc = subprocess.Popen(["unshare", "-n", "bash", "-c", script], env=env,
@@ -149,7 +152,7 @@ def _run_pair(
 
 @pytest.mark.parametrize("discovery", ["default", "LOCALHOST", "ROS_LOCALHOST_ONLY"])
 def test_an_rclpy_node_on_fast_dds_receives_odom_and_diagnostics(ros2, tmp_path, discovery):
-    poses, lines, stderr = _run_pair(ros2, tmp_path, discovery)
+    poses, lines, stderr = _run_pair(ros2, tmp_path, discovery, ", counts: true")
     nodes = [tuple(n) for n in lines[-1]["nodes"]]
     publishers = lines[-1]["publishers"]
     odoms = [x["msg"] for x in lines[:-1] if x["topic"] == "/odom"]
@@ -193,6 +196,16 @@ def test_an_rclpy_node_on_fast_dds_receives_odom_and_diagnostics(ros2, tmp_path,
         assert (tr["translation"]["x"], tr["translation"]["y"]) == pytest.approx(
             (p["x"], p["y"]), abs=1e-9)  # fmt: skip
         assert _yaw(tr["rotation"]) == pytest.approx(p["theta"], abs=1e-9)
+    # each mouse's counts, window by window, stamped as the windows
+    stamps = {round(p["t"], 6) for p in poses}
+    for m in MICE:
+        counts = [x["msg"] for x in lines[:-1] if x["topic"] == f"/mousedom/{m}/counts"]
+        assert len(counts) > 100, (m, len(counts))
+        assert all(c["header"]["frame_id"] == f"{m}_mouse" for c in counts), counts[0]
+        at = [round(c["header"]["stamp"]["sec"] + c["header"]["stamp"]["nanosec"] * 1e-9, 6)
+              for c in counts]  # fmt: skip
+        assert len(stamps.intersection(at)) > 100
+        assert sum(abs(c["vector"]["y"]) for c in counts) > 100  # the demo rig drives
     names = {s["name"] for s in diags[-1]["status"]}
     assert names == {"mousedom: front", "mousedom: left", "mousedom: right"}
     assert all(s["level"] == 0 for s in diags[-1]["status"])

@@ -75,7 +75,7 @@ class McapRecorder:
             False: cdr.TfCdr([(cfg.odom_frame, cfg.base_frame)]),
             True: cdr.TfCdr([(cfg.odom_frame, cfg.base_frame), (cfg.map_frame, cfg.odom_frame)]),
         }
-        self.counts_cdr = [cdr.Vector3StampedCdr(s) for s in sensors]
+        self.counts_cdr = [cdr.Vector3StampedCdr(conv.mouse_frame(s)) for s in sensors]
         self.rep = conv.Rep105()
         self.written = 0
 

@@ -200,5 +200,6 @@ def diagnostics(st: dict[str, int], sources: list[dict[str, Any]]) -> dict[str, 
 
 def counts(st: dict[str, int], mouse: str, cx: float, cy: float) -> dict[str, Any]:
     """geometry_msgs/msg/Vector3Stamped: one mouse's counts (REL_X, REL_Y) in a window,
-    ``frame_id`` its name."""
-    return {"header": header(mouse, st), "vector": {"x": float(cx), "y": float(cy), "z": 0.0}}
+    ``frame_id`` its frame (``<mouse>_mouse``, which /tf_static places on the robot)."""
+    return {"header": header(mouse_frame(mouse), st),
+            "vector": {"x": float(cx), "y": float(cy), "z": 0.0}}  # fmt: skip

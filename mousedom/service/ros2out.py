@@ -287,7 +287,7 @@ class Ros2Output:
         if cfg.publish_map_tf:
             pairs.append((cfg.map_frame, cfg.odom_frame))
         self.tf_cdr = cdr.TfCdr(pairs)
-        self.counts_cdr = [cdr.Vector3StampedCdr(s) for s in sensors]
+        self.counts_cdr = [cdr.Vector3StampedCdr(conv.mouse_frame(s)) for s in sensors]
         log.info("ROS 2 output on domain %d: %s (%s -> %s)", self.domain,
                  conv.topic(cfg, cfg.odom_topic), cfg.odom_frame, cfg.base_frame)  # fmt: skip
 
