@@ -422,8 +422,12 @@ def _ros2(r: Reader) -> Ros2Config:
         return v
 
     namespace = s.string("namespace") if s.has("namespace") else ""
-    if namespace and not (namespace.startswith("/") and name("namespace", namespace, True)):
-        raise s.err("namespace", f"must start with / (e.g. /robot1), got {shown(namespace)}")
+    if namespace and not re.fullmatch(r"(/[A-Za-z_][A-Za-z0-9_]*)+/?", namespace):
+        raise s.err(
+            "namespace",
+            "must be /name or /a/b, each name of letters, digits and _ not starting with a "
+            f"digit (e.g. /robot1), got {shown(namespace)}",
+        )
     domain = s.integer("domain_id", minimum=0) if s.has("domain_id") else None
     if domain is not None and domain > 232:
         raise s.err("domain_id", f"must be between 0 and 232 (ROS 2's range), got {domain}")

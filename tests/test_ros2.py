@@ -130,7 +130,12 @@ def test_outputs_ros2_config():
     assert off.ros2 is None
     for bad, says in (
         ("{domain_id: 300}", "domain_id: must be between 0 and 232"),
-        ("{namespace: robot1}", "namespace: must start with /"),
+        ("{namespace: robot1}", "namespace: must be /name or /a/b"),
+        # ROS 2's rule (rcl): each name starts with a letter or _, letters, digits and _
+        ("{namespace: /2robot}", "namespace: must be /name or /a/b"),
+        ("{namespace: /robot~1}", "namespace: must be /name or /a/b"),
+        ("{node_name: 2mice}", "node_name: must be a ROS 2 node name"),
+        ("{node_name: mouse-dom}", "node_name: must be a ROS 2 node name"),
         ("{odom_topic: 'od om'}", "odom_topic: must be a ROS topic name"),
         ("{stamps: wall}", "stamps: must be one of system, monotonic"),
         ("{odom_frme: x}", "unknown key (did you mean odom_frame?"),

@@ -384,3 +384,98 @@ def test_one_client_gets_a_bounded_turn_per_wake(harness):
     n = LINES_PER_TURN * 5
     p.send(b"".join(b'{"cmd": "status", "id": %d}\n' % k for k in range(n)))
     assert [p.read()["id"] for _ in range(n)] == list(range(n))
+
+
+def test_a_reply_never_comes_before_the_pose_made_before_it(harness):
+    """A lagging client with a POSE waiting, then a reply: the pose (made first) goes first.
+    Otherwise a reset's OK would be followed by the pose from before the reset."""
+    h = harness(control_uids=(os.getuid(),))
+    p = Peer(h.server.path)
+    p.read()
+    p.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+    for k in range(400):  # fill the kernel buffers: the latest pose then waits
+        line = encode({"class": "POSE", "k": k, "pad": "x" * 300})
+        h.call(lambda line=line: h.server.broadcast_pose(0.0, line, 0.0))
+    h.call(lambda: h.server.broadcast_state("SOURCE m", encode({"class": "SOURCE", "n": 1})))
+    (client,) = h.server.clients.values()
+    assert client.pose is not None  # it waits, to be replaced
+    p.send(b'{"cmd": "reset", "id": "r"}\n')
+    time.sleep(0.3)
+    order = []
+    while True:
+        m = p.read()
+        order.append(m.get("k", m["class"]))
+        if m["class"] == "OK":
+            break
+    assert order[-3:] == ["SOURCE", 399, "OK"], order[-5:]
+
+
+def test_a_dropped_clients_late_event_cannot_touch_the_client_that_reuses_its_fd(harness):
+    """Identity, not descriptor: a client dropped earlier in a wake (idle) frees its fd; a
+    client accepted later in the same wake may get it; the first one's pending event must
+    not drop or write to the second."""
+    h = harness()
+    a = Peer(h.server.path)
+    a.read()
+    (first,) = h.server.clients.values()
+    handler = h.server._make_handler(first)
+    h.call(lambda: h.server.drop(first, "test"))
+    b = Peer(h.server.path)
+    b.read()
+    (second,) = h.server.clients.values()
+    h.call(lambda: handler(selectors.EVENT_READ | selectors.EVENT_WRITE))
+    assert h.server.clients.get(second.fd) is second
+    h.call(lambda: h.server.broadcast_pose(0.0, encode({"class": "POSE", "k": 1}), 0.0))
+    assert b.read() == {"class": "POSE", "k": 1}
+    a.close()
+
+
+def test_a_line_that_breaks_the_daemon_late_in_a_backlog_drops_only_its_client(tmp_path):
+    """Lines past the first turn are answered from the backlog, with the same guard as a
+    read: whatever a line raises, only its client goes."""
+    sel = selectors.DefaultSelector()
+
+    def on_command(client, cmd):
+        if cmd.id == 20:
+            raise RuntimeError("boom")
+        return [ok_message(cmd.name, cmd.id)]
+
+    server = Server(str(tmp_path / "m.sock"), ServerConfig(), sel, on_command,
+                    lambda c: [{"class": "VERSION"}])  # fmt: skip
+    server.open()
+    bad, good = Peer(server.path), Peer(server.path)
+    for _ in range(5):
+        for key, mask in sel.select(0.05):
+            key.data(mask)
+    bad.read(), good.read()
+    bad.send(b"".join(b'{"cmd": "status", "id": %d}\n' % k for k in range(30)))
+    for _ in range(20):
+        for key, mask in sel.select(0.05):
+            key.data(mask)
+        server.serve_backlog()
+    assert len(server.clients) == 1
+    good.send(b'{"cmd": "status", "id": 1}\n')
+    for _ in range(5):
+        for key, mask in sel.select(0.05):
+            key.data(mask)
+    assert good.read() == {"class": "OK", "cmd": "status", "id": 1}
+    server.close()
+
+
+def test_sending_does_not_excuse_not_reading(harness):
+    """A client that never reads but sends a byte now and then is dropped once its output
+    has waited idle_timeout_s: what it sends does not count as taking what it is sent."""
+    h = harness(idle_timeout_s=0.6)
+    p = Peer(h.server.path)
+    p.read()
+    p.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+    deadline = time.monotonic() + 5
+    while h.server.dropped == 0 and time.monotonic() < deadline:
+        h.call(lambda: h.server.broadcast_pose(0.0, encode({"class": "POSE", "p": "x" * 500}),
+                                               0.0))  # fmt: skip
+        try:
+            p.send(b"a")  # a line that never ends: no junk, no reply
+        except OSError:
+            break
+        time.sleep(0.02)
+    assert h.server.dropped == 1

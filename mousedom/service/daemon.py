@@ -243,6 +243,8 @@ class Daemon(SensorSlots, Publisher, ClientCommands, Reloader):
         the next window nor always be served before another.  What is left is still ready
         (epoll is level-triggered) and comes back at the next wake."""
         end = self.clock() + CLIENT_BUDGET_S
+        # Lines read earlier and not yet answered first: their sockets may not wake us again.
+        self.server.serve_backlog()
         n = len(events)
         start = self.wakes % n if n else 0
         for k in range(n):
@@ -250,7 +252,6 @@ class Daemon(SensorSlots, Publisher, ClientCommands, Reloader):
             key.data(mask)
             if self.clock() > end:
                 return
-        self.server.serve_backlog()
 
     def _select(self, deadline: float) -> list[tuple[selectors.SelectorKey, int]]:
         """Wait for events until ``deadline``, to within tens of microseconds.

@@ -143,6 +143,10 @@ class Publisher:
             except Exception as e:  # noqa: BLE001 - as _to_outputs: that output stops
                 log.error("output %s failed (%s); it is stopped", type(out).__name__, e)
                 self.outputs.remove(out)
+                try:
+                    out.close()
+                except Exception:  # noqa: BLE001
+                    pass
                 continue
             for x, y, theta in asked:
                 before = self.tracker.pose

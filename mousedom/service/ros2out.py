@@ -124,7 +124,8 @@ def _dds_stderr() -> Iterator[Callable[[], str]]:
     """Catch what Cyclone DDS writes to file descriptor 2 (its own C code says why it
     failed: a config error, no interface) while the participant is made; yields a function
     giving that text.  What it wrote is passed on to stderr afterwards, as it would be,
-    unless the block failed: then the one error line that names the cause carries it."""
+    unless the block failed: then the one error line that names the cause carries it.
+    Called once, while the daemon starts and has no other thread: fd 2 is the process's."""
     try:
         sys.stderr.flush()
         saved = os.dup(2)
@@ -147,7 +148,8 @@ def _dds_stderr() -> Iterator[Callable[[], str]]:
 
 def _read_back(tmp: Any) -> str:
     tmp.seek(0)
-    return tmp.read(65536).decode("utf-8", "replace")
+    text = tmp.read(1 << 20).decode("utf-8", "replace")
+    return text + ("\n(... cut at 1 MiB)" if tmp.read(1) else "")
 
 
 def _why_no_participant(domain: int, said: str) -> str:
@@ -211,6 +213,8 @@ class Ros2Output:
                 self.dds_domain: Any = Domain(self.domain, dds_config())
             except DDSException:
                 self.dds_domain = None  # exists already in this process, or a bad config
+                if "config:" in said():  # Cyclone refused the configuration: say so
+                    raise Ros2Unavailable(_why_no_participant(self.domain, said())) from None
             try:
                 self.participant = DomainParticipant(self.domain)
             except DDSException:

@@ -7,7 +7,8 @@ them, and of the POSEs only the latest, which replaces an older one still waitin
 any stall (the daemon's or the client's) a reading client gets the freshest pose next, not
 a backlog.  A client is dropped only for not reading while the daemon runs: its owed lines
 overflow, or its output has waited ``idle_timeout_s`` of the daemon's running time (a
-stall of the daemon itself does not count against anyone) while it sent nothing either.
+stall of the daemon itself does not count against anyone): what it sends does not excuse
+not reading.
 
 The work one client can cause per loop iteration is bounded (``Budget``): a few accepts
 per wake-up, one read of ``READ_BYTES`` and ``LINES_PER_TURN`` lines per client (the rest
@@ -63,7 +64,7 @@ JUNK_BURST = 64
 JUNK_PER_S = 8.0
 # A gap between two loop iterations longer than this is the daemon's own stall (SIGSTOP, a
 # VM pause, swapping): only this much of it counts as running time.
-MAX_TICK_S = 0.25
+MAX_TICK_S = 1.5  # the loop wakes at least once a second (SOURCE), whatever the rate
 
 
 def default_socket_path(environ: dict[str, str] | None = None, uid: int | None = None) -> str:
@@ -333,9 +334,9 @@ class Server:
     def _make_handler(self, client: Client) -> Callable[[int], None]:
         def handle(events: int) -> None:
             try:
-                if events & selectors.EVENT_WRITE and client.fd in self.clients:
+                if events & selectors.EVENT_WRITE and self.alive(client):
                     self._flush(client)
-                if events & selectors.EVENT_READ and client.fd in self.clients:
+                if events & selectors.EVENT_READ and self.alive(client):
                     self._read(client)
             except Exception as e:  # noqa: BLE001 - one client must never stop the daemon
                 self._fail(client, e)
@@ -362,7 +363,6 @@ class Server:
         if not data:
             self.drop(client, None)
             return
-        client.waiting_since = None  # it talks to us: not idle
         client.lines.extend(client.rx.feed(data))
         self._answer_some(client)
 
@@ -370,11 +370,11 @@ class Server:
         """Answer up to LINES_PER_TURN of a client's lines; the rest wait in ``backlog``."""
         lines = client.lines
         for _ in range(min(len(lines), LINES_PER_TURN)):
-            if client.fd not in self.clients:
+            if not self.alive(client):
                 return
             for msg in self._answer(client, lines.popleft()):
                 self.send(client, encode(msg))
-        if lines and client.fd in self.clients:
+        if lines and self.alive(client):
             self.backlog.add(client)
         else:
             self.backlog.discard(client)
@@ -384,8 +384,11 @@ class Server:
         this once per loop iteration: such a client's socket may not wake it again)."""
         for client in list(self.backlog):
             self.backlog.discard(client)
-            if client.fd in self.clients:
-                self._answer_some(client)
+            if self.alive(client):
+                try:
+                    self._answer_some(client)
+                except Exception as e:  # noqa: BLE001 - as in handle(): only this client goes
+                    self._fail(client, e)
 
     def _junk(self, client: Client) -> None:
         """A line that carried nothing: it draws on the client's allowance."""
@@ -425,7 +428,7 @@ class Server:
     def send(self, client: Client, line: bytes) -> None:
         """Queue one line the client is owed; drop the client when its owed lines overflow
         (it has not read for that long)."""
-        if client.fd not in self.clients:
+        if not self.alive(client):
             return
         if not client.queue and not client.partial and client.pose is None and not client.states:
             # Nothing waiting (the usual case): the line goes out now, without the queue.
@@ -437,11 +440,19 @@ class Server:
             self.dropped += 1
             self.drop(client, f"queue full ({client.queue_limit} lines): client not reading")
             return
+        # What waits to be replaced was made before this line: it goes before it, in order
+        # (a reply to a reset must not be followed by the pose from before the reset).
+        if client.states:
+            client.queue.extend(client.states.values())
+            client.states = {}
+        if client.pose is not None:
+            client.queue.append(client.pose)
+            client.pose = None
         client.queue.append(line)
 
     def send_pose(self, client: Client, line: bytes) -> None:
         """A POSE: sent now if nothing waits, else it replaces the POSE waiting (if any)."""
-        if client.fd not in self.clients:
+        if not self.alive(client):
             return
         if not client.queue and not client.partial and client.pose is None and not client.states:
             client.partial = line
@@ -517,7 +528,7 @@ class Server:
     def tick(self, now: float) -> None:
         """Once per loop iteration: advance the running time (a stall of the daemon counts
         for at most MAX_TICK_S) and, a few times a second, drop clients whose output has
-        waited ``idle_timeout_s`` of it while they sent nothing."""
+        waited ``idle_timeout_s`` of it (their socket took nothing)."""
         if self._last_tick is not None:
             self.running += min(max(now - self._last_tick, 0.0), MAX_TICK_S)
         self._last_tick = now
@@ -529,7 +540,7 @@ class Server:
             since = client.waiting_since
             if since is not None and self.running - since > limit:
                 self.dropped += 1
-                self.drop(client, f"idle: took nothing and sent nothing for {limit:g} s")
+                self.drop(client, f"idle: took nothing for {limit:g} s")
 
     def _want_write(self, client: Client, want: bool) -> None:
         if want == client.want_write:
@@ -539,9 +550,15 @@ class Server:
         self.selector.modify(client.sock, events, key.data)
         client.want_write = want
 
+    def alive(self, client: Client) -> bool:
+        """Whether this client is still connected.  By identity, not by descriptor: a client
+        dropped earlier in a wake frees its fd, which a client accepted later may reuse."""
+        return self.clients.get(client.fd) is client
+
     def drop(self, client: Client, reason: str | None) -> None:
-        if self.clients.pop(client.fd, None) is None:
+        if not self.alive(client):
             return
+        del self.clients[client.fd]
         self.backlog.discard(client)
         if reason:
             log.warning("dropping %r: %s", client, reason)

@@ -9,6 +9,7 @@ the daemon marks the sensor dead and calls ``open`` again later to reattach.
 
 from __future__ import annotations
 
+import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from typing import Any
@@ -32,7 +33,9 @@ def bound_stamps(t: list[float], now: float) -> tuple[int, float]:
     STAMP_AHEAD_S] to ``now``; (how many, the largest distance from ``now``, 0.0 if none).
     Stamps that are not finite numbers count as infinitely far."""
     lo, hi = now - STAMP_BEHIND_S, now + STAMP_AHEAD_S
-    if t and lo <= min(t) and max(t) <= hi:  # the usual case: one pass each, in C
+    # The usual case: one pass each, in C (min and max skip a NaN that is not first: the
+    # sum is NaN if any stamp is)
+    if t and lo <= min(t) and max(t) <= hi and math.isfinite(sum(t)):
         return 0, 0.0
     n, worst = 0, 0.0
     for i, v in enumerate(t):
@@ -224,6 +227,8 @@ class Source(ABC):
                 t = b._t
             if far[0]:
                 self._far_stamps(*far)
+                if b.quality is not None:  # the sensor's word on the same reports
+                    bound_stamps(b.quality[0], now)
             health.reports += n
             health.last_t = float(t[-1])
             # Report rate over a sliding ~1 s span: cheap and good enough for status.
