@@ -72,8 +72,8 @@ MUTANTS = [
     Mutant(
         "sorted-shortcut-forgets-last-push",
         "mousedom/fusion/countfunction.py",
-        "if not (t[0] >= self.knot_t and (t[1:] >= t[:-1]).all()):",
-        "if not ((t[1:] >= t[:-1]).all()):",
+        "        prev = np.concatenate([[self.knot_t], t[:-1]])  # each report's previous stamp\n",
+        "        prev = np.concatenate([[-math.inf], t[:-1]])  # each report's previous stamp\n",
         ("tests/test_tracker.py",),
         "a push starting behind the previous one is not clamped (array ingest)",
     ),
@@ -192,8 +192,8 @@ MUTANTS = [
     Mutant(
         "robust-no-proportional-noise",
         "mousedom/fusion/noisemodel.py",
-        "        return floor, self.lam_r * (self.rho2 * m2 + self.gran2 * a2)\n",
-        "        return floor, 0.0 * m2\n",
+        "        return self.lam_f * self.sig2, self.lam_r * (self.rho2 * m2 + self.gran2 * a2)\n",
+        "        return self.lam_f * self.sig2, 0.0 * m2\n",
         ("tests/test_robust.py",),
         "the expected error forgets the part in proportion to motion: false alarms",
     ),
