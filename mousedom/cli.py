@@ -22,7 +22,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="mousedom", description="Optical-mouse odometry for robots."
     )
-    parser.add_argument("--version", action="version", version=f"mousedom {__version__}")
+    parser.add_argument("-V", "--version", action="version", version=f"mousedom {__version__}")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging on stderr")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 
 import pytest
+from conftest import run_mousedom
 
 from mousedom.cli import build_parser
 
@@ -48,3 +49,11 @@ def test_shared_options_are_spelled_one_way(name):
                 assert str(action.default) in action.help, action.help
         if "--output" in action.option_strings:
             assert action.option_strings == ["-o", "--output"], (name, action.option_strings)
+
+
+@pytest.mark.parametrize("flag", ["-V", "--version"])
+def test_version_flag(flag):
+    from mousedom import __version__
+
+    p = run_mousedom(flag)
+    assert p.returncode == 0 and p.stdout.strip() == f"mousedom {__version__}", p
