@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import difflib
 import math
+import re
 from typing import Any
 
 import yaml
@@ -22,6 +23,55 @@ from mousedom.errors import UserError, located
 
 class ConfigError(UserError):
     """A config or calibration file is wrong; the message names file, line and key."""
+
+
+_KEY_LINE = re.compile(r"^( *)(?:- )?([^\s#:][^:#]*?)\s*:(?:\s+(\S.*))?$")
+
+
+def _indent(line: str) -> int:
+    return len(line) - len(line.lstrip(" "))
+
+
+def explain_yaml_error(text: str, e: yaml.MarkedYAMLError) -> tuple[int | None, str]:
+    """(line, message) for a YAML syntax error, in the user's terms where PyYAML's are
+    obscure: a tab in the indentation is named as such (PyYAML: "found character that
+    cannot start any token"), and a key indented differently from its neighbours is named,
+    with its line, where PyYAML reports the line after it ("did not find expected key",
+    "mapping values are not allowed here")."""
+    mark = e.problem_mark or e.context_mark
+    line = mark.line + 1 if mark else None
+    why = str(e.problem or e)
+    if line is None:
+        return line, why
+    lines = text.splitlines()
+    for k in range(min(line, len(lines)) - 1, -1, -1):
+        lead = lines[k][: len(lines[k]) - len(lines[k].lstrip(" \t"))]
+        if "\t" in lead:
+            return k + 1, "a tab in the indentation (YAML indents with spaces only)"
+        if k < line - 3:
+            break
+    if any(p in why for p in ("expected key", "mapping values are not allowed",
+                              "expected <block end>")):  # fmt: skip
+        # The line before the one reported, if it is a "key: value" more indented than the
+        # reported one's siblings, is the culprit: one space too many.
+        k = line - 2
+        while k >= 0 and (not lines[k].strip() or lines[k].lstrip().startswith("#")):
+            k -= 1
+        here = lines[line - 1] if line - 1 < len(lines) else ""
+        m = _KEY_LINE.match(lines[k]) if k >= 0 else None
+        if m and m.group(3) and here.strip() and _indent(lines[k]) > _indent(here):
+            return k + 1, (
+                f"key {m.group(2).strip()!r} is indented {_indent(lines[k])} spaces, the key "
+                f"after it {_indent(here)}: keys of one mapping line up (a space too many?)"
+            )
+        h = _KEY_LINE.match(here)
+        if m and m.group(3) and h and _indent(here) > _indent(lines[k]):
+            # a key under a key that already has a value: this line is the one out of line
+            return line, (
+                f"key {h.group(2).strip()!r} is indented {_indent(here)} spaces, the key "
+                f"before it {_indent(lines[k])}: keys of one mapping line up (a space too many?)"
+            )
+    return line, why
 
 
 class YamlDoc:
@@ -39,9 +89,8 @@ class YamlDoc:
             finally:
                 loader.dispose()
         except yaml.MarkedYAMLError as e:
-            mark = e.problem_mark or e.context_mark
-            line = mark.line + 1 if mark else None
-            raise ConfigError(located(path, line, f"invalid YAML: {e.problem or e}")) from None
+            line, why = explain_yaml_error(text, e)
+            raise ConfigError(located(path, line, f"invalid YAML: {why}")) from None
         except yaml.YAMLError as e:
             raise ConfigError(located(path, None, f"invalid YAML: {e}")) from None
         if node is not None:
