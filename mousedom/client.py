@@ -114,6 +114,38 @@ def find_socket(environ: dict[str, str] | None = None) -> str:
     return candidates[0]
 
 
+def access_hint(path: str) -> str:
+    """Why this user may not connect to the socket at ``path``, and what to do: the daemon
+    runs, but the socket's mode and group (server.mode, server.group) keep this user out
+    (connecting needs write permission on the socket, and search on its folders)."""
+    import grp
+    import pwd
+    import stat
+
+    try:
+        st = os.stat(path)
+    except OSError:
+        return ("permission denied on the way to the socket: a folder above it is closed "
+                "to this user")  # fmt: skip
+    try:
+        group = grp.getgrgid(st.st_gid).gr_name
+    except KeyError:
+        group = str(st.st_gid)
+    try:
+        owner = pwd.getpwuid(st.st_uid).pw_name
+    except KeyError:
+        owner = str(st.st_uid)
+    mode = stat.S_IMODE(st.st_mode)
+    if mode & 0o020:
+        what = (f"join its group {group!r} (sudo usermod -aG {group} $USER, then log in "
+                "again)")  # fmt: skip
+    else:
+        what = ("its mode lets no group in: set server.mode (e.g. \"0660\") and server.group "
+                "in the daemon's config")  # fmt: skip
+    return (f"permission denied: the socket is mode {mode:04o}, owner {owner}, group {group}; "
+            f"to watch it as this user, {what}")  # fmt: skip
+
+
 class Client:
     """One connection to the daemon; iterate it for poses."""
 
@@ -122,6 +154,9 @@ class Client:
         self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM | socket.SOCK_CLOEXEC)
         try:
             self.sock.connect(self.path)
+        except PermissionError as e:
+            self.sock.close()
+            raise DaemonNotRunning(e.errno, f"{self.path}: {access_hint(self.path)}") from None
         except OSError as e:
             self.sock.close()
             raise DaemonNotRunning(

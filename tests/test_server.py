@@ -479,3 +479,33 @@ def test_sending_does_not_excuse_not_reading(harness):
             break
         time.sleep(0.02)
     assert h.server.dropped == 1
+
+
+@pytest.mark.skipif(os.getuid() != 0, reason="needs root to connect as another uid")
+@pytest.mark.parametrize("mode, says", [
+    (0o660, "join its group 'root' (sudo usermod -aG root $USER"),
+    (0o600, "its mode lets no group in: set server.mode"),
+])  # fmt: skip
+def test_watch_on_a_socket_it_may_not_use_names_the_mode_and_group(harness, mode, says):
+    """Issue 29: `watch` as a user the socket's mode keeps out said "Permission denied (is
+    the daemon running?)" while it ran; now it names the mode, the group and what to do."""
+    shared = tempfile.mkdtemp(prefix="mousedom-test-")  # tmp_path's parents are 0700
+    os.chmod(shared, 0o755)
+    h = harness(os.path.join(shared, "m.sock"), mode=mode)
+    env = dict(os.environ, PYTHONPATH=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    out = subprocess.run(
+        [sys.executable, "-c",
+         # everything imported first: the interpreter's own files may be closed to nobody
+         "import os, sys, grp, pwd, stat, locale, gettext, importlib, pkgutil, mousedom\n"
+         "for m in pkgutil.walk_packages(mousedom.__path__, 'mousedom.'):\n"
+         "    if not m.name.endswith('__main__'): importlib.import_module(m.name)\n"
+         "from mousedom.cli import main\n"
+         f"os.setgid({NOBODY}); os.setuid({NOBODY}); sys.argv[0] = 'mousedom'\n"
+         "sys.exit(main())",
+         "watch", "--count", "1", "--socket", h.server.path],
+        capture_output=True, text=True, timeout=20, env=env,
+    )  # fmt: skip
+    assert out.returncode != 0, out
+    assert f"permission denied: the socket is mode {mode:04o}, owner root, group root" in out.stderr
+    assert says in out.stderr and "Traceback" not in out.stderr, out.stderr
+    h.close()
