@@ -20,7 +20,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from mousedom import safeyaml
+from mousedom import plausible, safeyaml
 from mousedom.errors import located
 from mousedom.yamldoc import ConfigError, Reader, YamlDoc, shown
 
@@ -166,6 +166,8 @@ class Config:
     robust: RobustConfig = field(default_factory=RobustConfig)
     ros2: Ros2Config | None = None  # outputs.ros2: None means no DDS output
     foxglove: FoxgloveConfig | None = None  # outputs.foxglove: None means no live view
+    # values that look like the wrong unit (mousedom.plausible): said, not refused
+    warnings: tuple[str, ...] = ()
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -551,6 +553,12 @@ def parse_config(
     doc.raise_problems()
     mice = tuple(m for m in read if m is not None)
 
+    found = plausible.suspects([(m.name, m.cpi_x, m.cpi_y, m.mount.x, m.mount.y,
+                                 math.degrees(m.mount.yaw)) for m in mice])  # fmt: skip
+    warnings = tuple(
+        str(doc.error(s.keys, s.message))
+        for s in found  # file:line: key: message
+    )
     if calibration_path:
         mice = _apply_calibration(mice, Path(calibration_path))
 
@@ -580,6 +588,7 @@ def parse_config(
         robust=robust,
         ros2=ros2,
         foxglove=foxglove,
+        warnings=warnings,
     )
 
 

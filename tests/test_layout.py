@@ -37,6 +37,7 @@ LAYERS = [
         "safeyaml",
         "safewrite",
         "saferead",
+        "plausible",
         "invocation",
         "allocator",
         "__init__",

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import sys
 
 from mousedom.commands import _options as options
 from mousedom.config import ConfigError, MouseConfig, load_config
@@ -86,6 +87,8 @@ def run(args: argparse.Namespace) -> int:
         except UserError:
             raise e from None
         raise UserError(f"{e} (a rig for captures only: add --no-sources)") from None
+    for w in cfg.warnings:  # values that look like the wrong unit (mousedom.plausible)
+        print(f"mousedom: warning: {w}", file=sys.stderr)
     print(f"{cfg.path}: {cfg.model} model, {cfg.integrator} integrator, {cfg.rate_hz:g} Hz")
     for m in cfg.mice:
         print(

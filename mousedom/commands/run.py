@@ -108,6 +108,8 @@ def run(args: argparse.Namespace) -> int:
                 demo = invocation.command("run", "--demo")
                 raise ConfigError(f"{e} (give --config FILE, or try: {demo})") from None
             raise
+    for w in config.warnings:  # values that look like the wrong unit
+        log.warning("%s", w)
     if args.ros2 and config.ros2 is None:
         from mousedom.config import Ros2Config
 

@@ -33,6 +33,8 @@ class Reloader:
             log.error("reload failed, keeping the running config: %s", e)
             self.notifier.notify(READY=1, STATUS=f"reload failed: {e}")
             return
+        for w in new.warnings:  # values that look like the wrong unit
+            log.warning("%s", w)
         now = self.clock()
         for slot in self.slots:  # what is already readable belongs to the old windows
             if slot.live:
