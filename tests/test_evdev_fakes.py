@@ -8,13 +8,26 @@ and ``run/udev/data/c13:<minor>``.
 
 from __future__ import annotations
 
+import math
 import os
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from mousedom.sources.discovery import SystemPaths
 from mousedom.sources.events import EV_REL, EV_SYN, REL_X, REL_Y, SYN_REPORT, encode_input_events
+
+
+@pytest.fixture
+def stamps_on_their_own_clock(monkeypatch):
+    """For tests whose stamps are on a clock of their own (0 to 101 s) and that read at
+    time 0: the bound of stamps against the read's time (sources.base.STAMP_AHEAD_S) is
+    lifted; it is tested in test_stamps.py.  Use it as an autouse fixture."""
+    from mousedom.sources import base
+
+    monkeypatch.setattr(base, "STAMP_AHEAD_S", math.inf)
+    monkeypatch.setattr(base, "STAMP_BEHIND_S", math.inf)
 
 
 def add_device(

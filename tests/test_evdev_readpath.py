@@ -5,13 +5,13 @@ arbitrary event streams cut at arbitrary byte offsets."""
 
 from __future__ import annotations
 
-import math
 import os
 
 import numpy as np
 import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
+from test_evdev_fakes import stamps_on_their_own_clock  # noqa: F401 (a fixture, used by name)
 
 from mousedom.config import EvdevMatch, Mount, MouseConfig
 from mousedom.sources.base import Reports, SourceGone
@@ -67,15 +67,8 @@ framed = st.lists(frame, max_size=30).map(
 records = loose | framed
 
 
-@pytest.fixture(autouse=True)
-def _stamps_on_their_own_clock(monkeypatch):
-    """These tests write stamps on a clock of their own (0 to 101 s) and read at time 0:
-    the bound of stamps against the read's time (sources.base.STAMP_AHEAD_S) is lifted
-    here and tested in test_stamps.py."""
-    from mousedom.sources import base
-
-    monkeypatch.setattr(base, "STAMP_AHEAD_S", math.inf)
-    monkeypatch.setattr(base, "STAMP_BEHIND_S", math.inf)
+# Stamps on a clock of their own: the bound against the read's time is lifted here.
+pytestmark = pytest.mark.usefixtures("stamps_on_their_own_clock")
 
 
 def to_bytes(rows) -> bytes:

@@ -3,7 +3,6 @@ input_event bytes; unplug (the writer closes) and reattach; matching via a fake 
 
 from __future__ import annotations
 
-import math
 import os
 import struct
 import threading
@@ -13,7 +12,12 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from test_evdev_fakes import add_device, motion_bytes, paths
+from test_evdev_fakes import (  # noqa: F401 (a fixture, used by name)
+    add_device,
+    motion_bytes,
+    paths,
+    stamps_on_their_own_clock,
+)
 
 from mousedom.config import EvdevMatch, Mount, MouseConfig
 from mousedom.errors import UserError
@@ -21,16 +25,8 @@ from mousedom.sources.base import SourceGone, SourceUnavailable
 from mousedom.sources.evdev import CLOCK_MONOTONIC, EVIOCSCLOCKID, EvdevSource
 from mousedom.sources.events import EV_KEY, EV_REL, EV_SYN, REL_X, SYN_DROPPED, encode_input_events
 
-
-@pytest.fixture(autouse=True)
-def _stamps_on_their_own_clock(monkeypatch):
-    """These tests write stamps on a clock of their own (0 to 101 s) and read at time 0:
-    the bound of stamps against the read's time (sources.base.STAMP_AHEAD_S) is lifted
-    here and tested in test_stamps.py."""
-    from mousedom.sources import base
-
-    monkeypatch.setattr(base, "STAMP_AHEAD_S", math.inf)
-    monkeypatch.setattr(base, "STAMP_BEHIND_S", math.inf)
+# Stamps on a clock of their own: the bound against the read's time is lifted here.
+pytestmark = pytest.mark.usefixtures("stamps_on_their_own_clock")
 
 
 def mouse(**match) -> MouseConfig:

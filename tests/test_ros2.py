@@ -23,6 +23,7 @@ import numpy as np
 import pytest
 from conftest import run_mousedom
 from daemon_fixtures import REPO, Conn, DaemonProcess, Feeder, FifoMouse, write_rig_config
+from ros2_checks import match_odometry
 from rosbags.typesys import Stores, get_typestore
 
 from mousedom.config import Ros2Config, parse_config
@@ -218,21 +219,8 @@ def test_odometry_and_tf_reach_a_ros2_subscriber(tmp_path, dds_env, distro):
         c = Conn(daemon.socket_path)
         poses = [m for m in (c.read() for _ in range(400)) if m["class"] == "POSE"]
         odoms = sub.wait_for("/odom", 100)
-        by_t = {round(o["header"]["stamp"]["sec"] + o["header"]["stamp"]["nanosec"] * 1e-9, 6): o
-                for o in odoms}  # fmt: skip
-        matched = [(p, by_t[round(p["t"], 6)]) for p in poses if round(p["t"], 6) in by_t]
+        matched = match_odometry(poses, odoms)
         assert len(matched) > 50
-        for p, o in matched:
-            assert o["header"]["frame_id"] == "odom" and o["child_frame_id"] == "base_link"
-            pos = o["pose"]["pose"]["position"]
-            assert (pos["x"], pos["y"]) == pytest.approx((p["x"], p["y"]), abs=1e-9)
-            assert _yaw(o["pose"]["pose"]["orientation"]) == pytest.approx(p["theta"], abs=1e-9)
-            tw = o["twist"]["twist"]
-            assert (tw["linear"]["x"], tw["angular"]["z"]) == pytest.approx(
-                (p["vx"], p["omega"]), abs=1e-9)  # fmt: skip
-            cov = np.array(o["pose"]["covariance"]).reshape(6, 6)
-            np.testing.assert_allclose(cov[np.ix_([0, 1, 5], [0, 1, 5])], p["cov"],
-                                       rtol=1e-9, atol=1e-15)  # fmt: skip
         moving = [o for p, o in matched if abs(p["vx"]) > 0.1]
         assert moving and all(o["twist"]["covariance"][0] > 0 for o in moving)
         tfs = sub.wait_for("/tf", 50)

@@ -24,10 +24,10 @@ import threading
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
 from conftest import REPO
 from daemon_fixtures import Conn
+from ros2_checks import match_odometry
 
 ROS_PY = os.environ.get("MOUSEDOM_ROS2_PYTHON") or str(REPO / ".ros-venv" / "bin" / "python")
 INSTALL = "bash scripts/ros2_venv.sh"
@@ -166,21 +166,8 @@ def test_an_rclpy_node_on_fast_dds_receives_odom_and_diagnostics(ros2, tmp_path,
     assert topics["/tf"] == ["tf2_msgs/msg/TFMessage"], topics
     assert topics["/diagnostics"] == ["diagnostic_msgs/msg/DiagnosticArray"], topics
     assert topics["/tf_static"] == ["tf2_msgs/msg/TFMessage"], topics
-    by_t = {round(o["header"]["stamp"]["sec"] + o["header"]["stamp"]["nanosec"] * 1e-9, 6): o
-            for o in odoms}  # fmt: skip
-    matched = [(p, by_t[round(p["t"], 6)]) for p in poses if round(p["t"], 6) in by_t]
+    matched = match_odometry(poses, odoms)
     assert len(matched) > 100, (len(matched), len(poses), len(odoms))
-    for p, o in matched:
-        assert o["header"]["frame_id"] == "odom" and o["child_frame_id"] == "base_link"
-        pos = o["pose"]["pose"]["position"]
-        assert (pos["x"], pos["y"]) == pytest.approx((p["x"], p["y"]), abs=1e-9)
-        assert _yaw(o["pose"]["pose"]["orientation"]) == pytest.approx(p["theta"], abs=1e-9)
-        tw = o["twist"]["twist"]
-        assert (tw["linear"]["x"], tw["angular"]["z"]) == pytest.approx(
-            (p["vx"], p["omega"]), abs=1e-9)  # fmt: skip
-        cov = np.array(o["pose"]["covariance"]).reshape(6, 6)
-        np.testing.assert_allclose(cov[np.ix_([0, 1, 5], [0, 1, 5])], p["cov"],
-                                   rtol=1e-9, atol=1e-15)  # fmt: skip
     # /tf through rclpy too (tf2_msgs generated with the wheels' rosidl tools)
     tfs = [x["msg"] for x in lines[:-1] if x["topic"] == "/tf"]
     assert len(tfs) > 100, len(tfs)

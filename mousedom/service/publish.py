@@ -124,12 +124,15 @@ class Publisher:
             try:
                 getattr(out, method)(*args)
             except Exception as e:  # noqa: BLE001 - any failure of an optional output
-                log.error("output %s failed (%s); it is stopped", type(out).__name__, e)
-                self.outputs.remove(out)
-                try:
-                    out.close()
-                except Exception:  # noqa: BLE001
-                    pass
+                self._stop_output(out, e)
+
+    def _stop_output(self, out: Any, error: Exception) -> None:
+        log.error("output %s failed (%s); it is stopped", type(out).__name__, error)
+        self.outputs.remove(out)
+        try:
+            out.close()
+        except Exception:  # noqa: BLE001
+            pass
 
     def _absolute_fixes(self) -> None:
         """Poses an output was told from outside (ROS 2's /initialpose), applied as the
@@ -141,12 +144,7 @@ class Publisher:
             try:
                 asked = fixes()
             except Exception as e:  # noqa: BLE001 - as _to_outputs: that output stops
-                log.error("output %s failed (%s); it is stopped", type(out).__name__, e)
-                self.outputs.remove(out)
-                try:
-                    out.close()
-                except Exception:  # noqa: BLE001
-                    pass
+                self._stop_output(out, e)
                 continue
             for x, y, theta in asked:
                 before = self.tracker.pose

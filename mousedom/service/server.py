@@ -428,13 +428,7 @@ class Server:
     def send(self, client: Client, line: bytes) -> None:
         """Queue one line the client is owed; drop the client when its owed lines overflow
         (it has not read for that long)."""
-        if not self.alive(client):
-            return
-        if not client.queue and not client.partial and client.pose is None and not client.states:
-            # Nothing waiting (the usual case): the line goes out now, without the queue.
-            client.partial = line
-            client.lines_out += 1
-            self._flush(client)
+        if not self.alive(client) or self._sent_now(client, line):
             return
         if len(client.queue) >= client.queue_limit:
             self.dropped += 1
@@ -452,30 +446,25 @@ class Server:
 
     def send_pose(self, client: Client, line: bytes) -> None:
         """A POSE: sent now if nothing waits, else it replaces the POSE waiting (if any)."""
-        if not self.alive(client):
-            return
-        if not client.queue and not client.partial and client.pose is None and not client.states:
-            client.partial = line
-            client.lines_out += 1
-            self._flush(client)
+        if not self.alive(client) or self._sent_now(client, line):
             return
         client.pose = line
+
+    def _sent_now(self, client: Client, line: bytes) -> bool:
+        """Nothing waiting (the usual case): the line goes out now, without the queue."""
+        if client.queue or client.partial or client.pose is not None or client.states:
+            return False
+        client.partial = line
+        client.lines_out += 1
+        self._flush(client)
+        return True
 
     def broadcast_state(self, key: str, line: bytes) -> None:
         """A state line (a sensor's SOURCE) to every client: sent now where nothing waits,
         else it replaces the line of the same ``key`` still waiting: a client that lags
         gets each sensor's latest state, not a backlog of them."""
         for client in list(self.clients.values()):
-            if (
-                not client.queue
-                and not client.partial
-                and client.pose is None
-                and not client.states
-            ):
-                client.partial = line
-                client.lines_out += 1
-                self._flush(client)
-            else:
+            if self.alive(client) and not self._sent_now(client, line):
                 client.states[key] = line
                 self._want_write(client, True)
 
