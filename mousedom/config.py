@@ -150,6 +150,10 @@ class FoxgloveConfig:
 
 
 STAMPS = ("system", "monotonic")
+# ROS 2's names, as rcl accepts them: a node name of letters, digits and _ not starting
+# with a digit; a namespace of such names, each after a "/" (ros2graph announces these).
+ROS_NODE_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]{0,254}")
+ROS_NAMESPACE = re.compile(r"(/[A-Za-z_][A-Za-z0-9_]*)+/?")
 ROS2_KEYS = tuple(f for f in Ros2Config.__dataclass_fields__)
 
 
@@ -424,7 +428,7 @@ def _ros2(r: Reader) -> Ros2Config:
         return v
 
     namespace = s.string("namespace") if s.has("namespace") else ""
-    if namespace and not re.fullmatch(r"(/[A-Za-z_][A-Za-z0-9_]*)+/?", namespace):
+    if namespace and not ROS_NAMESPACE.fullmatch(namespace):
         raise s.err(
             "namespace",
             "must be /name or /a/b, each name of letters, digits and _ not starting with a "
@@ -451,7 +455,7 @@ def _ros2(r: Reader) -> Ros2Config:
         optional=s.boolean("optional", d.optional),
         initialpose=s.boolean("initialpose", d.initialpose),
     )
-    if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]{0,254}", cfg.node_name):
+    if not ROS_NODE_NAME.fullmatch(cfg.node_name):
         raise s.err("node_name", "must be a ROS 2 node name (letters, digits and _, not "
                     f"starting with a digit), got {shown(cfg.node_name)}")  # fmt: skip
     enabled = s.boolean("enabled", True)

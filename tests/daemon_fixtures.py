@@ -128,6 +128,28 @@ def write_rig_config(
     return path
 
 
+def wait_listening(path: Path, proc=None, timeout: float = 15.0, log=lambda: "") -> None:
+    """Wait until a daemon accepts connections at ``path``: the socket file exists a moment
+    before ``listen`` (bind, then owner and mode, then listen), so its existence alone is
+    not readiness.  ``proc``: the daemon's process, whose exit ends the wait."""
+    deadline = time.monotonic() + timeout
+    while True:
+        if proc is not None and proc.poll() is not None:
+            raise AssertionError(f"daemon exited {proc.returncode}: {log()}")
+        if path.exists():
+            probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            try:
+                probe.connect(str(path))
+                return
+            except OSError:
+                pass
+            finally:
+                probe.close()
+        if time.monotonic() > deadline:
+            raise AssertionError(f"no listening socket at {path} after {timeout}s: {log()}")
+        time.sleep(0.02)
+
+
 class DaemonProcess:
     """``mousedom run`` as a real child process."""
 
@@ -157,25 +179,7 @@ class DaemonProcess:
         )
 
     def wait_socket(self, timeout: float = 15.0) -> None:
-        """Wait until the daemon accepts connections: the socket file exists a moment
-        before ``listen`` (bind, then owner and mode, then listen), so its existence alone
-        is not readiness."""
-        deadline = time.monotonic() + timeout
-        while True:
-            if self.proc.poll() is not None:
-                raise AssertionError(f"daemon exited {self.proc.returncode}: {self.log()}")
-            if self.socket_path.exists():
-                probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-                try:
-                    probe.connect(str(self.socket_path))
-                    return
-                except OSError:
-                    pass
-                finally:
-                    probe.close()
-            if time.monotonic() > deadline:
-                raise AssertionError(f"no listening socket after {timeout}s: {self.log()}")
-            time.sleep(0.02)
+        wait_listening(self.socket_path, self.proc, timeout, self.log)
 
     def log(self) -> str:
         if not self._log.closed:

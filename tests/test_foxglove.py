@@ -19,7 +19,7 @@ import time
 
 import pytest
 from conftest import REPO, mousedom_env
-from daemon_fixtures import Conn
+from daemon_fixtures import Conn, wait_listening
 
 try:
     import foxglove  # noqa: F401
@@ -60,8 +60,7 @@ def _start(tmp_path, extra: str = ""):
         port = int(m.group(2)) if m else None
         time.sleep(0.05)
     assert port, log.read_text()
-    while not sock.exists() and time.monotonic() < deadline:
-        time.sleep(0.05)
+    wait_listening(sock, proc, 20, log.read_text)
     return proc, sock, port, m.group(1), log
 
 

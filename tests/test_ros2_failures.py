@@ -10,7 +10,7 @@ import sys
 
 import pytest
 from conftest import REPO, mousedom_env
-from daemon_fixtures import Conn
+from daemon_fixtures import Conn, wait_listening
 
 DEMO = REPO / "mousedom" / "data" / "demo-rig.yaml"
 SECTION = 'see docs/ros2.md, "When the ROS 2 output cannot start"'
@@ -73,12 +73,7 @@ def test_an_optional_ros2_output_that_cannot_start_leaves_the_socket_working(tmp
         env=mousedom_env(CYCLONEDDS_URI="<CycloneDDS><Bad"), stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
     try:
-        import time
-
-        deadline = time.monotonic() + 20
-        while not sock.exists() and time.monotonic() < deadline:
-            time.sleep(0.05)
-        time.sleep(0.2)
+        wait_listening(sock, proc, 20)
         c = Conn(sock)
         assert c.read()["class"] == "VERSION"
         assert len(c.poses(0.5)) >= 10

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import pytest
 from conftest import REPO
-from daemon_fixtures import Conn
+from daemon_fixtures import Conn, wait_listening
 from ros2_checks import match_odometry
 
 ROS_PY = os.environ.get("MOUSEDOM_ROS2_PYTHON") or str(REPO / ".ros-venv" / "bin" / "python")
@@ -119,10 +119,7 @@ def _run_pair(
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
     poses: list[dict] = []
     try:
-        deadline = time.monotonic() + 20
-        while not sock.exists() and time.monotonic() < deadline:
-            time.sleep(0.05)
-        time.sleep(0.2)
+        wait_listening(sock, proc, 20)
         c = Conn(sock)
         stop = threading.Event()
 

@@ -58,15 +58,14 @@ def gid(entity: Any) -> Any:
 
 
 def check_name(name: str, namespace: str) -> None:
-    """ValueError unless ``name`` and ``namespace`` are what ROS 2 accepts (rcl's rules:
-    a node name of letters, digits and underscores not starting with a digit; a namespace
-    of such tokens after '/')."""
-    import re
+    """ValueError unless ``name`` and ``namespace`` are what ROS 2 accepts (config's rules,
+    which a loaded config has passed already: this guards other callers)."""
+    from mousedom.config import ROS_NAMESPACE, ROS_NODE_NAME
 
-    if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]{0,254}", name):
+    if not ROS_NODE_NAME.fullmatch(name):
         raise ValueError(f"node name {name!r}: letters, digits and _, not starting with a digit")
-    if not re.fullmatch(r"/|(/[A-Za-z_][A-Za-z0-9_]*)+", namespace) or len(namespace) > MAX_NAME:
-        raise ValueError(f"node namespace {namespace!r}: '/' or '/a/b' of such tokens")
+    if namespace != "/" and not ROS_NAMESPACE.fullmatch(namespace) or len(namespace) > MAX_NAME:
+        raise ValueError(f"node namespace {namespace!r}: '/' or '/a/b' of such names")
 
 
 class NodeAnnouncer:

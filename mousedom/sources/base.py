@@ -170,6 +170,9 @@ class Source(ABC):
     """A sensor the daemon can poll; backends fill in the three hooks."""
 
     kind = "source"
+    # A backend that bounds its stamps itself (before a rule of its own that needs them
+    # bounded, as evdev's forward clamp) says so; read() then does not do it again.
+    bounds_own_stamps = False
 
     def __init__(self, name: str) -> None:
         self.name = name
@@ -220,15 +223,16 @@ class Source(ABC):
             n = len(t)
             if not n:
                 continue
-            if type(t) is list:
-                far = bound_stamps(t, now)
-            else:
-                b._t, *far = bound_stamp_array(t, now)
-                t = b._t
-            if far[0]:
-                self._far_stamps(*far)
-                if b.quality is not None:  # the sensor's word on the same reports
-                    bound_stamps(b.quality[0], now)
+            if not self.bounds_own_stamps:
+                if type(t) is list:
+                    far = bound_stamps(t, now)
+                else:
+                    b._t, *far = bound_stamp_array(t, now)
+                    t = b._t
+                if far[0]:
+                    self._far_stamps(*far)
+                    if b.quality is not None:  # the sensor's word on the same reports
+                        bound_stamps(b.quality[0], now)
             health.reports += n
             health.last_t = float(t[-1])
             # Report rate over a sliding ~1 s span: cheap and good enough for status.

@@ -72,6 +72,7 @@ class EvdevSource(Source):
     """One configured mouse read from its evdev node (or from a FIFO, for tests)."""
 
     kind = "evdev"
+    bounds_own_stamps = True  # before the forward clamp, in _read and _small
 
     def __init__(
         self,
