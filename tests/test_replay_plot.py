@@ -114,8 +114,6 @@ def test_excluded_spans_are_shaded_per_mouse_even_when_decimated(monkeypatch):
 
 
 def _slice(b, i, j):
-    from dataclasses import fields
+    from mousedom.capture.pacing import slice_batch
 
-    from mousedom.fusion.posebatch import PoseBatch
-
-    return PoseBatch(**{f.name: getattr(b, f.name)[i:j] for f in fields(PoseBatch)})
+    return slice_batch(b, i, j)

@@ -20,7 +20,7 @@ def rig3(**kw) -> sim.Rig:
 
 def poses_until(p: PoseBatch, t: float) -> PoseBatch:
     sel = p.t <= t
-    return PoseBatch(**{k: v[sel] for k, v in vars(p).items()})
+    return PoseBatch(**{k: None if v is None else v[sel] for k, v in vars(p).items()})
 
 
 def stream(tracker: Tracker, result: sim.SimResult, chunk: float) -> PoseBatch:

@@ -56,7 +56,11 @@ class Pacer:
 
 
 def slice_batch(b: PoseBatch, i: int, j: int) -> PoseBatch:
-    return PoseBatch(**{f.name: getattr(b, f.name)[i:j] for f in fields(PoseBatch)})
+    def part(name: str):
+        v = getattr(b, name)
+        return None if v is None else v[i:j]
+
+    return PoseBatch(**{f.name: part(f.name) for f in fields(PoseBatch)})
 
 
 def paced(

@@ -35,6 +35,9 @@ class PoseRow(NamedTuple):
     reason: tuple[int, ...] | list[int]  # per mouse: robust.REASONS index
     consistent: bool  # False: the mice disagreed and nobody could be blamed
     qcov: list[list[float]]  # 3x3 covariance of the window's twist increment (u_x, u_y, a)
+    # N x 2: each mouse's learnt scale per axis (REL_X, REL_Y) applied in the window, the
+    # factor its counts were multiplied by (robust.ScaleLearner); () where none is learnt
+    scale: list[list[float]] | tuple = ()
 
 
 _DTYPES = {"used": int, "ok": bool, "state": np.int8, "reason": np.int8, "consistent": bool}
@@ -60,6 +63,7 @@ class PoseBatch:
     reason: np.ndarray  # (n,N) int8: why, for suspect and excluded mice (robust.REASONS)
     consistent: np.ndarray  # (n,) bool: False where the mice disagreed, nobody blamed
     qcov: np.ndarray  # (n,3,3) covariance of the window's twist increment (u_x, u_y, a)
+    scale: np.ndarray | None = None  # (n,N,2) learnt scale per mouse and axis; None: all 1
 
     @classmethod
     def from_rows(cls, rows: list[PoseRow]) -> PoseBatch:
@@ -74,6 +78,9 @@ class PoseBatch:
         if rows is None or name not in PoseRow._fields:
             raise AttributeError(name)
         for k, column in zip(PoseRow._fields, zip(*rows, strict=True), strict=True):
+            if k == "scale":
+                self.__dict__[k] = _scale_column(column)
+                continue
             self.__dict__[k] = np.array(column, dtype=_DTYPES.get(k, np.float64))
         del self.__dict__["_rows"]
         return self.__dict__[name]
@@ -83,8 +90,16 @@ class PoseBatch:
         rows = self.__dict__.get("_rows")
         if rows is not None:
             return rows
-        columns = [getattr(self, k).tolist() for k in PoseRow._fields]
+        columns = [getattr(self, k).tolist() for k in PoseRow._fields[:-1]]
+        scale = self.scale
+        columns.append(scale.tolist() if scale is not None else [[] for _ in range(len(self))])
         return [PoseRow(*values) for values in zip(*columns, strict=True)]
+
+    def scales(self) -> np.ndarray:
+        """(n, N, 2) the learnt scale of each mouse and axis per window (1 where none)."""
+        if self.scale is not None:
+            return self.scale
+        return np.ones(self.counts.shape)
 
     def __len__(self) -> int:
         rows = self.__dict__.get("_rows")
@@ -107,10 +122,23 @@ class PoseBatch:
         batches = [b for b in batches if len(b)]
         if not batches:
             return cls.empty(n_mice or 0)
-        return cls(
-            **{f.name: np.concatenate([getattr(b, f.name) for b in batches]) for f in fields(cls)}
-        )
+        columns = {
+            f.name: np.concatenate([getattr(b, f.name) for b in batches])
+            for f in fields(cls)
+            if f.name != "scale"
+        }
+        if any(b.scale is not None for b in batches):
+            columns["scale"] = np.concatenate([b.scales() for b in batches])
+        return cls(**columns)
 
     def last(self) -> dict[str, float]:
         """The final pose as plain floats (for summaries)."""
         return {k: float(getattr(self, k)[-1]) for k in ("t", "x", "y", "theta")}
+
+
+def _scale_column(column: tuple) -> np.ndarray | None:
+    """The ``scale`` field of rows as an (n, N, 2) array, None if no row has one."""
+    if all(len(v) == 0 for v in column):
+        return None
+    n_mice = next(len(v) for v in column if len(v))
+    return np.array([v if len(v) else [[1.0, 1.0]] * n_mice for v in column], dtype=np.float64)
