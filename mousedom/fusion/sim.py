@@ -16,6 +16,14 @@ silent, or reporting only ``lift_noise``), ``scale`` spans (a glossy patch: it u
 by a factor), ``jumps`` (a seam: a burst of counts added to one report), ``max_speed`` (it
 saturates: the sensor never reads faster than that), and ``stamp_delay`` (reports stamped
 on arrival, up to that many seconds after the sensor's sample, as over USB).
+
+Timing that is not a fault (issue 31): ``usb_gaps`` (spans in which the host does not poll
+the mouse: no report inside; the counts measured meanwhile arrive summed in the first report
+slot at or after the span's end, none lost) and ``stamp_tail`` (an extra, long-tailed
+arrival delay: exponential with that mean, on top of ``stamp_delay``).  Both leave the other
+mice's readings as they were: the random draws they add come from a stream of their own,
+and a gapped mouse draws as many stamp delays as it would have without its gaps.
+``usb_gap_spans`` draws gaps as a Poisson process.
 """
 
 from __future__ import annotations
@@ -171,6 +179,8 @@ class SimMouse:
     jumps: tuple[tuple[float, float, float], ...] = ()  # (t, REL_X, REL_Y) counts added
     max_speed: float | None = None  # m/s the sensor can track; faster motion reads as this
     stamp_delay: float = 0.0  # reports stamped up to this many seconds late (uniform)
+    usb_gaps: tuple[tuple[float, float], ...] = ()  # spans [from, to) the host does not poll
+    stamp_tail: float = 0.0  # mean (s) of an extra exponential arrival delay per report
 
     def counts_per_body_metre(self) -> np.ndarray:
         """2x2 matrix: body-frame metres of sensor motion -> (REL_X, REL_Y) counts."""
@@ -208,6 +218,32 @@ def three_mouse_rig(cpi: float = 450.0, rate_hz: float = 125.0, radius: float = 
             )
         )
     return Rig(tuple(mice))
+
+
+def usb_gap_spans(
+    rng: np.random.Generator | int | None,
+    duration: float,
+    rate_per_s: float,
+    length_s: float,
+    jitter: float = 0.0,
+    t_start: float = 0.0,
+) -> tuple[tuple[float, float], ...]:
+    """Spans [from, to) in which a busy host does not poll a mouse, for ``SimMouse.usb_gaps``:
+    gaps start as a Poisson process of ``rate_per_s`` a second over the time polled (the next
+    gap starts an exponential wait after the previous one ends), within [t_start, t_start +
+    duration); each lasts ``length_s`` times a factor uniform in [1 - jitter, 1 + jitter]."""
+    if rate_per_s <= 0 or length_s <= 0:
+        return ()
+    gen = np.random.default_rng(rng)
+    spans: list[tuple[float, float]] = []
+    t, end = float(t_start), float(t_start) + float(duration)
+    while True:
+        t += float(gen.exponential(1.0 / rate_per_s))
+        if t >= end:
+            return tuple(spans)
+        length = length_s * (1.0 + jitter * float(gen.uniform(-1.0, 1.0))) if jitter else length_s
+        spans.append((t, t + length))
+        t += length
 
 
 def rig_yaml(rig: Rig, cpi: dict[str, tuple[float, float]] | None = None) -> str:
@@ -292,11 +328,44 @@ def _sensor_cumulative(mouse: SimMouse, motion: Motion, t: np.ndarray) -> np.nda
     return c
 
 
+def _catch_up(
+    slots: np.ndarray, counts: np.ndarray, gaps: Sequence[tuple[float, float]], period: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The report slots a host that does not poll in ``gaps`` reads, and their counts: each
+    slot inside a gap delivers nothing; its counts arrive summed in the next slot polled
+    (past the drive's last slot if a gap covers it: the grid goes on until one is polled)."""
+
+    def missed_at(t: np.ndarray) -> np.ndarray:
+        out = np.zeros(len(t), dtype=bool)
+        for a, b in gaps:
+            out |= (t >= a) & (t < b)
+        return out
+
+    missed = missed_at(slots)
+    if not missed.any():
+        return slots, counts
+    if missed[-1]:  # the grid goes on (no motion any more) to the first slot polled
+        k = len(slots)
+        while missed_at(np.array([slots[0] + period * k]))[0]:
+            k += 1
+        more = slots[0] + period * np.arange(len(slots), k + 1)
+        slots = np.concatenate([slots, more])
+        counts = np.vstack([counts, np.zeros((len(more), 2))])
+        missed = np.concatenate([missed, missed_at(more)])
+    polled = np.flatnonzero(~missed)
+    owner = np.searchsorted(polled, np.arange(len(slots)))  # the slot that delivers each
+    delivered = np.zeros((len(polled), 2))
+    np.add.at(delivered, owner, counts)  # a slot after no gap: 0 + its counts, exactly
+    return slots[polled], delivered
+
+
 def simulate(
     rig: Rig, trajectory: Sequence[Segment], seed: int | None = 0, t_start: float = 0.0
 ) -> SimResult:
     """Run ``trajectory`` on ``rig``: per-mouse reports (evdev convention) and the truth."""
     rng = np.random.default_rng(seed)
+    # Draws of the timing imperfections: a stream of their own (spawning does not move rng).
+    extra = rng.spawn(1)[0]
     motion = Motion.of(trajectory, t_start)
     result = SimResult(rig, motion)
     end = motion.starts[-1]
@@ -326,12 +395,19 @@ def simulate(
             counts = np.diff(whole, axis=0, prepend=np.zeros((1, 2)))
         else:
             counts = inc
+        draws = int(np.any(counts != 0, axis=1).sum())  # reports were the host never late
+        if mouse.usb_gaps:
+            slots, counts = _catch_up(slots, counts, mouse.usb_gaps, period)
         keep = np.any(counts != 0, axis=1)
         stamps = slots[keep]
-        if mouse.stamp_delay > 0:  # arrival stamps: late by a random delay, never reordered
-            stamps = np.maximum.accumulate(
-                stamps + rng.uniform(0.0, mouse.stamp_delay, len(stamps))
-            )
+        if mouse.stamp_delay > 0 or mouse.stamp_tail > 0:
+            # Arrival stamps: late by a random delay, never reordered.
+            delay = 0.0
+            if mouse.stamp_delay > 0:
+                delay = rng.uniform(0.0, mouse.stamp_delay, draws)[: len(stamps)]
+            if mouse.stamp_tail > 0:
+                delay = delay + extra.exponential(mouse.stamp_tail, draws)[: len(stamps)]
+            stamps = np.maximum.accumulate(stamps + delay)
         result.reports[mouse.name] = SimReports(t=stamps, dx=counts[keep, 0], dy=counts[keep, 1])
     return result
 
