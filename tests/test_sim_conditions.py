@@ -172,3 +172,170 @@ REFERENCE = {
     "rl": (10681, 5741.0, -62776.0,
            [0.5015383481521813, 0.5024542234499466, 0.5034205105182337], 11.213536655092067),
 }  # fmt: skip
+
+
+# --------------------------------------------------------------------------- drives, layouts
+
+
+def test_drive_is_as_before_and_its_spans_name_what_it_does():
+    from mousedom.fusion import scenarios
+
+    segs = scenarios.drive(60.0, 0)
+    assert len(segs) == 254 and sum(s.duration for s in segs) == 60.34921323700254
+    assert sum(s.omega * s.duration for s in segs) == -6.143846933415397
+    for seed in range(4):
+        spans = scenarios.drive_spans(30.0, seed)
+        motion = sim.Motion.of(scenarios.drive(30.0, seed))
+        assert spans[0].start == 0.0 and spans[-1].end == pytest.approx(motion.duration)
+        for sp in spans:
+            assert sp.start in motion.starts and sp.end in motion.starts
+            k = int(np.searchsorted(motion.starts, sp.start))
+            seg = motion.segments[k]
+            assert seg.duration == pytest.approx(sp.end - sp.start)
+            kind = {(False, False): "stop", (True, False): "straight", (False, True): "turn"}
+            assert kind.get((seg.vx != 0, seg.omega != 0), "arc") == sp.kind
+    s = scenarios.drive_having("turn", 20.0, 1)
+    assert any(sp.kind == "turn" for sp in scenarios.drive_spans(20.0, s))
+    with pytest.raises(ValueError):
+        scenarios.drive_having("wiggle", 20.0, 1)
+
+
+def test_the_new_layouts_configure():
+    from mousedom.fusion import scenarios
+
+    pent = scenarios.rig("pentagon")
+    assert len(pent.mice) == 5
+    assert [math.hypot(m.x, m.y) for m in pent.mice] == pytest.approx([0.12] * 5, abs=1e-4)
+    assert {m.rate_hz for m in pent.mice} == {125.0, 250.0, 500.0, 1000.0}
+    assert len(scenarios.rig("kite").mice) == 4
+    for layout in ("pentagon", "kite"):
+        assert scenarios.config(scenarios.rig(layout)).names == tuple(
+            name for name, *_ in scenarios.LAYOUTS[layout]
+        )
+
+
+# --------------------------------------------------------------------------- pair faults
+
+
+def test_pair_cases_cover_every_two_mice_and_kinds():
+    from mousedom.fusion import scenarios
+
+    assert len(scenarios.pair_cases("square")) == 6 * 9
+    assert len(scenarios.pair_cases("pentagon")) == 10 * 9
+    assert len(set(scenarios.pair_cases("pentagon"))) == 90
+
+
+@pytest.mark.parametrize("during", ["straight", "arc", "turn"])
+def test_pair_faults_overlap_and_start_in_the_stretch_asked(during):
+    from mousedom.fusion import scenarios
+
+    base = scenarios.rig("pentagon")
+    for kinds in (("lift", "jumps"), ("under-read", "lift"), ("jumps", "under-read")):
+        seed = scenarios.drive_having(during, 30.0, 3)
+        f1, f2 = scenarios.pair_faults(base, kinds, ("front", "rr"), during, 30.0, seed)
+        assert (f1.kind, f2.kind) == kinds and (f1.mouse, f2.mouse) == ("front", "rr")
+        first = f1.jumps[0][0] if f1.kind == "jumps" else f1.start
+        assert any(
+            sp.kind == during and sp.start <= first < sp.end
+            for sp in scenarios.drive_spans(30.0, seed)
+        )
+        assert f2.start < f1.end and f1.start < f2.end  # together for a while
+        for f in (f1, f2):
+            if f.kind == "jumps":
+                assert len(f.jumps) == 4 and f.end - f.start <= 3.02
+    with pytest.raises(ValueError):
+        scenarios.pair_faults(base, ("lift", "lift"), ("rr", "rr"), during, 30.0, 0)
+
+
+def test_a_pair_trial_puts_both_faults_on_and_removes_both_for_the_informed():
+    from mousedom.fusion import scenarios
+
+    tr = scenarios.pair_trial("square", ("lift", "under-read"), ("fl", "rr"), "arc", 0, 10.0)
+    assert len(tr.faults) == 2 and "lift@fl+under-read@rr in arc" in tr.label
+    for run in (tr.default, tr.off, tr.informed, tr.clean):
+        assert run.windows > 900 and math.isfinite(run.position) and run.nees_dof in (0, 1, 2, 3)
+    assert tr.off.position != tr.informed.position  # the informed reference lost the spans
+
+
+# --------------------------------------------------------------------------- conditions
+
+
+def test_conditions_by_name_with_defaults_and_overrides():
+    from mousedom.fusion import scenarios
+
+    gaps = scenarios.condition("usb-gaps", seed=4)
+    assert 1.0 <= gaps.gap_rate <= 5.0 and gaps.gap_length == 0.03
+    assert gaps == scenarios.condition("usb-gaps", seed=4)
+    assert scenarios.condition("usb-gaps", seed=4, gap_rate=2.0).gap_rate == 2.0
+    both = scenarios.condition("late-stamps+noisy+cpi-error", cpi_error=0.25)
+    assert (both.stamp_tail, both.noise_factor, both.cpi_error) == (0.003, 5.0, 0.25)
+    assert scenarios.condition("stamp-delay").stamp_delay == 0.003
+    assert scenarios.condition("healthy") == scenarios.Condition()
+    with pytest.raises(ValueError):
+        scenarios.condition("usb-gaps+gremlins")
+
+
+def test_a_condition_acts_on_the_mice_it_says():
+    from mousedom.fusion import scenarios
+
+    base = scenarios.rig("square")  # fl 125 Hz, rl 1000 Hz
+    cond = scenarios.condition("usb-gaps+late-stamps+noisy+cpi-error", seed=1, cpi_error=0.2)
+    true = {m.name: m for m in scenarios.apply_condition(base, cond, 30.0).mice}
+    was = {m.name: m for m in base.mice}
+    assert true["fl"].usb_gaps and not any(true[n].usb_gaps for n in ("fr", "rl", "rr"))
+    assert all(b - a == pytest.approx(0.03, rel=0.31) for a, b in true["fl"].usb_gaps)
+    assert true["rl"].stamp_tail == 0.003 and true["fl"].stamp_tail == 0.0
+    assert true["fl"].noise == pytest.approx(5 * was["fl"].noise)
+    assert true["fl"].cpi_x == pytest.approx(1.2 * was["fl"].cpi_x) and true["fr"] == was["fr"]
+    cfg = scenarios.condition_config(base, cond)
+    told = scenarios.condition_config(base, cond, robust=False, told=True)
+    assert cfg.mouse("fl").cpi_x == was["fl"].cpi_x and cfg.robust.enabled
+    assert told.mouse("fl").cpi_x == pytest.approx(true["fl"].cpi_x) and not told.robust.enabled
+    assert cfg.mouse("fl").sigma == told.mouse("fl").sigma  # the config keeps its sigma
+    other = scenarios.condition("noisy", noise_mouse="rr", noise_factor=3.0)
+    moved = {m.name: m for m in scenarios.apply_condition(base, other, 30.0).mice}
+    assert moved["rr"].noise == pytest.approx(3 * was["rr"].noise) and moved["fl"] == was["fl"]
+    with pytest.raises(ValueError):
+        scenarios.apply_condition(base, scenarios.condition("noisy", noise_mouse="zz"), 30.0)
+
+
+def test_condition_trials_run_four_ways():
+    from mousedom.fusion import scenarios
+
+    healthy = scenarios.condition_trial("triangle", "healthy", 2, 8.0)
+    assert healthy.default == healthy.clean  # the same drive, the same engine
+    cpi = scenarios.condition_trial("triangle", "cpi-error", 2, 8.0)
+    assert cpi.clean == healthy.clean and cpi.default != cpi.clean
+    assert cpi.informed.windows == cpi.off.windows
+    gaps = scenarios.condition_trial(
+        "triangle", scenarios.condition("usb-gaps", seed=2, gap_rate=5.0), 2, 8.0
+    )
+    # Without the gaps, and plain: the informed reference is the healthy drive, robust off.
+    assert gaps.informed == scenarios.condition_trial("triangle", "healthy", 2, 8.0).off
+
+
+# --------------------------------------------------------------------------- measuring
+
+
+def test_nees_inverts_the_covariance_where_it_can():
+    from mousedom.fusion import scenarios
+
+    assert scenarios.nees(np.array([1.0, 0, 0]), np.diag([4.0, 1, 1])) == (0.25, 3)
+    p = np.array([[2.0, 1.0, 0], [1.0, 2.0, 0], [0, 0, 1e-4]])
+    e = np.array([0.3, -0.2, 0.01])
+    assert scenarios.nees(e, p)[0] == pytest.approx(float(e @ np.linalg.solve(p, e)))
+    value, dof = scenarios.nees(np.array([1.0, 1.0, 5.0]), np.diag([1.0, 1.0, 0.0]))
+    assert (value, dof) == (2.0, 2)  # nothing known of theta: its error left out
+    value, dof = scenarios.nees(np.ones(3), np.zeros((3, 3)))
+    assert math.isnan(value) and dof == 0
+
+
+def test_exclusions_count_windows_a_mouse_newly_went_out():
+    from types import SimpleNamespace
+
+    from mousedom.fusion import robust, scenarios
+
+    ex, ok = robust.EXCLUDED, robust.TRACKING
+    state = np.array([[ok, ok], [ex, ok], [ex, ex], [ok, ex], [ex, ex]])
+    batch = SimpleNamespace(state=state, consistent=np.array([True, False, True, True, True]))
+    assert scenarios.exclusions(batch) == (3, 1)

@@ -7,6 +7,16 @@ Mice report at their own rates with per-report noise and arrival stamps late by 
 millisecond (USB).  A fault puts one of ``sim.SimMouse``'s imperfections on one mouse for a
 span; ``informed`` runs the plain least squares with exactly that span of that mouse removed
 (what a user who knew would do), the reference the robust engine is measured against.
+
+Issue 31 adds what the engine is developed against beyond one faulty mouse: two mice
+faulty together, overlapping in time and starting in a straight, an arc or a pivot
+(``pair_trial``, ``pair_cases``; ``drive_spans`` tells a drive's stretches apart), and
+conditions of healthy rigs that are not faults (``condition``, ``condition_trial``): USB
+polling gaps, late and long-tailed arrival stamps, a noisier mouse, a CPI off from the one
+configured.  A ``Trial`` holds one drive run four ways, each measured at its end (``Run``:
+errors, NEES against the final covariance, exclusions): the default engine, fault handling
+off, the informed reference, and the default engine on the same drive without the fault or
+condition.
 """
 
 from __future__ import annotations
@@ -14,6 +24,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -39,6 +50,19 @@ LAYOUTS = {
         ("c", -0.08, -0.15, 125.0),
     ),  # fmt: skip
     "pair": (("left", 0.0, 0.1, 500.0), ("right", 0.0, -0.1, 500.0)),
+    "pentagon": (  # a ring of 0.12 m, the first mouse ahead
+        ("front", 0.12, 0.0, 125.0),
+        ("fl", 0.0371, 0.1141, 500.0),
+        ("rl", -0.0971, 0.0705, 1000.0),
+        ("rr", -0.0971, -0.0705, 250.0),
+        ("fr", 0.0371, -0.1141, 1000.0),
+    ),  # fmt: skip
+    "kite": (  # four mice, irregular: one far ahead, the others bunched behind
+        ("nose", 0.22, 0.0, 1000.0),
+        ("left", 0.02, 0.11, 125.0),
+        ("right", -0.01, -0.09, 500.0),
+        ("tail", -0.12, 0.02, 250.0),
+    ),  # fmt: skip
 }
 
 FAULTS = ("none", "lift", "lift-noisy", "under-read", "jumps", "saturation")
@@ -62,10 +86,21 @@ def _ramp(v0: tuple, v1: tuple, duration: float = 0.2, steps: int = 10) -> list[
     return out
 
 
-def drive(duration: float = 60.0, seed: int = 0, holonomic: bool = False) -> list[sim.Segment]:
-    """About ``duration`` seconds of floor-robot motion with ramped speed changes."""
+class DriveSpan(NamedTuple):
+    """A held stretch of a drive (see drive_spans)."""
+
+    start: float
+    end: float
+    kind: str  # one of DRIVE_KINDS
+
+
+DRIVE_KINDS = ("straight", "arc", "turn", "stop")  # turn: a pivot in place
+
+
+def _drive(duration: float, seed: int, holonomic: bool) -> list[tuple[sim.Segment, str]]:
+    """drive()'s segments, each with its kind ("ramp" for the speed changes between)."""
     rng = np.random.default_rng(seed)
-    segs: list[sim.Segment] = [sim.Segment(0.5)]
+    segs: list[tuple[sim.Segment, str]] = [(sim.Segment(0.5), "stop")]
     v = (0.0, 0.0, 0.0)
     t = 0.5
     while t < duration - 1.0:
@@ -80,13 +115,50 @@ def drive(duration: float = 60.0, seed: int = 0, holonomic: bool = False) -> lis
         else:
             target = (0.0, 0.0, 0.0)
         hold = float(rng.uniform(1.0, 4.0))
-        segs += _ramp(v, target)
-        segs.append(sim.Segment(hold, *target))
+        segs += [(s, "ramp") for s in _ramp(v, target)]
+        segs.append((sim.Segment(hold, *target), str(kind)))
         v = target
         t += 0.2 + hold
-    segs += _ramp(v, (0.0, 0.0, 0.0))
-    segs.append(sim.Segment(0.5))
+    segs += [(s, "ramp") for s in _ramp(v, (0.0, 0.0, 0.0))]
+    segs.append((sim.Segment(0.5), "stop"))
     return segs
+
+
+def drive(duration: float = 60.0, seed: int = 0, holonomic: bool = False) -> list[sim.Segment]:
+    """About ``duration`` seconds of floor-robot motion with ramped speed changes."""
+    return [seg for seg, _ in _drive(duration, seed, holonomic)]
+
+
+def drive_spans(duration: float = 60.0, seed: int = 0, holonomic: bool = False) -> list[DriveSpan]:
+    """The held stretches of ``drive(duration, seed, holonomic)`` in order, with their start
+    and end times (as ``sim.Motion`` sums them) and kind: "straight", "arc", "turn" (a pivot
+    in place) or "stop".  The ramps between them (0.2 s each) are left out."""
+    out, t = [], 0.0
+    for seg, kind in _drive(duration, seed, holonomic):
+        if kind != "ramp":
+            out.append(DriveSpan(t, t + seg.duration, kind))
+        t = t + seg.duration
+    return out
+
+
+def drive_having(kind: str, duration: float, seed: int, within: float = 0.8) -> int:
+    """The first of seed, seed + 1000, seed + 2000, ... whose drive holds a stretch of
+    ``kind`` starting after 10 % and before ``within`` of ``duration`` (a short drive may
+    have no pivot at all)."""
+    if kind not in DRIVE_KINDS:
+        raise ValueError(f"unknown kind {kind!r}; choose one of {', '.join(DRIVE_KINDS)}")
+    for s in range(seed, seed + 100_000, 1000):
+        if _spans_of(kind, duration, s, within):
+            return s
+    raise ValueError(f"no drive of {duration:g} s has a {kind} stretch")  # pragma: no cover
+
+
+def _spans_of(kind: str, duration: float, seed: int, within: float) -> list[DriveSpan]:
+    return [
+        sp
+        for sp in drive_spans(duration, seed)
+        if sp.kind == kind and 0.1 * duration <= sp.start < within * duration
+    ]
 
 
 def rig(
@@ -155,8 +227,15 @@ def apply(rig: sim.Rig, fault: Fault) -> sim.Rig:
     return dataclasses.replace(rig, mice=tuple(mice))
 
 
-def config(rig: sim.Rig, robust: bool = True, max_speed: dict[str, float] | None = None) -> Config:
-    cfg = sim.rig_config(rig)
+def config(
+    rig: sim.Rig,
+    robust: bool = True,
+    max_speed: dict[str, float] | None = None,
+    cpi: dict[str, tuple[float, float]] | None = None,
+) -> Config:
+    """The config of ``rig`` (``cpi``: what the robot believes instead, see sim.rig_yaml),
+    fault handling on or off, with speed limits per mouse."""
+    cfg = sim.rig_config(rig, cpi)
     mice = tuple(
         dataclasses.replace(m, max_speed=(max_speed or {}).get(m.name, m.max_speed))
         for m in cfg.mice
@@ -240,3 +319,328 @@ def compare(layout: str, kind: str, seed: int, duration: float) -> Comparison:
     _, informed = run(result, config(base, robust=False), informed_dead(fault, base, traj))
     errors = [end_error(result, t) for t in (plain, rob, informed)]
     return Comparison(base, fault, batch, plain_b, errors)
+
+
+# ---------------------------------------------------------------------------- measuring
+
+
+class Run(NamedTuple):
+    """One drive through one engine, measured at its end."""
+
+    position: float  # end position error, metres
+    heading: float  # end heading error, radians (absolute, wrapped)
+    nees: float  # e^T P^+ e of the end error against the end covariance (nan: P is 0)
+    nees_dof: int  # the rank of P used: the NEES's expected value
+    windows: int
+    exclusions: int  # windows in which a mouse newly became robust.EXCLUDED
+    inconsistent: int  # windows found inconsistent without blame
+
+
+def nees(error: np.ndarray, cov: np.ndarray, rcond: float = 1e-10) -> tuple[float, int]:
+    """Normalised estimation error squared e^T P^-1 e, and the degrees of freedom it has.
+
+    P may be singular in parts (a direction nothing was learnt about, or a pose held): the
+    inverse is taken on P's eigenvectors whose eigenvalue exceeds ``rcond`` times the
+    largest, and e's part along the others is left out; the rank is returned with the
+    value (NEES over a rank-k P has expected value k when P is right)."""
+    e = np.asarray(error, dtype=float)
+    p = np.asarray(cov, dtype=float)
+    w, v = np.linalg.eigh((p + p.T) / 2)
+    top = float(w.max()) if w.size else 0.0
+    keep = w > rcond * top if top > 0 else np.zeros(len(w), dtype=bool)
+    if not keep.any():
+        return math.nan, 0
+    z = v[:, keep].T @ e
+    return float(np.sum(z * z / w[keep])), int(keep.sum())
+
+
+def end_pose_error(result: sim.SimResult, batch) -> np.ndarray:
+    """(x, y, theta) of the batch's last window minus the truth there (theta wrapped)."""
+    truth = result.truth(np.array([batch.t[-1]]))[0]
+    e = np.array([batch.x[-1], batch.y[-1], batch.theta[-1]], dtype=float) - truth
+    e[2] = (e[2] + math.pi) % (2 * math.pi) - math.pi
+    return e
+
+
+def exclusions(batch) -> tuple[int, int]:
+    """(windows in which a mouse newly became robust.EXCLUDED, windows inconsistent without
+    blame): on a healthy drive every exclusion is a false one."""
+    from mousedom.fusion import robust
+
+    st = np.asarray(batch.state)
+    new = (st[1:] == robust.EXCLUDED) & (st[:-1] != robust.EXCLUDED)
+    return int(new.any(axis=1).sum()), int((~np.asarray(batch.consistent)).sum())
+
+
+def measure(
+    result: sim.SimResult, cfg: Config, dead: tuple[tuple[str, float, float], ...] = ()
+) -> Run:
+    """``run`` the drive through ``cfg`` (``dead`` spans removed) and measure its end."""
+    batch, _ = run(result, cfg, dead)
+    e = end_pose_error(result, batch)
+    value, dof = nees(e, np.asarray(batch.cov)[-1])
+    excluded, inconsistent = exclusions(batch)
+    return Run(
+        math.hypot(e[0], e[1]), abs(float(e[2])), value, dof, len(batch), excluded, inconsistent
+    )
+
+
+@dataclass(frozen=True)
+class Trial:
+    """One drive with a fault or a condition, run four ways."""
+
+    label: str
+    default: Run  # the default engine (robust on) on the drive with the fault or condition
+    off: Run  # fault handling off (RobustConfig(enabled=False)) on that drive
+    informed: Run  # the reference: what a user who knew would run (see each builder)
+    clean: Run  # the default engine on the same drive without the fault or condition
+    faults: tuple[Fault, ...] = ()
+    seed: int = 0  # the drive's seed
+
+
+def fault_trial(layout: str, kind: str, seed: int, duration: float) -> Trial:
+    """``compare``'s drive (one fault of ``kind``, FAULTS) as a Trial: informed is plain least
+    squares with the faulty reports removed by hand; clean the same drive, no fault."""
+    traj = drive(duration, seed)
+    base = rig(layout)
+    fault = fault_for(kind, base, duration, seed)
+    result = sim.simulate(apply(base, fault), traj, seed=seed)
+    limits = {fault.mouse: SATURATION_SPEED} if kind == "saturation" else None
+    plain = config(base, robust=False)
+    return Trial(
+        f"{layout} {kind}",
+        measure(result, config(base, max_speed=limits)),
+        measure(result, plain),
+        measure(result, plain, informed_dead(fault, base, traj)),
+        measure(sim.simulate(base, traj, seed=seed), config(base, max_speed=limits)),
+        (fault,),
+        seed,
+    )
+
+
+# ---------------------------------------------------------------------------- pair faults
+
+PAIR_KINDS = ("lift", "under-read", "jumps")
+PAIR_MOTIONS = ("straight", "arc", "turn")  # what the rig does when the first fault starts
+
+
+def pair_faults(
+    base: sim.Rig,
+    kinds: tuple[str, str],
+    mice: tuple[str, str],
+    during: str,
+    duration: float,
+    seed: int,
+) -> tuple[Fault, Fault]:
+    """Two faults on two mice of ``base``, overlapping in time: the first starts in a
+    stretch of ``during`` (DRIVE_KINDS) of ``drive(duration, seed)`` (see drive_having for
+    a seed that has one), the second 0.3 to 1 s later.  Kinds: PAIR_KINDS ("lift": 3 s
+    silent; "under-read": 5 s at half the counts; "jumps": four seams of 6 to 9 mm over
+    3 s)."""
+    if mice[0] == mice[1]:
+        raise ValueError("a pair fault needs two different mice")
+    spans = _spans_of(during, duration, seed, 0.8)
+    if not spans:
+        raise ValueError(f"drive {seed} of {duration:g} s has no {during} stretch to start in")
+    rng = np.random.default_rng((2000, seed))
+    span = spans[int(rng.integers(len(spans)))]
+    start = span.start + float(rng.uniform(0.0, 0.5)) * (span.end - span.start)
+    starts = (start, start + float(rng.uniform(0.3, 1.0)))
+    out = []
+    for kind, mouse, t0 in zip(kinds, mice, starts, strict=True):
+        if kind == "lift":
+            out.append(Fault(kind, mouse, t0, t0 + 3.0))
+        elif kind == "under-read":
+            out.append(Fault(kind, mouse, t0, t0 + 5.0))
+        elif kind == "jumps":
+            cpi = next(m.cpi_x for m in base.mice if m.name == mouse)
+            jumps = []
+            for t in t0 + np.sort(rng.uniform(0.0, 3.0, 4)):
+                size = rng.uniform(0.006, 0.009) / 0.0254 * cpi
+                ang = rng.uniform(0, 2 * math.pi)
+                jumps.append((float(t), float(size * math.cos(ang)), float(size * math.sin(ang))))
+            out.append(Fault(kind, mouse, jumps[0][0] - 0.01, jumps[-1][0] + 0.01, tuple(jumps)))
+        else:
+            raise ValueError(f"unknown pair fault {kind!r}; choose of {', '.join(PAIR_KINDS)}")
+    return out[0], out[1]
+
+
+def pair_cases(layout: str) -> list[tuple[tuple[str, str], tuple[str, str]]]:
+    """Every (kinds, mice) of two faulty mice on ``layout``: each unordered pair of mice,
+    each ordered pair of PAIR_KINDS (the first kind on the first mouse)."""
+    names = [name for name, *_ in LAYOUTS[layout]]
+    return [
+        ((k1, k2), (names[i], names[j]))
+        for i in range(len(names))
+        for j in range(i + 1, len(names))
+        for k1 in PAIR_KINDS
+        for k2 in PAIR_KINDS
+    ]
+
+
+def pair_trial(
+    layout: str,
+    kinds: tuple[str, str],
+    mice: tuple[str, str],
+    during: str,
+    seed: int,
+    duration: float,
+) -> Trial:
+    """Two mice of ``layout`` faulty together (``pair_faults``) on the first drive from
+    ``seed`` on that has a ``during`` stretch (``drive_having``).  informed: plain least
+    squares with both faulty spans removed by hand; clean: the same drive, no fault."""
+    s = drive_having(during, duration, seed)
+    traj = drive(duration, s)
+    base = rig(layout)
+    faults = pair_faults(base, kinds, mice, during, duration, s)
+    faulty = base
+    for f in faults:
+        faulty = apply(faulty, f)
+    result = sim.simulate(faulty, traj, seed=s)
+    plain = config(base, robust=False)
+    dead = tuple(d for f in faults for d in informed_dead(f, base, traj))
+    return Trial(
+        f"{layout} {kinds[0]}@{mice[0]}+{kinds[1]}@{mice[1]} in {during}",
+        measure(result, config(base)),
+        measure(result, plain),
+        measure(result, plain, dead),
+        measure(sim.simulate(base, traj, seed=s), config(base)),
+        faults,
+        s,
+    )
+
+
+# ---------------------------------------------------------------------------- conditions
+
+CONDITIONS = ("healthy", "usb-gaps", "late-stamps", "stamp-delay", "noisy", "cpi-error")
+
+
+@dataclass(frozen=True)
+class Condition:
+    """What a healthy rig meets that is not a fault (issue 31), built by ``condition``.
+    Each part acts on one mouse; None picks it from the rig: the slowest mouse for gaps,
+    the fastest for stamps, the first for noise and CPI."""
+
+    name: str = "healthy"
+    seed: int = 0  # the gaps' draws
+    gap_mouse: str | None = None
+    gap_rate: float = 0.0  # gaps per second (0: none)
+    gap_length: float = 0.03  # seconds, each gap's mean length
+    gap_jitter: float = 0.3  # lengths uniform within this fraction of gap_length
+    stamp_mouse: str | None = None
+    stamp_tail: float = 0.0  # mean (s) of an exponential extra arrival delay
+    stamp_delay: float | None = None  # uniform arrival delay (s) instead of the rig's
+    noise_mouse: str | None = None
+    noise_factor: float = 1.0  # the mouse's simulated noise, times the rig's
+    cpi_mouse: str | None = None
+    cpi_error: float = 0.0  # the true CPI is the nominal times (1 + cpi_error)
+    cpi_axes: str = "xy"  # which axes' CPI is off
+
+    def mouse(self, part: str, base: sim.Rig) -> str:
+        """The mouse ``part`` ("gap", "stamp", "noise", "cpi") acts on in ``base``."""
+        chosen = getattr(self, f"{part}_mouse")
+        if chosen is not None:
+            return chosen
+        if part == "gap":
+            return min(base.mice, key=lambda m: m.rate_hz).name
+        if part == "stamp":
+            return max(base.mice, key=lambda m: m.rate_hz).name
+        return base.mice[0].name
+
+
+_CONDITION_DEFAULTS: dict[str, dict[str, float]] = {
+    "healthy": {},
+    "usb-gaps": {"gap_length": 0.03},  # and a rate of 1 to 5 a second, drawn from the seed
+    "late-stamps": {"stamp_tail": 0.003},
+    "stamp-delay": {"stamp_delay": 0.003},
+    "noisy": {"noise_factor": 5.0},
+    "cpi-error": {"cpi_error": 0.1},
+}
+
+
+def condition(name: str, seed: int = 0, **params) -> Condition:
+    """The condition ``name`` (CONDITIONS, or several joined by "+", e.g.
+    "usb-gaps+late-stamps") with its default parameters, any of which ``params`` (Condition's
+    fields) overrides: usb-gaps ~30 ms gaps at a rate drawn from the seed between 1 and 5
+    a second on the slowest mouse; late-stamps exponential extra stamp delays of mean 3 ms
+    on the fastest mouse; stamp-delay uniform stamp delays up to 3 ms on it; noisy the first
+    mouse 5 times noisier than simulated (the config keeps its sigma); cpi-error the first
+    mouse's true CPI 10 % over the nominal one the config believes."""
+    values: dict = {}
+    for part in name.split("+"):
+        if part not in _CONDITION_DEFAULTS:
+            raise ValueError(f"unknown condition {part!r}; choose of {', '.join(CONDITIONS)}")
+        values.update(_CONDITION_DEFAULTS[part])
+        if part == "usb-gaps":
+            values["gap_rate"] = float(np.random.default_rng((4000, seed)).uniform(1.0, 5.0))
+    values.update(params)
+    return Condition(name, seed, **values)
+
+
+def apply_condition(base: sim.Rig, cond: Condition, duration: float) -> sim.Rig:
+    """The rig as it truly is under ``cond`` for a drive of ``duration`` seconds."""
+    names = {m.name for m in base.mice}
+    for part in ("gap", "stamp", "noise", "cpi"):
+        if cond.mouse(part, base) not in names:
+            raise ValueError(f"condition {cond.name}: no mouse {cond.mouse(part, base)!r}")
+    mice = []
+    for m in base.mice:
+        if m.name == cond.mouse("gap", base) and cond.gap_rate > 0:
+            rng = np.random.default_rng((3000, cond.seed))
+            gaps = sim.usb_gap_spans(rng, duration, cond.gap_rate, cond.gap_length, cond.gap_jitter)
+            m = dataclasses.replace(m, usb_gaps=gaps)
+        if m.name == cond.mouse("stamp", base):
+            m = dataclasses.replace(m, stamp_tail=cond.stamp_tail)
+            if cond.stamp_delay is not None:
+                m = dataclasses.replace(m, stamp_delay=cond.stamp_delay)
+        if m.name == cond.mouse("noise", base):
+            m = dataclasses.replace(m, noise=m.noise * cond.noise_factor)
+        if m.name == cond.mouse("cpi", base) and cond.cpi_error:
+            f = 1.0 + cond.cpi_error
+            m = dataclasses.replace(
+                m,
+                cpi_x=m.cpi_x * f if "x" in cond.cpi_axes else m.cpi_x,
+                cpi_y=m.cpi_y * f if "y" in cond.cpi_axes else m.cpi_y,
+            )
+        mice.append(m)
+    return dataclasses.replace(base, mice=tuple(mice))
+
+
+def condition_config(
+    base: sim.Rig, cond: Condition, robust: bool = True, told: bool = False
+) -> Config:
+    """The config the robot runs ``cond`` with: the nominal CPI (what ``base`` says) while
+    the simulated mouse has the true one, unless ``told`` (the true CPI, as a user who had
+    measured it would write)."""
+    true = apply_condition(base, dataclasses.replace(cond, gap_rate=0.0), 0.0)
+    nominal = {m.name: (m.cpi_x, m.cpi_y) for m in base.mice}
+    return config(true, robust=robust, cpi=None if told else nominal)
+
+
+def condition_trial(layout: str, cond: Condition | str, seed: int, duration: float) -> Trial:
+    """``drive(duration, seed)`` on ``layout`` under ``cond`` (a Condition, or a name for
+    ``condition(name, seed)``).  informed: plain least squares told the true CPI, on the
+    same drive without the timing and noise conditions (for cpi-error alone: the same
+    reports); clean: the default engine on the same drive without the condition at all."""
+    if isinstance(cond, str):
+        cond = condition(cond, seed)
+    traj = drive(duration, seed)
+    base = rig(layout)
+    result = sim.simulate(apply_condition(base, cond, duration), traj, seed=seed)
+    timing = (cond.gap_rate > 0, cond.stamp_tail > 0, cond.stamp_delay is not None)
+    if any(timing) or cond.noise_factor != 1.0:
+        cpi_only = Condition(
+            "cpi-error", cpi_mouse=cond.cpi_mouse, cpi_error=cond.cpi_error, cpi_axes=cond.cpi_axes
+        )
+        informed_result = sim.simulate(apply_condition(base, cpi_only, duration), traj, seed=seed)
+    else:
+        informed_result = result
+    return Trial(
+        f"{layout} {cond.name}",
+        measure(result, condition_config(base, cond)),
+        measure(result, condition_config(base, cond, robust=False)),
+        measure(informed_result, condition_config(base, cond, robust=False, told=True)),
+        measure(sim.simulate(base, traj, seed=seed), config(base)),
+        (),
+        seed,
+    )
