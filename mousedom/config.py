@@ -94,6 +94,10 @@ class RobustConfig:
     false_alarm: float = 1e-4  # chance per window that a healthy rig fails the test
     relative_noise: float = 0.05  # reading error in proportion to motion (CPI, stamps)
     readmit_s: float = 0.25  # consistent motion an excluded mouse needs to be used again
+    # each mouse's scale per axis relative to the others, learnt online from the redundancy
+    # of three or more mice (fusion.scalelearn), and applied within +-scale_limit
+    learn_scale: bool = True
+    scale_limit: float = 0.10
 
 
 @dataclass(frozen=True)
@@ -168,6 +172,10 @@ class Config:
     calibration: str | None = None  # absolute path of the calibration file, if any
     path: str | None = None  # where this config was read from
     robust: RobustConfig = field(default_factory=RobustConfig)
+    # How late a report may come and still count where it was measured: a report within
+    # this of the mouse's previous one covers all the time since (a USB catch-up report),
+    # and windows wait this long for a silent mouse before closing without it.
+    late_report_s: float = 0.1
     ros2: Ros2Config | None = None  # outputs.ros2: None means no DDS output
     foxglove: FoxgloveConfig | None = None  # outputs.foxglove: None means no live view
     # values that look like the wrong unit (mousedom.plausible): said, not refused
@@ -188,7 +196,7 @@ class Config:
 
 
 TOP_KEYS = ("rate_hz", "model", "integrator", "mice", "server", "wheels", "calibration",
-            "robust", "outputs")  # fmt: skip
+            "robust", "outputs", "late_report_s")  # fmt: skip
 MOUSE_KEYS = ("cpi", "mount", "flip", "sigma", "report_hz", "evdev", "serial", "replay",
               "max_speed", "min_squal")  # fmt: skip
 SERVER_KEYS = ("socket", "mode", "group", "control_uids", "control_gids", "max_clients",
@@ -369,12 +377,15 @@ def _robust(r: Reader) -> RobustConfig:
     v = r.raw("robust")
     if isinstance(v, bool):  # `robust: false` turns it off (for comparison)
         return RobustConfig(enabled=v)
-    s = r.sub("robust", ("enabled", "false_alarm", "relative_noise", "readmit_s"))
+    s = r.sub("robust", ("enabled", "false_alarm", "relative_noise", "readmit_s",
+                         "learn_scale", "scale_limit"))  # fmt: skip
     robust = RobustConfig(
         enabled=s.boolean("enabled", True),
         false_alarm=s.number("false_alarm", 1e-4, within=(1e-12, 0.5)),
         relative_noise=s.number("relative_noise", 0.05, within=(0.0, 1.0)),
         readmit_s=s.number("readmit_s", 0.25, within=(0.0, 3600.0)),
+        learn_scale=s.boolean("learn_scale", True),
+        scale_limit=s.number("scale_limit", 0.10, within=(0.0, 0.5)),
     )
     s.finish()
     return robust
@@ -540,6 +551,7 @@ def parse_config(
     rate_hz = doc.attempt(top.number, "rate_hz", 100.0, within=(0.1, 10000.0)) or 100.0
     model = doc.attempt(top.choice, "model", MODELS, "lsq") or "lsq"
     integrator = doc.attempt(top.choice, "integrator", INTEGRATORS, "exact") or "exact"
+    late = doc.attempt(top.number, "late_report_s", 0.1, within=(0.0, 1.0))
     mice_raw = top.raw("mice")
     if not isinstance(mice_raw, dict) or not mice_raw:
         doc.keep(doc.error(("mice",), "needs at least one mouse (a mapping of name: settings)"))
@@ -590,6 +602,7 @@ def parse_config(
         calibration=calibration_path,
         path=path,
         robust=robust,
+        late_report_s=0.1 if late is None else late,
         ros2=ros2,
         foxglove=foxglove,
         warnings=warnings,

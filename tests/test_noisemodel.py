@@ -3,7 +3,10 @@ window-by-window one."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -71,11 +74,25 @@ def test_extend_blocks_is_extend_and_end_block_window_by_window(
     assert _state(b) == _state(a)
 
 
-def test_medians_of_one_length_are_numpys_medians():
+def test_estimates_are_the_median_or_the_tails_whichever_is_larger():
+    """Below 20 samples the median (numpy's); from 20 on, the larger of the median and
+    the 99th percentile scaled to the median of chi-square(2) (ln 2 / ln 100): timing
+    noise with a heavy tail must widen a mouse's tolerance (noisemodel._middles)."""
     rng = np.random.default_rng(3)
-    for length in (10, 11, 255, 256):
+    for length in (10, 11, 19):
         arrays = [rng.standard_normal(length) for _ in range(7)]
         assert _medians(arrays) == [float(np.median(x)) for x in arrays]
+    for length in (20, 255, 256):
+        arrays = [rng.standard_normal(length) for _ in range(5)]
+        arrays += [rng.exponential(1.0, length) ** 3 for _ in range(5)]  # heavy tails
+        want = []
+        for x in arrays:
+            tail = np.sort(x)[int(np.floor(0.99 * (length - 1)))]
+            want.append(max(float(np.median(x)), math.log(2) / math.log(100) * tail))
+        assert _medians(arrays) == pytest.approx(want, rel=1e-12)
+        # a chi-square(2) sample's estimate is its median: the tail is no heavier
+        chi2 = rng.chisquare(2, 256) / (2 * math.log(2))
+        assert _medians([chi2])[0] == pytest.approx(float(np.median(chi2)), rel=0.3)
 
 
 def test_norm2_is_the_sum_of_squares_bit_for_bit():

@@ -423,10 +423,13 @@ def test_one_window_with_a_mouse_far_ahead_takes_the_array_path():
         cfg = sim.rig_config(rig3())
         tr = Tracker(cfg, t0=0.0)
         tr._SMALL = small
-        t = np.arange(1, 400) / 1000.0  # 0.4 s of mouse 0 at once: ~800 knots
+        # 2 s of mouse 0 at once, every 5 ms (none joins the one before): ~800 knots
+        t = np.arange(1, 400) * 0.005
         tr.push(0, t, np.ones_like(t), -np.ones_like(t))
         for i in (1, 2):  # the others have just passed the first window's end
             tr.push(i, [0.0101], [1], [0])
+        # ... and nothing of theirs can join that report any more (half a period on)
+        tr.complete_until(0.0101 + 0.5 / cfg.mice[1].report_hz)
         first = tr.poll()
         return first, tr.finish()
 

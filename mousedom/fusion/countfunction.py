@@ -1,10 +1,21 @@
 """One mouse's cumulative count function F(t), the tracker's per-mouse state.
 
-A report stamped t covers the motion since the mouse's previous report, but never more
-than one report period P back.  F is flat between reports and rises linearly over each
-report's span, so a window's counts are F(end) - F(start).  Only the part of F after the
-closed frontier is kept, as knots relative to F there (the anchor): the knots' times,
-cumulative REL_X and cumulative REL_Y.
+A report's counts belong to the time they were measured (docs/models.md, "Timing").  A
+USB mouse is polled every period P and reports what it measured since its last report: a
+report stamped t covers [t_prev, t] when the mouse reported t_prev at most ``bridge`` before
+(a host that skipped polls for 30 ms gets one catch-up report holding all 30 ms of counts,
+and a mouse creeping along reports every few periods), and [t - P, t] after a longer
+silence (it was still, or lifted, and starts again).  Reports stamped less than P/2 after
+the one before were held up on their way (their stamps bunch after a delay): they join that
+report's span, so a bunch of late reports rises over the time it was measured in, not at
+the instant it arrived.  A joined span never exceeds ``bridge``.
+
+F is flat between spans and rises linearly over each, so a window's counts are
+F(end) - F(start).  Only the part of F after the closed frontier is kept, as knots relative
+to F there (the anchor): the knots' times, cumulative REL_X and cumulative REL_Y.  Joining a
+report to its predecessor moves F only after the predecessor's span starts, so windows
+close no later than that while a report may still join (``frontier``): the daemon and
+replay place every count identically.
 
 Two representations, converted on demand: three Python lists while the knots are few (the
 daemon carries about one window's worth, and numpy's cost per call would be most of its
@@ -33,8 +44,11 @@ def _exact_int_sums(steps: np.ndarray) -> bool:
 class CountFunction:
     """The not-yet-closed part of one mouse's cumulative count function."""
 
-    def __init__(self, period: float) -> None:
+    def __init__(self, period: float, bridge: float = 0.0) -> None:
         self.period = period
+        # a report this soon after the previous one covers all the time since: at least P
+        self.bridge = max(period, bridge)
+        self.join = 0.5 * period  # a report this soon after the previous one joins its span
         self.last_t = -math.inf  # latest stamp pushed (queued or not)
         self.knot_t = -math.inf  # stamp of the last report turned into knots
         self.pending: list[tuple] = []  # (t, dx, dy): float lists (small pushes) or arrays
@@ -50,7 +64,21 @@ class CountFunction:
         return not self.dead or self.dead[-1][1] != math.inf
 
     def frontier(self) -> float:
-        return max(self.last_t, self.complete - self.period)
+        """The time up to which this mouse's F is final (queued reports ingested first).
+
+        A report still to come covers at most P before its stamp (stamped after
+        ``complete``); until ``complete`` is ``bridge`` past the last report, one may
+        cover all the time since that report; and until it is P/2 past, one may join the
+        last report's span, which then rises from that span's start."""
+        last, complete = self.knot_t, self.complete
+        if complete >= last + self.bridge:
+            return max(last, complete - self.period)
+        if complete >= last + self.join:
+            return last
+        kt = self.knots[0]
+        n = len(kt)
+        # the last span's start (the anchor if the span began before the closed frontier)
+        return kt[n - 2] if n >= 2 and kt[n - 1] == last else last
 
     # ------------------------------------------------------------------ knots
 
@@ -106,7 +134,10 @@ class CountFunction:
             t, moved = np.maximum(t, edge), True
         if moved:
             prev = np.concatenate([[self.knot_t], t[:-1]])
-        start = np.maximum(prev, t - self.period)
+        gap = t - prev
+        # the span: since the previous report within the bridge, else one period (prev is
+        # -inf before the first report: a gap of inf)
+        start = np.where(gap <= self.bridge, prev, t - self.period)
         # max(..., edge) as well: start is non-decreasing, so only a prefix can be below.
         below = int(np.searchsorted(start, edge, side="left"))
         if below:
@@ -134,8 +165,39 @@ class CountFunction:
             np.add(cum, lv, out=new[row, 1::2])
             # (cum + level) - step, the step taken as float64 (exact for whole counts)
             np.subtract(new[row, 1::2], steps, out=new[row, 0::2], dtype=np.float64)
+        joins = np.flatnonzero(gap < self.join)
+        if joins.size:
+            knots = self._joined(knots, n_old, joins, t, prev, start, edge)
         self.knots = knots
         self.knot_t = float(t[-1])
+
+    def _joined(
+        self, knots: np.ndarray, n_old: int, joins: np.ndarray, t: np.ndarray,
+        prev: np.ndarray, start: np.ndarray, edge: float,
+    ) -> np.ndarray:  # fmt: skip
+        """``ingest``'s knots with the reports held up on their way (``joins``: stamped
+        under P/2 after the one before) joined to the previous report's span, as
+        ``ingest_small`` joins them: the previous span's end knot and the report's start
+        knot go, its end knot stays; a joined span never exceeds the bridge."""
+        keep = np.ones(knots.shape[1], dtype=bool)
+        ramp = start.tolist()  # each report's span start, once joined
+        tl, pl = t.tolist(), prev.tolist()
+        old_t = knots[0, :n_old].tolist()
+        for j in joins.tolist():
+            if pl[j] <= edge:
+                continue
+            if j:
+                first = ramp[j - 1]
+            elif n_old >= 2 and old_t[-1] == pl[0]:
+                first = old_t[-2]
+            else:
+                continue
+            if tl[j] - first > self.bridge:
+                continue
+            keep[n_old + 2 * j - 1] = False  # the previous span's end (maybe an old knot)
+            keep[n_old + 2 * j] = False  # this report's start
+            ramp[j] = first
+        return knots[:, keep]
 
     def ingest_small(self, edge: float) -> None:
         """``ingest`` report by report: the same operations in the same order on floats."""
@@ -145,7 +207,7 @@ class CountFunction:
             t += pt if isinstance(pt, list) else pt.tolist()
             dx += pdx if isinstance(pdx, list) else pdx.tolist()
             dy += pdy if isinstance(pdy, list) else pdy.tolist()
-        period = self.period
+        period, bridge, join = self.period, self.bridge, self.join
         kt, kx, ky = self.knot_lists()
         lx, ly = (kx[-1], ky[-1]) if kt else (0.0, 0.0)
         run = prev = self.knot_t
@@ -163,13 +225,20 @@ class CountFunction:
             if ti < edge:
                 late += 1
                 ti = edge
-            # max(max(prev, ti - period), edge), without the builtin's call cost
-            start = ti - period
-            if prev > start:
-                start = prev
+            x, y = cx + lx, cy + ly
+            gap = ti - prev
+            n = len(kt)
+            if gap < join and n >= 2 and kt[n - 1] == prev and prev > edge and (
+                ti - kt[n - 2] <= bridge
+            ):
+                # held up on its way: the previous report's span stretches to take it
+                kt[n - 1], kx[n - 1], ky[n - 1] = ti, x, y
+                prev = ti
+                continue
+            # the span: since the previous report within the bridge, else one period
+            start = prev if gap <= bridge else ti - period
             if edge > start:
                 start = edge
-            x, y = cx + lx, cy + ly
             kt += (start, ti)
             kx += (x - a, x)
             ky += (y - b, y)

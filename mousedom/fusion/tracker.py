@@ -67,7 +67,8 @@ class Tracker(OneWindowPath):
         self.period = 1.0 / config.rate_hz
         self.t0 = t0
         self.n_mice = len(config.mice)
-        self._mice = [CountFunction(1.0 / m.report_hz) for m in config.mice]
+        self._mice = [CountFunction(1.0 / m.report_hz, config.late_report_s)
+                      for m in config.mice]  # fmt: skip
         self._names = {m.name: i for i, m in enumerate(config.mice)}
         self._to_body = counts_matrices(config.mice)  # (N,2,2)
         self._to_body_rows = self._to_body.tolist()  # the same, for the one-window path
@@ -290,7 +291,13 @@ class Tracker(OneWindowPath):
         # The earliest frontier of the live mice (a mouse that is not live waits for
         # nothing); a loop, not min() of a generator: this runs every window.
         target = math.inf if self._mice else self._complete_all
+        edge = None
         for m in self._mice:
+            if m.pending and m.live:
+                # the frontier is read off the knots (a report may join the last span)
+                if edge is None:
+                    edge = self.frontier_time
+                self._ingest(m, edge)
             f = m.frontier() if m.live else self._complete_all
             if f < target:
                 target = f
