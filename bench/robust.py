@@ -47,8 +47,9 @@ the number of runs.
           plain least squares, and the share of runs beyond the chi-square 95 % quantile
           (expected 5 %).
 
-A full default run takes about five minutes on one core of a small machine (each section
-prints how long it took); ``--seeds 2 --duration 20`` checks every section in seconds.
+A full default run takes about four minutes on one core of a small machine (pairs two of them;
+each section prints how long it took); ``--seeds 2 --duration 20`` checks every section in
+half a minute.
 """
 
 from __future__ import annotations

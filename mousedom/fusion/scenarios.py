@@ -24,7 +24,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -558,7 +558,7 @@ _CONDITION_DEFAULTS: dict[str, dict[str, float]] = {
 }
 
 
-def condition(name: str, seed: int = 0, **params) -> Condition:
+def condition(name: str, seed: int = 0, **params: Any) -> Condition:
     """The condition ``name`` (CONDITIONS, or several joined by "+", e.g.
     "usb-gaps+late-stamps") with its default parameters, any of which ``params`` (Condition's
     fields) overrides: usb-gaps ~30 ms gaps at a rate drawn from the seed between 1 and 5
@@ -566,7 +566,7 @@ def condition(name: str, seed: int = 0, **params) -> Condition:
     on the fastest mouse; stamp-delay uniform stamp delays up to 3 ms on it; noisy the first
     mouse 5 times noisier than simulated (the config keeps its sigma); cpi-error the first
     mouse's true CPI 10 % over the nominal one the config believes."""
-    values: dict = {}
+    values: dict[str, Any] = {}
     for part in name.split("+"):
         if part not in _CONDITION_DEFAULTS:
             raise ValueError(f"unknown condition {part!r}; choose of {', '.join(CONDITIONS)}")
