@@ -26,7 +26,7 @@ import math
 import numpy as np
 
 from mousedom.config import Config
-from mousedom.fusion import integrate, models, robust, screenbatch
+from mousedom.fusion import integrate, models, robust, scalelearn, screenbatch
 from mousedom.fusion.countfunction import CountFunction
 from mousedom.fusion.covariance import CovarianceState, propagate, world_step_noise
 from mousedom.fusion.evidence import SensorEvidence
@@ -93,6 +93,18 @@ class Tracker(OneWindowPath):
                 np.array([m.max_speed or math.inf for m in config.mice]),
             )  # fmt: skip
         self._steady_rows = {}  # live pattern -> (state, reason) of the common case
+        # Online scale calibration (fusion.scalelearn): with the fault screen, on three or
+        # more mice; its estimates are reported, and folded into _to_body where the config
+        # says so (robust.learn_scale).
+        self.scales = None
+        self._scale_row: list | tuple = ()  # the scales as PoseRow.scale ((): none)
+        self._apply_scales = config.robust.learn_scale
+        if self.screen is not None and self.n_mice >= 3:
+            self.scales = scalelearn.ScaleLearner(
+                self.model, self._to_body, self._positions, self._sigma, self.period,
+                config.robust.scale_limit,
+            )  # fmt: skip
+            self._scale_row = self.scales.estimate.tolist()
         self.evidence = SensorEvidence(
             [1.0 / m.report_hz for m in config.mice], [m.min_squal for m in config.mice]
         )
@@ -409,7 +421,29 @@ class Tracker(OneWindowPath):
         for acc, (cx, cy) in zip(self._counts_out, counts.sum(axis=0).tolist(), strict=True):
             acc[0] += cx
             acc[1] += cy
-        return self._solve(edges[1:], counts, mask, self.evidence.windows(edges))
+        evidence = self.evidence.windows(edges)
+        if self.scales is None:
+            return self._solve(edges[1:], counts, mask, evidence)
+        # The learnt scales change at block ends: each block's windows with its own.
+        out, a = [], 0
+        while a < n:
+            b = min(n, a + self.scales.until_block_end())
+            ev = None if evidence is None else tuple(e[a:b] for e in evidence)
+            part = self._solve(edges[a + 1 : b + 1], counts[a:b], mask[a:b], ev)
+            self._learn_scales(counts[a:b], part.state, part.consistent, mask[a:b])
+            out.append(part)
+            a = b
+        return PoseBatch.concat(out, self.n_mice)
+
+    def _learn_scales(self, counts, state, consistent, live) -> None:
+        """Hand closed windows to the scale learner (mice tracking in consistent windows
+        are its evidence); at a block end its new scales take effect."""
+        usable = (state == robust.TRACKING) & consistent[:, None] & live
+        if self.scales.add(counts, usable):
+            if self._apply_scales:
+                self._to_body = self.scales.matrices()
+                self._to_body_rows = self._to_body.tolist()
+            self._scale_row = self.scales.estimate.tolist()
 
     # Up to this many windows per poll, _close_one (floats, no validation) is used; tests
     # set it to 0 to compare it with the array path.
@@ -457,6 +491,9 @@ class Tracker(OneWindowPath):
             reason=reason,
             consistent=consistent,
             qcov=sol.cov,
+            scale=None
+            if self.scales is None
+            else np.broadcast_to(self.scales.estimate, counts.shape).copy(),
         )
 
     def _screened(self, d: np.ndarray, mask: np.ndarray, sol: models.Solution, evidence=None):

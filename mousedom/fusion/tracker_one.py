@@ -36,8 +36,14 @@ class OneWindowPath:
         evidence = self.evidence.window(start, end) if self.evidence else None
         if self.model == "bonarini":  # numerical linearisation: the array path
             ev = None if evidence is None else (np.array([evidence[0]]), np.array([evidence[1]]))
-            return self._solve(np.array([end]), np.array([counts]), np.array([live]), ev)
-        return self._solve_one(end, counts, live, evidence)
+            batch = self._solve(np.array([end]), np.array([counts]), np.array([live]), ev)
+        else:
+            batch = self._solve_one(end, counts, live, evidence)
+        if self.scales is not None:
+            row = batch.rows()[0]
+            self._learn_scales(np.array([counts]), np.array([row.state]),
+                               np.array([row.consistent]), np.array([live]))  # fmt: skip
+        return batch
 
     def _linear_plan(self, live: tuple[bool, ...]) -> tuple:
         """What _solve_one needs per pattern of live mice, as Python floats: (A rows, B rows,
@@ -106,7 +112,7 @@ class OneWindowPath:
         self._pose, self._cov, self._cov_at = [x, y, th], cov, [x, y]
         rate = self._rate
         pose = PoseRow(t_end, x, y, th, ux * rate, uy * rate, a * rate, cov, len(idx), ok,
-                    residual, counts, state, reason, consistent, c3)  # fmt: skip
+                    residual, counts, state, reason, consistent, c3, self._scale_row)  # fmt: skip
         return PoseBatch.from_rows([pose])
 
     def _linear_one(self, d_all: list[float], live: tuple[bool, ...]):

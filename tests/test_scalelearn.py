@@ -1,0 +1,101 @@
+"""Online scale estimates from the redundancy of three or more mice (fusion.scalelearn,
+issue 31 item 3): exact on exact data, a wrong CPI found and warned of, the daemon's
+one-window path and replay's arrays giving the same estimates."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from mousedom.fusion import scenarios, sim
+from mousedom.fusion.posebatch import PoseBatch
+from mousedom.fusion.tracker import Tracker
+
+
+def _drive(seed: int, factor: float = 1.0, layout: str = "triangle", **rig_kw):
+    base = scenarios.rig(layout, **rig_kw)
+    mice = list(base.mice)
+    mice[0] = dataclasses.replace(mice[0], cpi_x=mice[0].cpi_x * factor,
+                                  cpi_y=mice[0].cpi_y * factor)  # fmt: skip
+    result = sim.simulate(dataclasses.replace(base, mice=tuple(mice)),
+                          scenarios.drive(25.0, seed), seed=seed)  # fmt: skip
+    return base, result
+
+
+@pytest.mark.parametrize("layout", ["triangle", "square"])
+def test_exact_readings_give_scales_of_one(layout):
+    base, result = _drive(1, layout=layout, noise=0.0, stamp_delay=0.0)
+    exact = dataclasses.replace(
+        base, mice=tuple(dataclasses.replace(m, quantize=False) for m in base.mice)
+    )
+    result = sim.simulate(exact, result.motion.segments, seed=1)
+    _, tracker = scenarios.run(result, scenarios.config(base))
+    assert np.allclose(tracker.scales.estimate, 1.0, atol=2e-4)
+    assert tracker.scales.warnings([m.name for m in base.mice]) == []
+
+
+@pytest.mark.parametrize("seed", [2, 3, 4])
+@pytest.mark.parametrize("factor", [0.97, 1.03])
+def test_a_cpi_a_few_per_cent_off_is_measured_on_its_forward_axis(seed, factor):
+    """One mouse's true CPI 3 % off the config's: its forward axis (REL_Y) scale is
+    1/factor within 0.3 %, the others' 1 within 0.3 %; no warning (under 10 %)."""
+    base, result = _drive(seed, factor)
+    batch, tracker = scenarios.run(result, scenarios.config(base))
+    est = tracker.scales.estimate
+    assert est[0, 1] == pytest.approx(1.0 / factor, abs=0.003)
+    assert np.allclose(est[1:, 1], 1.0, atol=0.003)
+    assert tracker.scales.warnings([m.name for m in base.mice]) == []
+    # the batch carries the estimate per window, the last one the tracker's
+    assert np.array_equal(batch.scales()[-1], est)
+
+
+@pytest.mark.parametrize("seed", [2, 3, 4])
+@pytest.mark.parametrize("factor", [0.75, 0.88, 1.12, 1.3, 1.5])
+def test_a_wrong_cpi_is_warned_of(seed, factor):
+    """A CPI 12 to 50 % off (a typo, the wrong mouse's CPI): the warning names that mouse
+    and no other, in the right direction.  (The estimate's size is not yet right at
+    these errors: the screen keeps the windows where the wrong mouse happened to agree.)"""
+    base, result = _drive(seed, factor)
+    _, tracker = scenarios.run(result, scenarios.config(base))
+    names = [m.name for m in base.mice]
+    warned = tracker.scales.warnings(names)
+    assert warned and all(w.startswith(f"mouse {names[0]} ") for w in warned), warned
+    word = "more" if factor > 1 else "less"
+    assert any(f"{word} than the others" in w for w in warned), warned
+
+
+def test_healthy_drives_warn_of_nothing():
+    for seed in range(3):
+        base, result = _drive(seed)
+        _, tracker = scenarios.run(result, scenarios.config(base))
+        assert tracker.scales.warnings([m.name for m in base.mice]) == []
+        assert np.allclose(tracker.scales.estimate[:, 1], 1.0, atol=0.005)
+
+
+def test_the_daemons_path_and_replays_give_the_same_scales():
+    base, result = _drive(5, 1.2)
+    cfg = scenarios.config(base)
+    _, batch_tracker = scenarios.run(result, cfg)
+    live = Tracker(cfg, t0=float(result.motion.starts[0]))
+    out = PoseBatch.concat(sim.run_tracker_live(result, live), len(base.mice))
+    # to rounding: the screen's float path and its arrays round differently
+    assert np.allclose(live.scales.estimate, batch_tracker.scales.estimate, rtol=1e-9, atol=0)
+    assert out.scale is not None and np.array_equal(out.scales()[-1], live.scales.estimate)
+
+
+def test_two_mice_learn_nothing_and_off_means_not_applied():
+    base, result = _drive(1, layout="pair")
+    _, tracker = scenarios.run(result, scenarios.config(base))
+    assert tracker.scales is None
+    # with three mice the estimate is made but, by default, not applied
+    base, result = _drive(1, 1.2)
+    cfg = scenarios.config(base)
+    assert cfg.robust.learn_scale is False
+    _, tracker = scenarios.run(result, cfg)
+    assert np.array_equal(tracker._to_body, tracker.scales.base)
+    applied = dataclasses.replace(cfg, robust=dataclasses.replace(cfg.robust, learn_scale=True))
+    _, tracker = scenarios.run(result, applied)
+    assert np.allclose(tracker._to_body, tracker.scales.matrices())
+    assert tracker.scales.scale[0, 1] == pytest.approx(1.0 - cfg.robust.scale_limit)
