@@ -228,8 +228,12 @@ class CountFunction:
             x, y = cx + lx, cy + ly
             gap = ti - prev
             n = len(kt)
-            if gap < join and n >= 2 and kt[n - 1] == prev and prev > edge and (
-                ti - kt[n - 2] <= bridge
+            if (
+                gap < join
+                and n >= 2
+                and kt[n - 1] == prev
+                and prev > edge
+                and (ti - kt[n - 2] <= bridge)
             ):
                 # held up on its way: the previous report's span stretches to take it
                 kt[n - 1], kx[n - 1], ky[n - 1] = ti, x, y
