@@ -26,6 +26,7 @@ from mousedom.capture.base import DeviceStats, lagging_first
 from mousedom.capture.fixedpoint import fixed_bytes
 from mousedom.capture.scientific import scientific_bytes
 from mousedom.config import Config
+from mousedom.fusion import robust
 from mousedom.fusion.tracker import PoseBatch, Tracker
 
 CSV_COLUMNS = ("t", "x", "y", "theta", "vx", "vy", "omega", "used", "ok", "consistent")
@@ -79,6 +80,10 @@ class MouseSummary:
     stats: DeviceStats
     counts_in: tuple[float, float] = (0.0, 0.0)
     counts_out: tuple[float, float] = (0.0, 0.0)
+    excluded: int = 0  # windows after which the fusion had it excluded (robust.EXCLUDED)
+    suspect: int = 0  # ... suspect (robust.SUSPECT)
+    scale: tuple[float, float] | None = None  # learnt scale (REL_X, REL_Y) at the end; None:
+    # no window had one learnt
 
     @property
     def rate_hz(self) -> float:
@@ -105,6 +110,10 @@ class Summary:
     # to the first window's pose counts (measured from that pose, the path could be
     # shorter than the displacement).
     _last_xy: tuple[float, float] = (0.0, 0.0)
+    # Per mouse (config order): windows excluded and suspect; the last learnt scale.
+    excluded: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    suspect: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    scale: np.ndarray | None = None  # (N, 2), None while no window had one learnt
 
     def add(self, b: PoseBatch) -> None:
         n = len(b)
@@ -112,6 +121,14 @@ class Summary:
             return
         self.windows += n
         self.not_ok += int(np.count_nonzero(~b.ok))
+        state = b.state
+        if len(self.excluded) != state.shape[1]:
+            self.excluded = np.zeros(state.shape[1], dtype=np.int64)
+            self.suspect = np.zeros(state.shape[1], dtype=np.int64)
+        self.excluded += np.count_nonzero(state == robust.EXCLUDED, axis=0)
+        self.suspect += np.count_nonzero(state == robust.SUSPECT, axis=0)
+        if b.scale is not None:
+            self.scale = np.array(b.scale[-1], dtype=np.float64)
         xs = np.concatenate([[self._last_xy[0]], b.x])
         ys = np.concatenate([[self._last_xy[1]], b.y])
         self.path_length += float(np.hypot(np.diff(xs), np.diff(ys)).sum())
@@ -120,6 +137,18 @@ class Summary:
             self.t_first = float(b.t[0])
         self.t_last = float(b.t[-1])
         self.final = b.last()
+
+    def health_of(self, mouse: int) -> dict:
+        """MouseSummary's health fields of the config's mouse ``mouse``."""
+        counted = mouse < len(self.excluded)
+        scale = None
+        if self.scale is not None:
+            scale = (float(self.scale[mouse, 0]), float(self.scale[mouse, 1]))
+        return {
+            "excluded": int(self.excluded[mouse]) if counted else 0,
+            "suspect": int(self.suspect[mouse]) if counted else 0,
+            "scale": scale,
+        }
 
     @property
     def duration(self) -> float:
@@ -320,6 +349,7 @@ class Replay:
                     stats=a.capture.stats[a.device],
                     counts_in=tuple(counts_in[a.mouse]),
                     counts_out=tuple(counts_out[a.mouse]),
+                    **summary.health_of(a.mouse),
                 )
             )
         for c in self.captures:

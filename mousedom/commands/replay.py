@@ -14,6 +14,8 @@ import sys
 import time
 from typing import TextIO
 
+import numpy as np
+
 from mousedom.allocator import keep_freed_memory
 from mousedom.capture import assign, parse_capture_arg
 from mousedom.capture.replay import CsvSink, Replay, Summary
@@ -183,6 +185,9 @@ def run(args) -> int:
         rates = {m.name: m.rate_hz for m in summary.mice}
         plot.save(collector, config.names, args.plot, title=_title(args, replay),
                   model=args.model or config.model, rates=rates)  # fmt: skip
+    if out is not None or args.umbmark:  # no summary: its warnings on their own
+        for w in scale_warnings(summary, _cpis(config)):
+            print(f"mousedom: warning: {w}", file=sys.stderr)
     if args.umbmark:
         _emit_umbmark(args, summary, true_end)
     elif out is None:
@@ -360,7 +365,88 @@ def format_summary(s: Summary, replay: Replay, args) -> str:
             extra.append(f"{st.torn_bytes} bytes of torn tail skipped")
         if extra:
             lines.append(" " * 13 + "; ".join(extra))
+    lines.append("")
+    lines += health_lines(s, _cpis(cfg))
     return "\n".join(lines)
+
+
+def _cpis(cfg) -> dict[str, tuple[float, float]]:
+    return {m.name: (m.cpi_x, m.cpi_y) for m in cfg.mice}
+
+
+# A learnt scale this far from 1 is a wrong CPI, not a floor: the summary says so.
+SCALE_WARNING = 0.10
+
+
+def _share(k: int, windows: int) -> str:
+    return f"{k} ({100.0 * k / windows:.1f} %)" if windows else str(k)
+
+
+def health_lines(s: Summary, cpi: dict[str, tuple[float, float]]) -> list[str]:
+    """Per mouse: the windows after which the fusion had it excluded and suspect (and
+    their share of all windows), its learnt scale at the end as a deviation from 1; then
+    the scale warnings."""
+    # The rows are indented: a line that starts with a mouse's name stays its row above.
+    lines = [f"{'mouse health':<14} {'excluded':>15} {'suspect':>15}   learnt scale at the end"]
+    for m in s.mice:
+        scale = "not learnt"
+        if m.scale is not None:
+            x, y = (round(100 * (k - 1), 1) + 0.0 for k in m.scale)  # + 0.0: no "-0.0"
+            scale = f"x {x:+.1f} %  y {y:+.1f} %"
+        share = f"{_share(m.excluded, s.windows):>15} {_share(m.suspect, s.windows):>15}"
+        lines.append(f"  {m.name:<12} {share}   {scale}")
+    return lines + [f"warning: {w}" for w in scale_warnings(s, cpi)]
+
+
+def scale_warnings(s: Summary, cpi: dict[str, tuple[float, float]]) -> list[str]:
+    """A warning for each mouse whose learnt scale at the end is SCALE_WARNING or more off
+    the rig's (what the batches show; the engine flags it too).  Measured per axis against
+    the median of all the mice's scales: only the scales relative to each other are
+    observable, a learner may spread one mouse's error over all of them, and with three
+    or more mice the median is one of the mice that agree."""
+    learnt = [(m.name, m.scale) for m in s.mice if m.scale is not None]
+    if not learnt:
+        return []
+    ref = np.median([k for _, k in learnt], axis=0)
+    out = []
+    for name, k in learnt:
+        if name in cpi:
+            w = scale_warning(name, (k[0] / float(ref[0]), k[1] / float(ref[1])), cpi[name])
+            if w:
+                out.append(w)
+    return out
+
+
+def scale_warning(name: str, scale: tuple[float, float], cpi: tuple[float, float]) -> str | None:
+    """The warning for a mouse whose scale relative to the others (the factor its counts
+    are multiplied by, per axis, over the others') is SCALE_WARNING or more off, else None.
+    A relative scale k means the mouse gives 1/k times the counts per metre that the others
+    imply: its CPI is about cpi / k."""
+    off = [(axis, k, c) for axis, k, c in zip("xy", scale, cpi, strict=True)
+           if abs(k - 1.0) >= SCALE_WARNING - 1e-9]  # fmt: skip
+    if not off:
+        return None
+
+    def reads(k: float) -> str:
+        return f"{100 * abs(1 / k - 1):.0f} % {'more' if k < 1 else 'less'}"
+
+    def per_axis(texts: list[str]) -> str:
+        return " and ".join(f"{t} along {axis}" for t, (axis, _, _) in zip(texts, off, strict=True))
+
+    configured = {c for _, _, c in off}
+    there = f"{off[0][2]:g}" if len(configured) == 1 else per_axis([f"{c:g}" for *_, c in off])
+    if len({reads(k) for _, k, _ in off}) == 1 and len(configured) == 1:
+        # one wrong CPI, seen alike on both axes (or on one)
+        how = f"{reads(off[0][1])} than the other mice (along "
+        how += " and ".join(axis for axis, _, _ in off) + ")"
+        meant = str(round(off[0][2] / (sum(k for _, k, _ in off) / len(off))))
+    else:
+        how = per_axis([reads(k) for _, k, _ in off]) + " than the other mice"
+        meant = per_axis([str(round(c / k)) for _, k, c in off])
+    return (
+        f"mouse {name} reads {how}: check its CPI in the config: {there} there, the others "
+        f"say about {meant} (or further, if the learnt scale sits at its limit)"
+    )
 
 
 class ProgressBar:
