@@ -190,3 +190,114 @@ def test_a_misspelt_key_in_the_calibration_file_gets_a_suggestion(tmp_path):
     p = run_mousedom("check-config", "--config", str(path), "--no-sources")
     assert p.returncode == 2
     assert "rig.calib.yaml:3: mice.a.cpj: unknown key (did you mean cpi?" in p.stderr
+
+
+def _notes(tmp_path, model: str, mounts: dict[str, tuple[float, float]], extra: str = ""):
+    mice = "".join(
+        f"  {n}: {{cpi: 800, mount: {{x: {x}, y: {y}}}}}\n" for n, (x, y) in mounts.items()
+    )
+    path = write(tmp_path, f"model: {model}\n{extra}mice:\n{mice}")
+    p = run_mousedom("check-config", "--config", str(path), "--no-sources")
+    assert p.returncode == 0, p.stderr  # notes, not errors
+    return [ln.removeprefix("  note: ") for ln in p.stdout.splitlines() if "note:" in ln]
+
+
+AXLE = {"left": (0, 0.1), "right": (0, -0.1)}
+
+
+def test_check_config_notes_what_the_layout_cannot_see(tmp_path):
+    """Issue 31 item 5: two mice on the axle cannot see a lift (it reads as a pivot about
+    the other mouse); two mice check each other only along the line joining them; one
+    mouse has no redundancy; three need no note."""
+    notes = _notes(tmp_path, "diff-drive", AXLE)
+    assert notes == [
+        "mice left and right: 2 redundant readings (4 readings, 2 unknowns): their motion "
+        "along the line joining them must agree and the axle must not slide sideways; a fault "
+        "shows only as a breach of these, and which of the two is at fault cannot be told",
+        "mice left and right are both on the axle (x = 0): every motion of a differential "
+        "drive moves them across the line joining them, so a lifted mouse reads as a pivot "
+        "about the other, a legal motion: a lift is never detected (a mouse off the axle "
+        "would see it)",
+    ]
+    for model in ("lsq", "bonarini"):  # any model: across the travel, straight driving hides it
+        notes = _notes(tmp_path, model, AXLE)
+        assert len(notes) == 2 and notes[0].startswith("mice left and right: 1 redundant reading")
+        assert "which of the two is at fault cannot be told" in notes[0]
+        assert notes[1].startswith("mice left and right lie on a line across the direction of "
+                                   "travel (within 11 degrees): while the robot drives straight, "
+                                   "a lifted mouse reads as a pivot about the other")  # fmt: skip
+    # One in front of the other: driving ahead moves them along their line, a lift shows.
+    notes = _notes(tmp_path, "lsq", {"front": (0.1, 0), "back": (-0.1, 0)})
+    assert len(notes) == 1 and "a lifted mouse only while it moves along it" in notes[0]
+    # A differential drive's pair off the axle: a pivot about a mouse is not legal there.
+    notes = _notes(tmp_path, "diff-drive", {"a": (0.1, 0.1), "b": (0.1, -0.1)})
+    assert len(notes) == 1 and "axle must not slide sideways" in notes[0]
+    assert _notes(tmp_path, "diff-drive", {"solo": (0.1, 0)}) == [
+        "mouse solo alone: no redundant reading (2 readings, 2 unknowns), so no fault shows in "
+        "the readings; only the sensor itself can flag one (an ADNS-3080's SQUAL and overflow, "
+        "min_squal, max_speed)"
+    ]
+    three = {"f": (0.15, 0), "l": (-0.075, 0.13), "r": (-0.075, -0.13)}
+    assert _notes(tmp_path, "lsq", three) == [] and _notes(tmp_path, "diff-drive", three) == []
+    # With the fault test off nothing is tested: no notes about what it sees.
+    assert _notes(tmp_path, "diff-drive", AXLE, "robust: false\n") == []
+
+
+def test_blind_spots_tolerances():
+    """How near the layouts of the notes a pair may be and still hide a lift."""
+    import math
+
+    from mousedom.observability import across_tolerance, blind_spots
+
+    tol = across_tolerance(0.05, 1e-4)
+    assert math.degrees(math.asin(tol)) == pytest.approx(11.2, abs=0.1)
+    for deg, hidden in ((0, True), (5, True), (10, True), (15, False), (45, False)):
+        s, c = 0.1 * math.sin(math.radians(deg)), 0.1 * math.cos(math.radians(deg))
+        notes = blind_spots("lsq", [("a", s, c), ("b", -s, -c)])
+        assert any("across the direction of travel" in n for n in notes) == hidden, deg
+    # a noisier rig hides more
+    notes = blind_spots("lsq", [("a", 0.05, 0.1), ("b", -0.05, -0.1)], relative_noise=0.2)
+    assert any("within 51 degrees" in n for n in notes)
+    for x, hidden in ((0.0, True), (0.002, True), (0.01, False), (0.1, False)):
+        notes = blind_spots("diff-drive", [("a", x, 0.1), ("b", x, -0.1)])
+        assert any("both on the axle" in n for n in notes) == hidden, x
+    assert blind_spots("diff-drive", [("a", 0.1, 0.0), ("b", 0.1, 0.0)]) == [
+        "mice a and b sit at one point: their readings must be equal; a fault shows only as a "
+        "difference, and which of the two is at fault cannot be told"
+    ]
+
+
+@pytest.mark.parametrize(
+    ("model", "mounts", "seen"),
+    [
+        ("lsq", ((0.0, 0.1), (0.0, -0.1)), False),  # across the travel: the note's blind spot
+        ("diff-drive", ((0.0, 0.1), (0.0, -0.1)), False),  # on the axle: likewise
+        ("lsq", ((0.1, 0.0), (-0.1, 0.0)), True),  # along the travel: no such note
+        ("diff-drive", ((0.1, 0.1), (0.1, -0.1)), True),  # off the axle: no such note
+    ],
+)
+def test_the_notes_say_what_the_engine_sees(model, mounts, seen):
+    """The notes against the fusion: a mouse lifted for 1.5 s of a straight drive is
+    flagged (inconsistent windows, or a mouse not tracking) where no note says it hides."""
+    import dataclasses
+
+    import numpy as np
+
+    from mousedom.fusion import sim
+    from mousedom.observability import blind_spots
+
+    mice = tuple(sim.SimMouse(n, x, y, cpi_x=800, cpi_y=800, rate_hz=500, noise=0.3)
+                 for n, (x, y) in zip("ab", mounts, strict=True))  # fmt: skip
+    rig = sim.Rig(mice, model=model)
+    lifted = dataclasses.replace(
+        rig, mice=(mice[0], dataclasses.replace(mice[1], lost=((1.0, 2.5),)))
+    )
+    b, _ = sim.run_tracker(
+        sim.simulate(lifted, sim.straight(0.7, 0.2), seed=1), sim.rig_config(rig)
+    )
+    w = (b.t > 1.05) & (b.t < 2.5)
+    flagged = float(np.mean(~b.consistent[w] | (b.state[w] != 0).any(axis=1)))
+    notes = blind_spots(model, [(m.name, m.x, m.y) for m in mice])
+    hides = any("lifted mouse reads as a pivot" in n for n in notes)
+    assert hides == (not seen)
+    assert flagged > 0.9 if seen else flagged < 0.1, flagged

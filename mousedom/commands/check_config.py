@@ -10,6 +10,7 @@ import sys
 from mousedom.commands import _options as options
 from mousedom.config import ConfigError, MouseConfig, load_config
 from mousedom.errors import UserError
+from mousedom.observability import blind_spots
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -106,6 +107,10 @@ def run(args: argparse.Namespace) -> int:
             else "off (robust: false)"
         )
     )
+    if r.enabled:  # what the layout hides from the fault test (mousedom.observability)
+        mounts = [(m.name, m.mount.x, m.mount.y) for m in cfg.mice]
+        for note in blind_spots(cfg.model, mounts, r.relative_noise, r.false_alarm):
+            print(f"  note: {note}")
     if cfg.ros2 is not None:
         from mousedom.service.ros2conv import topic
 
