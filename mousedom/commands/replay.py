@@ -400,52 +400,38 @@ def health_lines(s: Summary, cpi: dict[str, tuple[float, float]]) -> list[str]:
 
 def scale_warnings(s: Summary, cpi: dict[str, tuple[float, float]]) -> list[str]:
     """A warning for each mouse whose learnt scale at the end is SCALE_WARNING or more off
-    the rig's (what the batches show; the engine flags it too).  Measured per axis against
-    the median of all the mice's scales: only the scales relative to each other are
-    observable, a learner may spread one mouse's error over all of them, and with three
-    or more mice the median is one of the mice that agree."""
-    learnt = [(m.name, m.scale) for m in s.mice if m.scale is not None]
+    the rig's (what the batches show; the engine flags it too), on the axis that read most
+    of its motion (the other, for a mouse facing forward the one that reads the turn, is
+    learnt less well while another mouse is far off: fusion/scalelearn.py).  Measured
+    against the median of all the mice's scales on that axis: only the scales relative to
+    each other are observable, and with three or more mice the median is one of the mice
+    that agree."""
+    learnt = [m for m in s.mice if m.scale is not None]
     if not learnt:
         return []
-    ref = np.median([k for _, k in learnt], axis=0)
+    ref = np.median([m.scale for m in learnt], axis=0)
     out = []
-    for name, k in learnt:
-        if name in cpi:
-            w = scale_warning(name, (k[0] / float(ref[0]), k[1] / float(ref[1])), cpi[name])
-            if w:
-                out.append(w)
+    for m in learnt:
+        if m.name not in cpi or m.scale is None:
+            continue
+        axis = 0 if m.stats.path_x >= m.stats.path_y else 1
+        w = scale_warning(m.name, "xy"[axis], m.scale[axis] / float(ref[axis]), cpi[m.name][axis])
+        if w:
+            out.append(w)
     return out
 
 
-def scale_warning(name: str, scale: tuple[float, float], cpi: tuple[float, float]) -> str | None:
-    """The warning for a mouse whose scale relative to the others (the factor its counts
-    are multiplied by, per axis, over the others') is SCALE_WARNING or more off, else None.
-    A relative scale k means the mouse gives 1/k times the counts per metre that the others
-    imply: its CPI is about cpi / k."""
-    off = [(axis, k, c) for axis, k, c in zip("xy", scale, cpi, strict=True)
-           if abs(k - 1.0) >= SCALE_WARNING - 1e-9]  # fmt: skip
-    if not off:
+def scale_warning(name: str, axis: str, k: float, cpi: float) -> str | None:
+    """The warning for a mouse whose scale on ``axis`` relative to the others' (the factor
+    its counts are to be multiplied by to agree with them) is SCALE_WARNING or more off,
+    else None.  A relative scale k means the mouse gives 1/k times the counts per metre
+    that the others imply: its CPI is about cpi / k."""
+    if abs(k - 1.0) < SCALE_WARNING - 1e-9:  # (0.9 - 1 is -0.0999...)
         return None
-
-    def reads(k: float) -> str:
-        return f"{100 * abs(1 / k - 1):.0f} % {'more' if k < 1 else 'less'}"
-
-    def per_axis(texts: list[str]) -> str:
-        return " and ".join(f"{t} along {axis}" for t, (axis, _, _) in zip(texts, off, strict=True))
-
-    configured = {c for _, _, c in off}
-    there = f"{off[0][2]:g}" if len(configured) == 1 else per_axis([f"{c:g}" for *_, c in off])
-    if len({reads(k) for _, k, _ in off}) == 1 and len(configured) == 1:
-        # one wrong CPI, seen alike on both axes (or on one)
-        how = f"{reads(off[0][1])} than the other mice (along "
-        how += " and ".join(axis for axis, _, _ in off) + ")"
-        meant = str(round(off[0][2] / (sum(k for _, k, _ in off) / len(off))))
-    else:
-        how = per_axis([reads(k) for _, k, _ in off]) + " than the other mice"
-        meant = per_axis([str(round(c / k)) for _, k, c in off])
     return (
-        f"mouse {name} reads {how}: check its CPI in the config: {there} there, the others "
-        f"say about {meant} (or further, if the learnt scale sits at its limit)"
+        f"mouse {name} reads {100 * abs(1 / k - 1):.0f} % {'more' if k < 1 else 'less'} than "
+        f"the other mice (its {axis} axis): check its CPI in the config: {cpi:g} there, the "
+        f"others say about {cpi / k:.0f}"
     )
 
 
