@@ -22,6 +22,7 @@ from mousedom.capture.replay import CsvSink, Replay, Summary
 from mousedom.commands import _options as options
 from mousedom.config import INTEGRATORS, MODELS, load_config
 from mousedom.errors import UserError
+from mousedom.fusion.scalelearn import WARN
 from mousedom.safewrite import open_stream, same_file
 
 
@@ -374,8 +375,9 @@ def _cpis(cfg) -> dict[str, tuple[float, float]]:
     return {m.name: (m.cpi_x, m.cpi_y) for m in cfg.mice}
 
 
-# A learnt scale this far from 1 is a wrong CPI, not a floor: the summary says so.
-SCALE_WARNING = 0.10
+# A learnt scale this far from 1 is a wrong CPI, not a floor: the summary says so (the
+# learner's own threshold).
+SCALE_WARNING = WARN
 
 
 def _share(k: int, windows: int) -> str:
