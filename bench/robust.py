@@ -48,8 +48,8 @@ the number of runs.
           (expected 5 %).
 
 A full default run takes about four minutes on one core of a small machine (pairs two of them;
-each section prints how long it took); ``--seeds 2 --duration 20`` checks every section in
-half a minute.
+each section prints how long it took); ``--seeds 2 --duration 20 --pair-seeds 1`` checks every
+section in about a minute.
 """
 
 from __future__ import annotations
