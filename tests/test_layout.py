@@ -38,6 +38,7 @@ LAYERS = [
         "safewrite",
         "saferead",
         "plausible",
+        "observability",
         "invocation",
         "allocator",
         "__init__",
