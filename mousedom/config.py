@@ -94,10 +94,10 @@ class RobustConfig:
     false_alarm: float = 1e-4  # chance per window that a healthy rig fails the test
     relative_noise: float = 0.05  # reading error in proportion to motion (CPI, stamps)
     readmit_s: float = 0.25  # consistent motion an excluded mouse needs to be used again
-    # each mouse's scale per axis relative to the others is learnt online from the
-    # redundancy of three or more mice and reported (fusion.scalelearn); applied within
-    # +-scale_limit only where learn_scale is true (off by default: not yet exact enough)
-    learn_scale: bool = False
+    # each mouse's scale relative to the others is learnt online from the redundancy of
+    # three or more mice and reported (fusion.scalelearn); applied within +-scale_limit
+    # where learn_scale is true
+    learn_scale: bool = True
     scale_limit: float = 0.10
 
 
@@ -385,7 +385,7 @@ def _robust(r: Reader) -> RobustConfig:
         false_alarm=s.number("false_alarm", 1e-4, within=(1e-12, 0.5)),
         relative_noise=s.number("relative_noise", 0.05, within=(0.0, 1.0)),
         readmit_s=s.number("readmit_s", 0.25, within=(0.0, 3600.0)),
-        learn_scale=s.boolean("learn_scale", False),
+        learn_scale=s.boolean("learn_scale", True),
         scale_limit=s.number("scale_limit", 0.10, within=(0.0, 0.5)),
     )
     s.finish()

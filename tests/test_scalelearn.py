@@ -89,13 +89,57 @@ def test_two_mice_learn_nothing_and_off_means_not_applied():
     base, result = _drive(1, layout="pair")
     _, tracker = scenarios.run(result, scenarios.config(base))
     assert tracker.scales is None
-    # with three mice the estimate is made but, by default, not applied
-    base, result = _drive(1, 1.2)
+    # with three mice the scales are learnt and, by default, applied where plain
+    base, result = _drive(1, 1.05)
     cfg = scenarios.config(base)
-    assert cfg.robust.learn_scale is False
+    assert cfg.robust.learn_scale is True
     _, tracker = scenarios.run(result, cfg)
-    assert np.array_equal(tracker._to_body, tracker.scales.base)
-    applied = dataclasses.replace(cfg, robust=dataclasses.replace(cfg.robust, learn_scale=True))
-    _, tracker = scenarios.run(result, applied)
     assert np.allclose(tracker._to_body, tracker.scales.matrices())
-    assert tracker.scales.scale[0, 1] == pytest.approx(1.0 - cfg.robust.scale_limit)
+    assert tracker.scales.scale[0, 1] == pytest.approx(1 / 1.05, abs=0.002)
+    off = dataclasses.replace(cfg, robust=dataclasses.replace(cfg.robust, learn_scale=False))
+    _, tracker = scenarios.run(result, off)
+    assert np.array_equal(tracker._to_body, tracker.scales.base)
+    assert tracker.scales.estimate[0, 1] == pytest.approx(1 / 1.05, abs=0.002)
+
+
+@pytest.mark.parametrize(
+    "layout, factor, bound",
+    [("triangle", 1.03, True), ("pentagon", 0.98, True), ("square", 1.03, False),
+     ("kite", 0.98, False)],
+)  # fmt: skip
+def test_a_cpi_a_few_per_cent_off_is_corrected(layout, factor, bound):
+    """Issue 31, item 3: a one-mouse CPI error of 2-3 % over a minute's drive.  Every drive
+    ends better with the learnt scales than without, the median at least five times
+    better; where ``bound``, the median within twice (+20 mm) the drive told the true CPI.
+    Not yet on the square and the kite: there the heading lost in the first second, before
+    the scale is learnt, is already more than that (docs/calibration.md)."""
+    learnt, told, plain = [], [], []
+    for seed in (31, 32, 33):
+        base = scenarios.rig(layout)
+        wrong = dataclasses.replace(base.mice[0], cpi_x=base.mice[0].cpi_x * factor,
+                                    cpi_y=base.mice[0].cpi_y * factor)  # fmt: skip
+        true_rig = dataclasses.replace(base, mice=(wrong, *base.mice[1:]))
+        result = sim.simulate(true_rig, scenarios.drive(60.0, seed), seed=seed)
+        cfg = scenarios.config(base)
+        off = dataclasses.replace(cfg, robust=dataclasses.replace(cfg.robust, learn_scale=False))
+        for out, c in ((learnt, cfg), (told, scenarios.config(true_rig)), (plain, off)):
+            out.append(scenarios.end_error(result, scenarios.run(result, c)[1])[0])
+    assert all(a < b for a, b in zip(learnt, plain, strict=True)), (learnt, plain)
+    assert np.median(learnt) * 5 < np.median(plain), (learnt, plain)
+    if bound:
+        assert np.median(learnt) <= 2 * np.median(told) + 0.020, (learnt, told)
+
+
+@pytest.mark.parametrize("layout", ["triangle", "square", "wide"])
+def test_healthy_drives_end_as_without_the_scales(layout):
+    """Applied only where plain: on a healthy rig the scales change the end by less than
+    a tenth of the drive's own error (+1 mm)."""
+    for seed in (21, 22):
+        base, result = _drive(seed, layout=layout)
+        cfg = scenarios.config(base)
+        _, learnt = scenarios.run(result, cfg)
+        off = dataclasses.replace(cfg, robust=dataclasses.replace(cfg.robust, learn_scale=False))
+        _, plain = scenarios.run(result, off)
+        e_learnt = scenarios.end_error(result, learnt)[0]
+        e_plain = scenarios.end_error(result, plain)[0]
+        assert e_learnt <= 1.1 * e_plain + 0.001, (seed, e_learnt, e_plain)

@@ -1,44 +1,41 @@
 """Online scale calibration from the redundancy of three or more mice (issue 31, item 3).
 
-A CPI a few per cent off hides inside each window's noise but is plain over many: with
-three or more mice, each mouse's reading can be predicted from the others alone (leave it
-out, solve, predict it), and in every window where the rig moves, the ratio of the
-prediction to its reading along each of its count axes is its scale error there.  Per
-mouse i and axis a (REL_X, REL_Y), with x the raw counts and y the counts the others
-predict (both at the configured CPI), each summed over a tenth of a second (X, Y: a count
-read a few ms late moves between windows, not out of their sum, so the timing noise that
-would bias a fit towards 0 cancels), the scale g = sum(X Y) / sum(X^2) is the least
-squares fit of Y = g X over the sums where |Y| is well above the counts' noise, and
-sigma_g^2 = s^2 / sum(X^2) its variance, s^2 the fit's residual variance: the estimate
-moves as fast as the evidence allows (a metre of motion
-at 1000 CPI is tens of thousands of counts: a few per cent is plain within it) and no
-faster.  The sums forget with a half-life of ``HALF_LIFE_S`` of moving windows, so that a
-mouse whose scale changes (a new floor) is followed.
+A CPI a few per cent off hides inside each window's noise but is plain over many.  Stack
+every mouse's body displacement as its config reads it, d_i = M_i c_i (M_i: counts to
+body, c_i: its counts), and give each mouse a scale g_i: J g = (g_1 d_1, ..., g_N d_N).
+A rigid rig's readings are A q for some twist q; P = I - A (A' W A)^-1 A' W keeps what no
+twist explains (W: the config's sigmas).  With the true scales, P J g is only noise; so
+the scales minimise g' S g, S = sum over the evidence of (P J)' W (P J), an N x N matrix
+summed as windows close (forgetting with a half-life of ``HALF_LIFE_S``, so that a mouse
+whose scale changes, on a new floor, is followed).  The evidence: groups of GROUP_S of
+consecutive windows in which every mouse tracked, counts summed (a count read a few ms late
+moves between neighbouring windows, not out of their sum, so timing noise cancels, where
+it would bias a fit per window towards 0).
 
-Where the config says so (``robust.learn_scale``, off by default: see below) the learnt
-scale is applied, clipped to 1 +- ``limit``, by multiplying the mouse's counts (its
-counts-to-body matrix) from the next block of windows on.  Either way the estimate is
-reported (PoseBatch.scale, the replay summary and CSV) and a mouse 10 % or more off is
-warned of (``warnings``).
+S has one null direction: all mice scaled together change no prediction (the common mode
+is not observable: docs/calibration.md).  So g is the solution of (S + mu) g = mu 1, mu a
+millionth of S's diagonal (the data decide everything but the common mode, which stays
+near 1), divided by its median mouse (with one mouse wrong, a right one).  Its spread:
+the residual g' S g per degree of freedom through the inverse of S off the null
+direction.  One scale per mouse, both axes: a CPI is wrong for a sensor as a whole, and
+per axis the sideways one (which reads the turn) is too weakly observable to trust.
 
-Not yet good enough to apply by default (issue 31, measured on the triangle rig with one
-mouse 3 % off): the forward axes come out right to 0.1 %, but the sideways axes, which
-read the turn, come out biased by about 0.5 % (each mouse is predicted from the others,
-which are themselves being corrected), and at a hundred radians of turning in a minute
-that is degrees of heading: worse than not correcting at all.  A joint fit of all the
-scales with the motion is the way on.  The other mice's predictions are made with their
-current scales, and the common mode of each axis is pinned by its median mouse.
+The learnt scale is applied where plain (more than ``_PLAIN`` of its standard deviations
+and ``_MIN_APPLIED`` from 1, after ``_MIN_GROUPS`` groups of evidence (the first second's estimate
+is no better than its start), as noise applied to a
+mouse that reads the turn is heading lost for good, and on healthy rigs the estimates sit
+within a tenth of a per cent of 1, timing and rounding), clipped to
+1 +- ``limit``, by multiplying the mouse's counts (its counts-to-body matrix) from the next
+block of windows on: a mouse 3 % off is corrected within the first seconds of motion.
+``robust.learn_scale: false`` leaves the counts as they are; the estimate is reported
+either way (PoseBatch.scale, the replay summary and CSV), and a mouse 10 % or more off is
+warned of (``warnings``): a CPI typo, or the wrong mouse's CPI.
 
-What is observable is each mouse's scale relative to the others:
-all mice wrong together (a common-mode error) changes no prediction and is not seen
-(docs/calibration.md).
-
-Evidence comes in blocks of windows (``block``, a second's worth): the rows of a block are
-kept and the block is evaluated at once with numpy, the same operations for the daemon's
-one window at a time and replay's arrays (the same scales, to the rounding in which the
-screen's float path and its arrays differ).  Only
-windows the fault screen found consistent, with the mouse tracking (used, not suspect),
-at least two others used and the mouse moving well beyond its noise floor, count.
+Evidence comes in blocks of windows (``block``, BLOCK_S): the rows of a block are
+kept and evaluated at once with numpy, the same operations for the daemon's one window at a
+time and replay's arrays (the same scales, to the rounding in which the screen's float
+path and its arrays differ).  Only windows the fault screen found consistent, with every
+mouse tracking (used, not suspect), count.
 """
 
 from __future__ import annotations
@@ -47,16 +44,21 @@ import math
 
 import numpy as np
 
-from mousedom.fusion import models
-
 GROUP_S = 0.1  # windows are summed over this long before they are compared
+BLOCK_S = 0.5  # the scales are renewed this often
 HALF_LIFE_S = 120.0  # seconds of evidence after which old sums count half
 WARN = 0.10  # a scale this far from 1 (beyond its uncertainty) is a clear CPI mistake
-_MIN_COUNTS = 8.0  # a prediction under this many counts (per window and axis) says little
+_PLAIN = 3.0  # a scale this many standard deviations from 1 is applied (learn_scale)...
+_MIN_APPLIED = 0.005  # ... and this far: below, the estimate's own bias (timing, rounding)
+_MIN_GROUPS = 10  # ... after this many groups of evidence (a second of motion), not before
+_MIN_COUNTS = 40.0  # counts a mouse must read in a group for it to be evidence
+_RIDGE = 1e-6  # S + mu, mu this times S's diagonal: what the evidence leaves free stays near 1
+_MIN_EVIDENCE = 1e-3  # a mouse seen this little (S's diagonal against the most seen): not estimated
 
 
 class ScaleLearner:
-    """Each mouse's scale per count axis, learnt from the others (module docstring)."""
+    """Each mouse's scale, learnt from the others (module docstring); kept per count axis
+    (both the same) for the reports, which have a column per axis."""
 
     def __init__(
         self,
@@ -70,15 +72,27 @@ class ScaleLearner:
         self.model = model
         self.n = len(positions)
         self.base = np.asarray(to_body, dtype=float)  # (N, 2, 2) counts -> body, as configured
-        self.inverse = np.linalg.inv(self.base) if self.n else self.base
         self.positions = np.asarray(positions, dtype=float)
         self.sigma = np.asarray(sigma, dtype=float)
         self.limit = float(limit)
-        self.block = max(20, math.ceil(1.0 / window - 1e-9))
+        self.block = max(10, math.ceil(BLOCK_S / window - 1e-9))
         self.forget = 0.5 ** (self.block * window / HALF_LIFE_S)
         self.group = max(1, round(GROUP_S / window))  # windows summed into one reading
-        # per mouse and axis, forgetting: sum X^2, sum X Y, sum Y^2, groups of evidence
-        self.sums = np.zeros((4, self.n, 2))
+        self.cols = (0, 2) if model == "diff-drive" else (0, 1, 2)
+        # P = I - A (A' W A)^-1 A' W: what of the stacked displacements (2N,) no motion of
+        # the rig explains, W the config's sigmas (all mice in use)
+        n2 = 2 * self.n
+        a = np.zeros((n2, 3))
+        a[0::2, 0] = 1.0
+        a[1::2, 1] = 1.0
+        a[0::2, 2] = -self.positions[:, 1]
+        a[1::2, 2] = self.positions[:, 0]
+        a = a[:, list(self.cols)]
+        self.weight = np.repeat(1.0 / np.asarray(sigma, dtype=float) ** 2, 2)
+        aw = a.T * self.weight
+        self.project = np.eye(n2) - a @ np.linalg.solve(aw @ a, aw) if self.n >= 2 else np.eye(n2)
+        self.gram = np.zeros((self.n, self.n))  # S, forgetting
+        self.groups = 0.0  # groups of evidence in S, forgetting
         self.estimate = np.ones((self.n, 2))  # the fit, unclipped
         self.spread = np.full((self.n, 2), np.inf)  # its standard deviation
         self.scale = np.ones((self.n, 2))  # applied: the fit clipped to 1 +- limit
@@ -115,56 +129,67 @@ class ScaleLearner:
         return self._learn(counts, usable)
 
     def _learn(self, counts: np.ndarray, usable: np.ndarray) -> bool:
-        # each mouse's body displacement with the scales of this block applied
-        d = np.einsum("nij,knj->kni", self.matrices(), counts)
-        x = counts
-        y = np.zeros_like(counts)
-        ok = np.zeros(usable.shape, dtype=bool)
-        for i in range(self.n):
-            others = usable.copy()
-            others[:, i] = False
-            rows = usable[:, i] & (others.sum(axis=1) >= 2)
-            if not rows.any():
-                continue
-            sol = models.solve(self.model, d[rows], self.positions, self.sigma, others[rows])
-            q = np.where(sol.ok[:, None], sol.q, np.nan)
-            px = q[:, 0] - q[:, 2] * self.positions[i, 1]
-            py = q[:, 1] + q[:, 2] * self.positions[i, 0]
-            pred = np.stack([px, py], axis=1) @ self.inverse[i].T  # counts as configured
-            y[rows, i] = pred
-            ok[rows, i] = sol.ok
-        # Sums over groups of consecutive windows (GROUP_S): a count read a few ms late
-        # moves between neighbouring windows, not out of their sum, so the readings'
-        # timing noise (which would bias a fit towards 0) mostly cancels.
-        n_rows = len(x)
+        # Groups of consecutive windows (GROUP_S) in which every mouse tracked: their
+        # counts summed (a count read a few ms late moves between neighbouring windows,
+        # not out of their sum, so the readings' timing noise mostly cancels).
+        n_rows, n = len(counts), self.n
         group = np.arange(n_rows) // self.group
         n_groups = int(group[-1]) + 1
-        gx = np.zeros((n_groups, self.n, 2))
-        gy = np.zeros((n_groups, self.n, 2))
-        take = ok[:, :, None] & np.isfinite(y)
-        np.add.at(gx, group, np.where(take, x, 0.0))
-        np.add.at(gy, group, np.where(take, y, 0.0))
-        big = np.abs(gy) >= _MIN_COUNTS * self.group
-        gx, gy = np.where(big, gx, 0.0), np.where(big, gy, 0.0)
-        sums = self.sums
-        sums *= self.forget
-        sums[0] += np.sum(gx * gx, axis=0)
-        sums[1] += np.sum(gx * gy, axis=0)
-        sums[2] += np.sum(gy * gy, axis=0)
-        sums[3] += np.sum(big, axis=0)
-        xx, xy, yy, count = sums
-        known = (count >= 10) & (xx > 0)
+        whole = np.ones(n_groups, dtype=bool)
+        np.logical_and.at(whole, group, usable.all(axis=1))
+        c = np.zeros((n_groups, n, 2))
+        np.add.at(c, group, counts)
+        # and in which every mouse moved well beyond its counts' rounding: slow groups
+        # would bias the fit towards the mice with less noise
+        moved = np.all(np.abs(c).sum(axis=2) >= _MIN_COUNTS, axis=1)
+        c = c[whole & moved]
+        # J g: every mouse's body displacement as configured (M_i c_i, mouse i's two rows
+        # of column i) times its scale g_i.  The part no rigid motion of the rig explains
+        # is P J g; its weighted square summed over the groups is g' S g.
+        body = np.einsum("nij,gnj->gni", self.base, c)
+        j = np.zeros((len(c), 2 * n, n))
+        for i in range(n):
+            j[:, 2 * i : 2 * i + 2, i] = body[:, i]
+        pj = np.einsum("rs,gst->grt", self.project, j)
+        self.gram *= self.forget
+        self.gram += np.einsum("grt,r,grs->ts", pj, self.weight, pj)
+        self.groups = self.groups * self.forget + len(c)
+        return self._solve()
+
+    def _solve(self) -> bool:
+        """The scales from the accumulated S (module docstring): the ones that leave the
+        least unexplained motion, drawn to 1 only where the evidence is silent, the common
+        mode pinned by the median mouse."""
+        s = self.gram
+        evidence = np.diag(s).copy()
+        if self.groups < _MIN_GROUPS or not np.all(np.isfinite(s)) or evidence.max() <= 0:
+            return False
+        mu = _RIDGE * np.maximum(evidence, 1e-12 * evidence.max())
+        g = np.linalg.solve(s + np.diag(mu), mu)
+        if not np.all(np.isfinite(g)) or np.median(g) <= 0:
+            return False
+        g = g / np.median(g)
+        # the spread: the fit's residual per degree of freedom, through the inverse of S
+        # off its null direction (the common mode)
+        dof = max(1.0, self.groups * (2 * self.n - len(self.cols)) - (self.n - 1))
+        r2 = float(g @ s @ g) / dof
+        w, v = np.linalg.eigh(s)  # ascending: the first is the common mode's (near 0)
         with np.errstate(divide="ignore", invalid="ignore"):
-            g = np.where(known, xy / xx, 1.0)
-            # the fit's residual variance per group, and the estimate's variance from it
-            ss = np.maximum(yy - g * xy, 0.0)
-            spread = np.where(known, np.sqrt(ss / np.maximum(count - 1.0, 1.0) / xx), np.inf)
-        # Only scales relative to the others are observable: the common mode of each axis
-        # is pinned by its median mouse (with one mouse wrong, a right one).
-        g = g / np.median(g, axis=0, keepdims=True)
-        self.estimate, self.spread = g, spread
-        new = np.clip(g, 1.0 - self.limit, 1.0 + self.limit)
-        self.scale = np.where(known, new, 1.0)
+            inv = (v[:, 1:] / w[1:]) @ v[:, 1:].T
+            spread = np.sqrt(np.maximum(np.diag(inv), 0.0) * r2)
+        spread = np.where(np.isfinite(spread), spread, np.inf)  # another null direction
+        known = evidence >= _MIN_EVIDENCE * evidence.max()
+        g = np.where(known, g, 1.0)
+        self.estimate = np.repeat(g[:, None], 2, axis=1)
+        self.spread = np.repeat(np.where(known, spread, np.inf)[:, None], 2, axis=1)
+        # applied where plain: a scale within 3 of its standard deviations of 1 is noise,
+        # and noise applied to a mouse that reads the turn is heading lost for good
+        off = np.abs(self.estimate - 1.0)
+        plain = (off > _PLAIN * self.spread) & (off > _MIN_APPLIED)
+        plain &= self.groups >= _MIN_GROUPS
+        self.scale = np.where(
+            plain, np.clip(self.estimate, 1.0 - self.limit, 1.0 + self.limit), 1.0
+        )
         self.version += 1
         return True
 
@@ -173,17 +198,11 @@ class ScaleLearner:
         standard deviations: a CPI typo, or the wrong mouse's CPI."""
         out = []
         for i, name in enumerate(names):
-            # on the axis with the most evidence (for a mouse facing forward, REL_Y: the
-            # sideways one reads the turn, and is not yet found well when another mouse is
-            # far off, see the module docstring)
-            a = int(np.argmax(self.sums[0, i]))
-            axis = "xy"[a]
-            g, s = float(self.estimate[i, a]), float(self.spread[i, a])
+            g, s = float(self.estimate[i, 0]), float(self.spread[i, 0])
             if abs(g - 1.0) >= WARN and abs(g - 1.0) > 3.0 * s:
                 word = "less" if g > 1.0 else "more"  # it needs g times its counts
                 out.append(
                     f"mouse {name} reads {abs(1.0 / g - 1.0) * 100:.0f} % {word} than "
-                    f"the others on its {axis} axis: check its cpi (learnt scale "
-                    f"{g:.3f} +- {s:.3f})"
+                    f"the others: check its cpi (learnt scale {g:.3f} +- {s:.3f})"
                 )
         return out
