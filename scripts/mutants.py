@@ -94,6 +94,22 @@ MUTANTS = [
         "the noise factors fit the median only: a late mouse's heavy tail is shut out",
     ),
     Mutant(
+        "no-reexamination-of-earlier-blame",
+        "mousedom/fusion/robust.py",
+        "            swap = None if blamed is not None else self._reexamine(d, live, used, gate, scale)",
+        "            swap = None",
+        ("tests/test_robust_pairs.py",),
+        "a healthy mouse blamed where the geometry could not tell stays out for good",
+    ),
+    Mutant(
+        "continuity-judged-from-the-bent-previous-window",
+        "mousedom/fusion/robust.py",
+        "                    before = self.predict(q_then)",
+        "                    pass",
+        ("tests/test_robust_pairs.py",),
+        "the tie break's continuity from the previous window, which a creeping fault bent",
+    ),
+    Mutant(
         "sorted-shortcut-forgets-last-push",
         "mousedom/fusion/countfunction.py",
         "        prev = np.concatenate([[self.knot_t], t[:-1]])  # each report's previous stamp\n",

@@ -21,6 +21,10 @@ together with the others.  Per window (docs/models.md, "Faults"):
    silent while the others say it moved is the one (``_tie_break``); otherwise nobody is
    blamed: the window keeps all mice, its covariance is multiplied by T / dof, and the mice
    become ``suspect``.
+3b. Where the kept mice fail, none of them can be blamed and some are held out from
+   earlier windows, the choice is revisited: if an explanation among all the live mice
+   excludes no more of them, it is taken, and the mice it brings back are suspect until they
+   agree for ``readmit_s``.
 4. An excluded mouse is re-admitted after ``readmit_s`` of windows in which it agreed with
    the others while they moved enough to have shown the fault; one its own sensor's
    evidence excluded, after a fifth of that once the evidence is gone and it agrees.
@@ -38,6 +42,7 @@ windows where something happens take ``decide``, the one exact path both share.
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -52,8 +57,10 @@ NONE, INCONSISTENT, SILENT, SATURATED, LOW_QUALITY = 0, 1, 2, 3, 4
 REASONS = ("", "inconsistent", "silent while others move", "saturated", "low quality")
 
 # How much smoother than the next one the winning explanation's motion must be (tie_break).
-_CONTINUITY_MARGIN = 10.0
+_CONTINUITY_MARGIN = 3.0
 _FIT_MARGIN = chi2.quantile(0.999, 1)
+# How far back the continuity of motion is judged from (_tie_break).
+HISTORY_S = 0.05
 
 
 @dataclass
@@ -108,6 +115,10 @@ class Screen:
         self._max2 = self.max_step2.tolist()
         self._prev = [[0.0, 0.0] for _ in range(self.n)]  # the previous window's predictions
         self._leverage_lists: dict[tuple[bool, ...], list[float]] = {}
+        # The readings of the last windows (each (N, 2), or flattened floats): the tie
+        # break's continuity looks this far back, past windows a creeping fault may
+        # already have bent (_tie_break).
+        self.history: deque = deque(maxlen=max(2, round(HISTORY_S / window)))
 
     # ----------------------------------------------------------------- basics
 
@@ -210,6 +221,7 @@ class Screen:
                 if m2 > sig2[i]:
                     nm.sample(i, r2, floor, prop, h[i])
         self._prev = [[ux - a * y, uy + a * x] for x, y in self._xy]
+        self.history.append(d)
         self._count_window()
         return True
 
@@ -308,7 +320,17 @@ class Screen:
         stat = self._statistic(d, used, s2)
         if stat is not None and stat[1] > 0 and not self._passes(stat):
             blamed = self._identify(d, used, s2)
-            if blamed is not None:
+            swap = None if blamed is not None else self._reexamine(d, live, used, gate, scale)
+            if swap is not None:
+                # the kept set is wrong, the mice held out are not all: fewer exclusions
+                # explain the window with them back (they come back suspect, see _update)
+                used = (used | (live & (gate == 0))).copy()
+                for j in swap:
+                    reason[j] = SILENT if self._silent(d, j) else INCONSISTENT
+                used[list(swap)] = False
+                q = self._solve(d, used)
+                p = self.predict(q)
+            elif blamed is not None:
                 for j in blamed:
                     reason[j] = SILENT if self._silent(d, j) else INCONSISTENT
                 used = used.copy()
@@ -330,8 +352,32 @@ class Screen:
             for i in np.flatnonzero(used & moving & ~suspect).tolist():
                 self.noise.sample(i, float(r2[i]), float(floor[i]), float(prop[i]), float(h[i]))
         self._set_prev(p)
+        self.history.append(d)
         self._count_window()
         return Decision(used=used, inflate=inflate, consistent=consistent)
+
+    def _reexamine(self, d, live, used, gate, scale) -> list[int] | None:
+        """Revisit earlier exclusions when the kept set fails and nobody in it can be
+        blamed (module step 3b): among all live mice the sensor did not gate, the
+        explanation of this window, if it excludes no more mice than are held out (the
+        current choice fails; one that explains the window is better).  A
+        healthy mouse blamed in a window the geometry could not tell (the diagonal pair
+        of a square in a pivot) is then not locked out while the faulty one stays in.
+        (Where the kept set can blame one of its own, that is taken: swapping mice back
+        in on every jump of another lets a mouse that reads short in with it.)"""
+        held_out = live & ~used & (gate == 0)
+        if not held_out.any():
+            return None
+        every = used | held_out
+        q = self._solve(d, every)
+        if q is None:
+            return None
+        floor, prop = self.noise.parts(d, self.predict(q), self.prev_p)
+        s2 = floor * scale + prop
+        swap = self._identify(d, every, s2)
+        if swap is None or len(swap) > int(held_out.sum()):
+            return None
+        return list(swap)
 
     def _identify(self, d: np.ndarray, used: np.ndarray, s2: np.ndarray):
         """The mice whose exclusion alone restores consistency, or None (module step 3)."""
@@ -353,31 +399,45 @@ class Screen:
             if len(passing) == 1:
                 return passing[0][0]
             if len(passing) > 1:
-                return self._tie_break(d, passing, s2)
+                return self._tie_break(d, passing, s2, used)
             if tested == 0:
                 return None
         return None
 
-    def _tie_break(self, d: np.ndarray, passing: list, s2: np.ndarray):
+    def _tie_break(self, d: np.ndarray, passing: list, s2: np.ndarray, used: np.ndarray):
         """Several exclusions explain the window (the geometry cannot tell the fault's
         direction apart): evidence and physical priors decide, or nobody is blamed.  First
         the fit: an explanation that leaves far less residual than every other (by the
         0.999 quantile of chi-square with one degree, a likelihood ratio over 200) wins.
         Then continuity of motion: a robot does not change its motion by a multiple of its
         tolerance from one window to the next, a glitching sensor does, so an explanation
-        whose motion is by far the closest to the previous window's wins.  Then a mouse
-        that is silent while the rest say it moved (a lift)."""
+        whose motion is by far the closest to the motion its own mice read HISTORY_S
+        earlier wins (not the previous window's solution: a fault that crept in below the
+        test's tolerance has already bent that towards itself).  Then a mouse that is
+        silent while the rest say it moved (a lift)."""
         fits = sorted(passing, key=lambda c: c[1][0])
         if fits[1][1][0] - fits[0][1][0] > _FIT_MARGIN:
             return fits[0][0]
         thr2 = self._thresholds[2]
         silent = []
         change = []
+        then = self._then()
         for combo, stat in passing:
             p = self.predict(stat[2])
             if all(self._silent(d, j) and p[j] @ p[j] > thr2 * s2[j] for j in combo):
                 silent.append(combo)
-            change.append((float(np.sum(np.sum((p - self.prev_p) ** 2, axis=1) / s2)), combo))
+            before = self.prev_p
+            if then is not None:
+                # the same mice's motion a few windows back: a fault that crept in below
+                # the test's tolerance has bent the previous window's solution towards
+                # itself, not these mice's own readings of then
+                kept = used.copy()
+                kept[list(combo)] = False
+                kept &= np.abs(then).sum(axis=1) > 0
+                q_then = self._solve(then, kept)  # None without rank
+                if q_then is not None:
+                    before = self.predict(q_then)
+            change.append((float(np.sum(np.sum((p - before) ** 2, axis=1) / s2)), combo))
         change.sort(key=lambda c: c[0])
         # the other explanation must need a change of motion beyond the tolerance itself:
         # at a standstill every explanation's change is noise, and ratios of noise decide
@@ -386,6 +446,14 @@ class Screen:
                 and change[1][0] > self._thresholds[2 * self.n]):  # fmt: skip
             return change[0][1]
         return silent[0] if len(silent) == 1 else None
+
+    def _then(self) -> np.ndarray | None:
+        """The readings of the oldest window kept (HISTORY_S back), (N, 2); None before
+        there are as many."""
+        h = self.history
+        if len(h) < h.maxlen:
+            return None
+        return np.asarray(h[0], dtype=float).reshape(self.n, 2)
 
     def _update(self, d, p, live, used, suspect, reason, consistent, floor, prop) -> None:
         """Health after the window: exclusions, suspicion, re-admission (module step 4)."""

@@ -84,6 +84,7 @@ def screen(
                     values = samples if sc.dof(int(mask[i].sum())) > 0 else None
                     stop = sc.noise.extend_blocks(values, i - base, stop - base) + base
                     sc._set_prev(p[stop - 1])
+                    sc.history.extend(d[max(i, stop - sc.history.maxlen) : stop])
                     i = stop
                     continue
         sq = None if squal_scale is None else squal_scale[i]
