@@ -8,8 +8,10 @@
             print(pose.x, pose.y, pose.theta, pose.updating)
 
 Other messages (SOURCE, STATUS) are kept as they pass: ``c.sources`` holds the latest
-SOURCE per sensor.  Commands wait for their OK (or raise ``CommandError`` on ERROR); poses
-that arrive meanwhile are kept for the iterator, none is lost.
+SOURCE per sensor, as the dict the daemon sent (docs/protocol.md: its health, and since
+protocol 1.2 its learnt ``scale``, ``scale_spread``, ``scale_applied``, ``scale_warning``).
+Commands wait for their OK (or raise ``CommandError`` on ERROR); poses that arrive meanwhile
+are kept for the iterator, none is lost.
 
 Errors: ``DaemonNotRunning`` (no daemon at the socket) and ``NotADaemon`` (something else
 there) are ``ConnectionError``s, so ``except OSError`` catches them; ``CommandError`` is a

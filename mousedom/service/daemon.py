@@ -35,6 +35,7 @@ from mousedom.service.control import ClientCommands
 from mousedom.service.factory import make_source
 from mousedom.service.publish import Publisher
 from mousedom.service.reload import Reloader
+from mousedom.service.scales import ScaleLog
 from mousedom.service.sdnotify import Notifier, watchdog_interval
 from mousedom.service.server import Server
 from mousedom.service.slots import SensorSlots, Slot
@@ -95,6 +96,8 @@ class Daemon(SensorSlots, Publisher, ClientCommands, Reloader):
         # when a SOURCE message is made (see Publisher._fold_window_health).
         self._window_residuals: list = []
         self._last_health: tuple | None = None
+        # The learnt scales' warnings, logged when they appear, persist or end (scales.py)
+        self.scale_log = ScaleLog()
         self.record_path = record
         self.recording: Any = None  # live_record.Recording while --record is on
         # Where else each window goes (ROS 2 over DDS, an MCAP file): publish(row),

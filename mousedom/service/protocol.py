@@ -20,7 +20,9 @@ from typing import Any
 from mousedom import __version__
 
 PROTO_MAJOR = 1
-PROTO_MINOR = 1  # 1: POSE has excluded, suspect and consistent; SOURCE state and reason
+# 1: POSE has excluded, suspect and consistent; SOURCE state and reason
+# 2: SOURCE scale, scale_spread, scale_applied and scale_warning (the learnt scale)
+PROTO_MINOR = 2
 
 # Which keys each command takes; anything else is a mistake worth telling the client about.
 COMMANDS: dict[str, tuple[str, ...]] = {

@@ -1,7 +1,8 @@
 """What the daemon sends: POSE lines for every closed window, SOURCE health messages.
 
 A mixin of ``Daemon``: it uses ``self.slots``, ``self.server``, ``self.tracker``,
-``self.config`` and ``self.missing_names``, and keeps the POSE counters ``self.poses``,
+``self.config``, ``self.missing_names`` and ``self.scale_log`` (the learnt scales' warnings,
+logged when the learner renews them: service/scales.py), and keeps the POSE counters ``self.poses``,
 ``self.last_pose_t`` and ``self.not_updated``, and the windows' residuals and health until
 a SOURCE message folds them into the slots.
 """
@@ -14,6 +15,7 @@ from typing import Any
 from mousedom.fusion import robust
 from mousedom.fusion.posebatch import PoseBatch
 from mousedom.service.protocol import encode, encode_pose, source_message
+from mousedom.service.scales import scale_fields
 
 log = logging.getLogger("mousedom.service.daemon")
 
@@ -63,6 +65,9 @@ class Publisher:
                 self._to_outputs("publish", pose)
         last = rows[-1]
         self._last_health = (last.state, last.reason)
+        learner = self.tracker.scales
+        if self.scale_log.due(learner):  # renewed (twice a second of windows): its warnings
+            self.scale_log.renewed(learner, self.config.names, self.clock())
         if self.outputs:
             self._absolute_fixes()
         if len(residuals) > self._RESIDUALS_HELD:
@@ -99,6 +104,9 @@ class Publisher:
     def _source_messages(self, now: float) -> list[dict[str, Any]]:
         self._fold_window_health()
         out = []
+        scales = scale_fields(
+            self.tracker.scales, self.config.names, self.config.robust.learn_scale
+        )
         for slot in self.slots:
             h = slot.source.health
             if slot.residual_n:
@@ -113,6 +121,7 @@ class Publisher:
                     excluded=not slot.live or slot.health_state == robust.EXCLUDED,
                     state="gone" if not slot.live else robust.STATES[slot.health_state],
                     reason=robust.REASONS[slot.health_reason] or None,
+                    **scales[slot.index],
                 )
             )
         return out
