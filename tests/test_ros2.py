@@ -442,6 +442,51 @@ def test_packed_cdr_is_byte_for_byte_cyclonedds():
     assert levels == [ros2conv.OK, ros2conv.ERROR, ros2conv.ERROR]
 
 
+def test_diagnostics_carry_the_learnt_scale_and_warn_of_a_wrong_cpi():
+    """Issue 31 item 3: each status's values hold the learnt scale and its spread (empty
+    where none is learnt); a mouse 10 % or more off the others is WARN with the warning as
+    its message, a mouse already worse keeps its level and adds the warning; what rosbags
+    reads back (ROS 2's own definitions) is what was built."""
+    from mousedom.service import ros2cdr
+
+    warning = ("mouse left reads 12 % more than the others: check its cpi (learnt scale "
+               "0.893 +- 0.004)")  # fmt: skip
+    base = {"connected": True, "live": True, "state": "tracking", "rate_hz": 125.0,
+            "residual": 1e-5, "kind": "evdev"}  # fmt: skip
+    sources = [
+        {**base, "name": "front", "scale": 1.0012, "scale_spread": 0.0004,
+         "scale_applied": False, "scale_warning": None},
+        {**base, "name": "left", "scale": 0.893, "scale_spread": 0.004,
+         "scale_applied": True, "scale_warning": warning},
+        {**base, "name": "right", "state": "excluded", "reason": "inconsistent",
+         "scale": 1.15, "scale_spread": 0.01, "scale_applied": True,
+         "scale_warning": warning.replace("left", "right")},
+        {**base, "name": "two-mouse rig", "scale": None, "scale_spread": None},
+        {**base, "name": "old daemon"},  # a SOURCE without the keys
+    ]  # fmt: skip
+    st = ros2conv.stamp(5.0, 0.0)
+    msg = ros2conv.diagnostics(st, sources)
+    status = {s["name"].removeprefix("mousedom: "): s for s in msg["status"]}
+    values = {n: {kv["key"]: kv["value"] for kv in s["values"]} for n, s in status.items()}
+    assert values["front"]["scale"] == "1.001200" and values["front"]["scale_spread"] == "0.000400"
+    assert values["left"]["scale"] == "0.893000" and values["left"]["scale_applied"] == "true"
+    assert values["two-mouse rig"]["scale"] == values["two-mouse rig"]["scale_spread"] == ""
+    assert values["old daemon"]["scale"] == ""
+    assert status["front"]["level"] == ros2conv.OK and status["front"]["message"] == "tracking"
+    assert status["left"]["level"] == ros2conv.WARN and status["left"]["message"] == warning
+    assert status["right"]["level"] == ros2conv.ERROR
+    assert status["right"]["message"].startswith("excluded (inconsistent); mouse right reads")
+    raw = ros2cdr.diagnostics(st, msg)
+    assert raw == ros2msgs.build(ros2msgs.DIAGNOSTICS, msg).serialize()
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    back = ts.deserialize_cdr(raw, "diagnostic_msgs/msg/DiagnosticArray")
+    assert [(s.level, s.message) for s in back.status][:2] == [
+        (ros2conv.OK, "tracking"),
+        (ros2conv.WARN, warning),
+    ]
+    assert {kv.key: kv.value for kv in back.status[1].values}["scale_spread"] == "0.004000"
+
+
 def test_an_unsolved_window_and_diff_drive_sideways_are_not_claimed_certain():
     row = _row()._replace(ok=False, vx=0.0, vy=0.0, omega=0.0)
     msg = ros2conv.odometry(Ros2Config(), ros2conv.stamp(0.0, 0.0), (0.0, 0.0, 0.0), 0.0,

@@ -172,7 +172,9 @@ _LEVEL = {"tracking": OK, "suspect": WARN, "excluded": ERROR, "missing": ERROR, 
 
 def diagnostics(st: dict[str, int], sources: list[dict[str, Any]]) -> dict[str, Any]:
     """diagnostic_msgs/msg/DiagnosticArray: one status per sensor from its SOURCE message
-    (the fault-tolerant fusion's state and reason, whether it is connected, its rate)."""
+    (the fault-tolerant fusion's state and reason, whether it is connected, its rate, its
+    learnt scale).  A scale warning (10 % or more off the others: a wrong CPI) makes a
+    tracking sensor's level WARN, its text the message."""
     statuses = []
     for s in sources:
         state = s.get("state") or ("tracking" if s.get("live") else "gone")
@@ -185,17 +187,31 @@ def diagnostics(st: dict[str, int], sources: list[dict[str, Any]]) -> dict[str, 
             "reports per second": f"{s.get('rate_hz') or 0.0:.1f}",
             "residual (m per window)": "" if s.get("residual") is None else f"{s['residual']:.3g}",
             "kind": str(s.get("kind", "")),
+            # the learnt scale ("": none learnt): the factor the sensor's counts need
+            "scale": _number(s.get("scale"), ".6f"),
+            "scale_spread": _number(s.get("scale_spread"), ".6f"),
+            "scale_applied": "true" if s.get("scale_applied") else "false",
         }
         if "squal" in s:
             values["SQUAL"] = str(s["squal"])
+        level = _LEVEL.get(state, WARN)
+        message = state + (f" ({why})" if why else "")
+        warning = s.get("scale_warning")
+        if warning:
+            level = max(level, WARN)
+            message = warning if level == WARN and not why else f"{message}; {warning}"
         statuses.append({
-            "level": _LEVEL.get(state, WARN),
+            "level": level,
             "name": f"mousedom: {s.get('name', '?')}",
-            "message": state + (f" ({why})" if why else ""),
+            "message": message,
             "hardware_id": str(s.get("node") or s.get("port") or s.get("name", "")),
             "values": [{"key": k, "value": v} for k, v in values.items()],
         })  # fmt: skip
     return {"header": header("", st), "status": statuses}
+
+
+def _number(v: Any, fmt: str) -> str:
+    return "" if v is None else format(float(v), fmt)
 
 
 def counts(st: dict[str, int], mouse: str, cx: float, cy: float) -> dict[str, Any]:
