@@ -96,8 +96,8 @@ MUTANTS = [
     Mutant(
         "no-reexamination-of-earlier-blame",
         "mousedom/fusion/robust.py",
-        "            swap = None if blamed is not None else self._reexamine(d, live, used, gate, scale)",
-        "            swap = None",
+        "else self._reexamine(d, live, used, gate, scale)",
+        "else None",
         ("tests/test_robust_pairs.py",),
         "a healthy mouse blamed where the geometry could not tell stays out for good",
     ),
@@ -224,8 +224,8 @@ MUTANTS = [
     Mutant(
         "robust-never-excludes",
         "mousedom/fusion/robust.py",
-        "            if blamed is not None:\n",
-        "            if False:\n",
+        "            elif blamed is not None:\n",
+        "            elif False:\n",
         ("tests/test_robust.py",),
         "the fault-tolerant fusion finds the faulty mouse but never leaves it out",
     ),
