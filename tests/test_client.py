@@ -224,8 +224,8 @@ def test_watch_on_a_terminal_explains_itself(rig_run):
     assert abs(final - 90.0) < 5.0, final  # 450 degrees is a quarter turn past a whole one
     times = [float(t) for t in re.findall(r"time\s+([\d.]+) s since the watch began", text)]
     assert times[0] < 0.2 and 3.5 < times[-1] < 6.0
-    for label in ("position  x", "m/s", "1 sigma", "(one standard deviation)", "3 used, updating",
-                  "path (o start, @ now)", "reports/s"):  # fmt: skip
+    for label in ("position  x", "m/s", "1 sigma", "(std dev)", "3 used, updating",
+                  "path (o start, @ now)", "reports/s", "last report", "scale"):  # fmt: skip
         assert label in last, label
     assert last.count("\x1b[32mtracking") == 3  # three sensors, green
     plain = _watch_on_a_pty(run.daemon.socket_path, "--count", "2",
@@ -293,3 +293,78 @@ def test_watch_says_which_mice_the_fusion_left_out():
            "reason": "silent while others move"}  # fmt: skip
     text = view.source_line(src)
     assert "excluded" in text and "(silent while others move)" in text
+
+
+def _visible(text: str) -> str:
+    import re
+
+    return re.sub(r"\x1b\[[0-9;]*[A-Za-z]", "", text)
+
+
+def test_watch_shows_each_mouses_scale_and_the_warning_in_80_columns(rig_run):
+    """Issue 31 item 3: on a real 80-column pty, a mouse whose CPI is 15 % off shows its
+    learnt scale ("+14.9 % applied") and the learner's warning under its row, the others
+    theirs ("+0.0 %"); no line of the screen is wider than the terminal.  Piped, each
+    SOURCE line carries the scale and the warning too."""
+    import dataclasses
+
+    rig = sim.three_mouse_rig()
+    short = dataclasses.replace(rig.mice[1], cpi_x=450 * 0.87, cpi_y=450 * 0.87)
+    faulty = dataclasses.replace(rig, mice=(rig.mice[0], short, rig.mice[2]))
+    drive = sim.sequence(sim.straight(0.5, 0.3), sim.arc(0.5, math.pi / 2, 0.3),
+                         sim.turn(-math.pi / 2, 1.0), sim.pause(3.0))  # fmt: skip
+    run = rig_run(drive, rig=rig, faulty=faulty, env={"TERM": "xterm"})
+    with Client(str(run.daemon.socket_path), timeout=10) as c:  # until the warning is there
+        for _ in c.messages():
+            if (c.sources.get("left") or {}).get("scale_warning"):
+                break
+    text = _watch_on_a_pty(run.daemon.socket_path, "--count", "12", "--rate", "10",
+                           env_extra={"TERM": "xterm"}, size=(80, 40))  # fmt: skip
+    last = _visible(text.split("\x1b[H\x1b[J")[-1])
+    wide = [line for line in _visible(text).splitlines() if len(line) > 80]
+    assert wide == [], wide
+    rows = {line.split()[0]: line for line in last.splitlines() if line.split()[:1]
+            and line.split()[0] in ("front", "left", "right")}  # fmt: skip
+    assert rows["left"].endswith("+14.9 % applied"), rows
+    assert rows["front"].endswith(" +0.0 %") and rows["right"].endswith(" +0.0 %"), rows
+    under = last.split(rows["left"])[1].splitlines()[1:3]
+    warning = " ".join(line.strip() for line in under)
+    assert warning.startswith("warning: mouse left reads 13 % less than the others: check "
+                              "its cpi (learnt scale 1.149 +- 0."), under  # fmt: skip
+    piped = run_mousedom("watch", "--socket", str(run.daemon.socket_path), "--count", "15",
+                         timeout=20)  # fmt: skip
+    left = [line for line in piped.stdout.splitlines() if line.startswith("source left")]
+    assert left and "scale +14.9 % applied" in left[-1]
+    assert "warning: mouse left reads 13 % less than the others" in left[-1]
+
+
+def test_watch_sensor_table_pieces():
+    """The pure view of the sensors: the scale as a deviation ("-" where none is learnt,
+    as from an older daemon), notes wrapped under the row, 80 columns with SQUAL and
+    names of 10 characters."""
+    from mousedom.commands import _watchview as view
+
+    assert view.scale_text({"scale": 1.029, "scale_applied": True}) == "+2.9 % applied"
+    assert view.scale_text({"scale": 0.99996, "scale_applied": False}) == "+0.0 %"
+    assert view.scale_text({"scale": None}) == view.scale_text({}) == "-"
+    warning = "mouse abcdefghij reads 99 % more than the others: check its cpi " * 2
+    src = [{"name": "abcdefghij", "connected": True, "state": "excluded", "rate_hz": 8000.0,
+            "age": 123.0, "residual": 0.25, "dropped": 123456, "squal": 120, "scale": 0.5,
+            "scale_applied": True, "reason": "silent while others move",
+            "scale_warning": warning},
+           {"name": "old", "connected": False, "error": "unplugged"}]  # fmt: skip
+    lines = view.source_table(src, color=True, width=80)
+    assert max(len(_visible(line)) for line in lines) <= 80
+    assert lines[0].split() == ["sensor", "state", "reports/s", "last", "report", "residual",
+                                "SQUAL", "scale"]  # fmt: skip
+    row = ["abcdefghij", "excluded", "8000.0", "123", "s", "ago", "250.000", "mm", "120",
+           "-50.0", "%", "applied"]  # fmt: skip
+    assert _visible(lines[1]).split() == row
+    assert lines[2] == "    123456 frames dropped (reports lost by the kernel or the link)"
+    assert lines[3] == "    (silent while others move)"
+    assert lines[4].startswith("    \x1b[33mwarning: mouse abcdefghij")  # a warning, in colour
+    assert _visible(lines[-1]) == "    unplugged" and "\x1b[31mgone" in lines[-2]
+    assert lines[-2].endswith("  -")
+    # a name of 15 characters still fits
+    src[0]["name"] = "abcdefghijklmno"
+    assert max(len(_visible(line)) for line in view.source_table(src, True, 80)) <= 80

@@ -4,12 +4,17 @@ Read cold, a screen must explain itself: the heading is wrapped to (-180, 180] d
 (the daemon's theta is continuous: +442 deg is the fifth quarter turn), time counts from
 when the watch began, every number has its name and unit, the uncertainty is called what
 it is (one standard deviation, from the POSE covariance), each sensor's state is a word
-(in colour where the terminal has it), and the path so far is sketched when it fits.
+(in colour where the terminal has it), its learnt scale a deviation in per cent with the
+warning under it when there is one, and the path so far is sketched when it fits.  The
+screen fits 80 columns: the sensors are a table under one row of column names, and what
+needs words (a reason, an error, a scale warning) goes on lines under its sensor's row,
+wrapped to the terminal.
 """
 
 from __future__ import annotations
 
 import math
+import textwrap
 from typing import Any
 
 GREEN, YELLOW, RED, DIM, RESET = "\x1b[32m", "\x1b[33m", "\x1b[31m", "\x1b[2m", "\x1b[0m"
@@ -70,7 +75,7 @@ def _sigma_line(m: dict[str, Any]) -> str:
     sd = [math.sqrt(c) if c is not None and c >= 0 else None for c in (cov[i][i] for i in range(3))]
     return (
         f"1 sigma   x {_num(sd[0], '9.2f', 1e3)} mm   y {_num(sd[1], '9.2f', 1e3)} mm   "
-        f"heading {_num(sd[2], '8.3f', 180 / math.pi)} deg  (one standard deviation)"
+        f"heading {_num(sd[2], '8.3f', 180 / math.pi)} deg  (std dev)"
     )
 
 
@@ -83,24 +88,92 @@ def source_state(s: dict[str, Any]) -> str:
     return "excluded" if s.get("excluded") else "tracking"
 
 
+def scale_text(s: dict[str, Any]) -> str:
+    """A SOURCE's learnt scale as a deviation from 1 ("+2.9 %": its counts are taken 2.9 %
+    larger to agree with the others), "applied" where the fusion uses it; "-" where none
+    is learnt (fewer than three mice, fault handling off, too little motion yet, or a
+    daemon older than protocol 1.2)."""
+    g = s.get("scale")
+    if g is None:
+        return "-"
+    text = f"{round(100.0 * (g - 1.0), 1) + 0.0:+.1f} %"  # + 0.0: no "-0.0"
+    return text + " applied" if s.get("scale_applied") else text
+
+
+def _age(age: float | None) -> str:
+    if age is None:
+        return "-"
+    return f"{age * 1e3:.0f} ms ago" if age < 10.0 else f"{age:.0f} s ago"
+
+
+def _residual(res: float | None) -> str:
+    return "-" if res is None else f"{res * 1e3:.3f} mm"
+
+
 def source_line(s: dict[str, Any], color: bool = False) -> str:
+    """One SOURCE in one line, every field with its name: for a pipe or a log."""
     state = source_state(s)
-    age, res = s.get("age"), s.get("residual")
     parts = [
         f"{s.get('name', '?'):<10}",
         _paint(f"{state:<9}", state, color),
         f"{s.get('rate_hz') or 0:7.1f} reports/s",
-        f"last {'-' if age is None else f'{age * 1e3:.0f} ms ago':>11}",
-        f"residual {'-' if res is None else f'{res * 1e3:.3f} mm':>9}",
+        f"last {_age(s.get('age')):>11}",
+        f"residual {_residual(s.get('residual')):>9}",
         f"dropped {s.get('dropped', 0)}",
     ]
     if "squal" in s:
         parts.append(f"SQUAL {s['squal']}")
-    if s.get("reason"):
-        parts.append(f"({s['reason']})")
-    if s.get("error") and not s.get("connected"):
-        parts.append(str(s["error"]))
+    parts.append(f"scale {scale_text(s)}")
+    parts += [note for note, _ in _notes(s)]
     return "  ".join(parts)
+
+
+def _notes(s: dict[str, Any], dropped: bool = False) -> list[tuple[str, bool]]:
+    """What a sensor's row cannot hold, in words: (text, whether it is a warning);
+    ``dropped``: frames lost, if any (the table has no column for them)."""
+    out = []
+    if dropped and s.get("dropped"):
+        out.append((f"{s['dropped']} frames dropped (reports lost by the kernel or the link)",
+                    False))  # fmt: skip
+    if s.get("reason"):
+        out.append((f"({s['reason']})", False))
+    if s.get("error") and not s.get("connected"):
+        out.append((str(s["error"]), False))
+    if s.get("scale_warning"):
+        out.append((f"warning: {s['scale_warning']}", True))
+    return out
+
+
+def source_table(sources: list[dict[str, Any]], color: bool = False, width: int = 80) -> list[str]:
+    """The sensors as a table (a row of column names, a row per sensor), each sensor's
+    notes (frames dropped, reason, error, scale warning) wrapped to ``width`` under its
+    row.  The rows fit 80 columns for names of up to 15 characters (with an ADNS-3080's
+    SQUAL too)."""
+    names = [str(s.get("name", "?")) for s in sources]
+    nw = max([6, *map(len, names)])
+    squal = any("squal" in s for s in sources)
+    head = (
+        f"{'sensor':<{nw}} {'state':<9}{'reports/s':>9} {'last report':>11} {'residual':>9}"
+        + (f" {'SQUAL':>5}" if squal else "")
+        + "  scale"
+    )
+    lines = [head]
+    indent = " " * 4
+    for name, s in zip(names, sources, strict=True):
+        state = source_state(s)
+        row = (
+            f"{name:<{nw}} {_paint(f'{state:<9}', state, color)}{s.get('rate_hz') or 0:9.1f} "
+            f"{_age(s.get('age')):>11} {_residual(s.get('residual')):>9}"
+            + (f" {s.get('squal', '-')!s:>5}" if squal else "")
+            + f"  {scale_text(s)}"
+        )
+        lines.append(row)
+        for note, warn in _notes(s, dropped=True):
+            wrapped = textwrap.wrap(note, max(20, width - len(indent)), break_long_words=False,
+                                    break_on_hyphens=False)  # fmt: skip
+            for part in wrapped:
+                lines.append(indent + (f"{YELLOW}{part}{RESET}" if warn and color else part))
+    return lines
 
 
 def _paint(text: str, state: str, color: bool) -> str:
@@ -154,10 +227,13 @@ def screen(
 ) -> list[str]:
     """The whole terminal screen, at most ``size`` = (columns, lines)."""
     cols, rows = size
-    lines = [header, ""]
+    # (a socket path longer than the terminal is cut: the terminal would wrap it anyway,
+    # and the screen would be a line longer than counted)
+    lines = textwrap.wrap(header, cols, break_on_hyphens=False)
+    lines += [""]
     if pose is not None:
         lines += pose_lines(pose, t_start) + [""]
-    lines += ["sensors"] + [source_line(s, color) for s in sources.values()]
+    lines += source_table(list(sources.values()), color, cols)
     room = rows - len(lines) - 2
     if pose is not None and room >= 6:
         lines += ["", "path (o start, @ now)"] + sketch(path, min(cols, 72), min(room - 1, 20))
