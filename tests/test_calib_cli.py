@@ -595,6 +595,109 @@ def test_mounts_bad_inputs(mounts_session):
     )
 
 
+# --------------------------------------------------------------------------- scales
+
+
+def _scale_drive(tmp_path: Path, seconds: float, n_mice: int = 3, true_left: float = 1.05):
+    """Evemu files of a simulated drive (straights, arcs, turns, pauses) of a triangle rig
+    whose mouse 'left' really has ``true_left`` times the CPI its config says; the config
+    (right's CPI from a calibration file already there).  Returns (config, --capture args,
+    the true CPIs)."""
+    import dataclasses
+
+    from mousedom.fusion import sim
+
+    rig = sim.three_mouse_rig(cpi=800.0, rate_hz=250.0)
+    mice = [dataclasses.replace(m, noise=0.3, stamp_delay=0.002) for m in rig.mice[:n_mice]]
+    mice[-1] = dataclasses.replace(mice[-1], cpi_x=1200.0, cpi_y=1190.0)  # right, calibrated
+    rig = dataclasses.replace(rig, mice=tuple(mice))
+    true = dataclasses.replace(mice[1], cpi_x=800.0 * true_left, cpi_y=800.0 * true_left)
+    faulty = dataclasses.replace(rig, mice=(mice[0], true, *mice[2:]))
+    legs, k = [sim.straight(0.3 * min(seconds, 1.0), 0.3)], 0
+    while 2.6 * (k + 1) < seconds:  # each round: about 2.6 s
+        legs += [sim.straight(0.3, 0.3), sim.arc(0.4, math.pi / 4 * (-1) ** k, 0.3),
+                 sim.turn(math.pi / 4, 0.8), sim.pause(0.3)]  # fmt: skip
+        k += 1
+    res = sim.simulate(faulty, sim.sequence(*legs), seed=7)
+    text = sim.rig_yaml(rig, cpi={mice[-1].name: (1000.0, 1000.0)})  # before calibration
+    cfg = write_config(tmp_path, {}, extra="")  # (the file is replaced just below)
+    cfg.write_text(text + "calibration: rig.calib.yaml\n")
+    (tmp_path / "rig.calib.yaml").write_text(
+        f"mice:\n  {mice[-1].name}:\n    cpi: {{x: 1200.0, y: 1190.0}}\n"
+        "    mount: {x: -0.075, y: -0.1299}\n"
+    )
+    caps = []
+    for m in rig.mice:
+        f = write_evemu(tmp_path / f"{m.name}.events", res.reports[m.name])
+        caps += ["--capture", f"{m.name}={f}"]
+    cpis = {m.name: (m.cpi_x, m.cpi_y) for m in faulty.mice}
+    return cfg, caps, cpis
+
+
+def test_scales_write_the_cpi_the_others_imply(tmp_path):
+    """Issue 31 item 3: a drive on which one of three mice reads 5 % more than its CPI
+    says; `calibrate scales` prints each mouse's scale, spread and implied CPI and --write
+    stores the corrected CPI of that mouse (within 0.5 % of the truth) and leaves the
+    others' as they were (a mouse already calibrated keeps its file entry)."""
+    cfg, caps, true = _scale_drive(tmp_path, 12.0)
+    out = ok(calib("scales", cfg, *caps))
+    lines = out.stdout.splitlines()
+    assert lines[0].startswith("calibrate scales: 3 mice")
+    left = next(line for line in lines if line.startswith("left "))
+    assert "5.0 % more" in left and float(left.split()[1]) == pytest.approx(1 / 1.05, rel=0.002)
+    front = next(line for line in lines if line.startswith("front "))
+    assert front.endswith("unchanged: within spread"), front
+    assert "common to all the mice cannot be seen" in out.stdout
+    assert not (tmp_path / "rig.calib.yaml").read_text().count("scales")  # no --write: as was
+    doc = json.loads(ok(calib("scales", cfg, *caps, "--json", "--write")).stdout)
+    assert doc["left"]["change"] is True and doc["left"]["implied_cpi"]["x"] == pytest.approx(
+        840.0, rel=0.005
+    )
+    written = yaml.safe_load((tmp_path / "rig.calib.yaml").read_text())
+    assert written["mice"]["left"]["cpi"]["x"] == pytest.approx(true["left"][0], rel=0.005)
+    assert written["mice"]["left"]["cpi"]["y"] == pytest.approx(true["left"][1], rel=0.005)
+    assert written["mice"]["right"] == {"cpi": {"x": 1200.0, "y": 1190.0},
+                                        "mount": {"x": -0.075, "y": -0.1299}}  # fmt: skip
+    assert "front" not in written["mice"]
+    assert written["scales"]["left"]["cpi_before"] == {"x": 800.0, "y": 800.0}
+    from mousedom.config import load_config
+
+    config = load_config(str(cfg), need_sources=False)  # what the daemon will read
+    for name, (cx, cy) in true.items():
+        m = config.mouse(name)
+        tol = 0.005 if name == "left" else 0.002
+        assert (m.cpi_x, m.cpi_y) == pytest.approx((cx, cy), rel=tol), name
+    # Again with the corrected CPI: every mouse agrees now, nothing is written.
+    again = ok(calib("scales", cfg, *caps, "--write"))
+    assert "not written: every mouse agrees with the others" in again.stderr
+    assert "unchanged" in next(line for line in again.stdout.splitlines()
+                               if line.startswith("left "))  # fmt: skip
+
+
+def test_scales_refuse_two_mice_and_too_little_motion(tmp_path):
+    """Two mice cannot tell which one is off; a second of driving, or scales known less
+    well than --max-spread, is no calibration: exit 2, saying why, nothing written."""
+    two = tmp_path / "two"
+    two.mkdir()
+    cfg, caps, _ = _scale_drive(two, 3.0, n_mice=2)
+    fails(calib("scales", cfg, *caps, "--write"), "needs three or more mice (it has 2)")
+    short = tmp_path / "short"
+    short.mkdir()
+    cfg, caps, _ = _scale_drive(short, 0.5)
+    fails(calib("scales", cfg, *caps, "--write"),
+          "too little motion to learn the scale of mouse front, left, right",
+          "drive longer")  # fmt: skip
+    fails(calib("scales", cfg, *caps, "--max-spread", "0"), "--max-spread: must be a percentage")
+    some = tmp_path / "some"
+    some.mkdir()
+    cfg, caps, _ = _scale_drive(some, 5.0)
+    fails(calib("scales", cfg, *caps, "--write", "--max-spread", "0.01"),
+          "too little evidence: the scale is known only front to +- 0.0",
+          "(--max-spread)")  # fmt: skip
+    for d in (two, short, some):  # as _scale_drive wrote it
+        assert "scales" not in yaml.safe_load((d / "rig.calib.yaml").read_text())
+
+
 # --------------------------------------------------------------------------- ADNS captures
 
 

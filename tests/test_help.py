@@ -24,7 +24,8 @@ COMMANDS = dict(_subcommands(build_parser()))
 
 def test_the_commands_are_all_there():
     want = {"run", "watch", "list", "record", "replay", "convert", "check-config", "umbmark",
-            "calibrate", "calibrate cpi", "calibrate distance", "calibrate mounts"}  # fmt: skip
+            "calibrate", "calibrate cpi", "calibrate distance", "calibrate mounts",
+            "calibrate scales"}  # fmt: skip
     assert want <= set(COMMANDS)
 
 

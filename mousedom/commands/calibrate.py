@@ -1,7 +1,8 @@
-"""`mousedom calibrate cpi|distance|mounts`: the seeds' calibration procedures.
+"""`mousedom calibrate cpi|distance|mounts|scales`: the calibration procedures.
 
 Input is either captures (``--capture NAME=FILE``, runs split at idle gaps) or the live
-mice of the config (Enter starts and stops each run).  The readable report goes to
+mice of the config (Enter starts and stops each run); ``scales`` replays a drive's
+captures through the fusion and reads each mouse's learnt scale.  The readable report goes to
 stdout, or with ``--json`` to stderr while stdout carries only the JSON.  ``--write``
 merges the result into the calibration file the config references.  The work is in
 ``mousedom.calibrate``; this is argument handling and I/O.
@@ -16,7 +17,7 @@ import sys
 from typing import Any
 
 from mousedom.allocator import keep_freed_memory
-from mousedom.calibrate import calfile, report, session
+from mousedom.calibrate import calfile, report, scales, session
 from mousedom.calibrate.inputs import load_captures
 from mousedom.calibrate.reference import WheelGeometry, read_reference
 from mousedom.calibrate.runs import need_runs, split_runs
@@ -96,10 +97,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser(
         "calibrate",
-        help="calibrate CPI, mouse distance or mount positions",
+        help="calibrate CPI, mouse distance, mount positions, or CPI from the other mice",
         description="Calibration procedures of the seed papers, on live mice (Enter starts "
-        "and stops each run) or on --capture files. Each prints a report; --json prints "
-        "JSON; --write stores the result in the config's calibration file.",
+        "and stops each run) or on --capture files, and the CPI of each mouse from the "
+        "others' (scales: a recorded drive of three or more mice). Each prints a report; "
+        "--json prints JSON; --write stores the result in the config's calibration file.",
     )
     what = p.add_subparsers(dest="what", metavar="WHAT", required=True)
 
@@ -176,6 +178,43 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--track", type=_length, metavar="METRES", help=f"distance between the wheels, {wheels}"
     )
     m.set_defaults(func=run_mounts)
+
+    sc = what.add_parser(
+        "scales",
+        help="each mouse's CPI from the others (the online scale, three or more mice)",
+        description="Replay the captures of a drive through the fusion (as `mousedom "
+        "replay` does, fault handling and scale learning on) and print each mouse's learnt "
+        "scale: the factor its counts need to agree with the other mice, its standard "
+        "deviation, and the CPI that implies (the configured CPI divided by the scale). "
+        "Needs three or more mice; refuses scales known less well than --max-spread. The "
+        "scales are relative: a CPI error common to all the mice cannot be seen "
+        "(docs/calibration.md). --write stores the corrected CPI of each mouse whose scale "
+        "is plain (beyond three standard deviations and 0.5 % from 1).",
+    )
+    options.add_default_config(sc)
+    sc.add_argument(
+        "--capture",
+        action="append",
+        default=[],
+        metavar="NAME=FILE",
+        help="a recording of mouse NAME (repeatable; every mouse of the config needs one, "
+        "or its replay: entry); a multi-device file may be given without NAME=",
+    )
+    sc.add_argument(
+        "--max-spread",
+        type=_argument(float, lambda v: 0 < v <= 100, "a percentage between 0 and 100"),
+        default=100 * scales.MAX_SPREAD,
+        metavar="PERCENT",
+        help=f"the largest standard deviation of a scale accepted, in per cent (default "
+        f"{100 * scales.MAX_SPREAD:g})",
+    )
+    sc.add_argument("--json", action="store_true", help="print JSON on stdout")
+    sc.add_argument(
+        "--write",
+        action="store_true",
+        help="store the corrected CPIs in the config's calibration file",
+    )
+    sc.set_defaults(func=run_scales)
 
 
 # --------------------------------------------------------------------------- shared steps
@@ -378,4 +417,45 @@ def run_mounts(args: argparse.Namespace) -> int:
             return data
 
         calfile.store(config, update)
+    return 0
+
+
+def run_scales(args: argparse.Namespace) -> int:
+    keep_freed_memory()  # streams whole captures: see mousedom.allocator
+    config = load_config(args.config, need_sources=False)
+    if args.write and not config.calibration:
+        raise UserError(
+            f"{args.config}: --write needs a calibration file: add a line such as "
+            "`calibration: rig.calib.yaml` to the config"
+        )
+    result = scales.learn(config, args.capture)
+    for w in result.warnings:
+        print(f"mousedom: warning: {w}", file=sys.stderr)
+    scales.check(result, args.max_spread / 100.0)
+    text_out = sys.stderr if args.json else sys.stdout
+    for line in scales.report_text(result, args.config):
+        print(line, file=text_out)
+    if args.json:
+        print(json.dumps(result.as_json(), indent=2))
+    if not args.write:
+        return 0
+    changed = [m for m in result.mice if m.change]
+    if not changed:
+        print(f"{config.calibration}: not written: every mouse agrees with the others",
+              file=sys.stderr)  # fmt: skip
+        return 0
+
+    def update(data):
+        for m in changed:
+            cx, cy = m.implied
+            data = calfile.merge_mouse(data, m.name, cpi={"x": round(cx, 3), "y": round(cy, 3)})
+        # informational: what was learnt, against which CPI
+        learnt = {
+            m.name: {"scale": round(m.scale, 6), "spread": round(m.spread, 6),
+                     "cpi_before": {"x": m.cpi[0], "y": m.cpi[1]}}
+            for m in result.mice
+        }  # fmt: skip
+        return calfile.merge_section(data, "scales", learnt)
+
+    calfile.store(config, update)
     return 0
