@@ -29,7 +29,7 @@ LAYERS = [
     {"service", "calibrate", "client", "plot", "demo"},
     {"capture"},
     {"sources"},
-    {"fusion"},
+    {"fusion", "observability"},
     {
         "config",
         "yamldoc",
@@ -38,7 +38,6 @@ LAYERS = [
         "safewrite",
         "saferead",
         "plausible",
-        "observability",
         "invocation",
         "allocator",
         "__init__",

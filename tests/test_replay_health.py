@@ -110,8 +110,12 @@ def test_health_lines_give_shares_and_scales_and_warn_of_a_wrong_cpi():
     ("k", "cpi", "said"),
     [
         (1.0, 800, None),
-        (0.905, 800, None),  # under 10 % off
-        (1.095, 800, None),
+        (1.095, 800, None),  # reads under 9.5 % less: not warned
+        (1.1, 800, None),
+        (1 / 1.1, 800, "reads 10 % more than the other mice (its x axis): check its CPI in the "
+         "config: 800 there, the others say about 880"),  # reads 10 % more: warned
+        (0.905, 800, "reads 10 % more than the other mice (its x axis): check its CPI in the "
+         "config: 800 there, the others say about 884"),
         (1 - 0.1, 800, "reads 11 % more than the other mice (its x axis): check its CPI in the "
          "config: 800 there, the others say about 889"),  # at 10 %: warned
         (1.12, 400, "reads 11 % less than the other mice (its x axis): check its CPI in the "

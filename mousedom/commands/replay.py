@@ -425,11 +425,11 @@ def scale_warnings(s: Summary, cpi: dict[str, tuple[float, float]]) -> list[str]
 
 def scale_warning(name: str, axis: str, k: float, cpi: float) -> str | None:
     """The warning for a mouse whose scale on ``axis`` relative to the others' (the factor
-    its counts are to be multiplied by to agree with them) is SCALE_WARNING or more off,
-    else None.  A relative scale k means the mouse gives 1/k times the counts per metre
-    that the others imply: its CPI is about cpi / k."""
-    if abs(k - 1.0) < SCALE_WARNING - 1e-9:  # (0.9 - 1 is -0.0999...)
-        return None
+    its counts are to be multiplied by to agree with them) makes it read SCALE_WARNING or
+    more more or less than they do, else None.  A relative scale k means the mouse gives
+    1/k times the counts per metre that the others imply: its CPI is about cpi / k."""
+    if abs(1.0 / k - 1.0) < SCALE_WARNING:  # how much more or less it reads: as the
+        return None  # learner's own warning (fusion/scalelearn.py) judges it
     return (
         f"mouse {name} reads {100 * abs(1 / k - 1):.0f} % {'more' if k < 1 else 'less'} than "
         f"the other mice (its {axis} axis): check its CPI in the config: {cpi:g} there, the "

@@ -47,7 +47,9 @@ import numpy as np
 GROUP_S = 0.1  # windows are summed over this long before they are compared
 BLOCK_S = 0.5  # the scales are renewed this often
 HALF_LIFE_S = 120.0  # seconds of evidence after which old sums count half
-WARN = 0.10  # a scale this far from 1 (beyond its uncertainty) is a clear CPI mistake
+# A mouse reading this much more or less than the others (beyond the scale's uncertainty)
+# is a clear CPI mistake: a CPI 10 % off is warned of, allowing for the estimate's noise.
+WARN = 0.095
 _PLAIN = 3.0  # a scale this many standard deviations from 1 is applied (learn_scale)...
 _MIN_APPLIED = 0.005  # ... and this far: below, the estimate's own bias (timing, rounding)
 _MIN_GROUPS = 10  # ... after this many groups of evidence (a second of motion), not before
@@ -92,6 +94,8 @@ class ScaleLearner:
         aw = a.T * self.weight
         self.project = np.eye(n2) - a @ np.linalg.solve(aw @ a, aw) if self.n >= 2 else np.eye(n2)
         self.gram = np.zeros((self.n, self.n))  # S, forgetting
+        # per mouse, from the groups it was left out of: sum X.X, X.Y, Y.Y, groups
+        self.held = np.zeros((4, self.n))
         self.groups = 0.0  # groups of evidence in S, forgetting
         self.estimate = np.ones((self.n, 2))  # the fit, unclipped
         self.spread = np.full((self.n, 2), np.inf)  # its standard deviation
@@ -113,20 +117,63 @@ class ScaleLearner:
         """Windows still to add before the current block ends (at least 1)."""
         return self.block - self._held
 
-    def add(self, counts: np.ndarray, usable: np.ndarray) -> bool:
-        """Add windows (``counts`` (n, N, 2) raw REL_X/REL_Y, ``usable`` (n, N) bool) of the
-        current block, at most ``until_block_end()`` of them; at the block's end, learn.
-        Returns whether a block ended (and the estimates were renewed)."""
+    def add(
+        self,
+        counts: np.ndarray,
+        usable: np.ndarray,
+        held_out: np.ndarray | None = None,
+        q: np.ndarray | None = None,
+    ) -> bool:
+        """Add windows of the current block, at most ``until_block_end()`` of them; at the
+        block's end, learn.  ``counts`` (n, N, 2) raw REL_X/REL_Y; ``usable`` (n, N): the
+        mice tracking in consistent windows; ``held_out`` (n, N): the mice the screen
+        left out as inconsistent, and ``q`` (n, 3) each window's twist increment from the
+        others (a mouse whose CPI is far off is left out, and its scale is found from
+        what the others say it moved: ``_learn_held_out``).  Returns whether a block
+        ended (and the estimates were renewed)."""
         if not self.active or not len(counts):
             return False
-        self._rows.append((np.asarray(counts, dtype=float), np.asarray(usable, dtype=bool)))
-        self._held += len(counts)
+        n = len(counts)
+        if held_out is None or q is None:
+            held_out, q = np.zeros((n, self.n), dtype=bool), np.zeros((n, 3))
+        self._rows.append(tuple(np.asarray(a) for a in (counts, usable, held_out, q)))
+        self._held += n
         if self._held < self.block:
             return False
-        counts = np.concatenate([c for c, _ in self._rows])
-        usable = np.concatenate([u for _, u in self._rows])
+        counts, usable, held_out, q = (np.concatenate(c) for c in zip(*self._rows, strict=True))
         self._rows, self._held = [], 0
-        return self._learn(counts, usable)
+        self._learn_held_out(counts.astype(float), held_out, q)
+        self._learn(counts.astype(float), usable)
+        self._report_held_out()
+        return True
+
+    def _learn_held_out(self, counts: np.ndarray, held_out: np.ndarray, q: np.ndarray) -> None:
+        """Each left-out mouse's readings against what the others say it moved, summed
+        over groups of GROUP_S in which it was left out throughout: the scale that fits
+        them (least squares; its residual says whether the readings are in proportion at
+        all, as a wrong CPI's are and a lift's or a seam's are not)."""
+        n_rows = len(counts)
+        group = np.arange(n_rows) // self.group
+        n_groups = int(group[-1]) + 1
+        pos = self.positions
+        body = np.stack(
+            [q[:, None, 0] - q[:, None, 2] * pos[None, :, 1],
+             q[:, None, 1] + q[:, None, 2] * pos[None, :, 0]], axis=2,
+        )  # fmt: skip
+        pred = np.einsum("nij,knj->kni", np.linalg.inv(self.base), body)
+        self.held *= self.forget
+        for i in range(self.n):
+            out = np.ones(n_groups, dtype=bool)
+            np.logical_and.at(out, group, held_out[:, i])
+            if not out.any():
+                continue
+            x = np.zeros((n_groups, 2))
+            y = np.zeros((n_groups, 2))
+            np.add.at(x, group, counts[:, i])
+            np.add.at(y, group, pred[:, i])
+            take = out & (np.abs(y).sum(axis=1) >= _MIN_COUNTS)
+            x, y = x[take], y[take]
+            self.held[:, i] += (np.sum(x * x), np.sum(x * y), np.sum(y * y), len(x))
 
     def _learn(self, counts: np.ndarray, usable: np.ndarray) -> bool:
         # Groups of consecutive windows (GROUP_S) in which every mouse tracked: their
@@ -193,13 +240,46 @@ class ScaleLearner:
         self.version += 1
         return True
 
+    def _report_held_out(self) -> None:
+        """The estimates reported for mice the screen keeps out as far off (a CPI typo):
+        from the windows they were left out of.  Not applied: they stay out."""
+        for i in range(self.n):
+            held = self.held_out_scale(i)
+            if held is not None:
+                self.estimate[i], self.spread[i] = held
+                self.version += 1
+
+    def held_out_scale(self, i: int) -> tuple[float, float] | None:
+        """Mouse i's scale from the windows the screen left it out of, with its spread,
+        where those readings are in proportion to what the others say (a wrong CPI, not a
+        lift or a seam: at most a tenth of them unexplained) and there are more of them
+        than of the windows it was used in; else None."""
+        xx, xy, yy, groups = self.held[:, i]
+        if groups < _MIN_GROUPS or xx <= 0 or yy <= 0:
+            return None
+        g = xy / xx
+        unexplained = max(yy - g * xy, 0.0)
+        if unexplained > 0.1 * yy or g <= 0:
+            return None
+        if groups < self.groups_used(i):
+            return None
+        return float(g), float(np.sqrt(unexplained / max(groups - 1.0, 1.0) / xx))
+
+    def groups_used(self, i: int) -> float:
+        """How much joint evidence mouse i has (its diagonal of S against the mean)."""
+        d = np.diag(self.gram)
+        return float(self.groups * d[i] / d.mean()) if d.mean() > 0 else 0.0
+
     def warnings(self, names: tuple[str, ...] | list[str]) -> list[str]:
         """A line per mouse whose scale is WARN or more from 1, beyond three of its
         standard deviations: a CPI typo, or the wrong mouse's CPI."""
         out = []
         for i, name in enumerate(names):
             g, s = float(self.estimate[i, 0]), float(self.spread[i, 0])
-            if abs(g - 1.0) >= WARN and abs(g - 1.0) > 3.0 * s:
+            held = self.held_out_scale(i)
+            if held is not None:
+                g, s = held
+            if abs(1.0 / g - 1.0) >= WARN and abs(g - 1.0) > 3.0 * s:
                 word = "less" if g > 1.0 else "more"  # it needs g times its counts
                 out.append(
                     f"mouse {name} reads {abs(1.0 / g - 1.0) * 100:.0f} % {word} than "

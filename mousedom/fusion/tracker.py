@@ -430,16 +430,21 @@ class Tracker(OneWindowPath):
             b = min(n, a + self.scales.until_block_end())
             ev = None if evidence is None else tuple(e[a:b] for e in evidence)
             part = self._solve(edges[a + 1 : b + 1], counts[a:b], mask[a:b], ev)
-            self._learn_scales(counts[a:b], part.state, part.consistent, mask[a:b])
+            self._learn_scales(counts[a:b], part, mask[a:b])
             out.append(part)
             a = b
         return PoseBatch.concat(out, self.n_mice)
 
-    def _learn_scales(self, counts, state, consistent, live) -> None:
+    def _learn_scales(self, counts: np.ndarray, batch: PoseBatch, live: np.ndarray) -> None:
         """Hand closed windows to the scale learner (mice tracking in consistent windows
-        are its evidence); at a block end its new scales take effect."""
-        usable = (state == robust.TRACKING) & consistent[:, None] & live
-        if self.scales.add(counts, usable):
+        are its evidence, and the ones left out as inconsistent, against the others'
+        motion); at a block end its new scales take effect."""
+        state, reason = batch.state, batch.reason
+        usable = (state == robust.TRACKING) & batch.consistent[:, None] & live
+        held_out = (state == robust.EXCLUDED) & (reason == robust.INCONSISTENT) & live
+        q = np.stack([batch.vx, batch.vy, batch.omega], axis=1) * self.period
+        q[~batch.ok] = 0.0
+        if self.scales.add(counts, usable, held_out, q):
             if self._apply_scales:
                 self._to_body = self.scales.matrices()
                 self._to_body_rows = self._to_body.tolist()

@@ -40,9 +40,7 @@ class OneWindowPath:
         else:
             batch = self._solve_one(end, counts, live, evidence)
         if self.scales is not None:
-            row = batch.rows()[0]
-            self._learn_scales(np.array([counts]), np.array([row.state]),
-                               np.array([row.consistent]), np.array([live]))  # fmt: skip
+            self._learn_scales(np.array([counts]), batch, np.array([live]))
         return batch
 
     def _linear_plan(self, live: tuple[bool, ...]) -> tuple:
