@@ -138,9 +138,24 @@ class ScaleLearner:
             held_out, q = np.zeros((n, self.n), dtype=bool), np.zeros((n, 3))
         self._rows.append(tuple(np.asarray(a) for a in (counts, usable, held_out, q)))
         self._held += n
+        return self._block_end()
+
+    def add_row(self, counts: list, usable: list, held_out: list, q: list) -> bool:
+        """``add`` for one window as Python values (the daemon's: no numpy per window)."""
+        if not self.active:
+            return False
+        self._rows.append(([counts], [usable], [held_out], [q]))
+        self._held += 1
+        return self._block_end()
+
+    def _block_end(self) -> bool:
         if self._held < self.block:
             return False
-        counts, usable, held_out, q = (np.concatenate(c) for c in zip(*self._rows, strict=True))
+        counts, usable, held_out, q = (
+            np.concatenate([np.asarray(c, dtype=dt) for c in chunks])
+            for chunks, dt in zip(zip(*self._rows, strict=True), (float, bool, bool, float),
+                                  strict=True)
+        )  # fmt: skip
         self._rows, self._held = [], 0
         self._learn_held_out(counts.astype(float), held_out, q)
         self._learn(counts.astype(float), usable)
@@ -152,9 +167,10 @@ class ScaleLearner:
         over groups of GROUP_S in which it was left out throughout: the scale that fits
         them (least squares; its residual says whether the readings are in proportion at
         all, as a wrong CPI's are and a lift's or a seam's are not)."""
-        n_rows = len(counts)
-        group = np.arange(n_rows) // self.group
-        n_groups = int(group[-1]) + 1
+        if not held_out.any():
+            self.held *= self.forget
+            return
+        starts = np.arange(0, len(counts), self.group)
         pos = self.positions
         body = np.stack(
             [q[:, None, 0] - q[:, None, 2] * pos[None, :, 1],
@@ -163,14 +179,11 @@ class ScaleLearner:
         pred = np.einsum("nij,knj->kni", np.linalg.inv(self.base), body)
         self.held *= self.forget
         for i in range(self.n):
-            out = np.ones(n_groups, dtype=bool)
-            np.logical_and.at(out, group, held_out[:, i])
+            out = np.minimum.reduceat(held_out[:, i].astype(np.int8), starts) > 0
             if not out.any():
                 continue
-            x = np.zeros((n_groups, 2))
-            y = np.zeros((n_groups, 2))
-            np.add.at(x, group, counts[:, i])
-            np.add.at(y, group, pred[:, i])
+            x = np.add.reduceat(counts[:, i], starts, axis=0)
+            y = np.add.reduceat(pred[:, i], starts, axis=0)
             take = out & (np.abs(y).sum(axis=1) >= _MIN_COUNTS)
             x, y = x[take], y[take]
             self.held[:, i] += (np.sum(x * x), np.sum(x * y), np.sum(y * y), len(x))
@@ -179,13 +192,10 @@ class ScaleLearner:
         # Groups of consecutive windows (GROUP_S) in which every mouse tracked: their
         # counts summed (a count read a few ms late moves between neighbouring windows,
         # not out of their sum, so the readings' timing noise mostly cancels).
-        n_rows, n = len(counts), self.n
-        group = np.arange(n_rows) // self.group
-        n_groups = int(group[-1]) + 1
-        whole = np.ones(n_groups, dtype=bool)
-        np.logical_and.at(whole, group, usable.all(axis=1))
-        c = np.zeros((n_groups, n, 2))
-        np.add.at(c, group, counts)
+        n = self.n
+        starts = np.arange(0, len(counts), self.group)
+        whole = np.minimum.reduceat(usable.all(axis=1).astype(np.int8), starts) > 0
+        c = np.add.reduceat(counts, starts, axis=0)
         # and in which every mouse moved well beyond its counts' rounding: slow groups
         # would bias the fit towards the mice with less noise
         moved = np.all(np.abs(c).sum(axis=2) >= _MIN_COUNTS, axis=1)

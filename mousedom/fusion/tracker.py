@@ -435,6 +435,18 @@ class Tracker(OneWindowPath):
             a = b
         return PoseBatch.concat(out, self.n_mice)
 
+    def _learn_scales_row(self, counts: list, row, live: tuple[bool, ...]) -> None:
+        """``_learn_scales`` for the one window the daemon closed, on Python values."""
+        tracking, excluded, inconsistent = robust.TRACKING, robust.EXCLUDED, robust.INCONSISTENT
+        ok = row.consistent
+        usable = [ok and v and st == tracking for v, st in zip(live, row.state, strict=True)]
+        held = [v and st == excluded and why == inconsistent
+                for v, st, why in zip(live, row.state, row.reason, strict=True)]  # fmt: skip
+        per = self.period
+        q = [row.vx * per, row.vy * per, row.omega * per] if row.ok else [0.0, 0.0, 0.0]
+        if self.scales.add_row(counts, usable, held, q):
+            self._scales_renewed()
+
     def _learn_scales(self, counts: np.ndarray, batch: PoseBatch, live: np.ndarray) -> None:
         """Hand closed windows to the scale learner (mice tracking in consistent windows
         are its evidence, and the ones left out as inconsistent, against the others'
@@ -445,10 +457,13 @@ class Tracker(OneWindowPath):
         q = np.stack([batch.vx, batch.vy, batch.omega], axis=1) * self.period
         q[~batch.ok] = 0.0
         if self.scales.add(counts, usable, held_out, q):
-            if self._apply_scales:
-                self._to_body = self.scales.matrices()
-                self._to_body_rows = self._to_body.tolist()
-            self._scale_row = self.scales.estimate.tolist()
+            self._scales_renewed()
+
+    def _scales_renewed(self) -> None:
+        if self._apply_scales:
+            self._to_body = self.scales.matrices()
+            self._to_body_rows = self._to_body.tolist()
+        self._scale_row = self.scales.estimate.tolist()
 
     # Up to this many windows per poll, _close_one (floats, no validation) is used; tests
     # set it to 0 to compare it with the array path.

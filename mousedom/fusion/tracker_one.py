@@ -40,7 +40,7 @@ class OneWindowPath:
         else:
             batch = self._solve_one(end, counts, live, evidence)
         if self.scales is not None:
-            self._learn_scales(np.array([counts]), batch, np.array([live]))
+            self._learn_scales_row(counts, batch.rows()[0], live)
         return batch
 
     def _linear_plan(self, live: tuple[bool, ...]) -> tuple:
