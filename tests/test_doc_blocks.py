@@ -2,11 +2,15 @@
 
 Fenced blocks carry their kind: ``python`` and ``sh`` blocks are run, each in a fresh
 directory, with the bundled demo daemon running and its socket where the client and
-``mousedom watch`` look first ($RUNTIME_DIRECTORY); ``yaml`` blocks must load as a rig
-config (or, where the comment before them says so, as a calibration file); ``text`` blocks
-are samples of output and formats, not code.  An untagged block fails: whoever adds one
-says what it is.  A program that runs until stopped (a pose loop) passes when it is still
-running without an error after a few seconds.  The README's two set-up commands are
+``mousedom watch`` look first ($RUNTIME_DIRECTORY); ``yaml`` blocks are rig configs that
+``mousedom check-config --no-sources`` passes as pasted, without a warning (issue 29, item
+3), except those marked: a block whose first line is a ``# fragment`` comment is part of a
+config, checked merged into a minimal whole one (and must not pass alone: then it is no
+fragment), and one after ``<!-- doc-test: calibration file -->`` is a calibration file,
+checked as the calibration of a minimal config; ``text`` blocks are samples of output and
+formats, not code.  An untagged block fails: whoever adds one says what it is.  A program
+that runs until stopped (a pose loop) passes when it is still running without an error
+after a few seconds.  The README's two set-up commands are
 indented blocks, run by CI itself.
 """
 
@@ -22,7 +26,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from conftest import REPO, mousedom_env
+from conftest import REPO, mousedom_env, run_mousedom
 
 FENCE = re.compile(r"^```([^\n`]*)\n(.*?)^```\s*$", re.S | re.M)
 KINDS = {"python", "sh", "yaml", "text"}
@@ -42,7 +46,18 @@ def _blocks() -> list[tuple[str, int, str, str, str]]:
 
 
 BLOCKS = _blocks()
-IDS = [f"{f}:{line}" for f, line, *_ in BLOCKS]
+RUN = [b for b in BLOCKS if b[2] != "yaml"]  # run, or samples
+YAML = [b for b in BLOCKS if b[2] == "yaml"]  # checked with check-config
+FRAGMENT = "# fragment"  # the first line of a yaml block that is part of a config
+# The smallest whole config a fragment (or a calibration file) is checked within: two mice
+# (lsq's minimum) without sources, as --no-sources allows.
+BASE = {
+    "model": "lsq",
+    "mice": {
+        "left": {"cpi": 800, "mount": {"x": 0.0, "y": 0.1, "yaw": 0}},
+        "right": {"cpi": 800, "mount": {"x": 0.0, "y": -0.1, "yaw": 0}},
+    },
+}
 
 
 @pytest.fixture(scope="module")
@@ -65,6 +80,10 @@ def demo(tmp_path_factory):
     yield env
     proc.terminate()
     proc.wait(10)
+
+
+def _ids(blocks: list) -> list[str]:
+    return [f"{f}:{line}" for f, line, *_ in blocks]
 
 
 def test_every_block_says_what_it_is():
@@ -100,21 +119,63 @@ def _run(argv: list[str], env: dict, cwd: Path) -> None:
     assert proc.returncode == 0, f"exit {proc.returncode}\n{out}\n{err}"
 
 
-@pytest.mark.parametrize("file, line, kind, code, before", BLOCKS, ids=IDS)
+def _merged(base: dict, part: dict) -> dict:
+    """base with part merged in, mappings key by key (part wins)."""
+    out = dict(base)
+    for key, value in part.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = _merged(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
+def _check_config(rig: Path) -> subprocess.CompletedProcess:
+    return run_mousedom("check-config", "--no-sources", "--config", str(rig), timeout=30)
+
+
+def _placeholders(doc: dict, where: Path) -> None:
+    """The captures a config's replay sources name, as empty files: check-config checks that
+    they exist (`mousedom run` would stop on a missing one), not what they hold."""
+    for mouse in (doc.get("mice") or {}).values():
+        replay = mouse.get("replay") if isinstance(mouse, dict) else None
+        name = replay.get("file") if isinstance(replay, dict) else replay
+        if isinstance(name, str) and not Path(name).is_absolute():
+            (where / name).parent.mkdir(parents=True, exist_ok=True)
+            (where / name).touch()
+
+
+@pytest.mark.parametrize("file, line, kind, code, before", YAML, ids=_ids(YAML))
+def test_the_yaml_block_is_a_valid_config(file, line, kind, code, before, tmp_path):
+    doc = yaml.safe_load(code)
+    rig = tmp_path / "rig.yaml"
+    if "calibration file" in before:
+        (tmp_path / "calib.yaml").write_text(code)
+        base = _merged(BASE, {"calibration": "calib.yaml"})
+        for i, name in enumerate(set(doc.get("mice") or {}) - set(BASE["mice"])):
+            base["mice"][name] = {"cpi": 800, "mount": {"x": 0.1 * (i + 1), "y": 0.0}}
+        rig.write_text(yaml.safe_dump(base, sort_keys=False))
+        where = f"as the calibration file of\n{rig.read_text()}"
+    elif code.startswith(FRAGMENT):
+        rig.write_text(code)
+        alone = _check_config(rig)
+        assert alone.returncode != 0, f"{file}:{line} passes alone: drop its {FRAGMENT!r} mark"
+        rig.write_text(f"# {file}:{line} merged into a minimal config\n"
+                       + yaml.safe_dump(_merged(BASE, doc), sort_keys=False))  # fmt: skip
+        where = f"merged into a minimal config:\n{rig.read_text()}"
+    else:
+        rig.write_text(code)
+        where = "as pasted"
+    _placeholders(yaml.safe_load(rig.read_text()), tmp_path)
+    r = _check_config(rig)
+    assert r.returncode == 0, f"{file}:{line} {where}\n{r.stdout}{r.stderr}"
+    assert "warning" not in r.stderr, f"{file}:{line} {where}\n{r.stderr}"
+
+
+@pytest.mark.parametrize("file, line, kind, code, before", RUN, ids=_ids(RUN))
 def test_the_block_runs_as_pasted(file, line, kind, code, before, demo, tmp_path):
     if kind == "text":
         return  # a sample, not code
-    if kind == "yaml":
-        doc = yaml.safe_load(code)
-        if "calibration file" in before:
-            assert set(doc) <= {"mice", "distance", "umbmark", "notes"}
-            for values in doc["mice"].values():
-                assert set(values) <= {"cpi", "mount", "scale"}
-            return
-        from mousedom.config import parse_config
-
-        parse_config(code, f"{file}:{line}", need_sources=False, need_model=False)
-        return
     if "reader drains" in before:
         _fifo_reader(tmp_path / re.search(r"drains (\S+) -->", before).group(1))
     if kind == "python":
