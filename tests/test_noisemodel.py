@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mousedom.fusion.noisemodel import NoiseModel, _medians, norm2
+from mousedom.fusion.noisemodel import _KEEP, _TAIL, NoiseModel, _medians, norm2
 
 
 def _model(n: int) -> NoiseModel:
@@ -76,22 +76,24 @@ def test_extend_blocks_is_extend_and_end_block_window_by_window(
 
 def test_estimates_are_the_median_or_the_tails_whichever_is_larger():
     """Below 20 samples the median (numpy's); from 20 on, the larger of the median and
-    the 99th percentile scaled to the median of chi-square(2) (ln 2 / ln 100): timing
-    noise with a heavy tail must widen a mouse's tolerance (noisemodel._middles)."""
+    the tail's quantile (_TAIL) scaled to the median of chi-square(2) (ln 2 / ln(1 /
+    (1 - _TAIL))): timing noise with a heavy tail must widen a mouse's tolerance
+    (noisemodel._middles)."""
     rng = np.random.default_rng(3)
     for length in (10, 11, 19):
         arrays = [rng.standard_normal(length) for _ in range(7)]
         assert _medians(arrays) == [float(np.median(x)) for x in arrays]
-    for length in (20, 255, 256):
+    for length in (20, 255, 256, _KEEP):
         arrays = [rng.standard_normal(length) for _ in range(5)]
         arrays += [rng.exponential(1.0, length) ** 3 for _ in range(5)]  # heavy tails
         want = []
         for x in arrays:
-            tail = np.sort(x)[int(np.floor(0.99 * (length - 1)))]
-            want.append(max(float(np.median(x)), math.log(2) / math.log(100) * tail))
+            tail = np.sort(x)[int(np.floor(_TAIL * (length - 1)))]
+            scale = math.log(2) / math.log(1 / (1 - _TAIL))
+            want.append(max(float(np.median(x)), scale * tail))
         assert _medians(arrays) == pytest.approx(want, rel=1e-12)
         # a chi-square(2) sample's estimate is its median: the tail is no heavier
-        chi2 = rng.chisquare(2, 256) / (2 * math.log(2))
+        chi2 = rng.chisquare(2, _KEEP) / (2 * math.log(2))
         assert _medians([chi2])[0] == pytest.approx(float(np.median(chi2)), rel=0.3)
 
 
@@ -107,7 +109,7 @@ def test_norm2_is_the_sum_of_squares_bit_for_bit():
         st.sampled_from([0.9025, 0.9025 * (1 + 1e-6), 1.05, 1.05 * (1 - 1e-6), 0.0, -1.0]),
     ),
     lam=st.one_of(st.floats(1.0, 1e4), st.sampled_from([1.0, 1.05, 1 / 0.95, 1.0527])),
-    length=st.just(256),
+    length=st.just(_KEEP),
     spread=st.floats(0.0, 0.5),
     nans=st.integers(0, 140),
     seed=st.integers(0, 2**32 - 1),

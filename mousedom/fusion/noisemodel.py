@@ -12,7 +12,7 @@
   reports, or a floor that makes one mouse read a few per cent off, would fail a test built
   on the guess again and again.  So every ``block`` windows each factor is re-estimated from
   that mouse's residuals in the windows it was used in, consistent and moving (its last
-  256 samples of each; ``block`` is a second's windows): the floor's from windows where
+  _KEEP (1024) samples of each; ``block`` is a second's windows): the floor's from windows where
   the floor is at least a quarter of the proportional part (that part subtracted), the
   proportional one's likewise.  For a
   2-D residual of per-axis variance s^2 (1 - h/2) (h: the mouse's leverage, the trace of its
@@ -37,7 +37,7 @@ import numpy as np
 _MEDIAN_CHI2_2 = 2.0 * math.log(2.0)
 _MIN_SAMPLES = 10
 _START_FLOOR = 100.0  # the floor's factor before anything is learnt (see the docstring)
-_KEEP = 256  # samples per factor and mouse the estimate is the median of
+_KEEP = 1024  # samples per factor and mouse the estimate is made from
 _MAX_FACTOR = 1e4
 
 
@@ -101,10 +101,12 @@ def _middles(rows: np.ndarray) -> np.ndarray:
 
 # Timing noise (stamps that bunch after a delay) has a heavier tail than a Gaussian: a
 # factor fitted to the median alone leaves the 1e-4 test failing a healthy mouse every few
-# hundred windows.  So a factor is also fitted to the samples' 99th percentile (chi-square
-# with 2 degrees of freedom: 2 ln 100 there, 2 ln 2 at the median), and the larger is kept.
-_TAIL = 0.99
-_TAIL_TO_MEDIAN = math.log(2.0) / math.log(100.0)
+# hundred windows.  So a factor is also fitted to the samples' 99.5th percentile (chi-square
+# with 2 degrees of freedom: 2 ln 200 there, 2 ln 2 at the median), and the larger is kept;
+# over _KEEP samples (1024: ten seconds of motion) that quantile is the sixth largest, not
+# moved by one faulty window that passed the test.
+_TAIL = 0.995
+_TAIL_TO_MEDIAN = math.log(2.0) / math.log(200.0)
 
 
 def _tail_rank(n: int) -> int:
