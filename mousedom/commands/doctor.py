@@ -377,13 +377,13 @@ def socket_path(cfg: Config | None, given: str | None) -> str:
     return find_socket()
 
 
-def read_live(path: str, timeout: float) -> Live:
+def read_live(path: str, timeout: float, config: str | None = None) -> Live:
     """Connect, ask for the STATUS, and read POSE and SOURCE lines for ``timeout`` s."""
     from mousedom.client import Client, ClientError, access_hint
 
     live = Live(path)
-    start = f"start it: `{invocation.command('run', '--config', 'RIG.yaml')}` (or `systemctl " \
-            "start mousedom`)"  # fmt: skip
+    command = invocation.command("run", "--config", config or "RIG.yaml")
+    start = f"start it: `{command}` (or `systemctl start mousedom`)"
     if not os.path.exists(path):
         live.error = Check("daemon", WARN, f"no daemon: nothing at {path}",
                            f"{start}, or give --socket PATH")  # fmt: skip
@@ -550,7 +550,6 @@ except ImportError as e:
     done(ok=False, missing=True, error=str(e))
 from mousedom.service import ros2msgs, ros2out
 domain = args["domain"]
-t0 = time.monotonic()
 error = None
 with ros2out._dds_stderr() as said:
     try:
@@ -565,7 +564,6 @@ with ros2out._dds_stderr() as said:
             error = ros2out._why_no_participant(domain, said())
 if error is not None:
     done(ok=False, error=error)
-started = time.monotonic() - t0
 received = None
 if args["listen"] > 0:
     from cyclonedds.sub import DataReader
@@ -577,65 +575,92 @@ if args["listen"] > 0:
     while time.monotonic() < end:
         received += len(reader.take(N=256))
         time.sleep(0.05)
-done(ok=True, seconds=round(started, 3), received=received)
+done(ok=True, received=received)
 """
 
 
-def check_ros2(cfg: Config | None, live: Live | None, timeout: float) -> list[Check]:
-    lines = Lines("ros2")
-    if cfg is None:
-        return lines
-    if cfg.ros2 is None:
-        lines.ok("ROS 2 output not configured (outputs.ros2 in the config, or `run --ros2`)")
-        return lines
-    from mousedom.service import ros2conv, ros2out
+class Ros2Probe:
+    """The ROS 2 check: started before the daemon is read, so that its listening for the
+    odometry and the read of the socket take the same second; ``finish`` gives its lines."""
 
-    o = cfg.ros2
-    bad = lines.warn if o.optional else lines.fail  # optional: the daemon runs without it
-    try:
-        domain = ros2out.domain_id(o)
-    except UserError as e:
-        bad(str(e), "set ROS_DOMAIN_ID to a number from 0 to 232, or outputs.ros2.domain_id")
-        return lines
-    odom = ros2conv.topic(o, o.odom_topic)
-    listen = timeout if live is not None and live.connected else 0.0
-    args = {"domain": domain, "topic": "rt" + odom, "listen": listen}
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(PACKAGE.parent),
-                                                      env.get("PYTHONPATH")]))  # fmt: skip
-    limit = PARTICIPANT_TIMEOUT_S + listen
-    see = f"see {ros2out.DOCS}"
-    try:
-        p = subprocess.run([sys.executable, "-c", _PARTICIPANT, json.dumps(args)],
-                           capture_output=True, text=True, timeout=limit, env=env)  # fmt: skip
-    except subprocess.TimeoutExpired:
-        bad(f"no DDS participant on domain {domain} within {limit:g} s",
-            f"DDS is stuck (network interfaces? CYCLONEDDS_URI?): {see}")  # fmt: skip
-        return lines
-    try:
-        result = json.loads(p.stdout.strip().splitlines()[-1])
-    except (IndexError, ValueError):
-        tail = (p.stderr.strip().splitlines() or ["no output"])[-1]
-        bad(f"the DDS check failed: {tail}", see)
-        return lines
-    if result.get("missing"):
-        bad("the ROS 2 output is configured, but cyclonedds is not installed",
-            ros2out.INSTALL_HINT.split(": ", 1)[-1])  # fmt: skip
-        return lines
-    if not result.get("ok"):
-        bad(str(result.get("error") or "no DDS participant"), see)
-        return lines
-    lines.ok(f"a DDS participant starts on domain {domain} ({result['seconds']:g} s)",
-             domain=domain)  # fmt: skip
-    received = result.get("received")
-    if received:
-        lines.ok(f"{odom}: {received} messages in {listen:.1f} s", topic=odom, received=received)
-    elif received is not None:
-        lines.warn(f"{odom}: no message in {listen:.1f} s", "does the daemon run the ROS 2 "
-                   "output (its log says so at start)? the same ROS_DOMAIN_ID and "
-                   "ROS_AUTOMATIC_DISCOVERY_RANGE as this shell?", topic=odom,
-                   received=0)  # fmt: skip
-    return lines
+    def __init__(self, cfg: Config | None, listen: float) -> None:
+        self.lines = Lines("ros2")
+        self.proc: subprocess.Popen[str] | None = None
+        if cfg is None:
+            return
+        if cfg.ros2 is None:
+            self.lines.ok("ROS 2 output not configured (outputs.ros2 in the config, or "
+                          "`run --ros2`)")  # fmt: skip
+            return
+        from mousedom.service import ros2conv, ros2out
+
+        o = cfg.ros2
+        # optional: the daemon runs on without it, so a problem is a warning
+        self.bad = self.lines.warn if o.optional else self.lines.fail
+        self.see = f"see {ros2out.DOCS}"
+        self.install_hint = ros2out.INSTALL_HINT.split(": ", 1)[-1]
+        try:
+            self.domain = ros2out.domain_id(o)
+        except UserError as e:
+            self.bad(str(e), "set ROS_DOMAIN_ID to a number from 0 to 232, or "
+                     "outputs.ros2.domain_id")  # fmt: skip
+            return
+        self.odom, self.listen = ros2conv.topic(o, o.odom_topic), listen
+        args = {"domain": self.domain, "topic": "rt" + self.odom, "listen": listen}
+        env = dict(os.environ)
+        env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(PACKAGE.parent),
+                                                          env.get("PYTHONPATH")]))  # fmt: skip
+        self.deadline = time.monotonic() + PARTICIPANT_TIMEOUT_S + listen
+        self.proc = subprocess.Popen(
+            [sys.executable, "-c", _PARTICIPANT, json.dumps(args)],
+            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+            text=True, env=env,
+        )  # fmt: skip
+
+    def close(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.communicate()
+
+    def finish(self, live: Live | None) -> list[Check]:
+        if self.proc is None:
+            return self.lines
+        try:
+            out, err = self.proc.communicate(timeout=max(0.0, self.deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            self.close()
+            self.bad(f"no DDS participant on domain {self.domain} within "
+                     f"{PARTICIPANT_TIMEOUT_S + self.listen:g} s",
+                     f"DDS is stuck (network interfaces? CYCLONEDDS_URI?): {self.see}")  # fmt: skip
+            return self.lines
+        try:
+            result = json.loads(out.strip().splitlines()[-1])
+        except (IndexError, ValueError):
+            tail = (err.strip().splitlines() or ["no output"])[-1]
+            self.bad(f"the DDS check failed: {tail}", self.see)
+            return self.lines
+        if result.get("missing"):
+            self.bad("the ROS 2 output is configured, but cyclonedds is not installed",
+                     self.install_hint)  # fmt: skip
+            return self.lines
+        if not result.get("ok"):
+            self.bad(str(result.get("error") or "no DDS participant"), "fix what Cyclone DDS "
+                     "names; or let the daemon run without ROS 2: outputs.ros2.optional: "
+                     "true")  # fmt: skip
+            return self.lines
+        self.lines.ok(f"a DDS participant starts on domain {self.domain}", domain=self.domain)
+        received, odom = result.get("received"), self.odom
+        if received is None or live is None or not live.connected:
+            return self.lines  # no daemon to listen to
+        if received:
+            self.lines.ok(f"{odom}: {received} messages in {self.listen:.1f} s", topic=odom,
+                          received=received)  # fmt: skip
+        else:
+            self.lines.warn(f"{odom}: no message in {self.listen:.1f} s", "does the daemon run "
+                            "the ROS 2 output (its log says so at start)? the same "
+                            "ROS_DOMAIN_ID and ROS_AUTOMATIC_DISCOVERY_RANGE as this shell?",
+                            topic=odom, received=0)  # fmt: skip
+        return self.lines
 
 
 # --------------------------------------------------------------------------- 6. the core
@@ -708,9 +733,14 @@ def diagnose(
     else:
         checks += check_devices(cfg, root)
     checks += check_calibration(found)
-    live = read_live(socket_path(cfg, socket), timeout)
-    checks += check_daemon(live, cfg, timeout)
-    checks += check_ros2(cfg, live, timeout)
+    path = socket_path(cfg, socket)
+    ros2 = Ros2Probe(cfg, listen=timeout if os.path.exists(path) else 0.0)
+    try:
+        live = read_live(path, timeout, cfg.path if cfg else None)
+        checks += check_daemon(live, cfg, timeout)
+        checks += ros2.finish(live)
+    finally:
+        ros2.close()
     checks += check_core(live)
     return checks
 
