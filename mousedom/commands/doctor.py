@@ -163,7 +163,7 @@ def check_config(found: Found) -> list[Check]:
         rate_hz=cfg.rate_hz,
     )
     for w in cfg.warnings:  # values that look like the wrong unit (mousedom.plausible)
-        lines.warn(w, "if the value is meant, leave it: the config is in metres and degrees")
+        lines.warn(w, "correct it if it is not what you meant (if it is, nothing to do)")
     if cfg.robust.enabled:  # what the layout hides from the fault test, as check-config notes
         mounts = [(m.name, m.mount.x, m.mount.y) for m in cfg.mice]
         r = cfg.robust
@@ -246,7 +246,7 @@ def check_devices(cfg: Config | None, root: str | None) -> list[Check]:
         if locked:
             groups = sorted({d.group or "input" for d in locked})
             msg += f"; {len(locked)} closed to this user (group {', '.join(groups)})"
-            if evdev:  # each mouse's line says whether it is one of those
+            if cfg is not None:  # each evdev mouse's line says whether it is one of those
                 lines.ok(msg)
             else:
                 lines.warn(msg, f"{_join(groups[0])}, or install udev/99-mousedom.rules")
