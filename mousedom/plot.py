@@ -140,7 +140,10 @@ def figure(
         ax1.plot(data[-1, X], data[-1, Y], "s", color="tab:red", ms=7, zorder=4, label="end")
         ax1.plot(data[0, X], data[0, Y], "o", mfc="none", mec="tab:green", mew=2.0, ms=13,
                  zorder=5, label="start")  # fmt: skip
-        ax1.legend(loc="best")
+        # Below the axes, clear of the x label: inside them, even loc="best" lands on a
+        # path that fills the box (a square, a loop), and the path is what the plot is for.
+        ax1.legend(loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=4, fontsize=8,
+                   frameon=False)  # fmt: skip
     if residual:
         ax2 = axes[1]
         health = data[:, RES + len(names) :]

@@ -103,6 +103,7 @@ def test_sigint_closes_cleanly_with_every_count(tmp_path):
     assert p.returncode == 0, err
     assert "recording left" in err and "right" in err
     assert "reports" in err and "Hz" in err and "record: done" in err
+    assert f"record: wrote {out}\n" in err  # where it went, last (issue 29 item 6)
     assert "Traceback" not in err
     cap, motion, _ = read_capture(out)
     assert cap.warnings == []

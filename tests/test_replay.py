@@ -358,14 +358,23 @@ def test_truncated_native_replays_with_a_warning(tmp_path):
 def test_plot_writes_a_png(tmp_path):
     cfg = one_mouse_config(tmp_path)
     png = tmp_path / "p.png"
-    _ok(
-        replay_ps2(
-            cfg,
-            "--plot",
-            str(png),
-        )
-    )
+    p = _ok(replay_ps2(cfg, "--plot", str(png)))
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
+    assert f"replay: wrote the plot to {png}\n" in p.stderr  # issue 29 item 6
+
+
+def test_every_file_written_is_named_on_stderr(tmp_path):
+    """Issue 29 item 6: -o FILE and --plot each say where they wrote, one line each on
+    stderr with the path as given; -o - (stdout) says nothing of the kind."""
+    cfg = one_mouse_config(tmp_path)
+    csv, png = "poses.csv", "plot.png"  # relative, as a user types them
+    p = _ok(replay_ps2(cfg, "-o", csv, "--plot", png, cwd=tmp_path))
+    lines = p.stderr.splitlines()
+    assert f"replay: wrote the poses (CSV) to {csv}" in lines
+    assert f"replay: wrote the plot to {png}" in lines
+    assert (tmp_path / csv).stat().st_size > 0 and (tmp_path / png).stat().st_size > 0
+    p = _ok(replay_ps2(cfg, "-o", "-"))
+    assert "wrote" not in p.stderr
 
 
 def test_plot_without_matplotlib_says_how_to_install(tmp_path):
@@ -443,7 +452,8 @@ def test_progress_bar_on_a_terminal_only(tmp_path):
 def test_native_stats_survive_convert(tmp_path):
     src = external_dir() / "evemu-devices__Saitek_Cyborg_RAT5_Mouse.events"
     native = tmp_path / "s.mdcap"
-    _ok(run_mousedom("convert", "--capture", f"m={src}", "-o", str(native), "--no-compress"))
+    p = _ok(run_mousedom("convert", "--capture", f"m={src}", "-o", str(native), "--no-compress"))
+    assert p.stdout == "" and f"{native}: 1 devices" in p.stderr  # where it wrote, on stderr
     cap = drain(native)
     assert cap.stats[0].skipped == 13 and cap.stats[0].net_x == -111
     assert cap.devices[0].mouse == "m" and cap.devices[0].name == "Saitek Cyborg R.A.T.5 Mouse"

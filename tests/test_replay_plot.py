@@ -117,3 +117,46 @@ def _slice(b, i, j):
     from mousedom.capture.pacing import slice_batch
 
     return slice_batch(b, i, j)
+
+
+def _legend_clear_of_path(fig):
+    """The legend's box on screen, and the path's points and the x label it must miss."""
+    from matplotlib.collections import LineCollection
+
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    ax = fig.axes[0]
+    box = ax.get_legend().get_window_extent(renderer)
+    (path,) = [c for c in ax.collections if isinstance(c, LineCollection)]
+    pts = np.concatenate([seg for seg in path.get_segments()])
+    screen = ax.transData.transform(pts)
+    inside = box.contains_points(screen) if hasattr(box, "contains_points") else None
+    if inside is None:
+        inside = (
+            (screen[:, 0] >= box.x0) & (screen[:, 0] <= box.x1)
+            & (screen[:, 1] >= box.y0) & (screen[:, 1] <= box.y1)
+        )  # fmt: skip
+    return box, inside, ax.xaxis.label.get_window_extent(renderer), fig.bbox
+
+
+def test_the_legend_does_not_cover_the_path():
+    """Issue 29 item 6: inside the axes, the legend sat on the path (a square fills the
+    box, so loc="best" has nowhere to go).  Rendered: its box holds none of the path's
+    points, misses the x label, and stays on the figure."""
+    from mousedom import plot
+    from mousedom.fusion import sim
+
+    for rig, traj, names, model in (
+        (sim.three_mouse_rig(), sim.umbmark_square(1.0), ("front", "left", "right"), "lsq"),
+        (sim.Rig((sim.SimMouse("m", 0.1, 0.0),), model="diff-drive"),
+         sim.sequence(sim.straight(0.3), sim.turn(1.0), sim.straight(0.3)), ("m",),
+         "diff-drive"),
+    ):  # fmt: skip
+        col, _ = _collector(rig, traj)
+        fig = plot.figure(col, names, model=model, rates={n: 125.0 for n in names})
+        box, inside, xlabel, page = _legend_clear_of_path(fig)
+        assert not inside.any(), (box, int(inside.sum()))
+        assert not box.overlaps(xlabel), (box, xlabel)
+        assert page.x0 <= box.x0 and box.x1 <= page.x1 and page.y0 <= box.y0, (box, page)
+        texts = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+        assert "start" in texts and "end" in texts

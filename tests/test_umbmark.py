@@ -85,6 +85,7 @@ def test_cli_json_report_and_write(tmp_path):
     )
     p = run_mousedom("umbmark", str(runs), "--config", str(tmp_path / "rig.yaml"), "--write")
     assert p.returncode == 0, p.stderr
+    assert "written to " in p.stderr and "rig.calib.yaml\n" in p.stderr  # where (issue 29)
     cal = yaml.safe_load((tmp_path / "rig.calib.yaml").read_text())
     assert cal["umbmark"]["e_max_syst"] == pytest.approx(0.114018, abs=1e-6)
 

@@ -91,7 +91,7 @@ def run(args) -> int:
     print(
         f"{args.output}: {stats['devices']} devices, {stats['reports']} reports"
         + (f", {size} bytes" if size is not None else ""),
-        file=sys.stderr if args.output == "-" else sys.stdout,
+        file=sys.stderr,  # where it wrote, with the rest of the status (issue 29 item 6)
     )
     return 0
 

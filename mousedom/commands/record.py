@@ -379,6 +379,7 @@ class Recorder:
         for s in self.slots:  # the last line gives average rates over the whole run
             s.last_reports = 0
         self.say(self.status(elapsed, elapsed).replace("record:", "record: done", 1))
+        self.say(f"record: wrote {self.output}")
 
     def close_sources(self) -> None:
         for s in self.slots:

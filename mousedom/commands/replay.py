@@ -180,12 +180,17 @@ def run(args) -> int:
 
     for w in summary.warnings[len(early) :]:
         print(f"mousedom: warning: {w}", file=sys.stderr)
+    if args.output and args.output != "-":
+        _wrote("the poses (CSV)", args.output)
+    if args.mcap:
+        _wrote("the MCAP recording", args.mcap)
     if collector is not None:
         from mousedom import plot
 
         rates = {m.name: m.rate_hz for m in summary.mice}
         plot.save(collector, config.names, args.plot, title=_title(args, replay),
                   model=args.model or config.model, rates=rates)  # fmt: skip
+        _wrote("the plot", args.plot)
     if out is not None or args.umbmark:  # no summary: its warnings on their own
         for w in scale_warnings(summary, _cpis(config)):
             print(f"mousedom: warning: {w}", file=sys.stderr)
@@ -196,6 +201,11 @@ def run(args) -> int:
         summary_out.write(format_summary(summary, replay, args) + "\n")
         summary_out.flush()
     return check(summary)
+
+
+def _wrote(what: str, path: str) -> None:
+    """Where a file went, one line on stderr, the path as given (issue 29 item 6)."""
+    print(f"replay: wrote {what} to {path}", file=sys.stderr)
 
 
 def _refuse_overwriting_inputs(args, inputs: list[str]) -> None:
