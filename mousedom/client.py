@@ -30,6 +30,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from mousedom import invocation
+from mousedom.angles import wrap_degrees
 from mousedom.service.server import SOCKET_NAME, default_socket_path
 
 
@@ -69,6 +70,12 @@ class Pose:
     excluded: tuple[str, ...] = ()  # left out by the fault-tolerant fusion (protocol 1.1)
     suspect: tuple[str, ...] = ()
     consistent: bool = True
+
+    @property
+    def heading_deg(self) -> float:
+        """theta as a person reads it: degrees in (-180, 180], as ``mousedom watch`` and
+        ``replay`` show it (theta itself is continuous: it counts whole turns)."""
+        return wrap_degrees(self.theta)
 
     @classmethod
     def from_message(cls, m: dict[str, Any]) -> Pose:

@@ -224,8 +224,9 @@ def test_watch_on_a_terminal_explains_itself(rig_run):
     assert abs(final - 90.0) < 5.0, final  # 450 degrees is a quarter turn past a whole one
     times = [float(t) for t in re.findall(r"time\s+([\d.]+) s since the watch began", text)]
     assert times[0] < 0.2 and 3.5 < times[-1] < 6.0
-    for label in ("position  x", "m/s", "1 sigma", "(std dev)", "3 used, updating",
-                  "path (o start, @ now)", "reports/s", "last report", "scale"):  # fmt: skip
+    for label in ("position (odom)  x", "velocity (body)  forward", "m/s", "1 sigma",
+                  "(std dev)", "3 used, updating", "path (o start, @ now)",
+                  "reports/s", "last report", "scale"):  # fmt: skip
         assert label in last, label
     assert last.count("\x1b[32mtracking") == 3  # three sensors, green
     plain = _watch_on_a_pty(run.daemon.socket_path, "--count", "2",
@@ -238,6 +239,21 @@ def test_watch_screen_pieces():
     from mousedom.commands import _watchview as view
 
     assert view.wrap_degrees(math.radians(442)) == pytest.approx(82)
+    assert Pose.from_message(
+        {
+            "t": 0,
+            "x": 0,
+            "y": 0,
+            "theta": math.radians(442),
+            "vx": 0,
+            "vy": 0,
+            "omega": 0,
+            "cov": [[0] * 3] * 3,
+            "used": 3,
+            "updating": True,
+            "missing": [],
+        }
+    ).heading_deg == pytest.approx(82)
     assert view.wrap_degrees(math.radians(-180)) == pytest.approx(180)
     assert view.wrap_degrees(math.radians(181)) == pytest.approx(-179)
     box = view.sketch([(0.0, 0.0), (0.5, 0.0), (1.0, 0.25)], 30, 8)
@@ -321,7 +337,8 @@ def test_watch_shows_each_mouses_scale_and_the_warning_in_80_columns(rig_run):
     text = _watch_on_a_pty(run.daemon.socket_path, "--count", "12", "--rate", "10",
                            env_extra={"TERM": "xterm"}, size=(80, 40))  # fmt: skip
     last = _visible(text.split("\x1b[H\x1b[J")[-1])
-    wide = [line for line in _visible(text).splitlines() if len(line) > 80]
+    wide = [line for scr in text.split("\x1b[H\x1b[J")  # no newline ends a screen
+            for line in _visible(scr).splitlines() if len(line) > 80]  # fmt: skip
     assert wide == [], wide
     rows = {line.split()[0]: line for line in last.splitlines() if line.split()[:1]
             and line.split()[0] in ("front", "left", "right")}  # fmt: skip

@@ -14,16 +14,15 @@ wrapped to the terminal.
 from __future__ import annotations
 
 import math
+import re
 import textwrap
 from typing import Any
 
+from mousedom.angles import wrap_degrees  # the one definition (replay and client use it)
+
+__all__ = ["wrap_degrees", "screen", "pose_lines", "pose_line", "source_table", "sketch"]
+
 GREEN, YELLOW, RED, DIM, RESET = "\x1b[32m", "\x1b[33m", "\x1b[31m", "\x1b[2m", "\x1b[0m"
-
-
-def wrap_degrees(rad: float) -> float:
-    """Radians -> degrees in (-180, 180]."""
-    d = math.degrees(rad) % 360.0
-    return d - 360.0 if d > 180.0 else d
 
 
 def _num(v: float | None, fmt: str, scale: float = 1.0) -> str:
@@ -34,14 +33,16 @@ def pose_lines(m: dict[str, Any], t_start: float) -> list[str]:
     heading = None if m.get("theta") is None else wrap_degrees(m["theta"])
     turn = None if m.get("omega") is None else math.degrees(m["omega"])
     state = "updating" if m["updating"] else "NOT UPDATING (the mice cannot tell the motion)"
+    # The frames named: the position is in the odometry frame (where the robot started,
+    # x its first forward), the velocity in the robot's own body frame.
     lines = [
-        f"time      {m['t'] - t_start:9.2f} s since the watch began",
-        f"position  x {_num(m['x'], '+9.4f')} m    y {_num(m['y'], '+9.4f')} m    "
-        f"heading {_num(heading, '+8.2f')} deg",
-        f"velocity  x {_num(m['vx'], '+9.3f')} m/s  y {_num(m['vy'], '+9.3f')} m/s  "
-        f"turning {_num(turn, '+8.2f')} deg/s",
+        f"position (odom)  x {_num(m['x'], '+9.4f')} m  y {_num(m['y'], '+9.4f')} m  "
+        f"heading {_num(heading, '+7.2f')} deg",
+        f"velocity (body)  forward {_num(m['vx'], '+7.3f')} m/s  left {_num(m['vy'], '+7.3f')} "
+        f"m/s  turn {_num(turn, '+8.2f')} deg/s",
         _sigma_line(m),
-        f"mice      {m['used']} used, {state}" + _health(m, "; "),
+        f"time             {m['t'] - t_start:9.2f} s since the watch began",
+        f"mice             {m['used']} used, {state}" + _health(m, "; "),
     ]
     return lines
 
@@ -63,9 +64,10 @@ def pose_line(m: dict[str, Any], t_start: float) -> str:
     turn = None if m.get("omega") is None else math.degrees(m["omega"])
     state = "updating" if m["updating"] else "NOT UPDATING"
     line = (
-        f"t {m['t'] - t_start:.3f} s  x {_num(m['x'], '+.4f')} m  y {_num(m['y'], '+.4f')} m  "
-        f"heading {_num(heading, '+.2f')} deg  v {_num(m['vx'], '+.3f')} {_num(m['vy'], '+.3f')}"
-        f" m/s  turning {_num(turn, '+.2f')} deg/s  {m['used']} used, {state}"
+        f"t {m['t'] - t_start:.3f} s  odom x {_num(m['x'], '+.4f')} m  y {_num(m['y'], '+.4f')}"
+        f" m  heading {_num(heading, '+.2f')} deg  body forward {_num(m['vx'], '+.3f')} m/s"
+        f"  left {_num(m['vy'], '+.3f')} m/s  turn {_num(turn, '+.2f')} deg/s"
+        f"  {m['used']} used, {state}"
     )
     return line + _health(m, "  ")
 
@@ -74,8 +76,8 @@ def _sigma_line(m: dict[str, Any]) -> str:
     cov = m.get("cov") or [[None] * 3] * 3
     sd = [math.sqrt(c) if c is not None and c >= 0 else None for c in (cov[i][i] for i in range(3))]
     return (
-        f"1 sigma   x {_num(sd[0], '9.2f', 1e3)} mm   y {_num(sd[1], '9.2f', 1e3)} mm   "
-        f"heading {_num(sd[2], '8.3f', 180 / math.pi)} deg  (std dev)"
+        f"1 sigma (odom)   x {_num(sd[0], '9.2f', 1e3)} mm  y {_num(sd[1], '9.2f', 1e3)} mm  "
+        f"heading {_num(sd[2], '7.3f', 180 / math.pi)} deg (std dev)"
     )
 
 
@@ -225,16 +227,52 @@ def screen(
     size: tuple[int, int],
     color: bool,
 ) -> list[str]:
-    """The whole terminal screen, at most ``size`` = (columns, lines)."""
+    """The whole terminal screen: at most ``size`` = (columns, lines), no line wider than
+    the columns (a wider one would wrap and push the top off).  The pose comes right after
+    the header, the position and heading first, so it is never what gives way; when lines
+    are short the path sketch shrinks, then goes, then the blank lines, the header's second
+    line, and last the bottom of the sensor table (a line says how much is hidden)."""
     cols, rows = size
-    # (a socket path longer than the terminal is cut: the terminal would wrap it anyway,
-    # and the screen would be a line longer than counted)
-    lines = textwrap.wrap(header, cols, break_on_hyphens=False)
-    lines += [""]
-    if pose is not None:
-        lines += pose_lines(pose, t_start) + [""]
-    lines += source_table(list(sources.values()), color, cols)
-    room = rows - len(lines) - 2
-    if pose is not None and room >= 6:
-        lines += ["", "path (o start, @ now)"] + sketch(path, min(cols, 72), min(room - 1, 20))
-    return lines[:rows]
+    head = textwrap.wrap(header, cols, break_on_hyphens=False) or [""]
+    core = pose_lines(pose, t_start) if pose is not None else []
+    table = source_table(list(sources.values()), color, cols)
+    gap = [""]
+    if len(head) + len(core) + len(table) + 2 > rows:
+        gap = []  # no blank lines
+    if len(head) + len(core) + len(table) + 2 * len(gap) > rows:
+        head = [_clip(header, cols)]
+    lines = head + gap + core + gap
+    room = rows - len(lines)
+    if len(table) > room:
+        hidden = len(table) - max(0, room - 1)
+        table = table[: max(0, room - 1)] + [f"({hidden} more lines of sensors: a taller "
+                                             "terminal shows them)"]  # fmt: skip
+    lines += table
+    room = rows - len(lines) - 2  # a blank line and the sketch's title
+    if pose is not None and room >= 4:
+        lines += ["", "path (o start, @ now)"] + sketch(path, min(cols, 72), min(room, 20))
+    return [_clip(line, cols) for line in lines[:rows]]
+
+
+_ESC = re.compile(r"\x1b\[[0-9;]*[A-Za-z]")
+
+
+def visible_len(line: str) -> int:
+    return len(_ESC.sub("", line))
+
+
+def _clip(line: str, cols: int) -> str:
+    """At most ``cols`` visible characters (colour codes kept, and reset if cut)."""
+    if visible_len(line) <= cols:
+        return line
+    out, n, k = [], 0, 0
+    while k < len(line) and n < cols:
+        m = _ESC.match(line, k)
+        if m:
+            out.append(m.group())
+            k = m.end()
+            continue
+        out.append(line[k])
+        n += 1
+        k += 1
+    return "".join(out) + (RESET if _ESC.search(line) else "")

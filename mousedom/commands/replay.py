@@ -17,6 +17,7 @@ from typing import TextIO
 import numpy as np
 
 from mousedom.allocator import keep_freed_memory
+from mousedom.angles import wrap_degrees
 from mousedom.capture import assign, parse_capture_arg
 from mousedom.capture.replay import CsvSink, Replay, Summary
 from mousedom.commands import _options as options
@@ -351,7 +352,7 @@ def format_summary(s: Summary, replay: Replay, args) -> str:
         f = s.final
         lines.append(
             f"final pose   x {f['x']:+.4f} m  y {f['y']:+.4f} m  theta {f['theta']:+.4f} rad "
-            f"({math.degrees(f['theta']):+.2f} deg)  at t {f['t']:.3f} s"
+            f"(heading {wrap_degrees(f['theta']):+.2f} deg)  at t {f['t']:.3f} s"
         )
     else:
         lines.append("final pose   none (no motion in the captures)")

@@ -45,6 +45,7 @@ class Screen:
         self.last: dict[str, Any] | None = None
         self.t_start: float | None = None
         self.path: list[tuple[float, float]] = []
+        self.drawn = False
 
     def show(self, header: str, pose: dict[str, Any] | None, sources: dict[str, dict]) -> None:
         if pose is not None:
@@ -65,8 +66,17 @@ class Screen:
         lines = view.screen(
             header, pose, sources, t_start, self.path, (size.columns, size.lines), self.color
         )
-        self.out.write("\x1b[H\x1b[J" + "\n".join(lines) + "\n")
+        # No newline after the last line: on the terminal's last row it would scroll the
+        # screen up by one, and the header (then the position) off the top.
+        self.out.write("\x1b[H\x1b[J" + "\n".join(lines))
         self.out.flush()
+        self.drawn = True
+
+    def close(self) -> None:
+        """Leave the cursor under the screen, for the shell's prompt."""
+        if self.drawn:
+            self.out.write("\n")
+            self.out.flush()
 
 
 def run(args: argparse.Namespace) -> int:
@@ -81,6 +91,7 @@ def run(args: argparse.Namespace) -> int:
     except ClientError as e:  # no daemon there: one line, the client's own message
         raise UserError(str(e)) from None
     out = sys.stdout
+    screen: Screen | None = None
     try:
         client.rate(args.rate)
         v = client.version
@@ -111,4 +122,6 @@ def run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         return 0
     finally:
+        if screen is not None:
+            screen.close()
         client.close()
