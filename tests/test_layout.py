@@ -38,6 +38,7 @@ LAYERS = [
         "safewrite",
         "saferead",
         "plausible",
+        "angles",
         "invocation",
         "allocator",
         "__init__",
