@@ -1,5 +1,5 @@
-"""The options several subcommands share, spelled one way: ``-c/--config RIG.yaml`` and
-``-o/--output FILE``, each with its help and its default shown."""
+"""The options several subcommands share, spelled one way: ``-c/--config RIG.yaml``,
+``-o/--output FILE`` and ``--root DIR``, each with its help and its default shown."""
 
 from __future__ import annotations
 
@@ -38,3 +38,13 @@ def add_output(
 ) -> None:
     """``-o/--output FILE``."""
     p.add_argument("-o", "--output", metavar=metavar, required=required, help=what)
+
+
+def add_root(p: argparse.ArgumentParser) -> None:
+    """``--root DIR``: the input devices of a fake or mounted tree (list, doctor)."""
+    p.add_argument(
+        "--root",
+        metavar="DIR",
+        help="read DIR/dev/input, DIR/sys/class/input and DIR/run/udev/data instead of "
+        "the real ones (containers, tests)",
+    )

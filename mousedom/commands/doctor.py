@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from mousedom import invocation, safeyaml
+from mousedom.commands import _options as options
 from mousedom.config import DEFAULT_CONFIG_PATH, Config, ConfigError, MouseConfig, load_config
 from mousedom.errors import UserError
 
@@ -102,12 +103,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "(default 1.5)",
     )
     p.add_argument("--json", action="store_true", help="the checks as a JSON document")
-    p.add_argument(
-        "--root",
-        metavar="DIR",
-        help="read DIR/dev/input, DIR/sys/class/input and DIR/run/udev/data instead of "
-        "the real ones (containers, tests)",
-    )
+    options.add_root(p)
     p.set_defaults(func=run)
 
 

@@ -7,6 +7,7 @@ import json
 import os
 import sys
 
+from mousedom.commands import _options as options
 from mousedom.config import load_config
 from mousedom.errors import UserError
 from mousedom.sources.discovery import (
@@ -37,12 +38,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="also say which device each evdev mouse of this config matches; exit 1 if a "
         "rule matches none or several",
     )
-    p.add_argument(
-        "--root",
-        metavar="DIR",
-        help="read DIR/dev/input, DIR/sys/class/input and DIR/run/udev/data instead of "
-        "the real ones (containers, tests)",
-    )
+    options.add_root(p)
     p.set_defaults(func=run)
 
 
