@@ -71,11 +71,9 @@ class ScaleLearner:
         window: float,
         limit: float,
     ) -> None:
-        self.model = model
         self.n = len(positions)
         self.base = np.asarray(to_body, dtype=float)  # (N, 2, 2) counts -> body, as configured
         self.positions = np.asarray(positions, dtype=float)
-        self.sigma = np.asarray(sigma, dtype=float)
         self.limit = float(limit)
         self.block = max(10, math.ceil(BLOCK_S / window - 1e-9))
         self.forget = 0.5 ** (self.block * window / HALF_LIFE_S)
