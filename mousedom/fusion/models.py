@@ -36,11 +36,24 @@ _RANK_TOL = 1e-9
 
 
 @dataclass(frozen=True)
+class StepNoise:
+    """Each mouse's reading error that accumulates (per axis, variances in metres^2 per
+    window), learnt from the redundancy (``noiserate``): ``moving`` for windows in which a
+    live mouse counted, ``rest`` for windows without a count.  Given to ``solve``, the
+    covariance of q is the sandwich B diag(v) B^T of the estimator B (whose weights stay
+    the config's sigma): exact for the estimator in use, whatever its weights."""
+
+    moving: np.ndarray  # (N,)
+    rest: np.ndarray  # (N,)
+
+
+@dataclass(frozen=True)
 class Solution:
     """Per-window result of a model.
 
     q: (n, 3) twist increment (u_x, u_y, dtheta), metres and radians, body frame.
-    cov: (n, 3, 3) covariance of q given the mice's sigma (zero where ok is False).
+    cov: (n, 3, 3) covariance of q given the mice's sigma, or their learnt StepNoise where
+        given (zero where ok is False).
     residual: (n, N, 2) d - A q per mouse, body axes, metres; zero for mice that took no part
         and for windows that could not be solved (nothing was checked there).
     used: (n,) number of live mice in the window.
@@ -63,6 +76,7 @@ def solve(
     positions: np.ndarray,
     sigma: np.ndarray | float,
     mask: np.ndarray | None = None,
+    noise: StepNoise | None = None,
 ) -> Solution:
     """Solve ``model`` for every window.
 
@@ -70,6 +84,7 @@ def solve(
     positions: (N, 2) mouse mounts in the body frame, metres.
     sigma: (N,) (or a scalar) noise standard deviation per axis per window, metres.
     mask: (n, N) bool, which mice are live in each window; None means all.
+    noise: the covariance's error model (StepNoise) where learnt; None: sigma's.
     """
     if model not in MODELS:
         raise ValueError(f"unknown model {model!r}; choose one of {', '.join(MODELS)}")
@@ -113,7 +128,7 @@ def solve(
             residual[rows] = d[rows] - (qg @ a.T).reshape(-1, nm, 2)
         else:
             cols = [0, 1, 2] if model == "lsq" else [0, 2]
-            _linear(d, positions, sigma, live, rows, cols, q, cov, residual, ok)
+            _linear(d, positions, sigma, live, rows, cols, q, cov, residual, ok, noise)
     return Solution(q=q, cov=cov, residual=residual, used=used, ok=ok)
 
 
@@ -144,6 +159,7 @@ def _linear(
     cov: np.ndarray,
     residual: np.ndarray,
     ok: np.ndarray,
+    noise: StepNoise | None = None,
 ) -> None:
     """Weighted LSQ on the live mice for the windows ``rows``, restricted to q[cols]."""
     idx = np.flatnonzero(live)
@@ -156,8 +172,16 @@ def _linear(
     dl = dl.reshape(m, 2 * len(idx))
     qk = dl @ b.T
     res = (dl - qk @ a.T).reshape(m, len(idx), 2)
-    c3 = np.zeros((3, 3))
-    c3[np.ix_(cols, cols)] = c
+    if noise is None:
+        c3 = np.zeros((3, 3))
+        c3[np.ix_(cols, cols)] = c
+    else:
+        moving = np.any(dl != 0.0, axis=1)
+        c3 = np.where(
+            moving[:, None, None],
+            sandwich(b, noise.moving[idx], cols),
+            sandwich(b, noise.rest[idx], cols),
+        )
     if isinstance(rows, slice) and live.all():
         q[rows, cols] = qk
         residual[rows] = res
@@ -171,6 +195,15 @@ def _linear(
         residual[rows] = r3
     cov[rows] = c3
     ok[rows] = True
+
+
+def sandwich(b: np.ndarray, variance: np.ndarray, cols: tuple[int, ...] | list[int]) -> np.ndarray:
+    """The 3x3 covariance B diag(v) B^T of q = B d (B: (k, 2L) over the live mice, v their
+    per-axis variances (L,)), with zeros outside ``cols``."""
+    c = (b * np.repeat(variance, 2)) @ b.T
+    c3 = np.zeros((3, 3))
+    c3[np.ix_(list(cols), list(cols))] = 0.5 * (c + c.T)
+    return c3
 
 
 @functools.lru_cache(maxsize=256)

@@ -26,7 +26,7 @@ import math
 import numpy as np
 
 from mousedom.config import Config
-from mousedom.fusion import integrate, models, robust, scalelearn, screenbatch
+from mousedom.fusion import integrate, models, noiserate, robust, scalelearn, screenbatch
 from mousedom.fusion.countfunction import CountFunction
 from mousedom.fusion.covariance import CovarianceState, propagate, world_step_noise
 from mousedom.fusion.evidence import SensorEvidence
@@ -105,6 +105,15 @@ class Tracker(OneWindowPath):
                 config.robust.scale_limit,
             )  # fmt: skip
             self._scale_row = self.scales.estimate.tolist()
+        # The covariance's noise, learnt alongside (fusion.noiserate) in the same blocks;
+        # None (the config's sigma) until learnt.
+        self.noise_rate = None
+        self._noise: models.StepNoise | None = None
+        if self.scales is not None and self.model != "bonarini":
+            self.noise_rate = noiserate.NoiseRate(
+                self._positions, self._sigma, self.period, self.scales.block,
+                (0, 2) if self.model == "diff-drive" else (0, 1, 2),
+            )  # fmt: skip
         self.evidence = SensorEvidence(
             [1.0 / m.report_hz for m in config.mice], [m.min_squal for m in config.mice]
         )
@@ -444,6 +453,10 @@ class Tracker(OneWindowPath):
                 for v, st, why in zip(live, row.state, row.reason, strict=True)]  # fmt: skip
         per = self.period
         q = [row.vx * per, row.vy * per, row.omega * per] if row.ok else [0.0, 0.0, 0.0]
+        if self.noise_rate is not None:
+            moving = any(c[0] or c[1] for c, v in zip(counts, live, strict=True) if v)
+            if self.noise_rate.add_row(row.residual, all(usable), moving):
+                self._noise_renewed()
         if self.scales.add_row(counts, usable, held, q):
             self._scales_renewed()
 
@@ -456,8 +469,17 @@ class Tracker(OneWindowPath):
         held_out = (state == robust.EXCLUDED) & (reason == robust.INCONSISTENT) & live
         q = np.stack([batch.vx, batch.vy, batch.omega], axis=1) * self.period
         q[~batch.ok] = 0.0
+        if self.noise_rate is not None:
+            moving = np.any((counts != 0.0).any(axis=2) & live, axis=1)
+            if self.noise_rate.add(batch.residual, usable.all(axis=1), moving):
+                self._noise_renewed()
         if self.scales.add(counts, usable, held_out, q):
             self._scales_renewed()
+
+    def _noise_renewed(self) -> None:
+        if self.noise_rate is not None and self.noise_rate.noise is not self._noise:
+            self._noise = self.noise_rate.noise
+            self._linear_cache.clear()  # the one-window plans hold the covariance
 
     def _scales_renewed(self) -> None:
         if self._apply_scales:
@@ -481,7 +503,7 @@ class Tracker(OneWindowPath):
             cx, cy = counts[:, n, 0], counts[:, n, 1]
             for i in range(2):
                 np.add(cx * m[n, i, 0], cy * m[n, i, 1], out=d[:, n, i])
-        sol = models.solve(self.model, d, self._positions, self._sigma, mask)
+        sol = models.solve(self.model, d, self._positions, self._sigma, mask, self._noise)
         sol, health, reason, consistent = self._screened(d, mask, sol, evidence)
         q = np.where(sol.ok[:, None], sol.q, 0.0)
         partials = integrate.step_partials(q)  # the noise's Jacobian; its S, C make the step
@@ -535,9 +557,8 @@ class Tracker(OneWindowPath):
             q, cov, res = sol.q.copy(), sol.cov.copy(), sol.residual.copy()
             n_used, ok = sol.used.copy(), sol.ok.copy()
             if len(changed):
-                sub = models.solve(
-                    self.model, d[changed], self._positions, self._sigma, used[changed]
-                )
+                sub = models.solve(self.model, d[changed], self._positions, self._sigma,
+                                   used[changed], self._noise)  # fmt: skip
                 q[changed], cov[changed], res[changed] = sub.q, sub.cov, sub.residual
                 n_used[changed], ok[changed] = sub.used, sub.ok
             cov *= inflate[:, None, None]

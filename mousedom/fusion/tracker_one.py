@@ -45,7 +45,8 @@ class OneWindowPath:
 
     def _linear_plan(self, live: tuple[bool, ...]) -> tuple:
         """What _solve_one needs per pattern of live mice, as Python floats: (A rows, B rows,
-        live indices, q covariance 3x3 array, q columns); A and B are None without rank."""
+        live indices, q covariance 3x3 lists (in a window with counts, without), q
+        columns); A and B are None without rank."""
         plan = self._linear_cache.get(live)
         if plan is None:
             cols = (0, 1, 2) if self.model == "lsq" else (0, 2)
@@ -55,12 +56,17 @@ class OneWindowPath:
                 est = models._estimator(self._positions.tobytes(), self._sigma.tobytes(), key, cols)
             c3 = np.zeros((3, 3))
             a_rows = b_rows = None
-            if est is not None:
-                c3[np.ix_(cols, cols)] = est[2]
-                a_rows, b_rows = est[0].tolist(), est[1].tolist()
-            c3 = c3.tolist()
             idx = [i for i, v in enumerate(live) if v]
-            plan = (a_rows, b_rows, idx, c3, cols)
+            c_moving = c_rest = c3.tolist()
+            if est is not None:
+                a_rows, b_rows = est[0].tolist(), est[1].tolist()
+                if self._noise is None:
+                    c3[np.ix_(cols, cols)] = est[2]
+                    c_moving = c_rest = c3.tolist()
+                else:
+                    c_moving = models.sandwich(est[1], self._noise.moving[idx], cols).tolist()
+                    c_rest = models.sandwich(est[1], self._noise.rest[idx], cols).tolist()
+            plan = (a_rows, b_rows, idx, (c_moving, c_rest), cols)
             self._linear_cache[live] = plan
         return plan
 
@@ -116,10 +122,13 @@ class OneWindowPath:
     def _linear_one(self, d_all: list[float], live: tuple[bool, ...]):
         """(q, residual per mouse, used indices, q covariance, ok) of one window, from
         every mouse's body-frame counts ``d_all`` (x1, y1, x2, ...)."""
-        a_rows, b_rows, idx, c3, cols = self._linear_plan(live)
+        a_rows, b_rows, idx, (c_moving, c_rest), cols = self._linear_plan(live)
         residual = [[0.0, 0.0] for _ in range(self.n_mice)]
         q = [0.0, 0.0, 0.0]
         ok = b_rows is not None
+        c3 = c_moving
+        if c_rest is not c_moving and not any(d_all[2 * i] or d_all[2 * i + 1] for i in idx):
+            c3 = c_rest
         if ok:
             d = (
                 d_all
