@@ -77,6 +77,9 @@ class Decision:
     used: np.ndarray  # (N,) bool: the mice the window is solved with
     inflate: float  # the q covariance's factor (1 unless inconsistent and unattributed)
     consistent: bool
+    # (3,) to add to the window's twist increment: what mice re-admitted in it would have
+    # given over their exclusion, where that shows they were late, not wrong (_reconcile)
+    correction: np.ndarray | None = None
 
 
 class Screen:
@@ -119,6 +122,11 @@ class Screen:
         # break's continuity looks this far back, past windows a creeping fault may
         # already have bent (_tie_break).
         self.history: deque = deque(maxlen=max(2, round(HISTORY_S / window)))
+        # Each excluded mouse's readings less the others' account of them, summed over its
+        # exclusion, and the largest expected error of a window in it (_reconcile).
+        self._owed = np.zeros((self.n, 2))
+        self._owed_s2 = np.zeros(self.n)
+        self._readmitted: list[int] = []
 
     # ----------------------------------------------------------------- basics
 
@@ -345,6 +353,7 @@ class Screen:
         floor, prop = self.noise.parts(d, p, self.prev_p)
         floor = floor * scale
         self._update(d, p, live, used, suspect, reason, consistent, floor, prop)
+        correction = self._reconcile(used) if self._readmitted else None
         if consistent and self.dof(int(used.sum())) > 0:
             r2 = np.sum((d - p) ** 2, axis=1)
             moving = np.maximum(np.sum(d * d, 1), np.sum(p * p, 1)) > self.noise.sig2
@@ -354,7 +363,41 @@ class Screen:
         self._set_prev(p)
         self.history.append(d)
         self._count_window()
-        return Decision(used=used, inflate=inflate, consistent=consistent)
+        return Decision(used=used, inflate=inflate, consistent=consistent, correction=correction)
+
+    def _reconcile(self, used: np.ndarray) -> np.ndarray | None:
+        """The twist the mice re-admitted in this window owe the pose, or None.
+
+        A healthy mouse whose stamps run late (a USB host's delay, a long-tailed one) can
+        fail a window and be excluded; its late counts then arrive while it is out, and
+        were they dropped, the shortfall it showed before would be kept and its
+        compensation thrown away: a heading offset for good, several times the drive's
+        whole error on some rigs (issue 31).  So an excluded mouse's readings less what
+        the others said it moved are summed over its exclusion (``_owed``).  A late mouse's
+        sum is its lateness at the end less that at the start: no larger than one
+        window's error, and the test says so (chi-square with 2 degrees of freedom at the
+        false-alarm rate, against twice the largest expected error of a window in the
+        exclusion).  A lifted, under-reading or jumping mouse owes the motion it missed
+        or invented: far beyond.  Where it passes, the window gets what the mouse would
+        have added had it been in use throughout: adding a mouse to a least squares adds
+        B_i r_i to its solution (B_i the mouse's columns of the estimator with it in use,
+        r_i its residual under the others), and summed over the exclusion that is B_i
+        times the sum.  Exact for the heading; for the position up to the turn within
+        the exclusion."""
+        back, self._readmitted = self._readmitted, []
+        owed = np.zeros((self.n, 2))
+        with_them = used.copy()
+        thr2 = self._thresholds[2]
+        for i in back:
+            r = self._owed[i]
+            if float(r @ r) <= thr2 * 2.0 * self._owed_s2[i]:
+                owed[i] = r
+                with_them[i] = True
+            self._owed[i] = 0.0
+            self._owed_s2[i] = 0.0
+        if not owed.any():
+            return None
+        return self._solve(owed, with_them)
 
     def _reexamine(self, d, live, used, gate, scale) -> list[int] | None:
         """Revisit earlier exclusions when the kept set fails and nobody in it can be
@@ -472,7 +515,11 @@ class Screen:
                 if h.state != EXCLUDED or reason[i] != NONE:
                     # excluded by this window (blamed, or gated by its sensor's evidence)
                     h.state, h.reason, h.good = EXCLUDED, reason[i] or INCONSISTENT, 0
+                    self._owed[i] = d[i] - p[i]
+                    self._owed_s2[i] = s2[i]
                     continue
+                self._owed[i] += d[i] - p[i]
+                self._owed_s2[i] = max(self._owed_s2[i], s2[i])
                 # Excluded earlier: count the windows that would have shown its fault
                 # (the others moved it well beyond its error) and where it agreed.
                 r = d[i] - p[i]
@@ -490,6 +537,7 @@ class Screen:
                     h.good += 1
                     if h.good >= self.readmit:
                         h.state, h.reason, h.good = TRACKING, NONE, 0
+                        self._readmitted.append(i)
                 continue
             if suspect[i]:
                 h.state, h.reason, h.good = SUSPECT, reason[i] or INCONSISTENT, 0

@@ -30,15 +30,16 @@ def screen(
 ):
     """d: (n, N, 2) readings; mask: (n, N) live mice; q: (n, 3) the plain solution with
     that mask.  Returns (used (n, N), inflate (n,), consistent (n,), state (n, N) int8,
-    reason (n, N) int8)."""
+    reason (n, N) int8, correction (n, 3) or None: Decision.correction, by row)."""
     n, nm = mask.shape
     used = mask.copy()
     inflate = np.ones(n)
     consistent = np.ones(n, dtype=bool)
     state = np.where(mask, TRACKING, MISSING).astype(np.int8)
     reason = np.zeros((n, nm), dtype=np.int8)
+    correction = None
     if n == 0:
-        return used, inflate, consistent, state, reason
+        return used, inflate, consistent, state, reason, correction
     p = sc.predict(q)
     codes = mask.astype(np.int64) @ (np.int64(1) << np.arange(nm, dtype=np.int64))
     changes = np.flatnonzero(codes[1:] != codes[:-1]) + 1
@@ -93,12 +94,16 @@ def screen(
         used[i] = dec.used
         inflate[i] = dec.inflate
         consistent[i] = dec.consistent
+        if dec.correction is not None:
+            if correction is None:
+                correction = np.zeros((n, 3))
+            correction[i] = dec.correction
         state[i] = [h.state for h in sc.health]
         reason[i] = [h.reason for h in sc.health]
         # the next window's changes are from this one's own solution: decide it too
         prev_altered = not np.array_equal(dec.used, mask[i])
         i += 1
-    return used, inflate, consistent, state, reason
+    return used, inflate, consistent, state, reason, correction
 
 
 def _leverages(sc: Screen, mask: np.ndarray, codes: np.ndarray) -> np.ndarray:

@@ -548,12 +548,12 @@ class Tracker(OneWindowPath):
             return sol, state, np.zeros_like(state), np.ones(n, dtype=bool)
         q = np.where(sol.ok[:, None], sol.q, 0.0)
         scale, low = evidence if evidence is not None else (None, None)
-        used, inflate, consistent, state, reason = screenbatch.screen(
+        used, inflate, consistent, state, reason, correction = screenbatch.screen(
             self.screen, d, mask, q, scale, low
         )
         altered = used != mask
         changed = np.flatnonzero(np.any(altered, axis=1)) if altered.any() else []
-        if len(changed) or np.any(inflate != 1.0):
+        if len(changed) or np.any(inflate != 1.0) or correction is not None:
             q, cov, res = sol.q.copy(), sol.cov.copy(), sol.residual.copy()
             n_used, ok = sol.used.copy(), sol.ok.copy()
             if len(changed):
@@ -562,5 +562,7 @@ class Tracker(OneWindowPath):
                 q[changed], cov[changed], res[changed] = sub.q, sub.cov, sub.residual
                 n_used[changed], ok[changed] = sub.used, sub.ok
             cov *= inflate[:, None, None]
+            if correction is not None:
+                q += correction
             sol = models.Solution(q=q, cov=cov, residual=res, used=n_used, ok=ok)
         return sol, state, reason, consistent

@@ -101,6 +101,8 @@ class OneWindowPath:
             used = tuple(dec.used.tolist())
             if used != live:
                 q, residual, idx, c3, ok = self._linear_one(d_all, used)
+            if dec.correction is not None:
+                q = [v + c for v, c in zip(q, dec.correction.tolist(), strict=True)]
             if dec.inflate != 1.0:
                 c3 = [[v * dec.inflate for v in row] for row in c3]
             consistent = dec.consistent
