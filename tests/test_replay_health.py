@@ -1,6 +1,6 @@
 """The replay summary's health of each mouse (issue 31): the share of windows it was
-excluded and suspect, its learnt scale at the end, and a warning for a scale 10 % or more
-off (a wrong CPI)."""
+excluded and suspect, and why (issue 29 item 6), its learnt scale at the end, and a warning
+for a scale 10 % or more off (a wrong CPI)."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from test_replay import _ok, _sim_native
 
 from mousedom.capture.base import DeviceStats
 from mousedom.capture.replay import MouseSummary, Summary
-from mousedom.commands.replay import health_lines, scale_warning, scale_warnings
+from mousedom.commands.replay import health_lines, scale_warning, scale_warnings, why_line
 from mousedom.fusion import robust
 from mousedom.fusion.posebatch import PoseBatch
 
@@ -26,7 +26,8 @@ def _batch(n: int, rng, n_mice: int = 3, scale: np.ndarray | None = None) -> Pos
         cov=np.zeros((n, 3, 3)), used=np.full(n, n_mice), ok=np.ones(n, dtype=bool),
         residual=np.zeros((n, n_mice, 2)), counts=np.zeros((n, n_mice, 2)),
         state=rng.choice(4, (n, n_mice), p=[0.7, 0.1, 0.15, 0.05]).astype(np.int8),
-        reason=np.zeros((n, n_mice), dtype=np.int8), consistent=np.ones(n, dtype=bool),
+        reason=rng.choice(len(robust.REASONS), (n, n_mice)).astype(np.int8),
+        consistent=np.ones(n, dtype=bool),
         qcov=np.zeros((n, 3, 3)), scale=scale,
     )  # fmt: skip
 
@@ -45,39 +46,62 @@ def test_the_summary_counts_each_mouses_states_batch_by_batch_and_keeps_the_last
     assert s.excluded.tolist() == (state == robust.EXCLUDED).sum(axis=0).tolist()
     assert s.suspect.tolist() == (state == robust.SUSPECT).sum(axis=0).tolist()
     assert s.scale is not None and s.scale.tolist() == last.tolist()
-    assert s.health_of(2) == {
+    reason = np.concatenate([b.reason for b in batches])
+    names = ("no reason given", *robust.REASONS[1:])
+
+    def why(kind: int) -> dict[str, int]:
+        n = [int(((state[:, 2] == kind) & (reason[:, 2] == k)).sum()) for k in range(5)]
+        order = sorted(range(5), key=lambda k: (-n[k], k))  # most frequent first
+        return {names[k]: n[k] for k in order if n[k]}
+
+    health = s.health_of(2)
+    assert health == {
         "excluded": int((state[:, 2] == robust.EXCLUDED).sum()),
         "suspect": int((state[:, 2] == robust.SUSPECT).sum()),
+        "excluded_why": why(robust.EXCLUDED),
+        "suspect_why": why(robust.SUSPECT),
         "scale": (1.12, 0.95),
     }
+    assert list(health["excluded_why"].values()) == sorted(health["excluded_why"].values())[::-1]
+    assert sum(health["excluded_why"].values()) == health["excluded"]
+    assert sum(health["suspect_why"].values()) == health["suspect"]
     # Counts, not windows: nothing the summary holds grows with the replay.
     held = [v for v in vars(s).values() if isinstance(v, np.ndarray | list)]
-    assert all(np.size(v) <= 6 for v in held)
+    assert all(np.size(v) <= 3 * len(robust.REASONS) for v in held)
     # No scale in any batch: none learnt.
     s = Summary(("a",))
     s.add(_batch(5, rng, n_mice=1))
     assert s.scale is None and s.health_of(0)["scale"] is None
 
 
-def _mouse(name: str, excluded: int, suspect: int, scale, path=(100, 900)) -> MouseSummary:
+def _mouse(name: str, excluded: int, suspect: int, scale, path=(100, 900),
+           excluded_why=None, suspect_why=None) -> MouseSummary:  # fmt: skip
     stats = DeviceStats(path_x=path[0], path_y=path[1])
     return MouseSummary(name, "f.mdcap", name, stats, excluded=excluded, suspect=suspect,
-                        scale=scale)  # fmt: skip
+                        scale=scale, excluded_why=excluded_why or {},
+                        suspect_why=suspect_why or {})  # fmt: skip
 
 
 def test_health_lines_give_shares_and_scales_and_warn_of_a_wrong_cpi():
     s = Summary(("front", "left", "right"), windows=2000)
     s.mice = [
-        _mouse("front", 500, 12, (1.029, 0.999)),
+        _mouse("front", 500, 12, (1.029, 0.999),
+               excluded_why={"silent while others move": 482, "inconsistent": 18},
+               suspect_why={"inconsistent": 12}),
         _mouse("left", 0, 0, (1.0, 1.001)),
-        _mouse("right", 3, 1999, (0.893, 0.893)),
-    ]
+        _mouse("right", 3, 1999, (0.893, 0.893), excluded_why={"saturated": 3},
+               suspect_why={"inconsistent": 1998, "low quality": 1}),
+    ]  # fmt: skip
     cpi = {"front": (800.0, 800.0), "left": (800.0, 800.0), "right": (800.0, 800.0)}
     assert health_lines(s, cpi) == [
         "mouse health          excluded         suspect   learnt scale at the end",
         "  front           500 (25.0 %)      12 (0.6 %)   x +2.9 %  y -0.1 %",
+        "    excluded: silent while others move 24.1 %, inconsistent 0.9 %",
+        "    suspect: inconsistent 0.6 %",
         "  left               0 (0.0 %)       0 (0.0 %)   x +0.0 %  y +0.1 %",
         "  right              3 (0.1 %)  1999 (100.0 %)   x -10.7 %  y -10.7 %",
+        "    excluded: saturated 0.1 %",
+        "    suspect: inconsistent 99.9 %, low quality 0.1 %",
         "warning: mouse right reads 12 % more than the other mice (its y axis): check its CPI "
         "in the config: 800 there, the others say about 895",
     ]
@@ -100,6 +124,9 @@ def test_health_lines_give_shares_and_scales_and_warn_of_a_wrong_cpi():
         "mouse front reads 18 % more than the other mice (its x axis): check its CPI in the "
         "config: 800 there, the others say about 941"
     ]
+    # A few windows of a long replay are not "0.0 %"; a mouse never excluded has no line.
+    assert why_line("excluded", {"saturated": 1}, 100_000) == "    excluded: saturated <0.1 %"
+    assert why_line("suspect", {}, 100_000) is None
     s.mice = [_mouse("solo", 0, 40, None)]
     assert health_lines(s, {"solo": (400.0, 400.0)})[1:] == [
         "  solo               0 (0.0 %)      40 (2.0 %)   not learnt"
@@ -132,11 +159,17 @@ def test_scale_warning_says_how_much_more_or_less_the_mouse_reads_and_the_cpi_me
 def _health_rows(text: str) -> dict[str, list[str]]:
     lines = text.splitlines()
     at = next(i for i, ln in enumerate(lines) if ln.startswith("mouse health"))
-    rows = {}
+    rows: dict[str, list[str]] = {}
+    name = ""
     for ln in lines[at + 1 :]:
         if not ln or ln.startswith("warning:"):
             break
-        rows[ln.split()[0]] = ln.split()[1:]
+        if ln.startswith("    "):  # why the mouse above was excluded or suspect
+            kind, reasons = ln.strip().split(": ", 1)
+            rows[f"{name} {kind}"] = reasons.split(", ")
+            continue
+        name = ln.split()[0]
+        rows[name] = ln.split()[1:]
     return rows
 
 
@@ -148,12 +181,20 @@ def test_replay_summary_names_the_lifted_mouse_excluded(tmp_path):
     _, _, cfg, path = _sim_native(tmp_path, fault=lift)
     proc = _ok(run_mousedom("replay", "--config", str(cfg), "--capture", str(path)))
     rows = _health_rows(proc.stdout)
-    assert set(rows) == {"front", "left", "right"}
+    assert set(rows) == {"front", "front excluded", "left", "right"}
     windows = int(re.search(r"reports, (\d+) windows", proc.stdout).group(1))
     excluded_front = int(rows["front"][0])
     # lifted 0.8 s of the drive at 100 Hz windows: excluded for about that long
     assert 60 <= excluded_front <= 0.3 * windows
     assert rows["front"][1] == f"({100 * excluded_front / windows:.1f}"
+    # and why: mostly silent while the others moved (lifted); the windows after it came
+    # down, until it agreed again, inconsistent
+    why = dict(r.rsplit(" ", 2)[0:2] for r in rows["front excluded"])
+    assert list(why)[0] == "silent while others move" and set(why) <= {
+        "silent while others move",
+        "inconsistent",
+    }
+    assert float(why["silent while others move"]) >= 50 * 100 / windows
     assert rows["left"][:2] == ["0", "(0.0"] and rows["right"][:2] == ["0", "(0.0"]
     assert "warning:" not in proc.stdout
 

@@ -82,6 +82,10 @@ class MouseSummary:
     counts_out: tuple[float, float] = (0.0, 0.0)
     excluded: int = 0  # windows after which the fusion had it excluded (robust.EXCLUDED)
     suspect: int = 0  # ... suspect (robust.SUSPECT)
+    # Those windows by the reason the fusion gave (robust.REASONS' text: count), the most
+    # frequent first; a reason never given is left out.
+    excluded_why: dict[str, int] = field(default_factory=dict)
+    suspect_why: dict[str, int] = field(default_factory=dict)
     scale: tuple[float, float] | None = None  # learnt scale (REL_X, REL_Y) at the end; None:
     # no window had one learnt
 
@@ -110,9 +114,12 @@ class Summary:
     # to the first window's pose counts (measured from that pose, the path could be
     # shorter than the displacement).
     _last_xy: tuple[float, float] = (0.0, 0.0)
-    # Per mouse (config order): windows excluded and suspect; the last learnt scale.
+    # Per mouse (config order): windows excluded and suspect, and those by reason (N,
+    # len(REASONS)): column k counts robust.REASONS[k]; the last learnt scale.
     excluded: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     suspect: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    excluded_why: np.ndarray = field(default_factory=lambda: _no_reasons(0))
+    suspect_why: np.ndarray = field(default_factory=lambda: _no_reasons(0))
     scale: np.ndarray | None = None  # (N, 2), None while no window had one learnt
 
     def add(self, b: PoseBatch) -> None:
@@ -125,8 +132,17 @@ class Summary:
         if len(self.excluded) != state.shape[1]:
             self.excluded = np.zeros(state.shape[1], dtype=np.int64)
             self.suspect = np.zeros(state.shape[1], dtype=np.int64)
+            self.excluded_why = _no_reasons(state.shape[1])
+            self.suspect_why = _no_reasons(state.shape[1])
         self.excluded += np.count_nonzero(state == robust.EXCLUDED, axis=0)
         self.suspect += np.count_nonzero(state == robust.SUSPECT, axis=0)
+        # A code the fusion does not name (none should occur) counts as "no reason given".
+        reason = np.asarray(b.reason, dtype=np.int64)
+        reason = np.where((reason >= 0) & (reason < len(robust.REASONS)), reason, robust.NONE)
+        for k in range(len(robust.REASONS)):
+            this = reason == k
+            self.excluded_why[:, k] += np.count_nonzero(this & (state == robust.EXCLUDED), axis=0)
+            self.suspect_why[:, k] += np.count_nonzero(this & (state == robust.SUSPECT), axis=0)
         if b.scale is not None:
             self.scale = np.array(b.scale[-1], dtype=np.float64)
         xs = np.concatenate([[self._last_xy[0]], b.x])
@@ -147,6 +163,8 @@ class Summary:
         return {
             "excluded": int(self.excluded[mouse]) if counted else 0,
             "suspect": int(self.suspect[mouse]) if counted else 0,
+            "excluded_why": _why(self.excluded_why[mouse]) if counted else {},
+            "suspect_why": _why(self.suspect_why[mouse]) if counted else {},
             "scale": scale,
         }
 
@@ -159,6 +177,18 @@ class Summary:
     @property
     def reports(self) -> int:
         return sum(m.stats.reports for m in self.mice)
+
+
+def _no_reasons(n_mice: int) -> np.ndarray:
+    return np.zeros((n_mice, len(robust.REASONS)), dtype=np.int64)
+
+
+def _why(counts: np.ndarray) -> dict[str, int]:
+    """One mouse's windows by reason, as {reason: windows}, the most frequent first (ties
+    in robust.REASONS' order); code 0 (robust.NONE) is named "no reason given"."""
+    names = ("no reason given", *robust.REASONS[1:])
+    order = sorted(range(len(names)), key=lambda k: (-int(counts[k]), k))
+    return {names[k]: int(counts[k]) for k in order if counts[k]}
 
 
 class Replay:

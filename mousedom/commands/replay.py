@@ -395,11 +395,28 @@ def _share(k: int, windows: int) -> str:
     return f"{k} ({100.0 * k / windows:.1f} %)" if windows else str(k)
 
 
+def _percent(k: int, windows: int) -> str:
+    """A share of all windows; a few windows of a long replay are not "0.0 %"."""
+    share = 100.0 * k / windows
+    return "<0.1 %" if 0 < share < 0.05 else f"{share:.1f} %"
+
+
+def why_line(kind: str, why: dict[str, int], windows: int) -> str | None:
+    """Why a mouse was ``kind`` (excluded, suspect): each reason with its share of all
+    windows, the most frequent first, or None when it never was."""
+    if not why or not windows:
+        return None
+    reasons = ", ".join(f"{reason} {_percent(k, windows)}" for reason, k in why.items())
+    return f"    {kind}: {reasons}"
+
+
 def health_lines(s: Summary, cpi: dict[str, tuple[float, float]]) -> list[str]:
     """Per mouse: the windows after which the fusion had it excluded and suspect (and
-    their share of all windows), its learnt scale at the end as a deviation from 1; then
-    the scale warnings."""
+    their share of all windows), its learnt scale at the end as a deviation from 1, and
+    under the row, why it was excluded or suspect (the share of each reason); then the
+    scale warnings."""
     # The rows are indented: a line that starts with a mouse's name stays its row above.
+    # The reasons are indented further: their own lines, so the table stays narrow.
     lines = [f"{'mouse health':<14} {'excluded':>15} {'suspect':>15}   learnt scale at the end"]
     for m in s.mice:
         scale = "not learnt"
@@ -408,6 +425,10 @@ def health_lines(s: Summary, cpi: dict[str, tuple[float, float]]) -> list[str]:
             scale = f"x {x:+.1f} %  y {y:+.1f} %"
         share = f"{_share(m.excluded, s.windows):>15} {_share(m.suspect, s.windows):>15}"
         lines.append(f"  {m.name:<12} {share}   {scale}")
+        for kind, why in (("excluded", m.excluded_why), ("suspect", m.suspect_why)):
+            line = why_line(kind, why, s.windows)
+            if line:
+                lines.append(line)
     return lines + [f"warning: {w}" for w in scale_warnings(s, cpi)]
 
 
