@@ -13,6 +13,7 @@ calibrated so far.
 
 from __future__ import annotations
 
+import ipaddress
 import math
 import os
 import re
@@ -154,6 +155,14 @@ class FoxgloveConfig:
     port: int = 8765
 
 
+@dataclass(frozen=True)
+class MetricsConfig:
+    """The optional Prometheus endpoint (docs/metrics.md); ``outputs: {metrics: {...}}``."""
+
+    host: str = "127.0.0.1"  # localhost only unless said: the endpoint has no access control
+    port: int = 9464  # 0: any free port (the log says which)
+
+
 STAMPS = ("system", "monotonic")
 # ROS 2's names, as rcl accepts them: a node name of letters, digits and _ not starting
 # with a digit; a namespace of such names, each after a "/" (ros2graph announces these).
@@ -179,6 +188,7 @@ class Config:
     late_report_s: float = 0.1
     ros2: Ros2Config | None = None  # outputs.ros2: None means no DDS output
     foxglove: FoxgloveConfig | None = None  # outputs.foxglove: None means no live view
+    metrics: MetricsConfig | None = None  # outputs.metrics: None means no Prometheus endpoint
     # values that look like the wrong unit (mousedom.plausible): said, not refused
     warnings: tuple[str, ...] = ()
 
@@ -392,8 +402,10 @@ def _robust(r: Reader) -> RobustConfig:
     return robust
 
 
-def _outputs(r: Reader) -> tuple[Ros2Config | None, FoxgloveConfig | None]:
-    o = r.sub("outputs", ("ros2", "foxglove"))
+def _outputs(
+    r: Reader,
+) -> tuple[Ros2Config | None, FoxgloveConfig | None, MetricsConfig | None]:
+    o = r.sub("outputs", ("ros2", "foxglove", "metrics"))
     ros2 = None
     if o.has("ros2"):
         v = o.raw("ros2")
@@ -410,8 +422,15 @@ def _outputs(r: Reader) -> tuple[Ros2Config | None, FoxgloveConfig | None]:
             fox = FoxgloveConfig()
         elif v is not False and v is not None:
             fox = _foxglove(o)
+    metrics = None
+    if o.has("metrics"):
+        v = o.raw("metrics")
+        if v is True:
+            metrics = MetricsConfig()
+        elif v is not False and v is not None:
+            metrics = _metrics(o)
     o.finish()
-    return ros2, fox
+    return ros2, fox, metrics
 
 
 def _foxglove(r: Reader) -> FoxgloveConfig | None:
@@ -424,6 +443,27 @@ def _foxglove(r: Reader) -> FoxgloveConfig | None:
     enabled = s.boolean("enabled", True)
     s.finish()
     return cfg if enabled else None
+
+
+def _metrics(r: Reader) -> MetricsConfig | None:
+    s = r.sub("metrics", ("enabled", "host", "port"))
+    d = MetricsConfig()
+    port = s.integer("port", d.port, minimum=0)
+    if port > 65535:
+        raise s.err("port", f"must be a TCP port (0 to 65535; 0: any free one), got {port}")
+    host = s.string("host") or d.host
+    # An address, not a name: a name would be looked up (DNS) at every start, and could
+    # resolve to an interface nobody meant to expose.
+    try:
+        ipaddress.ip_address(host)
+    except ValueError:
+        if host != "localhost":
+            raise s.err("host", "must be an IP address to listen on (127.0.0.1 or ::1 for "
+                        "this machine only, 0.0.0.0 or :: for every interface), got "
+                        f"{shown(host)}") from None  # fmt: skip
+    enabled = s.boolean("enabled", True)
+    s.finish()
+    return MetricsConfig(host=host, port=port) if enabled else None
 
 
 def _ros2(r: Reader) -> Ros2Config:
@@ -564,7 +604,7 @@ def parse_config(
     wheels = doc.attempt(_wheels, top) if top.has("wheels") else None
     robust = (doc.attempt(_robust, top) if top.has("robust") else None) or RobustConfig()
     outputs = doc.attempt(_outputs, top) if top.has("outputs") else None
-    ros2, foxglove = outputs or (None, None)
+    ros2, foxglove, metrics = outputs or (None, None, None)
     calibration = doc.attempt(top.string, "calibration")
     calibration_path = str(base_dir / calibration) if calibration else None
     doc.raise_problems()
@@ -606,6 +646,7 @@ def parse_config(
         late_report_s=0.1 if late is None else late,
         ros2=ros2,
         foxglove=foxglove,
+        metrics=metrics,
         warnings=warnings,
     )
 

@@ -76,25 +76,27 @@ def test_systemd_analyze_security_score():
     assert float(m.group(1)) <= 2.0, text
 
 
-DROP_IN = UNIT.parent / "mousedom.service.d" / "ros2.conf"
+DROP_INS = UNIT.parent / "mousedom.service.d"
 
 
-def _unit_with_drop_in(tmp_path: Path) -> Path:
-    """The unit (command at /bin/true: only its settings matter here) and the ROS 2
-    drop-in, laid out as systemd finds them."""
+def _unit_with_drop_in(tmp_path: Path, name: str = "ros2.conf") -> Path:
+    """The unit (command at /bin/true: only its settings matter here) and a drop-in,
+    laid out as systemd finds them."""
     unit = tmp_path / "mousedom.service"
     unit.write_text(UNIT.read_text().replace("/usr/bin/mousedom", "/bin/true"))
     (tmp_path / "mousedom.service.d").mkdir()
-    shutil.copy(DROP_IN, tmp_path / "mousedom.service.d" / "ros2.conf")
+    shutil.copy(DROP_INS / name, tmp_path / "mousedom.service.d" / name)
     return unit
 
 
-def test_the_ros2_drop_in_parses_and_opens_only_the_network(tmp_path):
+@pytest.mark.parametrize("name", ["ros2.conf", "metrics.conf"])
+def test_the_network_drop_ins_parse_and_open_only_the_network(tmp_path, name):
     """Issue 25: the shipped unit blocks DDS (PrivateNetwork, AF_UNIX only, IPAddressDeny);
     the drop-in for robots that publish to ROS 2 must parse with the unit and open the
-    network and nothing else (the security report differs in those lines only)."""
+    network and nothing else (the security report differs in those lines only).  Issue
+    29: so must the one for Prometheus metrics (TCP on the loopback)."""
     tool = _analyze()
-    unit = _unit_with_drop_in(tmp_path)
+    unit = _unit_with_drop_in(tmp_path, name)
     out = subprocess.run([tool, "verify", str(unit)], capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
     assert "mousedom.service" not in out.stderr, out.stderr

@@ -114,6 +114,10 @@ def run(args: argparse.Namespace) -> int:
         from mousedom.config import Ros2Config
 
         config = dataclasses.replace(config, ros2=Ros2Config())
+    if config.metrics is not None:  # its install hint before any sensor is opened
+        from mousedom.service.metrics import require
+
+        require()
     outputs = []
     try:
         if config.ros2 is not None:

@@ -103,6 +103,10 @@ class Daemon(SensorSlots, Publisher, ClientCommands, Reloader):
         # Where else each window goes (ROS 2 over DDS, an MCAP file): publish(row),
         # moved(before, after), sources(messages, t), close() (see publish.py)
         self.outputs: list[Any] = list(outputs or ())
+        # outputs.metrics: the Prometheus endpoint (metrics.py), started by run(), and the
+        # CPU clock around each window's work (None: metrics off, nothing is timed)
+        self.metrics: Any = None
+        self.window_cpu: Any = None
         self.tracker: Any = None
         self.started = clock()
         self.poses = 0
@@ -180,6 +184,11 @@ class Daemon(SensorSlots, Publisher, ClientCommands, Reloader):
                 kinds = [s.source.kind for s in self.slots]
                 self.recording = Recording(self.record_path, self.config, kinds)
                 log.info("recording the sensors' reports to %s", self.record_path)
+            if self.config.metrics is not None:  # before the socket: a taken port stops us
+                from mousedom.service.metrics import MetricsExporter
+
+                self.metrics = MetricsExporter(self.config.metrics, self)
+                self.window_cpu = self.metrics.window_cpu
             self.server.open()
             log.info(
                 "listening on %s; watch it with: %s",
@@ -223,8 +232,13 @@ class Daemon(SensorSlots, Publisher, ClientCommands, Reloader):
                 continue
             now = self.clock()
             if now >= wake_at:
+                timing = self.window_cpu
+                if timing is not None:
+                    timing.start(self.poses)
                 self._read_sources(now)
                 self._publish(self.tracker.poll())
+                if timing is not None:
+                    timing.stop(self.poses)
             if now >= retry:
                 for slot in self.slots:
                     if not slot.live and now >= slot.retry_at:
@@ -313,6 +327,9 @@ class Daemon(SensorSlots, Publisher, ClientCommands, Reloader):
         if self.recording is not None:
             self._record(self.recording.close)
             self.recording = None
+        if self.metrics is not None:
+            self.metrics.close()
+            self.metrics = self.window_cpu = None
         self.server.close()
         for slot in self.slots:
             self._close_slot(slot)

@@ -163,8 +163,12 @@ class Publisher:
                 self._moved(before)
 
     def _output_sources(self, now: float) -> None:
-        if self.outputs:
-            self._to_outputs("sources", self._source_messages(now), now)
+        if self.outputs or self.metrics is not None:
+            messages = self._source_messages(now)
+            if self.outputs:
+                self._to_outputs("sources", messages, now)
+            if self.metrics is not None:  # each mouse's figures, for the next scrape
+                self.metrics.sources(messages, now)
 
     def _broadcast_sources(self, now: float) -> None:
         if not self.server.clients:

@@ -64,6 +64,7 @@ class Reloader:
             self._record(self.recording.close)
             self.recording = None
         self._fold_window_health()  # the old slots' last windows, before they move
+        old_config = self.config
         self.config, self.tracker, self.slots = new, tracker, slots
         self._live_changed()
         for slot in slots:
@@ -73,6 +74,8 @@ class Reloader:
                 self._try_open(slot, now)
         if new.server.socket and new.server.socket != self.server.path:
             log.warning("server.socket changed: takes effect at the next restart")
+        if new.metrics != old_config.metrics:
+            log.warning("outputs.metrics changed: takes effect at the next restart")
         self.server.apply_settings(new.server)
         log.info("reloaded %s: %d mice, model %s", path, len(new.mice), new.model)
         self.notifier.notify(READY=1, STATUS=self._status_line())
