@@ -105,22 +105,24 @@ def test_two_mice_learn_nothing_and_off_means_not_applied():
 
 
 @pytest.mark.parametrize(
-    "layout, factor, bound",
-    [("triangle", 1.03, True), ("pentagon", 0.98, True), ("square", 1.03, False),
-     ("kite", 0.98, False)],
+    "layout, factor, which",
+    [("triangle", 1.03, -1), ("triangle", 0.97, 0), ("pentagon", 0.98, -1), ("square", 1.03, 0),
+     ("square", 1.02, -1), ("kite", 0.98, 0), ("wide", 1.03, -1)],
 )  # fmt: skip
-def test_a_cpi_a_few_per_cent_off_is_corrected(layout, factor, bound):
-    """Issue 31, item 3: a one-mouse CPI error of 2-3 % over a minute's drive.  Every drive
-    ends better with the learnt scales than without, the median at least five times
-    better; where ``bound``, the median within twice (+20 mm) the drive told the true CPI.
-    Not yet on the square and the kite: there the heading lost in the first second, before
-    the scale is learnt, is already more than that (docs/calibration.md)."""
+def test_a_cpi_a_few_per_cent_off_is_corrected(layout, factor, which):
+    """Issue 31, item 3: a one-mouse CPI error of 2-3 % over a minute's drive ends within
+    twice (+20 mm) the same drive told the true CPI, every drive; and better than without
+    the learnt scales, the median at least five times.  The heading those seconds lost
+    before the scale was plain is given back when it is (ScaleLearner.take_turn): without
+    that the square ended 3 to 7 times the bound."""
     learnt, told, plain = [], [], []
     for seed in (31, 32, 33):
         base = scenarios.rig(layout)
-        wrong = dataclasses.replace(base.mice[0], cpi_x=base.mice[0].cpi_x * factor,
-                                    cpi_y=base.mice[0].cpi_y * factor)  # fmt: skip
-        true_rig = dataclasses.replace(base, mice=(wrong, *base.mice[1:]))
+        m = base.mice[which]
+        wrong = dataclasses.replace(m, cpi_x=m.cpi_x * factor, cpi_y=m.cpi_y * factor)
+        mice = list(base.mice)
+        mice[which] = wrong
+        true_rig = dataclasses.replace(base, mice=tuple(mice))
         result = sim.simulate(true_rig, scenarios.drive(60.0, seed), seed=seed)
         cfg = scenarios.config(base)
         off = dataclasses.replace(cfg, robust=dataclasses.replace(cfg.robust, learn_scale=False))
@@ -128,8 +130,23 @@ def test_a_cpi_a_few_per_cent_off_is_corrected(layout, factor, bound):
             out.append(scenarios.end_error(result, scenarios.run(result, c)[1])[0])
     assert all(a < b for a, b in zip(learnt, plain, strict=True)), (learnt, plain)
     assert np.median(learnt) * 5 < np.median(plain), (learnt, plain)
-    if bound:
-        assert np.median(learnt) <= 2 * np.median(told) + 0.020, (learnt, told)
+    assert all(a <= 2 * t + 0.020 for a, t in zip(learnt, told, strict=True)), (learnt, told)
+
+
+def test_the_turn_owed_is_given_back_on_both_paths():
+    """The daemon's path (one window at a time) gives the same poses as replay's arrays
+    when a learnt scale is applied and the heading and position it owes are given back."""
+    base = scenarios.rig("square")
+    m = base.mice[0]
+    wrong = dataclasses.replace(m, cpi_x=m.cpi_x * 1.03, cpi_y=m.cpi_y * 1.03)
+    true_rig = dataclasses.replace(base, mice=(wrong, *base.mice[1:]))
+    result = sim.simulate(true_rig, scenarios.drive(8.0, 5), seed=5)
+    cfg = scenarios.config(base)
+    batch, tracker = scenarios.run(result, cfg)
+    assert tracker.scales.scale[0, 0] != 1.0  # applied within the drive
+    live = PoseBatch.concat(sim.run_tracker_live(result, Tracker(cfg, t0=0.0)), 4)
+    assert np.allclose(live.x, batch.x, atol=1e-9) and np.allclose(live.y, batch.y, atol=1e-9)
+    assert np.allclose(live.theta, batch.theta, atol=1e-9)
 
 
 @pytest.mark.parametrize("layout", ["triangle", "square", "wide"])

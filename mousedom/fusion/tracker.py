@@ -457,7 +457,7 @@ class Tracker(OneWindowPath):
             moving = any(c[0] or c[1] for c, v in zip(counts, live, strict=True) if v)
             if self.noise_rate.add_row(row.residual, all(usable), moving):
                 self._noise_renewed()
-        if self.scales.add_row(counts, usable, held, q):
+        if self.scales.add_row(counts, usable, held, q, [row.x, row.y]):
             self._scales_renewed()
 
     def _learn_scales(self, counts: np.ndarray, batch: PoseBatch, live: np.ndarray) -> None:
@@ -473,7 +473,8 @@ class Tracker(OneWindowPath):
             moving = np.any((counts != 0.0).any(axis=2) & live, axis=1)
             if self.noise_rate.add(batch.residual, usable.all(axis=1), moving):
                 self._noise_renewed()
-        if self.scales.add(counts, usable, held_out, q):
+        xy = np.stack([batch.x, batch.y], axis=1)
+        if self.scales.add(counts, usable, held_out, q, xy):
             self._scales_renewed()
 
     def _noise_renewed(self) -> None:
@@ -482,9 +483,16 @@ class Tracker(OneWindowPath):
             self._linear_cache.clear()  # the one-window plans hold the covariance
 
     def _scales_renewed(self) -> None:
+        turn, walk = self.scales.take_turn(), self.scales.take_walk().tolist()
         if self._apply_scales:
             self._to_body = self.scales.matrices()
             self._to_body_rows = self._to_body.tolist()
+            # the pose those scales would have given meanwhile (ScaleLearner.take_turn);
+            # the covariance is carried with the position
+            self._pose[2] += turn
+            for k in range(2):
+                self._pose[k] += walk[k]
+                self._cov_at[k] += walk[k]
         self._scale_row = self.scales.estimate.tolist()
 
     # Up to this many windows per poll, _close_one (floats, no validation) is used; tests
