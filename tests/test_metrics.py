@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 import re
+import signal
 import socket
 import subprocess
 import sys
@@ -307,3 +308,24 @@ def test_missing_library_names_the_extra(tmp_path):
     assert "pip install 'mousedom[metrics]'" in r.stderr, r.stderr
     assert "Traceback" not in r.stderr
     assert "open (replay)" not in r.stderr  # said before any sensor was opened
+
+
+def test_reload_keeps_the_endpoint_and_says_a_change_waits_for_a_restart(tmp_path):
+    d = _start(tmp_path, "outputs:\n  metrics: {port: 0}\n")
+    try:
+        _, port = _endpoint(d)
+        before = _value(_scrape(port), "mousedom_windows", "mousedom_windows_total")
+        cfg = tmp_path / "rig.yaml"
+        cfg.write_text(cfg.read_text().replace("{port: 0}", "{port: 1}"))
+        d.signal(signal.SIGHUP)
+        deadline = time.monotonic() + 10
+        while "reloaded" not in d.log():
+            assert time.monotonic() < deadline, d.log()
+            time.sleep(0.05)
+        assert "outputs.metrics changed: takes effect at the next restart" in d.log()
+        time.sleep(0.3)
+        after = _value(_scrape(port), "mousedom_windows", "mousedom_windows_total")
+        assert after > before  # the same endpoint, the same counter, going on
+    finally:
+        assert d.stop() == 0
+    assert "Traceback" not in d.log()

@@ -77,6 +77,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "outputs.ros2, or its defaults; domain $ROS_DOMAIN_ID; needs mousedom[ros2])",
     )
     p.add_argument(
+        "--metrics",
+        action="store_true",
+        help="also serve Prometheus metrics over HTTP (the config's outputs.metrics, or "
+        "127.0.0.1:9464; needs mousedom[metrics]; docs/metrics.md)",
+    )
+    p.add_argument(
         "--record-mcap",
         metavar="OUT.mcap",
         help="also write the poses as a ROS 2 MCAP recording (Foxglove, ros2 bag)",
@@ -114,6 +120,10 @@ def run(args: argparse.Namespace) -> int:
         from mousedom.config import Ros2Config
 
         config = dataclasses.replace(config, ros2=Ros2Config())
+    if args.metrics and config.metrics is None:
+        from mousedom.config import MetricsConfig
+
+        config = dataclasses.replace(config, metrics=MetricsConfig())
     if config.metrics is not None:  # its install hint before any sensor is opened
         from mousedom.service.metrics import require
 

@@ -64,7 +64,6 @@ class Reloader:
             self._record(self.recording.close)
             self.recording = None
         self._fold_window_health()  # the old slots' last windows, before they move
-        old_config = self.config
         self.config, self.tracker, self.slots = new, tracker, slots
         self._live_changed()
         for slot in slots:
@@ -74,7 +73,9 @@ class Reloader:
                 self._try_open(slot, now)
         if new.server.socket and new.server.socket != self.server.path:
             log.warning("server.socket changed: takes effect at the next restart")
-        if new.metrics != old_config.metrics:
+        # (not warned when the file has none: `run --metrics` may have turned it on)
+        running = self.metrics.cfg if self.metrics is not None else None
+        if new.metrics is not None and new.metrics != running:
             log.warning("outputs.metrics changed: takes effect at the next restart")
         self.server.apply_settings(new.server)
         log.info("reloaded %s: %d mice, model %s", path, len(new.mice), new.model)
