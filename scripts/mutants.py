@@ -88,7 +88,7 @@ MUTANTS = [
     Mutant(
         "noise-fit-ignores-the-tail",
         "mousedom/fusion/noisemodel.py",
-        "    return np.maximum(middle, _TAIL_TO_MEDIAN * rows[:, hi])",
+        "    return np.maximum(middle, (_TAIL_TO_MEDIAN if tail is None else tail) * rows[:, hi])",
         "    return middle",
         ("tests/test_noisemodel.py",),
         "the noise factors fit the median only: a late mouse's heavy tail is shut out",

@@ -162,3 +162,30 @@ def test_healthy_drives_end_as_without_the_scales(layout):
         e_learnt = scenarios.end_error(result, learnt)[0]
         e_plain = scenarios.end_error(result, plain)[0]
         assert e_learnt <= 1.1 * e_plain + 0.001, (seed, e_learnt, e_plain)
+
+
+@pytest.mark.parametrize("at", [0.8, 1.2])
+def test_a_reset_moves_the_pose_and_nothing_else(at):
+    """Tracker.reset to another pose mid-drive, while a learnt scale is being applied: the
+    rest of the drive is the same, moved by the reset's offset (the scales' give-back owes
+    nothing for the turns before the reset, and the jump is no step of the walk)."""
+    rig = sim.three_mouse_rig()
+    result = sim.simulate(rig, sim.sequence(*[sim.arc(0.5, 2.0, 0.3)] * 4), seed=1)
+    cfg = sim.rig_config(rig, cpi={"front": (470.0, 470.0)})  # the front mouse reads 4 % off
+
+    def run(x: float, y: float) -> np.ndarray:
+        tracker = Tracker(cfg, t0=0.0)
+        for name, rep in result.reports.items():
+            k = rep.t < at
+            tracker.push(name, rep.t[k], rep.dx[k], rep.dy[k])
+        tracker.complete_until(at)
+        tracker.poll()
+        tracker.reset(x, y, 0.0)
+        for name, rep in result.reports.items():
+            k = rep.t >= at
+            tracker.push(name, rep.t[k], rep.dx[k], rep.dy[k])
+        tracker.finish()
+        assert tracker.scales.scale[0, 0] != 1.0
+        return np.array(tracker.pose)
+
+    assert np.allclose(run(100.0, 50.0) - run(0.0, 0.0), [100.0, 50.0, 0.0], atol=1e-9)

@@ -35,6 +35,12 @@ MODELS = ("lsq", "diff-drive", "bonarini")
 _RANK_TOL = 1e-9
 
 
+# A reading within this fraction of its mouse's sigma is no count: the rounding dust a
+# split at a window edge can leave (1e-17 counts on the daemon's float path where replay's
+# arrays give 0).  Whether a window "counted" (StepNoise.moving or .rest) must not hang on it.
+STILL = 1e-9
+
+
 @dataclass(frozen=True)
 class StepNoise:
     """Each mouse's reading error that accumulates (per axis, variances in metres^2 per
@@ -176,7 +182,7 @@ def _linear(
         c3 = np.zeros((3, 3))
         c3[np.ix_(cols, cols)] = c
     else:
-        moving = np.any(dl != 0.0, axis=1)
+        moving = np.any(np.abs(dl) > np.repeat(STILL * sigma[idx], 2), axis=1)
         c3 = np.where(
             moving[:, None, None],
             sandwich(b, noise.moving[idx], cols),

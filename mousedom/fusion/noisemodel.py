@@ -85,7 +85,7 @@ class _Samples:
         return values
 
 
-def _middles(rows: np.ndarray) -> np.ndarray:
+def _middles(rows: np.ndarray, tail: float | None = None) -> np.ndarray:
     """Each row's estimate of its factor: its median, or its upper tail's estimate where
     that is larger (``_tail_rank``)."""
     n = rows.shape[1]
@@ -97,7 +97,7 @@ def _middles(rows: np.ndarray) -> np.ndarray:
     middle = rows[:, mid] if n % 2 else 0.5 * (rows[:, :mid].max(axis=1) + rows[:, mid])
     if hi <= mid:
         return middle
-    return np.maximum(middle, _TAIL_TO_MEDIAN * rows[:, hi])
+    return np.maximum(middle, (_TAIL_TO_MEDIAN if tail is None else tail) * rows[:, hi])
 
 
 # Timing noise (stamps that bunch after a delay) has a heavier tail than a Gaussian: a
@@ -115,8 +115,15 @@ def _middles(rows: np.ndarray) -> np.ndarray:
 # learnt (0.5 after them; issue 31).  A mouse whose tail is Gaussian gets a tolerance 1.3
 # times wider (sd) than its median alone would give: faults are far beyond that.
 _TAIL = 0.995
-_TAIL_ALPHA = 1e-4  # robust.false_alarm's default
-_TAIL_TO_MEDIAN = math.log(2.0) * math.log(1.0 / _TAIL_ALPHA) / math.log(1.0 / (1.0 - _TAIL)) ** 2
+
+
+def tail_to_median(alpha: float) -> float:
+    """The factor that maps the tail's sample onto the median's scale for a test at
+    false-alarm rate ``alpha`` (see above)."""
+    return math.log(2.0) * math.log(1.0 / alpha) / math.log(1.0 / (1.0 - _TAIL)) ** 2
+
+
+_TAIL_TO_MEDIAN = tail_to_median(1e-4)  # at robust.false_alarm's default
 
 
 def _tail_rank(n: int) -> int:
@@ -136,7 +143,12 @@ _CANNOT_FALL = (1.0 / 0.95) * (1.0 - 1e-6)
 
 
 def _estimates(
-    joined: np.ndarray, sizes: np.ndarray, lam: np.ndarray, first: np.ndarray, series: np.ndarray
+    joined: np.ndarray,
+    sizes: np.ndarray,
+    lam: np.ndarray,
+    first: np.ndarray,
+    series: np.ndarray,
+    tail: float | None = None,
 ) -> np.ndarray:
     """For _moved: the median of each window of _KEEP samples where it may move its factor,
     the factor itself where the median surely lies in the band that leaves it as it is.
@@ -159,17 +171,18 @@ def _estimates(
     )
     # ... and the tail's estimate stays below the band's top: at most the tail's share of
     # samples lies above it (then the rank of the tail quantile is at or under it)
-    over = np.repeat(_STAYS_HIGH * lam / _TAIL_TO_MEDIAN, sizes)
+    tail = _TAIL_TO_MEDIAN if tail is None else tail
+    over = np.repeat(_STAYS_HIGH * lam / tail, sizes)
     tail_in = np.concatenate([[0], np.cumsum(joined <= over)])
     stays &= tail_in[end] - tail_in[first] >= _tail_rank(_KEEP) + 1
     out = lam[series]
     if not stays.all():
         windows = np.lib.stride_tricks.sliding_window_view(joined, _KEEP)
-        out[~stays] = _middles(windows[first[~stays]])
+        out[~stays] = _middles(windows[first[~stays]], tail)
     return out
 
 
-def _medians(samples: list[np.ndarray]) -> list[float]:
+def _medians(samples: list[np.ndarray], tail: float | None = None) -> list[float]:
     """Each array's estimate of its factor (``_middles``: the median, or the tail's).
     Arrays of one length are partitioned as one (replay ends a block every second of data,
     thousands of times a run, and the mice's samples are usually all full)."""
@@ -178,7 +191,7 @@ def _medians(samples: list[np.ndarray]) -> list[float]:
     for k, values in enumerate(samples):
         by_length.setdefault(len(values), []).append(k)
     for which in by_length.values():
-        middle = _middles(np.stack([samples[k] for k in which]))
+        middle = _middles(np.stack([samples[k] for k in which]), tail)
         for k, v in zip(which, middle.tolist(), strict=True):
             out[k] = v
     return out
@@ -208,9 +221,15 @@ def motion2(d: np.ndarray, p: np.ndarray) -> np.ndarray:
 
 class NoiseModel:
     def __init__(
-        self, sigma: np.ndarray, rho: float, report_periods: np.ndarray, window: float
+        self,
+        sigma: np.ndarray,
+        rho: float,
+        report_periods: np.ndarray,
+        window: float,
+        alpha: float = 1e-4,
     ) -> None:
         self.sig2 = np.asarray(sigma, dtype=float) ** 2
+        self.tail = tail_to_median(alpha)  # the test's false-alarm rate (robust.false_alarm)
         self.n = len(self.sig2)
         self.rho2 = float(rho) ** 2
         periods = np.asarray(report_periods, dtype=float)
@@ -298,7 +317,7 @@ class NoiseModel:
         changed = False
         if due:
             lam = np.concatenate([self.lam_f, self.lam_r])
-            new, moved = _moved(lam[due], np.array(_medians(got)))
+            new, moved = _moved(lam[due], np.array(_medians(got, self.tail)))
             if moved.any():
                 lam[np.array(due)[moved]] = new[moved]
                 self.lam_f[:], self.lam_r[:] = np.split(lam, 2)
@@ -361,11 +380,11 @@ class NoiseModel:
         full = due & (size == _KEEP)
         if full.any():
             est[full] = _estimates(joined, held + new_at[-1], lam, (offset + lo)[full],
-                                   np.nonzero(full)[1])  # fmt: skip
+                                   np.nonzero(full)[1], self.tail)  # fmt: skip
         short = due & ~full
         if short.any():
             spans = zip((offset + lo)[short].tolist(), (offset + hi)[short].tolist(), strict=True)
-            est[short] = _medians([joined[a:b] for a, b in spans])
+            est[short] = _medians([joined[a:b] for a, b in spans], self.tail)
         # The factors stay as they are up to the first block end that moves one.
         new, moved = _moved(lam[None, :], est)
         moved &= due

@@ -101,7 +101,9 @@ class Screen:
         self.cols = (0, 2) if model == "diff-drive" else (0, 1, 2)
         self.k = len(self.cols)
         self.alpha = settings.false_alarm
-        self.noise = NoiseModel(self.sigma, settings.relative_noise, report_periods, window)
+        self.noise = NoiseModel(
+            self.sigma, settings.relative_noise, report_periods, window, settings.false_alarm
+        )
         speed = np.full(self.n, np.inf) if max_speed is None else np.asarray(max_speed, float)
         self.max_step2 = (speed * window) ** 2  # inf: no limit
         self.readmit = max(1, math.ceil(settings.readmit_s / window - 1e-9))

@@ -53,6 +53,10 @@ WARN = 0.095
 _PLAIN = 3.0  # a scale this many standard deviations from 1 is applied (learn_scale)...
 _MIN_APPLIED = 0.005  # ... and this far: below, the estimate's own bias (timing, rounding)
 _MIN_GROUPS = 10  # ... after this many groups of evidence (a second of motion), not before
+# Once applied, a scale stays applied while this far out (hysteresis: a scale that crossed
+# the edge of plain back and forth would give its turn and take it back at every renewal)
+_KEEP_PLAIN = 2.0
+_KEEP_APPLIED = 0.0035
 _MIN_COUNTS = 40.0  # counts a mouse must read in a group for it to be evidence
 _RIDGE = 1e-6  # S + mu, mu this times S's diagonal: what the evidence leaves free stays near 1
 _MIN_EVIDENCE = 1e-3  # a mouse seen this little (S's diagonal against the most seen): not estimated
@@ -112,7 +116,7 @@ class ScaleLearner:
         # sum over windows of the turn so far times the step turned by 90 degrees)
         self.walk_unit = np.zeros((self.n, 2, 2))
         self.walk_given = np.zeros((self.n, 2, 2))
-        self._last_xy = np.zeros(2)  # the pose's position after the last window added
+        self._rebased = 0  # windows of this block added before the pose was last set
         self.turn_owed = 0.0  # what the heading is owed at the last renewal (take_turn)
         self.walk_owed = np.zeros(2)  # and the position
 
@@ -135,55 +139,55 @@ class ScaleLearner:
         usable: np.ndarray,
         held_out: np.ndarray | None = None,
         q: np.ndarray | None = None,
-        xy: np.ndarray | None = None,
+        steps: np.ndarray | None = None,
     ) -> bool:
         """Add windows of the current block, at most ``until_block_end()`` of them; at the
         block's end, learn.  ``counts`` (n, N, 2) raw REL_X/REL_Y; ``usable`` (n, N): the
         mice tracking in consistent windows; ``held_out`` (n, N): the mice the screen
         left out as inconsistent, and ``q`` (n, 3) each window's twist increment from the
         others (a mouse whose CPI is far off is left out, and its scale is found from
-        what the others say it moved: ``_learn_held_out``); ``xy`` (n, 2) the pose's
-        position after each window (for ``take_turn``'s position).  Returns whether a
-        block ended (and the estimates were renewed)."""
+        what the others say it moved: ``_learn_held_out``); ``steps`` (n, 2) the pose's
+        step in each window, world axes (for ``take_walk``).  Returns whether a block
+        ended (and the estimates were renewed)."""
         if not self.active or not len(counts):
             return False
         n = len(counts)
         if held_out is None or q is None:
             held_out, q = np.zeros((n, self.n), dtype=bool), np.zeros((n, 3))
-        if xy is None:
-            xy = np.broadcast_to(self._last_xy, (n, 2))
-        self._rows.append(tuple(np.asarray(a) for a in (counts, usable, held_out, q, xy)))
+        if steps is None:
+            steps = np.zeros((n, 2))
+        self._rows.append(tuple(np.asarray(a) for a in (counts, usable, held_out, q, steps)))
         self._held += n
         return self._block_end()
 
     def add_row(
-        self, counts: list, usable: list, held_out: list, q: list, xy: list | None = None
+        self, counts: list, usable: list, held_out: list, q: list, step: list | None = None
     ) -> bool:
         """``add`` for one window as Python values (the daemon's: no numpy per window)."""
         if not self.active:
             return False
         self._rows.append(([counts], [usable], [held_out], [q],
-                           [xy if xy is not None else self._last_xy.tolist()]))  # fmt: skip
+                           [step if step is not None else [0.0, 0.0]]))  # fmt: skip
         self._held += 1
         return self._block_end()
 
     def _block_end(self) -> bool:
         if self._held < self.block:
             return False
-        counts, usable, held_out, q, xy = (
+        counts, usable, held_out, q, steps = (
             np.concatenate([np.asarray(c, dtype=dt) for c in chunks])
             for chunks, dt in zip(zip(*self._rows, strict=True),
                                   (float, bool, bool, float, float), strict=True)
         )  # fmt: skip
         self._rows, self._held = [], 0
         self._learn_held_out(counts.astype(float), held_out, q)
-        self._gave(counts.astype(float), usable, xy)
+        self._gave(counts.astype(float), usable, steps)
         self._learn(counts.astype(float), usable)
         self._report_held_out()
         self._settle_turn()
         return True
 
-    def _gave(self, counts: np.ndarray, usable: np.ndarray, xy: np.ndarray) -> None:
+    def _gave(self, counts: np.ndarray, usable: np.ndarray, steps: np.ndarray) -> None:
         """Add the block's windows with every mouse in use to the turns each mouse gave,
         and to the walk those turns bent."""
         whole = usable.all(axis=1)
@@ -191,18 +195,23 @@ class ScaleLearner:
         # mouse i's count axis a moves it base[i, :, a] * c[i, a] in body axes
         per = np.einsum("ib,iba,kia->kia", row, self.base, counts)
         per[~whole] = 0.0
+        per[: self._rebased] = 0.0  # before the pose was set from outside: owed nothing
+        self._rebased = 0
         # the turn before each window (so far in the horizon) times its step turned +90
         before = self.turn_unit[None] + np.cumsum(per, axis=0) - per
-        steps = np.diff(np.concatenate([self._last_xy[None], xy]), axis=0)
         perp = np.stack([-steps[:, 1], steps[:, 0]], axis=1)
         walk = np.einsum("kia,kb->iab", before, perp)
         given = np.einsum("kia,kb->iab", before * self.scale[None], perp)
-        self._last_xy = xy[-1].copy()
-        self.walk_unit = (self.walk_unit + walk) * self.forget
-        self.walk_given = (self.walk_given + given) * self.forget
+        # over the evidence's own horizon: the estimate is the scale of those windows (a
+        # horizon of 20 s, tried, left a later refinement's turn ungiven: 35 mm against 26
+        # on the wide rig's worst drive); a settled estimate moves by little, so the
+        # heading moves by little at a renewal, within what the scale's spread leaves open
+        f = self.forget
+        self.walk_unit = (self.walk_unit + walk) * f
+        self.walk_given = (self.walk_given + given) * f
         unit = per.sum(axis=0)
-        self.turn_unit = (self.turn_unit + unit) * self.forget
-        self.turn_given = (self.turn_given + self.scale * unit) * self.forget
+        self.turn_unit = (self.turn_unit + unit) * f
+        self.turn_given = (self.turn_given + self.scale * unit) * f
 
     def take_turn(self) -> float:
         """The turn the heading is owed now that the scales were renewed, once.
@@ -216,10 +225,18 @@ class ScaleLearner:
         the heading is that of the current scales throughout.  The readings' heading row
         is linear, so this is exact for the heading (the position walked meanwhile keeps
         the heading it had).  An estimate that was wrong and is corrected later takes its
-        turn back then.  Returns 0 where no scale is applied (learn_scale off, or every
-        scale 1)."""
+        turn back then.  The tracker takes it whether or not it applies the scales
+        (learn_scale), and adds it only where it does."""
         owed, self.turn_owed = self.turn_owed, 0.0
         return owed
+
+    def rebase(self) -> None:
+        """The pose was set from outside (Tracker.reset, fix): nothing is owed for the
+        turns and the walk before it (those of this block's windows so far included)."""
+        for a in (self.turn_unit, self.turn_given, self.walk_unit, self.walk_given):
+            a[...] = 0.0
+        self.turn_owed, self.walk_owed = 0.0, np.zeros(2)
+        self._rebased = self._held
 
     def take_walk(self) -> np.ndarray:
         """The position the pose is owed with ``take_turn`` (the walk meanwhile turned by
@@ -319,6 +336,7 @@ class ScaleLearner:
         # and noise applied to a mouse that reads the turn is heading lost for good
         off = np.abs(self.estimate - 1.0)
         plain = (off > _PLAIN * self.spread) & (off > _MIN_APPLIED)
+        plain |= (self.scale != 1.0) & (off > _KEEP_PLAIN * self.spread) & (off > _KEEP_APPLIED)
         plain &= self.groups >= _MIN_GROUPS
         self.scale = np.where(
             plain, np.clip(self.estimate, 1.0 - self.limit, 1.0 + self.limit), 1.0

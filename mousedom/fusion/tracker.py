@@ -74,6 +74,9 @@ class Tracker(OneWindowPath):
         self._to_body_rows = self._to_body.tolist()  # the same, for the one-window path
         self._positions = np.array([[m.mount.x, m.mount.y] for m in config.mice])
         self._sigma = np.array([sigma_metres(m) for m in config.mice])
+        # below these a reading is no count (models.STILL): in metres, and in counts
+        self._still = (models.STILL * self._sigma).tolist()
+        self._still_counts = models.STILL * np.array([m.sigma for m in config.mice])
         self._rate = 1.0 / self.period
         self._linear_cache: dict[tuple[bool, ...], tuple] = {}  # live mice -> _solve_one's plan
         self._closed = 0  # number of windows closed so far
@@ -268,6 +271,7 @@ class Tracker(OneWindowPath):
         self._pose = [float(x), float(y), float(theta)]
         self._cov = [[0.0] * 3 for _ in range(3)]
         self._cov_at = self._pose[:2]
+        self._rebase()
 
     def fix(self, x: float | None = None, y: float | None = None, theta: float | None = None):
         """Absolute fix of some coordinates only (McGill's grid-line correction).
@@ -283,6 +287,13 @@ class Tracker(OneWindowPath):
                 cov[:, k] = 0.0
         self._cov = cov.tolist()
         self._cov_at = self._pose[:2]
+        self._rebase()
+
+    def _rebase(self) -> None:
+        """After the pose was set from outside: the scales' give-back starts from here (it
+        owes nothing for the turns and the walk before, and the jump is no step)."""
+        if self.scales is not None:
+            self.scales.rebase()
 
     # ------------------------------------------------------------------ outputs
 
@@ -438,13 +449,16 @@ class Tracker(OneWindowPath):
         while a < n:
             b = min(n, a + self.scales.until_block_end())
             ev = None if evidence is None else tuple(e[a:b] for e in evidence)
+            start = self._pose[:2]
             part = self._solve(edges[a + 1 : b + 1], counts[a:b], mask[a:b], ev)
-            self._learn_scales(counts[a:b], part, mask[a:b])
+            self._learn_scales(counts[a:b], part, mask[a:b], start)
             out.append(part)
             a = b
         return PoseBatch.concat(out, self.n_mice)
 
-    def _learn_scales_row(self, counts: list, row, live: tuple[bool, ...]) -> None:
+    def _learn_scales_row(
+        self, counts: list, row, live: tuple[bool, ...], start: list[float]
+    ) -> None:
         """``_learn_scales`` for the one window the daemon closed, on Python values."""
         tracking, excluded, inconsistent = robust.TRACKING, robust.EXCLUDED, robust.INCONSISTENT
         ok = row.consistent
@@ -454,13 +468,19 @@ class Tracker(OneWindowPath):
         per = self.period
         q = [row.vx * per, row.vy * per, row.omega * per] if row.ok else [0.0, 0.0, 0.0]
         if self.noise_rate is not None:
-            moving = any(c[0] or c[1] for c, v in zip(counts, live, strict=True) if v)
-            if self.noise_rate.add_row(row.residual, all(usable), moving):
+            still = self._still_counts.tolist()
+            moving = any(abs(c[0]) > e or abs(c[1]) > e
+                         for c, v, e in zip(counts, live, still, strict=True) if v)  # fmt: skip
+            eligible = all(usable) and row.used == self.n_mice  # every mouse in the solve
+            if self.noise_rate.add_row(row.residual, eligible, moving):
                 self._noise_renewed()
-        if self.scales.add_row(counts, usable, held, q, [row.x, row.y]):
+        step = [row.x - start[0], row.y - start[1]]
+        if self.scales.add_row(counts, usable, held, q, step):
             self._scales_renewed()
 
-    def _learn_scales(self, counts: np.ndarray, batch: PoseBatch, live: np.ndarray) -> None:
+    def _learn_scales(
+        self, counts: np.ndarray, batch: PoseBatch, live: np.ndarray, start: list[float]
+    ) -> None:
         """Hand closed windows to the scale learner (mice tracking in consistent windows
         are its evidence, and the ones left out as inconsistent, against the others'
         motion); at a block end its new scales take effect."""
@@ -470,11 +490,14 @@ class Tracker(OneWindowPath):
         q = np.stack([batch.vx, batch.vy, batch.omega], axis=1) * self.period
         q[~batch.ok] = 0.0
         if self.noise_rate is not None:
-            moving = np.any((counts != 0.0).any(axis=2) & live, axis=1)
-            if self.noise_rate.add(batch.residual, usable.all(axis=1), moving):
+            counted = (np.abs(counts) > self._still_counts[None, :, None]).any(axis=2)
+            moving = np.any(counted & live, axis=1)
+            eligible = usable.all(axis=1) & (batch.used == self.n_mice)  # all in the solve
+            if self.noise_rate.add(batch.residual, eligible, moving):
                 self._noise_renewed()
-        xy = np.stack([batch.x, batch.y], axis=1)
-        if self.scales.add(counts, usable, held_out, q, xy):
+        xy = np.stack([np.concatenate([[start[0]], batch.x]),
+                       np.concatenate([[start[1]], batch.y])], axis=1)  # fmt: skip
+        if self.scales.add(counts, usable, held_out, q, np.diff(xy, axis=0)):
             self._scales_renewed()
 
     def _noise_renewed(self) -> None:

@@ -34,13 +34,14 @@ class OneWindowPath:
         live = tuple(live)
         self._closed = k + 1
         evidence = self.evidence.window(start, end) if self.evidence else None
+        before = self._pose[:2]
         if self.model == "bonarini":  # numerical linearisation: the array path
             ev = None if evidence is None else (np.array([evidence[0]]), np.array([evidence[1]]))
             batch = self._solve(np.array([end]), np.array([counts]), np.array([live]), ev)
         else:
             batch = self._solve_one(end, counts, live, evidence)
         if self.scales is not None:
-            self._learn_scales_row(counts, batch.rows()[0], live)
+            self._learn_scales_row(counts, batch.rows()[0], live, before)
         return batch
 
     def _linear_plan(self, live: tuple[bool, ...]) -> tuple:
@@ -129,8 +130,11 @@ class OneWindowPath:
         q = [0.0, 0.0, 0.0]
         ok = b_rows is not None
         c3 = c_moving
-        if c_rest is not c_moving and not any(d_all[2 * i] or d_all[2 * i + 1] for i in idx):
-            c3 = c_rest
+        if c_rest is not c_moving:
+            still = self._still
+            if not any(abs(d_all[2 * i]) > still[i] or abs(d_all[2 * i + 1]) > still[i]
+                       for i in idx):  # fmt: skip
+                c3 = c_rest
         if ok:
             d = (
                 d_all
