@@ -24,6 +24,7 @@ SIGMA = np.full(4, 1e-5)
 def _screen() -> robust.Screen:
     screen = robust.Screen("lsq", XY, SIGMA, np.full(4, 0.001), 0.01, RobustConfig(), None)
     screen.noise.lam_f[:] = 1.0  # the floor learnt: a tolerance of tens of micrometres
+    screen.noise.lam_r[:] = 1.0  # and the proportional part (5 % of the motion)
     screen.noise._sync()
     return screen
 

@@ -1,0 +1,66 @@
+"""Irregular timing is not a fault (issue 31, item 1), on the engine as shipped.
+
+Healthy drives that meet what a USB host does (polling gaps with catch-up reports, stamps
+late by a uniform or a long-tailed delay) or a mouse far noisier than its config says:
+the default engine ends within 10 % of fault handling off (+2 mm: both are a few mm off),
+and excludes a healthy mouse less than once per 10,000 windows over all of them.  Seeds
+and lengths are not those of bench/robust.py's tables."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mousedom.fusion import robust, scenarios, sim
+
+DURATION = 40.0
+SEEDS = (901, 902, 903)
+LAYOUTS = ("triangle", "square", "pentagon")
+
+
+def _runs(kind: str) -> list[tuple[scenarios.Run, scenarios.Run, int]]:
+    """(default, off, the default's exclusions after the first two seconds) per drive."""
+    out = []
+    for layout in LAYOUTS:
+        base = scenarios.rig(layout)
+        for seed in SEEDS:
+            cond = scenarios.condition(kind, seed)
+            rig = scenarios.apply_condition(base, cond, DURATION)
+            result = sim.simulate(rig, scenarios.drive(DURATION, seed), seed=seed)
+            cfg = scenarios.condition_config(base, cond)
+            batch, _ = scenarios.run(result, cfg)
+            st = np.asarray(batch.state)
+            new = (st[1:] == robust.EXCLUDED) & (st[:-1] != robust.EXCLUDED)
+            late = int(new[batch.t[1:] > 2.0].any(axis=1).sum())
+            out.append((
+                scenarios.measure(result, cfg),
+                scenarios.measure(result, scenarios.condition_config(base, cond, robust=False)),
+                late,
+            ))  # fmt: skip
+    return out
+
+
+@pytest.fixture(scope="module")
+def runs() -> dict[str, list[tuple[scenarios.Run, scenarios.Run, int]]]:
+    return {k: _runs(k) for k in ("usb-gaps", "late-stamps", "stamp-delay", "noisy")}
+
+
+@pytest.mark.parametrize("kind", ["usb-gaps", "late-stamps", "stamp-delay", "noisy"])
+def test_the_default_engine_ends_as_fault_handling_off(runs, kind):
+    for default, off, _ in runs[kind]:
+        assert default.position <= 1.1 * off.position + 0.002, (default, off)
+        assert default.heading <= 1.1 * off.heading + np.radians(0.05), (default, off)
+
+
+@pytest.mark.parametrize("kind", ["usb-gaps", "late-stamps", "stamp-delay", "noisy"])
+def test_a_healthy_mouse_is_excluded_less_than_once_per_10000_windows(runs, kind):
+    """Each condition on its own, counted after the first two seconds of the drive.  In
+    those, before the noise model has learnt anything, a 1 kHz mouse with long-tailed
+    stamp delays is still excluded now and then (6 of the 7 such exclusions here; the
+    reconciliation at its re-admission gives its counts back, robust._reconcile): a
+    start that allows for lateness removed them but missed an under-read on the triangle
+    (tests/test_robust.py), and was not kept (issue 31, open)."""
+    windows = sum(d.windows for d, _, _ in runs[kind])
+    excluded = sum(late for _, _, late in runs[kind])
+    assert windows > 35_000
+    assert excluded / windows < 1e-4, (excluded, windows)
