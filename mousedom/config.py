@@ -17,13 +17,16 @@ import ipaddress
 import math
 import os
 import re
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from mousedom import plausible, safeyaml
 from mousedom.errors import located
 from mousedom.yamldoc import ConfigError, Reader, YamlDoc, shown
+
+T = TypeVar("T")
 
 MODELS = ("lsq", "diff-drive", "bonarini")
 INTEGRATORS = ("exact", "taylor", "euler", "midpoint")
@@ -406,31 +409,26 @@ def _outputs(
     r: Reader,
 ) -> tuple[Ros2Config | None, FoxgloveConfig | None, MetricsConfig | None]:
     o = r.sub("outputs", ("ros2", "foxglove", "metrics"))
-    ros2 = None
-    if o.has("ros2"):
-        v = o.raw("ros2")
-        if v is False or v is None:
-            ros2 = None
-        elif v is True:
-            ros2 = Ros2Config()
-        else:
-            ros2 = _ros2(o)
-    fox = None
-    if o.has("foxglove"):
-        v = o.raw("foxglove")
-        if v is True:
-            fox = FoxgloveConfig()
-        elif v is not False and v is not None:
-            fox = _foxglove(o)
-    metrics = None
-    if o.has("metrics"):
-        v = o.raw("metrics")
-        if v is True:
-            metrics = MetricsConfig()
-        elif v is not False and v is not None:
-            metrics = _metrics(o)
+    ros2 = _switched(o, "ros2", Ros2Config, _ros2)
+    fox = _switched(o, "foxglove", FoxgloveConfig, _foxglove)
+    metrics = _switched(o, "metrics", MetricsConfig, _metrics)
     o.finish()
     return ros2, fox, metrics
+
+
+def _switched(
+    o: Reader, key: str, default: Callable[[], T], parse: Callable[[Reader], T | None]
+) -> T | None:
+    """An output under ``outputs``: absent, false or null is off; true is on with its
+    defaults; a mapping is parsed (whose ``enabled: false`` is off too)."""
+    if not o.has(key):
+        return None
+    v = o.raw(key)
+    if v is False or v is None:
+        return None
+    if v is True:
+        return default()
+    return parse(o)
 
 
 def _foxglove(r: Reader) -> FoxgloveConfig | None:
