@@ -431,13 +431,18 @@ def _switched(
     return parse(o)
 
 
+def _tcp_port(s: Reader, default: int, zero: str = "") -> int:
+    """``port``: a TCP port to listen on (0 to 65535; ``zero`` says what 0 does)."""
+    port = s.integer("port", default, minimum=0)
+    if port > 65535:
+        raise s.err("port", f"must be a TCP port (0 to 65535{zero}), got {port}")
+    return port
+
+
 def _foxglove(r: Reader) -> FoxgloveConfig | None:
     s = r.sub("foxglove", ("enabled", "host", "port"))
     d = FoxgloveConfig()
-    port = s.integer("port", d.port, minimum=0)
-    if port > 65535:
-        raise s.err("port", f"must be a TCP port (0 to 65535), got {port}")
-    cfg = FoxgloveConfig(host=s.string("host") or d.host, port=port)
+    cfg = FoxgloveConfig(host=s.string("host") or d.host, port=_tcp_port(s, d.port))
     enabled = s.boolean("enabled", True)
     s.finish()
     return cfg if enabled else None
@@ -446,9 +451,7 @@ def _foxglove(r: Reader) -> FoxgloveConfig | None:
 def _metrics(r: Reader) -> MetricsConfig | None:
     s = r.sub("metrics", ("enabled", "host", "port"))
     d = MetricsConfig()
-    port = s.integer("port", d.port, minimum=0)
-    if port > 65535:
-        raise s.err("port", f"must be a TCP port (0 to 65535; 0: any free one), got {port}")
+    port = _tcp_port(s, d.port, "; 0: any free one")
     host = s.string("host") or d.host
     # An address, not a name: a name would be looked up (DNS) at every start, and could
     # resolve to an interface nobody meant to expose.
