@@ -329,3 +329,40 @@ def test_reload_keeps_the_endpoint_and_says_a_change_waits_for_a_restart(tmp_pat
     finally:
         assert d.stop() == 0
     assert "Traceback" not in d.log()
+
+
+def test_doctor_checks_the_endpoint_the_config_names(tmp_path, capsys):
+    """`mousedom doctor` on a daemon serving metrics at a fixed port: OK with the windows
+    it has published; the same config with nothing listening there: FAIL, saying why."""
+    import json
+
+    from mousedom.cli import main
+
+    with socket.socket() as s:  # a port free now (the daemon binds it next)
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    d = _start(tmp_path, f"outputs:\n  metrics: {{port: {port}}}\n")
+    try:
+        _endpoint(d)
+        cfg = str(_demo_config(tmp_path, f"outputs:\n  metrics: {{port: {port}}}\n"))
+        main(["doctor", "--json", "--config", cfg, "--socket", str(d.socket_path),
+              "--timeout", "1"])  # fmt: skip
+        doc = json.loads(capsys.readouterr().out)
+        got = [c for c in doc["checks"] if c["check"] == "metrics"]
+        assert [c["status"] for c in got] == ["OK"], got
+        assert got[0]["data"]["url"] == f"http://127.0.0.1:{port}/metrics"
+        assert got[0]["data"]["windows"] > 0
+    finally:
+        d.stop()
+    other = tmp_path / "other"
+    other.mkdir()
+    d = _start(other, "")  # a daemon without metrics: nothing serves the port
+    try:
+        main(["doctor", "--json", "--config", cfg, "--socket", str(d.socket_path),
+              "--timeout", "1"])  # fmt: skip
+        doc = json.loads(capsys.readouterr().out)
+        got = [c for c in doc["checks"] if c["check"] == "metrics"]
+        assert [c["status"] for c in got] == ["FAIL"], got
+        assert "restart it" in got[0]["hint"]
+    finally:
+        d.stop()

@@ -5,8 +5,9 @@ warnings and notes), the devices (the input directory, which device each mouse's
 matches, permissions and the group to join), the calibration file, the daemon's socket
 (connect, then a short read: POSE rate against the config's, each mouse's state, learnt
 scale warnings), the ROS 2 output (can a DDS participant start; with a live daemon, does
-its odometry arrive), and the core in use.  Each line is OK, WARN or FAIL, and a WARN or
-FAIL says what to do.  Exit 1 on any FAIL; warnings alone exit 0.
+its odometry arrive), the Prometheus endpoint where the config asks for one (the extra
+installed, and the running daemon serving it), and the core in use.  Each line is OK,
+WARN or FAIL, and a WARN or FAIL says what to do.  Exit 1 on any FAIL; warnings alone exit 0.
 
 Nothing here re-implements a rule: it asks the parts that own them (``load_config`` and
 its plausibility warnings, ``observability.blind_spots``, ``sources.discovery`` and
@@ -21,12 +22,15 @@ import errno
 import grp
 import importlib
 import importlib.machinery
+import importlib.util
 import json
 import math
 import os
+import re
 import subprocess
 import sys
 import time
+import urllib.request
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -46,7 +50,7 @@ PACKAGE = Path(__file__).resolve().parents[1]  # this mousedom, wherever it was 
 class Check:
     """One line of the report: which check, its verdict, what was found, what to do."""
 
-    check: str  # config, devices, calibration, daemon, ros2, core
+    check: str  # config, devices, calibration, daemon, ros2, metrics, core
     status: str  # OK, WARN or FAIL
     message: str
     hint: str | None = None
@@ -659,7 +663,52 @@ class Ros2Probe:
         return self.lines
 
 
-# --------------------------------------------------------------------------- 6. the core
+# --------------------------------------------------------------------------- 6. metrics
+
+
+def check_metrics(cfg: Config | None, live: Live, timeout: float) -> list[Check]:
+    """The Prometheus endpoint (docs/metrics.md), where the config asks for one: the extra
+    installed, and a running daemon serving it where the config says."""
+    lines = Lines("metrics")
+    m = cfg.metrics if cfg is not None else None
+    if m is None:
+        lines.ok("Prometheus metrics not configured (outputs.metrics; docs/metrics.md)")
+        return lines
+    if importlib.util.find_spec("prometheus_client") is None:
+        lines.fail("outputs.metrics is set but prometheus-client is not installed",
+                   "pip install 'mousedom[metrics]'")  # fmt: skip
+        return lines
+    if m.port == 0:
+        lines.warn("not checked: port 0 takes any free port (the daemon's log names it)",
+                   "set outputs.metrics.port to have it checked here")  # fmt: skip
+        return lines
+    if not live.connected:
+        lines.warn(f"not checked: no daemon answers on {live.path}", "start the daemon")
+        return lines
+    # where a client on this machine reaches it (an "every interface" address included)
+    host = {"0.0.0.0": "127.0.0.1", "::": "::1", "localhost": "127.0.0.1"}.get(m.host, m.host)
+    url = f"http://{f'[{host}]' if ':' in host else host}:{m.port}/metrics"
+    try:
+        with urllib.request.urlopen(url, timeout=timeout) as r:
+            text = r.read(1 << 20).decode("utf-8", "replace")
+    except (OSError, ValueError) as e:
+        lines.fail(f"nothing serves {url} ({getattr(e, 'reason', e)})",
+                   "the daemon reads outputs.metrics when it starts: restart it after a "
+                   "change (or another program holds the port)")  # fmt: skip
+        return lines
+    found = re.search(r"^mousedom_windows_total (\S+)$", text, re.MULTILINE)
+    if found is None:
+        lines.fail(
+            f"{url} answers but is not mousedom's (no mousedom_windows_total)",
+            "another program holds the port: choose another outputs.metrics.port",
+        )
+        return lines
+    windows = float(found.group(1))
+    lines.ok(f"serving {url}: {windows:.0f} windows published", url=url, windows=windows)
+    return lines
+
+
+# --------------------------------------------------------------------------- 7. the core
 
 
 def compiled_modules() -> list[str]:
@@ -719,7 +768,7 @@ def diagnose(
     timeout: float = 1.5,
     root: str | None = None,
 ) -> list[Check]:
-    """Every check, in order: config, devices, calibration, daemon, ROS 2, core."""
+    """Every check, in order: config, devices, calibration, daemon, ROS 2, metrics, core."""
     found = find_config(config, socket)
     checks = check_config(found)
     cfg = found.config
@@ -737,6 +786,7 @@ def diagnose(
         checks += ros2.finish(live)
     finally:
         ros2.close()
+    checks += check_metrics(cfg, live, timeout)
     checks += check_core(live)
     return checks
 
