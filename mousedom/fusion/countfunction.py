@@ -301,6 +301,43 @@ class CountFunction:
         )
         return fx, fy
 
+    # ------------------------------------------------------------ what the tracker says
+
+    def queue(self, t: list | np.ndarray, dx: list | np.ndarray, dy: list | np.ndarray,
+              last: float) -> None:  # fmt: skip
+        """Reports pushed (``last``: their latest stamp), to be turned into knots when
+        windows close."""
+        self.pending.append((t, dx, dy))
+        if last > self.last_t:
+            self.last_t = last
+
+    def complete_to(self, t: float) -> None:
+        """Every report stamped <= t has been pushed."""
+        if t > self.complete:
+            self.complete = t
+
+    def declare_live(self, live: bool, t: float) -> None:
+        """The sensor vanished (False) or came back (True) at time t; a dead span's
+        windows do not use it."""
+        if live == self.live:
+            return
+        if live:
+            self.dead[-1][1] = t
+            self.complete_to(t)
+        else:
+            self.dead.append([t, math.inf])
+
+    def forget_dead(self, end: float) -> None:
+        """Dead spans that end by ``end`` are past: the windows up to it are closed."""
+        if self.dead:
+            self.dead = [span for span in self.dead if span[1] > end]
+
+    def skip_to(self, end: float) -> None:
+        """Windows up to ``end`` were skipped with nothing in them (Tracker.skip_quiet):
+        no knots to keep."""
+        self.knots = ([], [], [])
+        self.forget_dead(end)
+
     def live_in(self, start: float, end: float) -> bool:
         """Whether the mouse was live over all of [start, end]; forgets dead spans that
         end by ``end`` (the windows are closed in order)."""
@@ -310,7 +347,7 @@ class CountFunction:
         for a, b in self.dead:
             if start < b and end > a:
                 live = False
-        self.dead = [span for span in self.dead if span[1] > end]
+        self.forget_dead(end)
         return live
 
 

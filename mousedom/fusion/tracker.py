@@ -174,8 +174,7 @@ class Tracker(OneWindowPath):
         if not math.isfinite(total):
             raise ValueError("push: times and counts must be finite numbers")
         self._start(t[0])
-        m.pending.append((t, dx, dy))
-        m.last_t = max(m.last_t, float(t.max()))
+        m.queue(t, dx, dy, float(t.max()))
 
     def push_quality(self, mouse: int | str, t: list, squal: list, overflow: list) -> None:
         """The sensor's own word on reports pushed (or about to be): SQUAL (None where
@@ -192,10 +191,7 @@ class Tracker(OneWindowPath):
         if not finite:
             raise ValueError("push: times and counts must be finite numbers")
         self._start(t[0])
-        m.pending.append((t, dx, dy))
-        last = max(t)
-        if last > m.last_t:
-            m.last_t = last
+        m.queue(t, dx, dy, max(t))
 
     def _ingest(self, m: CountFunction, edge: float | None = None) -> None:
         """Turn a mouse's queued reports into knots (floats for a few, arrays for many);
@@ -224,7 +220,7 @@ class Tracker(OneWindowPath):
         if mouse is None:
             self._complete_all = max(self._complete_all, t)
             for m in self._mice:
-                m.complete = max(m.complete, t)
+                m.complete_to(t)
         else:
             self.complete_each([(self._index(mouse), t)])
 
@@ -233,8 +229,7 @@ class Tracker(OneWindowPath):
         pushed.  One call for all the live mice: the daemon's, every window."""
         for i, t in until:
             self._start(t)
-            m = self._mice[i]
-            m.complete = max(m.complete, t)
+            self._mice[i].complete_to(t)
             self._complete_all = max(self._complete_all, t)
 
     def set_live(self, mouse: int | str, live: bool, t: float) -> None:
@@ -243,14 +238,7 @@ class Tracker(OneWindowPath):
         Windows that overlap a dead span do not use that mouse; the model goes on with
         the others while it has rank, and reports ok=False otherwise.
         """
-        m = self._mice[self._index(mouse)]
-        if live == m.live:
-            return
-        if live:
-            m.dead[-1][1] = t
-            m.complete = max(m.complete, t)
-        else:
-            m.dead.append([t, math.inf])
+        self._mice[self._index(mouse)].declare_live(live, t)
 
     def is_live(self, mouse: int | str) -> bool:
         return self._mice[self._index(mouse)].live
@@ -387,8 +375,7 @@ class Tracker(OneWindowPath):
         self._closed = k
         end = self.frontier_time
         for m in self._mice:
-            m.knots = ([], [], [])
-            m.dead = [span for span in m.dead if span[1] > end]
+            m.skip_to(end)
         return start, end
 
     def finish(self) -> PoseBatch:
@@ -436,7 +423,7 @@ class Tracker(OneWindowPath):
             if m.dead:
                 for start, end in m.dead:
                     mask[(edges[:-1] < end) & (edges[1:] > start), i] = False
-                m.dead = [span for span in m.dead if span[1] > end_t]
+                m.forget_dead(end_t)
         self._closed = k_new
         for acc, (cx, cy) in zip(self._counts_out, counts.sum(axis=0).tolist(), strict=True):
             acc[0] += cx
