@@ -44,6 +44,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -68,6 +69,21 @@ class MouseHealth:
     state: int = TRACKING
     reason: int = NONE
     good: int = 0  # consecutive windows of agreement toward re-admission
+
+
+class Statistic(NamedTuple):
+    """The consistency test of one set of mice in one window."""
+
+    t: float  # min over q of sum |d_i - A_i q|^2 / s2_i
+    dof: int  # 2 * mice - unknowns
+    q: np.ndarray  # the set's solution by the configured weights
+
+
+class Explanation(NamedTuple):
+    """A set of mice whose exclusion lets the window pass, with the test it passed."""
+
+    excluded: list[int]
+    stat: Statistic
 
 
 @dataclass(frozen=True)
@@ -261,15 +277,14 @@ class Screen:
         q[list(self.cols)] = est[1] @ d[used].reshape(-1)
         return q
 
-    def _statistic(self, d: np.ndarray, used: np.ndarray, s2: np.ndarray):
-        """(T, dof, q) for the ``used`` mice, or None without rank: T is the minimum over
-        q of sum |d_i - A_i q|^2 / s2_i."""
+    def _statistic(self, d: np.ndarray, used: np.ndarray, s2: np.ndarray) -> Statistic | None:
+        """The test of the ``used`` mice, or None without rank."""
         q = self._solve(d, used)
         if q is None:
             return None
         dof = self.dof(int(used.sum()))
         if dof <= 0:
-            return 0.0, dof, q
+            return Statistic(0.0, dof, q)
         s = np.sqrt(s2)[used]
         a = np.zeros((int(used.sum()), 2, 3))
         pos = self.positions[used]
@@ -281,15 +296,15 @@ class Screen:
         b = (d[used] / s[:, None]).reshape(-1)
         sol = np.linalg.lstsq(a, b, rcond=None)[0]
         r = b - a @ sol
-        return float(r @ r), dof, q
+        return Statistic(float(r @ r), dof, q)
 
     def _silent(self, d: np.ndarray, i: int) -> bool:
         """No counts in the window (a thousandth of its sigma: the split of reports
         across windows leaves rounding dust where there were none)."""
         return float(d[i] @ d[i]) <= 1e-6 * self.noise.sig2[i]
 
-    def _passes(self, stat) -> bool:
-        return stat is not None and stat[1] > 0 and stat[0] <= self._thresholds[stat[1]]
+    def _passes(self, stat: Statistic | None) -> bool:
+        return stat is not None and stat.dof > 0 and stat.t <= self._thresholds[stat.dof]
 
     def decide(
         self,
@@ -328,7 +343,7 @@ class Screen:
         s2 = floor * scale + prop
         inflate, consistent = 1.0, True
         stat = self._statistic(d, used, s2)
-        if stat is not None and stat[1] > 0 and not self._passes(stat):
+        if stat is not None and stat.dof > 0 and not self._passes(stat):
             blamed = self._identify(d, used, s2)
             swap = None if blamed is not None else self._reexamine(d, live, used, gate, scale)
             if swap is not None:
@@ -349,7 +364,7 @@ class Screen:
                 p = self.predict(q)
             else:
                 consistent = False
-                inflate = stat[0] / stat[1]
+                inflate = stat.t / stat.dof
                 suspect |= used
                 reason[used & (reason == NONE)] = INCONSISTENT
         floor, prop = self.noise.parts(d, p, self.prev_p)
@@ -440,16 +455,18 @@ class Screen:
                     continue
                 tested += 1
                 if self._passes(stat):
-                    passing.append((combo, stat))
+                    passing.append(Explanation(combo, stat))
             if len(passing) == 1:
-                return passing[0][0]
+                return passing[0].excluded
             if len(passing) > 1:
                 return self._tie_break(d, passing, s2, used)
             if tested == 0:
                 return None
         return None
 
-    def _tie_break(self, d: np.ndarray, passing: list, s2: np.ndarray, used: np.ndarray):
+    def _tie_break(
+        self, d: np.ndarray, passing: list[Explanation], s2: np.ndarray, used: np.ndarray
+    ) -> list[int] | None:
         """Several exclusions explain the window (the geometry cannot tell the fault's
         direction apart): evidence and physical priors decide, or nobody is blamed.  First
         the fit: an explanation that leaves far less residual than every other (by the
@@ -460,15 +477,15 @@ class Screen:
         earlier wins (not the previous window's solution: a fault that crept in below the
         test's tolerance has already bent that towards itself).  Then a mouse that is
         silent while the rest say it moved (a lift)."""
-        fits = sorted(passing, key=lambda c: c[1][0])
-        if fits[1][1][0] - fits[0][1][0] > _FIT_MARGIN:
-            return fits[0][0]
+        fits = sorted(passing, key=lambda c: c.stat.t)
+        if fits[1].stat.t - fits[0].stat.t > _FIT_MARGIN:
+            return fits[0].excluded
         thr2 = self._thresholds[2]
         silent = []
         change = []
         then = self._then()
         for combo, stat in passing:
-            p = self.predict(stat[2])
+            p = self.predict(stat.q)
             if all(self._silent(d, j) and p[j] @ p[j] > thr2 * s2[j] for j in combo):
                 silent.append(combo)
             before = self.prev_p

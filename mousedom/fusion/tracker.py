@@ -78,7 +78,7 @@ class Tracker(OneWindowPath):
         self._still = (models.STILL * self._sigma).tolist()
         self._still_counts = models.STILL * np.array([m.sigma for m in config.mice])
         self._rate = 1.0 / self.period
-        self._linear_cache: dict[tuple[bool, ...], tuple] = {}  # live mice -> _solve_one's plan
+        self._linear_cache: dict = {}  # live mice -> tracker_one.LinearPlan
         self._closed = 0  # number of windows closed so far
         self._complete_all = -math.inf
         # The carried state as Python floats (the one-window path's currency; the array

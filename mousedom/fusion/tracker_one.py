@@ -10,11 +10,24 @@ path (tests/test_onewindow.py, tests/test_robust.py).
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
 from mousedom.fusion import models, onewindow, robust
 from mousedom.fusion.posebatch import PoseBatch, PoseRow
+
+
+class LinearPlan(NamedTuple):
+    """What _solve_one needs per pattern of live mice, as Python floats (A and B None
+    where the live mice lack rank)."""
+
+    a_rows: list[list[float]] | None  # the design matrix's rows
+    b_rows: list[list[float]] | None  # the estimator's: q = B d
+    idx: list[int]  # the live mice
+    c_moving: list[list[float]]  # q's covariance in a window with counts
+    c_rest: list[list[float]]  # and in one without
+    cols: tuple[int, ...]  # the q components solved for
 
 
 class OneWindowPath:
@@ -44,10 +57,8 @@ class OneWindowPath:
             self._learn_scales_row(counts, batch.rows()[0], live, before)
         return batch
 
-    def _linear_plan(self, live: tuple[bool, ...]) -> tuple:
-        """What _solve_one needs per pattern of live mice, as Python floats: (A rows, B rows,
-        live indices, q covariance 3x3 lists (in a window with counts, without), q
-        columns); A and B are None without rank."""
+    def _linear_plan(self, live: tuple[bool, ...]) -> LinearPlan:
+        """The pattern's LinearPlan, made once."""
         plan = self._linear_cache.get(live)
         if plan is None:
             cols = (0, 1, 2) if self.model == "lsq" else (0, 2)
@@ -67,7 +78,7 @@ class OneWindowPath:
                 else:
                     c_moving = models.sandwich(est[1], self._noise.moving[idx], cols).tolist()
                     c_rest = models.sandwich(est[1], self._noise.rest[idx], cols).tolist()
-            plan = (a_rows, b_rows, idx, (c_moving, c_rest), cols)
+            plan = LinearPlan(a_rows, b_rows, idx, c_moving, c_rest, cols)
             self._linear_cache[live] = plan
         return plan
 
@@ -125,7 +136,7 @@ class OneWindowPath:
     def _linear_one(self, d_all: list[float], live: tuple[bool, ...]):
         """(q, residual per mouse, used indices, q covariance, ok) of one window, from
         every mouse's body-frame counts ``d_all`` (x1, y1, x2, ...)."""
-        a_rows, b_rows, idx, (c_moving, c_rest), cols = self._linear_plan(live)
+        a_rows, b_rows, idx, c_moving, c_rest, cols = self._linear_plan(live)
         residual = [[0.0, 0.0] for _ in range(self.n_mice)]
         q = [0.0, 0.0, 0.0]
         ok = b_rows is not None
