@@ -44,6 +44,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass
+from enum import IntEnum
 from typing import NamedTuple
 
 import numpy as np
@@ -52,10 +53,37 @@ from mousedom.config import RobustConfig
 from mousedom.fusion import chi2, models
 from mousedom.fusion.noisemodel import NoiseModel
 
-TRACKING, SUSPECT, EXCLUDED, MISSING = 0, 1, 2, 3
-STATES = ("tracking", "suspect", "excluded", "missing")
-NONE, INCONSISTENT, SILENT, SATURATED, LOW_QUALITY = 0, 1, 2, 3, 4
+
+class Health(IntEnum):
+    """A mouse's health after a window.  The value is what PoseBatch.state, the replay
+    CSV's state_<mouse> and the metrics carry; STATES[value] is what SOURCE says."""
+
+    __str__ = int.__repr__  # "2", as an int prints (Python 3.10's IntEnum would say the name)
+
+    TRACKING = 0
+    SUSPECT = 1  # used, but flagged
+    EXCLUDED = 2  # left out of the solve
+    MISSING = 3  # no live sensor
+
+
+class Reason(IntEnum):
+    """Why a mouse is suspect or excluded (PoseBatch.reason, the CSV's reason_<mouse>);
+    REASONS[value] is its text."""
+
+    __str__ = int.__repr__
+
+    NONE = 0
+    INCONSISTENT = 1
+    SILENT = 2  # silent while the others move
+    SATURATED = 3
+    LOW_QUALITY = 4
+
+
+TRACKING, SUSPECT, EXCLUDED, MISSING = Health
+STATES = tuple(h.name.lower() for h in Health)  # ("tracking", "suspect", ...)
+NONE, INCONSISTENT, SILENT, SATURATED, LOW_QUALITY = Reason
 REASONS = ("", "inconsistent", "silent while others move", "saturated", "low quality")
+assert len(REASONS) == len(Reason)
 
 # How much smoother than the next one the winning explanation's motion must be (tie_break).
 _CONTINUITY_MARGIN = 3.0
