@@ -466,7 +466,7 @@ def test_a_wrong_cpi_is_in_source_and_logged_once(rig_run):
         assert s["scale_applied"] is False
     c.poses(2.0)  # four renewals more, each still warning
     said = [line for line in run.daemon.log().splitlines() if "mouse left reads" in line]
-    assert len(said) == 1 and said[0].startswith("WARNING mousedom.service.daemon: mouse left")
+    assert len(said) == 1 and said[0].startswith("WARNING mousedom.service.scales: mouse left")
 
 
 def test_a_reload_from_a_fifo_or_device_is_refused_and_never_blocks(rig_run, tmp_path):

@@ -69,7 +69,7 @@ def test_the_journal_gets_a_warning_once_not_at_every_renewal(caplog):
     again, until REPEAT_S has passed; over once it has been absent CLEAR_S, said once;
     a mouse hovering at the threshold (in and out at alternate renewals) is not logged
     in and out."""
-    caplog.set_level(logging.INFO, logger="mousedom.service.daemon")
+    caplog.set_level(logging.INFO, logger="mousedom.service.scales")
     log = ScaleLog()
     lrn = _learner([1.0, 1.0, 1.0], [0.001] * 3)
     t = 100.0

@@ -14,7 +14,7 @@ from mousedom.commands import _options as options
 from mousedom.config import DEFAULT_CONFIG_PATH, ConfigError, load_config
 from mousedom.errors import UserError
 
-log = logging.getLogger("mousedom.run")
+log = logging.getLogger(__name__)
 
 # syslog priorities (sd-daemon(3)): journald reads a "<N>" prefix on each stderr line.
 _PRIORITY = {

@@ -14,7 +14,7 @@ import numpy as np
 from mousedom.service.protocol import error_message, ok_message, version_message
 from mousedom.service.server import Client, Command
 
-log = logging.getLogger("mousedom.service.daemon")
+log = logging.getLogger(__name__)
 
 
 class ClientCommands:

@@ -17,7 +17,7 @@ from mousedom.fusion.posebatch import PoseBatch
 from mousedom.service.protocol import encode, encode_pose, source_message
 from mousedom.service.scales import scale_fields
 
-log = logging.getLogger("mousedom.service.daemon")
+log = logging.getLogger(__name__)
 
 
 class Publisher:

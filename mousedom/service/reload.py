@@ -14,7 +14,7 @@ from mousedom.config import load_config
 from mousedom.errors import UserError
 from mousedom.service.factory import source_key
 
-log = logging.getLogger("mousedom.service.daemon")
+log = logging.getLogger(__name__)
 
 
 class Reloader:

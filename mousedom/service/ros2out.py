@@ -32,7 +32,7 @@ from mousedom.service import ros2cdr as cdr
 from mousedom.service import ros2conv as conv
 from mousedom.service import ros2msgs as msgs
 
-log = logging.getLogger("mousedom.service.ros2")
+log = logging.getLogger(__name__)
 
 # ROS 2's default middleware, Fast DDS (RTPS vendor id 1.15), builds the XTypes TypeObjects
 # of ROS messages with collection element flags 0 (no try-construct bit) where cyclonedds

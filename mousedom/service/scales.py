@@ -25,7 +25,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
-log = logging.getLogger("mousedom.service.daemon")
+log = logging.getLogger(__name__)
 
 REPEAT_S = 600.0  # a warning that persists is logged again this often
 CLEAR_S = 10.0  # a warning absent this long is over (and said so once)

@@ -18,7 +18,7 @@ from mousedom.config import MouseConfig
 from mousedom.errors import UserError
 from mousedom.sources.base import Source, SourceGone, SourceUnavailable
 
-log = logging.getLogger("mousedom.service.daemon")
+log = logging.getLogger(__name__)
 
 RETRY_S = 1.0  # how often a vanished sensor is looked for again
 DEFAULT_LATENCY_S = 0.003  # how late a report may reach us after its stamp (silence rule)
