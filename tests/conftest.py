@@ -46,6 +46,20 @@ def mousedom_env(**extra: str) -> dict[str, str]:
     return env
 
 
+def a_group() -> str:
+    """A group this machine has that the test user is not likely to be in (the fakes of
+    /dev/input give their nodes to it)."""
+    import grp
+
+    for name in ("tty", "disk", "users", "daemon"):
+        try:
+            grp.getgrnam(name)
+            return name
+        except KeyError:
+            continue
+    raise LookupError("none of tty, disk, users, daemon is a group here")
+
+
 def run_mousedom(
     *args: str, input: str | bytes | None = None, timeout: float = 120, **kw
 ) -> subprocess.CompletedProcess:

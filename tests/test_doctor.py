@@ -16,7 +16,7 @@ import tempfile
 from pathlib import Path
 
 import pytest
-from conftest import mousedom_env
+from conftest import a_group, mousedom_env
 from daemon_fixtures import DaemonProcess
 from test_evdev_fakes import add_device
 
@@ -247,7 +247,7 @@ def test_a_user_the_node_and_the_socket_are_closed_to_is_told_the_groups(tmp_pat
 
     if os.geteuid() != 0:
         pytest.skip("needs root: the node is given to another group, then doctor drops to nobody")
-    group = next(g for g in ("tty", "disk", "users", "daemon") if _has_group(g))
+    group = a_group()
     root = Path(tempfile.mkdtemp(prefix="mousedom-doctor-"))
     listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
     try:
@@ -287,13 +287,3 @@ def test_a_user_the_node_and_the_socket_are_closed_to_is_told_the_groups(tmp_pat
     finally:
         listener.close()
         shutil.rmtree(root)
-
-
-def _has_group(name: str) -> bool:
-    import grp
-
-    try:
-        grp.getgrnam(name)
-        return True
-    except KeyError:
-        return False

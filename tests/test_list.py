@@ -6,7 +6,7 @@ import json
 import os
 from pathlib import Path
 
-from conftest import mousedom_env, run_mousedom
+from conftest import a_group, mousedom_env, run_mousedom
 from test_evdev_fakes import add_device
 
 
@@ -79,7 +79,7 @@ def test_list_unreadable_device_names_the_group():
     import sys
     import tempfile
 
-    group = next(g for g in ("tty", "disk", "users", "daemon") if _has_group(g))
+    group = a_group()
     root = Path(tempfile.mkdtemp(prefix="mousedom-list-"))
     try:
         node = add_device(root, 3, "Locked Mouse", by_path=("pci-usb-0:1-event-mouse",))
@@ -114,16 +114,6 @@ def test_list_unreadable_device_names_the_group():
         assert "event3  Locked Mouse" in p.stdout  # sysfs still describes it
     finally:
         shutil.rmtree(root)
-
-
-def _has_group(name: str) -> bool:
-    import grp
-
-    try:
-        grp.getgrnam(name)
-        return True
-    except KeyError:
-        return False
 
 
 def test_list_with_config_says_which_device_each_mouse_is(tmp_path):

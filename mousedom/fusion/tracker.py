@@ -77,6 +77,7 @@ class Tracker(OneWindowPath):
         # below these a reading is no count (models.STILL): in metres, and in counts
         self._still = (models.STILL * self._sigma).tolist()
         self._still_counts = models.STILL * np.array([m.sigma for m in config.mice])
+        self._still_counts_list = self._still_counts.tolist()  # the one-window path's
         self._rate = 1.0 / self.period
         self._linear_cache: dict = {}  # live mice -> tracker_one.LinearPlan
         self._closed = 0  # number of windows closed so far
@@ -455,7 +456,7 @@ class Tracker(OneWindowPath):
         per = self.period
         q = [row.vx * per, row.vy * per, row.omega * per] if row.ok else [0.0, 0.0, 0.0]
         if self.noise_rate is not None:
-            still = self._still_counts.tolist()
+            still = self._still_counts_list
             moving = any(abs(c[0]) > e or abs(c[1]) > e
                          for c, v, e in zip(counts, live, still, strict=True) if v)  # fmt: skip
             eligible = all(usable) and row.used == self.n_mice  # every mouse in the solve
