@@ -24,7 +24,9 @@ import numpy as np
 
 from mousedom.fusion import scenarios, sim
 from mousedom.fusion.tracker import Tracker
-from mousedom.service.slots import DEFAULT_LATENCY_S as LATENCY_S  # the daemon's margin
+from mousedom.sources.base import Source
+
+LATENCY_S = Source.latency  # the daemon's margin
 
 TICK_S = 0.001
 

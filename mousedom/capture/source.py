@@ -43,7 +43,7 @@ _ANCHORS: dict[tuple[str, int], tuple[float, float]] = {}
 
 class ReplaySource(Source):
     kind = "replay"
-    latency = 0.0  # reports are handed over once due: nothing older can still arrive
+    paced = True  # reports are handed over once due: nothing older can still arrive
 
     def __init__(
         self,

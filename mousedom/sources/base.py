@@ -145,7 +145,7 @@ class SourceHealth:
     connected: bool = False
     reports: int = 0
     last_t: float | None = None
-    rate_hz: float = 0.0
+    reports_per_s: float = 0.0  # measured over the last ~1 s
     dropped: int = 0  # frames or packets lost (SYN_DROPPED, sequence gaps, CRC errors)
     skipped: int = 0  # events that are not motion (buttons, wheels), counted not used
     error: str | None = None
@@ -158,7 +158,8 @@ class SourceHealth:
             "connected": self.connected,
             "reports": self.reports,
             "last_t": self.last_t,
-            "rate_hz": round(self.rate_hz, 3),
+            # The wire key stays "rate_hz": the socket protocol is an external contract.
+            "rate_hz": round(self.reports_per_s, 3),
             "dropped": self.dropped,
             "skipped": self.skipped,
             "error": self.error,
@@ -170,6 +171,12 @@ class Source(ABC):
     """A sensor the daemon can poll; backends fill in the three hooks."""
 
     kind = "source"
+    # How late a report may reach the reader after its stamp: the daemon's silence rule
+    # waits a mouse's report period plus this before it takes the mouse to be still.
+    latency = 0.003
+    # Read on the daemon's own schedule (a replay hands over each report once due), not
+    # when a descriptor is readable; nothing stamped before the read can still come.
+    paced = False
     # A backend that bounds its stamps itself (before a rule of its own that needs them
     # bounded, as evdev's forward clamp) says so; read() then does not do it again.
     bounds_own_stamps = False
@@ -239,7 +246,7 @@ class Source(ABC):
             t0 = self._rate_t0
             if t0 is None or now - t0 > 1.0:
                 if t0 is not None and now > t0:
-                    health.rate_hz = self._rate_n / (now - t0)
+                    health.reports_per_s = self._rate_n / (now - t0)
                 self._rate_t0, self._rate_n = now, 0
             self._rate_n += n
         return batches
