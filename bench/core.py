@@ -92,7 +92,7 @@ def naive(cfg, result: sim.SimResult) -> int:
 
 def throughput(seconds: float, repeats: int) -> None:
     mice = tuple(
-        sim.SimMouse(f"m{i}", 0.15 * math.cos(a), 0.15 * math.sin(a), rate_hz=1000,
+        sim.SimMouse(f"m{i}", 0.15 * math.cos(a), 0.15 * math.sin(a), report_hz=1000,
                      phase=i * 0.00023)
         for i, a in enumerate(np.linspace(0, 2 * math.pi, 4, endpoint=False))
     )  # fmt: skip

@@ -83,7 +83,7 @@ class Lane:
         self.push = push
         self.small = small_read != 0
         # The daemon's tracker (three mice at 1 kHz; this pipe feeds the first).
-        self.tracker = Tracker(sim.rig_config(sim.three_mouse_rig(rate_hz=1000.0)), t0=0.0)
+        self.tracker = Tracker(sim.rig_config(sim.three_mouse_rig(report_hz=1000.0)), t0=0.0)
         self.times: list[int] = []
 
     def once(self, chunk: bytes, t_end: float) -> None:

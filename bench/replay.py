@@ -50,7 +50,7 @@ PIECE = 60.0  # seconds simulated at a time (bounded memory while generating)
 
 def rig() -> sim.Rig:
     mice = tuple(
-        sim.SimMouse(name, x, y, cpi_x=1000.0, cpi_y=1000.0, rate_hz=1000.0, phase=k * 1.3e-4)
+        sim.SimMouse(name, x, y, cpi_x=1000.0, cpi_y=1000.0, report_hz=1000.0, phase=k * 1.3e-4)
         for k, (name, x, y) in enumerate(
             zip(NAMES, (0.1, 0.1, -0.1, -0.1), (0.1, -0.1, 0.1, -0.1), strict=True)
         )

@@ -117,7 +117,7 @@ def synth_mice(names: tuple[str, ...], rel_noise: float = 0.01) -> list[SynthMou
     return [
         SynthMouse(
             n, TRUTH[n].x, TRUTH[n].y, cpi_x=TRUTH[n].cpi, cpi_y=TRUTH[n].cpi,
-            rate_hz=REPORT_HZ, phase=0.3 * i, rel_noise=rel_noise, abs_noise=0.3,
+            report_hz=REPORT_HZ, phase=0.3 * i, rel_noise=rel_noise, abs_noise=0.3,
         )
         for i, n in enumerate(names)
     ]  # fmt: skip
@@ -175,7 +175,7 @@ def drive_session(out: Path) -> None:
 def sim_rig(noise: float = 0.3) -> sim.Rig:
     """The true rig for mousedom.fusion.sim (yaw 0; phases spread over a report period)."""
     mice = tuple(
-        sim.SimMouse(n, m.x, m.y, cpi_x=m.cpi, cpi_y=m.cpi, rate_hz=REPORT_HZ,
+        sim.SimMouse(n, m.x, m.y, cpi_x=m.cpi, cpi_y=m.cpi, report_hz=REPORT_HZ,
                      phase=i / (3 * REPORT_HZ), noise=noise)
         for i, (n, m) in enumerate(TRUTH.items())
     )  # fmt: skip

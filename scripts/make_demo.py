@@ -42,7 +42,7 @@ def rig_yaml(rig: sim.Rig, capture: str) -> str:
             f"  {m.name}:",
             f"    cpi: {{x: {m.cpi_x!r}, y: {m.cpi_y!r}}}",
             f"    mount: {{x: {round(m.x, 9)!r}, y: {round(m.y, 9)!r}, yaw: {m.yaw!r}}}",
-            f"    report_hz: {m.rate_hz!r}",
+            f"    report_hz: {m.report_hz!r}",
             "    sigma: 1.0",
             f"    replay: {capture}",
         ]
@@ -55,7 +55,7 @@ def main() -> None:
     args = ap.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    base = sim.three_mouse_rig(cpi=800.0, rate_hz=125.0)
+    base = sim.three_mouse_rig(cpi=800.0, report_hz=125.0)
     rig = replace(base, mice=tuple(replace(m, noise=0.3) for m in base.mice), rate_hz=50.0)
     traj = sim.umbmark_square(cw=False, side=1.0, speed=0.25, turn_rate=0.8, rest=0.5)
     res = sim.simulate(rig, traj, seed=2026)

@@ -607,7 +607,7 @@ def _scale_drive(tmp_path: Path, seconds: float, n_mice: int = 3, true_left: flo
 
     from mousedom.fusion import sim
 
-    rig = sim.three_mouse_rig(cpi=800.0, rate_hz=250.0)
+    rig = sim.three_mouse_rig(cpi=800.0, report_hz=250.0)
     mice = [dataclasses.replace(m, noise=0.3, stamp_delay=0.002) for m in rig.mice[:n_mice]]
     mice[-1] = dataclasses.replace(mice[-1], cpi_x=1200.0, cpi_y=1190.0)  # right, calibrated
     rig = dataclasses.replace(rig, mice=tuple(mice))

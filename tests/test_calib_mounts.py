@@ -77,8 +77,8 @@ def _windows_for(mice, motion, window=0.25, cpi_conf=1000.0):
         rep = recording[m.name]
         parts = []
         for e in edges:
-            dx = window_counts(rep.t, rep.dx, e, 1 / m.rate_hz)
-            dy = window_counts(rep.t, rep.dy, e, 1 / m.rate_hz)
+            dx = window_counts(rep.t, rep.dx, e, 1 / m.report_hz)
+            dy = window_counts(rep.t, rep.dy, e, 1 / m.report_hz)
             parts.append(np.column_stack([-dy, -dx]) * INCH / cpi_conf)
         readings[m.name] = np.concatenate(parts)
     return readings, w
@@ -91,7 +91,7 @@ def test_exact_recovers_position_yaw_scale_noise_free():
     """Quantised but noise-free counts: positions to 0.1 mm (issue 7), yaw and scale too."""
     mice = [
         SynthMouse("a", 0.12, 0.05, yaw=0.2, cpi_x=1030, cpi_y=1030),
-        SynthMouse("b", -0.1, -0.12, yaw=-0.1, cpi_x=990, cpi_y=990, rate_hz=500),
+        SynthMouse("b", -0.1, -0.12, yaw=-0.1, cpi_x=990, cpi_y=990, report_hz=500),
         SynthMouse("c", 0.0, 0.2, yaw=math.pi, cpi_x=1000, cpi_y=1000, phase=0.4),
     ]
     readings, w = _windows_for(mice, build_motion(RICH_MOTION))

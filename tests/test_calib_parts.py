@@ -90,7 +90,7 @@ def test_counts_follow_the_evdev_convention():
 
 def test_reference_twist_integrates_exactly():
     motion = build_motion([(0.3, 0.0, 0.5, 2.0), (0.0, 0.1, -1.0, 1.5)])
-    ref = parse_reference(twist_csv(motion, rate_hz=50), "REF.csv")
+    ref = parse_reference(twist_csv(motion, sample_hz=50), "REF.csv")
     assert ref.kind == "twist"
     edges = np.array([0.0, 0.7, 1.3, 3.0, 5.9])
     np.testing.assert_allclose(

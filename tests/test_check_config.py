@@ -286,7 +286,7 @@ def test_the_notes_say_what_the_engine_sees(model, mounts, seen):
     from mousedom.fusion import sim
     from mousedom.observability import blind_spots
 
-    mice = tuple(sim.SimMouse(n, x, y, cpi_x=800, cpi_y=800, rate_hz=500, noise=0.3)
+    mice = tuple(sim.SimMouse(n, x, y, cpi_x=800, cpi_y=800, report_hz=500, noise=0.3)
                  for n, (x, y) in zip("ab", mounts, strict=True))  # fmt: skip
     rig = sim.Rig(mice, model=model)
     lifted = dataclasses.replace(

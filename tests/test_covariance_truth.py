@@ -35,7 +35,7 @@ SIGMA = 2.0  # counts per report and axis
 
 def _rig() -> tuple[sim.Rig, object]:
     mice = tuple(
-        sim.SimMouse(name, x, y, rate_hz=RATE, noise=SIGMA, quantize=False)
+        sim.SimMouse(name, x, y, report_hz=RATE, noise=SIGMA, quantize=False)
         for name, x, y in (("a", 0.5, 0.05), ("b", 0.5, -0.05), ("c", 0.45, 0.0))
     )
     rig = sim.Rig(mice, rate_hz=RATE)

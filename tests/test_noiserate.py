@@ -21,7 +21,7 @@ def test_it_learns_the_noise_that_adds_up(layout):
     window must come near, whatever the config's sigma says (0.5 counts per window) and
     however much the stamps' lateness moves counts between windows (far more)."""
     base = scenarios.rig(layout)
-    truth = np.array([0.09 * m.rate_hz / 100.0 for m in base.mice])
+    truth = np.array([0.09 * m.report_hz / 100.0 for m in base.mice])
     per_mouse, total = [], []
     for seed in (7, 8, 9, 10):
         result = sim.simulate(base, scenarios.drive(60.0, seed), seed=seed)

@@ -127,7 +127,7 @@ def test_csv_to_stdout_last_row_holds_every_count(tmp_path):
 
 def _sim_native(tmp_path, chunk_reports=2000, fault=None):
     """A three-mouse capture; ``fault(rig) -> faulty rig`` for the mice as they really were."""
-    rig = sim.three_mouse_rig(cpi=800.0, rate_hz=250.0)
+    rig = sim.three_mouse_rig(cpi=800.0, report_hz=250.0)
     traj = sim.sequence(sim.straight(0.5), sim.turn(math.pi / 2), sim.arc(0.4, math.pi / 3))
     res = sim.simulate(fault(rig) if fault else rig, traj, seed=4, t_start=1000.0)
     cfg = tmp_path / "rig.yaml"

@@ -140,7 +140,7 @@ def test_the_covariance_grows_faster_while_a_mouse_is_excluded():
 
 def _pair(model: str = "lsq", positions=((0.0, 0.1), (0.0, -0.1))) -> sim.Rig:
     mice = tuple(
-        sim.SimMouse(n, x, y, cpi_x=1000, cpi_y=1000, rate_hz=500, noise=0.3, phase=0.001 * k)
+        sim.SimMouse(n, x, y, cpi_x=1000, cpi_y=1000, report_hz=500, noise=0.3, phase=0.001 * k)
         for k, (n, (x, y)) in enumerate(zip(("left", "right"), positions, strict=True))
     )
     return sim.Rig(mice, model=model)
@@ -186,7 +186,7 @@ def test_two_mice_on_the_axle_cannot_see_a_lift_while_driving_straight():
 def test_one_mouse_can_only_say_it_is_saturated():
     """One mouse: nothing to check against but its own limit; it stays in use (there
     is no other) but is marked suspect, reason saturated."""
-    m = sim.SimMouse("m", 0.1, 0.0, cpi_x=1000, cpi_y=1000, rate_hz=500, max_speed=0.3)
+    m = sim.SimMouse("m", 0.1, 0.0, cpi_x=1000, cpi_y=1000, report_hz=500, max_speed=0.3)
     rig = sim.Rig((m,), model="diff-drive")
     traj = sim.sequence(sim.straight(0.4, 0.2), sim.straight(1.0, 0.5))
     result = sim.simulate(rig, traj)

@@ -151,7 +151,7 @@ def test_long_tailed_stamps_stay_ordered_and_late(seed):
 
 
 def test_a_tail_without_uniform_delay_is_still_monotone():
-    mouse = sim.SimMouse("a", 0.1, 0.0, rate_hz=1000.0, stamp_tail=0.005)
+    mouse = sim.SimMouse("a", 0.1, 0.0, report_hz=1000.0, stamp_tail=0.005)
     r = sim.simulate(sim.Rig((mouse,)), sim.straight(0.3, 0.2), seed=1).reports["a"]
     assert np.all(np.diff(r.t) >= 0) and np.any(np.diff(r.t) == 0)
 
@@ -206,7 +206,7 @@ def test_the_new_layouts_configure():
     pent = scenarios.rig("pentagon")
     assert len(pent.mice) == 5
     assert [math.hypot(m.x, m.y) for m in pent.mice] == pytest.approx([0.12] * 5, abs=1e-4)
-    assert {m.rate_hz for m in pent.mice} == {125.0, 250.0, 500.0, 1000.0}
+    assert {m.report_hz for m in pent.mice} == {125.0, 250.0, 500.0, 1000.0}
     assert len(scenarios.rig("kite").mice) == 4
     for layout in ("pentagon", "kite"):
         assert scenarios.config(scenarios.rig(layout)).names == tuple(

@@ -43,7 +43,7 @@ def test_exact_recovers_a_constant_twist_arc(rate_hz):
     """DESIGN 'exact' integrator: without quantization the pose is exact, any window length."""
     rig = sim.Rig(
         tuple(
-            sim.SimMouse(n, x, y, yaw, quantize=False, rate_hz=125, phase=ph)
+            sim.SimMouse(n, x, y, yaw, quantize=False, report_hz=125, phase=ph)
             for n, x, y, yaw, ph in [
                 ("a", 0.2, 0.0, 0.0, 0.0),
                 ("b", -0.1, 0.15, 30.0, 0.003),
@@ -460,7 +460,7 @@ def test_bonarini_on_the_one_window_path_equals_the_array_path():
     from mousedom.fusion.tracker import Tracker
 
     rig = sim.Rig(
-        (sim.SimMouse("l", 0.0, 0.1, rate_hz=125.0), sim.SimMouse("r", 0.0, -0.1, rate_hz=125.0,
+        (sim.SimMouse("l", 0.0, 0.1, report_hz=125.0), sim.SimMouse("r", 0.0, -0.1, report_hz=125.0,
                                                                    phase=0.003)),
         model="bonarini",
     )  # fmt: skip

@@ -29,7 +29,7 @@ class SynthMouse:
     cpi_x: float = 1000.0  # true CPI
     cpi_y: float = 1000.0
     flip: bool = False
-    rate_hz: float = 125.0
+    report_hz: float = 125.0
     phase: float = 0.0  # of a report period
     rel_noise: float = 0.0  # relative error of each report's motion (std)
     abs_noise: float = 0.0  # counts added to each moving report (std)
@@ -110,7 +110,7 @@ def build_motion(
 def mouse_reports(mouse: SynthMouse, motion: Motion, seed: int | None = 0) -> Reports:
     """The evdev reports of ``mouse`` during ``motion`` (only reports with motion)."""
     rng = np.random.default_rng(seed)
-    period = 1.0 / mouse.rate_hz
+    period = 1.0 / mouse.report_hz
     grid = np.arange(motion.t[0] + mouse.phase * period, motion.end + period, period)
     u = motion.integral(grid)
     body = np.stack([u[:, 0] - u[:, 2] * mouse.y, u[:, 1] + u[:, 2] * mouse.x], -1)
@@ -135,10 +135,10 @@ def true_window_twist(motion: Motion, edges: np.ndarray) -> np.ndarray:
     return np.diff(motion.integral(np.asarray(edges, dtype=float)), axis=0)
 
 
-def twist_csv(motion: Motion, rate_hz: float = 100.0, t_offset: float = 0.0) -> str:
-    """REF.csv text (t,vx,vy,omega) sampled at ``rate_hz`` plus every knot (exact trapezoid)."""
+def twist_csv(motion: Motion, sample_hz: float = 100.0, t_offset: float = 0.0) -> str:
+    """REF.csv text (t,vx,vy,omega) sampled at ``sample_hz`` plus every knot (exact trapezoid)."""
     t = np.unique(
-        np.round(np.union1d(np.arange(motion.t[0], motion.end, 1 / rate_hz), motion.t), 6)
+        np.round(np.union1d(np.arange(motion.t[0], motion.end, 1 / sample_hz), motion.t), 6)
     )
     v = motion.twist(t)
     lines = ["t,vx,vy,omega"]

@@ -171,7 +171,7 @@ def rig(
             y,
             cpi_x=cpi,
             cpi_y=cpi,
-            rate_hz=hz,
+            report_hz=hz,
             phase=0.00131 * k,
             noise=noise,
             stamp_delay=stamp_delay,
@@ -289,7 +289,7 @@ def informed_dead(
             t += seg.duration
         return tuple(spans)
     if fault.kind == "jumps":
-        period = 1.0 / next(m.rate_hz for m in rig.mice if m.name == fault.mouse)
+        period = 1.0 / next(m.report_hz for m in rig.mice if m.name == fault.mouse)
         return tuple((fault.mouse, t - period, t + period) for t, _, _ in fault.jumps)
     return ((fault.mouse, fault.start, fault.end),)
 
@@ -542,9 +542,9 @@ class Condition:
         if chosen is not None:
             return chosen
         if part == "gap":
-            return min(base.mice, key=lambda m: m.rate_hz).name
+            return min(base.mice, key=lambda m: m.report_hz).name
         if part == "stamp":
-            return max(base.mice, key=lambda m: m.rate_hz).name
+            return max(base.mice, key=lambda m: m.report_hz).name
         return base.mice[0].name
 
 

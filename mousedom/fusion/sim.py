@@ -168,7 +168,7 @@ class SimMouse:
     yaw: float = 0.0  # degrees, body x to the mouse's forward
     cpi_x: float = 450.0
     cpi_y: float = 450.0
-    rate_hz: float = 125.0
+    report_hz: float = 125.0  # the mouse's configured report rate
     phase: float = 0.0  # seconds: time of the first report slot
     noise: float = 0.0  # std of added counts per report (only while moving)
     lost: tuple[tuple[float, float], ...] = ()  # spans of lost tracking [from, to)
@@ -200,7 +200,7 @@ class Rig:
     integrator: str = "exact"
 
 
-def three_mouse_rig(cpi: float = 450.0, rate_hz: float = 125.0, radius: float = 0.15) -> Rig:
+def three_mouse_rig(cpi: float = 450.0, report_hz: float = 125.0, radius: float = 0.15) -> Rig:
     """Three mice on a triangle round the body origin, reporting with different phases."""
     mice = []
     for i, name in enumerate(("front", "left", "right")):
@@ -213,8 +213,8 @@ def three_mouse_rig(cpi: float = 450.0, rate_hz: float = 125.0, radius: float = 
                 yaw=0.0,
                 cpi_x=cpi,
                 cpi_y=cpi,
-                rate_hz=rate_hz,
-                phase=i / (3 * rate_hz) + 0.00037 * i,
+                report_hz=report_hz,
+                phase=i / (3 * report_hz) + 0.00037 * i,
             )
         )
     return Rig(tuple(mice))
@@ -258,7 +258,7 @@ def rig_yaml(rig: Rig, cpi: dict[str, tuple[float, float]] | None = None) -> str
     for m in rig.mice:
         cx, cy = (float(v) for v in (cpi or {}).get(m.name, (m.cpi_x, m.cpi_y)))
         # float(): numpy scalars would print as np.float64(...), which is not YAML.
-        x, y, yaw, rate = float(m.x), float(m.y), float(m.yaw), float(m.rate_hz)
+        x, y, yaw, rate = float(m.x), float(m.y), float(m.yaw), float(m.report_hz)
         lines += [
             f"  {m.name}:",
             f"    cpi: {{x: {cx!r}, y: {cy!r}}}",
@@ -370,7 +370,7 @@ def simulate(
     result = SimResult(rig, motion)
     end = motion.starts[-1]
     for mouse in rig.mice:
-        period = 1.0 / mouse.rate_hz
+        period = 1.0 / mouse.report_hz
         first = t_start + (mouse.phase % period)
         slots = first + period * np.arange(int(math.floor((end - first) / period)) + 2)
         slots = slots[slots <= end + period]
