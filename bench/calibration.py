@@ -138,7 +138,7 @@ def mounts_trial(rng, positions_only=False, ref_rng=None):
     nominal = np.array([[0.15, 0.0], [-0.075, 0.13], [-0.075, -0.13]])
     true = nominal + rng.uniform(-0.005, 0.005, nominal.shape)
     k = 0.0 if positions_only else 1.0
-    yaw = k * rng.uniform(-2, 2, 3) * math.pi / 180
+    yaw = k * rng.uniform(-2, 2, 3)  # degrees
     cpi = 1000 * (1 + k * rng.uniform(-0.03, 0.03, 3))
     moves = [
         (0.4, 0, 0, 2),

@@ -423,7 +423,7 @@ def mounts_session(tmp_path):
         "c": (-0.07875, -0.1365, 0.0, 1000),
     }
     mice = [
-        SynthMouse(n, x, y, yaw=yaw, cpi_x=cpi, cpi_y=cpi, phase=0.2 * i)
+        SynthMouse(n, x, y, yaw=math.degrees(yaw), cpi_x=cpi, cpi_y=cpi, phase=0.2 * i)
         for i, (n, (x, y, yaw, cpi)) in enumerate(true.items())
     ]
     rec = {m.name: mouse_reports(m, motion, i) for i, m in enumerate(mice)}

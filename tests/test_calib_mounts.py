@@ -90,19 +90,19 @@ RICH_MOTION = [(0.3, 0, 0, 2), (0, 0, 1.5, 2), (0.2, 0, 0.8, 2), (0, 0.1, -1, 2)
 def test_exact_recovers_position_yaw_scale_noise_free():
     """Quantised but noise-free counts: positions to 0.1 mm (issue 7), yaw and scale too."""
     mice = [
-        SynthMouse("a", 0.12, 0.05, yaw=0.2, cpi_x=1030, cpi_y=1030),
-        SynthMouse("b", -0.1, -0.12, yaw=-0.1, cpi_x=990, cpi_y=990, report_hz=500),
-        SynthMouse("c", 0.0, 0.2, yaw=math.pi, cpi_x=1000, cpi_y=1000, phase=0.4),
+        SynthMouse("a", 0.12, 0.05, yaw=math.degrees(0.2), cpi_x=1030, cpi_y=1030),
+        SynthMouse("b", -0.1, -0.12, yaw=math.degrees(-0.1), cpi_x=990, cpi_y=990, report_hz=500),
+        SynthMouse("c", 0.0, 0.2, yaw=180.0, cpi_x=1000, cpi_y=1000, phase=0.4),
     ]
     readings, w = _windows_for(mice, build_motion(RICH_MOTION))
     assert motion_problem(w) is None
     for m in mice:
         fit = exact_mount(readings[m.name], w)
         assert abs(fit.x - m.x) < 1e-4 and abs(fit.y - m.y) < 1e-4
-        assert abs(math.remainder(fit.yaw - m.yaw, 2 * math.pi)) < 1e-3
+        assert abs(math.remainder(fit.yaw - math.radians(m.yaw), 2 * math.pi)) < 1e-3
         assert fit.scale == pytest.approx(m.cpi_y / 1000.0, rel=2e-4)
         yaw_deg = fit.as_json()["yaw"]
-        assert abs(math.remainder(yaw_deg - math.degrees(m.yaw), 360)) < 0.06
+        assert abs(math.remainder(yaw_deg - m.yaw, 360)) < 0.06
 
 
 def test_exact_is_exact_on_float_counts():
@@ -232,7 +232,7 @@ def test_exact_with_a_reference_clock_20_ms_late(window, tolerance):
 
     motion = build_motion(RICH_MOTION)
     mice = [
-        SynthMouse("a", 0.12, 0.05, yaw=0.03, cpi_x=1010, cpi_y=1010),
+        SynthMouse("a", 0.12, 0.05, yaw=math.degrees(0.03), cpi_x=1010, cpi_y=1010),
         SynthMouse("b", -0.1, -0.02, phase=0.5),
     ]
     rec = {m.name: mouse_reports(m, motion, i) for i, m in enumerate(mice)}

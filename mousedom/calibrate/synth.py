@@ -10,6 +10,7 @@ for what calibration needs (the reference twist, per-window truth).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -22,10 +23,13 @@ from mousedom.sources.base import Reports
 
 @dataclass(frozen=True)
 class SynthMouse:
+    """A simulated mouse.  Units as in the rig YAML and ``fusion.sim.SimMouse``: metres, and
+    the yaw in degrees (turned to radians where the reports are made)."""
+
     name: str
     x: float
     y: float
-    yaw: float = 0.0  # radians
+    yaw: float = 0.0  # degrees, body x to the mouse's forward
     cpi_x: float = 1000.0  # true CPI
     cpi_y: float = 1000.0
     flip: bool = False
@@ -114,7 +118,7 @@ def mouse_reports(mouse: SynthMouse, motion: Motion, seed: int | None = 0) -> Re
     grid = np.arange(motion.t[0] + mouse.phase * period, motion.end + period, period)
     u = motion.integral(grid)
     body = np.stack([u[:, 0] - u[:, 2] * mouse.y, u[:, 1] + u[:, 2] * mouse.x], -1)
-    own = rotate(body, -mouse.yaw) / INCH  # inches: forward, left
+    own = rotate(body, -math.radians(mouse.yaw)) / INCH  # inches: forward, left
     rel_y = -own[:, 0] * mouse.cpi_y
     rel_x = (own[:, 1] if mouse.flip else -own[:, 1]) * mouse.cpi_x
     out = []

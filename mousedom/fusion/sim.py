@@ -160,7 +160,9 @@ class Motion:
 
 @dataclass(frozen=True)
 class SimMouse:
-    """A simulated sensor: true mount and CPI, timing, and imperfections."""
+    """A simulated sensor: true mount and CPI, timing, and imperfections.  Units as in the rig
+    YAML: metres, and the yaw in degrees (turned to radians where counts are made);
+    ``report_hz`` is the mouse's report rate, not the output ``Rig.rate_hz``."""
 
     name: str
     x: float
