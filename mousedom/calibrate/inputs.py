@@ -18,14 +18,9 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 from mousedom.calibrate.runs import in_time_order
-from mousedom.capture import (
-    Capture,
-    CaptureError,
-    assign,
-    captures_of,
-    parse_capture_arg,
-    relative_alignment_warning,
-)
+from mousedom.capture.assignment import assign, captures_of, parse_capture_arg
+from mousedom.capture.base import Capture, CaptureError
+from mousedom.capture.timebase import relative_alignment_warning
 from mousedom.config import Config, MouseConfig
 from mousedom.errors import UserError
 from mousedom.sources.adns import replay_decoder

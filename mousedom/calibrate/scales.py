@@ -20,7 +20,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from mousedom.capture import assign, parse_capture_arg
+from mousedom.capture.assignment import assign, parse_capture_arg
 from mousedom.capture.replay import Replay
 from mousedom.config import Config
 from mousedom.errors import UserError

@@ -21,10 +21,11 @@ from typing import TextIO
 
 import numpy as np
 
-from mousedom.capture import Assignment, Capture, captures_of, mice_by_device, time_offset
-from mousedom.capture.base import DeviceStats, lagging_first
+from mousedom.capture.assignment import Assignment, captures_of, mice_by_device
+from mousedom.capture.base import Capture, DeviceStats, lagging_first
 from mousedom.capture.fixedpoint import fixed_bytes
 from mousedom.capture.scientific import scientific_bytes
+from mousedom.capture.timebase import time_offset
 from mousedom.config import Config
 from mousedom.fusion import robust
 from mousedom.fusion.tracker import PoseBatch, Tracker

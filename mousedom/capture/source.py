@@ -33,7 +33,8 @@ from collections.abc import Callable, Iterator
 
 import numpy as np
 
-from mousedom.capture import Capture, CaptureError, open_capture
+from mousedom.capture.base import Capture, CaptureError
+from mousedom.capture.sniff import open_capture
 from mousedom.config import MouseConfig
 from mousedom.sources.base import Reports, Source, SourceGone, SourceUnavailable
 

@@ -16,17 +16,11 @@ from dataclasses import dataclass
 
 from mousedom import saferead
 from mousedom.allocator import keep_freed_memory
-from mousedom.capture import (
-    Capture,
-    CaptureError,
-    DeviceInfo,
-    Feed,
-    NativeWriter,
-    open_capture,
-    parse_capture_arg,
-    time_offset,
-)
-from mousedom.capture.base import TIME_BASES, lagging_first
+from mousedom.capture.assignment import parse_capture_arg
+from mousedom.capture.base import TIME_BASES, Capture, CaptureError, DeviceInfo, Feed, lagging_first
+from mousedom.capture.native import NativeWriter
+from mousedom.capture.sniff import open_capture
+from mousedom.capture.timebase import time_offset
 from mousedom.commands import _options as options
 from mousedom.errors import UserError
 from mousedom.safewrite import open_stream, replace_file, same_file

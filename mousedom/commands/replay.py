@@ -18,7 +18,7 @@ import numpy as np
 
 from mousedom.allocator import keep_freed_memory
 from mousedom.angles import wrap_degrees
-from mousedom.capture import assign, parse_capture_arg
+from mousedom.capture.assignment import assign, parse_capture_arg
 from mousedom.capture.replay import CsvSink, Replay, Summary
 from mousedom.commands import _options as options
 from mousedom.config import INTEGRATORS, MODELS, load_config

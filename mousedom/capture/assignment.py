@@ -1,0 +1,238 @@
+"""Which capture device is which mouse of the config.
+
+``parse_capture_arg`` reads one ``--capture`` argument; ``assign`` opens every capture
+given (and the config's own ``replay:`` files) and maps one device onto each mouse:
+by the name given on the command line, by the device's name, node or evdev rule, or as
+the only device of its file that moves.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+from mousedom.capture.base import Capture, CaptureError, DeviceInfo
+from mousedom.capture.sniff import open_capture
+from mousedom.config import Config, EvdevMatch, MouseConfig
+
+
+def parse_capture_arg(arg: str) -> tuple[str | None, str]:
+    """``NAME=FILE`` -> (NAME, FILE); ``FILE`` -> (None, FILE).
+
+    A file whose own name holds ``=`` is taken whole when it exists.
+    """
+    name, sep, file = arg.partition("=")
+    if not sep or os.path.exists(arg):
+        return None, arg
+    if not name or not file:
+        raise CaptureError(f"--capture {arg!r}: expected NAME=FILE or FILE")
+    return name, file
+
+
+@dataclass
+class Assignment:
+    """Mouse ``mouse`` (index into config.mice) comes from ``capture.devices[device]``."""
+
+    mouse: int
+    capture: Capture
+    device: int
+
+
+def _evdev_matches(match: EvdevMatch, dev: DeviceInfo) -> bool:
+    given = False
+    for key in ("name", "phys", "uniq", "vendor", "product"):
+        want = getattr(match, key)
+        if want is None:
+            continue
+        given = True
+        if getattr(dev, key) != want:
+            return False
+    return given
+
+
+def _matches(mouse: MouseConfig, dev: DeviceInfo) -> bool:
+    if mouse.replay_device is not None:
+        # By name, or by the recorded device node: two identical mice share their name,
+        # and a libinput recording keeps only name, ids and node to tell them apart.
+        return mouse.replay_device in (dev.name, dev.extra.get("node"))
+    if dev.mouse is not None:
+        return dev.mouse == mouse.name
+    if mouse.evdev is not None and _evdev_matches(mouse.evdev, dev):
+        return True
+    return dev.name == mouse.name
+
+
+def _candidates(capture: Capture) -> list[int]:
+    """Devices that can be mice: they move (or may), or they are serial sensors."""
+    return [i for i, d in enumerate(capture.devices) if d.kind == "serial" or d.rel_xy is not False]
+
+
+def _node(capture: Capture, i: int) -> str:
+    node = capture.devices[i].extra.get("node")
+    return f" ({node})" if node else ""
+
+
+def _describe(capture: Capture, devices: list[int]) -> str:
+    return ", ".join(repr(capture.devices[i].name) + _node(capture, i) for i in devices) or "none"
+
+
+def _matching(mouse: MouseConfig, capture: Capture, cands: list[int]) -> list[int]:
+    """The candidates that match ``mouse``; the only mover when none does and no device is
+    named that it could contradict."""
+    hits = [i for i in cands if _matches(mouse, capture.devices[i])]
+    if not hits and len(cands) == 1 and mouse.replay_device is None:
+        return cands
+    return hits
+
+
+class _Assigner:
+    """One ``assign`` call: the captures opened so far (each file once) and the mice
+    assigned so far."""
+
+    def __init__(self, config: Config) -> None:
+        self.config = config
+        self.cfg_name = config.path or "the config"
+        self.opened: dict[str, Capture] = {}
+        self.result: dict[int, Assignment] = {}
+
+    def open(self, path: str) -> Capture:
+        key = os.path.realpath(path)
+        if key not in self.opened:
+            self.opened[key] = open_capture(path)
+        return self.opened[key]
+
+    def put(self, mouse: int, cap: Capture, dev: int, why: str) -> None:
+        name = self.config.mice[mouse].name
+        if mouse in self.result:
+            prev = self.result[mouse]
+            raise CaptureError(
+                f"mouse {name!r} is given twice: {prev.capture.path} "
+                f"({prev.capture.devices[prev.device].name!r}) and {cap.path} ({why})"
+            )
+        dev_info = cap.devices[dev]
+        if dev_info.rel_xy is False:
+            raise CaptureError(
+                f"{cap.path}: device {dev_info.name!r} has no REL_X/REL_Y motion: "
+                f"not a mouse, cannot be {name!r}"
+            )
+        self.result[mouse] = Assignment(mouse, cap, dev)
+
+    def by_name(self, name: str, path: str) -> None:
+        """``--capture NAME=FILE``: the file's device for mouse NAME."""
+        config, cfg_name = self.config, self.cfg_name
+        cap = self.open(path)
+        cands = _candidates(cap)
+        if name not in config.names:
+            raise CaptureError(
+                f"--capture {name}={path}: {cfg_name} has no mouse {name!r} "
+                f"(its mice: {', '.join(config.names)})"
+            )
+        mouse = config.index(name)
+        wanted = config.mice[mouse].replay_device
+        if wanted is not None and not any(_matches(config.mice[mouse], d) for d in cap.devices):
+            raise CaptureError(
+                f"--capture {name}={path}: {cfg_name} names device {wanted!r} for mouse "
+                f"{name!r} (mice.{name}.replay.device), and the file holds "
+                f"{_describe(cap, cands)}"
+            )
+        if len(cap.devices) == 1:
+            self.put(mouse, cap, 0, "given by name")
+            return
+        hits = _matching(config.mice[mouse], cap, cands)
+        if len(hits) != 1:
+            raise CaptureError(
+                f"--capture {name}={path}: the file holds {len(cands)} motion devices "
+                f"({_describe(cap, cands)}) and {len(hits)} match mouse {name!r}; "
+                f"name the device (or its node) in {cfg_name} (mice.{name}.replay.device)"
+            )
+        self.put(mouse, cap, hits[0], "given by name")
+
+    def by_device(self, path: str) -> None:
+        """``--capture FILE``: each of the file's devices to the mouse it matches."""
+        config = self.config
+        cap = self.open(path)
+        cands = _candidates(cap)
+        used = False
+        for i in cands:
+            hits = [k for k, m in enumerate(config.mice) if _matches(m, cap.devices[i])]
+            if len(hits) > 1:
+                raise CaptureError(
+                    f"{path}: device {cap.devices[i].name!r}{_node(cap, i)} matches several "
+                    f"mice ({', '.join(config.mice[k].name for k in hits)}); set "
+                    "mice.NAME.replay.device to the device's name or node"
+                )
+            if hits:
+                self.put(hits[0], cap, i, "matched")
+                used = True
+        if not used:
+            raise CaptureError(
+                f"{path}: no device ({_describe(cap, cands)}) matches a mouse of "
+                f"{self.cfg_name} ({', '.join(config.names)}); give it as NAME={path}"
+            )
+
+    def from_config(self, k: int, m: MouseConfig, replay: str) -> None:
+        """Mouse ``k`` from its own ``replay:`` file."""
+        cap = self.open(replay)
+        cands = _candidates(cap)
+        hits = _matching(m, cap, cands)
+        if not hits and m.replay_device is not None:
+            raise CaptureError(
+                f"{replay}: mice.{m.name}.replay.device: no device {m.replay_device!r} in "
+                f"this file (it holds {_describe(cap, cands)})"
+            )
+        if len(hits) != 1:
+            raise CaptureError(
+                f"{replay}: mice.{m.name}.replay: {len(hits)} devices match "
+                f"(the file holds {_describe(cap, cands)}); set replay.device"
+            )
+        self.put(k, cap, hits[0], "from the config")
+
+    def check_all(self) -> None:
+        """Every mouse of the config has its device."""
+        missing = [m.name for k, m in enumerate(self.config.mice) if k not in self.result]
+        if missing:
+            raise CaptureError(
+                f"no capture for mouse {', '.join(map(repr, missing))} of {self.cfg_name}: "
+                "give --capture NAME=FILE for every mouse"
+            )
+
+
+def assign(
+    config: Config, specs: list[tuple[str | None, str]], *, require_all: bool = True
+) -> list[Assignment]:
+    """Open the captures and map their devices onto the config's mice.
+
+    ``specs`` are parsed ``--capture`` arguments; mice of the config with a ``replay:``
+    source and no ``--capture`` of their own are read from that file.  Every mouse of the
+    config must get exactly one device (unless ``require_all`` is false).
+    """
+    assigner = _Assigner(config)
+    for name, path in specs:
+        if name is not None:
+            assigner.by_name(name, path)
+        else:
+            assigner.by_device(path)
+    for k, m in enumerate(config.mice):
+        if k not in assigner.result and m.replay:
+            assigner.from_config(k, m, m.replay)
+    if require_all:
+        assigner.check_all()
+    return [assigner.result[k] for k in sorted(assigner.result)]
+
+
+def captures_of(assignments: list[Assignment]) -> list[Capture]:
+    """The opened captures, each once, in the order of the assignments."""
+    seen: list[Capture] = []
+    for a in assignments:
+        if all(a.capture is not s for s in seen):
+            seen.append(a.capture)
+    return seen
+
+
+def mice_by_device(assignments: list[Assignment], capture: Capture) -> dict[int, tuple[int, ...]]:
+    """Device index -> the mice it feeds, for one capture (one device may feed several)."""
+    out: dict[int, tuple[int, ...]] = {}
+    for a in assignments:
+        if a.capture is capture:
+            out[a.device] = out.get(a.device, ()) + (a.mouse,)
+    return out
