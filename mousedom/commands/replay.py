@@ -19,7 +19,9 @@ import numpy as np
 from mousedom.allocator import keep_freed_memory
 from mousedom.angles import wrap_degrees
 from mousedom.capture.assignment import assign, parse_capture_arg
-from mousedom.capture.replay import CsvSink, Replay, Summary
+from mousedom.capture.posecsv import CsvSink
+from mousedom.capture.replay import Replay
+from mousedom.capture.summary import Summary
 from mousedom.commands import _options as options
 from mousedom.config import INTEGRATORS, MODELS, load_config
 from mousedom.errors import UserError
@@ -188,7 +190,7 @@ def run(args) -> int:
     if collector is not None:
         from mousedom import plot
 
-        rates = {m.name: m.rate_hz for m in summary.mice}
+        rates = {m.name: m.reports_per_s for m in summary.mice}
         plot.save(collector, config.names, args.plot, title=_title(args, replay),
                   model=args.model or config.model, rates=rates)  # fmt: skip
         _wrote("the plot", args.plot)
@@ -364,7 +366,7 @@ def format_summary(s: Summary, replay: Replay, args) -> str:
     for m in s.mice:
         st = m.stats
         lines.append(
-            f"{m.name:<12} {st.reports:>8} {m.rate_hz:>8.1f} {st.net_x:>8} {st.net_y:>8} "
+            f"{m.name:<12} {st.reports:>8} {m.reports_per_s:>8.1f} {st.net_x:>8} {st.net_y:>8} "
             f"{st.path_x:>8} {st.path_y:>8} {st.skipped:>8} {st.dropped_frames:>8}  "
             f"{m.file} ({m.device})"
         )
