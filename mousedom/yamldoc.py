@@ -5,7 +5,7 @@ path, and keeps the problems found while a caller reads it, so that one run repo
 mistake of a file, one line each, in file order.  ``Reader`` is typed access to one
 mapping of it: numbers, integers, strings, choices, with unknown keys reported against
 the mapping's own list of known keys (with "did you mean" where one is close).
-``config.py`` builds the rig's dataclasses on top of it.
+``mousedom.config`` builds the rig's dataclasses on top of it.
 """
 
 from __future__ import annotations

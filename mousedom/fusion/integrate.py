@@ -25,7 +25,7 @@ import math
 
 import numpy as np
 
-INTEGRATORS = ("exact", "taylor", "euler", "midpoint")
+from mousedom.fusion.choices import INTEGRATORS as INTEGRATORS  # the integrators here
 
 # sinc(h) = sum_k (-1)^k h^(2k) / (2k+1)!  and its derivative.  Evaluated by Horner in h^2.
 # Below _SINC_SWITCH the series with these terms is exact to rounding: the first omitted term

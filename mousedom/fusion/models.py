@@ -27,9 +27,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from mousedom.fusion import integrate
+from mousedom.fusion.choices import MODELS as MODELS  # models.MODELS: these models
 from mousedom.fusion.geometry import design_matrix
-
-MODELS = ("lsq", "diff-drive", "bonarini")
 
 # Relative singular-value threshold for "the live mice determine the model" (as geometry.py).
 _RANK_TOL = 1e-9

@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mousedom.config import Config, parse_config
+from mousedom.config.rig import default
 from mousedom.fusion.units import INCH
 
 # ---------------------------------------------------------------------------- trajectories
@@ -197,9 +198,10 @@ class SimMouse:
 @dataclass(frozen=True)
 class Rig:
     mice: tuple[SimMouse, ...]
-    rate_hz: float = 100.0
-    model: str = "lsq"
-    integrator: str = "exact"
+    # The output rate and the fusion, defaulting as a rig config that leaves them out.
+    rate_hz: float = default(Config, "rate_hz", float)
+    model: str = default(Config, "model", str)
+    integrator: str = default(Config, "integrator", str)
 
 
 def three_mouse_rig(cpi: float = 450.0, report_hz: float = 125.0, radius: float = 0.15) -> Rig:

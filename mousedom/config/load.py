@@ -1,0 +1,165 @@
+"""A rig config's text -> ``Config``: the top-level keys, the small sections (robust,
+wheels), the calibration overlay, the checks across sections; and reading the file."""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+
+from mousedom import plausible, safeyaml
+from mousedom.config.mice import apply_calibration, read_mouse
+from mousedom.config.outputs import ServerConfig, read_outputs, read_server
+from mousedom.config.rig import Config, RobustConfig, WheelsConfig, default
+from mousedom.fusion.choices import INTEGRATORS, MODELS
+from mousedom.yamldoc import ConfigError, Reader, YamlDoc
+
+DEFAULT_CONFIG_PATH = "/etc/mousedom/mousedom.yaml"
+TOP_KEYS = ("rate_hz", "model", "integrator", "mice", "server", "wheels", "calibration",
+            "robust", "outputs", "late_report_s")  # fmt: skip
+
+
+def _robust(r: Reader) -> RobustConfig:
+    v = r.raw("robust")
+    if isinstance(v, bool):  # `robust: false` turns it off (for comparison)
+        return RobustConfig(enabled=v)
+    s = r.sub("robust", ("enabled", "false_alarm", "relative_noise", "readmit_s",
+                         "learn_scale", "scale_limit"))  # fmt: skip
+    d = RobustConfig()
+    robust = RobustConfig(
+        enabled=s.boolean("enabled", d.enabled),
+        false_alarm=s.number("false_alarm", d.false_alarm, within=(1e-12, 0.5)),
+        relative_noise=s.number("relative_noise", d.relative_noise, within=(0.0, 1.0)),
+        readmit_s=s.number("readmit_s", d.readmit_s, within=(0.0, 3600.0)),
+        learn_scale=s.boolean("learn_scale", d.learn_scale),
+        scale_limit=s.number("scale_limit", d.scale_limit, within=(0.0, 0.5)),
+    )
+    s.finish()
+    return robust
+
+
+def _wheels(r: Reader) -> WheelsConfig:
+    w = r.sub("wheels", ("radius", "radius_left", "radius_right", "track", "ticks_per_rev"))
+    radius = w.number("radius") if w.has("radius") else None  # both wheels', unless said
+    wheels = WheelsConfig(
+        radius_left=w.number("radius_left", radius, positive=True),
+        radius_right=w.number("radius_right", radius, positive=True),
+        track=w.number("track", positive=True),
+        ticks_per_rev=w.number("ticks_per_rev", positive=True),
+    )
+    w.finish()
+    return wheels
+
+
+def parse_config(
+    text: str,
+    path: str | None = None,
+    *,
+    need_sources: bool = True,
+    need_model: bool = True,
+    need_mounts: bool = True,
+) -> Config:
+    """Parse and validate a config given as text.
+
+    ``need_sources=False`` lets mice leave out where they come from (replay and
+    calibration supply captures on the command line instead).  A tool that does not fuse
+    validates only what it uses: ``need_model=False`` skips the check that the model can
+    be solved from the mice (one mouse on a calibration jig is a fine rig for
+    ``calibrate cpi``), ``need_mounts=False`` lets mice leave out their mount (taken as
+    the body origin).
+    """
+    doc = YamlDoc(path, text)
+    doc.need_mounts = need_mounts
+    base_dir = Path(path).resolve().parent if path else Path.cwd()
+    if doc.data is None:
+        raise doc.error((), "the file is empty: a rig config needs at least `mice:`")
+    top = Reader(doc, doc.data, (), TOP_KEYS)
+    # Each section is read even when another failed, so that one run names every mistake;
+    # a value that failed is None, and raise_problems below raises before it is used.
+    rate_hz = doc.attempt(top.number, "rate_hz", default(Config, "rate_hz", float),
+                          within=(0.1, 10000.0))  # fmt: skip
+    model = doc.attempt(top.choice, "model", MODELS, default(Config, "model", str))
+    integrator = doc.attempt(top.choice, "integrator", INTEGRATORS,
+                             default(Config, "integrator", str))  # fmt: skip
+    late = doc.attempt(top.number, "late_report_s", default(Config, "late_report_s", float),
+                       within=(0.0, 1.0))  # fmt: skip
+    mice_raw = top.raw("mice")
+    if not isinstance(mice_raw, dict) or not mice_raw:
+        doc.keep(doc.error(("mice",), "needs at least one mouse (a mapping of name: settings)"))
+        mice_raw = {}
+    read = [
+        doc.attempt(read_mouse, doc, str(name), value, base_dir) for name, value in mice_raw.items()
+    ]
+    server = (doc.attempt(read_server, top) if top.has("server") else None) or ServerConfig()
+    wheels = doc.attempt(_wheels, top) if top.has("wheels") else None
+    robust = (doc.attempt(_robust, top) if top.has("robust") else None) or RobustConfig()
+    outputs = doc.attempt(read_outputs, top) if top.has("outputs") else None
+    ros2, foxglove, metrics = outputs or (None, None, None)
+    calibration = doc.attempt(top.string, "calibration")
+    calibration_path = str(base_dir / calibration) if calibration else None
+    doc.raise_problems()
+    mice = tuple(m for m in read if m is not None)
+
+    found = plausible.suspects([(m.name, m.cpi_x, m.cpi_y, m.mount.x, m.mount.y,
+                                 math.degrees(m.mount.yaw)) for m in mice])  # fmt: skip
+    warnings = tuple(
+        str(doc.error(s.keys, s.message))
+        for s in found  # file:line: key: message
+    )
+    if calibration_path:
+        mice = apply_calibration(mice, Path(calibration_path))
+
+    if need_sources:
+        for m in mice:
+            if not (m.evdev or m.serial or m.replay):
+                doc.keep(doc.error(
+                    ("mice", m.name),
+                    "says nowhere where the mouse comes from (evdev, serial or replay)",
+                ))  # fmt: skip
+        doc.raise_problems()
+
+    from mousedom.fusion.geometry import rank_problem  # late import: geometry is numeric
+
+    problem = rank_problem(model, [(m.mount.x, m.mount.y) for m in mice], [m.name for m in mice])
+    if problem and need_model:
+        raise doc.error(("mice",), f"model {model}: {problem}")
+    return Config(
+        rate_hz=rate_hz,
+        model=model,
+        integrator=integrator,
+        mice=mice,
+        server=server,
+        wheels=wheels,
+        calibration=calibration_path,
+        path=path,
+        robust=robust,
+        late_report_s=late,
+        ros2=ros2,
+        foxglove=foxglove,
+        metrics=metrics,
+        warnings=warnings,
+    )
+
+
+def load_config(
+    path: str | os.PathLike[str],
+    *,
+    need_sources: bool = True,
+    need_model: bool = True,
+    need_mounts: bool = True,
+) -> Config:
+    """Read a config file; every problem is a ConfigError naming file, line and key."""
+    p = str(path)
+    try:
+        text = safeyaml.read_text(p)  # bounded: a reload must not swallow a 10 GB file
+    except FileNotFoundError:
+        raise ConfigError(f"{p}: config file not found") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{p}: is a directory, not a config file") from None
+    except OSError as e:
+        raise ConfigError(f"{p}: cannot read config: {e.strerror}") from None
+    except UnicodeDecodeError as e:
+        raise ConfigError(f"{p}: byte offset {e.start}: not UTF-8 text") from None
+    return parse_config(
+        text, p, need_sources=need_sources, need_model=need_model, need_mounts=need_mounts
+    )

@@ -1,0 +1,221 @@
+"""Where the poses go: the socket server's settings and the optional outputs (ROS 2,
+Foxglove, Prometheus), their types and their YAML sections (``server:``, ``outputs:``)."""
+
+from __future__ import annotations
+
+import ipaddress
+import re
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TypeVar
+
+from mousedom.yamldoc import Reader, shown
+
+T = TypeVar("T")
+
+
+@dataclass(frozen=True)
+class ServerConfig:
+    socket: str | None = None  # None: /run/mousedom/mousedom.sock as root, else XDG dir
+    mode: int = 0o660
+    group: str | None = None
+    control_uids: tuple[int, ...] = (0,)
+    control_gids: tuple[int, ...] = ()
+    max_clients: int = 32
+    queue_lines: int = 256
+    max_line: int = 4096
+    idle_timeout_s: float = 10.0  # output waiting this long, nothing sent: the client goes
+
+
+@dataclass(frozen=True)
+class Ros2Config:
+    """The optional ROS 2 output over DDS (docs/ros2.md); ``outputs: {ros2: {...}}``."""
+
+    domain_id: int | None = None  # None: $ROS_DOMAIN_ID, else 0
+    namespace: str = ""  # e.g. /robot1: topics become /robot1/odom, ...
+    odom_topic: str = "/odom"
+    tf_topic: str = "/tf"
+    diagnostics_topic: str = "/diagnostics"
+    odom_frame: str = "odom"
+    base_frame: str = "base_link"
+    map_frame: str = "map"
+    publish_tf: bool = True  # odom -> base_link (off where robot_localization publishes it)
+    publish_map_tf: bool = False  # map -> odom, the correction that fix and reset move
+    diagnostics: bool = True
+    counts: bool = False  # per-mouse counts of each window on <namespace>/mousedom/<mouse>/counts
+    stamps: str = "system"  # system (ROS time, what tf and Nav2 compare with) | monotonic
+    node_name: str = "mousedom"  # the node ROS 2 tools list (in the namespace, or /)
+    optional: bool = False  # True: if DDS cannot start, log it and run without ROS 2
+    initialpose: bool = False  # True: /initialpose (RViz's 2D Pose Estimate) fixes the pose
+
+
+@dataclass(frozen=True)
+class FoxgloveConfig:
+    """The optional Foxglove live view (docs/ros2.md); ``outputs: {foxglove: {...}}``."""
+
+    host: str = "127.0.0.1"  # localhost only unless said: the view has no access control
+    port: int = 8765
+
+
+@dataclass(frozen=True)
+class MetricsConfig:
+    """The optional Prometheus endpoint (docs/metrics.md); ``outputs: {metrics: {...}}``."""
+
+    host: str = "127.0.0.1"  # localhost only unless said: the endpoint has no access control
+    port: int = 9464  # 0: any free port (the log says which)
+
+
+STAMPS = ("system", "monotonic")
+# ROS 2's names, as rcl accepts them: a node name of letters, digits and _ not starting
+# with a digit; a namespace of such names, each after a "/" (ros2graph announces these).
+ROS_NODE_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]{0,254}")
+ROS_NAMESPACE = re.compile(r"(/[A-Za-z_][A-Za-z0-9_]*)+/?")
+ROS2_KEYS = tuple(f for f in Ros2Config.__dataclass_fields__)
+SERVER_KEYS = ("socket", "mode", "group", "control_uids", "control_gids", "max_clients",
+               "queue_lines", "max_line", "idle_timeout_s")  # fmt: skip
+
+
+def read_server(r: Reader) -> ServerConfig:
+    s = r.sub("server", SERVER_KEYS)
+    d = ServerConfig()
+    mode = s.raw("mode", d.mode)
+    if isinstance(mode, str):
+        try:
+            mode = int(mode, 8)
+        except ValueError:
+            raise s.err(
+                "mode", f"must be an octal file mode such as '0660', got {mode!r}"
+            ) from None
+    if isinstance(mode, bool) or not isinstance(mode, int) or not 0 <= mode <= 0o777:
+        raise s.err("mode", f"must be a file mode between 0 and 0777, got {shown(mode)}")
+
+    def ids(key: str, default: tuple[int, ...]) -> tuple[int, ...]:
+        v = s.raw(key, list(default))
+        if not isinstance(v, list) or not all(isinstance(i, int) and i >= 0 for i in v):
+            raise s.err(key, f"must be a list of numeric ids, got {shown(v)}")
+        return tuple(v)
+
+    server = ServerConfig(
+        socket=s.string("socket"),
+        mode=mode,
+        group=s.string("group"),
+        control_uids=ids("control_uids", d.control_uids),
+        control_gids=ids("control_gids", d.control_gids),
+        max_clients=s.integer("max_clients", d.max_clients, minimum=1),
+        queue_lines=s.integer("queue_lines", d.queue_lines, minimum=1),
+        max_line=s.integer("max_line", d.max_line, minimum=64),
+        idle_timeout_s=s.number("idle_timeout_s", d.idle_timeout_s, within=(0.5, 86400.0)),
+    )
+    s.finish()
+    return server
+
+
+def read_outputs(
+    r: Reader,
+) -> tuple[Ros2Config | None, FoxgloveConfig | None, MetricsConfig | None]:
+    o = r.sub("outputs", ("ros2", "foxglove", "metrics"))
+    ros2 = _switched(o, "ros2", Ros2Config, _ros2)
+    fox = _switched(o, "foxglove", FoxgloveConfig, _foxglove)
+    metrics = _switched(o, "metrics", MetricsConfig, _metrics)
+    o.finish()
+    return ros2, fox, metrics
+
+
+def _switched(
+    o: Reader, key: str, default: Callable[[], T], parse: Callable[[Reader], T | None]
+) -> T | None:
+    """An output under ``outputs``: absent, false or null is off; true is on with its
+    defaults; a mapping is parsed (whose ``enabled: false`` is off too)."""
+    if not o.has(key):
+        return None
+    v = o.raw(key)
+    if v is False or v is None:
+        return None
+    if v is True:
+        return default()
+    return parse(o)
+
+
+def _tcp_port(s: Reader, default: int, zero: str = "") -> int:
+    """``port``: a TCP port to listen on (0 to 65535; ``zero`` says what 0 does)."""
+    port = s.integer("port", default, minimum=0)
+    if port > 65535:
+        raise s.err("port", f"must be a TCP port (0 to 65535{zero}), got {port}")
+    return port
+
+
+def _foxglove(r: Reader) -> FoxgloveConfig | None:
+    s = r.sub("foxglove", ("enabled", "host", "port"))
+    d = FoxgloveConfig()
+    cfg = FoxgloveConfig(host=s.string("host") or d.host, port=_tcp_port(s, d.port))
+    enabled = s.boolean("enabled", True)
+    s.finish()
+    return cfg if enabled else None
+
+
+def _metrics(r: Reader) -> MetricsConfig | None:
+    s = r.sub("metrics", ("enabled", "host", "port"))
+    d = MetricsConfig()
+    port = _tcp_port(s, d.port, "; 0: any free one")
+    host = s.string("host") or d.host
+    # An address, not a name: a name would be looked up (DNS) at every start, and could
+    # resolve to an interface nobody meant to expose.
+    try:
+        ipaddress.ip_address(host)
+    except ValueError:
+        if host != "localhost":
+            raise s.err("host", "must be an IP address to listen on (127.0.0.1 or ::1 for "
+                        "this machine only, 0.0.0.0 or :: for every interface), got "
+                        f"{shown(host)}") from None  # fmt: skip
+    enabled = s.boolean("enabled", True)
+    s.finish()
+    return MetricsConfig(host=host, port=port) if enabled else None
+
+
+def _ros2(r: Reader) -> Ros2Config | None:
+    s = r.sub("ros2", ("enabled", *ROS2_KEYS))
+    d = Ros2Config()
+
+    def name(key: str, default: str, topic: bool) -> str:
+        v = s.string(key) if s.has(key) else default
+        ok = all(c.isalnum() or c in "_/~" for c in v) if topic else all(
+            c.isalnum() or c in "_/" for c in v)  # fmt: skip
+        if not v or not ok or "//" in v:
+            what = "a ROS topic name" if topic else "a frame id"
+            raise s.err(key, f"must be {what} (letters, digits, _ and /), got {shown(v)}")
+        return v
+
+    namespace = s.string("namespace") if s.has("namespace") else d.namespace
+    if namespace and not ROS_NAMESPACE.fullmatch(namespace):
+        raise s.err(
+            "namespace",
+            "must be /name or /a/b, each name of letters, digits and _ not starting with a "
+            f"digit (e.g. /robot1), got {shown(namespace)}",
+        )
+    domain = s.integer("domain_id", minimum=0) if s.has("domain_id") else d.domain_id
+    if domain is not None and domain > 232:
+        raise s.err("domain_id", f"must be between 0 and 232 (ROS 2's range), got {domain}")
+    cfg = Ros2Config(
+        domain_id=domain,
+        namespace=namespace.rstrip("/"),
+        odom_topic=name("odom_topic", d.odom_topic, True),
+        tf_topic=name("tf_topic", d.tf_topic, True),
+        diagnostics_topic=name("diagnostics_topic", d.diagnostics_topic, True),
+        odom_frame=name("odom_frame", d.odom_frame, False),
+        base_frame=name("base_frame", d.base_frame, False),
+        map_frame=name("map_frame", d.map_frame, False),
+        publish_tf=s.boolean("publish_tf", d.publish_tf),
+        publish_map_tf=s.boolean("publish_map_tf", d.publish_map_tf),
+        diagnostics=s.boolean("diagnostics", d.diagnostics),
+        counts=s.boolean("counts", d.counts),
+        stamps=s.choice("stamps", STAMPS, d.stamps),
+        node_name=s.string("node_name") if s.has("node_name") else d.node_name,
+        optional=s.boolean("optional", d.optional),
+        initialpose=s.boolean("initialpose", d.initialpose),
+    )
+    if not ROS_NODE_NAME.fullmatch(cfg.node_name):
+        raise s.err("node_name", "must be a ROS 2 node name (letters, digits and _, not "
+                    f"starting with a digit), got {shown(cfg.node_name)}")  # fmt: skip
+    enabled = s.boolean("enabled", True)
+    s.finish()
+    return cfg if enabled else None

@@ -1,0 +1,140 @@
+"""The rig's types: frozen dataclasses a parsed config is made of.
+
+Each default is stated once, on its field; the parsers read it from there (``default``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import MISSING, dataclass, field, fields
+from typing import Any, TypeVar
+
+from mousedom.config.outputs import FoxgloveConfig, MetricsConfig, Ros2Config, ServerConfig
+
+T = TypeVar("T")
+
+
+def default(cls: type[Any], name: str, kind: type[T]) -> T:
+    """The default of dataclass ``cls``'s field ``name``, checked to be a ``kind``."""
+    for f in fields(cls):
+        if f.name == name and f.default is not MISSING and isinstance(f.default, kind):
+            return f.default
+    raise TypeError(f"{cls.__name__}.{name} has no {kind.__name__} default")
+
+
+@dataclass(frozen=True)
+class Mount:
+    """Sensor position in the body frame (metres) and yaw from body x to mouse forward."""
+
+    x: float = 0.0
+    y: float = 0.0
+    yaw: float = 0.0  # radians (the YAML says degrees)
+
+
+@dataclass(frozen=True)
+class EvdevMatch:
+    """How a config entry finds its evdev device; any given field must match."""
+
+    path: str | None = None  # a /dev/input/by-path/... or by-id/... link, or a node
+    name: str | None = None
+    phys: str | None = None
+    vendor: int | None = None
+    product: int | None = None
+    uniq: str | None = None
+    grab: bool = True
+
+
+@dataclass(frozen=True)
+class SerialSource:
+    """An ADNS-3080 downsampler on a serial port (any pyserial URL)."""
+
+    port: str
+    baud: int = 115200
+    k: int = 12  # sensor frames accumulated per packet
+    sensor_cpi: int = 1600  # 1600 or 400, set in the sensor by the firmware
+
+
+@dataclass(frozen=True)
+class MouseConfig:
+    name: str
+    cpi_x: float
+    cpi_y: float
+    mount: Mount
+    flip: bool = False  # mirrored sensor: REL_X points left instead of right
+    sigma: float = 0.5  # measurement noise per axis per window, in counts (for weighting)
+    report_hz: float = 125.0  # nominal report rate: bounds how far back a report reaches
+    evdev: EvdevMatch | None = None
+    serial: SerialSource | None = None
+    replay: str | None = None  # capture file (absolute, or resolved against the config)
+    replay_device: str | None = None  # device name inside a multi-device capture
+    max_speed: float | None = None  # m/s the sensor tracks; faster reads are "saturated"
+    min_squal: int | None = None  # ADNS-3080 SQUAL below this gates reports ("low quality")
+
+
+# ADNS-3080 datasheet: tracking up to 40 inches per second; SQUAL (a quarter of the
+# features seen, at most 169) is "nearly equal to zero if there is no surface below the
+# sensor" and averages several tens on white paper at the nominal height, so a floor of 15
+# tells a lifted or blinded sensor from a dull floor.
+ADNS3080_MAX_SPEED = 40 * 0.0254
+ADNS3080_MIN_SQUAL = 15
+
+
+@dataclass(frozen=True)
+class RobustConfig:
+    """The fault-tolerant fusion's settings (docs/models.md, "Faults")."""
+
+    enabled: bool = True
+    false_alarm: float = 1e-4  # chance per window that a healthy rig fails the test
+    relative_noise: float = 0.05  # reading error in proportion to motion (CPI, stamps)
+    readmit_s: float = 0.25  # consistent motion an excluded mouse needs to be used again
+    # each mouse's scale relative to the others is learnt online from the redundancy of
+    # three or more mice and reported (fusion.scalelearn); applied within +-scale_limit
+    # where learn_scale is true
+    learn_scale: bool = True
+    scale_limit: float = 0.10
+
+
+@dataclass(frozen=True)
+class WheelsConfig:
+    """Wheel-encoder geometry for the McGill reference model."""
+
+    radius_left: float
+    radius_right: float
+    track: float
+    ticks_per_rev: float
+
+
+# Keyword-only: the top-level defaults (rate_hz, model, integrator) stand before the
+# required mice, in the order the YAML lists them.
+@dataclass(frozen=True, kw_only=True)
+class Config:
+    rate_hz: float = 100.0  # the output rate: one pose per window of 1/rate_hz seconds
+    model: str = "lsq"
+    integrator: str = "exact"
+    mice: tuple[MouseConfig, ...]
+    server: ServerConfig = field(default_factory=ServerConfig)
+    wheels: WheelsConfig | None = None
+    calibration: str | None = None  # absolute path of the calibration file, if any
+    path: str | None = None  # where this config was read from
+    robust: RobustConfig = field(default_factory=RobustConfig)
+    # How late a report may come and still count where it was measured: a report within
+    # this of the mouse's previous one covers all the time since (a USB catch-up report),
+    # and windows wait this long for a silent mouse before closing without it.
+    late_report_s: float = 0.1
+    ros2: Ros2Config | None = None  # outputs.ros2: None means no DDS output
+    foxglove: FoxgloveConfig | None = None  # outputs.foxglove: None means no live view
+    metrics: MetricsConfig | None = None  # outputs.metrics: None means no Prometheus endpoint
+    # values that look like the wrong unit (mousedom.plausible): said, not refused
+    warnings: tuple[str, ...] = ()
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(m.name for m in self.mice)
+
+    def mouse(self, name: str) -> MouseConfig:
+        for m in self.mice:
+            if m.name == name:
+                return m
+        raise KeyError(name)
+
+    def index(self, name: str) -> int:
+        return self.names.index(name)
