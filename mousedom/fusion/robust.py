@@ -36,75 +36,51 @@ to change a window already published, so the daemon and replay give the same pos
 
 The common case (every mouse tracking, the window consistent) is decided by ``fast_one`` on
 Python floats (the daemon) or ``screenbatch.screen`` for whole arrays (replay); only
-windows where something happens take ``decide``, the one exact path both share.
+windows where something happens take ``decide``, the one exact path both share.  The test
+of a set of mice is ``rigidtest.RigidTest`` (the screen is one); the states, ``health``.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections import deque
 from dataclasses import dataclass
-from enum import IntEnum
 from typing import NamedTuple
 
 import numpy as np
 
 from mousedom.config import RobustConfig
-from mousedom.fusion import chi2, models
+from mousedom.fusion import chi2
+from mousedom.fusion.health import (
+    EXCLUDED,
+    INCONSISTENT,
+    LOW_QUALITY,
+    MISSING,
+    NONE,
+    REASONS,
+    SATURATED,
+    SILENT,
+    STATES,
+    SUSPECT,
+    TRACKING,
+    Health,
+    MouseHealth,
+    Reason,
+)
 from mousedom.fusion.noisemodel import NoiseModel
+from mousedom.fusion.rigidtest import RigidTest, Statistic
 
-
-class Health(IntEnum):
-    """A mouse's health after a window.  The value is what PoseBatch.state, the replay
-    CSV's state_<mouse> and the metrics carry; STATES[value] is what SOURCE says."""
-
-    __str__ = int.__repr__  # "2", as an int prints (Python 3.10's IntEnum would say the name)
-
-    TRACKING = 0
-    SUSPECT = 1  # used, but flagged
-    EXCLUDED = 2  # left out of the solve
-    MISSING = 3  # no live sensor
-
-
-class Reason(IntEnum):
-    """Why a mouse is suspect or excluded (PoseBatch.reason, the CSV's reason_<mouse>);
-    REASONS[value] is its text."""
-
-    __str__ = int.__repr__
-
-    NONE = 0
-    INCONSISTENT = 1
-    SILENT = 2  # silent while the others move
-    SATURATED = 3
-    LOW_QUALITY = 4
-
-
-TRACKING, SUSPECT, EXCLUDED, MISSING = Health
-STATES = tuple(h.name.lower() for h in Health)  # ("tracking", "suspect", ...)
-NONE, INCONSISTENT, SILENT, SATURATED, LOW_QUALITY = Reason
-REASONS = ("", "inconsistent", "silent while others move", "saturated", "low quality")
-assert len(REASONS) == len(Reason)
+# The health's names are the screen's vocabulary (robust.EXCLUDED, robust.REASONS, ...).
+__all__ = ["EXCLUDED", "INCONSISTENT", "LOW_QUALITY", "MISSING", "NONE", "REASONS", "SATURATED",
+           "SILENT", "STATES", "SUSPECT", "TRACKING", "Decision", "Health", "Reason",
+           "Screen"]  # fmt: skip
 
 # How much smoother than the next one the winning explanation's motion must be (tie_break).
 _CONTINUITY_MARGIN = 3.0
 _FIT_MARGIN = chi2.quantile(0.999, 1)
 # How far back the continuity of motion is judged from (_tie_break).
 HISTORY_S = 0.05
-
-
-@dataclass
-class MouseHealth:
-    state: int = TRACKING
-    reason: int = NONE
-    good: int = 0  # consecutive windows of agreement toward re-admission
-
-
-class Statistic(NamedTuple):
-    """The consistency test of one set of mice in one window."""
-
-    t: float  # min over q of sum |d_i - A_i q|^2 / s2_i
-    dof: int  # 2 * mice - unknowns
-    q: np.ndarray  # the set's solution by the configured weights
 
 
 class Explanation(NamedTuple):
@@ -126,8 +102,9 @@ class Decision:
     correction: np.ndarray | None = None
 
 
-class Screen:
-    """The per-window test and the mice's health (module docstring).  No I/O, no clock."""
+class Screen(RigidTest):
+    """The per-window decision and the mice's health (module docstring) on the rig's
+    ``RigidTest``.  No I/O, no clock."""
 
     def __init__(
         self,
@@ -139,12 +116,7 @@ class Screen:
         settings: RobustConfig,
         max_speed: np.ndarray | None = None,
     ) -> None:
-        self.n = len(positions)
-        self.positions = np.asarray(positions, dtype=float)
-        self.sigma = np.asarray(sigma, dtype=float)
-        self.cols = (0, 2) if model == "diff-drive" else (0, 1, 2)
-        self.k = len(self.cols)
-        self.alpha = settings.false_alarm
+        super().__init__(model, positions, sigma, settings.false_alarm)
         self.noise = NoiseModel(
             self.sigma, settings.relative_noise, report_periods, window, settings.false_alarm
         )
@@ -155,12 +127,7 @@ class Screen:
         self.health = [MouseHealth() for _ in range(self.n)]
         self._steady: tuple[bool, ...] | None = None
         self._steady_known = False  # _steady is that of the health as it is
-        self._thresholds = [math.inf] + [self.threshold(k) for k in range(1, 2 * self.n + 1)]
-        self._leverages: dict[bytes, np.ndarray] = {}
-        # Python copies for fast_one, which must not touch numpy: the daemon runs it once
-        # per window after a sleep, when numpy's first call costs tens of microseconds
-        # (cold caches), more than the test itself.
-        self._xy = self.positions.tolist()
+        # Python copies for fast_one, which must not touch numpy (RigidTest._xy).
         self._max2 = self.max_step2.tolist()
         self._prev = [[0.0, 0.0] for _ in range(self.n)]  # the previous window's predictions
         self._leverage_lists: dict[tuple[bool, ...], list[float]] = {}
@@ -175,12 +142,6 @@ class Screen:
         self._readmitted: list[int] = []
 
     # ----------------------------------------------------------------- basics
-
-    def threshold(self, dof: int) -> float:
-        return chi2.quantile(1.0 - self.alpha, dof)
-
-    def dof(self, n_used: int) -> int:
-        return 2 * n_used - self.k
 
     def steady(self) -> tuple[bool, ...] | None:
         """The live pattern under which the common case applies (every tracking mouse
@@ -201,24 +162,6 @@ class Screen:
             else:
                 return None
         return tuple(out)
-
-    def leverage(self, used: np.ndarray) -> np.ndarray:
-        """(N,) trace of each used mouse's 2x2 block of the hat matrix A B (0 if unused)."""
-        key = np.asarray(used, dtype=bool).tobytes()
-        h = self._leverages.get(key)
-        if h is None:
-            h = np.zeros(self.n)
-            used = np.frombuffer(key, dtype=bool)
-            est = None
-            if used.any():
-                est = models._estimator(
-                    self.positions.tobytes(), self.sigma.tobytes(), key, self.cols
-                )
-            if est is not None:
-                diag = np.diag(est[0] @ est[1])
-                h[used] = diag[0::2] + diag[1::2]
-            self._leverages[key] = h
-        return h
 
     @property
     def prev_p(self) -> np.ndarray:
@@ -281,58 +224,10 @@ class Screen:
 
     # ----------------------------------------------------------------- the exact path
 
-    def predict(self, q: np.ndarray) -> np.ndarray:
-        """Each mouse's displacement (..., N, 2) under body twist increments q (..., 3)."""
-        q = np.asarray(q, dtype=float)
-        ux, uy, a = q[..., 0], q[..., 1], q[..., 2]
-        # mouse by mouse into the (..., N, 2) array: numpy is slow over short trailing axes
-        out = np.empty((*q.shape[:-1], self.n, 2))
-        for i, (x, y) in enumerate(self._xy):
-            out[..., i, 0] = ux - a * y
-            out[..., i, 1] = uy + a * x
-        return out
-
-    def _solve(self, d: np.ndarray, used: np.ndarray) -> np.ndarray | None:
-        """q (3,) by the configured weights on the ``used`` mice; None without rank."""
-        if not used.any():
-            return None
-        est = models._estimator(
-            self.positions.tobytes(), self.sigma.tobytes(), used.tobytes(), self.cols
-        )
-        if est is None:
-            return None
-        q = np.zeros(3)
-        q[list(self.cols)] = est[1] @ d[used].reshape(-1)
-        return q
-
-    def _statistic(self, d: np.ndarray, used: np.ndarray, s2: np.ndarray) -> Statistic | None:
-        """The test of the ``used`` mice, or None without rank."""
-        q = self._solve(d, used)
-        if q is None:
-            return None
-        dof = self.dof(int(used.sum()))
-        if dof <= 0:
-            return Statistic(0.0, dof, q)
-        s = np.sqrt(s2)[used]
-        a = np.zeros((int(used.sum()), 2, 3))
-        pos = self.positions[used]
-        a[:, 0, 0] = 1.0
-        a[:, 1, 1] = 1.0
-        a[:, 0, 2] = -pos[:, 1]
-        a[:, 1, 2] = pos[:, 0]
-        a = (a[:, :, list(self.cols)] / s[:, None, None]).reshape(-1, self.k)
-        b = (d[used] / s[:, None]).reshape(-1)
-        sol = np.linalg.lstsq(a, b, rcond=None)[0]
-        r = b - a @ sol
-        return Statistic(float(r @ r), dof, q)
-
     def _silent(self, d: np.ndarray, i: int) -> bool:
         """No counts in the window (a thousandth of its sigma: the split of reports
         across windows leaves rounding dust where there were none)."""
         return float(d[i] @ d[i]) <= 1e-6 * self.noise.sig2[i]
-
-    def _passes(self, stat: Statistic | None) -> bool:
-        return stat is not None and stat.dof > 0 and stat.t <= self._thresholds[stat.dof]
 
     def decide(
         self,
@@ -475,7 +370,7 @@ class Screen:
                 return None
             passing = []
             tested = 0
-            for combo in _combinations(idx.tolist(), size):
+            for combo in map(list, itertools.combinations(idx.tolist(), size)):
                 sub = used.copy()
                 sub[combo] = False
                 stat = self._statistic(d, sub, s2)
@@ -594,13 +489,3 @@ class Screen:
                 h.good += 1
                 if h.good >= self.readmit:
                     h.state, h.reason, h.good = TRACKING, NONE, 0
-
-
-def _combinations(items: list[int], size: int):
-    if size == 1:
-        for a in items:
-            yield [a]
-    else:
-        for x, a in enumerate(items):
-            for b in items[x + 1 :]:
-                yield [a, b]

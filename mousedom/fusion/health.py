@@ -1,0 +1,47 @@
+"""A mouse's health as the fault-tolerant fusion keeps it (``robust.Screen``): its state,
+the reason for it, and the count toward re-admission.  The values are what the pose
+batches, the replay CSV, SOURCE and the metrics carry."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import IntEnum
+
+
+class Health(IntEnum):
+    """A mouse's health after a window.  The value is what PoseBatch.state, the replay
+    CSV's state_<mouse> and the metrics carry; STATES[value] is what SOURCE says."""
+
+    __str__ = int.__repr__  # "2", as an int prints (Python 3.10's IntEnum would say the name)
+
+    TRACKING = 0
+    SUSPECT = 1  # used, but flagged
+    EXCLUDED = 2  # left out of the solve
+    MISSING = 3  # no live sensor
+
+
+class Reason(IntEnum):
+    """Why a mouse is suspect or excluded (PoseBatch.reason, the CSV's reason_<mouse>);
+    REASONS[value] is its text."""
+
+    __str__ = int.__repr__
+
+    NONE = 0
+    INCONSISTENT = 1
+    SILENT = 2  # silent while the others move
+    SATURATED = 3
+    LOW_QUALITY = 4
+
+
+TRACKING, SUSPECT, EXCLUDED, MISSING = Health
+STATES = tuple(h.name.lower() for h in Health)  # ("tracking", "suspect", ...)
+NONE, INCONSISTENT, SILENT, SATURATED, LOW_QUALITY = Reason
+REASONS = ("", "inconsistent", "silent while others move", "saturated", "low quality")
+assert len(REASONS) == len(Reason)
+
+
+@dataclass
+class MouseHealth:
+    state: int = TRACKING
+    reason: int = NONE
+    good: int = 0  # consecutive windows of agreement toward re-admission

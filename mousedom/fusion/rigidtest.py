@@ -1,0 +1,116 @@
+"""The rigid-body consistency test of a set of mice in one window.
+
+Over a window the live mice's readings d (N x 2, body frame) should be those of one rigid
+motion q: d_i = A_i q.  ``RigidTest`` solves q by the configured weights on any subset of
+mice, predicts each mouse's reading from q, and tests a subset:
+T = min_q sum_i |d_i - A_i q|^2 / s_i^2 against the chi-square quantile of its degrees of
+freedom.  ``robust.Screen`` builds its decisions on it (which mice to blame, their health).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from mousedom.fusion import chi2, models
+
+
+class Statistic(NamedTuple):
+    """The consistency test of one set of mice in one window."""
+
+    t: float  # min over q of sum |d_i - A_i q|^2 / s2_i
+    dof: int  # 2 * mice - unknowns
+    q: np.ndarray  # the set's solution by the configured weights
+
+
+class RigidTest:
+    """The test of one rig's mice (``model``'s unknowns, mice at ``positions`` with
+    ``sigma``) at the false-alarm rate ``alpha``.  No I/O, no clock."""
+
+    def __init__(self, model: str, positions: np.ndarray, sigma: np.ndarray, alpha: float) -> None:
+        self.n = len(positions)
+        self.positions = np.asarray(positions, dtype=float)
+        self.sigma = np.asarray(sigma, dtype=float)
+        self.cols = (0, 2) if model == "diff-drive" else (0, 1, 2)
+        self.k = len(self.cols)
+        self.alpha = alpha
+        self._thresholds = [math.inf] + [self.threshold(k) for k in range(1, 2 * self.n + 1)]
+        self._leverages: dict[bytes, np.ndarray] = {}
+        # Python copies for fast paths on floats, which must not touch numpy: the daemon
+        # runs one once per window after a sleep, when numpy's first call costs tens of
+        # microseconds (cold caches), more than the test itself.
+        self._xy = self.positions.tolist()
+
+    def threshold(self, dof: int) -> float:
+        return chi2.quantile(1.0 - self.alpha, dof)
+
+    def dof(self, n_used: int) -> int:
+        return 2 * n_used - self.k
+
+    def leverage(self, used: np.ndarray) -> np.ndarray:
+        """(N,) trace of each used mouse's 2x2 block of the hat matrix A B (0 if unused)."""
+        key = np.asarray(used, dtype=bool).tobytes()
+        h = self._leverages.get(key)
+        if h is None:
+            h = np.zeros(self.n)
+            used = np.frombuffer(key, dtype=bool)
+            est = None
+            if used.any():
+                est = models._estimator(
+                    self.positions.tobytes(), self.sigma.tobytes(), key, self.cols
+                )
+            if est is not None:
+                diag = np.diag(est[0] @ est[1])
+                h[used] = diag[0::2] + diag[1::2]
+            self._leverages[key] = h
+        return h
+
+    def predict(self, q: np.ndarray) -> np.ndarray:
+        """Each mouse's displacement (..., N, 2) under body twist increments q (..., 3)."""
+        q = np.asarray(q, dtype=float)
+        ux, uy, a = q[..., 0], q[..., 1], q[..., 2]
+        # mouse by mouse into the (..., N, 2) array: numpy is slow over short trailing axes
+        out = np.empty((*q.shape[:-1], self.n, 2))
+        for i, (x, y) in enumerate(self._xy):
+            out[..., i, 0] = ux - a * y
+            out[..., i, 1] = uy + a * x
+        return out
+
+    def _solve(self, d: np.ndarray, used: np.ndarray) -> np.ndarray | None:
+        """q (3,) by the configured weights on the ``used`` mice; None without rank."""
+        if not used.any():
+            return None
+        est = models._estimator(
+            self.positions.tobytes(), self.sigma.tobytes(), used.tobytes(), self.cols
+        )
+        if est is None:
+            return None
+        q = np.zeros(3)
+        q[list(self.cols)] = est[1] @ d[used].reshape(-1)
+        return q
+
+    def _statistic(self, d: np.ndarray, used: np.ndarray, s2: np.ndarray) -> Statistic | None:
+        """The test of the ``used`` mice, or None without rank."""
+        q = self._solve(d, used)
+        if q is None:
+            return None
+        dof = self.dof(int(used.sum()))
+        if dof <= 0:
+            return Statistic(0.0, dof, q)
+        s = np.sqrt(s2)[used]
+        a = np.zeros((int(used.sum()), 2, 3))
+        pos = self.positions[used]
+        a[:, 0, 0] = 1.0
+        a[:, 1, 1] = 1.0
+        a[:, 0, 2] = -pos[:, 1]
+        a[:, 1, 2] = pos[:, 0]
+        a = (a[:, :, list(self.cols)] / s[:, None, None]).reshape(-1, self.k)
+        b = (d[used] / s[:, None]).reshape(-1)
+        sol = np.linalg.lstsq(a, b, rcond=None)[0]
+        r = b - a @ sol
+        return Statistic(float(r @ r), dof, q)
+
+    def _passes(self, stat: Statistic | None) -> bool:
+        return stat is not None and stat.dof > 0 and stat.t <= self._thresholds[stat.dof]
