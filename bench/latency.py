@@ -22,7 +22,7 @@ import statistics
 
 import numpy as np
 
-from mousedom.fusion import scenarios, sim
+from mousedom.fusion import conditions, scenarios, sim
 from mousedom.fusion.tracker import Tracker
 from mousedom.sources.base import Source
 
@@ -57,18 +57,18 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=5)
     ap.add_argument("--duration", type=float, default=60.0)
     args = ap.parse_args()
-    conditions = [("triangle", "healthy"), ("triangle", "usb-gaps"), ("square", "healthy")]
+    cases = [("triangle", "healthy"), ("triangle", "usb-gaps"), ("square", "healthy")]
     print(f"{'rig':9} {'drive':9} {'late_report_s':>13} {'median':>8} {'p99':>8} {'max':>8} "
           f"{'>20 ms':>7}")  # fmt: skip
-    for layout, kind in conditions:
+    for layout, kind in cases:
         for late in (0.0, 0.1):
             all_d = []
             for seed in range(args.seeds):
                 base = scenarios.rig(layout)
                 rig = base
                 if kind == "usb-gaps":
-                    cond = scenarios.condition("usb-gaps", seed, gap_rate=3.0, gap_length=0.03)
-                    rig = scenarios.apply_condition(base, cond, args.duration)
+                    cond = conditions.condition("usb-gaps", seed, gap_rate=3.0, gap_length=0.03)
+                    rig = conditions.apply_condition(base, cond, args.duration)
                 result = sim.simulate(rig, scenarios.drive(args.duration, seed), seed=seed)
                 cfg = dataclasses.replace(scenarios.config(base), late_report_s=late)
                 all_d.append(delays(result, cfg, args.duration))

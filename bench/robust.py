@@ -60,7 +60,7 @@ import statistics
 import time
 from collections.abc import Callable, Sequence
 
-from mousedom.fusion import chi2, scenarios
+from mousedom.fusion import chi2, conditions, scenarios
 
 SECTIONS = ("faults", "healthy", "timing", "noise", "scale", "pairs", "nees")
 RUNS = ("default", "off", "informed", "clean")
@@ -153,12 +153,12 @@ def _row(label: str, trials: Sequence[scenarios.Trial], extra: str = "") -> None
 
 
 def _conditions(
-    args, layouts: list[str], rows: Sequence[tuple[str, Callable[[int], scenarios.Condition]]]
+    args, layouts: list[str], rows: Sequence[tuple[str, Callable[[int], conditions.Condition]]]
 ) -> None:
     for layout in layouts:
         for label, make in rows:
             trials = [
-                scenarios.condition_trial(layout, make(seed), seed, args.duration)
+                conditions.condition_trial(layout, make(seed), seed, args.duration)
                 for seed in range(args.seeds)
             ]
             _row(f"{layout} {label}", trials)
@@ -166,20 +166,20 @@ def _conditions(
 
 def timing_section(args, layouts: list[str]) -> None:
     _header("timing (not faults: a late mouse is not a lifted one)", args)
-    rows: list[tuple[str, Callable[[int], scenarios.Condition]]] = []
+    rows: list[tuple[str, Callable[[int], conditions.Condition]]] = []
     for rate in (1.0, 2.0, 5.0):
         for length in (0.02, 0.03, 0.05):
             rows.append((
                 f"gaps {rate:g}/s of {length * 1e3:g} ms",
-                lambda s, r=rate, n=length: scenarios.condition(
+                lambda s, r=rate, n=length: conditions.condition(
                     "usb-gaps", s, gap_rate=r, gap_length=n
                 ),
             ))  # fmt: skip
-    rows.append(("stamps uniform 3 ms", lambda s: scenarios.condition("stamp-delay", s)))
+    rows.append(("stamps uniform 3 ms", lambda s: conditions.condition("stamp-delay", s)))
     for tail in (0.001, 0.003):
         rows.append((
             f"stamps exponential {tail * 1e3:g} ms",
-            lambda s, t=tail: scenarios.condition("late-stamps", s, stamp_tail=t),
+            lambda s, t=tail: conditions.condition("late-stamps", s, stamp_tail=t),
         ))  # fmt: skip
     _conditions(args, layouts, rows)
 
@@ -187,7 +187,7 @@ def timing_section(args, layouts: list[str]) -> None:
 def noise_section(args, layouts: list[str]) -> None:
     _header("noise (one mouse noisier than its config says)", args)
     rows = [
-        (f"noisy {f:g}x", lambda s, f=f: scenarios.condition("noisy", s, noise_factor=f))
+        (f"noisy {f:g}x", lambda s, f=f: conditions.condition("noisy", s, noise_factor=f))
         for f in (3.0, 5.0)
     ]
     _conditions(args, layouts, rows)
@@ -196,7 +196,7 @@ def noise_section(args, layouts: list[str]) -> None:
 def scale_section(args, layouts: list[str]) -> None:
     _header("scale (one mouse's CPI off from the configured one)", args)
     rows = [
-        (f"cpi +{f * 100:g} %", lambda s, f=f: scenarios.condition("cpi-error", s, cpi_error=f))
+        (f"cpi +{f * 100:g} %", lambda s, f=f: conditions.condition("cpi-error", s, cpi_error=f))
         for f in (0.01, 0.02, 0.03, 0.05, 0.10, 0.25, 0.50)
     ]
     _conditions(args, layouts, rows)
@@ -246,7 +246,7 @@ def nees_section(args, layouts: list[str]) -> None:
           "mean (expected 3), runs beyond the chi-square 95 % quantile (expected 5 %)")  # fmt: skip
     for layout in layouts:
         trials = [
-            scenarios.condition_trial(layout, "healthy", 100 + s, args.duration)
+            conditions.condition_trial(layout, "healthy", 100 + s, args.duration)
             for s in range(args.healthy_seeds)
         ]
         cells = []

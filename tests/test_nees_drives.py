@@ -16,7 +16,7 @@ import math
 import numpy as np
 import pytest
 
-from mousedom.fusion import chi2, scenarios, sim
+from mousedom.fusion import chi2, conditions, scenarios, sim
 
 DURATION = 30.0
 
@@ -29,9 +29,9 @@ def _nees(layout: str, kind: str, seed: int) -> float:
         result = sim.simulate(scenarios.apply(base, fault), traj, seed=seed)
         cfg = scenarios.config(base)
     else:
-        cond = scenarios.condition(kind, seed)
-        result = sim.simulate(scenarios.apply_condition(base, cond, DURATION), traj, seed=seed)
-        cfg = scenarios.condition_config(base, cond)
+        cond = conditions.condition(kind, seed)
+        result = sim.simulate(conditions.apply_condition(base, cond, DURATION), traj, seed=seed)
+        cfg = conditions.condition_config(base, cond)
     run = scenarios.measure(result, cfg)
     assert run.nees_dof == 3
     return run.nees

@@ -261,57 +261,57 @@ def test_a_pair_trial_puts_both_faults_on_and_removes_both_for_the_informed():
 
 
 def test_conditions_by_name_with_defaults_and_overrides():
-    from mousedom.fusion import scenarios
+    from mousedom.fusion import conditions
 
-    gaps = scenarios.condition("usb-gaps", seed=4)
+    gaps = conditions.condition("usb-gaps", seed=4)
     assert 1.0 <= gaps.gap_rate <= 5.0 and gaps.gap_length == 0.03
-    assert gaps == scenarios.condition("usb-gaps", seed=4)
-    assert scenarios.condition("usb-gaps", seed=4, gap_rate=2.0).gap_rate == 2.0
-    both = scenarios.condition("late-stamps+noisy+cpi-error", cpi_error=0.25)
+    assert gaps == conditions.condition("usb-gaps", seed=4)
+    assert conditions.condition("usb-gaps", seed=4, gap_rate=2.0).gap_rate == 2.0
+    both = conditions.condition("late-stamps+noisy+cpi-error", cpi_error=0.25)
     assert (both.stamp_tail, both.noise_factor, both.cpi_error) == (0.003, 5.0, 0.25)
-    assert scenarios.condition("stamp-delay").stamp_delay == 0.003
-    assert scenarios.condition("healthy") == scenarios.Condition()
+    assert conditions.condition("stamp-delay").stamp_delay == 0.003
+    assert conditions.condition("healthy") == conditions.Condition()
     with pytest.raises(ValueError):
-        scenarios.condition("usb-gaps+gremlins")
+        conditions.condition("usb-gaps+gremlins")
 
 
 def test_a_condition_acts_on_the_mice_it_says():
-    from mousedom.fusion import scenarios
+    from mousedom.fusion import conditions, scenarios
 
     base = scenarios.rig("square")  # fl 125 Hz, rl 1000 Hz
-    cond = scenarios.condition("usb-gaps+late-stamps+noisy+cpi-error", seed=1, cpi_error=0.2)
-    true = {m.name: m for m in scenarios.apply_condition(base, cond, 30.0).mice}
+    cond = conditions.condition("usb-gaps+late-stamps+noisy+cpi-error", seed=1, cpi_error=0.2)
+    true = {m.name: m for m in conditions.apply_condition(base, cond, 30.0).mice}
     was = {m.name: m for m in base.mice}
     assert true["fl"].usb_gaps and not any(true[n].usb_gaps for n in ("fr", "rl", "rr"))
     assert all(b - a == pytest.approx(0.03, rel=0.31) for a, b in true["fl"].usb_gaps)
     assert true["rl"].stamp_tail == 0.003 and true["fl"].stamp_tail == 0.0
     assert true["fl"].noise == pytest.approx(5 * was["fl"].noise)
     assert true["fl"].cpi_x == pytest.approx(1.2 * was["fl"].cpi_x) and true["fr"] == was["fr"]
-    cfg = scenarios.condition_config(base, cond)
-    told = scenarios.condition_config(base, cond, robust=False, told=True)
+    cfg = conditions.condition_config(base, cond)
+    told = conditions.condition_config(base, cond, robust=False, told=True)
     assert cfg.mouse("fl").cpi_x == was["fl"].cpi_x and cfg.robust.enabled
     assert told.mouse("fl").cpi_x == pytest.approx(true["fl"].cpi_x) and not told.robust.enabled
     assert cfg.mouse("fl").sigma == told.mouse("fl").sigma  # the config keeps its sigma
-    other = scenarios.condition("noisy", noise_mouse="rr", noise_factor=3.0)
-    moved = {m.name: m for m in scenarios.apply_condition(base, other, 30.0).mice}
+    other = conditions.condition("noisy", noise_mouse="rr", noise_factor=3.0)
+    moved = {m.name: m for m in conditions.apply_condition(base, other, 30.0).mice}
     assert moved["rr"].noise == pytest.approx(3 * was["rr"].noise) and moved["fl"] == was["fl"]
     with pytest.raises(ValueError):
-        scenarios.apply_condition(base, scenarios.condition("noisy", noise_mouse="zz"), 30.0)
+        conditions.apply_condition(base, conditions.condition("noisy", noise_mouse="zz"), 30.0)
 
 
 def test_condition_trials_run_four_ways():
-    from mousedom.fusion import scenarios
+    from mousedom.fusion import conditions
 
-    healthy = scenarios.condition_trial("triangle", "healthy", 2, 8.0)
+    healthy = conditions.condition_trial("triangle", "healthy", 2, 8.0)
     assert healthy.default == healthy.clean  # the same drive, the same engine
-    cpi = scenarios.condition_trial("triangle", "cpi-error", 2, 8.0)
+    cpi = conditions.condition_trial("triangle", "cpi-error", 2, 8.0)
     assert cpi.clean == healthy.clean and cpi.default != cpi.clean
     assert cpi.informed.windows == cpi.off.windows
-    gaps = scenarios.condition_trial(
-        "triangle", scenarios.condition("usb-gaps", seed=2, gap_rate=5.0), 2, 8.0
+    gaps = conditions.condition_trial(
+        "triangle", conditions.condition("usb-gaps", seed=2, gap_rate=5.0), 2, 8.0
     )
     # Without the gaps, and plain: the informed reference is the healthy drive, robust off.
-    assert gaps.informed == scenarios.condition_trial("triangle", "healthy", 2, 8.0).off
+    assert gaps.informed == conditions.condition_trial("triangle", "healthy", 2, 8.0).off
 
 
 # --------------------------------------------------------------------------- measuring

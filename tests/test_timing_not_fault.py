@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mousedom.fusion import robust, scenarios, sim
+from mousedom.fusion import conditions, robust, scenarios, sim
 
 DURATION = 40.0
 SEEDS = (901, 902, 903)
@@ -24,17 +24,17 @@ def _runs(kind: str) -> list[tuple[scenarios.Run, scenarios.Run, int]]:
     for layout in LAYOUTS:
         base = scenarios.rig(layout)
         for seed in SEEDS:
-            cond = scenarios.condition(kind, seed)
-            rig = scenarios.apply_condition(base, cond, DURATION)
+            cond = conditions.condition(kind, seed)
+            rig = conditions.apply_condition(base, cond, DURATION)
             result = sim.simulate(rig, scenarios.drive(DURATION, seed), seed=seed)
-            cfg = scenarios.condition_config(base, cond)
+            cfg = conditions.condition_config(base, cond)
             batch, _ = scenarios.run(result, cfg)
             st = np.asarray(batch.state)
             new = (st[1:] == robust.EXCLUDED) & (st[:-1] != robust.EXCLUDED)
             late = int(new[batch.t[1:] > 2.0].any(axis=1).sum())
             out.append((
                 scenarios.measure(result, cfg),
-                scenarios.measure(result, scenarios.condition_config(base, cond, robust=False)),
+                scenarios.measure(result, conditions.condition_config(base, cond, robust=False)),
                 late,
             ))  # fmt: skip
     return out
