@@ -1,0 +1,168 @@
+"""The native capture format's layout: the file header, the chunk header and its CRC,
+and the checks on each chunk's columns that writer and reader share.
+
+Layout (all integers little-endian; full description in docs/captures.md)::
+
+    file   = magic header chunk*
+    magic  = b"MDCAP\\r\\n\\x1a"                      (8 bytes; catches text-mode mangling)
+    header = u16 major, u16 minor, u32 n, n bytes of JSON, u32 crc32(JSON)
+    chunk  = b"MDCK", u8 kind, u8 flags, u16 source, u32 count, u32 size, u32 crc,
+             size bytes of payload                  (crc32 over the 16 bytes before it
+                                                     and the payload as stored)
+
+Chunk kinds: MOTION (count reports as columns: f8 t[count], i4 dx[count], i4 dy[count]),
+SERIAL (count pieces of raw serial bytes: f8 t[count], u4 len[count], then the bytes),
+NOTE (JSON counters of what a converted source skipped or dropped), SYNC (one f8: every
+report of every source stamped at or before it is in the file by now; readers use it to
+close windows while streaming).  Flag bit 0: the payload is zlib-compressed.
+
+Why this shape: a crash can only tear the chunk being written, and each chunk is checked
+by its CRC, so a reader keeps every whole chunk and reports the torn tail with its size.
+A bad chunk followed by good ones is corruption, not a crash: that is an error, because
+the counts in it would be silently lost.  Fixed-size columns load with numpy.frombuffer,
+which is what makes the replay fast.
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+import zlib
+from typing import Any, BinaryIO
+
+import numpy as np
+
+from mousedom.capture.base import MAX_TIME_S, SOURCE_COUNTERS, CaptureError
+from mousedom.errors import located
+
+MAGIC = b"MDCAP\r\n\x1a"
+VERSION = (1, 0)
+CHUNK_MAGIC = b"MDCK"
+CHUNK = struct.Struct("<4sBBHIII")
+MOTION, SERIAL, NOTE, SYNC = 1, 2, 3, 4
+KINDS = (MOTION, SERIAL, NOTE, SYNC)
+ZLIB = 1
+MAX_CHUNK = 64 << 20  # larger payloads are corruption, not data
+# A compressed chunk may inflate to at most this many times its stored size (and never past
+# MAX_CHUNK).  What the writer stores inflates about 2:1 (motion columns) to 5:1 (serial
+# bytes of an idle sensor); zlib itself reaches 1032:1, which is how a 1 MB file could
+# claim a gigabyte of reports.  The bound makes what a file can cost follow its size.
+MAX_INFLATE_RATIO = 100
+INFLATE_SLACK = 4096  # tiny chunks (a NOTE, a SYNC) are not held to the ratio
+NOTE_FIELDS = SOURCE_COUNTERS
+# Counts inside dropped frames are sums of REL values: they carry a sign (a dropped frame
+# of REL_X -7 is lost_x -7).  Every other counter counts things and is never negative.
+SIGNED_NOTE_FIELDS = frozenset({"lost_x", "lost_y"})
+
+
+def is_native(prefix: bytes) -> bool:
+    return prefix.startswith(MAGIC)
+
+
+def chunk_crc(head: bytes, payload: bytes) -> int:
+    """CRC-32 over the first 16 bytes of the chunk header and the payload as stored."""
+    return zlib.crc32(payload, zlib.crc32(head[:16]))
+
+
+def check_chunk_head(head: bytes) -> str | None:
+    if len(head) < CHUNK.size:
+        return "chunk header cut short"
+    magic, kind, flags, source, count, size, crc = CHUNK.unpack(head)
+    if magic != CHUNK_MAGIC:
+        return "no chunk marker"
+    if kind not in KINDS or flags & ~ZLIB or size > MAX_CHUNK:
+        return "malformed chunk header"
+    return None
+
+
+def read_header(path: str, f: BinaryIO) -> tuple[dict[str, Any], int]:
+    magic = f.read(len(MAGIC))
+    if magic != MAGIC:
+        raise CaptureError(located(path, None, "byte offset 0: not a mousedom native capture"))
+    fixed = f.read(8)
+    if len(fixed) < 8:
+        raise CaptureError(located(path, None, "byte offset 8: header cut short"))
+    major, minor, n = struct.unpack("<HHI", fixed)
+    if major != VERSION[0]:
+        raise CaptureError(
+            located(
+                path,
+                None,
+                f"byte offset 8: unknown native capture version {major}.{minor} "
+                f"(this reader knows {VERSION[0]}.x)",
+            )
+        )
+    if n > MAX_CHUNK:
+        raise CaptureError(located(path, None, "byte offset 12: header length is implausible"))
+    body = f.read(n)
+    crc = f.read(4)
+    if len(body) < n or len(crc) < 4:
+        raise CaptureError(located(path, None, "byte offset 16: header cut short"))
+    if zlib.crc32(body) != struct.unpack("<I", crc)[0]:
+        raise CaptureError(located(path, None, "byte offset 16: header CRC mismatch"))
+    try:
+        header = json.loads(body)
+        if not isinstance(header, dict) or not isinstance(header.get("devices"), list):
+            raise ValueError("no device list")
+    except ValueError as e:
+        raise CaptureError(located(path, None, f"byte offset 16: bad header: {e}")) from None
+    return header, len(MAGIC) + 8 + n + 4
+
+
+def motion_columns(
+    path: str, payload: bytes, count: int, offset: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A MOTION chunk's columns (t, dx, dy), checked."""
+    if len(payload) != 16 * count:
+        raise CaptureError(
+            located(path, None, f"byte offset {offset}: motion chunk of {count} reports holds "
+                    f"{len(payload)} bytes, not {16 * count}")
+        )  # fmt: skip
+    t = np.frombuffer(payload, "<f8", count)
+    dx = np.frombuffer(payload, "<i4", count, 8 * count).astype(np.int64)
+    dy = np.frombuffer(payload, "<i4", count, 12 * count).astype(np.int64)
+    if not (np.abs(t) < MAX_TIME_S).all():  # NaN fails this too
+        raise CaptureError(located(path, None, f"byte offset {offset}: time out of range"))
+    return t, dx, dy
+
+
+def plausible_time(t: float) -> bool:
+    return bool(abs(t) < MAX_TIME_S)  # False for NaN and inf
+
+
+def note_counters(note: object) -> dict[str, int]:
+    """A NOTE's counters, checked (ValueError naming the first bad one): the one rule that
+    the writer applies before writing and the reader when reading.
+
+    Each is an integer that floats hold exactly (below 2**53 in size); the counts lost in
+    dropped frames may be negative, every other counter may not.  A missing key is 0."""
+    if not isinstance(note, dict):
+        raise ValueError("not a JSON object")
+    out = {}
+    for k in NOTE_FIELDS:
+        v = note.get(k, 0)
+        low = -(2**53) if k in SIGNED_NOTE_FIELDS else 0
+        if isinstance(v, bool) or not isinstance(v, int) or not low <= v < 2**53:
+            raise ValueError(f"{k}: not a counter: {v!r}")
+        out[k] = v
+    return out
+
+
+def serial_pieces(
+    path: str, payload: bytes, count: int, offset: int
+) -> tuple[np.ndarray, list[bytes]]:
+    """A SERIAL chunk's read times and the bytes of each read, checked."""
+    if len(payload) < 12 * count:
+        raise CaptureError(located(path, None, f"byte offset {offset}: serial chunk too short"))
+    t = np.frombuffer(payload, "<f8", count)
+    if not (np.abs(t) < MAX_TIME_S).all():  # NaN fails this too
+        raise CaptureError(located(path, None, f"byte offset {offset}: serial time out of range"))
+    lens = np.frombuffer(payload, "<u4", count, 8 * count).astype(np.int64)
+    if 12 * count + int(lens.sum()) != len(payload):
+        raise CaptureError(
+            located(path, None, f"byte offset {offset}: serial chunk lengths do not add up")
+        )
+    ends = 12 * count + np.cumsum(lens)
+    starts = ends - lens
+    pieces = [payload[s:e] for s, e in zip(starts.tolist(), ends.tolist(), strict=False)]
+    return t, pieces

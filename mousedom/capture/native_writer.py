@@ -1,0 +1,195 @@
+"""Writing the native capture format (see ``capture.native_format`` for its layout)."""
+
+from __future__ import annotations
+
+import json
+import os
+import struct
+import time
+import zlib
+from typing import Any, BinaryIO, cast
+
+import numpy as np
+
+from mousedom.capture.base import MAX_TIME_S, TIME_BASES, CaptureError, DeviceInfo, DeviceStats
+from mousedom.capture.native_format import (
+    CHUNK,
+    CHUNK_MAGIC,
+    MAGIC,
+    MOTION,
+    NOTE,
+    NOTE_FIELDS,
+    SERIAL,
+    SYNC,
+    VERSION,
+    ZLIB,
+    chunk_crc,
+    note_counters,
+    plausible_time,
+)
+from mousedom.safewrite import open_stream
+
+
+class NativeWriter:
+    """Append-only writer.  Call ``sync(t)`` whenever every source is complete up to t.
+
+    Motion is buffered per source and written as one chunk per source at ``sync``, at
+    ``flush`` or when a buffer holds ``chunk_reports`` reports; each chunk is flushed to the
+    OS at once (and fsync'ed when ``fsync`` is true) so a crash loses only the buffers.
+    """
+
+    def __init__(
+        self,
+        file: str | os.PathLike[str] | BinaryIO,
+        devices: list[DeviceInfo],
+        *,
+        config_text: str | None = None,
+        time_base: str = "monotonic",
+        compress: bool = True,
+        chunk_reports: int = 65536,
+        fsync: bool = False,
+        meta: dict[str, Any] | None = None,
+        inputs: tuple[str | None, ...] = (),
+    ) -> None:
+        if time_base not in TIME_BASES:
+            raise ValueError(f"time_base must be one of {TIME_BASES}")
+        if isinstance(file, (str, os.PathLike)):
+            # No link followed, none of ``inputs`` (config, captures) clobbered.
+            # Binary: open_stream opens text only when asked (text=True).
+            self._f = cast(BinaryIO, open_stream(str(file), inputs))
+            self._own = True
+        else:
+            self._f, self._own = file, False
+        self.devices = list(devices)
+        self.compress = compress
+        self.chunk_reports = chunk_reports
+        self.fsync = fsync
+        self._buf: list[list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = [[] for _ in devices]
+        self._buffered = [0] * len(devices)
+        self.reports_written = 0
+        header = {
+            "format": "mousedom-capture",
+            "version": list(VERSION),
+            "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+            "time_base": time_base,
+            "devices": [d.as_dict() for d in devices],
+            "config": config_text,
+            **(meta or {}),
+        }
+        body = json.dumps(header, sort_keys=True).encode()
+        self._f.write(MAGIC + struct.pack("<HHI", *VERSION, len(body)) + body)
+        self._f.write(struct.pack("<I", zlib.crc32(body)))
+        self._f.flush()
+
+    def motion(self, device: int, t, dx, dy) -> None:
+        t = np.ascontiguousarray(t, dtype="<f8")
+        if not len(t):
+            return
+        bad = ~(np.abs(t) < MAX_TIME_S)
+        if bad.any():  # the reader refuses them: never write them
+            k = int(np.argmax(bad))
+            raise CaptureError(
+                f"device {self.devices[device].name!r}: report {k} of a batch has time "
+                f"{t[k]!r}: the native format holds finite times below {MAX_TIME_S:g} s only"
+            )
+        dx, dy = np.asarray(dx), np.asarray(dy)
+        for d in (dx, dy):
+            # A frame's summed counts may exceed the i4 columns: refuse rather than wrap.
+            if d.dtype.itemsize > 4 and len(d) and (d.min() < -(2**31) or d.max() >= 2**31):
+                self._too_big(device, t, dx, dy)
+        self._buf[device].append((t, dx.astype("<i4"), dy.astype("<i4")))
+        self._buffered[device] += len(t)
+        if self._buffered[device] >= self.chunk_reports:
+            self._flush_motion(device)
+
+    def _too_big(self, device: int, t: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> None:
+        big = (dx < -(2**31)) | (dx >= 2**31) | (dy < -(2**31)) | (dy >= 2**31)
+        k = int(np.argmax(big))
+        dev = self.devices[device]
+        src = dev.extra.get("converted_from")
+        raise CaptureError(
+            f"{src or dev.name}: device {dev.name!r}: the report at t={t[k]:.6f} holds "
+            f"({int(dx[k])}, {int(dy[k])}) counts, beyond the native format's signed 32 bits"
+        )
+
+    def serial(self, device: int, t: float, data: bytes) -> None:
+        """One read() of a serial port: its bytes and host time of arrival."""
+        self.serial_many(device, [t], [data])
+
+    def serial_many(self, device: int, ts: list[float], pieces: list[bytes]) -> None:
+        if not pieces:
+            return
+        for t in ts:
+            if not plausible_time(t):
+                raise CaptureError(
+                    f"device {self.devices[device].name!r}: serial read at time {t!r}: "
+                    f"the native format holds finite times below {MAX_TIME_S:g} s only"
+                )
+        head = np.asarray(ts, dtype="<f8").tobytes()
+        head += np.asarray([len(p) for p in pieces], dtype="<u4").tobytes()
+        self._chunk(SERIAL, device, len(pieces), head + b"".join(pieces))
+
+    def note(self, device: int, stats: DeviceStats) -> None:
+        """Record what the source skipped or dropped (for a converted capture's summary)."""
+        body = {k: getattr(stats, k) for k in NOTE_FIELDS}
+        try:
+            note_counters(body)  # the reader's rule: never write what it would refuse
+        except ValueError as e:
+            raise CaptureError(
+                f"device {self.devices[device].name!r}: its counters cannot be recorded: {e}"
+            ) from None
+        self._chunk(NOTE, device, 1, json.dumps(body, sort_keys=True).encode())
+
+    def sync(self, complete: float) -> None:
+        if not plausible_time(complete) and complete != np.inf:
+            raise CaptureError(f"sync at time {complete!r}: not a time the reader accepts")
+        self.flush()
+        self._chunk(SYNC, 0, 1, struct.pack("<d", complete))
+
+    def flush(self) -> None:
+        for d in range(len(self.devices)):
+            self._flush_motion(d)
+        self._f.flush()
+
+    def close(self) -> None:
+        if self._f.closed:
+            return
+        self.flush()
+        if self.fsync:
+            os.fsync(self._f.fileno())
+        if self._own:
+            self._f.close()
+
+    def __enter__(self) -> NativeWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _flush_motion(self, device: int) -> None:
+        parts = self._buf[device]
+        if not parts:
+            return
+        t = np.concatenate([p[0] for p in parts])
+        dx = np.concatenate([p[1] for p in parts])
+        dy = np.concatenate([p[2] for p in parts])
+        self._buf[device] = []
+        self._buffered[device] = 0
+        for s in range(0, len(t), self.chunk_reports):
+            e = s + self.chunk_reports
+            payload = t[s:e].tobytes() + dx[s:e].tobytes() + dy[s:e].tobytes()
+            self._chunk(MOTION, device, len(t[s:e]), payload)
+            self.reports_written += len(t[s:e])
+
+    def _chunk(self, kind: int, source: int, count: int, payload: bytes) -> None:
+        flags = 0
+        if self.compress and len(payload) > 64:
+            packed = zlib.compress(payload, 1)
+            if len(packed) < len(payload):
+                payload, flags = packed, ZLIB
+        head = CHUNK.pack(CHUNK_MAGIC, kind, flags, source, count, len(payload), 0)[:16]
+        crc = chunk_crc(head, payload)
+        self._f.write(head + struct.pack("<I", crc) + payload)
+        self._f.flush()
+        if self.fsync:
+            os.fsync(self._f.fileno())
