@@ -153,10 +153,11 @@ def _measure(text: str) -> None:
 def load(text: str | bytes) -> Any:
     """``yaml.safe_load`` within the limits."""
     if isinstance(text, bytes):
+        raw = text
         try:
-            text = text.decode("utf-8")
+            text = raw.decode("utf-8")
         except UnicodeDecodeError as e:
-            line = text.count(b"\n", 0, e.start)
+            line = raw.count(b"\n", 0, e.start)
             raise LimitError(
                 problem=f"not UTF-8 text (byte {e.start} of this part)",
                 problem_mark=yaml.Mark("<bytes>", e.start, line, 0, None, None),

@@ -172,12 +172,20 @@ def _metrics(r: Reader) -> MetricsConfig | None:
     return MetricsConfig(host=host, port=port) if enabled else None
 
 
+def _text(s: Reader, key: str, default: str) -> str:
+    """A string with a default: absent is the default, null is no string."""
+    v = s.string(key, default)
+    if v is None:
+        raise s.err(key, f"must be a string, got {shown(v)}")
+    return v
+
+
 def _ros2(r: Reader) -> Ros2Config | None:
     s = r.sub("ros2", ("enabled", *ROS2_KEYS))
     d = Ros2Config()
 
     def name(key: str, default: str, topic: bool) -> str:
-        v = s.string(key) if s.has(key) else default
+        v = _text(s, key, default)
         ok = all(c.isalnum() or c in "_/~" for c in v) if topic else all(
             c.isalnum() or c in "_/" for c in v)  # fmt: skip
         if not v or not ok or "//" in v:
@@ -185,7 +193,7 @@ def _ros2(r: Reader) -> Ros2Config | None:
             raise s.err(key, f"must be {what} (letters, digits, _ and /), got {shown(v)}")
         return v
 
-    namespace = s.string("namespace") if s.has("namespace") else d.namespace
+    namespace = _text(s, "namespace", d.namespace)
     if namespace and not ROS_NAMESPACE.fullmatch(namespace):
         raise s.err(
             "namespace",
@@ -209,7 +217,7 @@ def _ros2(r: Reader) -> Ros2Config | None:
         diagnostics=s.boolean("diagnostics", d.diagnostics),
         counts=s.boolean("counts", d.counts),
         stamps=s.choice("stamps", STAMPS, d.stamps),
-        node_name=s.string("node_name") if s.has("node_name") else d.node_name,
+        node_name=_text(s, "node_name", d.node_name),
         optional=s.boolean("optional", d.optional),
         initialpose=s.boolean("initialpose", d.initialpose),
     )

@@ -30,6 +30,9 @@ from mousedom.fusion import integrate
 from mousedom.fusion.choices import MODELS as MODELS  # models.MODELS: these models
 from mousedom.fusion.geometry import design_matrix
 
+# Windows of a batch: all of them (a slice) or those at an index array.
+Rows = slice | np.ndarray
+
 # Relative singular-value threshold for "the live mice determine the model" (as geometry.py).
 _RANK_TOL = 1e-9
 
@@ -137,7 +140,7 @@ def solve(
     return Solution(q=q, cov=cov, residual=residual, used=used, ok=ok)
 
 
-def _patterns(mask: np.ndarray | None, n: int, nm: int) -> Iterator[tuple[np.ndarray, object]]:
+def _patterns(mask: np.ndarray | None, n: int, nm: int) -> Iterator[tuple[np.ndarray, Rows]]:
     """(live mice, rows) for each distinct mask pattern; rows is a slice or an index array."""
     if mask is None or mask.all():
         yield np.ones(nm, dtype=bool), slice(None)
@@ -158,7 +161,7 @@ def _linear(
     positions: np.ndarray,
     sigma: np.ndarray,
     live: np.ndarray,
-    rows: object,
+    rows: Rows,
     cols: list[int],
     q: np.ndarray,
     cov: np.ndarray,

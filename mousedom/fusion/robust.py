@@ -46,7 +46,7 @@ import itertools
 import math
 from collections import deque
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -134,7 +134,8 @@ class Screen(RigidTest):
         # The readings of the last windows (each (N, 2), or flattened floats): the tie
         # break's continuity looks this far back, past windows a creeping fault may
         # already have bent (_tie_break).
-        self.history: deque = deque(maxlen=max(2, round(HISTORY_S / window)))
+        self.history_len = max(2, round(HISTORY_S / window))
+        self.history: deque[Any] = deque(maxlen=self.history_len)
         # Each excluded mouse's readings less the others' account of them, summed over its
         # exclusion, and the largest expected error of a window in it (_reconcile).
         self._owed = np.zeros((self.n, 2))
@@ -277,6 +278,7 @@ class Screen(RigidTest):
                     reason[j] = SILENT if self._silent(d, j) else INCONSISTENT
                 used[list(swap)] = False
                 q = self._solve(d, used)
+                assert q is not None  # these mice passed their test: they have rank
                 p = self.predict(q)
             elif blamed is not None:
                 for j in blamed:
@@ -284,6 +286,7 @@ class Screen(RigidTest):
                 used = used.copy()
                 used[list(blamed)] = False
                 q = self._solve(d, used)
+                assert q is not None  # these mice passed their test: they have rank
                 p = self.predict(q)
             else:
                 consistent = False
@@ -436,7 +439,7 @@ class Screen(RigidTest):
         """The readings of the oldest window kept (HISTORY_S back), (N, 2); None before
         there are as many."""
         h = self.history
-        if len(h) < h.maxlen:
+        if len(h) < self.history_len:
             return None
         return np.asarray(h[0], dtype=float).reshape(self.n, 2)
 

@@ -197,7 +197,8 @@ def informed_dead(
         return ()
     if fault.kind == "saturation":  # where the mouse truly moved faster than it tracks
         m = next(m for m in rig.mice if m.name == fault.mouse)
-        spans, t = [], 0.0
+        spans: list[tuple[str, float, float]] = []
+        t = 0.0
         for seg in trajectory:
             speed = math.hypot(seg.vx - seg.omega * m.y, seg.vy + seg.omega * m.x)
             if speed > SATURATION_SPEED:

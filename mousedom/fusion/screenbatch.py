@@ -85,7 +85,7 @@ def screen(
                     values = samples if sc.dof(int(mask[i].sum())) > 0 else None
                     stop = sc.noise.extend_blocks(values, i - base, stop - base) + base
                     sc._set_prev(p[stop - 1])
-                    sc.history.extend(d[max(i, stop - sc.history.maxlen) : stop])
+                    sc.history.extend(d[max(i, stop - sc.history_len) : stop])
                     i = stop
                     continue
         sq = None if squal_scale is None else squal_scale[i]
@@ -129,8 +129,8 @@ def _fast_rows(sc: Screen, d, p, mask, lever) -> tuple[np.ndarray, tuple]:
         dof = 2 * int(mask.sum()) - sc.k
         ok = np.full(len(t), True) if dof <= 0 else t <= thr[dof]
     else:
-        dof = 2 * _row_sum(mask.astype(np.int64)) - sc.k
-        ok = (dof <= 0) | (t <= thr[np.maximum(dof, 0)])
+        dofs = 2 * _row_sum(mask.astype(np.int64)) - sc.k
+        ok = (dofs <= 0) | (t <= thr[np.maximum(dofs, 0)])
     saturated = mask & (m2 >= sc.max_step2)
     for i in range(saturated.shape[1]):
         ok &= ~saturated[:, i]

@@ -144,14 +144,13 @@ class Motion:
 
     def pose(self, t: np.ndarray | float) -> np.ndarray:
         """True pose(s) at time(s) t, shape (n,3) (clamped to the trajectory's span)."""
-        t = np.atleast_1d(np.asarray(t, dtype=float))
-        t = np.clip(t, self.starts[0], self.starts[-1])
-        k = np.clip(np.searchsorted(self.starts, t, side="right") - 1, 0, len(self.segments) - 1)
-        out = np.empty((len(t), 3))
+        ts = np.clip(np.atleast_1d(np.asarray(t, dtype=float)), self.starts[0], self.starts[-1])
+        k = np.clip(np.searchsorted(self.starts, ts, side="right") - 1, 0, len(self.segments) - 1)
+        out = np.empty((len(ts), 3))
         for j in np.unique(k):
             sel = k == j
             seg = self.segments[j]
-            step = _exp(seg.vx, seg.vy, seg.omega, t[sel] - self.starts[j])
+            step = _exp(seg.vx, seg.vy, seg.omega, ts[sel] - self.starts[j])
             out[sel] = _compose(self.poses[j], step)
         return out
 
@@ -406,7 +405,7 @@ def simulate(
         stamps = slots[keep]
         if mouse.stamp_delay > 0 or mouse.stamp_tail > 0:
             # Arrival stamps: late by a random delay, never reordered.
-            delay = 0.0
+            delay: float | np.ndarray = 0.0
             if mouse.stamp_delay > 0:
                 delay = rng.uniform(0.0, mouse.stamp_delay, draws)[: len(stamps)]
             if mouse.stamp_tail > 0:

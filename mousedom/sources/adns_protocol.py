@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import binascii
 import struct
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 PROTO_VERSION = 1
 
@@ -208,7 +208,7 @@ def encode_packet(packet: Packet) -> bytes:
     """A device -> host frame (for emulators and tests; the firmware builds its own)."""
     for ptype, (layout, cls) in _LAYOUT.items():
         if isinstance(packet, cls):
-            values = [getattr(packet, f) for f in cls.__dataclass_fields__ if f != "host_t"]
+            values = [getattr(packet, f.name) for f in fields(packet) if f.name != "host_t"]
             return frame(bytes((ptype,)) + layout.pack(*values))
     raise TypeError(f"not a packet: {packet!r}")
 

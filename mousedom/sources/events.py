@@ -301,9 +301,11 @@ class FrameAssembler:
             parts = []
             for lo in range(0, n, self.block):
                 hi = min(lo + self.block, n)
-                parts.append(
-                    self._feed_block(key[lo:hi], value[lo:hi], lambda i, lo=lo: time_at(i + lo))
-                )
+
+                def block_time(i: Any, lo: int = lo) -> np.ndarray:
+                    return time_at(i + lo)
+
+                parts.append(self._feed_block(key[lo:hi], value[lo:hi], block_time))
             return MotionFrames.concat(parts)
         return self._feed_block(key, value, time_at)
 
@@ -327,7 +329,7 @@ class FrameAssembler:
         last = int(cut[-1])
 
         def prefix(x: np.ndarray, dtype: type) -> np.ndarray:
-            c = np.empty(n + 1, dtype=dtype)
+            c: np.ndarray = np.empty(n + 1, dtype=dtype)
             c[0] = 0
             np.cumsum(x, dtype=dtype, out=c[1:])
             return c
