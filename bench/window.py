@@ -7,9 +7,9 @@ process) is driven window by window from here, without its loop: each window's r
 are written into the FIFOs, the process sleeps 10 ms as the daemon does between windows,
 and then the three phases of a window run as the loop runs them:
 
-- read: ``_read_sources`` (one read per source, decoding, the tracker's queue);
+- read: ``Sensors.read_due`` (one read per source, decoding, the tracker's queue);
 - poll: ``Tracker.poll`` (the count functions, the solve, the fault test, the covariance);
-- publish: ``_publish`` (the POSE line, the send to the client).
+- publish: ``Publisher.publish`` (the POSE line, the send to the client).
 
 Prints each phase's thread CPU time (median over the windows after the first tenth), and
 for one window after the warm-up the bytecode it runs: distinct instructions (a window's
@@ -80,14 +80,11 @@ class Rig:
         held = [os.open(f, os.O_RDONLY | os.O_NONBLOCK) for f in fifos]
         self.writers = [os.open(f, os.O_WRONLY | os.O_NONBLOCK) for f in fifos]
         dm.server.refuse_if_taken()
-        dm.tracker = dm._tracker_class(dm.config, t0=T0)
-        dm.slots = [dm._new_slot(i, m) for i, m in enumerate(dm.config.mice)]
-        dm._live_changed()
-        for slot in dm.slots:
-            dm._try_open(slot, T0)
+        dm.running.replace(dm.config, dm.reloader.tracker_class(dm.config, t0=T0))
+        dm.sensors.start(T0)
         for fd in held:
             os.close(fd)
-        dm.tracker.complete_until(T0 - max(s.latency for s in dm.slots))
+        dm.tracker.complete_until(T0 - dm.sensors.max_latency())
         dm.server.open()
         self.client = subprocess.Popen([sys.executable, "-c", CLIENT, str(d / "d.sock")])
         deadline = time.monotonic() + 10
@@ -113,9 +110,9 @@ class Rig:
         dm = self.daemon
         box = []
         return (
-            ("read", lambda: dm._read_sources(self.now)),
+            ("read", lambda: dm.sensors.read_due(self.now)),
             ("poll", lambda: box.append(dm.tracker.poll())),
-            ("publish", lambda: dm._publish(box.pop())),
+            ("publish", lambda: dm.publisher.publish(box.pop())),
         )
 
     def close(self) -> None:

@@ -246,7 +246,7 @@ def test_reload_swaps_changed_mice_and_keeps_the_pose(tmp_path):
         c.until("VERSION")
         c.send({"cmd": "reset", "x": 3.0, "y": -1.0})
         c.until("OK")
-        a_source = d.slots[0].source
+        a_source = d.sensors.slots[0].source
         # b moves to another device and c is new: both need new sources; a stays
         write(
             line.format(n="a", dev="null", x=0.1)
@@ -260,14 +260,16 @@ def test_reload_swaps_changed_mice_and_keeps_the_pose(tmp_path):
             time.sleep(0.01)
         t_reload = d.tracker.t0
         pose = c.until("POSE", lambda m: m["t"] > t_reload)  # from the new tracker
-        assert [s.name for s in d.slots] == ["a", "b", "c"]
-        assert d.slots[0].source is a_source
+        assert [s.name for s in d.sensors.slots] == ["a", "b", "c"]
+        assert d.sensors.slots[0].source is a_source
         assert len(made) == 4  # a, b at start; new b and c on reload
         assert (pose["x"], pose["y"]) == (3.0, -1.0)
         assert Conn(d.server.path).read()["sensors"] == ["a", "b", "c"]
         # what the loop keeps of the slots follows them (the wake planning, POSE "missing")
-        assert [id(h) for _, _, h in d.plan_slots] == [id(s.source.health) for s in d.slots]
-        assert d.missing_names == () and pose["missing"] == []
+        assert [id(h) for _, _, h in d.sensors.plan] == [
+            id(s.source.health) for s in d.sensors.slots
+        ]
+        assert d.sensors.missing_names == () and pose["missing"] == []
     finally:
         d.request_stop()
         th.join(5)
@@ -308,7 +310,7 @@ def test_reload_that_removes_a_mouse_closes_it_and_stops_the_recording(tmp_path)
         now = time.monotonic()
         made["b"].write([now], [5.0], [-7.0])
         deadline = time.monotonic() + 5
-        while d.recording.reports == 0 and time.monotonic() < deadline:
+        while d.recording.reports_kept == 0 and time.monotonic() < deadline:
             time.sleep(0.01)
         rig.write_text(
             "rate_hz: 50\nmodel: lsq\nmice:\n" + line.format(n="a", x=0.1, y=0)
@@ -318,7 +320,7 @@ def test_reload_that_removes_a_mouse_closes_it_and_stops_the_recording(tmp_path)
         d.request_reload()
         while d.tracker is old and time.monotonic() < deadline:
             time.sleep(0.01)
-        assert [s.name for s in d.slots] == ["a", "c"]
+        assert [s.name for s in d.sensors.slots] == ["a", "c"]
         assert closed == ["b"]  # b alone: a and c kept their sources
         assert d.recording is None  # the mice changed: the recording stopped
     finally:
@@ -374,15 +376,14 @@ def test_source_residual_and_state_are_those_of_the_published_windows(tmp_path, 
     window's: however many windows wait (past the bound that folds them early)."""
     from mousedom.fusion import robust
     from mousedom.fusion.posebatch import PoseBatch
+    from mousedom.fusion.tracker import Tracker
 
     mounts = {"a": (0.1, 0.0), "b": (-0.1, 0.0)}
     sources = {n: PipeSource(n) for n in mounts}
     d = Daemon(_config("lsq", mounts), str(tmp_path / "d.sock"),
                source_factory=lambda m, clock: sources[m.name], handle_signals=False)  # fmt: skip
-    d.tracker = d._tracker_class(d.config, t0=0.0)
-    d.slots = [d._new_slot(i, m) for i, m in enumerate(d.config.mice)]
-    for slot in d.slots:
-        d._try_open(slot, 0.0)
+    d.running.replace(d.config, Tracker(d.config, t0=0.0))
+    d.sensors.start(0.0)
     rng = np.random.default_rng(windows)
     rows, sums = [], np.zeros(2)
     for k in range(windows):
@@ -395,10 +396,10 @@ def test_source_residual_and_state_are_those_of_the_published_windows(tmp_path, 
         rows.append(_pose_row(k, res.tolist(), (robust.TRACKING, robust.SUSPECT), ok))
     counted = [sum(r.ok and np.isfinite(r.residual[i]).all() for r in rows) for i in range(2)]
     for k in range(0, windows, 2):  # two windows per batch
-        d._publish(PoseBatch.from_rows(rows[k : k + 2]))
+        d.publisher.publish(PoseBatch.from_rows(rows[k : k + 2]))
     assert d.poses == windows
-    a, b = d._source_messages(now=1.0)
+    a, b = d.publisher.source_messages(now=1.0)
     assert a["residual"] == pytest.approx((sums[0] / counted[0]) ** 0.5, rel=1e-12)
     assert b["residual"] == pytest.approx((sums[1] / counted[1]) ** 0.5, rel=1e-12)
     assert (a["state"], b["state"]) == ("tracking", "suspect")
-    assert len(d._window_residuals) == 0
+    assert len(d.publisher.window_residuals) == 0

@@ -252,12 +252,12 @@ def test_daemon_keeps_running_while_a_rule_is_ambiguous(tmp_path):
         while time.monotonic() < deadline and not getattr(d, "_ready", False):
             time.sleep(0.02)
         assert th.is_alive() and d._ready, result
-        errors = [s.source.health.error or "" for s in d.slots]
+        errors = [s.source.health.error or "" for s in d.sensors.slots]
         assert all("2 devices match" in e and "event2" in e for e in errors), errors
         os.unlink(tmp_path / "dev/input/event2")  # unplug the look-alike
-        while time.monotonic() < deadline and not all(s.live for s in d.slots[:1]):
+        while time.monotonic() < deadline and not all(s.live for s in d.sensors.slots[:1]):
             time.sleep(0.05)
-        assert d.slots[0].live and d.slots[0].source.device.node.endswith("event1")
+        assert d.sensors.slots[0].live and d.sensors.slots[0].source.device.node.endswith("event1")
     finally:
         d.request_stop()
         th.join(10)

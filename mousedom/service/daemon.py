@@ -1,15 +1,18 @@
 """The daemon: one selectors loop over the sources, the tracker, the server and the signals.
 
-Data flows one way: sources -> ``Source.read`` -> ``Tracker.push`` -> ``Tracker.poll`` ->
-POSE lines -> ``Server`` queues.  The sources are read when the next window can close
-(``plan_wake``), not at every report.  There is no thread: signal handlers only set a flag
-and wake the loop through ``signal.set_wakeup_fd``; timers (window wake-ups, SOURCE status,
-watchdog, reattaching vanished sensors) are deadlines checked after each wait.  The clock
-and the source factory are injected (gpiozero style) so tests can swap them.
+Data flows one way: sources -> ``Sensors.read`` -> ``Tracker.push`` -> ``Tracker.poll`` ->
+``Publisher.publish`` -> the outputs (the socket's clients first).  The sources are read
+when the next window can close (``plan_wake``), not at every report.  There is no thread:
+signal handlers only set a flag and wake the loop through ``signal.set_wakeup_fd``; timers
+(window wake-ups, SOURCE status, watchdog, reattaching vanished sensors) are deadlines
+checked after each wait.  The clock and the source factory are injected (gpiozero style)
+so tests can swap them.
 
-One idea per file: this one holds the loop and the lifecycle; the sensors are
-``slots.SensorSlots``, what is sent ``publish.Publisher``, what clients may ask
-``control.ClientCommands``, SIGHUP ``reload.Reloader``, and when to read ``wake.plan_wake``.
+The daemon is the composition root: it owns the loop, the lifecycle and the signals, and
+wires parts that own their state (docs/architecture.md): the running config and tracker
+(running.Running, which a reload swaps), the sensors (slots.Sensors), what is sent
+(publish.Publisher, to output.Output destinations), what clients may ask
+(control.ClientCommands) and SIGHUP (reload.Reloader).
 
 Degraded operation: a source that raises SourceGone (ENODEV, EOF, serial error) is marked
 not live in the tracker, which then fuses the rest if the model keeps its rank and says
@@ -27,20 +30,26 @@ import selectors
 import signal
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from mousedom import invocation
 from mousedom.config import Config, MouseConfig
 from mousedom.service.control import ClientCommands
 from mousedom.service.factory import make_source
-from mousedom.service.publish import Publisher
+from mousedom.service.output import Output
+from mousedom.service.publish import Outputs, Publisher, SocketOutput
 from mousedom.service.reload import Reloader
-from mousedom.service.scales import ScaleLog
+from mousedom.service.running import Running
 from mousedom.service.sdnotify import Notifier, watchdog_interval
-from mousedom.service.server import Server
-from mousedom.service.slots import SensorSlots, Slot
+from mousedom.service.server import Client, Command, Server
+from mousedom.service.slots import Sensors, Slot
 from mousedom.service.wake import WAKE_SLACK_S, plan_wake
 from mousedom.sources.base import Source
+
+if TYPE_CHECKING:
+    from mousedom.fusion.tracker import Tracker
+    from mousedom.service.live_record import Recording
+    from mousedom.service.metrics import MetricsExporter, WindowCpu
 
 __all__ = ["WAKE_SLACK_S", "Daemon", "Slot", "make_source", "plan_wake"]
 
@@ -55,7 +64,7 @@ STATUS_S = 1.0  # SOURCE broadcast period
 CLIENT_BUDGET_S = 0.004
 
 
-class Daemon(SensorSlots, Publisher, ClientCommands, Reloader):
+class Daemon:
     """Runs until stopped; ``run()`` returns the exit code."""
 
     def __init__(
@@ -68,59 +77,99 @@ class Daemon(SensorSlots, Publisher, ClientCommands, Reloader):
         notifier: Notifier | None = None,
         handle_signals: bool = True,
         record: str | None = None,
-        outputs: list | None = None,
+        outputs: list[Output] | None = None,
     ) -> None:
-        from mousedom.fusion.tracker import Tracker  # late: the numeric core loads only when run
+        # late: the numeric core loads when a daemon is made, not with the CLI
+        from mousedom.fusion.tracker import Tracker
 
-        self._tracker_class = Tracker
-        self.config = config
         self.clock = clock
         self.source_factory = source_factory
         self.notifier = notifier or Notifier()
         self.handle_signals = handle_signals
         self.selector = selectors.DefaultSelector()
-        # The sources have an epoll of their own, waited on with the main one only while a
-        # window waits for reports (see _select).  A bare epoll, not a selector: it is
-        # asked once per window, and selectors' Python layer cost more than the syscall.
-        self.src_poll = select.epoll()
-        self.slot_by_fd: dict[int, Slot] = {}
-        self._watching = False  # wake on readable sources (a window is due, not closed yet)
         self.server = Server(
             socket_path, config.server, self.selector, self._on_command, self._on_connect
         )
-        self.slots: list[Slot] = []
-        self.missing_names: tuple[str, ...] = ()  # see _live_changed
-        self.plan_slots: list[tuple] = []
-        self._names_by_state: dict[tuple, tuple] = {}
-        # Each window's residuals and the last window's health, folded into the slots
-        # when a SOURCE message is made (see Publisher._fold_window_health).
-        self._window_residuals: list = []
-        self._last_health: tuple | None = None
-        # The learnt scales' warnings, logged when they appear, persist or end (scales.py)
-        self.scale_log = ScaleLog()
         self.record_path = record
-        self.recording: Any = None  # live_record.Recording while --record is on
-        # Where else each window goes (ROS 2 over DDS, an MCAP file): publish(row),
-        # moved(before, after), sources(messages, t), close() (see publish.py)
-        self.outputs: list[Any] = list(outputs or ())
+        self._recording: Recording | None = None
+        # Where else each window goes (ROS 2 over DDS, an MCAP file, Foxglove); the
+        # recording and the metrics join them when run() starts them.
+        self.outputs = Outputs(outputs or ())
         # outputs.metrics: the Prometheus endpoint (metrics.py), started by run(), and the
         # CPU clock around each window's work (None: metrics off, nothing is timed)
-        self.metrics: Any = None
-        self.window_cpu: Any = None
-        self.tracker: Any = None
+        self.metrics: MetricsExporter | None = None
+        self.window_cpu: WindowCpu | None = None
+        # The parts, around the running config and its tracker (whose windows start
+        # again when run() starts the loop)
+        self.running = Running(config, Tracker(config, t0=clock()))
+        self.sensors = Sensors(
+            self.running, clock, source_factory, self.outputs, self._sources_changed
+        )
+        self.publisher = Publisher(
+            self.running,
+            self.sensors,
+            SocketOutput(self.server, self.sensors, self.running),
+            self.outputs,
+            clock,
+        )
+        self.commands = ClientCommands(self.running, clock, self.publisher, self)
+        self.reloader = Reloader(
+            self.running,
+            clock,
+            self.notifier,
+            self.sensors,
+            self.publisher,
+            self.server,
+            Tracker,
+            self._restart_only,
+        )
         self.started = clock()
-        self.poses = 0
-        self.last_pose_t = -math.inf  # POSE times never step back, across reloads too
         self.wakes = 0  # loop iterations: what the reading policy costs (see _plan)
-        self.source_reads = 0
-        self.not_updated = 0
         self._stop = False
         self._reload = False
+        self._watching = False  # wake on readable sources (a window is due, not closed yet)
         self._wake_r, self._wake_w = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
         self._status_text = ""
         self._ready = False
         self._old_handlers: dict[int, Any] = {}
         self._old_wakeup: int | None = None
+
+    # ------------------------------------------------------------------ what others read
+
+    @property
+    def config(self) -> Config:
+        return self.running.config
+
+    @property
+    def tracker(self) -> Tracker:
+        return self.running.tracker
+
+    @property
+    def poses(self) -> int:
+        return self.publisher.poses
+
+    @property
+    def not_updated(self) -> int:
+        return self.publisher.not_updated
+
+    @property
+    def source_reads(self) -> int:
+        return self.sensors.reads
+
+    @property
+    def recording(self) -> Recording | None:
+        """The live recording (--record) while it runs: a failure or a reload with other
+        mice stops it."""
+        rec = self._recording
+        return rec if rec is not None and rec in self.outputs.items else None
+
+    @property
+    def clients(self) -> int:
+        return len(self.server.clients)
+
+    @property
+    def dropped_clients(self) -> int:
+        return self.server.dropped
 
     # ------------------------------------------------------------------ control from outside
 
@@ -169,56 +218,59 @@ class Daemon(SensorSlots, Publisher, ClientCommands, Reloader):
         self.selector.register(self._wake_r, selectors.EVENT_READ, self._drain_wake)
         try:
             self.server.refuse_if_taken()  # before any sensor is opened (and grabbed)
-            now = self.clock()
-            self.tracker = self._tracker_class(self.config, t0=now)
-            self.slots = [self._new_slot(i, m) for i, m in enumerate(self.config.mice)]
-            self._live_changed()
-            for slot in self.slots:
-                self._try_open(slot, now)
-            # Nothing stamped before the start is still to come; this also gives the
-            # tracker a finite frontier before the first report (its poll needs one).
-            self.tracker.complete_until(now - max(s.latency for s in self.slots))
-            if self.record_path:
-                from mousedom.service.live_record import Recording
-
-                kinds = [s.source.kind for s in self.slots]
-                self.recording = Recording(self.record_path, self.config, kinds)
-                log.info("recording the sensors' reports to %s", self.record_path)
-            if self.config.metrics is not None:  # before the socket: a taken port stops us
-                from mousedom.service.metrics import MetricsExporter
-
-                self.metrics = MetricsExporter(self.config.metrics, self)
-                self.window_cpu = self.metrics.window_cpu
-            self.server.open()
-            log.info(
-                "listening on %s; watch it with: %s",
-                self.server.path,
-                invocation.command("watch", "--socket", self.server.path),
-            )
-            self._status_text = self._status_line()
-            self.notifier.ready(self._status_text)
-            self._ready = True
+            self._start()
             self._loop()
         finally:
             self._shutdown()
         return 0
+
+    def _start(self) -> None:
+        """The windows start now; the sensors open; the recording, the metrics and the
+        socket start (in that order: a taken port or socket stops us before clients come)."""
+        now = self.clock()
+        config = self.config
+        self.running.replace(config, self.reloader.tracker_class(config, t0=now))
+        self.sensors.start(now)
+        # Nothing stamped before the start is still to come; this also gives the
+        # tracker a finite frontier before the first report (its poll needs one).
+        self.tracker.complete_until(now - self.sensors.max_latency())
+        if self.record_path:
+            from mousedom.service.live_record import Recording
+
+            kinds = [s.source.kind for s in self.sensors.slots]
+            self._recording = Recording(self.record_path, config, kinds)
+            self.outputs.add(self._recording)
+            log.info("recording the sensors' reports to %s", self.record_path)
+        if config.metrics is not None:
+            from mousedom.service.metrics import MetricsExporter
+
+            self.metrics = MetricsExporter(config.metrics, self)
+            self.window_cpu = self.metrics.window_cpu
+            self.outputs.add(self.metrics)
+        self.server.open()
+        log.info(
+            "listening on %s; watch it with: %s",
+            self.server.path,
+            invocation.command("watch", "--socket", self.server.path),
+        )
+        self._status_text = self._status_line()
+        self.notifier.ready(self._status_text)
+        self._ready = True
 
     def _loop(self) -> None:
         now = self.clock()
         next_status = now + STATUS_S
         wd_interval = watchdog_interval()
         next_watchdog = now if wd_interval else math.inf
+        sensors, publisher, server = self.sensors, self.publisher, self.server
         while not self._stop:
             now = self.clock()
             wake_at, give_up = self._plan()
             watching = self._watching = now >= wake_at  # (see _select)
-            retry = math.inf
-            if self.missing_names:  # a sensor to look for again
-                retry = min(s.retry_at for s in self.slots if not s.live)
+            retry = sensors.next_retry()  # a sensor to look for again, or inf
             deadline = min(give_up if watching else wake_at, next_status, next_watchdog, retry)
             events = self._select(deadline)
             self.wakes += 1
-            server = self.server
             server.tick(self.clock())
             if len(events) == 1 and not server.backlog:
                 events[0][0].data(events[0][1])  # the usual wake: one event, nothing owed
@@ -228,31 +280,31 @@ class Daemon(SensorSlots, Publisher, ClientCommands, Reloader):
                 break
             if self._reload:
                 self._reload = False
-                self._do_reload()
+                self.reloader.reload()
+                sensors, publisher = self.sensors, self.publisher
                 continue
             now = self.clock()
             if now >= wake_at:
-                timing = self.window_cpu
-                if timing is not None:
-                    timing.start(self.poses)
-                self._read_sources(now)
-                self._publish(self.tracker.poll())
-                if timing is not None:
-                    timing.stop(self.poses)
+                self._window(now)
             if now >= retry:
-                for slot in self.slots:
-                    if not slot.live and now >= slot.retry_at:
-                        self._try_open(slot, now)
+                sensors.retry(now)
             if now >= next_status:
                 next_status = max(next_status + STATUS_S, now)
-                self._broadcast_sources(now)
-                self._output_sources(now)
+                publisher.every_second(now)
                 self._update_status()
-                if self.recording is not None:
-                    self._record(self.recording.sync, self.tracker.frontier_time)
             if now >= next_watchdog:
                 self.notifier.watchdog()
                 next_watchdog = now + (wd_interval or math.inf)
+
+    def _window(self, now: float) -> None:
+        """Read the sensors, close the windows due, send them (timed for the metrics)."""
+        timing = self.window_cpu
+        if timing is not None:
+            timing.start(self.publisher.poses)
+        self.sensors.read_due(now)
+        self.publisher.publish(self.tracker.poll())
+        if timing is not None:
+            timing.stop(self.publisher.poses)
 
     def _dispatch(self, events: list[tuple[selectors.SelectorKey, int]]) -> None:
         """Handle a wake's events within CLIENT_BUDGET_S, starting at a place that turns
@@ -285,7 +337,7 @@ class Daemon(SensorSlots, Publisher, ClientCommands, Reloader):
             # While a window waits for reports, the sources' own epoll descriptor is
             # waited on too: one select on both, no epoll_ctl per window to add and
             # remove it from the main one.
-            fds = [main, self.src_poll.fileno()] if self._watching else [main]
+            fds = [main, self.sensors.fileno()] if self._watching else [main]
             ready, _, _ = select.select(fds, [], [], remaining)
             if main not in ready:
                 return []  # timed out, or a source is readable: nothing to dispatch
@@ -294,54 +346,78 @@ class Daemon(SensorSlots, Publisher, ClientCommands, Reloader):
     def _plan(self) -> tuple[float, float]:
         end = self.tracker.frontier_time + 1.0 / self.config.rate_hz
         return plan_wake(
-            end, [(period, latency, h and h.last_t) for period, latency, h in self.plan_slots]
+            end,
+            [(p, lat, h.last_t if h is not None else None) for p, lat, h in self.sensors.plan],
         )
 
-    def _read_sources(self, now: float) -> None:
-        for fd, _ in self.src_poll.poll(0):
-            slot = self.slot_by_fd.get(fd)
-            if slot is not None:
-                self._read_slot(slot, now)
-        completes = []
-        for slot in self.slots:
-            if slot.live and slot.paced:
-                self._read_slot(slot, now)
-            if slot.live:  # (a paced read may have lost it)
-                completes.append((slot.index, now - slot.latency))
-        if completes:
-            self.tracker.complete_each(completes)
-        else:
-            # Nothing can report: windows close on time, as "not updated" (the pose holds).
-            self.tracker.complete_until(now)
+    # ------------------------------------------------------------------ the parts' callbacks
+
+    def _on_connect(self, client: Client) -> list[dict[str, Any]]:
+        return self.commands.on_connect(client)
+
+    def _on_command(self, client: Client, cmd: Command) -> list[dict[str, Any]]:
+        return self.commands.on_command(client, cmd)
+
+    def _sources_changed(self, now: float) -> None:
+        """A sensor came or went: the clients hear of it now, and systemd's status."""
+        if self.server.clients:
+            self.publisher.socket.sources(self.publisher.source_messages(now), now)
+        self._update_status()
+
+    def _update_status(self) -> None:
+        """systemd's STATUS= line, sent when it changes."""
+        if not self._ready:
+            return  # READY=1 carries the first STATUS
+        status = self._status_line()
+        if status != self._status_text:
+            self._status_text = status
+            self.notifier.status(status)
+
+    def _status_line(self) -> str:
+        return self.sensors.status_line(len(self.server.clients))
+
+    def _restart_only(self, new: Config) -> list[str]:
+        """What of a reloaded config takes effect only at a restart, where it changed."""
+        changed = []
+        if new.server.socket and new.server.socket != self.server.path:
+            changed.append("server.socket")
+        # (not warned when the file has none: `run --metrics` may have turned it on)
+        running = self.metrics.cfg if self.metrics is not None else None
+        if new.metrics is not None and new.metrics != running:
+            changed.append("outputs.metrics")
+        return changed
+
+    # ------------------------------------------------------------------ the end
 
     def _shutdown(self) -> None:
         self.notifier.stopping()
-        if self.tracker is not None:
-            try:
-                for slot in self.slots:
-                    if slot.live:
-                        self._read_slot(slot)
-                self._publish(self.tracker.finish())
-            except Exception:  # noqa: BLE001 - shutting down: log, do not mask the exit
-                log.exception("flushing the last poses failed")
-        if self.recording is not None:
-            self._record(self.recording.close)
-            self.recording = None
-        if self.metrics is not None:
-            self.metrics.close()
-            self.metrics = self.window_cpu = None
+        try:
+            self.sensors.read_live()
+            self.publisher.publish(self.tracker.finish())
+        except Exception:  # noqa: BLE001 - shutting down: log, do not mask the exit
+            log.exception("flushing the last poses failed")
+        # The outputs the daemon started (the recording, the metrics); the caller's own
+        # (DDS, MCAP, Foxglove) are the caller's to close.
+        for out in list(self.outputs.items):
+            if out is self.metrics or out is self._recording:
+                self._close_output(out)
+        self.metrics = self.window_cpu = None
         self.server.close()
-        for slot in self.slots:
-            self._close_slot(slot)
+        self.sensors.close()
         if self.handle_signals:
             self._restore_signals()
         self.selector.close()
-        self.src_poll.close()
         os.close(self._wake_r)
         wake_w, self._wake_w = self._wake_w, -1
         os.close(wake_w)
         self.notifier.close()
-        log.info("stopped after %d poses", self.poses)
+        log.info("stopped after %d poses", self.publisher.poses)
+
+    def _close_output(self, out: Output) -> None:
+        try:
+            self.outputs.remove(out)
+        except Exception as e:  # noqa: BLE001 - as any output: logged, the stop goes on
+            log.error("%s: %s", out, getattr(e, "strerror", None) or e)
 
     def _drain_wake(self, mask: int) -> None:
         try:

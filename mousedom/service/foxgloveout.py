@@ -30,6 +30,7 @@ from typing import Any
 from mousedom.config import FoxgloveConfig, MouseConfig
 from mousedom.errors import UserError
 from mousedom.fusion import robust
+from mousedom.service.output import Output
 
 log = logging.getLogger(__name__)
 
@@ -81,7 +82,7 @@ def _quat(yaw: float) -> Any:
     return Quaternion(x=0.0, y=0.0, z=math.sin(0.5 * yaw), w=math.cos(0.5 * yaw))
 
 
-class FoxgloveOutput:
+class FoxgloveOutput(Output):
     """A Foxglove WebSocket server and its channels; ``publish`` per window."""
 
     def __init__(

@@ -18,6 +18,7 @@ from mousedom.capture.base import DeviceInfo
 from mousedom.capture.native import NativeWriter
 from mousedom.config import Config, MouseConfig
 from mousedom.errors import UserError
+from mousedom.service.output import Output
 
 log = logging.getLogger(__name__)
 
@@ -32,8 +33,12 @@ def _device(mouse: MouseConfig, source_kind: str) -> DeviceInfo:
     return DeviceInfo(name=mouse.name, kind="evdev", mouse=mouse.name, rel_xy=True, extra=extra)
 
 
-class Recording:
-    """An open native capture of the daemon's input."""
+class Recording(Output):
+    """An open native capture of the daemon's input: an output that keeps the reports.
+
+    A recording that cannot be written (full disk, file size limit) fails as any output
+    does: it is logged and stopped, the file keeps what reached it (all but the torn last
+    chunk), and the fusion, which robots rely on, goes on."""
 
     def __init__(self, path: str, config: Config, source_kinds: list[str]) -> None:
         text = None
@@ -55,17 +60,28 @@ class Recording:
             raise UserError(f"{path}: cannot write the recording: {e.strerror}") from None
         self.path = path
         self.names = config.names
-        self.reports = 0
+        self.reports_kept = 0
 
-    def motion(self, index: int, t: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> None:
+        self.closed = False
+
+    def __str__(self) -> str:
+        return f"the recording {self.path}"
+
+    def publish(self, row: object) -> None:
+        pass  # the poses are made again by replaying the reports
+
+    def reports(self, index: int, t: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> None:
         # Live sources deliver whole counts; the format stores them as int32.
         self.writer.motion(index, t, np.rint(dx), np.rint(dy))
-        self.reports += len(t)
+        self.reports_kept += len(t)
 
-    def sync(self, complete: float) -> None:
+    def checkpoint(self, complete: float) -> None:
         """Everything stamped up to ``complete`` is in the file (a crash keeps it)."""
         self.writer.sync(complete)
 
     def close(self) -> None:
+        if self.closed:
+            return
+        self.closed = True
         self.writer.close()
-        log.info("recording %s closed: %d reports", self.path, self.reports)
+        log.info("recording %s closed: %d reports", self.path, self.reports_kept)

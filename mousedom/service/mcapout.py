@@ -18,6 +18,7 @@ from mousedom.safewrite import open_stream
 from mousedom.service import ros2cdr as cdr
 from mousedom.service import ros2conv as conv
 from mousedom.service import ros2msgs as msgs
+from mousedom.service.output import Output
 
 INSTALL_HINT = "MCAP output needs mcap, which is not installed: pip install 'mousedom[ros2]'"
 
@@ -38,7 +39,7 @@ def require() -> None:
         raise UserError(INSTALL_HINT) from None
 
 
-class McapRecorder:
+class McapRecorder(Output):
     def __init__(
         self,
         path: str,

@@ -34,6 +34,7 @@ from typing import Any, NamedTuple, Protocol
 from mousedom.config import MetricsConfig
 from mousedom.errors import UserError
 from mousedom.fusion import robust
+from mousedom.service.output import Output
 
 log = logging.getLogger(__name__)
 
@@ -61,17 +62,27 @@ def require() -> None:
 class Watched(Protocol):
     """What the collector reads of the daemon at a scrape."""
 
-    poses: int  # POSE lines made so far
-    not_updated: int  # of which held (no rank: no motion invented)
-    server: Any  # .clients (a dict), .dropped (clients dropped for not reading)
-    tracker: Any  # .pose_cov, a 3x3 over (x, y, theta); None until the loop starts
+    @property
+    def poses(self) -> int: ...  # POSE lines made so far
+
+    @property
+    def not_updated(self) -> int: ...  # of which held (no rank: no motion invented)
+
+    @property
+    def clients(self) -> int: ...  # clients connected to the socket
+
+    @property
+    def dropped_clients(self) -> int: ...  # clients dropped for not reading
+
+    @property
+    def tracker(self) -> Any: ...  # .pose_cov, a 3x3 over (x, y, theta)
 
 
 class MouseFigures(NamedTuple):
     """One mouse's SOURCE figures, as the last SOURCE message said them."""
 
     name: str
-    rate_hz: float
+    reports_per_s: float  # measured (the SOURCE message's "rate_hz" on the wire)
     reports: int
     dropped: int
     residual: float | None  # metres, RMS over the last second's windows
@@ -111,7 +122,7 @@ def _mouse_figures(messages: list[dict[str, Any]]) -> tuple[MouseFigures, ...]:
     return tuple(
         MouseFigures(
             name=str(m["name"]),
-            rate_hz=float(m.get("rate_hz") or 0.0),
+            reports_per_s=float(m.get("rate_hz") or 0.0),
             reports=int(m.get("reports") or 0),
             dropped=int(m.get("dropped") or 0),
             residual=m.get("residual"),
@@ -145,14 +156,13 @@ class DaemonCollector:
             "Windows whose pose was held: the live mice left the model without rank",
             value=d.not_updated,
         )
-        server = d.server
         yield GaugeMetricFamily(
-            "mousedom_clients", "Clients connected to the Unix socket", value=len(server.clients)
+            "mousedom_clients", "Clients connected to the Unix socket", value=d.clients
         )
         yield CounterMetricFamily(
             "mousedom_clients_dropped",
             "Clients dropped for not reading (their queue overflowed, or idle too long)",
-            value=server.dropped,
+            value=d.dropped_clients,
         )
         tracker = d.tracker
         if tracker is not None:
@@ -209,7 +219,7 @@ class DaemonCollector:
             labels=["mouse", "state"],
         )
         for m in mice:
-            rate.add_metric([m.name], m.rate_hz)
+            rate.add_metric([m.name], m.reports_per_s)
             reports.add_metric([m.name], m.reports)
             dropped.add_metric([m.name], m.dropped)
             if m.residual is not None:
@@ -230,7 +240,7 @@ def _quiet_handler() -> type:
     return Handler
 
 
-class MetricsExporter:
+class MetricsExporter(Output):
     """The registry, the collector and the HTTP server on its own thread."""
 
     def __init__(self, cfg: MetricsConfig, daemon: Watched) -> None:
@@ -277,12 +287,16 @@ class MetricsExporter:
         host = f"[{cfg.host}]" if family == socket.AF_INET6 else cfg.host
         log.info("Prometheus metrics on http://%s:%d/metrics", host, self.port)
 
+    def publish(self, row: Any) -> None:
+        pass  # the counters are read from the daemon at a scrape
+
     def sources(self, messages: list[dict[str, Any]], t: float) -> None:
         """The daemon's SOURCE messages (once a second): each mouse's figures."""
         self.collector.mice = _mouse_figures(messages)
 
     def close(self) -> None:
-        httpd, self.httpd = getattr(self, "httpd", None), None
+        httpd = getattr(self, "httpd", None)
+        self.httpd = None  # type: ignore[assignment]  # closed: a second close does nothing
         if httpd is not None:
             httpd.shutdown()
             httpd.server_close()

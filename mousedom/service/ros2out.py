@@ -31,6 +31,7 @@ from mousedom.errors import UserError
 from mousedom.service import ros2cdr as cdr
 from mousedom.service import ros2conv as conv
 from mousedom.service import ros2msgs as msgs
+from mousedom.service.output import Output
 
 log = logging.getLogger(__name__)
 
@@ -184,7 +185,7 @@ class _RawWriter:
         self.writer.write(sample)
 
 
-class Ros2Output:
+class Ros2Output(Output):
     """One DDS participant and its writers; ``publish`` per window (see the module)."""
 
     def __init__(

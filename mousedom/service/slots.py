@@ -1,32 +1,59 @@
 """The daemon's sensors: one slot per configured mouse, opened, read, lost and retried.
 
-A mixin of ``Daemon`` (one idea per file; the state is the daemon's own): it uses
-``self.slots``, ``self.src_poll``, ``self.slot_by_fd``, ``self.tracker``, ``self.recording``,
-``self.clock``, ``self.source_factory`` and ``self.notifier``, and calls
-``self._broadcast_sources``.
+``Sensors`` owns the slots, the epoll of their descriptors and what the rest of the daemon
+reads of them (the names of the missing ones, the health names per pattern of states, what
+the wake planning needs).  It needs from outside only what it is given: the running config
+and tracker (running.py), the clock, the source factory, where the reports go besides the
+tracker (``ReportSink``: the outputs that keep them) and whom to tell when a sensor comes
+or goes (``on_change``).
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import select
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple, Protocol
+
+import numpy as np
 
 from mousedom.config import MouseConfig
-from mousedom.errors import UserError
-from mousedom.sources.base import Source, SourceGone, SourceUnavailable
+from mousedom.fusion.robust import Health, Reason
+from mousedom.service.factory import source_key
+from mousedom.service.running import Running
+from mousedom.sources.base import Source, SourceGone, SourceHealth, SourceUnavailable
 
 log = logging.getLogger(__name__)
 
+Clock = Callable[[], float]
+SourceFactory = Callable[[MouseConfig, Clock], Source]
+
 RETRY_S = 1.0  # how often a vanished sensor is looked for again
-DEFAULT_LATENCY_S = 0.003  # how late a report may reach us after its stamp (silence rule)
+
+
+class ReportSink(Protocol):
+    """Where a sensor's reports go besides the tracker (the live recording)."""
+
+    wants_reports: bool
+
+    def reports(self, index: int, t: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> None: ...
+
+
+class PlannedSensor(NamedTuple):
+    """What the wake planning reads of a live sensor: its report period, how late its
+    reports may come, and the health whose ``last_t`` is its last report (None for a
+    paced source, which hands over every report due)."""
+
+    period: float
+    latency: float
+    health: SourceHealth | None
 
 
 @dataclass
 class Slot:
-    """One configured sensor as the loop sees it."""
+    """One configured sensor as the loop sees it, and the figures its SOURCE says."""
 
     index: int
     mouse: MouseConfig
@@ -34,34 +61,116 @@ class Slot:
     live: bool = False
     fd: int | None = None
     retry_at: float = 0.0
-    latency: float = DEFAULT_LATENCY_S
+    latency: float = Source.latency
     paced: bool = False  # no readable fd: read on the loop's own schedule (replay)
     residual_sq: float = 0.0
     residual_n: int = 0
     residual_rms: float | None = None
-    health_state: int = 0  # robust.STATES index after the last window
-    health_reason: int = 0  # robust.REASONS index
+    health_state: Health = Health.TRACKING  # after the last window folded in
+    health_reason: Reason = Reason.NONE
     announced: dict[str, Any] = field(default_factory=dict)
 
     @property
     def name(self) -> str:
         return self.mouse.name
 
+    def add_residual(self, rx: float, ry: float) -> None:
+        """One window's residual of this mouse into its sums (non-finite ones skipped)."""
+        if math.isfinite(rx) and math.isfinite(ry):
+            self.residual_sq += rx * rx + ry * ry
+            self.residual_n += 1
 
-class SensorSlots:
+    def take_rms(self) -> float | None:
+        """The RMS of the residuals since the last call (or the last one, if none came)."""
+        if self.residual_n:
+            self.residual_rms = (self.residual_sq / self.residual_n) ** 0.5
+            self.residual_sq, self.residual_n = 0.0, 0
+        return self.residual_rms
+
+
+class Sensors:
     """Opening, reading and losing the configured sensors (see the module docstring)."""
 
-    slots: list[Slot]
+    def __init__(
+        self,
+        running: Running,
+        clock: Clock,
+        source_factory: SourceFactory,
+        sink: ReportSink,
+        on_change: Callable[[float], None],
+    ) -> None:
+        self.running = running
+        self.clock = clock
+        self.source_factory = source_factory
+        self.sink = sink
+        self.on_change = on_change
+        # The sources have an epoll of their own, waited on with the main one only while a
+        # window waits for reports (daemon._select).  A bare epoll, not a selector: it is
+        # asked once per window, and selectors' Python layer cost more than the syscall.
+        self.poll = select.epoll()
+        self.slots: list[Slot] = []
+        self.by_fd: dict[int, Slot] = {}
+        self.missing_names: tuple[str, ...] = ()  # see _live_changed
+        self.plan: list[PlannedSensor] = []
+        self.names_by_state: dict[tuple[int, ...], tuple[tuple[str, ...], tuple[str, ...]]] = {}
+        self.reads = 0  # source reads: what the reading policy costs
+
+    # ------------------------------------------------------------------ lifecycle
+
+    def start(self, now: float) -> None:
+        """A slot per configured mouse, each opened (or its retry planned)."""
+        self.slots = [self._new_slot(i, m) for i, m in enumerate(self.running.config.mice)]
+        self._live_changed()
+        for slot in self.slots:
+            self.try_open(slot, now)
+
+    def max_latency(self) -> float:
+        return max((s.latency for s in self.slots), default=0.0)
+
+    def replace(self, mice: Sequence[MouseConfig], now: float) -> None:
+        """The slots of a reloaded config: a mouse whose device is unchanged keeps its open
+        source (and its place in the epoll); the others are closed, or opened anew.  The
+        running tracker is already the new one."""
+        old = {s.name: s for s in self.slots}
+        slots = []
+        for i, mouse in enumerate(mice):
+            prev = old.pop(mouse.name, None)
+            if prev is not None and source_key(prev.mouse) == source_key(mouse):
+                prev.index, prev.mouse = i, mouse
+                slots.append(prev)
+            else:
+                if prev is not None:
+                    self._close_slot(prev)
+                slots.append(self._new_slot(i, mouse))
+        for gone in old.values():
+            self._close_slot(gone)
+        self.slots = slots
+        self._live_changed()
+        tracker = self.running.tracker
+        for slot in slots:
+            if slot.live:
+                tracker.set_live(slot.index, True, now)
+            else:
+                self.try_open(slot, now)
+
+    def close(self) -> None:
+        for slot in self.slots:
+            self._close_slot(slot)
+        self.poll.close()
+
+    def fileno(self) -> int:
+        """The epoll of the sources' descriptors: readable when any sensor is."""
+        return self.poll.fileno()
+
+    # ------------------------------------------------------------------ opening
 
     def _new_slot(self, index: int, mouse: MouseConfig) -> Slot:
         source = self.source_factory(mouse, self.clock)
-        latency = float(getattr(source, "latency", DEFAULT_LATENCY_S))
-        paced = callable(getattr(source, "next_due", None))
-        if paced:
-            latency = 0.0  # a paced source hands over every report due by ``now``
-        return Slot(index=index, mouse=mouse, source=source, latency=latency, paced=paced)
+        # A paced source hands over every report due by ``now``: none comes late.
+        latency = 0.0 if source.paced else source.latency
+        return Slot(index, mouse, source, latency=latency, paced=source.paced)
 
-    def _try_open(self, slot: Slot, now: float) -> None:
+    def try_open(self, slot: Slot, now: float) -> None:
         try:
             slot.source.open()
             fd = slot.source.fileno()
@@ -71,18 +180,18 @@ class SensorSlots:
                 log.warning("%s: not available: %s (retrying every %gs)", slot.name, e, RETRY_S)
             slot.announced["error"] = slot.source.health.error
             slot.retry_at = now + RETRY_S
-            self.tracker.set_live(slot.index, False, now)
+            self.running.tracker.set_live(slot.index, False, now)
             return
         slot.fd = fd if fd is not None and fd >= 0 and not slot.paced else None
         if slot.fd is not None:
-            self.src_poll.register(slot.fd, select.EPOLLIN)
-            self.slot_by_fd[slot.fd] = slot
+            self.poll.register(slot.fd, select.EPOLLIN)
+            self.by_fd[slot.fd] = slot
         slot.live = True
         self._live_changed()
         slot.announced.pop("error", None)
-        self.tracker.set_live(slot.index, True, now)
+        self.running.tracker.set_live(slot.index, True, now)
         log.info("%s: open (%s)", slot.name, slot.source.kind)
-        self._sources_changed(now)
+        self.on_change(now)
 
     def _refuse_shared_device(self, slot: Slot) -> None:
         """Two mice whose rules resolve to one device would each read a share of its
@@ -101,10 +210,49 @@ class SensorSlots:
                 slot.source.health.error = why
                 raise SourceUnavailable(why)
 
-    def _read_slot(self, slot: Slot, now: float | None = None) -> None:
+    def next_retry(self) -> float:
+        """When a missing sensor is next looked for (inf: none is missing)."""
+        if not self.missing_names:
+            return math.inf
+        return min(s.retry_at for s in self.slots if not s.live)
+
+    def retry(self, now: float) -> None:
+        for slot in self.slots:
+            if not slot.live and now >= slot.retry_at:
+                self.try_open(slot, now)
+
+    # ------------------------------------------------------------------ reading
+
+    def read_due(self, now: float) -> None:
+        """Read what the sensors hold for the windows due at ``now``, and tell the tracker
+        how far each live sensor's reports are complete."""
+        for fd, _ in self.poll.poll(0):
+            slot = self.by_fd.get(fd)
+            if slot is not None:
+                self.read(slot, now)
+        completes = []
+        for slot in self.slots:
+            if slot.live and slot.paced:
+                self.read(slot, now)
+            if slot.live:  # (a paced read may have lost it)
+                completes.append((slot.index, now - slot.latency))
+        tracker = self.running.tracker
+        if completes:
+            tracker.complete_each(completes)
+        else:
+            # Nothing can report: windows close on time, as "not updated" (the pose holds).
+            tracker.complete_until(now)
+
+    def read_live(self) -> None:
+        """Everything the live sensors hold now (before a reload or a stop)."""
+        for slot in self.slots:
+            if slot.live:
+                self.read(slot)
+
+    def read(self, slot: Slot, now: float | None = None) -> None:
         if now is None:
             now = self.clock()
-        self.source_reads += 1
+        self.reads += 1
         try:
             batches = slot.source.read(now)
         except SourceGone as e:
@@ -116,32 +264,16 @@ class SensorSlots:
             slot.source.health.error = f"read failed: {e}"
             self._gone(slot, now, f"read failed: {e}")
             return
+        tracker = self.running.tracker
         for batch in batches:
             t, dx, dy = batch.columns()
             if len(t):
                 # As the source holds them: a live read's lists go on without numpy.
-                self.tracker.push(slot.index, t, dx, dy)
+                tracker.push(slot.index, t, dx, dy)
                 if batch.quality is not None:
-                    self.tracker.push_quality(slot.index, *batch.quality)
-                if self.recording is not None:
-                    self._record(self.recording.motion, slot.index, batch.t, batch.dx, batch.dy)
-
-    def _record(self, write: Callable[..., None], *args: Any) -> None:
-        """A recording that cannot be written (full disk, file size limit) stops, logged;
-        the fusion, which robots rely on, goes on."""
-        try:
-            write(*args)
-        except (OSError, UserError) as e:
-            log.error(
-                "recording %s stopped: %s; the daemon goes on without it",
-                self.recording.path,
-                getattr(e, "strerror", None) or e,
-            )
-            try:
-                self.recording.close()
-            except (OSError, UserError):
-                pass  # the file keeps what reached it (all but the torn last chunk)
-            self.recording = None
+                    tracker.push_quality(slot.index, *batch.quality)
+                if self.sink.wants_reports:
+                    self.sink.reports(slot.index, batch.t, batch.dx, batch.dy)
 
     def _gone(self, slot: Slot, now: float, why: str) -> None:
         log.warning(
@@ -149,14 +281,14 @@ class SensorSlots:
         )
         self._close_slot(slot)
         slot.retry_at = now + RETRY_S
-        self.tracker.set_live(slot.index, False, now)
-        self._sources_changed(now)
+        self.running.tracker.set_live(slot.index, False, now)
+        self.on_change(now)
 
     def _close_slot(self, slot: Slot) -> None:
         if slot.fd is not None:
-            self.slot_by_fd.pop(slot.fd, None)
+            self.by_fd.pop(slot.fd, None)
             try:
-                self.src_poll.unregister(slot.fd)
+                self.poll.unregister(slot.fd)
             except (OSError, ValueError):
                 pass  # not registered, or the epoll is closed already
             slot.fd = None
@@ -164,37 +296,38 @@ class SensorSlots:
         self._live_changed()
         slot.source.close()
 
+    # ------------------------------------------------------------------ what others read
+
     def _live_changed(self) -> None:
         """What the POSE lines say of the sensors, kept here rather than made per window:
         the names of those not live, the health names per pattern of states (a new set
         of slots may name them differently) and what the wake planning reads."""
         self.missing_names = tuple(s.name for s in self.slots if not s.live)
-        self._names_by_state = {}
-        # What the wake planning needs of each live sensor: (report period, latency, the
-        # health whose last_t is its last report, or None for a paced source).
-        self.plan_slots = [
-            (1.0 / s.mouse.report_hz, s.latency, None if s.paced else s.source.health)
+        self.names_by_state = {}
+        self.plan = [
+            PlannedSensor(1.0 / s.mouse.report_hz, s.latency, None if s.paced else s.source.health)
             for s in self.slots
             if s.live
         ]
 
-    def _sources_changed(self, now: float) -> None:
-        self._broadcast_sources(now)
-        self._update_status()
+    def names_for(self, state: Sequence[int]) -> tuple[tuple[str, ...], tuple[str, ...]]:
+        """(excluded, suspect) sensor names for a window's per-mouse states (cached per
+        pattern: a rig has few, and this runs for every window)."""
+        key = tuple(state)  # rows from arrays hold lists
+        names = self.names_by_state.get(key)
+        if names is None:
+            ex = tuple(s.name for s, v in zip(self.slots, key, strict=False)
+                       if v == Health.EXCLUDED)  # fmt: skip
+            su = tuple(s.name for s, v in zip(self.slots, key, strict=False)
+                       if v == Health.SUSPECT)  # fmt: skip
+            names = self.names_by_state[key] = (ex, su)
+        return names
 
-    def _update_status(self) -> None:
-        """systemd's STATUS= line, sent when it changes."""
-        if not self._ready:
-            return  # READY=1 carries the first STATUS
-        status = self._status_line()
-        if status != self._status_text:
-            self._status_text = status
-            self.notifier.status(status)
-
-    def _status_line(self) -> str:
+    def status_line(self, clients: int) -> str:
+        """systemd's STATUS= text."""
         live = [s.name for s in self.slots if s.live]
         gone = [s.name for s in self.slots if not s.live]
         text = f"{len(live)}/{len(self.slots)} sensors live"
         if gone:
             text += "; missing: " + ", ".join(gone)
-        return text + f"; {len(self.server.clients)} clients"
+        return text + f"; {clients} clients"

@@ -1,0 +1,73 @@
+"""Where the daemon's windows and reports go: the ``Output`` interface.
+
+Every destination implements it: the Unix socket's clients (publish.SocketOutput), ROS 2
+over DDS (ros2out), an MCAP file (mcapout), the Foxglove view (foxgloveout), the live
+recording of the sensors' reports (live_record) and the Prometheus figures (metrics).
+The publisher (publish.py) calls them in one order, window by window; an optional output
+that raises is logged and dropped, and the rest go on (the socket, which robots rely on,
+is not optional).  Only ``publish`` must be written: the other hooks default to nothing.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from typing import Any, Protocol
+
+import numpy as np
+
+Pose2 = tuple[float, float, float]  # (x, y, theta): metres, metres, radians
+
+
+class PoseRow(Protocol):
+    """One closed window as fusion.posebatch makes it (what an output reads of it)."""
+
+    t: float
+    x: float
+    y: float
+    theta: float
+    vx: float
+    vy: float
+    omega: float
+    cov: Any  # 3x3 over (x, y, theta), nested lists or an array
+    used: Any  # per mouse: 1 if its counts entered the solve
+    ok: bool
+    consistent: bool
+    state: Any  # per mouse: robust.Health values
+    reason: Any  # per mouse: robust.Reason values
+    residual: Any  # per mouse: (rx, ry) metres
+    counts: Any  # per mouse: (cx, cy) the window's counts
+
+
+class Output(ABC):
+    """A destination of the daemon's windows (see the module docstring)."""
+
+    @abstractmethod
+    def publish(self, row: Any) -> None:
+        """One closed window (a PoseRow), in time order."""
+
+    def reports(self, index: int, t: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> None:  # noqa: B027
+        """Reports of mouse ``index`` as read from its sensor (stamps, counts)."""
+
+    def checkpoint(self, complete: float) -> None:  # noqa: B027
+        """Once a second: every report stamped up to ``complete`` has been handed over."""
+
+    def sources(self, messages: list[dict[str, Any]], t: float) -> None:  # noqa: B027
+        """Once a second: the SOURCE messages (each sensor's health) at time ``t``."""
+
+    def moved(self, before: Pose2, after: Pose2) -> None:  # noqa: B027
+        """The pose was set from outside (reset, fix): it jumped from ``before``."""
+
+    def fixes(self) -> list[Pose2]:
+        """Poses this output was told from outside (ROS 2's /initialpose), to apply."""
+        return []
+
+    def close(self) -> None:  # noqa: B027
+        """Stop; called once more after a failure is harmless."""
+
+    def __str__(self) -> str:
+        return f"output {type(self).__name__}"
+
+    @property
+    def wants_reports(self) -> bool:
+        """Whether ``reports`` does anything (it is called per read: skipped if not)."""
+        return type(self).reports is not Output.reports
