@@ -8,11 +8,22 @@ import functools
 import logging
 import os
 import sys
+from typing import TYPE_CHECKING
 
 from mousedom import invocation
 from mousedom.commands import _options as options
-from mousedom.config import DEFAULT_CONFIG_PATH, ConfigError, load_config
+from mousedom.config import (
+    DEFAULT_CONFIG_PATH,
+    Config,
+    ConfigError,
+    MetricsConfig,
+    Ros2Config,
+    load_config,
+)
 from mousedom.errors import UserError
+
+if TYPE_CHECKING:
+    from mousedom.service.output import Output
 
 log = logging.getLogger(__name__)
 
@@ -98,6 +109,31 @@ def run(args: argparse.Namespace) -> int:
     from mousedom.service.server import default_socket_path
 
     configure_logging(bool(getattr(args, "verbose", False)))
+    config = _config(args)
+    for w in config.warnings:  # values that look like the wrong unit
+        log.warning("%s", w)
+    if config.metrics is not None:  # its install hint before any sensor is opened
+        from mousedom.service.metrics import require
+
+        require()
+    outputs: list[Output] = []
+    try:
+        _start_outputs(args, config, outputs)
+        socket_path = args.socket or config.server.socket or default_socket_path()
+        factory = functools.partial(make_source, loop=True) if args.demo else make_source
+        daemon = Daemon(config, socket_path, source_factory=factory, record=args.record,
+                        outputs=outputs)  # fmt: skip
+        return daemon.run()
+    finally:
+        for out in outputs:
+            try:
+                out.close()
+            except UserError as e:
+                log.error("%s", e)
+
+
+def _config(args: argparse.Namespace) -> Config:
+    """The rig: the demo's, or the file's, with what --ros2 and --metrics turn on."""
     if args.demo:
         if args.config:
             raise UserError("--demo and --config exclude each other")
@@ -114,51 +150,33 @@ def run(args: argparse.Namespace) -> int:
                 demo = invocation.command("run", "--demo")
                 raise ConfigError(f"{e} (give --config FILE, or try: {demo})") from None
             raise
-    for w in config.warnings:  # values that look like the wrong unit
-        log.warning("%s", w)
     if args.ros2 and config.ros2 is None:
-        from mousedom.config import Ros2Config
-
         config = dataclasses.replace(config, ros2=Ros2Config())
     if args.metrics and config.metrics is None:
-        from mousedom.config import MetricsConfig
-
         config = dataclasses.replace(config, metrics=MetricsConfig())
-    if config.metrics is not None:  # its install hint before any sensor is opened
-        from mousedom.service.metrics import require
+    return config
 
-        require()
-    outputs = []
-    try:
-        if config.ros2 is not None:
-            from mousedom.service.ros2out import Ros2Output, Ros2Unavailable
 
-            try:
-                outputs.append(Ros2Output(config.ros2, config.names, config.rate_hz, config.mice))
-            except Ros2Unavailable as e:
-                if not config.ros2.optional:
-                    raise
-                log.error("%s; going on without it (outputs.ros2.optional)", e)
-        if config.foxglove is not None:
-            from mousedom.service.foxgloveout import FoxgloveOutput
+def _start_outputs(args: argparse.Namespace, config: Config, outputs: list[Output]) -> None:
+    """The optional outputs the config and the options ask for, appended to ``outputs``
+    as each starts (so that the caller closes those that did if a later one fails)."""
+    if config.ros2 is not None:
+        from mousedom.service.ros2out import Ros2Output, Ros2Unavailable
 
-            outputs.append(FoxgloveOutput(config.foxglove, config.names, config.mice))
-        if args.record_mcap:
-            from mousedom.config import Ros2Config
-            from mousedom.service.mcapout import McapRecorder, system_offset
+        try:
+            outputs.append(Ros2Output(config.ros2, config.names, config.rate_hz, config.mice))
+        except Ros2Unavailable as e:
+            if not config.ros2.optional:
+                raise
+            log.error("%s; going on without it (outputs.ros2.optional)", e)
+    if config.foxglove is not None:
+        from mousedom.service.foxgloveout import FoxgloveOutput
 
-            inputs = [config.path] + [m.replay for m in config.mice if m.replay]
-            outputs.append(McapRecorder(args.record_mcap, config.ros2 or Ros2Config(),
-                                        config.names, config.rate_hz, inputs,
-                                        offset=system_offset(config.ros2)))  # fmt: skip
-        socket_path = args.socket or config.server.socket or default_socket_path()
-        factory = functools.partial(make_source, loop=True) if args.demo else make_source
-        daemon = Daemon(config, socket_path, source_factory=factory, record=args.record,
-                        outputs=outputs)  # fmt: skip
-        return daemon.run()
-    finally:
-        for out in outputs:
-            try:
-                out.close()
-            except UserError as e:
-                log.error("%s", e)
+        outputs.append(FoxgloveOutput(config.foxglove, config.names, config.mice))
+    if args.record_mcap:
+        from mousedom.service.mcapout import McapRecorder, system_offset
+
+        inputs = [config.path] + [m.replay for m in config.mice if m.replay]
+        outputs.append(McapRecorder(args.record_mcap, config.ros2 or Ros2Config(),
+                                    config.names, config.rate_hz, inputs,
+                                    offset=system_offset(config.ros2)))  # fmt: skip

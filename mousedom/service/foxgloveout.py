@@ -98,6 +98,7 @@ class FoxgloveOutput(Output):
 
         self.cfg, self.sensors, self.mice = cfg, sensors, mice
         self.ctx = foxglove.Context()
+        self.closed = False
         try:
             self.server = foxglove.start_server(
                 name="mousedom", host=cfg.host, port=cfg.port, context=self.ctx
@@ -180,6 +181,6 @@ class FoxgloveOutput(Output):
         self.sources_ch.log({"t": t, "sources": messages})
 
     def close(self) -> None:
-        server, self.server = getattr(self, "server", None), None
-        if server is not None:
-            server.stop()
+        if not self.closed:
+            self.closed = True
+            self.server.stop()

@@ -10,7 +10,8 @@ a replay, ROS time (the system clock) from the daemon unless ``stamps: monotonic
 
 from __future__ import annotations
 
-from typing import Any  # noqa: F401
+from collections.abc import Sequence
+from typing import Any
 
 from mousedom.config import Ros2Config
 from mousedom.errors import UserError
@@ -46,7 +47,7 @@ class McapRecorder(Output):
         cfg: Ros2Config,
         sensors: tuple[str, ...],
         rate_hz: float,
-        inputs: list[str] = (),  # type: ignore[assignment]
+        inputs: Sequence[str | None] = (),  # files the recording was made from (None: none)
         offset: float = 0.0,
     ) -> None:
         require()
@@ -58,6 +59,7 @@ class McapRecorder(Output):
         self.path = path
         self.file = open_stream(path, list(inputs))
         self.writer = Writer(self.file, compression=CompressionType.ZSTD)
+        self.closed = False
         self.writer.start(profile="ros2", library=f"mousedom {__version__}")
         schemas = {
             t: self.writer.register_schema(msgs.ros2_name(t), "ros2msg", msgs.msgdef(t).encode())
@@ -114,12 +116,11 @@ class McapRecorder(Output):
         self._write(self.diag_ch, cdr.diagnostics(st, conv.diagnostics(st, messages)), ns)
 
     def close(self) -> None:
-        if self.writer is None:
+        if self.closed:
             return
+        self.closed = True
         try:
             self.writer.finish()
             self.file.close()
         except OSError as e:
             raise UserError(f"{self.path}: cannot write: {e.strerror or e}") from None
-        finally:
-            self.writer = None

@@ -329,14 +329,15 @@ def encode_pose(
     # bytecodes for the 16 values instead of a call each (this runs every window).
     values = (round(float(t), 6), *map(float, (*pose, *twist, *c0, *c1, *c2)))
     template = _POSE_FINITE
+    written: tuple[object, ...] = values
     # One sum is NaN or inf if a value is (or if finite values overflow it): then each
     # value is written on its own, null where JSON has no number.
     if not math.isfinite(sum(values)):
-        template, values = _POSE_ANY, tuple(_json_float(v) for v in values)
+        template, written = _POSE_ANY, tuple(_json_float(v) for v in values)
     return (
         template
         % (
-            *values,
+            *written,
             int(used),
             "true" if updating else "false",
             _json_names(missing),

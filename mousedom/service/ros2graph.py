@@ -30,19 +30,24 @@ def graph_types() -> tuple[type, type, type]:
     from cyclonedds.idl import IdlStruct
     from cyclonedds.idl import types as t
 
+    # (mypy does not read cyclonedds: IdlStruct is Any to it, and it still checks the
+    # class keyword ``typename`` against object.__init_subclass__: hence the ignores)
+
     @dataclass
-    class Gid_(IdlStruct, typename="rmw_dds_common::msg::dds_::Gid_"):
+    class Gid_(IdlStruct, typename="rmw_dds_common::msg::dds_::Gid_"):  # type: ignore[call-arg]
         data: t.array[t.uint8, GID_SIZE]
 
     @dataclass
-    class NodeEntitiesInfo_(IdlStruct, typename="rmw_dds_common::msg::dds_::NodeEntitiesInfo_"):
+    class NodeEntitiesInfo_(  # type: ignore[call-arg]
+        IdlStruct, typename="rmw_dds_common::msg::dds_::NodeEntitiesInfo_"
+    ):
         node_namespace: t.bounded_str[MAX_NAME]
         node_name: t.bounded_str[MAX_NAME]
         reader_gid_seq: t.sequence[Gid_]
         writer_gid_seq: t.sequence[Gid_]
 
     @dataclass
-    class ParticipantEntitiesInfo_(
+    class ParticipantEntitiesInfo_(  # type: ignore[call-arg]
         IdlStruct, typename="rmw_dds_common::msg::dds_::ParticipantEntitiesInfo_"
     ):
         gid: Gid_

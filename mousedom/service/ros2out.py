@@ -173,7 +173,7 @@ class _RawWriter:
     def __init__(self, writer: Any, cls: type) -> None:
         self.writer = writer
 
-        class Serialized(cls):  # type: ignore[misc, valid-type]
+        class Serialized(cls):
             def serialize(self, *args: Any, **kwargs: Any) -> bytes:  # noqa: ARG002
                 return self.cdr
 
@@ -278,11 +278,12 @@ class Ros2Output(Output):
         # The node in the ROS 2 graph (ros2 node list): its writers are ours.
         from mousedom.service.ros2graph import NodeAnnouncer
 
-        self.graph = NodeAnnouncer(self.participant, cfg.node_name, cfg.namespace or "/")
+        graph = NodeAnnouncer(self.participant, cfg.node_name, cfg.namespace or "/")
+        self.graph: NodeAnnouncer | None = graph  # (None once closed)
         mine = [w.writer for w in (self.odom, self.tf, self.diag, *self.counts) if w is not None]
         if self.tf_static is not None:
             mine.append(self.tf_static)
-        self.graph.announce([self.initialpose] if self.initialpose is not None else [], mine)
+        graph.announce([self.initialpose] if self.initialpose is not None else [], mine)
         self.sent = 0
         # CDR packed per window (ros2cdr: byte for byte what cyclonedds would serialise)
         self.odom_cdr = cdr.OdometryCdr(cfg.odom_frame, cfg.base_frame)

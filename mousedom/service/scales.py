@@ -60,7 +60,12 @@ def scale_fields(learner: Any, names: Sequence[str], applying: bool) -> list[dic
     (the learner's warning, or None).  ``scale`` and ``scale_spread`` are None where
     nothing is learnt: fewer than three mice, fault handling off, or too little motion
     yet."""
-    none = {"scale": None, "scale_spread": None, "scale_applied": False, "scale_warning": None}
+    none: dict[str, Any] = {
+        "scale": None,
+        "scale_spread": None,
+        "scale_applied": False,
+        "scale_warning": None,
+    }
     if learner is None:
         return [dict(none) for _ in names]
     warnings = warning_texts(learner, names)

@@ -488,7 +488,7 @@ class Server:
                 # Several lines per send: fewer syscalls when a client lags a little.
                 # The lines owed go first, then the sensors' latest states, then the
                 # latest POSE.
-                chunk = []
+                chunk: list[bytes] = []
                 while client.queue and len(chunk) < 64:
                     chunk.append(client.queue.popleft())
                 if not client.queue and client.states:
