@@ -31,9 +31,9 @@ whose codes include EV_REL with REL_X and REL_Y.
 from __future__ import annotations
 
 import re
-import warnings
 import weakref
 from collections.abc import Iterator
+from dataclasses import dataclass
 
 import numpy as np
 import yaml
@@ -50,14 +50,12 @@ from mousedom.capture.base import (
 )
 from mousedom.capture.base import open_binary as _open
 from mousedom.capture.libinput_layout import relayout
+from mousedom.capture.libinput_rows import backwards, cut_torn_tail, parse_rows
 from mousedom.capture.plain import discard
 from mousedom.errors import located
 from mousedom.sources.events import EV_REL, REL_X, REL_Y
 
 KNOWN_VERSIONS = (1,)
-# Seconds since the start of a recording: a century is far past any real one, and keeps
-# every time exact in float64 and the window arithmetic bounded.
-MAX_SECONDS = 3_155_760_000
 BLOCK_BYTES = 4 << 20
 
 _DEVICE = re.compile(rb"(?m)^[ \t]*- node[ \t]*:")
@@ -66,24 +64,6 @@ _DEVICE = re.compile(rb"(?m)^[ \t]*- node[ \t]*:")
 _FLOW_DEVICE = re.compile(rb"(?m)^[ \t]*- \{[ \t]*[\"']?node[\"']?[ \t]*:")
 _BLOCK_ROW = re.compile(rb"(?m)^[ \t]*- - ")
 _EVENTS = re.compile(rb"(?m)^[ \t]+events:[ \t]*(?:#.*)?$")
-_COMMENT = re.compile(rb"[ \t]*#[^\n]*")
-_ROW = re.compile(rb"(?m)^[ \t]*- \[([^\]\n]*)\][ \t]*$")
-_ROW_C = re.compile(rb"(?m)^[ \t]*- \[([^\]\n]*)\][ \t]*(?:#[^\n]*)?$")  # with a comment
-# Lines allowed in an event list besides rows: "- evdev:", "- hid:", keys of hid and
-# libinput entries, blanks (comments are stripped first).
-# An ``evdev:`` key with anything after it is not "other": it holds events (flow style).
-# ``- {time: ..., type: POINTER_MOTION, ...}``: an entry of a ``- libinput:`` list
-# (``libinput record --with-libinput``), never an evdev event.
-_OTHER = re.compile(
-    rb"(?m)^(?:[ \t]*- \[[^\]\n]*\][ \t]*"
-    rb"|[ \t]*(?:- )?(?!evdev:[ \t]*[^ \t\n])[A-Za-z_][\w-]*:.*"
-    rb"|[ \t]*- \{.*\}[ \t]*|[ \t]*)$"
-)
-# Flow style, as YAML allows and other writers produce: ``- evdev: [[0, 10, 2, 0, 1], ...]``.
-
-_FLOW_HINT = re.compile(rb"evdev:[ \t]*\[")
-_FLOW = re.compile(rb"(?m)^[ \t]*- evdev:[ \t]*\[(.*)\][ \t]*$")
-_FLOW_ROW = re.compile(rb"\[([^\[\]\n]*)\]")
 # A top-level key after the devices began: a second recording appended (``cat a.yml b.yml``).
 _TOP = re.compile(rb"(?m)^(?:version|ndevices|libinput|system|devices):")
 
@@ -104,15 +84,31 @@ def looks_like_libinput(prefix: bytes) -> bool:
     )
 
 
+@dataclass(frozen=True)
 class _Span:
     """Byte range of one device: header [start, events) and event list [events, end)."""
+
+    start: int
+    events: int
+    end: int
+    first_line: int
+    events_line: int  # 0: the device has no events list
+
+
+class _OpenSpan:
+    """A device's span while the index is being built: its ends not found yet."""
 
     def __init__(self, start: int) -> None:
         self.start = start
         self.events: int | None = None
-        self.end: int | None = None
         self.first_line = 0
         self.events_line = 0
+
+    def closed(self, end: int) -> _Span:
+        """The span, its end (and its event list, if none was found) at ``end``."""
+        if self.events is None:
+            return _Span(self.start, end, end, self.first_line, 0)
+        return _Span(self.start, self.events, end, self.first_line, self.events_line)
 
 
 class LibinputCapture(Capture):
@@ -176,7 +172,7 @@ class LibinputCapture(Capture):
         return bool(_FLOW_DEVICE.search(head) or _BLOCK_ROW.search(head))
 
     def _index(self) -> list[_Span]:
-        spans: list[_Span] = []
+        spans: list[_OpenSpan] = []
         line = 1
         offset = 0
         with _open(self.data_path) as f:
@@ -209,9 +205,7 @@ class LibinputCapture(Capture):
                             )
                         continue
                     if kind == 0:
-                        if spans:
-                            spans[-1].end = offset + pos
-                        span = _Span(offset + pos)
+                        span = _OpenSpan(offset + pos)
                         span.first_line = at_line
                         spans.append(span)
                     elif spans and spans[-1].events is None:
@@ -223,13 +217,9 @@ class LibinputCapture(Capture):
                 if eof:
                     break
         self._size = offset
-        if spans:
-            spans[-1].end = offset
-        for s in spans:
-            if s.events is None:
-                s.events = s.end
-                s.events_line = 0
-        return spans
+        # Each device ends where the next begins, the last at the end of the file.
+        ends = [s.start for s in spans[1:]] + [offset] if spans else []
+        return [s.closed(end) for s, end in zip(spans, ends, strict=True)]
 
     def _yaml(self, text: bytes, first_line: int):
         try:
@@ -276,7 +266,7 @@ class LibinputCapture(Capture):
         first = None
         for span in self._spans:
             for block, line in self._blocks(span, limit=1 << 16):
-                ev = self._parse(block, line)
+                ev = parse_rows(self.path, block, line)
                 if len(ev[0]):
                     t = float(ev[0][0])
                     first = t if first is None else min(first, t)
@@ -314,74 +304,6 @@ class LibinputCapture(Capture):
                 if limit:
                     return
 
-    def _parse(self, block: bytes, line: int):
-        """(t, type, code, value) arrays of the evdev rows of a block of whole lines."""
-        rows = _ROW_C.findall(block)
-        flow = _FLOW_HINT.search(block) is not None
-        # Quick check: every line is a row or "- evdev:"; else look at each line closely.
-        if flow or len(rows) + block.count(b"- evdev:") != block.count(b"\n"):
-            text = _COMMENT.sub(b"", block) if b"#" in block else block
-            if flow:
-                text = _FLOW.sub(_flow_rows, text)
-            if len(_OTHER.sub(b"", text).strip()) != 0:
-                self._complain(block, line)
-            rows = _ROW.findall(text)
-        n = len(rows)
-        if n == 0:
-            e = np.empty(0, np.int64)
-            return np.empty(0, np.float64), e, e, e
-        joined = b",".join(rows)
-        try:
-            if not _every_field_has_a_digit(joined):
-                # numpy reads a blank field, or a lone "+" or "-", as 0: "[1, , 0, 0, 5]"
-                raise ValueError
-            with warnings.catch_warnings():
-                warnings.simplefilter("error")
-                a = np.fromstring(joined, dtype=np.int64, sep=",")
-        except (ValueError, DeprecationWarning):
-            a = None
-        if a is None or len(a) != 5 * n:
-            self._complain(block, line)
-        a = a.reshape(n, 5)
-        if (
-            (a[:, :4] < 0).any()
-            or (a[:, 0] >= MAX_SECONDS).any()
-            or (a[:, 2:4] > 0xFFFF).any()
-            or (a[:, 1] >= 1_000_000).any()
-            or (a[:, 4] < -(2**31)).any()  # an evdev value is a signed 32-bit integer
-            or (a[:, 4] >= 2**31).any()
-        ):
-            self._complain(block, line)
-        return a[:, 0] + a[:, 1] / 1_000_000, a[:, 2], a[:, 3], a[:, 4]
-
-    def _complain(self, block: bytes, line: int) -> None:
-        """Find the first bad line of a block that failed the quick checks, and say so."""
-        for i, raw in enumerate(block.split(b"\n")):
-            text = _COMMENT.sub(b"", raw)
-            m = _ROW.match(text)
-            flow = _FLOW.match(text)
-            if m or flow:
-                if flow and _FLOW_ROW.sub(b"", flow.group(1)).replace(b",", b"").strip():
-                    raise CaptureError(
-                        located(self.path, line + i, f"malformed evdev event list: {_show(raw)}")
-                    )
-                for row in [m.group(1)] if m else _FLOW_ROW.findall(flow.group(1)):
-                    if not _row_ok(row):
-                        raise CaptureError(
-                            located(
-                                self.path,
-                                line + i,
-                                "an evdev event must be [sec, usec, type, code, value] "
-                                "(non-negative integers, but the value: a signed 32-bit "
-                                f"one), got [{_show(row)}]",
-                            )
-                        )
-            elif not _OTHER.fullmatch(text):
-                raise CaptureError(
-                    located(self.path, line + i, f"unexpected line in events: {_show(raw)}")
-                )
-        raise CaptureError(located(self.path, line, "malformed events"))
-
     def _batches(self, index: int) -> Iterator[Batch]:
         stats = self.stats[index]
         span = self._spans[index]
@@ -390,103 +312,20 @@ class LibinputCapture(Capture):
         at_end = span.end == self._size
         for block, line in self._blocks(span):
             if at_end and not block.endswith(b"\n"):
-                block = self._cut_torn_tail(block, line, stats)
-            t, typ, code, value = self._parse(block, line)
+                block = cut_torn_tail(self.path, block, line, stats, self.warnings)
+            t, typ, code, value = parse_rows(self.path, block, line)
             if not len(t):
                 continue
             if t[0] < last_t or (np.diff(t) < 0).any():
-                self._backwards(block, line, last_t)
+                backwards(self.path, block, line, last_t)
             last_t = float(t[-1])
             yield frames.batch(t, typ, code, value)
         yield frames.last(self.warnings, f"{self.path}: device {self.devices[index].name!r}")
-
-    def _cut_torn_tail(self, block: bytes, line: int, stats) -> bytes:
-        """The file's last line without a newline: a recording cut off mid-row (crash, full
-        disk) loses that row only, with a warning, as in evemu; a whole row is kept."""
-        head, nl, tail = block.rpartition(b"\n")
-        text = _COMMENT.sub(b"", tail)
-        m = _ROW.match(text)
-        if not tail.strip() or (m and _row_ok(m.group(1))) or _OTHER.fullmatch(text):
-            return block
-        stats.torn_bytes += len(tail)
-        at = line + head.count(b"\n") + bool(nl)
-        self.warnings.append(f"{self.path}:{at}: last line cut off (truncated recording); skipped")
-        return head + nl
-
-    def _backwards(self, block: bytes, line: int, last_t: float) -> None:
-        prev = last_t
-        for i, raw in enumerate(block.split(b"\n")):
-            text = _COMMENT.sub(b"", raw)
-            m = _ROW.match(text)
-            flow = None if m else _FLOW.match(text)
-            rows = [m.group(1)] if m else _FLOW_ROW.findall(flow.group(1)) if flow else []
-            for row in rows:
-                sec, usec = (int(x) for x in row.split(b",")[:2])
-                t = sec + usec / 1_000_000
-                if t < prev:
-                    raise CaptureError(
-                        located(
-                            self.path,
-                            line + i,
-                            f"time goes backwards ({t:.6f} after {prev:.6f}); "
-                            "a recording must be in time order",
-                        )
-                    )
-                prev = t
-        raise AssertionError("unreachable: no backwards step found")  # pragma: no cover
-
-
-def _every_field_has_a_digit(joined: bytes) -> bool:
-    """Whether each comma-separated field holds a digit.  numpy's fromstring refuses
-    letters and stray signs inside a number, but reads a field that is blank, or only a
-    sign, as 0: a silent REL_X of 0.  One vectorised pass (a regular expression over the
-    block would cost 30 times the parse)."""
-    b = np.frombuffer(joined, dtype=np.uint8)
-    digits = np.concatenate([[0], np.cumsum((b >= 48) & (b <= 57))])
-    commas = np.flatnonzero(b == 44)
-    starts = np.concatenate([[0], commas + 1])
-    ends = np.concatenate([commas, [len(b)]])
-    return bool((digits[ends] - digits[starts] > 0).all())
-
-
-def _row_ok(row: bytes) -> bool:
-    fields = row.split(b",")
-    if len(fields) != 5:
-        return False
-    try:
-        vals = [int(x) for x in fields]
-    except ValueError:
-        return False
-    return (
-        min(vals[:4]) >= 0
-        and vals[0] < MAX_SECONDS
-        and vals[1] < 1_000_000
-        and vals[2] <= 0xFFFF
-        and vals[3] <= 0xFFFF
-        and -(2**31) <= vals[4] < 2**31
-    )
-
-
-def _flow_rows(m: re.Match) -> bytes:
-    """A flow-style event list -> the same rows in block style, one per line (only the
-    rows are read from this text; messages come from the original lines)."""
-    inner = m.group(1)
-    if _FLOW_ROW.sub(b"", inner).replace(b",", b"").strip():
-        return m.group(0)  # not plain rows: _OTHER refuses it, _complain names the line
-    return b"\n".join(b"- [" + r + b"]" for r in _FLOW_ROW.findall(inner))
 
 
 def _line_of(text: bytes, needle: bytes) -> int | None:
     at = text.find(needle)
     return None if at < 0 else text.count(b"\n", 0, at) + 1
-
-
-def _show(raw: bytes) -> str:
-    """A piece of a line for a message: control characters escaped (a raw \\x1c or \\r
-    would end or garble the message's line in a terminal)."""
-    text = raw.decode("utf-8", "replace").strip()
-    text = text if len(text) <= 50 else text[:47] + "..."
-    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
 
 
 def format_libinput(devices: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]]) -> str:
