@@ -71,51 +71,65 @@ def _parse_header(path: str, lines: list[bytes], first_line: int, info: DeviceIn
         if not stripped:
             continue
         if stripped.startswith(b"#"):
-            m = _VERSION.match(stripped)
-            if m:
-                version = m.group(1).decode("ascii", "replace")
-                if version not in KNOWN_VERSIONS:
-                    raise CaptureError(
-                        located(
-                            path,
-                            lineno,
-                            f"unknown evemu version {version} (this reader knows "
-                            f"{', '.join(KNOWN_VERSIONS)})",
-                        )
-                    )
-                info.extra["evemu_version"] = version
+            _read_comment(path, lineno, stripped, info)
             continue
         tag, sep, rest = line.partition(b":")
         if not sep or tag not in HEADER_TAGS:
             raise CaptureError(located(path, lineno, f"not an evemu header line: {_show(line)}"))
         try:
-            if tag == b"N":
-                info.name = rest.strip().decode("utf-8", "replace")
-            elif tag == b"I":
-                bus, vendor, product, version = (int(x, 16) for x in rest.split())
-                info.bus, info.vendor, info.product, info.version = bus, vendor, product, version
-            elif tag == b"B":
-                fields = [int(x, 16) for x in rest.split()]
-                if not fields or any(not 0 <= f <= 255 for f in fields):
-                    raise ValueError
-                saw_bits = True
-                if fields[0] == EV_REL:
-                    rel_bits += bytes(fields[1:])
-            elif tag == b"P":
-                [int(x, 16) for x in rest.split()]
-            elif tag == b"A":
-                # evemu writes "A: %02x %d %d %d %d %d": the axis code in hex, then
-                # min, max, fuzz, flat (and resolution) in decimal.
-                code, *limits = rest.split()
-                int(code, 16)
-                [int(x) for x in limits]
+            field_bits = _read_field(tag, rest, info)
         except ValueError:
             raise CaptureError(
                 located(path, lineno, f"malformed {tag.decode()}: line: {_show(line)}")
             ) from None
+        if field_bits is not None:
+            saw_bits = True
+            rel_bits += field_bits
     if saw_bits:
         bits = int.from_bytes(rel_bits[:1] or b"\0", "little")
         info.rel_xy = bool(bits & (1 << REL_X)) and bool(bits & (1 << REL_Y))
+
+
+def _read_comment(path: str, lineno: int, stripped: bytes, info: DeviceInfo) -> None:
+    """A comment line: only ``# EVEMU <version>`` says something (a version this reader
+    must know)."""
+    m = _VERSION.match(stripped)
+    if m:
+        version = m.group(1).decode("ascii", "replace")
+        if version not in KNOWN_VERSIONS:
+            raise CaptureError(
+                located(
+                    path,
+                    lineno,
+                    f"unknown evemu version {version} (this reader knows "
+                    f"{', '.join(KNOWN_VERSIONS)})",
+                )
+            )
+        info.extra["evemu_version"] = version
+
+
+def _read_field(tag: bytes, rest: bytes, info: DeviceInfo) -> bytes | None:
+    """One header line's field into ``info`` (ValueError if malformed).  A ``B:`` line
+    returns its EV_REL bit bytes (none for another event type); any other line None."""
+    if tag == b"N":
+        info.name = rest.strip().decode("utf-8", "replace")
+    elif tag == b"I":
+        bus, vendor, product, version = (int(x, 16) for x in rest.split())
+        info.bus, info.vendor, info.product, info.version = bus, vendor, product, version
+    elif tag == b"B":
+        fields = [int(x, 16) for x in rest.split()]
+        if not fields or any(not 0 <= f <= 255 for f in fields):
+            raise ValueError
+        return bytes(fields[1:]) if fields[0] == EV_REL else b""
+    elif tag == b"P":
+        [int(x, 16) for x in rest.split()]
+    elif tag == b"A":
+        # evemu writes "A: %02x %d %d %d %d %d": the axis code in hex, then
+        # min, max, fuzz, flat (and resolution) in decimal.
+        code, *limits = rest.split()
+        int(code, 16)
+        [int(x) for x in limits]
+    return None
 
 
 # --------------------------------------------------------------------------- the capture

@@ -41,8 +41,8 @@ def _masks(size: int, dtype: type) -> tuple[np.ndarray, np.ndarray]:
     of its top w bytes, and "0"s in the other bytes."""
     full = (1 << 8 * size) - 1
     low = [(1 << 8 * (size - w)) - 1 for w in range(size + 1)]
-    keep = np.array([full & ~m for m in low], dtype=dtype)
-    fill = np.array([_ZEROS & m for m in low], dtype=dtype)
+    keep: np.ndarray = np.array([full & ~m for m in low], dtype=dtype)
+    fill: np.ndarray = np.array([_ZEROS & m for m in low], dtype=dtype)
     return keep, fill
 
 

@@ -20,8 +20,8 @@ import lzma
 import os
 import tempfile
 import zlib
-from collections.abc import Iterator
-from typing import BinaryIO
+from collections.abc import Callable, Iterator
+from typing import Any, BinaryIO
 
 from mousedom.capture.base import CaptureError
 from mousedom.saferead import open_regular
@@ -38,7 +38,9 @@ MAX_PLAIN_RATIO = 200
 PLAIN_FLOOR = 64 << 20
 BOM = b"\xef\xbb\xbf"
 _MAGIC = ((b"\x1f\x8b", "gzip"), (b"\xfd7zXZ\x00", "xz"), (b"BZh", "bzip2"))
-_DECOMPRESSORS = {
+# The three decompressor classes share no declared type (zlib's has unconsumed_tail, the
+# others needs_input): _decompress tells them apart by ``kind``.
+_DECOMPRESSORS: dict[str, Callable[[], Any]] = {
     "gzip": lambda: zlib.decompressobj(wbits=31),
     "xz": lzma.LZMADecompressor,
     "bzip2": bz2.BZ2Decompressor,

@@ -193,6 +193,8 @@ class ReplaySource(Source):
     # ----------------------------------------------------------------- pacing
 
     def _due(self, t: np.ndarray) -> np.ndarray:
+        # Reports are buffered only once _fill has taken the first one's time.
+        assert self._t_first is not None
         return self._c0 + (t + self._shift - self._t_first) / self.speed
 
     def _fill(self) -> bool:
