@@ -24,14 +24,20 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 from mousedom import saferead
 from mousedom.commands import _options as options
-from mousedom.config import Config, MouseConfig, load_config
+from mousedom.config import Config, MouseConfig, SerialSource, load_config
 from mousedom.errors import UserError
 from mousedom.safewrite import same_file
 from mousedom.sources.base import Source, SourceGone, SourceUnavailable
 from mousedom.sources.discovery import SystemPaths, paths_for_root
+
+if TYPE_CHECKING:
+    from mousedom.capture.base import DeviceInfo as CaptureDevice
+    from mousedom.sources.discovery import DeviceInfo
+    from mousedom.sources.evdev import EvdevSource
 
 log = logging.getLogger(__name__)
 
@@ -75,21 +81,66 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 @dataclass
+class SerialBytes:
+    """What a downsampler's port gave, read by read (host arrival times), until the next
+    flush; ``total`` counts every byte."""
+
+    t: list[float] = field(default_factory=list)
+    data: list[bytes] = field(default_factory=list)
+    total: int = 0
+
+    def add(self, t: float, data: bytes) -> None:
+        self.t.append(t)
+        self.data.append(bytes(data))
+        self.total += len(data)
+
+
+@dataclass
 class Slot:
-    """One configured source and its recording bookkeeping."""
+    """One configured source and its recording bookkeeping.
+
+    ``mousedom record`` keeps a loop of its own rather than the daemon's Sensors
+    (service/slots.py): it records raw serial bytes and evdev's per-device notes, has no
+    tracker and no windows, and reads every source as it becomes readable."""
 
     index: int
     mouse: MouseConfig
     source: Source  # EvdevSource or AdnsSource
-    serial: bool = False  # an ADNS-3080 downsampler: its raw bytes are what is recorded
+    # An ADNS-3080 downsampler's raw bytes, which are what is recorded (None: evdev)
+    raw: SerialBytes | None = None
     connected: bool = True
     polled: bool = False  # no fd to select on (loop:// ports): read on every loop turn
     next_retry: float = 0.0
     reports: int = 0
     last_reports: int = 0
-    serial_t: list[float] = field(default_factory=list)
-    serial_data: list[bytes] = field(default_factory=list)
-    serial_bytes: int = 0
+
+    @property
+    def serial(self) -> bool:
+        return self.raw is not None
+
+    @property
+    def evdev(self) -> EvdevSource:
+        """The evdev source of a mouse that is not serial."""
+        from mousedom.sources.evdev import EvdevSource
+
+        if not isinstance(self.source, EvdevSource):
+            raise TypeError(f"{self.mouse.name}: not an evdev source")
+        return self.source
+
+    @property
+    def device(self) -> DeviceInfo:
+        """The evdev device a mouse's slot has open (it is recorded only once open)."""
+        device = self.evdev.device
+        if device is None:
+            raise TypeError(f"{self.mouse.name}: not open")
+        return device
+
+    @property
+    def port(self) -> SerialSource:
+        """The serial settings of a downsampler's slot."""
+        if self.mouse.serial is None:
+            raise TypeError(f"{self.mouse.name}: not a serial source")
+        return self.mouse.serial
 
 
 def _make_slot(
@@ -105,15 +156,8 @@ def _make_slot(
         # hands every chunk it reads to on_raw before decoding: those bytes are recorded.
         from mousedom.sources.adns import AdnsSource
 
-        slot = Slot(index, mouse, None, serial=True)  # type: ignore[arg-type]
-
-        def on_raw(t: float, data: bytes) -> None:
-            slot.serial_t.append(t)
-            slot.serial_data.append(bytes(data))
-            slot.serial_bytes += len(data)
-
-        slot.source = AdnsSource(mouse, on_raw=on_raw)
-        return slot
+        raw = SerialBytes()
+        return Slot(index, mouse, AdnsSource(mouse, on_raw=raw.add), raw=raw)
     raise UserError(f"{where}: a replay source cannot be recorded (it is a recording already)")
 
 
@@ -126,23 +170,20 @@ def _fileno(source: Source) -> int:
     return fd if isinstance(fd, int) and fd >= 0 else -1
 
 
-def _device_info(slot: Slot):
+def _device_info(slot: Slot) -> CaptureDevice:
     from mousedom.capture.base import DeviceInfo as CaptureDevice
 
-    m, src = slot.mouse, slot.source
+    m = slot.mouse
     if slot.serial:
+        port = slot.port
         return CaptureDevice(
-            name=m.serial.port,
+            name=port.port,
             kind="serial",
             mouse=m.name,
-            extra={
-                "port": m.serial.port,
-                "baud": m.serial.baud,
-                "k": m.serial.k,
-                "sensor_cpi": m.serial.sensor_cpi,
-            },
-        )
-    d = src.device
+            extra={"port": port.port, "baud": port.baud, "k": port.k,
+                   "sensor_cpi": port.sensor_cpi},
+        )  # fmt: skip
+    src, d = slot.evdev, slot.device
     return CaptureDevice(
         name=d.name,
         kind="evdev",
@@ -280,26 +321,26 @@ class Recorder:
     def _flush(self) -> None:
         with self._writing():
             for s in self.slots:
-                if s.serial_data:
-                    self.writer.serial_many(s.index, s.serial_t, s.serial_data)
-                    s.serial_t, s.serial_data = [], []
+                if s.raw is not None and s.raw.data:
+                    self.writer.serial_many(s.index, s.raw.t, s.raw.data)
+                    s.raw.t, s.raw.data = [], []
             self.writer.flush()
 
     def status(self, elapsed: float, dt: float) -> str:
         parts = []
         for s in self.slots:
-            src = s.source
             rate = (s.reports - s.last_reports) / dt if dt > 0 else 0.0
             s.last_reports = s.reports
             state = "" if s.connected else " (gone)"
-            if s.serial:
+            if s.raw is not None:
                 parts.append(
-                    f"{s.mouse.name} {s.serial_bytes} B {s.reports} reports {rate:.0f} Hz{state}"
+                    f"{s.mouse.name} {s.raw.total} B {s.reports} reports {rate:.0f} Hz{state}"
                 )
                 continue
+            src = s.evdev
             st = src.assembler.stats
             extra = f" dropped {st.dropped_frames}" if st.dropped_frames else ""
-            if getattr(src, "time_backwards", 0):
+            if src.time_backwards:
                 extra += f" stamped-backwards {src.time_backwards}"
             parts.append(
                 f"{s.mouse.name} {st.events} events {s.reports} reports {rate:.0f} Hz{extra}{state}"
@@ -370,7 +411,7 @@ class Recorder:
             if s.serial:
                 continue
             note = DeviceStats()
-            note.take_assembler(s.source.assembler.stats)
+            note.take_assembler(s.evdev.assembler.stats)
             with self._writing():
                 self.writer.note(s.index, note)
         with self._writing():
@@ -433,8 +474,8 @@ def run(args: argparse.Namespace) -> int:
 
 def _node(s: Slot) -> str:
     if s.serial:
-        return s.mouse.serial.port
-    return s.source.device.node
+        return s.port.port
+    return s.device.node
 
 
 def _check_distinct(cfg: Config, slots: list[Slot], output: str) -> None:
