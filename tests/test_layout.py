@@ -114,6 +114,45 @@ def test_every_arrow_points_down():
     assert violations(package_modules()) == []
 
 
+# The daemon's parts, from the composition root down (docs/architecture.md, "The daemon's
+# parts"): a part imports only parts after it; every other service module is a leaf that
+# imports no part, so none reaches the daemon or a part above it.
+SERVICE_PARTS = ["daemon", "reload", "control", "publish", "slots"]
+
+
+def service_violations(modules: dict[str, str]) -> list[str]:
+    bad = []
+    for module, source in sorted(modules.items()):
+        if not module.startswith("mousedom.service."):
+            continue
+        here = module.split(".")[2]
+        rank = SERVICE_PARTS.index(here) if here in SERVICE_PARTS else len(SERVICE_PARTS)
+        for line, target in imports_of(source, module):
+            parts = target.split(".")
+            if parts[:2] != ["mousedom", "service"] or len(parts) < 3:
+                continue
+            there = parts[2]
+            if there in SERVICE_PARTS and SERVICE_PARTS.index(there) <= rank and there != here:
+                bad.append(f"{module}:{line}: imports the part {target}, above or beside it")
+    return bad
+
+
+def test_the_daemons_parts_import_only_down():
+    assert service_violations(package_modules()) == []
+
+
+def test_the_service_rule_sees_an_arrow_up():
+    modules = {
+        "mousedom.service.slots": "from mousedom.service.publish import Publisher\n",
+        "mousedom.service.server": "from mousedom.service.daemon import Daemon\n",
+        "mousedom.service.reload": "from mousedom.service.slots import Sensors\n",
+    }
+    assert service_violations(modules) == [
+        "mousedom.service.server:1: imports the part mousedom.service.daemon, above or beside it",
+        "mousedom.service.slots:1: imports the part mousedom.service.publish, above or beside it",
+    ]
+
+
 def test_every_room_is_in_a_layer():
     for module in package_modules():
         level(room_of(module))
