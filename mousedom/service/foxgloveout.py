@@ -30,6 +30,7 @@ from typing import Any
 from mousedom.config import FoxgloveConfig, MouseConfig
 from mousedom.errors import UserError
 from mousedom.fusion import robust
+from mousedom.fusion.posebatch import PoseRow
 from mousedom.service.output import Output
 
 log = logging.getLogger(__name__)
@@ -128,7 +129,7 @@ class FoxgloveOutput(Output):
 
         return Pose(position=Vector3(x=x, y=y, z=0.0), orientation=_quat(yaw))
 
-    def publish(self, row: Any) -> None:
+    def publish(self, row: PoseRow) -> None:
         """One window: the pose, odom -> base_link, each mouse's counts and state; the
         mounts and the path at their own slower rates."""
         from foxglove.messages import FrameTransform, FrameTransforms, PoseInFrame, Vector3

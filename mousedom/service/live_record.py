@@ -18,6 +18,7 @@ from mousedom.capture.base import DeviceInfo
 from mousedom.capture.native import NativeWriter
 from mousedom.config import Config, MouseConfig
 from mousedom.errors import UserError
+from mousedom.fusion.posebatch import PoseRow
 from mousedom.service.output import Output
 
 log = logging.getLogger(__name__)
@@ -67,7 +68,7 @@ class Recording(Output):
     def __str__(self) -> str:
         return f"the recording {self.path}"
 
-    def publish(self, row: object) -> None:
+    def publish(self, row: PoseRow) -> None:
         pass  # the poses are made again by replaying the reports
 
     def reports(self, index: int, t: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> None:

@@ -15,6 +15,7 @@ from typing import Any
 
 from mousedom.config import Ros2Config
 from mousedom.errors import UserError
+from mousedom.fusion.posebatch import PoseBatch, PoseRow
 from mousedom.safewrite import open_stream
 from mousedom.service import ros2cdr as cdr
 from mousedom.service import ros2conv as conv
@@ -85,7 +86,7 @@ class McapRecorder(Output):
     def _write(self, channel: int, data: bytes, ns: int) -> None:
         self.writer.add_message(channel, log_time=ns, data=data, publish_time=ns)
 
-    def publish(self, row: Any) -> None:
+    def publish(self, row: PoseRow) -> None:
         cfg = self.cfg
         ns = conv.stamp_ns(row.t, self.offset)
         st = {"sec": ns // 1_000_000_000, "nanosec": ns % 1_000_000_000}
@@ -102,7 +103,7 @@ class McapRecorder(Output):
             self._write(ch, enc.encode(st, conv.counts(st, name, cx, cy)), ns)
         self.written += 1
 
-    def batch(self, b: Any) -> None:
+    def batch(self, b: PoseBatch) -> None:
         """A replay sink: every window of a PoseBatch."""
         for row in b.rows():
             self.publish(row)

@@ -34,6 +34,7 @@ from typing import Any, NamedTuple, Protocol
 from mousedom.config import MetricsConfig
 from mousedom.errors import UserError
 from mousedom.fusion import robust
+from mousedom.fusion.posebatch import PoseRow
 from mousedom.service.output import Output
 
 log = logging.getLogger(__name__)
@@ -287,7 +288,7 @@ class MetricsExporter(Output):
         host = f"[{cfg.host}]" if family == socket.AF_INET6 else cfg.host
         log.info("Prometheus metrics on http://%s:%d/metrics", host, self.port)
 
-    def publish(self, row: Any) -> None:
+    def publish(self, row: PoseRow) -> None:
         pass  # the counters are read from the daemon at a scrape
 
     def sources(self, messages: list[dict[str, Any]], t: float) -> None:

@@ -11,39 +11,21 @@ is not optional).  Only ``publish`` must be written: the other hooks default to 
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
+from mousedom.fusion.posebatch import PoseRow
+
 Pose2 = tuple[float, float, float]  # (x, y, theta): metres, metres, radians
-
-
-class PoseRow(Protocol):
-    """One closed window as fusion.posebatch makes it (what an output reads of it)."""
-
-    t: float
-    x: float
-    y: float
-    theta: float
-    vx: float
-    vy: float
-    omega: float
-    cov: Any  # 3x3 over (x, y, theta), nested lists or an array
-    used: Any  # per mouse: 1 if its counts entered the solve
-    ok: bool
-    consistent: bool
-    state: Any  # per mouse: robust.Health values
-    reason: Any  # per mouse: robust.Reason values
-    residual: Any  # per mouse: (rx, ry) metres
-    counts: Any  # per mouse: (cx, cy) the window's counts
 
 
 class Output(ABC):
     """A destination of the daemon's windows (see the module docstring)."""
 
     @abstractmethod
-    def publish(self, row: Any) -> None:
-        """One closed window (a PoseRow), in time order."""
+    def publish(self, row: PoseRow) -> None:
+        """One closed window, in time order."""
 
     def reports(self, index: int, t: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> None:  # noqa: B027
         """Reports of mouse ``index`` as read from its sensor (stamps, counts)."""

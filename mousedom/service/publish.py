@@ -16,7 +16,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from mousedom.fusion import robust
-from mousedom.fusion.posebatch import PoseBatch
+from mousedom.fusion.posebatch import PoseBatch, PoseRow
 from mousedom.fusion.robust import Health, Reason
 from mousedom.service.output import Output, Pose2
 from mousedom.service.protocol import encode, encode_pose, source_message
@@ -82,7 +82,7 @@ class Outputs:
             self.stop(out, str(getattr(e, "strerror", None) or e))
             return None
 
-    def publish(self, row: Any) -> None:
+    def publish(self, row: PoseRow) -> None:
         for out in list(self.items):
             self._call(out, out.publish, row)
 
@@ -119,12 +119,13 @@ class SocketOutput(Output):
         self.sensors = sensors
         self.running = running
 
-    def publish(self, row: Any) -> None:
+    def publish(self, row: PoseRow) -> None:
         sensors = self.sensors
-        try:
-            names = sensors.names_by_state[row.state]
-        except (KeyError, TypeError):  # a new pattern, or a list (rows from arrays)
-            names = sensors.names_for(row.state)
+        state = row.state
+        # (a list from rows made of arrays is not a key: names_for makes it one)
+        names = sensors.names_by_state.get(state) if isinstance(state, tuple) else None
+        if names is None:  # a new pattern
+            names = sensors.names_for(state)
         line = encode_pose(
             row.t,
             (row.x, row.y, row.theta),

@@ -18,6 +18,7 @@ import math
 from typing import Any
 
 from mousedom.config import Ros2Config
+from mousedom.fusion.posebatch import PoseRow
 
 UNOBSERVED = 1e6  # variance of what a planar sensor cannot see (m^2, rad^2 and per s^2)
 PLANAR = (0, 1, 5)  # x, y, yaw in ROS's 6x6 (x, y, z, rot x, rot y, rot z)
@@ -97,7 +98,7 @@ def topic(cfg: Ros2Config, name: str) -> str:
 
 
 def odometry(
-    cfg: Ros2Config, st: dict[str, int], odom: Pose2, rotate: float, row: Any, rate: float
+    cfg: Ros2Config, st: dict[str, int], odom: Pose2, rotate: float, row: PoseRow, rate: float
 ) -> dict[str, Any]:
     """nav_msgs/msg/Odometry of one window: ``odom`` its pose in the odom frame, ``rotate``
     the odom frame's turn from the daemon's (for the pose covariance), ``row`` the window

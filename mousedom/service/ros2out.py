@@ -28,6 +28,7 @@ from xml.sax.saxutils import quoteattr
 
 from mousedom.config import MouseConfig, Ros2Config
 from mousedom.errors import UserError
+from mousedom.fusion.posebatch import PoseRow
 from mousedom.service import ros2cdr as cdr
 from mousedom.service import ros2conv as conv
 from mousedom.service import ros2msgs as msgs
@@ -301,7 +302,7 @@ class Ros2Output(Output):
         # The system clock's lead over the monotonic one, read per message: NTP may step it.
         return time.time() - time.monotonic() if self.cfg.stamps == "system" else 0.0
 
-    def publish(self, row: Any) -> None:
+    def publish(self, row: PoseRow) -> None:
         """One window (a PoseRow): Odometry, and TF where enabled."""
         cfg = self.cfg
         st = conv.stamp(row.t, self._offset())
