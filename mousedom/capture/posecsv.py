@@ -3,7 +3,7 @@ back (tests, golden files, the plot)."""
 
 from __future__ import annotations
 
-from typing import TextIO
+from typing import Protocol
 
 import numpy as np
 
@@ -46,10 +46,16 @@ def csv_columns(names: tuple[str, ...]) -> list[str]:
     return [*CSV_COLUMNS, *health_columns(names), *COV_COLUMNS, *scale_columns(names)]
 
 
+class TextOut(Protocol):
+    """Where CsvSink writes: a text file, or a wrapper that names it in write errors."""
+
+    def write(self, text: str, /) -> object: ...
+
+
 class CsvSink:
     """Writes pose batches as CSV rows (header first)."""
 
-    def __init__(self, out: TextIO, names: tuple[str, ...] = ()) -> None:
+    def __init__(self, out: TextOut, names: tuple[str, ...] = ()) -> None:
         self.out = out
         self.rows = 0
         self.n = len(names)

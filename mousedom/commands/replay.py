@@ -12,7 +12,8 @@ import math
 import os
 import sys
 import time
-from typing import TextIO
+from collections.abc import Callable
+from typing import TYPE_CHECKING, TextIO, cast
 
 import numpy as np
 
@@ -23,10 +24,15 @@ from mousedom.capture.posecsv import CsvSink
 from mousedom.capture.replay import Replay
 from mousedom.capture.summary import Summary
 from mousedom.commands import _options as options
-from mousedom.config import INTEGRATORS, MODELS, load_config
+from mousedom.config import INTEGRATORS, MODELS, Config, load_config
 from mousedom.errors import UserError
 from mousedom.fusion.scalelearn import WARN
+from mousedom.fusion.tracker import PoseBatch
 from mousedom.safewrite import open_stream, same_file
+
+if TYPE_CHECKING:
+    from mousedom.plot import PlotCollector
+    from mousedom.service.mcapout import McapRecorder
 
 
 def register(subparsers) -> None:
@@ -91,6 +97,48 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     keep_freed_memory()  # streams whole captures: see mousedom.allocator
+    true_end = _check_args(args)
+    config = _load_config(args)
+    specs = [parse_capture_arg(a) for a in args.capture]
+    if not specs and not any(m.replay for m in config.mice):
+        raise UserError(
+            f"{args.config}: nothing to replay: give --capture NAME=FILE (or replay: in the config)"
+        )
+    assignments = assign(config, specs)
+    inputs = [args.config] + [a.capture.path for a in assignments]
+    inputs += [d for a in assignments if (d := getattr(a.capture, "desc_path", None))]
+    _refuse_overwriting_inputs(args, inputs)
+    replay = Replay(config, assignments, model=args.model, integrator=args.integrator)
+    sinks = _Sinks.open(args, config, inputs)
+    sink: Callable[[PoseBatch], None] = sinks
+    if args.speed:
+        from mousedom.capture.pacing import Pacer, paced
+
+        out = sinks.out
+        sink = paced(sink, Pacer(args.speed), flush=out.flush if out is not None else None)
+
+    # Time-base warnings are known before reading: say them now, not after a long replay
+    # (files days apart run through every empty window between them).
+    early = list(replay.warnings)
+    for w in early:
+        print(f"mousedom: warning: {w}", file=sys.stderr, flush=True)
+    bar = ProgressBar(sys.stderr) if sys.stderr.isatty() and not args.speed else None
+    try:
+        summary = replay.run(sink, progress=bar.update if bar else None)
+    finally:
+        if bar:
+            bar.close()
+        sinks.close()
+
+    for w in summary.warnings[len(early) :]:
+        print(f"mousedom: warning: {w}", file=sys.stderr)
+    _report(args, config, replay, summary, sinks, true_end)
+    return check(summary)
+
+
+def _check_args(args) -> tuple[float, float] | None:
+    """Refuse contradicting or impossible options before anything is read; the true end
+    of a UMBmark run (None without --umbmark)."""
     true_end = _true_end(args) if args.umbmark else None
     if args.umbmark and args.output == "-" and not args.umbmark_csv:
         # Both would go to stdout: the RUNS.csv row would become the pose CSV's last row.
@@ -105,6 +153,11 @@ def run(args) -> int:
         from mousedom.service import mcapout
 
         mcapout.require()
+    return true_end
+
+
+def _load_config(args) -> Config:
+    """The rig config, with --no-robust applied and a --model override checked."""
     config = load_config(args.config, need_sources=False)
     if args.no_robust:
         import dataclasses
@@ -121,89 +174,86 @@ def run(args) -> int:
         problem = rank_problem(args.model, mounts, config.names)
         if problem:
             raise UserError(f"--model {args.model}: {problem} (in {args.config})")
-    specs = [parse_capture_arg(a) for a in args.capture]
-    if not specs and not any(m.replay for m in config.mice):
-        raise UserError(
-            f"{args.config}: nothing to replay: give --capture NAME=FILE (or replay: in the config)"
-        )
-    assignments = assign(config, specs)
-    inputs = [args.config] + [a.capture.path for a in assignments]
-    inputs += [d for a in assignments if (d := getattr(a.capture, "desc_path", None))]
-    _refuse_overwriting_inputs(args, inputs)
-    replay = Replay(config, assignments, model=args.model, integrator=args.integrator)
+    return config
 
-    sinks = []
-    out: _Output | None = None
-    if args.output == "-":
-        out = _Output(sys.stdout, "<stdout>")
-    elif args.output:
-        out = _Output(open_stream(args.output, inputs, text=True), args.output)
-    if out is not None:
-        sinks.append(CsvSink(out, config.names))
-    recorder = None
-    if args.mcap:
-        from mousedom.config import Ros2Config
-        from mousedom.service.mcapout import McapRecorder
 
-        # stamps: the capture's own clock (a replay has no other)
-        recorder = McapRecorder(args.mcap, config.ros2 or Ros2Config(), config.names,
-                                config.rate_hz, inputs)  # fmt: skip
-        sinks.append(recorder.batch)
-    collector = None
-    if args.plot:
-        from mousedom.plot import PlotCollector
+class _Sinks:
+    """Where the pose batches go: the CSV (-o), the MCAP recording, the plot's collector;
+    called with each batch, it hands it to each of them."""
 
-        collector = PlotCollector()
-        sinks.append(collector)
+    def __init__(self) -> None:
+        self.out: _Output | None = None
+        self.recorder: McapRecorder | None = None
+        self.collector: PlotCollector | None = None
+        self.each: list[Callable[[PoseBatch], None]] = []
 
-    def sink(b) -> None:
-        for s in sinks:
+    @classmethod
+    def open(cls, args, config: Config, inputs: list[str]) -> _Sinks:
+        sinks = cls()
+        if args.output == "-":
+            sinks.out = _Output(sys.stdout, "<stdout>")
+        elif args.output:
+            # A text stream: open_stream opens text when asked (text=True).
+            f = cast(TextIO, open_stream(args.output, inputs, text=True))
+            sinks.out = _Output(f, args.output)
+        if sinks.out is not None:
+            sinks.each.append(CsvSink(sinks.out, config.names))
+        if args.mcap:
+            from mousedom.config import Ros2Config
+            from mousedom.service.mcapout import McapRecorder
+
+            # stamps: the capture's own clock (a replay has no other)
+            sinks.recorder = McapRecorder(args.mcap, config.ros2 or Ros2Config(), config.names,
+                                          config.rate_hz, inputs)  # fmt: skip
+            sinks.each.append(sinks.recorder.batch)
+        if args.plot:
+            from mousedom.plot import PlotCollector
+
+            sinks.collector = PlotCollector()
+            sinks.each.append(sinks.collector)
+        return sinks
+
+    def __call__(self, b: PoseBatch) -> None:
+        for s in self.each:
             s(b)
 
-    if args.speed:
-        from mousedom.capture.pacing import Pacer, paced
+    def close(self) -> None:
+        """Finish the CSV and the recording (their last rows written, or the error)."""
+        if self.out is not None:
+            self.out.finish()
+        if self.recorder is not None:
+            self.recorder.close()
 
-        sink = paced(sink, Pacer(args.speed), flush=out.flush if out is not None else None)
 
-    # Time-base warnings are known before reading: say them now, not after a long replay
-    # (files days apart run through every empty window between them).
-    early = list(replay.warnings)
-    for w in early:
-        print(f"mousedom: warning: {w}", file=sys.stderr, flush=True)
-    bar = ProgressBar(sys.stderr) if sys.stderr.isatty() and not args.speed else None
-    try:
-        summary = replay.run(sink, progress=bar.update if bar else None)
-    finally:
-        if bar:
-            bar.close()
-        if out is not None:
-            out.finish()
-        if recorder is not None:
-            recorder.close()
-
-    for w in summary.warnings[len(early) :]:
-        print(f"mousedom: warning: {w}", file=sys.stderr)
+def _report(
+    args,
+    config: Config,
+    replay: Replay,
+    summary: Summary,
+    sinks: _Sinks,
+    true_end: tuple[float, float] | None,
+) -> None:
+    """After the replay: where the files went, the plot, the UMBmark row or the summary."""
     if args.output and args.output != "-":
         _wrote("the poses (CSV)", args.output)
     if args.mcap:
         _wrote("the MCAP recording", args.mcap)
-    if collector is not None:
+    if sinks.collector is not None:
         from mousedom import plot
 
         rates = {m.name: m.reports_per_s for m in summary.mice}
-        plot.save(collector, config.names, args.plot, title=_title(args, replay),
+        plot.save(sinks.collector, config.names, args.plot, title=_title(args, replay),
                   model=args.model or config.model, rates=rates)  # fmt: skip
         _wrote("the plot", args.plot)
-    if out is not None or args.umbmark:  # no summary: its warnings on their own
+    if sinks.out is not None or args.umbmark:  # no summary: its warnings on their own
         for w in scale_warnings(summary, _cpis(config)):
             print(f"mousedom: warning: {w}", file=sys.stderr)
-    if args.umbmark:
+    if true_end is not None:  # --umbmark
         _emit_umbmark(args, summary, true_end)
-    elif out is None:
+    elif sinks.out is None:
         summary_out = _Output(sys.stdout, "<stdout>")
         summary_out.write(format_summary(summary, replay, args) + "\n")
         summary_out.flush()
-    return check(summary)
 
 
 def _wrote(what: str, path: str) -> None:
