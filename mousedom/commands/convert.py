@@ -13,12 +13,13 @@ import math
 import os
 import sys
 from dataclasses import dataclass
+from typing import Any, BinaryIO, cast
 
 from mousedom import saferead
 from mousedom.allocator import keep_freed_memory
 from mousedom.capture.assignment import parse_capture_arg
 from mousedom.capture.base import TIME_BASES, Capture, CaptureError, DeviceInfo, Feed, lagging_first
-from mousedom.capture.native import NativeWriter
+from mousedom.capture.native_writer import NativeWriter
 from mousedom.capture.sniff import open_capture
 from mousedom.capture.timebase import time_offset
 from mousedom.commands import _options as options
@@ -96,7 +97,7 @@ def _convert_into(
     config_text: str | None,
     compress: bool,
     protect: list[str],
-) -> dict:
+) -> dict[str, Any]:
     """Convert into a fresh temporary file beside ``output`` and rename it on success.
 
     An input found bad half-way (or a full disk) must not leave a short capture behind
@@ -104,7 +105,7 @@ def _convert_into(
     name is unpredictable and made with O_EXCL (safewrite), so a planted link cannot
     redirect it.  A pipe or device (/dev/stdout, a FIFO) is written in place.
     """
-    stats: dict = {}
+    stats: dict[str, Any] = {}
 
     def write(target: str) -> None:
         stats.update(convert(inputs, target, config_text=config_text, compress=compress))
@@ -113,7 +114,8 @@ def _convert_into(
     if os.path.exists(output) and not os.path.isfile(output):
         try:
             with open_stream(output, protect) as f:
-                stats.update(convert(inputs, f, config_text=config_text, compress=compress))
+                out = cast(BinaryIO, f)  # binary: open_stream opens text only when asked
+                stats.update(convert(inputs, out, config_text=config_text, compress=compress))
         except OSError as e:  # also from the close's last flush
             raise UserError(f"{output}: cannot write: {e.strerror or e}") from None
         return stats
@@ -135,13 +137,41 @@ class _Input:
 
 def convert(
     inputs: list[tuple[str | None, Capture]],
-    path,
+    path: str | os.PathLike[str] | BinaryIO,
     *,
     config_text: str | None = None,
     compress: bool = True,
-) -> dict:
+) -> dict[str, Any]:
     """Write the motion devices of ``inputs`` into one native capture at ``path``."""
     captures = [c for _, c in inputs]
+    time_base, offset, warnings = _time_base(captures)
+    devices, states = _gather(inputs, offset)
+    _refuse_a_mouse_twice(devices)
+    written = [[0, 0, 0] for _ in devices]  # per output device: reports, net x, net y
+    # The inputs' first event (not first report) anchors the replay's window grid and the
+    # epoch rebasing: keep it, so that replaying the result gives the very same poses.
+    meta = {"first_time": _first_time(captures, offset)}
+    with NativeWriter(
+        path,
+        devices,
+        config_text=config_text,
+        time_base=time_base,
+        compress=compress,
+        meta=meta,
+    ) as w:
+        reports = _copy(w, states, written)
+        for s in states:
+            for dev, out_dev in s.out.items():
+                w.note(out_dev, s.capture.stats[dev])
+        w.sync(math.inf)
+    for _, cap in inputs:
+        warnings += cap.warnings
+    return {"devices": len(devices), "reports": reports, "warnings": warnings, "written": written}
+
+
+def _time_base(captures: list[Capture]) -> tuple[str, float, list[str]]:
+    """The output's time base, the seconds subtracted from epoch inputs, and warnings:
+    one base in, the times kept exactly as recorded; mixed, epoch files rebased."""
     bases = {c.time_base for c in captures}
     offset, warnings = time_offset(captures)
     if len(bases) == 1:
@@ -149,6 +179,14 @@ def convert(
     else:
         time_base = "relative"  # epoch files rebased; the others kept
     assert time_base in TIME_BASES
+    return time_base, offset, warnings
+
+
+def _gather(
+    inputs: list[tuple[str | None, Capture]], offset: float
+) -> tuple[list[DeviceInfo], list[_Input]]:
+    """The output's devices (each input's motion devices, in order) and the feeds that
+    carry them."""
     devices: list[DeviceInfo] = []
     states: list[_Input] = []
     for name, cap in inputs:
@@ -172,6 +210,10 @@ def convert(
             mine = {d: index[d] for d in feed.devices if d in index}
             if mine:
                 states.append(_Input(feed, mine, sub, cap))
+    return devices, states
+
+
+def _refuse_a_mouse_twice(devices: list[DeviceInfo]) -> None:
     seen: dict[str, DeviceInfo] = {}
     for d in devices:
         if d.mouse is not None and d.mouse in seen:
@@ -182,54 +224,46 @@ def convert(
             )
         if d.mouse is not None:
             seen[d.mouse] = d
-    reports = 0
-    written = [[0, 0, 0] for _ in devices]  # per output device: reports, net x, net y
-    # The inputs' first event (not first report) anchors the replay's window grid and the
-    # epoch rebasing: keep it, so that replaying the result gives the very same poses.
+
+
+def _first_time(captures: list[Capture], offset: float) -> float | None:
+    """The inputs' first event, on the output's time base."""
     firsts = [
         t - (offset if c.time_base == "epoch" else 0.0)
         for c in captures
         if (t := c.first_time()) is not None
     ]
-    meta = {"first_time": min(firsts) if firsts else None}
-    with NativeWriter(
-        path,
-        devices,
-        config_text=config_text,
-        time_base=time_base,
-        compress=compress,
-        meta=meta,
-    ) as w:
-        synced = -math.inf
-        for st, batch in lagging_first(states):
-            if batch is None:
-                continue
-            for mo in batch.motion:
-                if mo.device in st.out and len(mo.t):
-                    t = mo.t - st.sub if st.sub else mo.t
-                    w.motion(st.out[mo.device], t, mo.dx, mo.dy)
-                    reports += len(mo.t)
-                    tally = written[st.out[mo.device]]
-                    tally[0] += len(mo.t)
-                    tally[1] += int(mo.dx.sum())
-                    tally[2] += int(mo.dy.sum())
-            for chunk in batch.serial:  # raw ADNS-3080 bytes are kept as they are
-                if chunk.device in st.out:
-                    w.serial_many(st.out[chunk.device], (chunk.t - st.sub).tolist(), chunk.data)
-            if batch.complete > -math.inf:
-                st.watermark = batch.complete - st.sub
-            marks = [s.watermark for s in states if not s.done]
-            mark = min(marks) if marks else math.inf
-            if math.isfinite(mark) and mark > synced:
-                w.sync(mark)
-                synced = mark
-        for s in states:
-            for dev, out_dev in s.out.items():
-                w.note(out_dev, s.capture.stats[dev])
-        w.sync(math.inf)
-    for _, cap in inputs:
-        warnings += cap.warnings
-    return {"devices": len(devices), "reports": reports, "warnings": warnings, "written": written}
+    return min(firsts) if firsts else None
+
+
+def _copy(w: NativeWriter, states: list[_Input], written: list[list[int]]) -> int:
+    """Merge the feeds by time into ``w``, a sync point wherever every feed has reached
+    one; tally what each output device got in ``written``; the reports written."""
+    reports = 0
+    synced = -math.inf
+    for st, batch in lagging_first(states):
+        if batch is None:
+            continue
+        for mo in batch.motion:
+            if mo.device in st.out and len(mo.t):
+                t = mo.t - st.sub if st.sub else mo.t
+                w.motion(st.out[mo.device], t, mo.dx, mo.dy)
+                reports += len(mo.t)
+                tally = written[st.out[mo.device]]
+                tally[0] += len(mo.t)
+                tally[1] += int(mo.dx.sum())
+                tally[2] += int(mo.dy.sum())
+        for chunk in batch.serial:  # raw ADNS-3080 bytes are kept as they are
+            if chunk.device in st.out:
+                w.serial_many(st.out[chunk.device], (chunk.t - st.sub).tolist(), chunk.data)
+        if batch.complete > -math.inf:
+            st.watermark = batch.complete - st.sub
+        marks = [s.watermark for s in states if not s.done]
+        mark = min(marks) if marks else math.inf
+        if math.isfinite(mark) and mark > synced:
+            w.sync(mark)
+            synced = mark
+    return reports
 
 
 def read_back(path: str, output: str, written: list[list[int]]) -> None:
