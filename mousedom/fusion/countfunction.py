@@ -31,6 +31,9 @@ from bisect import bisect_left, bisect_right
 
 import numpy as np
 
+# The knots as three Python lists: times, cumulative REL_X, cumulative REL_Y
+KnotLists = tuple[list[float], list[float], list[float]]
+
 
 def _exact_int_sums(steps: np.ndarray) -> bool:
     """Every partial sum of each row is below 2**53 in magnitude: int64 cannot wrap, and a
@@ -53,7 +56,7 @@ class CountFunction:
         self.knot_t = -math.inf  # stamp of the last report turned into knots
         self.pending: list[tuple] = []  # (t, dx, dy): float lists (small pushes) or arrays
         self.complete = -math.inf  # all reports stamped <= this have been pushed
-        self.knots: tuple[list[float], list[float], list[float]] | np.ndarray = ([], [], [])
+        self.knots: KnotLists | np.ndarray = ([], [], [])
         self.dead: list[list[float]] = []  # [from, to) spans in which the mouse is not live
         self.counts_in = [0.0, 0.0]  # REL_X, REL_Y pushed (floats: added to per read)
         self.late = 0  # reports stamped behind the closed frontier (moved forward)
@@ -86,15 +89,25 @@ class CountFunction:
         return len(self.knots[0])
 
     def knot_array(self) -> np.ndarray:
-        if type(self.knots) is tuple:
-            self.knots = np.array(self.knots, dtype=np.float64).reshape(3, -1)
-        return self.knots
+        k = self.knots
+        if isinstance(k, tuple):
+            k = self.knots = np.array(k, dtype=np.float64).reshape(3, -1)
+        return k
 
-    def knot_lists(self) -> tuple[list[float], list[float], list[float]]:
-        if type(self.knots) is not tuple:
-            kt, kx, ky = self.knots.tolist()
-            self.knots = (kt, kx, ky)
-        return self.knots
+    def knot_lists(self) -> KnotLists:
+        k = self.knots
+        if isinstance(k, tuple):
+            return k
+        kt, kx, ky = k.tolist()
+        lists = self.knots = (kt, kx, ky)
+        return lists
+
+    def settled(self, t: float) -> bool:
+        """Whether every count is closed (F flat at the anchor) and no knot lies after
+        ``t``: nothing for a window after ``t`` to take (Tracker.skip_quiet)."""
+        k = self.knots
+        kt, kx, ky = k if isinstance(k, tuple) else k.tolist()
+        return not (any(kx) or any(ky) or (kt and kt[-1] > t))
 
     def level(self) -> np.ndarray:
         """F at the last knot, relative to the anchor (0 before any knot)."""
@@ -202,7 +215,9 @@ class CountFunction:
     def ingest_small(self, edge: float) -> None:
         """``ingest`` report by report: the same operations in the same order on floats."""
         pending, self.pending = self.pending, []
-        t, dx, dy = [], [], []
+        t: list[float] = []
+        dx: list[float] = []
+        dy: list[float] = []
         for pt, pdx, pdy in pending:  # lists from push, or arrays of a larger push
             t += pt if isinstance(pt, list) else pt.tolist()
             dx += pdx if isinstance(pdx, list) else pdx.tolist()
@@ -279,7 +294,7 @@ class CountFunction:
         # Knots exactly on the edge are kept: a jump there (reports with one stamp) may
         # have been evaluated on either side, and keeping them, relative, loses neither.
         # Knot times never decrease (see ingest), so "time >= edge" is a tail: a slice.
-        k = self.knots
+        k = self.knot_array()  # (close made it one)
         kept = k[:, np.searchsorted(k[0], edge) :]
         knots = np.empty((3, kept.shape[1] + 1))
         knots[:, 0] = (edge, 0.0, 0.0)
@@ -326,6 +341,14 @@ class CountFunction:
             self.complete_to(t)
         else:
             self.dead.append([t, math.inf])
+
+    def close_live(self, edges: np.ndarray, out: np.ndarray) -> None:
+        """Clear ``out`` (n,) for the windows between consecutive ``edges`` that overlap a
+        dead span (``close``'s windows); forgets the spans that end by the last edge."""
+        if self.dead:
+            for start, end in self.dead:
+                out[(edges[:-1] < end) & (edges[1:] > start)] = False
+            self.forget_dead(float(edges[-1]))
 
     def forget_dead(self, end: float) -> None:
         """Dead spans that end by ``end`` are past: the windows up to it are closed."""

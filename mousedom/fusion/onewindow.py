@@ -12,6 +12,7 @@ rank loss).
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Sequence
 from operator import mul
 
 from mousedom.fusion import integrate
@@ -101,9 +102,7 @@ def noise(theta_before: float, ux: float, uy: float, a: float, q_cov: Matrix3) -
     return _mul_t(_mul(m, q_cov), m)
 
 
-def propagate(
-    cov: Matrix3, prev: tuple[float, float], pos: tuple[float, float], g: Matrix3
-) -> Matrix3:
+def propagate(cov: Matrix3, prev: Sequence[float], pos: Sequence[float], g: Matrix3) -> Matrix3:
     """covariance._propagate_stepwise for one window: S P S^T + G, symmetrised, where
     S = [[1, 0, -dy], [0, 1, dx], [0, 0, 1]] moves the covariance's reference point by
     (dx, dy) from ``prev`` to ``pos``."""
@@ -122,7 +121,7 @@ def propagate(
 
 
 def body_counts(
-    to_body: list[list[list[float]]], counts: list[tuple[float, float]], live: list[int]
+    to_body: list[list[list[float]]], counts: list[tuple[float, float]], live: Iterable[int]
 ) -> list[float]:
     """The live mice's counts in body-frame metres, flattened (x1, y1, x2, ...): einsum
     "nij,nj->ni" of the tracker's array path (two products and one sum per entry, which

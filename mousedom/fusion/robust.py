@@ -49,6 +49,7 @@ from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from mousedom.config import RobustConfig
 from mousedom.fusion import chi2
@@ -234,8 +235,8 @@ class Screen(RigidTest):
         self,
         d: np.ndarray,
         live: np.ndarray,
-        squal_scale: np.ndarray | None = None,
-        low_quality: np.ndarray | None = None,
+        squal_scale: ArrayLike | None = None,
+        low_quality: ArrayLike | None = None,
     ) -> Decision:
         """The exact per-window decision (module docstring, steps 1-4); updates health."""
         n = self.n

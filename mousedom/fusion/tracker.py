@@ -26,13 +26,15 @@ import math
 import numpy as np
 
 from mousedom.config import Config
-from mousedom.fusion import integrate, models, noiserate, robust, scalelearn, screenbatch
+from mousedom.fusion import noiserate, robust, scalelearn
 from mousedom.fusion.countfunction import CountFunction
-from mousedom.fusion.covariance import CovarianceState, propagate, world_step_noise
 from mousedom.fusion.evidence import SensorEvidence
 from mousedom.fusion.geometry import rank_problem
 from mousedom.fusion.posebatch import PoseBatch
+from mousedom.fusion.tracker_batch import ArrayPath
+from mousedom.fusion.tracker_learn import Learners, Renewal
 from mousedom.fusion.tracker_one import OneWindowPath
+from mousedom.fusion.tracker_state import Carried, PathSetup
 from mousedom.fusion.units import counts_matrices, sigma_metres
 
 
@@ -45,8 +47,13 @@ def _counts_array(c) -> np.ndarray:
     return np.asarray(c, dtype=np.float64)
 
 
-class Tracker(OneWindowPath):
-    """Fuses the reports of a rig's mice into poses.  See the module docstring."""
+class Tracker:
+    """Fuses the reports of a rig's mice into poses.  See the module docstring.
+
+    Composed of parts: a ``CountFunction`` per mouse (its reports, knots and liveness),
+    the two solving paths (``ArrayPath``, ``OneWindowPath``) over one ``Carried`` pose, the
+    fault screen (``robust.Screen``) and the ``Learners``.  The tracker keeps the window
+    grid and decides which path closes which windows."""
 
     def __init__(
         self,
@@ -70,57 +77,66 @@ class Tracker(OneWindowPath):
         self._mice = [CountFunction(1.0 / m.report_hz, config.late_report_s)
                       for m in config.mice]  # fmt: skip
         self._names = {m.name: i for i, m in enumerate(config.mice)}
-        self._to_body = counts_matrices(config.mice)  # (N,2,2)
-        self._to_body_rows = self._to_body.tolist()  # the same, for the one-window path
-        self._positions = np.array([[m.mount.x, m.mount.y] for m in config.mice])
-        self._sigma = np.array([sigma_metres(m) for m in config.mice])
-        # below these a reading is no count (models.STILL): in metres, and in counts
-        self._still = (models.STILL * self._sigma).tolist()
-        self._still_counts = models.STILL * np.array([m.sigma for m in config.mice])
-        self._still_counts_list = self._still_counts.tolist()  # the one-window path's
-        self._rate = 1.0 / self.period
-        self._linear_cache: dict = {}  # live mice -> tracker_one.LinearPlan
+        # (N,2,2) counts -> body metres: the config's, or with the learnt scales applied;
+        # the tracker's (and tests') record of it, handed to the paths by _rebind
+        self._to_body = counts_matrices(config.mice)
+        positions = np.array([[m.mount.x, m.mount.y] for m in config.mice])
+        sigma = np.array([sigma_metres(m) for m in config.mice])
         self._closed = 0  # number of windows closed so far
         self._complete_all = -math.inf
-        # The carried state as Python floats (the one-window path's currency; the array
-        # path converts on entry and exit): pose, its covariance and where that is taken.
-        self._pose = [0.0, 0.0, 0.0]
-        self._cov = [[0.0] * 3 for _ in range(3)]
-        self._cov_at = [0.0, 0.0]
         self._counts_out = [[0.0, 0.0] for _ in range(self.n_mice)]  # see counts_out
-        self.screen = None
+        self.screen: robust.Screen | None = None
         if config.robust.enabled and self.n_mice:
             self.screen = robust.Screen(
-                self.model, self._positions, self._sigma,
+                self.model, positions, sigma,
                 np.array([1.0 / m.report_hz for m in config.mice]), self.period,
                 config.robust,
                 np.array([m.max_speed or math.inf for m in config.mice]),
             )  # fmt: skip
-        self._steady_rows = {}  # live pattern -> (state, reason) of the common case
-        # Online scale calibration (fusion.scalelearn): with the fault screen, on three or
-        # more mice; its estimates are reported, and folded into _to_body where the config
+        setup = PathSetup(self.model, self.integrator, positions, sigma, self.period, self.screen)
+        self._carried = Carried.origin()
+        self._batch = ArrayPath(setup, self._carried)
+        self._one = OneWindowPath(setup, self._carried)
+        # Online scale calibration and noise (Learners): with the fault screen, on three or
+        # more mice; the scales are reported, and folded into _to_body where the config
         # says so (robust.learn_scale).
-        self.scales = None
-        self._scale_row: list | tuple = ()  # the scales as PoseRow.scale ((): none)
-        self._apply_scales = config.robust.learn_scale
+        self._learners: Learners | None = None
         if self.screen is not None and self.n_mice >= 3:
-            self.scales = scalelearn.ScaleLearner(
-                self.model, self._to_body, self._positions, self._sigma, self.period,
-                config.robust.scale_limit,
-            )  # fmt: skip
-            self._scale_row = self.scales.estimate.tolist()
-        # The covariance's noise, learnt alongside (fusion.noiserate) in the same blocks;
-        # None (the config's sigma) until learnt.
-        self.noise_rate = None
-        self._noise: models.StepNoise | None = None
-        if self.scales is not None and self.model != "bonarini":
-            self.noise_rate = noiserate.NoiseRate(
-                self._positions, self._sigma, self.period, self.scales.block,
-                (0, 2) if self.model == "diff-drive" else (0, 1, 2),
-            )  # fmt: skip
+            self._learners = Learners(
+                setup, self._to_body, np.array([m.sigma for m in config.mice]), config.robust
+            )
+        self._rebind()
         self.evidence = SensorEvidence(
             [1.0 / m.report_hz for m in config.mice], [m.min_squal for m in config.mice]
         )
+
+    @property
+    def scales(self) -> scalelearn.ScaleLearner | None:
+        """The online scale learner (None: not learnt, see __init__)."""
+        return None if self._learners is None else self._learners.scales
+
+    @property
+    def noise_rate(self) -> noiserate.NoiseRate | None:
+        """The covariance's noise learner (None: not learnt)."""
+        return None if self._learners is None else self._learners.noise_rate
+
+    def _rebind(self) -> None:
+        """Hand both paths what the learners renew: the counts matrices, the noise model
+        (None: the config's sigma) and the scales reported.  The paths hold these from
+        one rebind to the next; they never read them off the tracker."""
+        learners = self._learners
+        noise = None if learners is None else learners.noise
+        scale = None if learners is None else learners.scales.estimate
+        self._batch.rebind(self._to_body, noise, scale)
+        self._one.rebind(self._to_body, noise, scale)
+
+    def _renew(self, renewal: Renewal) -> None:
+        """A learner's block end (``Learners.add``): new scales applied, if any, with the
+        pose moved by what they would have given meanwhile; then the paths rebound."""
+        if renewal.to_body is not None:
+            self._to_body = renewal.to_body
+            self._carried.give_back(renewal.turn, renewal.walk)
+        self._rebind()
 
     # ------------------------------------------------------------------ inputs
 
@@ -248,41 +264,33 @@ class Tracker(OneWindowPath):
 
     @property
     def pose(self) -> tuple[float, float, float]:
-        x, y, theta = self._pose
+        x, y, theta = self._carried.pose
         return x, y, theta
 
     @property
     def pose_cov(self) -> np.ndarray:
-        return np.array(self._cov)
+        return np.array(self._carried.cov)
 
     def reset(self, x: float = 0.0, y: float = 0.0, theta: float = 0.0) -> None:
         """Start the odometry frame again at the given pose, with zero uncertainty."""
-        self._pose = [float(x), float(y), float(theta)]
-        self._cov = [[0.0] * 3 for _ in range(3)]
-        self._cov_at = self._pose[:2]
+        self._carried.reset(x, y, theta)
         self._rebase()
 
-    def fix(self, x: float | None = None, y: float | None = None, theta: float | None = None):
+    def fix(
+        self, x: float | None = None, y: float | None = None, theta: float | None = None
+    ) -> None:
         """Absolute fix of some coordinates only (McGill's grid-line correction).
 
         The fixed coordinates take the given values and lose their uncertainty; the
         others, and their correlations with each other, are kept.
         """
-        cov = np.array(self._cov)
-        for k, v in enumerate((x, y, theta)):
-            if v is not None:
-                self._pose[k] = float(v)
-                cov[k, :] = 0.0
-                cov[:, k] = 0.0
-        self._cov = cov.tolist()
-        self._cov_at = self._pose[:2]
+        self._carried.fix(x, y, theta)
         self._rebase()
 
     def _rebase(self) -> None:
-        """After the pose was set from outside: the scales' give-back starts from here (it
-        owes nothing for the turns and the walk before, and the jump is no step)."""
-        if self.scales is not None:
-            self.scales.rebase()
+        """After the pose was set from outside (Learners.rebase)."""
+        if self._learners is not None:
+            self._learners.rebase()
 
     # ------------------------------------------------------------------ outputs
 
@@ -328,7 +336,15 @@ class Tracker(OneWindowPath):
 
     def _edge(self, k: int) -> float:
         """End of window k-1: computed exactly as _close_until computes its edges."""
-        return self.t0 + self.period * k
+        return self._grid_start() + self.period * k
+
+    def _grid_start(self) -> float:
+        """t0, once known: the window grid's callers run after the first report or
+        completion set it (poll, skip_quiet and finish return before)."""
+        t0 = self.t0
+        if t0 is None:
+            raise RuntimeError("the window grid has no start before the first report")
+        return t0
 
     def _windows_ending_by(self, t: float) -> int:
         """The largest k with edge(k) <= t: no rounding tolerance, so whether a window may
@@ -337,7 +353,7 @@ class Tracker(OneWindowPath):
         The division is off by at most a step or two; where floats cannot tell edge k from
         edge k + 1 any more (times near 1e300 once looped here for ever), that is an input
         no window grid can hold, and it is refused."""
-        k = math.floor((t - self.t0) / self.period)
+        k = math.floor((t - self._grid_start()) / self.period)
         for _ in range(8):
             if self._edge(k + 1) <= t:
                 k += 1
@@ -370,8 +386,7 @@ class Tracker(OneWindowPath):
         for m in self._mice:
             if m.pending:
                 self._ingest(m)
-            kt, kx, ky = m.knots if type(m.knots) is tuple else m.knots.tolist()
-            if any(kx) or any(ky) or (kt and kt[-1] > start):
+            if not m.settled(start):
                 return None  # counts still to close, or reports ahead of the frontier
         self._closed = k
         end = self.frontier_time
@@ -410,178 +425,66 @@ class Tracker(OneWindowPath):
         for m in self._mice:
             if m.pending:
                 self._ingest(m, edge)
-            if len(m.knots[0]) > self._KNOTS_SMALL:  # (n_knots, for lists or the array)
+            if m.n_knots() > self._KNOTS_SMALL:
                 small = False
         if small:
             return self._close_one()
         n = k_new - k_old
-        edges = self.t0 + self.period * np.arange(k_old, k_new + 1)
+        edges = self._grid_start() + self.period * np.arange(k_old, k_new + 1)
         counts = np.zeros((n, self.n_mice, 2))
         mask = np.ones((n, self.n_mice), dtype=bool)
-        end_t = float(edges[-1])
         for i, m in enumerate(self._mice):
             m.close(edges, out=counts[:, i])
-            if m.dead:
-                for start, end in m.dead:
-                    mask[(edges[:-1] < end) & (edges[1:] > start), i] = False
-                m.forget_dead(end_t)
+            m.close_live(edges, out=mask[:, i])
         self._closed = k_new
         for acc, (cx, cy) in zip(self._counts_out, counts.sum(axis=0).tolist(), strict=True):
             acc[0] += cx
             acc[1] += cy
         evidence = self.evidence.windows(edges)
-        if self.scales is None:
-            return self._solve(edges[1:], counts, mask, evidence)
+        learners = self._learners
+        if learners is None:
+            return self._batch.solve(edges[1:], counts, mask, evidence)
         # The learnt scales change at block ends: each block's windows with its own.
         out, a = [], 0
         while a < n:
-            b = min(n, a + self.scales.until_block_end())
-            ev = None if evidence is None else tuple(e[a:b] for e in evidence)
-            start = self._pose[:2]
-            part = self._solve(edges[a + 1 : b + 1], counts[a:b], mask[a:b], ev)
-            self._learn_scales(counts[a:b], part, mask[a:b], start)
+            b = min(n, a + learners.until_block_end())
+            ev = None if evidence is None else (evidence[0][a:b], evidence[1][a:b])
+            start = self._carried.pose[:2]
+            part = self._batch.solve(edges[a + 1 : b + 1], counts[a:b], mask[a:b], ev)
+            renewal = learners.add(counts[a:b], part, mask[a:b], start)
+            if renewal is not None:
+                self._renew(renewal)
             out.append(part)
             a = b
         return PoseBatch.concat(out, self.n_mice)
 
-    def _learn_scales_row(
-        self, counts: list, row, live: tuple[bool, ...], start: list[float]
-    ) -> None:
-        """``_learn_scales`` for the one window the daemon closed, on Python values."""
-        tracking, excluded, inconsistent = robust.TRACKING, robust.EXCLUDED, robust.INCONSISTENT
-        ok = row.consistent
-        usable = [ok and v and st == tracking for v, st in zip(live, row.state, strict=True)]
-        held = [v and st == excluded and why == inconsistent
-                for v, st, why in zip(live, row.state, row.reason, strict=True)]  # fmt: skip
-        per = self.period
-        q = [row.vx * per, row.vy * per, row.omega * per] if row.ok else [0.0, 0.0, 0.0]
-        if self.noise_rate is not None:
-            still = self._still_counts_list
-            moving = any(abs(c[0]) > e or abs(c[1]) > e
-                         for c, v, e in zip(counts, live, still, strict=True) if v)  # fmt: skip
-            eligible = all(usable) and row.used == self.n_mice  # every mouse in the solve
-            if self.noise_rate.add_row(row.residual, eligible, moving):
-                self._noise_renewed()
-        step = [row.x - start[0], row.y - start[1]]
-        if self.scales.add_row(counts, usable, held, q, step):
-            self._scales_renewed()
-
-    def _learn_scales(
-        self, counts: np.ndarray, batch: PoseBatch, live: np.ndarray, start: list[float]
-    ) -> None:
-        """Hand closed windows to the scale learner (mice tracking in consistent windows
-        are its evidence, and the ones left out as inconsistent, against the others'
-        motion); at a block end its new scales take effect."""
-        state, reason = batch.state, batch.reason
-        usable = (state == robust.TRACKING) & batch.consistent[:, None] & live
-        held_out = (state == robust.EXCLUDED) & (reason == robust.INCONSISTENT) & live
-        q = np.stack([batch.vx, batch.vy, batch.omega], axis=1) * self.period
-        q[~batch.ok] = 0.0
-        if self.noise_rate is not None:
-            counted = (np.abs(counts) > self._still_counts[None, :, None]).any(axis=2)
-            moving = np.any(counted & live, axis=1)
-            eligible = usable.all(axis=1) & (batch.used == self.n_mice)  # all in the solve
-            if self.noise_rate.add(batch.residual, eligible, moving):
-                self._noise_renewed()
-        xy = np.stack([np.concatenate([[start[0]], batch.x]),
-                       np.concatenate([[start[1]], batch.y])], axis=1)  # fmt: skip
-        if self.scales.add(counts, usable, held_out, q, np.diff(xy, axis=0)):
-            self._scales_renewed()
-
-    def _noise_renewed(self) -> None:
-        if self.noise_rate is not None and self.noise_rate.noise is not self._noise:
-            self._noise = self.noise_rate.noise
-            self._linear_cache.clear()  # the one-window plans hold the covariance
-
-    def _scales_renewed(self) -> None:
-        turn, walk = self.scales.take_turn(), self.scales.take_walk().tolist()
-        if self._apply_scales:
-            self._to_body = self.scales.matrices()
-            self._to_body_rows = self._to_body.tolist()
-            # the pose those scales would have given meanwhile (ScaleLearner.take_turn);
-            # the covariance is carried with the position
-            self._pose[2] += turn
-            for k in range(2):
-                self._pose[k] += walk[k]
-                self._cov_at[k] += walk[k]
-        self._scale_row = self.scales.estimate.tolist()
+    def _close_one(self) -> PoseBatch:
+        """_close_until for the next window on Python floats: the daemon's case."""
+        k = self._closed
+        start, end = self._edge(k), self._edge(k + 1)
+        counts, live_list = [], []
+        for m, acc in zip(self._mice, self._counts_out, strict=True):
+            cx, cy = m.close_one(end)
+            counts.append((cx, cy))
+            acc[0] += cx  # floats, not an array: numpy's += of a list cost 3 us a window
+            acc[1] += cy
+            live_list.append(not m.dead or m.live_in(start, end))
+        live = tuple(live_list)
+        self._closed = k + 1
+        evidence = self.evidence.window(start, end) if self.evidence else None
+        before = self._carried.pose[:2]
+        if self.model == "bonarini":  # numerical linearisation: the array path
+            ev = None if evidence is None else (np.array([evidence[0]]), np.array([evidence[1]]))
+            batch = self._batch.solve(np.array([end]), np.array([counts]), np.array([live]), ev)
+        else:
+            batch = self._one.solve(end, counts, live, evidence)
+        learners = self._learners
+        if learners is not None:
+            renewal = learners.add_row(counts, batch.rows()[0], live, before)
+            if renewal is not None:
+                self._renew(renewal)
+        return batch
 
     # Up to this many windows per poll, _close_one (floats, no validation) is used; tests
     # set it to 0 to compare it with the array path.
     _SMALL = 1
-
-    def _solve(
-        self, t_end: np.ndarray, counts: np.ndarray, mask: np.ndarray, evidence=None
-    ) -> PoseBatch:
-        # d[k, n, i] = sum_j M[n, i, j] c[k, n, j]: two products and one sum, as
-        # onewindow.body_counts does, column by column (an einsum took twice as long, the
-        # same on (k, n, 2) arrays six times: numpy is slow over a trailing axis of two)
-        m = self._to_body
-        d = np.empty_like(counts)
-        for n in range(self.n_mice):
-            cx, cy = counts[:, n, 0], counts[:, n, 1]
-            for i in range(2):
-                np.add(cx * m[n, i, 0], cy * m[n, i, 1], out=d[:, n, i])
-        sol = models.solve(self.model, d, self._positions, self._sigma, mask, self._noise)
-        sol, health, reason, consistent = self._screened(d, mask, sol, evidence)
-        q = np.where(sol.ok[:, None], sol.q, 0.0)
-        partials = integrate.step_partials(q)  # the noise's Jacobian; its S, C make the step
-        steps = integrate.body_step(q, self.integrator, partials[:2])
-        poses = integrate.compose(np.array(self._pose), steps)
-        theta_before = np.concatenate([[self._pose[2]], poses[:-1, 2]])
-        noise = world_step_noise(theta_before, partials, sol.cov)
-        state = CovarianceState(cov=np.array(self._cov), position=np.array(self._cov_at))
-        cov, state = propagate(state, poses[:, :2], noise)
-        self._cov, self._cov_at = state.cov.tolist(), state.position.tolist()
-        self._pose = poses[-1].tolist()
-        rate = 1.0 / self.period
-        return PoseBatch(
-            t=t_end,
-            x=poses[:, 0],
-            y=poses[:, 1],
-            theta=poses[:, 2],
-            vx=q[:, 0] * rate,
-            vy=q[:, 1] * rate,
-            omega=q[:, 2] * rate,
-            cov=cov,
-            used=sol.used,
-            ok=sol.ok,
-            residual=sol.residual,
-            counts=counts,
-            state=health,
-            reason=reason,
-            consistent=consistent,
-            qcov=sol.cov,
-            scale=None
-            if self.scales is None
-            else np.broadcast_to(self.scales.estimate, counts.shape).copy(),
-        )
-
-    def _screened(self, d: np.ndarray, mask: np.ndarray, sol: models.Solution, evidence=None):
-        """The fault-tolerant screen over an array of windows (mousedom.fusion.robust):
-        the solution re-solved without the mice it excluded, with the covariance of
-        unattributed inconsistent windows inflated, and each mouse's health per window."""
-        n = len(mask)
-        if self.screen is None:
-            state = np.where(mask, robust.TRACKING, robust.MISSING).astype(np.int8)
-            return sol, state, np.zeros_like(state), np.ones(n, dtype=bool)
-        q = np.where(sol.ok[:, None], sol.q, 0.0)
-        scale, low = evidence if evidence is not None else (None, None)
-        used, inflate, consistent, state, reason, correction = screenbatch.screen(
-            self.screen, d, mask, q, scale, low
-        )
-        altered = used != mask
-        changed = np.flatnonzero(np.any(altered, axis=1)) if altered.any() else []
-        if len(changed) or np.any(inflate != 1.0) or correction is not None:
-            q, cov, res = sol.q.copy(), sol.cov.copy(), sol.residual.copy()
-            n_used, ok = sol.used.copy(), sol.ok.copy()
-            if len(changed):
-                sub = models.solve(self.model, d[changed], self._positions, self._sigma,
-                                   used[changed], self._noise)  # fmt: skip
-                q[changed], cov[changed], res[changed] = sub.q, sub.cov, sub.residual
-                n_used[changed], ok[changed] = sub.used, sub.ok
-            cov *= inflate[:, None, None]
-            if correction is not None:
-                q += correction
-            sol = models.Solution(q=q, cov=cov, residual=res, used=n_used, ok=ok)
-        return sol, state, reason, consistent

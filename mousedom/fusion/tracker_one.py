@@ -1,10 +1,11 @@
-"""The tracker's one-window path: closing the next window on Python floats (the daemon's).
+"""The tracker's one-window path: solving the next window on Python floats (the daemon's).
 
-A mixin of ``Tracker`` (tracker.py), which keeps the state: the mice's count functions,
-the carried pose and covariance, the fault-tolerant screen.  The daemon closes one window
-per poll; the array functions pay numpy's fixed cost per call dozens of times for it, so
-here the same maths runs on floats (``onewindow``), with the same results as the array
-path (tests/test_onewindow.py, tests/test_robust.py).
+A part of ``Tracker`` (tracker.py), which closes the mice's count functions and hands each
+window's counts here.  The daemon closes one window per poll; the array functions pay
+numpy's fixed cost per call dozens of times for it, so here the same maths runs on floats
+(``onewindow``), with the same results as the array path (tests/test_onewindow.py,
+tests/test_robust.py).  Linear models only: the tracker sends bonarini's windows to the
+array path (numerical linearisation).
 """
 
 from __future__ import annotations
@@ -16,6 +17,10 @@ import numpy as np
 
 from mousedom.fusion import models, onewindow, robust
 from mousedom.fusion.posebatch import PoseBatch, PoseRow
+from mousedom.fusion.tracker_state import Carried, PathSetup
+
+Live = tuple[bool, ...]  # per mouse: live over the window
+Matrix3 = list[list[float]]
 
 
 class LinearPlan(NamedTuple):
@@ -25,49 +30,68 @@ class LinearPlan(NamedTuple):
     a_rows: list[list[float]] | None  # the design matrix's rows
     b_rows: list[list[float]] | None  # the estimator's: q = B d
     idx: list[int]  # the live mice
-    c_moving: list[list[float]]  # q's covariance in a window with counts
-    c_rest: list[list[float]]  # and in one without
+    c_moving: Matrix3  # q's covariance in a window with counts
+    c_rest: Matrix3  # and in one without
     cols: tuple[int, ...]  # the q components solved for
 
 
+# One window's linear solve (OneWindowPath._linear_one): the twist increment q (u_x, u_y,
+# a), the residual per mouse (0 for the mice not used), the mice used, q's covariance, and
+# whether those mice have rank.  A plain tuple, not a NamedTuple: made every window, and a
+# NamedTuple's constructor costs several times a tuple display.
+LinearSolution = tuple[list[float], list[list[float]], list[int], Matrix3, bool]
+
+
 class OneWindowPath:
-    """``Tracker._close_one`` and what it uses (see the module docstring)."""
+    """Solves one window of a linear model on floats (see the module docstring).
 
-    def _close_one(self) -> PoseBatch:
-        """_close_until for the next window on Python floats: the daemon's case."""
-        k = self._closed
-        start, end = self._edge(k), self._edge(k + 1)
-        counts, live = [], []
-        for m, acc in zip(self._mice, self._counts_out, strict=True):
-            cx, cy = m.close_one(end)
-            counts.append((cx, cy))
-            acc[0] += cx  # floats, not an array: numpy's += of a list cost 3 us a window
-            acc[1] += cy
-            live.append(not m.dead or m.live_in(start, end))
-        live = tuple(live)
-        self._closed = k + 1
-        evidence = self.evidence.window(start, end) if self.evidence else None
-        before = self._pose[:2]
-        if self.model == "bonarini":  # numerical linearisation: the array path
-            ev = None if evidence is None else (np.array([evidence[0]]), np.array([evidence[1]]))
-            batch = self._solve(np.array([end]), np.array([counts]), np.array([live]), ev)
-        else:
-            batch = self._solve_one(end, counts, live, evidence)
-        if self.scales is not None:
-            self._learn_scales_row(counts, batch.rows()[0], live, before)
-        return batch
+    Built with what does not change (``PathSetup``) and the tracker's ``Carried`` pose,
+    which it reads and writes (shared with the array path).  What the learners renew (the
+    counts matrices, the noise model, the scales reported) reaches it through ``rebind``:
+    it never reads the tracker."""
 
-    def _linear_plan(self, live: tuple[bool, ...]) -> LinearPlan:
+    def __init__(self, setup: PathSetup, carried: Carried) -> None:
+        self._model = setup.model
+        self._integrator = setup.integrator
+        self._positions = setup.positions
+        self._sigma = setup.sigma
+        self._n = setup.n_mice
+        self._rate = 1.0 / setup.period
+        self._screen = setup.screen
+        self._carried = carried
+        # below these a reading is no count (models.STILL), in metres
+        self._still = (models.STILL * setup.sigma).tolist()
+        self._plans: dict[Live, LinearPlan] = {}  # made once per pattern of live mice
+        # live pattern -> (state, reason) of the common case (every live mouse tracking)
+        self._steady: dict[Live, tuple[tuple[int, ...], tuple[int, ...]]] = {}
+        # bound by rebind (the tracker calls it at construction and at every renewal)
+        self._to_body_rows: list[list[list[float]]] = []
+        self._noise: models.StepNoise | None = None
+        self._scale_row: list | tuple = ()
+
+    def rebind(
+        self, to_body: np.ndarray, noise: models.StepNoise | None, scale: np.ndarray | None
+    ) -> None:
+        """The tracker's counts matrices (N, 2, 2), noise model and learnt scales (N, 2;
+        None: none learnt) as they are now."""
+        self._to_body_rows = to_body.tolist()
+        if noise is not self._noise:
+            self._noise = noise
+            self._plans.clear()  # the plans hold the covariance
+        self._scale_row = () if scale is None else scale.tolist()
+
+    def _linear_plan(self, live: Live) -> LinearPlan:
         """The pattern's LinearPlan, made once."""
-        plan = self._linear_cache.get(live)
+        plan = self._plans.get(live)
         if plan is None:
-            cols = (0, 1, 2) if self.model == "lsq" else (0, 2)
+            cols = (0, 1, 2) if self._model == "lsq" else (0, 2)
             key = np.array(live, dtype=bool).tobytes()
             est = None
             if any(live):
                 est = models._estimator(self._positions.tobytes(), self._sigma.tobytes(), key, cols)
             c3 = np.zeros((3, 3))
-            a_rows = b_rows = None
+            a_rows: list[list[float]] | None = None
+            b_rows: list[list[float]] | None = None
             idx = [i for i, v in enumerate(live) if v]
             c_moving = c_rest = c3.tolist()
             if est is not None:
@@ -79,36 +103,39 @@ class OneWindowPath:
                     c_moving = models.sandwich(est[1], self._noise.moving[idx], cols).tolist()
                     c_rest = models.sandwich(est[1], self._noise.rest[idx], cols).tolist()
             plan = LinearPlan(a_rows, b_rows, idx, c_moving, c_rest, cols)
-            self._linear_cache[live] = plan
+            self._plans[live] = plan
         return plan
 
-    def _solve_one(
+    def solve(
         self,
         t_end: float,
         counts: list[tuple[float, float]],
-        live: tuple[bool, ...],
+        live: Live,
         evidence: tuple[list[float], list[bool]] | None = None,
     ) -> PoseBatch:
-        """_solve for one window of a linear model (see mousedom.fusion.onewindow)."""
+        """The window ending at ``t_end`` from each mouse's raw ``counts`` (REL_X, REL_Y),
+        as ``ArrayPath.solve`` gives it for one window of a linear model; the pose
+        carried on."""
         # Every mouse's counts in body metres, once: the solve takes the live ones, the
         # screen all (the products per mouse are the same whichever subset is asked).
-        d_all = onewindow.body_counts(self._to_body_rows, counts, range(self.n_mice))
+        n = self._n
+        d_all = onewindow.body_counts(self._to_body_rows, counts, range(n))
         q, residual, idx, c3, ok = self._linear_one(d_all, live)
         consistent = True
-        screen = self.screen
+        screen = self._screen
         if screen is None or screen.fast_one(d_all, q, live, evidence is not None):
             # The common case (or no screen): every live mouse tracking, the rest missing,
             # and no reason for either (robust's health gives no other to those states).
-            rows = self._steady_rows.get(live)
+            rows = self._steady.get(live)
             if rows is None:
-                rows = self._steady_rows[live] = (
+                rows = self._steady[live] = (
                     tuple(robust.TRACKING if v else robust.MISSING for v in live),
-                    (robust.NONE,) * self.n_mice,
+                    (robust.NONE,) * n,
                 )
             state, reason = rows
         else:
             scale, low = evidence if evidence is not None else (None, None)
-            d_pairs = np.array(d_all).reshape(self.n_mice, 2)
+            d_pairs = np.array(d_all).reshape(n, 2)
             dec = screen.decide(d_pairs, np.array(live, dtype=bool), scale, low)
             used = tuple(dec.used.tolist())
             if used != live:
@@ -121,23 +148,25 @@ class OneWindowPath:
             state = tuple(h.state for h in screen.health)
             reason = tuple(h.reason for h in screen.health)
         ux, uy, a = q
-        sx, sy = onewindow.body_step(ux, uy, a, self.integrator)
-        x0, y0, th0 = self._pose
+        sx, sy = onewindow.body_step(ux, uy, a, self._integrator)
+        carried = self._carried
+        x0, y0, th0 = carried.pose
         cb, sb = math.cos(th0), math.sin(th0)
         x, y, th = x0 + (cb * sx - sb * sy), y0 + (sb * sx + cb * sy), th0 + a
         g = onewindow.noise(th0, ux, uy, a, c3)
-        cov = onewindow.propagate(self._cov, self._cov_at, (x, y), g)
-        self._pose, self._cov, self._cov_at = [x, y, th], cov, [x, y]
+        cov = onewindow.propagate(carried.cov, carried.at, (x, y), g)
+        carried.pose, carried.cov, carried.at = [x, y, th], cov, [x, y]
         rate = self._rate
         pose = PoseRow(t_end, x, y, th, ux * rate, uy * rate, a * rate, cov, len(idx), ok,
                     residual, counts, state, reason, consistent, c3, self._scale_row)  # fmt: skip
         return PoseBatch.from_rows([pose])
 
-    def _linear_one(self, d_all: list[float], live: tuple[bool, ...]):
-        """(q, residual per mouse, used indices, q covariance, ok) of one window, from
-        every mouse's body-frame counts ``d_all`` (x1, y1, x2, ...)."""
+    def _linear_one(self, d_all: list[float], live: Live) -> LinearSolution:
+        """One window's solve with the ``live`` mice, from every mouse's body-frame counts
+        ``d_all`` (x1, y1, x2, ...)."""
         a_rows, b_rows, idx, c_moving, c_rest, cols = self._linear_plan(live)
-        residual = [[0.0, 0.0] for _ in range(self.n_mice)]
+        n = self._n
+        residual = [[0.0, 0.0] for _ in range(n)]
         q = [0.0, 0.0, 0.0]
         ok = b_rows is not None
         c3 = c_moving
@@ -146,12 +175,8 @@ class OneWindowPath:
             if not any(abs(d_all[2 * i]) > still[i] or abs(d_all[2 * i + 1]) > still[i]
                        for i in idx):  # fmt: skip
                 c3 = c_rest
-        if ok:
-            d = (
-                d_all
-                if len(idx) == self.n_mice
-                else [v for i in idx for v in d_all[2 * i : 2 * i + 2]]
-            )
+        if a_rows is not None and b_rows is not None:  # (ok)
+            d = d_all if len(idx) == n else [v for i in idx for v in d_all[2 * i : 2 * i + 2]]
             qk, res = onewindow.linear(d, a_rows, b_rows)
             for c, v in zip(cols, qk, strict=True):
                 q[c] = v
