@@ -88,69 +88,10 @@ def collect_runs(
     for s in sources:
         sel.register(s.fileno(), selectors.EVENT_READ, s)
     sel.register(stdin_fd, selectors.EVENT_READ, None)
-    pending = b""
-    last_show = 0.0
-    tty = out.isatty()  # live counts redraw one line: only on a terminal
-
-    def drain(source: Source) -> None:
-        try:
-            while True:
-                batches = source.read(clock())
-                if not batches:
-                    return
-                for b in batches:
-                    col.add(b)
-        except SourceGone as e:
-            raise UserError(f"mouse {source.name} went away: {e}") from None
-
-    def prompt() -> None:
-        k = len(col.runs) + 1
-        out.write(f"{what} {k}: press Enter to start (q and Enter, or end of input, to finish)\n")
-        out.flush()
-
-    prompt()
+    session = _Session(sources, sel, stdin_fd, out, col, max_runs, what, clock)
+    session.prompt()
     try:
-        while max_runs is None or len(col.runs) < max_runs:
-            for key, _ in sel.select(timeout=REFRESH):
-                if key.data is not None:
-                    drain(key.data)
-            if tty and col.active and clock() - last_show >= REFRESH:
-                out.write("\r" + col.status())
-                out.flush()
-                last_show = clock()
-            line = None
-            if any(k.data is None for k, _ in sel.select(timeout=0)):
-                chunk = os.read(stdin_fd, 4096)
-                if not chunk:
-                    line = b"q"
-                else:
-                    pending += chunk
-            if line is None and b"\n" in pending:
-                line, pending = pending.split(b"\n", 1)
-            if line is None:
-                continue
-            quit_ = line.strip().lower() in (b"q", b"quit")
-            if col.active:
-                for s in sources:
-                    drain(s)
-                kept = col.stop()
-                out.write(("\r" if tty else "") + col.status() + "\n")
-                out.write(
-                    f"{what} {len(col.runs)} recorded\n"
-                    if kept
-                    else "nothing moved: run not kept\n"
-                )
-                if quit_:
-                    break
-                if max_runs is None or len(col.runs) < max_runs:
-                    prompt()
-            elif quit_:
-                break
-            else:
-                col.start()
-                out.write("moving... press Enter to stop\n")
-                last_show = 0.0
-            out.flush()
+        session.loop()
     finally:
         sel.close()
         for s in sources:
@@ -159,3 +100,103 @@ def collect_runs(
         out.write(f"{col.between} counts arrived between runs and were not used\n")
         out.flush()
     return col.recording(), col.runs
+
+
+class _Session:
+    """The prompt loop of ``collect_runs``: the mice read as they report, the live counts
+    shown, and each line of input starting or stopping a run."""
+
+    def __init__(
+        self,
+        sources: Sequence[Source],
+        sel: selectors.BaseSelector,
+        stdin_fd: int,
+        out: TextIO,
+        col: _Collector,
+        max_runs: int | None,
+        what: str,
+        clock: Callable[[], float],
+    ) -> None:
+        self.sources, self.sel, self.stdin_fd, self.out = sources, sel, stdin_fd, out
+        self.col, self.max_runs, self.what, self.clock = col, max_runs, what, clock
+        self.pending = b""  # input read but not yet a whole line
+        self.last_show = 0.0
+        self.tty = out.isatty()  # live counts redraw one line: only on a terminal
+
+    def loop(self) -> None:
+        while self.more_runs():
+            for key, _ in self.sel.select(timeout=REFRESH):
+                if key.data is not None:
+                    self.drain(key.data)
+            self.show_counts()
+            line = self.next_line()
+            if line is None:
+                continue
+            if self.answer(line):
+                break
+            self.out.flush()
+
+    def more_runs(self) -> bool:
+        return self.max_runs is None or len(self.col.runs) < self.max_runs
+
+    def drain(self, source: Source) -> None:
+        try:
+            while True:
+                batches = source.read(self.clock())
+                if not batches:
+                    return
+                for b in batches:
+                    self.col.add(b)
+        except SourceGone as e:
+            raise UserError(f"mouse {source.name} went away: {e}") from None
+
+    def prompt(self) -> None:
+        k = len(self.col.runs) + 1
+        self.out.write(
+            f"{self.what} {k}: press Enter to start (q and Enter, or end of input, to finish)\n"
+        )
+        self.out.flush()
+
+    def show_counts(self) -> None:
+        if self.tty and self.col.active and self.clock() - self.last_show >= REFRESH:
+            self.out.write("\r" + self.col.status())
+            self.out.flush()
+            self.last_show = self.clock()
+
+    def next_line(self) -> bytes | None:
+        """A whole line of input if there is one (``q`` at the end of input), else None."""
+        if any(k.data is None for k, _ in self.sel.select(timeout=0)):
+            chunk = os.read(self.stdin_fd, 4096)
+            if not chunk:
+                return b"q"
+            self.pending += chunk
+        if b"\n" in self.pending:
+            line, self.pending = self.pending.split(b"\n", 1)
+            return line
+        return None
+
+    def answer(self, line: bytes) -> bool:
+        """Start or stop a run; True when the user is done."""
+        quit_ = line.strip().lower() in (b"q", b"quit")
+        col, out = self.col, self.out
+        if col.active:
+            for s in self.sources:
+                self.drain(s)
+            kept = col.stop()
+            out.write(("\r" if self.tty else "") + col.status() + "\n")
+            out.write(
+                f"{self.what} {len(col.runs)} recorded\n"
+                if kept
+                else "nothing moved: run not kept\n"
+            )
+            if quit_:
+                return True
+            if self.more_runs():
+                self.prompt()
+        elif quit_:
+            return True
+        else:
+            col.start()
+            out.write("moving... press Enter to stop\n")
+            self.last_show = 0.0
+        return False
