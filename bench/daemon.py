@@ -154,6 +154,49 @@ def run_daemon(d: Path, seconds: float, rate_hz: float, extra: str = "", on_read
     fifos = [d / f"{m}.fifo" for m in MICE]
     for f in fifos:
         os.mkfifo(f)
+    daemon, sock_path = _start_daemon(d, fifos, rate_hz, extra)
+    if on_ready is not None:
+        on_ready()
+    stamps_file = d / "stamps.npz"
+    feed = start_feeder(fifos, seconds + 1.5, stamps_file)
+    poses = _PoseReader(sock_path)
+    ctl = _Control(sock_path)
+
+    time.sleep(1.2)  # warm-up: the feeder starts, windows begin to close
+    cpu0, wall0 = cpu_seconds(daemon.pid), time.monotonic()
+    wakes0, reads0 = ctl.counters()
+    time.sleep(seconds)
+    wakes1, reads1 = ctl.counters()
+    cpu1, wall1 = cpu_seconds(daemon.pid), time.monotonic()
+    ctl.close()
+    feed.wait()
+    time.sleep(0.2)
+    poses.stop.set()
+    daemon.send_signal(signal.SIGTERM)
+    daemon.wait(5)
+    poses.sock.close()
+
+    data = np.load(stamps_file)
+    stamps = [data[k] for k in data.files]
+    lat_ms = np.array(_latencies(poses.received, stamps, wall0, wall1)) * 1e3
+    n_poses = sum(1 for _, a in poses.received if wall0 <= a <= wall1)
+    return {
+        "stamps": stamps,
+        "window": (wall0, wall1),
+        "cpu": (cpu1 - cpu0) / (wall1 - wall0),
+        "lat_ms": lat_ms,
+        "pose_hz": n_poses / (wall1 - wall0),
+        "period": 1.0 / rate_hz,
+        "reports": sum(len(s) for s in stamps),
+        "wakes_hz": (wakes1 - wakes0) / (wall1 - wall0),
+        "reads_hz": (reads1 - reads0) / (wall1 - wall0),
+    }
+
+
+def _start_daemon(
+    d: Path, fifos: list[Path], rate_hz: float, extra: str
+) -> tuple[subprocess.Popen, Path]:
+    """``mousedom run`` on the FIFOs, once its socket is there."""
     config = write_config(d, fifos, rate_hz, extra)
     sock_path = d / "mousedom.sock"
     env = dict(os.environ, PYTHONPATH=str(ROOT))
@@ -175,60 +218,59 @@ def run_daemon(d: Path, seconds: float, rate_hz: float, extra: str = "", on_read
         if daemon.poll() is not None:
             raise SystemExit("daemon did not start")
         time.sleep(0.02)
-    if on_ready is not None:
-        on_ready()
-    stamps_file = d / "stamps.npz"
-    feed = start_feeder(fifos, seconds + 1.5, stamps_file)
+    return daemon, sock_path
 
-    sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    sock.connect(str(sock_path))
-    received: list[tuple[float, float]] = []  # (pose t, arrival time)
-    stop = threading.Event()
 
-    def reader() -> None:
-        f = sock.makefile("rb")
+class _PoseReader:
+    """A client on its own thread that notes each POSE's t and when it arrived."""
+
+    def __init__(self, sock_path: Path) -> None:
+        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        self.sock.connect(str(sock_path))
+        self.received: list[tuple[float, float]] = []  # (pose t, arrival time)
+        self.stop = threading.Event()
+        threading.Thread(target=self._read, daemon=True).start()
+
+    def _read(self) -> None:
+        f = self.sock.makefile("rb")
         for line in f:
             now = time.monotonic()
             if line.startswith(b'{"class":"POSE"'):
-                received.append((json.loads(line)["t"], now))
-            if stop.is_set():
+                self.received.append((json.loads(line)["t"], now))
+            if self.stop.is_set():
                 break
 
-    th = threading.Thread(target=reader, daemon=True)
-    th.start()
-    ctl = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    ctl.connect(str(sock_path))
-    ctl_lines = ctl.makefile("rb")
-    ctl.sendall(b'{"cmd": "rate", "hz": 0}\n')
 
-    def counters() -> tuple[int, int]:
-        ctl.sendall(b'{"cmd": "status"}\n')
-        for line in ctl_lines:
+class _Control:
+    """A second client, with no poses of its own, that asks for the daemon's counters."""
+
+    def __init__(self, sock_path: Path) -> None:
+        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        self.sock.connect(str(sock_path))
+        self.lines = self.sock.makefile("rb")
+        self.sock.sendall(b'{"cmd": "rate", "hz": 0}\n')
+
+    def counters(self) -> tuple[int, int]:
+        """(wakes, source reads) so far."""
+        self.sock.sendall(b'{"cmd": "status"}\n')
+        for line in self.lines:
             msg = json.loads(line)
             if msg["class"] == "STATUS":
                 return msg["wakes"], msg["source_reads"]
         raise SystemExit("daemon went away")
 
-    time.sleep(1.2)  # warm-up: the feeder starts, windows begin to close
-    cpu0, wall0 = cpu_seconds(daemon.pid), time.monotonic()
-    wakes0, reads0 = counters()
-    time.sleep(seconds)
-    wakes1, reads1 = counters()
-    cpu1, wall1 = cpu_seconds(daemon.pid), time.monotonic()
-    ctl.close()
-    feed.wait()
-    time.sleep(0.2)
-    stop.set()
-    daemon.send_signal(signal.SIGTERM)
-    daemon.wait(5)
-    sock.close()
+    def close(self) -> None:
+        self.sock.close()
 
-    data = np.load(stamps_file)
-    stamps = [data[k] for k in data.files]
-    period = 1.0 / rate_hz
+
+def _latencies(
+    received: list[tuple[float, float]], stamps: list[np.ndarray], wall0: float, wall1: float
+) -> list[float]:
+    """Each pose that arrived in [wall0, wall1]: its arrival after c(T), when the last mouse
+    reported past its T (that mouse's first stamp after T); poses past a mouse's last
+    report are left out."""
     lat = []
     for t_pose, arrival in received:
-        # c(T): when the last mouse reported past T (its first stamp after T)
         firsts = []
         for s in stamps:
             j = np.searchsorted(s, t_pose, side="right")
@@ -238,19 +280,7 @@ def run_daemon(d: Path, seconds: float, rate_hz: float, extra: str = "", on_read
         else:
             if wall0 <= arrival <= wall1:
                 lat.append(arrival - max(firsts))
-    lat_ms = np.array(lat) * 1e3
-    n_poses = sum(1 for _, a in received if wall0 <= a <= wall1)
-    return {
-        "stamps": stamps,
-        "window": (wall0, wall1),
-        "cpu": (cpu1 - cpu0) / (wall1 - wall0),
-        "lat_ms": lat_ms,
-        "pose_hz": n_poses / (wall1 - wall0),
-        "period": period,
-        "reports": sum(len(s) for s in stamps),
-        "wakes_hz": (wakes1 - wakes0) / (wall1 - wall0),
-        "reads_hz": (reads1 - reads0) / (wall1 - wall0),
-    }
+    return lat
 
 
 # ----------------------------------------------------------------------------- baselines
