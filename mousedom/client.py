@@ -104,7 +104,7 @@ class Pose:
 
 def socket_candidates(environ: dict[str, str] | None = None) -> list[str]:
     """Where a daemon's socket may be, most likely first (see ``default_socket_path``)."""
-    env = os.environ if environ is None else environ
+    env = dict(os.environ) if environ is None else environ
     uid = os.getuid()
     out = [default_socket_path(env, uid), os.path.join("/run/mousedom", SOCKET_NAME)]
     if env.get("XDG_RUNTIME_DIR"):

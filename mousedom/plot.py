@@ -8,6 +8,8 @@ for it before a long replay starts, so a missing extra costs no time.
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
+from typing import cast
 
 import numpy as np
 
@@ -74,11 +76,12 @@ class PlotCollector:
             self.step *= 2
 
     def data(self) -> np.ndarray:
-        if not self._parts:
+        last = self._last  # set with the first part
+        if not self._parts or last is None:
             return np.zeros((0, RES))
         data = np.concatenate(self._parts)
-        if data[-1, 0] != self._last[0]:
-            data = np.vstack([data, self._last])
+        if data[-1, 0] != last[0]:
+            data = np.vstack([data, last])
         return data
 
 
@@ -127,7 +130,10 @@ def figure(
         # The path coloured by time: where the robot was when.
         pts = data[:, [X, Y]]
         segs = np.stack([pts[:-1], pts[1:]], axis=1)
-        line = LineCollection(segs, cmap="viridis", linewidths=1.5, zorder=2)
+        # (The stubs ask for a Sequence of segments: an (n, 2, 2) array is one.)
+        line = LineCollection(
+            cast(Sequence[np.ndarray], segs), cmap="viridis", linewidths=1.5, zorder=2
+        )
         line.set_array(data[1:, T] - data[0, T])
         ax1.add_collection(line)
         fig.colorbar(line, ax=ax1, label="t (s since the start)", shrink=0.8)
@@ -175,7 +181,7 @@ def _shade(ax, t: np.ndarray, state: np.ndarray, color: str, name: str) -> None:
         if not on.any():
             continue
         edges = np.flatnonzero(np.diff(np.concatenate([[0], on.astype(int), [0]])))
-        label = f"{name} {'excluded' if code == 2 else 'suspect'}"
+        label: str | None = f"{name} {'excluded' if code == 2 else 'suspect'}"
         for a, b in zip(edges[0::2], edges[1::2], strict=True):
             ax.axvspan(t[a], t[min(b, len(t) - 1)], color=color, lw=0, label=label, **style)
             label = None

@@ -109,6 +109,10 @@ def store(config: Config, update: Callable[[dict[str, Any]], dict[str, Any]]) ->
     the new), and check that the config still loads with it; if not, put the old file back.
     """
     path = config.calibration
+    if path is None or config.path is None:
+        # The commands refuse --write without a calibration file before any work, and a
+        # config they load comes from its file: neither is missing here.
+        raise UserError(f"{config.path or 'the config'}: no calibration file to write to")
     try:
         old: bytes | None = saferead.read_bytes(path)
     except OSError:

@@ -48,7 +48,9 @@ def read_motion(cap: Capture, wanted: Sequence[tuple[int, MouseConfig]]) -> dict
                         dxs.append(mo.dx)
                         dys.append(mo.dy)
                 decoder = decoders.get(name)
-                for piece in batch.serial if decoder is not None else ():
+                if decoder is None:
+                    continue
+                for piece in batch.serial:
                     if piece.device == index:
                         rep = decoder.feed_many(piece.t, piece.data)
                         ts.append(rep.t)

@@ -53,6 +53,7 @@ def parse_reference(text: str, path: str | None = None) -> Reference:
         )
     head_no, head = rows[0]
     names = header_names(head, path, head_no)
+    cols: tuple[str, ...]
     if set(names) == set(TWIST) and len(names) == 4:
         kind, cols = "twist", TWIST
     elif set(names) == set(WHEELS) and len(names) == 3:

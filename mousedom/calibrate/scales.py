@@ -100,6 +100,7 @@ def learn(
     replay = Replay(config, assign(config, specs))
     summary = replay.run(lambda batch: None, progress=progress)
     learner = replay.tracker.scales
+    assert learner is not None  # learn_scale is on (above): the tracker has its learner
     mice = []
     for i, m in enumerate(config.mice):
         g, s = float(learner.estimate[i, 0]), float(learner.spread[i, 0])

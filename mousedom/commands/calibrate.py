@@ -404,7 +404,7 @@ def run_mounts(args: argparse.Namespace) -> int:
         def update(data):
             for n, f in result.fits.items():
                 mount = {"x": round(f.x, 6), "y": round(f.y, 6)}
-                values = {"mount": mount}
+                values: dict[str, Any] = {"mount": mount}
                 if result.method == "exact":
                     m = config.mouse(n)
                     mount["yaw"] = round(math.degrees(f.yaw), 4)
