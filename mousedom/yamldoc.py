@@ -24,6 +24,12 @@ from mousedom.errors import UserError, located
 class ConfigError(UserError):
     """A config or calibration file is wrong; the message names file, line and key."""
 
+    def __init__(
+        self, message: str, exit_code: int | None = None, *, line: int | None = None
+    ) -> None:
+        super().__init__(message, exit_code)
+        self.line = line  # the file's line it is about (None: unknown): orders the problems
+
 
 _KEY_LINE = re.compile(r"^( *)(?:- )?([^\s#:][^:#]*?)\s*:(?:\s+(\S.*))?$")
 
@@ -127,9 +133,7 @@ class YamlDoc:
         if line is None and not keys[:1]:
             line = 1  # an empty file: its first line
         where = ".".join(k if k.isprintable() else repr(k) for k in keys)
-        e = ConfigError(located(self.path, line, message, where or None))
-        e.line = line  # type: ignore[attr-defined]
-        return e
+        return ConfigError(located(self.path, line, message, where or None), line=line)
 
     # Every problem of a file is reported at once: sections are read one by one, each
     # failure is kept here, and parse_config raises them all together at the end.
@@ -147,7 +151,7 @@ class YamlDoc:
     def raise_problems(self) -> None:
         if not self.problems:
             return
-        ordered = sorted(self.problems, key=lambda e: getattr(e, "line", None) or 0)
+        ordered = sorted(self.problems, key=lambda e: e.line or 0)
         text = "\n".join(dict.fromkeys(str(e) for e in ordered))  # each once, by line
         raise ConfigError(text)
 

@@ -79,7 +79,7 @@ class _Samples:
         if len(chunks) == 1 and type(chunks[0]) is not list:
             values = chunks[0]
         else:
-            values = np.concatenate([np.asarray(c, dtype=float) for c in chunks] or [[]])
+            values = np.concatenate([np.asarray(c, dtype=float) for c in chunks] or [np.zeros(0)])
         values = values[-keep:]
         self._chunks, self._n = [values], len(values)
         return values
@@ -393,7 +393,7 @@ class NoiseModel:
         if changed:
             self.lam_f[:], self.lam_r[:] = np.split(np.where(moved[done], new[done], lam), 2)
         # Each series as end_block would have left it at block end ``done``.
-        trimmed = fresh_evidence[: done + 1].any(axis=0).tolist()
+        trimmed: list[bool] = np.any(fresh_evidence[: done + 1], axis=0).tolist()
         for k, (st, a, b) in enumerate(zip(stores, (offset + lo[done]).tolist(),
                                            (offset + hi[done]).tolist(), strict=True)):  # fmt: skip
             st.reset(joined[a:b])

@@ -43,6 +43,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 GROUP_S = 0.1  # windows are summed over this long before they are compared
 BLOCK_S = 0.5  # the scales are renewed this often
@@ -105,7 +106,9 @@ class ScaleLearner:
         self.estimate = np.ones((self.n, 2))  # the fit, unclipped
         self.spread = np.full((self.n, 2), np.inf)  # its standard deviation
         self.scale = np.ones((self.n, 2))  # applied: the fit clipped to 1 +- limit
-        self._rows: list[tuple[np.ndarray, np.ndarray]] = []  # this block's (counts, usable)
+        # this block's (counts, usable, held_out, q, steps): arrays from add, one window's
+        # lists from add_row
+        self._rows: list[tuple[ArrayLike, ArrayLike, ArrayLike, ArrayLike, ArrayLike]] = []
         self._held = 0  # windows in _rows
         self.version = 0  # bumped whenever the estimates are renewed
         # Per mouse and count axis, forgetting: the turn its readings gave at scale 1
@@ -156,7 +159,8 @@ class ScaleLearner:
             held_out, q = np.zeros((n, self.n), dtype=bool), np.zeros((n, 3))
         if steps is None:
             steps = np.zeros((n, 2))
-        self._rows.append(tuple(np.asarray(a) for a in (counts, usable, held_out, q, steps)))
+        self._rows.append((np.asarray(counts), np.asarray(usable), np.asarray(held_out),
+                           np.asarray(q), np.asarray(steps)))  # fmt: skip
         self._held += n
         return self._block_end()
 

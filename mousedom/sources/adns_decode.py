@@ -121,8 +121,12 @@ class AdnsDecoder:
             np.concatenate([r.dx for r in parts]),
             np.concatenate([r.dy for r in parts]),
         )
-        out.quality = tuple(  # type: ignore[assignment]
-            [v for r in parts for v in r.quality[k]] for k in range(3)
+        # every part holds reports, so feed gave each its quality
+        quality = [r.quality for r in parts if r.quality is not None]
+        out.quality = (
+            [v for q in quality for v in q[0]],
+            [v for q in quality for v in q[1]],
+            [v for q in quality for v in q[2]],
         )
         return out
 

@@ -88,9 +88,10 @@ class Reports:
         # The sensor's own word on each report, where it has one (the ADNS-3080):
         # (t, SQUAL or None, overflow) lists, for ``Tracker.push_quality``.
         self.quality: tuple[list[float], list[Any], list[bool]] | None = None
-        self._t = np.asarray(t, dtype=np.float64)
-        self._dx = np.asarray(dx, dtype=np.float64)
-        self._dy = np.asarray(dy, dtype=np.float64)
+        # The arrays, or (from_lists) None until asked for: made from _lists then.
+        self._t: np.ndarray | None = np.asarray(t, dtype=np.float64)
+        self._dx: np.ndarray | None = np.asarray(dx, dtype=np.float64)
+        self._dy: np.ndarray | None = np.asarray(dy, dtype=np.float64)
         self._lists: tuple[list[float], list[Any], list[Any]] | None = None
 
     @classmethod
@@ -107,20 +108,26 @@ class Reports:
     @property
     def t(self) -> np.ndarray:
         if self._t is None:
-            self._t = np.array(self._lists[0], dtype=np.float64)
+            self._t = self._array(0)
         return self._t
 
     @property
     def dx(self) -> np.ndarray:
         if self._dx is None:
-            self._dx = np.array(self._lists[1], dtype=np.float64)
+            self._dx = self._array(1)
         return self._dx
 
     @property
     def dy(self) -> np.ndarray:
         if self._dy is None:
-            self._dy = np.array(self._lists[2], dtype=np.float64)
+            self._dy = self._array(2)
         return self._dy
+
+    def _array(self, column: int) -> np.ndarray:
+        """A column of ``from_lists``'s lists as an array (an array not yet made)."""
+        if self._lists is None:  # __init__ makes all three arrays: never here
+            raise RuntimeError("Reports holds neither arrays nor lists")
+        return np.array(self._lists[column], dtype=np.float64)
 
     def columns(self) -> tuple[Any, Any, Any]:
         """(t, dx, dy) as they are held: the lists of ``from_lists``, else the arrays.
@@ -232,12 +239,12 @@ class Source(ABC):
                 continue
             if not self.bounds_own_stamps:
                 if type(t) is list:
-                    far = bound_stamps(t, now)
+                    n_far, worst = bound_stamps(t, now)
                 else:
-                    b._t, *far = bound_stamp_array(t, now)
+                    b._t, n_far, worst = bound_stamp_array(t, now)
                     t = b._t
-                if far[0]:
-                    self._far_stamps(*far)
+                if n_far:
+                    self._far_stamps(n_far, worst)
                     if b.quality is not None:  # the sensor's word on the same reports
                         bound_stamps(b.quality[0], now)
             health.reports += n

@@ -323,16 +323,14 @@ def _describe_with_evdev(paths: SystemPaths, node: str) -> DeviceInfo | None:
 
     readable, group = _node_access(node)
     real = os.path.realpath(node)
-    links = {
-        "by_id": _links(Path(paths.dev_input) / "by-id", real),
-        "by_path": _links(Path(paths.dev_input) / "by-path", real),
-    }
+    by_id = _links(Path(paths.dev_input) / "by-id", real)
+    by_path = _links(Path(paths.dev_input) / "by-path", real)
     try:
         dev = evdev.InputDevice(node)
     except PermissionError:
         # Without sysfs nor permission we cannot tell a mouse from a keyboard: list it
         # anyway so that the user learns which group to join.
-        return DeviceInfo(node=node, readable=False, group=group, **links)
+        return DeviceInfo(node=node, readable=False, group=group, by_id=by_id, by_path=by_path)
     except OSError:
         return None
     try:
@@ -350,7 +348,8 @@ def _describe_with_evdev(paths: SystemPaths, node: str) -> DeviceInfo | None:
             rel_y=evdev.ecodes.REL_Y in rel,
             readable=readable,
             group=group,
-            **links,
+            by_id=by_id,
+            by_path=by_path,
         )
     finally:
         dev.close()

@@ -265,8 +265,8 @@ class EvdevSource(Source):
             return []
         # Far stamps first: one must not become the floor that every later stamp is
         # raised to (see base.STAMP_AHEAD_S).
-        bounded, *far = bound_stamp_array(frames.t, now)
-        self._far_stamps(*far)
+        bounded, n_far, worst = bound_stamp_array(frames.t, now)
+        self._far_stamps(n_far, worst)
         t, back = _clamp_forward(bounded, self._last_t)
         if back:
             self.time_backwards += back
