@@ -1,4 +1,4 @@
-"""The daemon's one-window path (mousedom.fusion.onewindow, Tracker._solve_one) equals the
+"""The daemon's one-window path (mousedom.fusion.onewindow, OneWindowPath.solve) equals the
 array path."""
 
 from __future__ import annotations

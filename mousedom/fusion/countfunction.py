@@ -45,14 +45,22 @@ def _exact_int_sums(steps: np.ndarray) -> bool:
 
 
 class CountFunction:
-    """The not-yet-closed part of one mouse's cumulative count function."""
+    """The not-yet-closed part of one mouse's cumulative count function.
+
+    It owns its queue, knots and liveness: the tracker reads fields (``pending``, ``knots``,
+    ``dead``, ``last_t``) on its per-window path, and changes them only through the
+    methods (``queue``, ``complete_to``, ``declare_live``, ``ingest``, ``close``...)."""
 
     def __init__(self, period: float, bridge: float = 0.0) -> None:
         self.period = period
         # a report this soon after the previous one covers all the time since: at least P
         self.bridge = max(period, bridge)
         self.join = 0.5 * period  # a report this soon after the previous one joins its span
-        self.last_t = -math.inf  # latest stamp pushed (queued or not)
+        # Latest stamp pushed (queued or not): the one record of the mouse's last stamp in
+        # fusion (Tracker.finish closes up to it).  A source's health.last_t (SOURCE, the
+        # daemon's silence rule) sees the same stamps in the daemon, but lives with the
+        # device, across tracker reloads, and replay has none: kept there, not shared.
+        self.last_t = -math.inf
         self.knot_t = -math.inf  # stamp of the last report turned into knots
         self.pending: list[tuple] = []  # (t, dx, dy): float lists (small pushes) or arrays
         self.complete = -math.inf  # all reports stamped <= this have been pushed
