@@ -24,8 +24,8 @@ Matrix3 = list[list[float]]
 
 
 class LinearPlan(NamedTuple):
-    """What _solve_one needs per pattern of live mice, as Python floats (A and B None
-    where the live mice lack rank)."""
+    """What ``OneWindowPath.solve`` needs per pattern of live mice, as Python floats (A
+    and B None where the live mice lack rank)."""
 
     a_rows: list[list[float]] | None  # the design matrix's rows
     b_rows: list[list[float]] | None  # the estimator's: q = B d
