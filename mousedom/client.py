@@ -31,7 +31,7 @@ from typing import Any
 
 from mousedom import invocation
 from mousedom.angles import wrap_degrees
-from mousedom.service.server import SOCKET_NAME, default_socket_path
+from mousedom.service.socketfile import SOCKET_NAME, default_socket_path
 
 
 class ClientError(Exception):

@@ -20,7 +20,8 @@ import pytest
 from mousedom.config import ServerConfig
 from mousedom.errors import UserError
 from mousedom.service.protocol import encode, error_message, ok_message
-from mousedom.service.server import Server, default_socket_path
+from mousedom.service.server import Server
+from mousedom.service.socketfile import default_socket_path
 
 NOBODY = 65534
 

@@ -106,7 +106,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from mousedom.service.daemon import Daemon, make_source
-    from mousedom.service.server import default_socket_path
+    from mousedom.service.socketfile import default_socket_path
 
     configure_logging(bool(getattr(args, "verbose", False)))
     config = _config(args)

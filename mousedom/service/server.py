@@ -24,19 +24,17 @@ the keys it registered; the daemon applies commands through the ``on_command`` c
 from __future__ import annotations
 
 import errno
-import grp
 import logging
 import os
 import selectors
 import socket
-import stat
 import struct
 from collections import deque
 from collections.abc import Callable
 from typing import Any
 
 from mousedom.config import ServerConfig
-from mousedom.errors import UserError
+from mousedom.service import socketfile
 from mousedom.service.protocol import (
     POSE_MOVING,
     Command,
@@ -50,8 +48,6 @@ from mousedom.service.protocol import (
 
 log = logging.getLogger(__name__)
 
-SOCKET_NAME = "mousedom.sock"
-MAX_SOCKET_PATH = 107  # sizeof(sockaddr_un.sun_path) on Linux, less its terminating NUL
 # Small kernel send buffers make a stalled client show up in its queue within a second or
 # two instead of after the kernel has swallowed minutes of poses.
 SNDBUF = 32 * 1024
@@ -65,26 +61,6 @@ JUNK_PER_S = 8.0
 # A gap between two loop iterations longer than this is the daemon's own stall (SIGSTOP, a
 # VM pause, swapping): only this much of it counts as running time.
 MAX_TICK_S = 1.5  # the loop wakes at least once a second (SOURCE), whatever the rate
-
-
-def default_socket_path(environ: dict[str, str] | None = None, uid: int | None = None) -> str:
-    """Where the socket goes when the config does not say.
-
-    Under systemd, $RUNTIME_DIRECTORY (from RuntimeDirectory=); as root /run/mousedom; as a
-    user $XDG_RUNTIME_DIR, else a per-user directory under the temporary directory.
-    """
-    env = os.environ if environ is None else environ
-    uid = os.getuid() if uid is None else uid
-    runtime = env.get("RUNTIME_DIRECTORY")
-    if runtime:
-        return os.path.join(runtime.split(":")[0], SOCKET_NAME)
-    if uid == 0:
-        return os.path.join("/run/mousedom", SOCKET_NAME)
-    xdg = env.get("XDG_RUNTIME_DIR")
-    if xdg:
-        return os.path.join(xdg, "mousedom", SOCKET_NAME)
-    tmp = env.get("TMPDIR") or "/tmp"
-    return os.path.join(tmp, f"mousedom-{uid}", SOCKET_NAME)
 
 
 class Client:
@@ -170,98 +146,14 @@ class Server:
 
     # ------------------------------------------------------------------ lifecycle
 
-    def _check_path(self) -> None:
-        size = len(os.fsencode(self.path))
-        if size > MAX_SOCKET_PATH:
-            raise UserError(
-                f"{self.path}: the socket path is {size} bytes, longer than the "
-                f"{MAX_SOCKET_PATH} a Unix socket's address holds; give a shorter --socket "
-                "or server.socket"
-            )
-
     def open(self) -> None:
-        self._check_path()
-        directory = os.path.dirname(self.path) or "."
-        try:
-            os.makedirs(directory, mode=0o755, exist_ok=True)
-            owner = os.stat(directory).st_uid
-        except OSError as e:
-            raise UserError(
-                f"{self.path}: cannot create the socket directory: {e.strerror}"
-            ) from None
-        if owner not in (os.getuid(), 0):
-            # e.g. /tmp/mousedom-UID made by someone else, who could swap the socket
-            raise UserError(
-                f"{directory}: belongs to uid {owner}, not to this user or root; "
-                "not putting the socket there (give --socket)"
-            )
-        gid = None
-        if self.settings.group:
-            try:
-                gid = grp.getgrnam(self.settings.group).gr_gid
-            except KeyError:
-                raise UserError(
-                    f"{self.path}: server.group: no group named {self.settings.group!r}"
-                ) from None
-        self._remove_stale()
-        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM | socket.SOCK_CLOEXEC)
-        old_umask = os.umask(0o177)  # nobody gets in before chmod below says who may
-        try:
-            sock.bind(self.path)
-        except OSError as e:
-            sock.close()
-            raise UserError(f"{self.path}: cannot bind the socket: {e.strerror or e}") from None
-        finally:
-            os.umask(old_umask)
-        try:
-            if gid is not None:
-                os.chown(self.path, -1, gid)
-            os.chmod(self.path, self.settings.mode)
-        except OSError as e:
-            sock.close()
-            os.unlink(self.path)
-            raise UserError(f"{self.path}: cannot set owner or mode: {e.strerror}") from None
-        sock.listen(16)
-        sock.setblocking(False)
+        sock = socketfile.listen(self.path, self.settings)
         self.listener = sock
         self.selector.register(sock, selectors.EVENT_READ, self._accept)
 
     def refuse_if_taken(self) -> None:
-        """UserError if another daemon listens at the path already: checked before the
-        sensors are opened, so that a second daemon grabs no device on its way out."""
-        self._check_path()
-        try:
-            if not stat.S_ISSOCK(os.lstat(self.path).st_mode):
-                return  # open() says what is wrong with it
-        except OSError:
-            return
-        probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        try:
-            probe.connect(self.path)
-        except OSError:
-            return  # stale: open() removes it
-        finally:
-            probe.close()
-        raise UserError(f"{self.path}: another mousedom daemon is listening there")
-
-    def _remove_stale(self) -> None:
-        """A socket file left by a crash is removed; one with a live daemon behind it is not."""
-        try:
-            st = os.lstat(self.path)
-        except FileNotFoundError:
-            return
-        if not stat.S_ISSOCK(st.st_mode):
-            raise UserError(f"{self.path}: exists and is not a socket; not touching it")
-        probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        try:
-            probe.connect(self.path)
-        except OSError:
-            os.unlink(self.path)
-            log.info("removed stale socket %s", self.path)
-            return
-        finally:
-            probe.close()
-        raise UserError(f"{self.path}: another mousedom daemon is listening there")
+        """UserError if another daemon listens at the path already (socketfile.py)."""
+        socketfile.refuse_if_taken(self.path)
 
     def close(self) -> None:
         for client in list(self.clients.values()):
