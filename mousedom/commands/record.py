@@ -23,21 +23,26 @@ import sys
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from mousedom import saferead
 from mousedom.commands import _options as options
-from mousedom.config import Config, MouseConfig, SerialSource, load_config
+from mousedom.commands._recordslots import (
+    Slot,
+    describe,
+    device_info,
+    fileno_of,
+    make_slot,
+    node_of,
+)
+from mousedom.config import Config, load_config
 from mousedom.errors import UserError
 from mousedom.safewrite import same_file
-from mousedom.sources.base import Source, SourceGone, SourceUnavailable
+from mousedom.sources.base import SourceGone, SourceUnavailable
 from mousedom.sources.discovery import SystemPaths, paths_for_root
 
 if TYPE_CHECKING:
-    from mousedom.capture.base import DeviceInfo as CaptureDevice
-    from mousedom.sources.discovery import DeviceInfo
-    from mousedom.sources.evdev import EvdevSource
+    pass
 
 log = logging.getLogger(__name__)
 
@@ -80,131 +85,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 # --------------------------------------------------------------------------- recording
 
 
-@dataclass
-class SerialBytes:
-    """What a downsampler's port gave, read by read (host arrival times), until the next
-    flush; ``total`` counts every byte."""
-
-    t: list[float] = field(default_factory=list)
-    data: list[bytes] = field(default_factory=list)
-    total: int = 0
-
-    def add(self, t: float, data: bytes) -> None:
-        self.t.append(t)
-        self.data.append(bytes(data))
-        self.total += len(data)
-
-
-@dataclass
-class Slot:
-    """One configured source and its recording bookkeeping.
-
-    ``mousedom record`` keeps a loop of its own rather than the daemon's Sensors
-    (service/slots.py): it records raw serial bytes and evdev's per-device notes, has no
-    tracker and no windows, and reads every source as it becomes readable."""
-
-    index: int
-    mouse: MouseConfig
-    source: Source  # EvdevSource or AdnsSource
-    # An ADNS-3080 downsampler's raw bytes, which are what is recorded (None: evdev)
-    raw: SerialBytes | None = None
-    connected: bool = True
-    polled: bool = False  # no fd to select on (loop:// ports): read on every loop turn
-    next_retry: float = 0.0
-    reports: int = 0
-    last_reports: int = 0
-
-    @property
-    def serial(self) -> bool:
-        return self.raw is not None
-
-    @property
-    def evdev(self) -> EvdevSource:
-        """The evdev source of a mouse that is not serial."""
-        from mousedom.sources.evdev import EvdevSource
-
-        if not isinstance(self.source, EvdevSource):
-            raise TypeError(f"{self.mouse.name}: not an evdev source")
-        return self.source
-
-    @property
-    def device(self) -> DeviceInfo:
-        """The evdev device a mouse's slot has open (it is recorded only once open)."""
-        device = self.evdev.device
-        if device is None:
-            raise TypeError(f"{self.mouse.name}: not open")
-        return device
-
-    @property
-    def port(self) -> SerialSource:
-        """The serial settings of a downsampler's slot."""
-        if self.mouse.serial is None:
-            raise TypeError(f"{self.mouse.name}: not a serial source")
-        return self.mouse.serial
-
-
-def _make_slot(
-    cfg: Config, index: int, mouse: MouseConfig, paths: SystemPaths | None = None
-) -> Slot:
-    where = f"{cfg.path}: mice.{mouse.name}"
-    if mouse.evdev is not None:
-        from mousedom.sources.evdev import EvdevSource
-
-        return Slot(index, mouse, EvdevSource(mouse, paths))
-    if mouse.serial is not None:
-        # The serial source configures the downsampler (K, CPI) as the daemon would, and
-        # hands every chunk it reads to on_raw before decoding: those bytes are recorded.
-        from mousedom.sources.adns import AdnsSource
-
-        raw = SerialBytes()
-        return Slot(index, mouse, AdnsSource(mouse, on_raw=raw.add), raw=raw)
-    raise UserError(f"{where}: a replay source cannot be recorded (it is a recording already)")
-
-
-def _fileno(source: Source) -> int:
-    """The fd to wait on, or -1 for ports without one (loop:// ...): those are polled."""
-    try:
-        fd = source.fileno()
-    except Exception:  # pyserial URL handlers differ in what they raise here
-        return -1
-    return fd if isinstance(fd, int) and fd >= 0 else -1
-
-
-def _device_info(slot: Slot) -> CaptureDevice:
-    from mousedom.capture.base import DeviceInfo as CaptureDevice
-
-    m = slot.mouse
-    if slot.serial:
-        port = slot.port
-        return CaptureDevice(
-            name=port.port,
-            kind="serial",
-            mouse=m.name,
-            extra={"port": port.port, "baud": port.baud, "k": port.k,
-                   "sensor_cpi": port.sensor_cpi},
-        )  # fmt: skip
-    src, d = slot.evdev, slot.device
-    return CaptureDevice(
-        name=d.name,
-        kind="evdev",
-        bus=d.bustype or None,
-        vendor=d.vendor or None,
-        product=d.product or None,
-        version=d.version or None,
-        phys=d.phys or None,
-        uniq=d.uniq or None,
-        mouse=m.name,
-        rel_xy=True,
-        extra={
-            "node": d.node,
-            "by_id": list(d.by_id),
-            "by_path": list(d.by_path),
-            "mouse_dpi": d.mouse_dpi,
-            "grabbed": src.grabbed,
-        },
-    )
-
-
 class Recorder:
     """The selectors loop: sources in, native capture chunks out, status on stderr."""
 
@@ -220,7 +100,7 @@ class Recorder:
     ) -> None:
         from mousedom.capture.native import NativeWriter
 
-        self.slots = [_make_slot(cfg, i, m, paths) for i, m in enumerate(cfg.mice)]
+        self.slots = [make_slot(cfg, i, m, paths) for i, m in enumerate(cfg.mice)]
         for s in self.slots:
             try:
                 s.source.open()
@@ -235,7 +115,7 @@ class Recorder:
         try:
             self.writer = NativeWriter(
                 output,
-                [_device_info(s) for s in self.slots],
+                [device_info(s) for s in self.slots],
                 config_text=config_text,
                 time_base="monotonic",
                 fsync=fsync,
@@ -256,7 +136,7 @@ class Recorder:
         self._quiet = False  # stderr went away: no more status lines
 
     def _register(self, s: Slot) -> None:
-        fd = _fileno(s.source)
+        fd = fileno_of(s.source)
         s.polled = fd < 0
         if not s.polled:
             self.sel.register(fd, selectors.EVENT_READ, s)
@@ -456,7 +336,7 @@ def run(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
     paths = paths_for_root(args.root)
     rec = Recorder(cfg, config_text, args.output, fsync=args.fsync, stop=stop, paths=paths)
-    names = ", ".join(f"{s.mouse.name} ({_describe(s)})" for s in rec.slots)
+    names = ", ".join(f"{s.mouse.name} ({describe(s)})" for s in rec.slots)
     rec.say(f"record: {args.output}: recording {names}")
     try:
         rec.run(args.duration, args.status_interval)
@@ -472,24 +352,18 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _node(s: Slot) -> str:
-    if s.serial:
-        return s.port.port
-    return s.device.node
-
-
 def _check_distinct(cfg: Config, slots: list[Slot], output: str) -> None:
     """Two mice reading one device would split its reports between them (a FIFO) or
     record it twice; the output being a source would record its own bytes."""
     for i, a in enumerate(slots):
         for b in slots[i + 1 :]:
-            if same_file(_node(a), _node(b)):
+            if same_file(node_of(a), node_of(b)):
                 raise UserError(
                     f"{cfg.path}: mice.{a.mouse.name} and mice.{b.mouse.name} both read "
-                    f"{_node(a)}: give each mouse its own device",
+                    f"{node_of(a)}: give each mouse its own device",
                     exit_code=1,
                 )
-        if same_file(output, _node(a)):
+        if same_file(output, node_of(a)):
             raise UserError(
                 f"{output}: is the device of mice.{a.mouse.name}; not recording into it",
                 exit_code=1,
@@ -500,7 +374,3 @@ def _without_name(s: Slot, e: Exception) -> str:
     """'left: device gone' (sources put their name first already; don't say it twice)."""
     text = str(e)
     return text if text.startswith(f"{s.mouse.name}: ") else f"{s.mouse.name}: {text}"
-
-
-def _describe(s: Slot) -> str:
-    return f"serial {_node(s)}" if s.serial else _node(s)
