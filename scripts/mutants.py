@@ -39,8 +39,8 @@ class Mutant:
 MUTANTS = [
     Mutant(
         "cov-heading-after-array",
-        "mousedom/fusion/tracker.py",
-        "theta_before = np.concatenate([[self._pose[2]], poses[:-1, 2]])",
+        "mousedom/fusion/tracker_batch.py",
+        "theta_before = np.concatenate([[carried.pose[2]], poses[:-1, 2]])",
         "theta_before = poses[:, 2]",
         ("tests/test_covariance_truth.py",),
         "window noise rotated by the heading after the window (array path)",
