@@ -267,7 +267,8 @@ class Daemon:
             now = self.clock()
             wake_at, give_up = self._plan()
             watching = self._watching = now >= wake_at  # (see _select)
-            retry = sensors.next_retry()  # a sensor to look for again, or inf
+            # a sensor to look for again, or none (inf)
+            retry = sensors.next_retry() if sensors.missing_names else math.inf
             deadline = min(give_up if watching else wake_at, next_status, next_watchdog, retry)
             events = self._select(deadline)
             self.wakes += 1
@@ -302,7 +303,7 @@ class Daemon:
         if timing is not None:
             timing.start(self.publisher.poses)
         self.sensors.read_due(now)
-        self.publisher.publish(self.tracker.poll())
+        self.publisher.publish(self.running.tracker.poll())
         if timing is not None:
             timing.stop(self.publisher.poses)
 
@@ -344,7 +345,8 @@ class Daemon:
         return self.selector.select(0)
 
     def _plan(self) -> tuple[float, float]:
-        end = self.tracker.frontier_time + 1.0 / self.config.rate_hz
+        running = self.running
+        end = running.tracker.frontier_time + 1.0 / running.config.rate_hz
         return plan_wake(
             end,
             [(p, lat, h.last_t if h is not None else None) for p, lat, h in self.sensors.plan],
