@@ -8,3 +8,6 @@ from __future__ import annotations
 
 MODELS = ("lsq", "diff-drive", "bonarini")
 INTEGRATORS = ("exact", "taylor", "euler", "midpoint")
+# What a gyro's heading is made of (config's gyro.use; fusion/gyro.py): the gyro and the
+# mice together, the gyro alone, the mice alone (the gyro's bias is learnt all the same).
+GYRO_USES = ("both", "gyro", "mice")

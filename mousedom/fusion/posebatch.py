@@ -38,6 +38,9 @@ class PoseRow(NamedTuple):
     # N x 2: each mouse's learnt scale per axis (REL_X, REL_Y) applied in the window, the
     # factor its counts were multiplied by (robust.ScaleLearner); () where none is learnt
     scale: list[list[float]] | tuple = ()
+    # The gyro's word on the window (fusion.gyro.GyroWindow's turn, bias, bias_sigma,
+    # stat); () where the rig has no gyro
+    gyro: list[float] | tuple = ()
 
 
 _DTYPES = {"used": int, "ok": bool, "state": np.int8, "reason": np.int8, "consistent": bool}
@@ -64,6 +67,9 @@ class PoseBatch:
     consistent: np.ndarray  # (n,) bool: False where the mice disagreed, nobody blamed
     qcov: np.ndarray  # (n,3,3) covariance of the window's twist increment (u_x, u_y, a)
     scale: np.ndarray | None = None  # (n,N,2) learnt scale per mouse and axis; None: all 1
+    # (n,4) the gyro's turn (rad), bias (rad/s), bias sigma (rad/s) and agreement statistic
+    # (chi-square, 1 dof) per window, NaN where it had no samples; None: no gyro
+    gyro: np.ndarray | None = None
 
     @classmethod
     def from_rows(cls, rows: list[PoseRow]) -> PoseBatch:
@@ -81,6 +87,9 @@ class PoseBatch:
             if k == "scale":
                 self.__dict__[k] = _scale_column(column)
                 continue
+            if k == "gyro":
+                self.__dict__[k] = _gyro_column(column)
+                continue
             self.__dict__[k] = np.array(column, dtype=_DTYPES.get(k, np.float64))
         del self.__dict__["_rows"]
         return self.__dict__[name]
@@ -90,9 +99,10 @@ class PoseBatch:
         rows = self.__dict__.get("_rows")
         if rows is not None:
             return rows
-        columns = [getattr(self, k).tolist() for k in PoseRow._fields[:-1]]
-        scale = self.scale
+        columns = [getattr(self, k).tolist() for k in PoseRow._fields[:-2]]
+        scale, gyro = self.scale, self.gyro
         columns.append(scale.tolist() if scale is not None else [[] for _ in range(len(self))])
+        columns.append(gyro.tolist() if gyro is not None else [[] for _ in range(len(self))])
         return [PoseRow(*values) for values in zip(*columns, strict=True)]
 
     def scales(self) -> np.ndarray:
@@ -125,10 +135,14 @@ class PoseBatch:
         columns = {
             f.name: np.concatenate([getattr(b, f.name) for b in batches])
             for f in fields(cls)
-            if f.name != "scale"
+            if f.name not in ("scale", "gyro")
         }
         if any(b.scale is not None for b in batches):
             columns["scale"] = np.concatenate([b.scales() for b in batches])
+        if any(b.gyro is not None for b in batches):
+            columns["gyro"] = np.concatenate(
+                [b.gyro if b.gyro is not None else np.full((len(b), 4), np.nan) for b in batches]
+            )
         return cls(**columns)
 
     def last(self) -> dict[str, float]:
@@ -142,3 +156,11 @@ def _scale_column(column: tuple) -> np.ndarray | None:
         return None
     n_mice = next(len(v) for v in column if len(v))
     return np.array([v if len(v) else [[1.0, 1.0]] * n_mice for v in column], dtype=np.float64)
+
+
+def _gyro_column(column: tuple) -> np.ndarray | None:
+    """The ``gyro`` field of rows as an (n, 4) array (NaN rows where a row has none), None
+    if no row has one."""
+    if all(len(v) == 0 for v in column):
+        return None
+    return np.array([v if len(v) else (np.nan,) * 4 for v in column], dtype=np.float64)

@@ -36,6 +36,8 @@ import numpy as np
 
 from mousedom.config import Config, parse_config
 from mousedom.config.rig import default
+from mousedom.fusion import simgyro
+from mousedom.fusion.simgyro import GyroSamples, SimGyro
 from mousedom.fusion.units import INCH
 
 # ---------------------------------------------------------------------------- trajectories
@@ -201,6 +203,7 @@ class Rig:
     rate_hz: float = default(Config, "rate_hz", float)
     model: str = default(Config, "model", str)
     integrator: str = default(Config, "integrator", str)
+    gyro: SimGyro | None = None  # a MEMS gyro on board (simgyro.py)
 
 
 def three_mouse_rig(cpi: float = 450.0, report_hz: float = 125.0, radius: float = 0.15) -> Rig:
@@ -269,6 +272,9 @@ def rig_yaml(rig: Rig, cpi: dict[str, tuple[float, float]] | None = None) -> str
             f"    report_hz: {rate!r}",
             f"    flip: {'true' if m.flip else 'false'}",
         ]
+    if rig.gyro is not None:  # its true sample rate and noise density (use: the default)
+        g = rig.gyro
+        lines += ["gyro:", f"  sample_hz: {float(g.sample_hz)!r}", f"  noise: {float(g.density)!r}"]
     return "\n".join(lines) + "\n"
 
 
@@ -291,6 +297,7 @@ class SimResult:
     rig: Rig
     motion: Motion
     reports: dict[str, SimReports] = field(default_factory=dict)
+    gyro: GyroSamples | None = None  # the gyro's samples, if the rig has one
 
     def truth(self, t: np.ndarray | float) -> np.ndarray:
         return self.motion.pose(t)
@@ -412,7 +419,20 @@ def simulate(
                 delay = delay + extra.exponential(mouse.stamp_tail, draws)[: len(stamps)]
             stamps = np.maximum.accumulate(stamps + delay)
         result.reports[mouse.name] = SimReports(t=stamps, dx=counts[keep, 0], dy=counts[keep, 1])
+    if rig.gyro is not None:
+        result.gyro = _gyro_samples(rig.gyro, motion, rng.spawn(1)[0])
     return result
+
+
+def _gyro_samples(gyro: SimGyro, motion: Motion, rng: np.random.Generator) -> GyroSamples:
+    """The gyro's samples over the drive: from its phase, one a period until the end (and
+    one past it, as a mouse's report slots), each the average rate over its period."""
+    period = 1.0 / gyro.sample_hz
+    first = motion.starts[0] + period + (gyro.phase % period)
+    end = motion.starts[-1]
+    times = first + period * np.arange(max(0, int(math.floor((end - first) / period)) + 2))
+    before, after = motion.pose(times - period)[:, 2], motion.pose(times)[:, 2]
+    return simgyro.sample(gyro, np.stack([before, after], axis=1), times, rng)
 
 
 def run_tracker(result: SimResult, config: Config | None = None, **tracker_kw):
@@ -423,6 +443,8 @@ def run_tracker(result: SimResult, config: Config | None = None, **tracker_kw):
     tracker = Tracker(cfg, t0=float(result.motion.starts[0]), **tracker_kw)
     for name, rep in result.reports.items():
         tracker.push(name, rep.t, rep.dx, rep.dy)
+    if result.gyro is not None and cfg.gyro is not None:
+        tracker.push_gyro(result.gyro.t, result.gyro.rate)
     return tracker.finish(), tracker
 
 
@@ -435,10 +457,17 @@ def run_tracker_live(result: SimResult, tracker) -> list:
         for name, r in result.reports.items()
         for t, dx, dy in zip(r.t.tolist(), r.dx.tolist(), r.dy.tolist(), strict=True)
     )
+    g = result.gyro
+    if g is not None and tracker.config.gyro is not None:  # the gyro's samples among them
+        merged = sorted(merged + [(t, "", rate, 0.0) for t, rate in
+                                  zip(g.t.tolist(), g.rate.tolist(), strict=True)])  # fmt: skip
     out = []
     for t, name, dx, dy in merged:
-        tracker.push(name, [t], [int(dx) if float(dx).is_integer() else dx],
-                     [int(dy) if float(dy).is_integer() else dy])  # fmt: skip
+        if not name:
+            tracker.push_gyro([t], [dx])
+        else:
+            tracker.push(name, [t], [int(dx) if float(dx).is_integer() else dx],
+                         [int(dy) if float(dy).is_integer() else dy])  # fmt: skip
         out.append(tracker.poll())
     out.append(tracker.finish())
     return out

@@ -30,11 +30,13 @@ from mousedom.fusion import noiserate, robust, scalelearn
 from mousedom.fusion.countfunction import CountFunction
 from mousedom.fusion.evidence import SensorEvidence
 from mousedom.fusion.geometry import rank_problem
+from mousedom.fusion.gyro import GYRO, GyroFusion, gyro_noise, gyro_period
 from mousedom.fusion.posebatch import PoseBatch
 from mousedom.fusion.tracker_batch import ArrayPath
+from mousedom.fusion.tracker_gyro import GyroClock
 from mousedom.fusion.tracker_learn import Learners, Renewal
 from mousedom.fusion.tracker_one import OneWindowPath
-from mousedom.fusion.tracker_state import Carried, PathSetup
+from mousedom.fusion.tracker_state import Carried, PathSetup, WindowGrid
 from mousedom.fusion.units import counts_matrices, sigma_metres
 
 
@@ -72,17 +74,27 @@ class Tracker:
                 raise ValueError(f"model {model}: {problem}")
         self.integrator = integrator or config.integrator
         self.period = 1.0 / config.rate_hz
-        self.t0 = t0
+        self._grid = WindowGrid(self.period, t0)
         self.n_mice = len(config.mice)
         self._mice = [CountFunction(1.0 / m.report_hz, config.late_report_s)
                       for m in config.mice]  # fmt: skip
         self._names = {m.name: i for i, m in enumerate(config.mice)}
+        # A gyro (config.gyro): its samples' integral is a count function as a mouse's
+        # counts are, closed with the same edges; it is sensor N in _clocks (after the
+        # mice), named "gyro" in complete_each / set_live.
+        self._gyro: GyroClock | None = None
+        gyro_fusion = None
+        if config.gyro is not None:
+            self._gyro = GyroClock(gyro_period(config.gyro), config.late_report_s)
+            self._names[GYRO] = self.n_mice
+            gyro_fusion = GyroFusion(gyro_noise(config.gyro), self.period, config.gyro.use)
+        # every count function whose frontier holds the windows back
+        self._clocks = self._mice + ([self._gyro] if self._gyro is not None else [])
         # (N,2,2) counts -> body metres: the config's, or with the learnt scales applied;
         # the tracker's (and tests') record of it, handed to the paths by _rebind
         self._to_body = counts_matrices(config.mice)
         positions = np.array([[m.mount.x, m.mount.y] for m in config.mice])
         sigma = np.array([sigma_metres(m) for m in config.mice])
-        self._closed = 0  # number of windows closed so far
         self._complete_all = -math.inf
         self._counts_out = [[0.0, 0.0] for _ in range(self.n_mice)]  # see counts_out
         self.screen: robust.Screen | None = None
@@ -93,7 +105,8 @@ class Tracker:
                 config.robust,
                 np.array([m.max_speed or math.inf for m in config.mice]),
             )  # fmt: skip
-        setup = PathSetup(self.model, self.integrator, positions, sigma, self.period, self.screen)
+        setup = PathSetup(self.model, self.integrator, positions, sigma, self.period,
+                          self.screen, gyro_fusion)  # fmt: skip
         self._carried = Carried.origin()
         self._batch = ArrayPath(setup, self._carried)
         self._one = OneWindowPath(setup, self._carried)
@@ -144,13 +157,17 @@ class Tracker:
         return self._names[mouse] if isinstance(mouse, str) else int(mouse)
 
     def _start(self, t: float) -> None:
-        if self.t0 is None:
-            self.t0 = float(t)
+        self._grid.start(t)
+
+    @property
+    def t0(self) -> float | None:
+        """The window grid's start (None until the first report or completion)."""
+        return self._grid.t0
 
     @property
     def frontier_time(self) -> float:
         """End of the last closed window (the start of the grid before any)."""
-        return (self.t0 or 0.0) + self._closed * self.period
+        return self._grid.frontier
 
     def push(self, mouse: int | str, t: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> None:
         """Add one mouse's reports (stamps non-decreasing; counts in evdev convention).
@@ -199,6 +216,15 @@ class Tracker:
         if self.screen is not None:
             self.evidence.push(self._index(mouse), t, squal, overflow)
 
+    def push_gyro(self, t: np.ndarray | list, rate: np.ndarray | list) -> None:
+        """The gyro's samples: stamps and yaw rates (rad/s, CCW positive), each the mean
+        rate since the sample before (tracker_gyro.GyroClock)."""
+        if self._gyro is None:
+            raise ValueError("push_gyro: the config has no gyro")
+        first = self._gyro.push(t, rate)
+        if first is not None:
+            self._start(first)
+
     def _queue_small(self, m: CountFunction, t: list, dx: list, dy: list) -> None:
         # One sum each is NaN or inf if any element is: cheaper than a test per element.
         try:
@@ -236,7 +262,7 @@ class Tracker:
         self._start(t)
         if mouse is None:
             self._complete_all = max(self._complete_all, t)
-            for m in self._mice:
+            for m in self._clocks:
                 m.complete_to(t)
         else:
             self.complete_each([(self._index(mouse), t)])
@@ -244,9 +270,10 @@ class Tracker:
     def complete_each(self, until: list[tuple[int, float]]) -> None:
         """For each (mouse index i, t): every report of mouse i stamped <= t has been
         pushed.  One call for all the live mice: the daemon's, every window."""
+        clocks = self._clocks
         for i, t in until:
             self._start(t)
-            self._mice[i].complete_to(t)
+            clocks[i].complete_to(t)
             self._complete_all = max(self._complete_all, t)
 
     def set_live(self, mouse: int | str, live: bool, t: float) -> None:
@@ -255,10 +282,10 @@ class Tracker:
         Windows that overlap a dead span do not use that mouse; the model goes on with
         the others while it has rank, and reports ok=False otherwise.
         """
-        self._mice[self._index(mouse)].declare_live(live, t)
+        self._clocks[self._index(mouse)].declare_live(live, t)
 
     def is_live(self, mouse: int | str) -> bool:
-        return self._mice[self._index(mouse)].live
+        return self._clocks[self._index(mouse)].live
 
     # ------------------------------------------------------------------ pose commands
 
@@ -274,7 +301,7 @@ class Tracker:
     def reset(self, x: float = 0.0, y: float = 0.0, theta: float = 0.0) -> None:
         """Start the odometry frame again at the given pose, with zero uncertainty."""
         self._carried.reset(x, y, theta)
-        self._rebase()
+        self._rebase(heading=True)
 
     def fix(
         self, x: float | None = None, y: float | None = None, theta: float | None = None
@@ -285,12 +312,16 @@ class Tracker:
         others, and their correlations with each other, are kept.
         """
         self._carried.fix(x, y, theta)
-        self._rebase()
+        self._rebase(heading=theta is not None)
 
-    def _rebase(self) -> None:
-        """After the pose was set from outside (Learners.rebase)."""
+    def _rebase(self, heading: bool) -> None:
+        """After the pose was set from outside (Learners.rebase; the gyro's heading error,
+        if the heading was set)."""
         if self._learners is not None:
             self._learners.rebase()
+        gyro = self._one.gyro
+        if heading and gyro is not None:
+            gyro.heading_set()
 
     # ------------------------------------------------------------------ outputs
 
@@ -321,7 +352,7 @@ class Tracker:
         # nothing); a loop, not min() of a generator: this runs every window.
         target = math.inf if self._mice else self._complete_all
         edge = None
-        for m in self._mice:
+        for m in self._clocks:
             if m.pending and m.live:
                 # the frontier is read off the knots (a report may join the last span)
                 if edge is None:
@@ -332,39 +363,7 @@ class Tracker:
                 target = f
         if not math.isfinite(target):
             return PoseBatch.empty(self.n_mice)
-        return self._close_until(self._windows_ending_by(target))
-
-    def _edge(self, k: int) -> float:
-        """End of window k-1: computed exactly as _close_until computes its edges."""
-        return self._grid_start() + self.period * k
-
-    def _grid_start(self) -> float:
-        """t0, once known: the window grid's callers run after the first report or
-        completion set it (poll, skip_quiet and finish return before)."""
-        t0 = self.t0
-        if t0 is None:
-            raise RuntimeError("the window grid has no start before the first report")
-        return t0
-
-    def _windows_ending_by(self, t: float) -> int:
-        """The largest k with edge(k) <= t: no rounding tolerance, so whether a window may
-        close never depends on how its end was rounded (batch and stream agree).
-
-        The division is off by at most a step or two; where floats cannot tell edge k from
-        edge k + 1 any more (times near 1e300 once looped here for ever), that is an input
-        no window grid can hold, and it is refused."""
-        k = math.floor((t - self._grid_start()) / self.period)
-        for _ in range(8):
-            if self._edge(k + 1) <= t:
-                k += 1
-            elif k > 0 and self._edge(k) > t:
-                k -= 1
-            else:
-                return k
-        raise ValueError(
-            f"time {t!r} is beyond what a window grid of {self.period!r} s from {self.t0!r} "
-            "can resolve"
-        )
+        return self._close_until(self._grid.ending_by(target))
 
     def skip_quiet(self, until: float) -> tuple[float, float] | None:
         """Close the windows up to the last edge at or before ``until`` without solving
@@ -379,18 +378,18 @@ class Tracker:
         the pose (its covariance would grow a little per window)."""
         if self.t0 is None:
             return None
-        k = self._windows_ending_by(until)
-        if k <= self._closed + 1:
+        k = self._grid.ending_by(until)
+        if k <= self._grid.closed + 1:
             return None
         start = self.frontier_time
-        for m in self._mice:
+        for m in self._clocks:
             if m.pending:
                 self._ingest(m)
             if not m.settled(start):
                 return None  # counts still to close, or reports ahead of the frontier
-        self._closed = k
+        self._grid.closed = k
         end = self.frontier_time
-        for m in self._mice:
+        for m in self._clocks:
             m.skip_to(end)
         return start, end
 
@@ -398,31 +397,31 @@ class Tracker:
         """End of a finite input: close every window up to the last report."""
         if self.t0 is None:
             return PoseBatch.empty(self.n_mice)
-        last = max([m.last_t for m in self._mice] + [self._complete_all])
+        last = max([m.last_t for m in self._clocks] + [self._complete_all])
         if last == -math.inf:
             return PoseBatch.empty(self.n_mice)
-        k = self._windows_ending_by(last)
-        if self._edge(k) < last:
+        k = self._grid.ending_by(last)
+        if self._grid.edge(k) < last:
             k += 1  # the window that holds the last stamp
         out = [self._close_until(k)]
         while self._pending():
             # Counts that jump exactly on the last edge (or were moved onto the closed
             # frontier) still need one more window.
-            out.append(self._close_until(self._closed + 1))
+            out.append(self._close_until(self._grid.closed + 1))
         return PoseBatch.concat(out, self.n_mice)
 
     def _pending(self) -> bool:
-        for m in self._mice:
+        for m in self._clocks:
             self._ingest(m)
-        return any(m.level().any() for m in self._mice)
+        return any(m.level().any() for m in self._clocks)
 
     def _close_until(self, k_new: int) -> PoseBatch:
-        k_old = self._closed
+        k_old = self._grid.closed
         if k_new <= k_old:
             return PoseBatch.empty(self.n_mice)
         edge = self.frontier_time
         small = k_new - k_old <= self._SMALL and self.n_mice > 0
-        for m in self._mice:
+        for m in self._clocks:
             if m.pending:
                 self._ingest(m, edge)
             if m.n_knots() > self._KNOTS_SMALL:
@@ -430,27 +429,29 @@ class Tracker:
         if small:
             return self._close_one()
         n = k_new - k_old
-        edges = self._grid_start() + self.period * np.arange(k_old, k_new + 1)
+        edges = self._grid.start_time() + self.period * np.arange(k_old, k_new + 1)
         counts = np.zeros((n, self.n_mice, 2))
         mask = np.ones((n, self.n_mice), dtype=bool)
         for i, m in enumerate(self._mice):
             m.close(edges, out=counts[:, i])
             m.close_live(edges, out=mask[:, i])
-        self._closed = k_new
+        self._grid.closed = k_new
         for acc, (cx, cy) in zip(self._counts_out, counts.sum(axis=0).tolist(), strict=True):
             acc[0] += cx
             acc[1] += cy
         evidence = self.evidence.windows(edges)
+        turns = None if self._gyro is None else self._gyro.turns(edges)
         learners = self._learners
         if learners is None:
-            return self._batch.solve(edges[1:], counts, mask, evidence)
+            return self._batch.solve(edges[1:], counts, mask, evidence, turns)
         # The learnt scales change at block ends: each block's windows with its own.
         out, a = [], 0
         while a < n:
             b = min(n, a + learners.until_block_end())
             ev = None if evidence is None else (evidence[0][a:b], evidence[1][a:b])
             start = self._carried.pose[:2]
-            part = self._batch.solve(edges[a + 1 : b + 1], counts[a:b], mask[a:b], ev)
+            tb = None if turns is None else turns[a:b]
+            part = self._batch.solve(edges[a + 1 : b + 1], counts[a:b], mask[a:b], ev, tb)
             renewal = learners.add(counts[a:b], part, mask[a:b], start)
             if renewal is not None:
                 self._renew(renewal)
@@ -460,8 +461,8 @@ class Tracker:
 
     def _close_one(self) -> PoseBatch:
         """_close_until for the next window on Python floats: the daemon's case."""
-        k = self._closed
-        start, end = self._edge(k), self._edge(k + 1)
+        k = self._grid.closed
+        start, end = self._grid.edge(k), self._grid.edge(k + 1)
         counts, live_list = [], []
         for m, acc in zip(self._mice, self._counts_out, strict=True):
             cx, cy = m.close_one(end)
@@ -470,14 +471,18 @@ class Tracker:
             acc[1] += cy
             live_list.append(not m.dead or m.live_in(start, end))
         live = tuple(live_list)
-        self._closed = k + 1
+        gyro = self._gyro
+        turn = None if gyro is None else gyro.turn_one(start, end)
+        self._grid.closed = k + 1
         evidence = self.evidence.window(start, end) if self.evidence else None
         before = self._carried.pose[:2]
         if self.model == "bonarini":  # numerical linearisation: the array path
             ev = None if evidence is None else (np.array([evidence[0]]), np.array([evidence[1]]))
-            batch = self._batch.solve(np.array([end]), np.array([counts]), np.array([live]), ev)
+            tb = None if gyro is None else np.array([math.nan if turn is None else turn])
+            batch = self._batch.solve(np.array([end]), np.array([counts]), np.array([live]),
+                                      ev, tb)  # fmt: skip
         else:
-            batch = self._one.solve(end, counts, live, evidence)
+            batch = self._one.solve(end, counts, live, evidence, turn)
         learners = self._learners
         if learners is not None:
             renewal = learners.add_row(counts, batch.rows()[0], live, before)

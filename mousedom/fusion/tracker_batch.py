@@ -49,6 +49,7 @@ class ArrayPath:
         counts: np.ndarray,
         mask: np.ndarray,
         evidence: Evidence | None = None,
+        turn: np.ndarray | None = None,
     ) -> PoseBatch:
         """The windows ending at ``t_end`` (n,) from each mouse's raw ``counts`` (n, N, 2)
         with the mice live in each (``mask``, (n, N)); the pose carried through them."""
@@ -65,12 +66,18 @@ class ArrayPath:
         sol = models.solve(setup.model, d, setup.positions, setup.sigma, mask, self._noise)
         sol, health, reason, consistent = self._screened(d, mask, sol, evidence)
         q = np.where(sol.ok[:, None], sol.q, 0.0)
+        qcov, gyro = sol.cov, None
+        if setup.gyro is not None and turn is not None:  # the gyro's reading of the turns
+            counted = np.abs(d) > (models.STILL * setup.sigma)[None, :, None]
+            still = ~np.any(counted & mask[:, :, None], axis=(1, 2))
+            q, qcov, said = setup.gyro.windows(q, sol.cov, turn, sol.ok, still)
+            gyro = np.array([s[:4] for s in said], dtype=np.float64).reshape(len(q), 4)
         partials = integrate.step_partials(q)  # the noise's Jacobian; its S, C make the step
         steps = integrate.body_step(q, setup.integrator, partials[:2])
         carried = self._carried
         poses = integrate.compose(np.array(carried.pose), steps)
         theta_before = np.concatenate([[carried.pose[2]], poses[:-1, 2]])
-        noise = world_step_noise(theta_before, partials, sol.cov)
+        noise = world_step_noise(theta_before, partials, qcov)
         state = CovarianceState(cov=np.array(carried.cov), position=np.array(carried.at))
         cov, state = propagate(state, poses[:, :2], noise)
         carried.cov, carried.at = state.cov.tolist(), state.position.tolist()
@@ -92,10 +99,11 @@ class ArrayPath:
             state=health,
             reason=reason,
             consistent=consistent,
-            qcov=sol.cov,
+            qcov=qcov,
             scale=None
             if self._scale is None
             else np.broadcast_to(self._scale, counts.shape).copy(),
+            gyro=gyro,
         )
 
     def _screened(

@@ -58,6 +58,7 @@ class OneWindowPath:
         self._n = setup.n_mice
         self._rate = 1.0 / setup.period
         self._screen = setup.screen
+        self.gyro = setup.gyro
         self._carried = carried
         # below these a reading is no count (models.STILL), in metres
         self._still = (models.STILL * setup.sigma).tolist()
@@ -112,6 +113,7 @@ class OneWindowPath:
         counts: list[tuple[float, float]],
         live: Live,
         evidence: tuple[list[float], list[bool]] | None = None,
+        turn: float | None = None,
     ) -> PoseBatch:
         """The window ending at ``t_end`` from each mouse's raw ``counts`` (REL_X, REL_Y),
         as ``ArrayPath.solve`` gives it for one window of a linear model; the pose
@@ -147,6 +149,13 @@ class OneWindowPath:
             consistent = dec.consistent
             state = tuple(h.state for h in screen.health)
             reason = tuple(h.reason for h in screen.health)
+        gyro: list[float] | tuple = ()
+        if self.gyro is not None:  # the gyro's reading of the turn (fusion/gyro.py)
+            still = self._still
+            moved = any(abs(d_all[2 * i]) > still[i] or abs(d_all[2 * i + 1]) > still[i]
+                        for i in range(n) if live[i])  # fmt: skip
+            q, c3, said = self.gyro.window(q, c3, turn, ok, not moved)
+            gyro = [said.turn, said.bias, said.bias_sigma, said.stat]
         ux, uy, a = q
         sx, sy = onewindow.body_step(ux, uy, a, self._integrator)
         carried = self._carried
@@ -158,7 +167,8 @@ class OneWindowPath:
         carried.pose, carried.cov, carried.at = [x, y, th], cov, [x, y]
         rate = self._rate
         pose = PoseRow(t_end, x, y, th, ux * rate, uy * rate, a * rate, cov, len(idx), ok,
-                    residual, counts, state, reason, consistent, c3, self._scale_row)  # fmt: skip
+                    residual, counts, state, reason, consistent, c3, self._scale_row,
+                    gyro)  # fmt: skip
         return PoseBatch.from_rows([pose])
 
     def _linear_one(self, d_all: list[float], live: Live) -> LinearSolution:

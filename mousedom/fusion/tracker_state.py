@@ -9,11 +9,13 @@ either continues from where the other left off.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from mousedom.fusion import robust
+from mousedom.fusion.gyro import GyroFusion
 
 
 @dataclass(frozen=True)
@@ -26,6 +28,7 @@ class PathSetup:
     sigma: np.ndarray  # (N,) each mouse's reading error, metres
     period: float  # the window's length, seconds
     screen: robust.Screen | None  # the fault-tolerant screen (None: robust off)
+    gyro: GyroFusion | None = None  # the gyro's part of each window (None: no gyro)
 
     @property
     def n_mice(self) -> int:
@@ -76,3 +79,54 @@ class Carried:
         for k in range(2):
             self.pose[k] += walk[k]
             self.at[k] += walk[k]
+
+
+class WindowGrid:
+    """The windows' edges t0 + k T, and how many windows are closed.  ``t0`` is the
+    tracker's, or the first report's or completion's stamp (``start``)."""
+
+    def __init__(self, period: float, t0: float | None) -> None:
+        self.period = period
+        self.t0 = t0
+        self.closed = 0  # number of windows closed so far
+
+    def start(self, t: float) -> None:
+        if self.t0 is None:
+            self.t0 = float(t)
+
+    @property
+    def frontier(self) -> float:
+        """End of the last closed window (the start of the grid before any)."""
+        return (self.t0 or 0.0) + self.closed * self.period
+
+    def start_time(self) -> float:
+        """t0, once known: the window grid's callers run after the first report or
+        completion set it (poll, skip_quiet and finish return before)."""
+        t0 = self.t0
+        if t0 is None:
+            raise RuntimeError("the window grid has no start before the first report")
+        return t0
+
+    def edge(self, k: int) -> float:
+        """End of window k-1: computed exactly as the array path's edges are."""
+        return self.start_time() + self.period * k
+
+    def ending_by(self, t: float) -> int:
+        """The largest k with edge(k) <= t: no rounding tolerance, so whether a window may
+        close never depends on how its end was rounded (batch and stream agree).
+
+        The division is off by at most a step or two; where floats cannot tell edge k from
+        edge k + 1 any more (times near 1e300 once looped here for ever), that is an input
+        no window grid can hold, and it is refused."""
+        k = math.floor((t - self.start_time()) / self.period)
+        for _ in range(8):
+            if self.edge(k + 1) <= t:
+                k += 1
+            elif k > 0 and self.edge(k) > t:
+                k -= 1
+            else:
+                return k
+        raise ValueError(
+            f"time {t!r} is beyond what a window grid of {self.period!r} s from {self.t0!r} "
+            "can resolve"
+        )

@@ -1,0 +1,212 @@
+"""A MEMS gyro's yaw rate in the window's solve, with its bias as a slowly varying state.
+
+Each window the mice give the twist increment q = (u_x, u_y, a) with its covariance C
+(models.py, after the fault screen).  The gyro's samples, integrated over the same window
+(the tracker closes them with a count function, as a mouse's counts), give one more
+reading of the turn:
+
+    g = a + b T + n,    n ~ N(0, N^2 T)
+
+with b the gyro's bias (rad/s), T the window's length and N the rate noise density
+(rad/s/sqrt(Hz)): the integral of white rate noise over T has variance N^2 T (the angle
+random walk).  The bias drifts as a random walk of density W (rad/s/sqrt(s)): between two
+windows its variance grows by W^2 T.
+
+The window's update is the Kalman update of the joint state (q, b), prior
+(q_mice, C) and (b_hat, P), by the one reading g (H = [0, 0, 1, T]):
+
+    innovation  e = g - a_mice - b_hat T,      S = C_aa + T^2 P + N^2 T
+    q' = q + C[:, a] e / S                      C' = C - C[:, a] C[a, :] / S
+    b' = b_hat + T P e / S                      P' = P - T^2 P^2 / S
+
+which is the same as adding the gyro's row to the weighted least squares of the mice
+(Kim & Lee's estimator with one more row: q's information grows by e3 e3^T / (N^2 T + T^2 P)).
+At a standstill the mice say exactly that nothing turned (C_aa is nothing), so the window
+measures the bias alone; while moving, the redundancy of mice and gyro does.  e^2 / S is
+chi-square with one degree of freedom when mice and gyro both tell the truth: the test of
+their agreement.
+
+What the heading is made of is the user's choice (``choices.GYRO_USES``): ``both`` (the
+update above), ``mice`` (the bias is still learnt, the pose is the mice's) or ``gyro``
+(the heading is the gyro's alone, a = g - b_hat T with variance N^2 T + T^2 P, and the
+translation the mice's given that heading: u = u_mice + C_ua / C_aa (a - a_mice)).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from mousedom.config import GyroConfig
+from mousedom.fusion.choices import GYRO_USES
+
+GYRO = "gyro"  # the gyro's name where sensors are named (Tracker.set_live, SOURCE)
+
+# What the config does not say: the bias's random walk and how far off it may be at the
+# start (simgyro.py says where these figures come from).
+DEFAULT_BIAS_WALK = math.radians(0.001)  # rad/s/sqrt(s)
+DEFAULT_BIAS_SIGMA = math.radians(1.0)  # rad/s
+
+Matrix3 = list[list[float]]
+
+
+@dataclass(frozen=True)
+class GyroNoise:
+    """A gyro's error figures, SI units."""
+
+    density: float  # rate noise density N, rad/s/sqrt(Hz)
+    bias_walk: float  # bias random walk W, rad/s/sqrt(s)
+    bias_sigma: float  # the bias's standard deviation before anything is learnt, rad/s
+
+
+# A gyro whose config gives no sample rate samples at least this often: the longest span a
+# sample covers (a sample after a longer gap covers this much, as a mouse's report does).
+SLOWEST_HZ = 50.0
+
+
+def gyro_noise(config: GyroConfig) -> GyroNoise:
+    """The figures of a config's ``gyro:`` section: its noise density, and the bias terms
+    no config states (DEFAULT_BIAS_WALK, DEFAULT_BIAS_SIGMA)."""
+    return GyroNoise(config.noise, DEFAULT_BIAS_WALK, DEFAULT_BIAS_SIGMA)
+
+
+def gyro_period(config: GyroConfig) -> float:
+    """The longest span one sample covers: its period, or SLOWEST_HZ's when unknown."""
+    return 1.0 / (config.sample_hz or SLOWEST_HZ)
+
+
+def gyro_turns(
+    t: np.ndarray, rate: np.ndarray, last_t: float, period: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Samples (stamps, rad/s) as the angle each turned: its rate times the span it
+    covers, the time since the sample before (``last_t`` for the first), at most
+    ``period`` (the count function's rule for a report's span).  A first sample ever
+    (``last_t`` -inf) only starts the spans: its own is unknown, so it turns nothing."""
+    spans = np.diff(t, prepend=last_t)
+    spans = np.where(np.isfinite(spans), np.clip(spans, 0.0, period), 0.0)
+    return t, rate * spans
+
+
+class GyroWindow(NamedTuple):
+    """What the gyro said of one window, and what became of it."""
+
+    turn: float  # g: the samples' integral over the window, radians
+    bias: float  # the bias after the window, rad/s
+    bias_sigma: float  # its standard deviation, rad/s
+    stat: float  # e^2 / S: chi-square (1 dof) when mice and gyro agree
+    used: bool  # whether it entered the pose (False: no samples, or use = mice)
+
+
+class BiasState:
+    """The gyro's bias estimate (b_hat, P), carried from window to window, and ``cross``:
+    the covariance of the heading's error with the bias's (see GyroFusion.window)."""
+
+    __slots__ = ("bias", "var", "cross")
+
+    def __init__(self, bias: float, var: float) -> None:
+        self.bias = bias
+        self.var = var
+        self.cross = 0.0
+
+
+class GyroFusion:
+    """One window at a time: the update of the module docstring, and the bias it learns.
+
+    The tracker's two solving paths share one (the bias is carried from window to window,
+    as the pose is); ``window`` takes Python floats (the daemon's path), ``windows`` arrays
+    (replay's), looping over the windows because the bias is sequential."""
+
+    def __init__(self, noise: GyroNoise, period: float, use: str = "both") -> None:
+        if use not in GYRO_USES:
+            raise ValueError(f"gyro use {use!r}: choose one of {', '.join(GYRO_USES)}")
+        self.noise = noise
+        self.period = period
+        self.use = use
+        self.state = BiasState(0.0, noise.bias_sigma**2)
+        self._walk_var = noise.bias_walk**2 * period  # the bias's growth per window
+        self._white_var = noise.density**2 * period  # the integral's white noise
+
+    def heading_set(self) -> None:
+        """The heading was set from outside (reset, fix): its error no longer owes
+        anything to the bias's."""
+        self.state.cross = 0.0
+
+    def window(
+        self, q: Sequence[float], c: Matrix3, turn: float | None, ok: bool, still: bool = False
+    ) -> tuple[list[float], Matrix3, GyroWindow]:
+        """The window's (q, C) with the gyro's ``turn`` (None: no samples) folded in as
+        ``use`` says; ``ok`` False (the mice lacked rank) leaves q alone and learns
+        nothing (no motion is invented).  ``still``: no live mouse counted anything, so the
+        robot stood still: nothing turned, exactly (C_aa = 0 whatever the mice's noise
+        model says of a window without counts), the window measures the bias alone and
+        the heading stays, whatever ``use`` (a zero-velocity update).
+
+        The bias's error is the same from one window to the next: a heading made with it
+        drifts by T times it every window, which independent windows' variances would not
+        add up to.  So the error of the heading and of the bias are carried together: with
+        kappa the gyro's share of the window's turn (C_aa / S for both, 1 for gyro, 0 for
+        mice), the turn's error is (1 - kappa) n_mice + kappa n_gyro - kappa T db, and
+
+            var(heading) grows by  C'_aa - 2 kappa T cross
+            cross' = (1 - T^2 P / S) (cross - kappa T P) + (T P / S)(kappa N^2 T - (1 - kappa) C_aa)
+
+        (cross: the covariance of the heading's error with the bias's).  The first term is
+        q's own variance after the update; the second goes into C'_aa, which the pose's
+        covariance adds up."""
+        st = self.state
+        st.var += self._walk_var
+        t = self.period
+        if turn is None or not ok:
+            return list(q), c, GyroWindow(math.nan, st.bias, math.sqrt(st.var), math.nan, False)
+        caa = 0.0 if still else c[2][2]
+        prior_bias, prior, cross = st.bias, st.var, st.cross
+        e = turn - q[2] - prior_bias * t
+        s = caa + t * t * prior + self._white_var
+        st.bias = prior_bias + t * prior * e / s
+        st.var = prior - t * t * prior * prior / s
+        kappa = 0.0 if still else {"both": caa / s, "gyro": 1.0, "mice": 0.0}[self.use]
+        st.cross = (1.0 - t * t * prior / s) * (cross - kappa * t * prior) + (t * prior / s) * (
+            kappa * self._white_var - (1.0 - kappa) * caa
+        )
+        drift = -2.0 * kappa * t * cross  # the heading's error with the bias's, carried
+        report = GyroWindow(turn, st.bias, math.sqrt(st.var), e * e / s, kappa > 0.0)
+        if kappa == 0.0:  # the mice's (use = mice, or a standstill)
+            return list(q), c, report
+        if self.use == "both":
+            ca = [row[2] for row in c]
+            q2 = [v + k * e / s for v, k in zip(q, ca, strict=True)]
+            c2 = [[c[i][j] - ca[i] * ca[j] / s for j in range(3)] for i in range(3)]
+            c2[2][2] = max(0.0, c2[2][2] + drift)
+            return q2, c2, report
+        # use = gyro: the heading is the gyro's, corrected with the bias known before this
+        # window; the translation the mice's given that heading
+        a = turn - prior_bias * t
+        r = self._white_var + t * t * prior
+        lx, ly = (c[0][2] / caa, c[1][2] / caa) if caa > 0.0 else (0.0, 0.0)
+        q2 = [q[0] + lx * (a - q[2]), q[1] + ly * (a - q[2]), a]
+        cxx = c[0][0] - lx * lx * caa + lx * lx * r
+        cxy = c[0][1] - lx * ly * caa + lx * ly * r
+        cyy = c[1][1] - ly * ly * caa + ly * ly * r
+        c2 = [[cxx, cxy, lx * r], [cxy, cyy, ly * r], [lx * r, ly * r, max(0.0, r + drift)]]
+        return q2, c2, report
+
+    def windows(
+        self, q: np.ndarray, cov: np.ndarray, turn: np.ndarray, ok: np.ndarray, still: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, list[GyroWindow]]:
+        """``window`` over arrays: q (n, 3), cov (n, 3, 3), turn (n,) (NaN: no samples),
+        ok (n,), still (n,)."""
+        q2, c2 = q.copy(), cov.copy()
+        out = []
+        for k in range(len(q)):
+            tk = float(turn[k])
+            qk, ck, rep = self.window(
+                q[k].tolist(), cov[k].tolist(), None if math.isnan(tk) else tk, bool(ok[k]),
+                bool(still[k]),
+            )
+            q2[k], c2[k] = qk, ck
+            out.append(rep)
+        return q2, c2, out

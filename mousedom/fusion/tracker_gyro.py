@@ -1,0 +1,53 @@
+"""The tracker's gyro: its samples' turn as a count function, closed with the mice's edges.
+
+A gyro sample stamped t is the mean yaw rate since the sample before; times the span it
+covers (at most one sample period, a mouse report's rule) it is the angle turned, which
+rises over that span as a mouse's counts do.  So the gyro's turn is a ``CountFunction``
+(its REL_X column; REL_Y stays 0) and a window's turn is its difference at the window's
+edges: split in proportion to time, telescoping, nothing lost.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from mousedom.fusion.countfunction import CountFunction
+from mousedom.fusion.gyro import gyro_turns
+
+
+class GyroClock(CountFunction):
+    """The gyro's turn over time (see the module docstring)."""
+
+    def push(self, t: np.ndarray | list, rate: np.ndarray | list) -> float | None:
+        """Queue samples (stamps, rad/s); the first stamp, or None if there were none.
+        ValueError for shapes that differ or values that are not finite numbers."""
+        t = np.asarray(t, dtype=np.float64)
+        rate = np.asarray(rate, dtype=np.float64)
+        if not (t.ndim == 1 and t.shape == rate.shape):
+            raise ValueError(f"push_gyro: t and rate must be 1-D of one length, got "
+                             f"{t.shape}, {rate.shape}")  # fmt: skip
+        if t.size == 0:
+            return None
+        if not math.isfinite(t.sum() + rate.sum()):
+            raise ValueError("push_gyro: times and rates must be finite numbers")
+        t, turn = gyro_turns(t, rate, self.last_t, self.period)
+        self.queue(t, turn, np.zeros_like(turn), float(t.max()))
+        return float(t[0])
+
+    def turns(self, edges: np.ndarray) -> np.ndarray:
+        """The turn in each window between ``edges``, NaN where the gyro was not live
+        throughout (the array path's windows)."""
+        n = len(edges) - 1
+        closed = np.zeros((n, 2))
+        self.close(edges, out=closed)
+        live = np.ones(n, dtype=bool)
+        self.close_live(edges, out=live)
+        return np.where(live, closed[:, 0], np.nan)
+
+    def turn_one(self, start: float, end: float) -> float | None:
+        """The next window's turn (the one-window path's), None if the gyro was not live
+        throughout."""
+        turn = self.close_one(end)[0]
+        return turn if not self.dead or self.live_in(start, end) else None

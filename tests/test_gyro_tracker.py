@@ -1,0 +1,121 @@
+"""A gyro in the tracker (issue 30): its samples closed in the mice's windows, its turn in
+each window's solve, against the simulator's exact truth; stream equals batch; the
+covariance honest over many seeds."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from mousedom.fusion import scenarios, sim, simgyro
+from mousedom.fusion.drives import drive
+from mousedom.fusion.gyro import gyro_turns
+from mousedom.fusion.tracker import Tracker
+
+EXACT = simgyro.SimGyro(density=1e-15, bias=0.0, bias_walk=0.0, lsb=1e-15, phase=0.0013)
+TRAJ = sim.sequence(sim.pause(0.5), sim.straight(0.6, 0.3), sim.turn(1.2, 0.8),
+                    sim.arc(0.4, 1.0, 0.25), sim.pause(0.3))  # fmt: skip
+
+
+def _with_gyro(rig: sim.Rig, gyro: simgyro.SimGyro, use: str = "both"):
+    rig = dataclasses.replace(rig, gyro=gyro)
+    cfg = sim.rig_config(rig)
+    assert cfg.gyro is not None
+    return rig, dataclasses.replace(cfg, gyro=dataclasses.replace(cfg.gyro, use=use))
+
+
+def test_turns_are_rate_times_the_span_since_the_sample_before():
+    t = np.array([1.0, 1.005, 1.010, 1.05])
+    rate = np.array([2.0, 2.0, 4.0, 1.0])
+    kept, turn = gyro_turns(t, rate, -math.inf, 0.02)
+    assert kept.tolist() == t.tolist()
+    # the first only starts the spans; after a gap, one period (a report's rule)
+    assert turn == pytest.approx([0.0, 2.0 * 0.005, 4.0 * 0.005, 1.0 * 0.02])
+    kept, turn = gyro_turns(t[1:], rate[1:], 1.0, 0.02)  # continued from the one before
+    assert turn == pytest.approx([2.0 * 0.005, 4.0 * 0.005, 0.02])
+
+
+@pytest.mark.parametrize("use", ["both", "gyro", "mice"])
+def test_exact_mice_and_an_exact_gyro_give_the_true_end_pose(use):
+    """No noise anywhere, float counts: whatever the heading is made of, the drive ends
+    where it truly ends (the gyro's samples are their period's mean rate, and both its
+    turns and the mice's counts telescope), and no window is further from the truth than
+    with the mice alone (where a window holds a change of motion, a constant twist is
+    what both fit)."""
+    mice = tuple(dataclasses.replace(m, quantize=False) for m in sim.three_mouse_rig().mice)
+    rig, cfg = _with_gyro(dataclasses.replace(sim.three_mouse_rig(), mice=mice), EXACT, use)
+    result = sim.simulate(rig, TRAJ, seed=1)
+    batch, _ = sim.run_tracker(result, cfg)
+    alone, _ = sim.run_tracker(result, dataclasses.replace(cfg, gyro=None))
+    end = result.truth(batch.t[-1:])[0]
+    n = len(alone)  # (the gyro's last samples may close a window or so more)
+    truth = result.truth(alone.t)
+    assert batch.x[-1] == pytest.approx(end[0], abs=1e-5)
+    assert batch.y[-1] == pytest.approx(end[1], abs=1e-5)
+    assert batch.theta[-1] == pytest.approx(end[2], abs=1e-5)
+    for k, col in ((0, "x"), (1, "y"), (2, "theta")):
+        worst = np.abs(getattr(alone, col) - truth[:, k]).max()
+        assert np.abs(getattr(batch, col)[:n] - truth[:, k]).max() <= worst + 1e-5
+    assert batch.gyro is not None and np.nanmax(np.abs(batch.gyro[:, 1])) < 1e-3  # no bias
+
+
+def test_the_daemons_path_gives_what_replay_gives_with_a_gyro():
+    rig, cfg = _with_gyro(scenarios.rig("pair"), simgyro.SimGyro())
+    rig = dataclasses.replace(rig, model="diff-drive")
+    cfg = dataclasses.replace(cfg, model="diff-drive")
+    result = sim.simulate(rig, drive(8.0, seed=4), seed=4)
+    batch, _ = sim.run_tracker(result, cfg)
+    from mousedom.fusion.posebatch import PoseBatch
+
+    live = PoseBatch.concat(sim.run_tracker_live(result, Tracker(cfg, t0=0.0)), 2)
+    assert len(live) == len(batch)
+    assert np.allclose(live.theta, batch.theta, rtol=0, atol=1e-12)
+    assert np.allclose(live.x, batch.x, rtol=0, atol=1e-12)
+    assert np.allclose(live.gyro, batch.gyro, rtol=1e-8, atol=1e-12, equal_nan=True)
+
+
+def _drive_errors(layout: str, model: str, use: str | None, seed: int, duration: float):
+    """The end pose's error (x, y, theta) and covariance of a drive that starts from rest
+    (2 s, as a robot that was just switched on: the gyro's bias is learnt there)."""
+    base = scenarios.rig(layout)
+    gyro = simgyro.SimGyro(phase=0.0007 * seed)
+    rig, cfg = _with_gyro(dataclasses.replace(base, model=model), gyro, use or "mice")
+    cfg = dataclasses.replace(cfg, model=model)
+    if use is None:
+        cfg = dataclasses.replace(cfg, gyro=None)
+    traj = sim.sequence(sim.pause(2.0), drive(duration, seed=seed))
+    result = sim.simulate(rig, traj, seed=seed)
+    batch, _ = sim.run_tracker(result, cfg)
+    truth = result.truth(batch.t[-1:])[0]
+    err = np.array([batch.x[-1] - truth[0], batch.y[-1] - truth[1],
+                    (batch.theta[-1] - truth[2] + math.pi) % (2 * math.pi) - math.pi])  # fmt: skip
+    return err, batch.cov[-1]
+
+
+def test_a_gyro_halves_the_heading_error_of_two_mice_on_an_axle():
+    """Over seeds of 30 s drives of two mice on the axle: the median heading error with
+    an MPU-6050-like gyro under 0.6 of the mice's alone (measured 0.47; bench/gyro.py has
+    the figures and the issue's target of a third), the position's too."""
+    without, with_gyro = [], []
+    for seed in range(8):
+        without.append(np.abs(_drive_errors("pair", "diff-drive", None, seed, 30.0)[0]))
+        with_gyro.append(np.abs(_drive_errors("pair", "diff-drive", "both", seed, 30.0)[0]))
+    assert np.median([e[2] for e in with_gyro]) < 0.6 * np.median([e[2] for e in without])
+    assert np.median([math.hypot(*e[:2]) for e in with_gyro]) < np.median(
+        [math.hypot(*e[:2]) for e in without]
+    )
+
+
+@pytest.mark.parametrize("layout, model", [("pair", "diff-drive"), ("triangle", "lsq")])
+def test_the_end_pose_covariance_is_honest_with_a_gyro(layout, model):
+    """NEES of the end pose over seeds: chi-square with 3 dof (mean 3) if the covariance
+    says what the error is; the mice's and the gyro's noise and the bias's uncertainty
+    all in it.  Bounds as tests/test_nees_drives.py's."""
+    nees = []
+    for seed in range(16):
+        err, cov = _drive_errors(layout, model, "both", seed, 20.0)
+        nees.append(scenarios.nees(err, cov)[0])
+    assert 1.0 < np.mean(nees) < 5.0, nees
