@@ -12,7 +12,8 @@ calibrated so far.
 
 The modules, one idea each: ``rig`` (the rig's types and their defaults), ``mice`` (the
 ``mice:`` section and the calibration overlay), ``outputs`` (the server and the optional
-outputs), ``load`` (the top level and the file).  Importers use the names below.
+outputs), ``gyro`` (the optional IIO gyro), ``load`` (the top level and the file).
+Importers use the names below.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from mousedom.config.outputs import (
 from mousedom.config.rig import (
     Config,
     EvdevMatch,
+    GyroConfig,
     Mount,
     MouseConfig,
     RobustConfig,
@@ -48,6 +50,7 @@ __all__ = [
     "ConfigError",
     "EvdevMatch",
     "FoxgloveConfig",
+    "GyroConfig",
     "MetricsConfig",
     "Mount",
     "MouseConfig",

@@ -8,6 +8,7 @@ import os
 from pathlib import Path
 
 from mousedom import plausible, safeyaml
+from mousedom.config.gyro import read_gyro
 from mousedom.config.mice import apply_calibration, read_mouse
 from mousedom.config.outputs import ServerConfig, read_outputs, read_server
 from mousedom.config.rig import Config, RobustConfig, WheelsConfig, default
@@ -16,7 +17,7 @@ from mousedom.yamldoc import ConfigError, Reader, YamlDoc
 
 DEFAULT_CONFIG_PATH = "/etc/mousedom/mousedom.yaml"
 TOP_KEYS = ("rate_hz", "model", "integrator", "mice", "server", "wheels", "calibration",
-            "robust", "outputs", "late_report_s")  # fmt: skip
+            "robust", "outputs", "late_report_s", "gyro")  # fmt: skip
 
 
 def _robust(r: Reader) -> RobustConfig:
@@ -95,6 +96,7 @@ def parse_config(
     robust = (doc.attempt(_robust, top) if top.has("robust") else None) or RobustConfig()
     outputs = doc.attempt(read_outputs, top) if top.has("outputs") else None
     ros2, foxglove, metrics = outputs or (None, None, None)
+    gyro = doc.attempt(read_gyro, top, need_sources=need_sources) if top.has("gyro") else None
     calibration = doc.attempt(top.string, "calibration")
     calibration_path = str(base_dir / calibration) if calibration else None
     doc.raise_problems()
@@ -137,6 +139,7 @@ def parse_config(
         ros2=ros2,
         foxglove=foxglove,
         metrics=metrics,
+        gyro=gyro,
         warnings=warnings,
     )
 

@@ -5,6 +5,7 @@ Each default is stated once, on its field; the parsers read it from there (``def
 
 from __future__ import annotations
 
+import math
 from dataclasses import MISSING, dataclass, field, fields
 from typing import Any, TypeVar
 
@@ -103,6 +104,25 @@ class WheelsConfig:
     ticks_per_rev: float
 
 
+# MPU-6000/MPU-6050 Product Specification (InvenSense PS-MPU-6000A-00 rev. 3.4), section
+# 6.1: gyroscope rate noise spectral density 0.005 deg/s/sqrt(Hz) at 10 Hz, a typical MEMS
+# figure; the default white-noise density of a gyro whose config says none.
+MPU6050_NOISE = math.radians(0.005)
+
+
+@dataclass(frozen=True)
+class GyroConfig:
+    """The optional gyro (``gyro:``, docs/gyro.md): an IIO device and how it is mounted."""
+
+    name: str | None = None  # the IIO device's `name` attribute, e.g. mpu6050
+    path: str | None = None  # /sys/bus/iio/devices/iio:deviceN, /dev/iio:deviceN or a link
+    axis: str = "z"  # the sensor axis along body z (up): x | y | z
+    sign: int = 1  # -1 when that axis points down (a gyro mounted upside down)
+    sample_hz: float | None = None  # written to sampling_frequency; None: the device's own
+    noise: float = MPU6050_NOISE  # white-noise density of the rate, rad/s/sqrt(Hz)
+    use: str = "both"  # heading from: both (gyro and mice) | gyro | mice
+
+
 # Keyword-only: the top-level defaults (rate_hz, model, integrator) stand before the
 # required mice, in the order the YAML lists them.
 @dataclass(frozen=True, kw_only=True)
@@ -123,6 +143,7 @@ class Config:
     ros2: Ros2Config | None = None  # outputs.ros2: None means no DDS output
     foxglove: FoxgloveConfig | None = None  # outputs.foxglove: None means no live view
     metrics: MetricsConfig | None = None  # outputs.metrics: None means no Prometheus endpoint
+    gyro: GyroConfig | None = None  # gyro: None means the heading comes from the mice alone
     # values that look like the wrong unit (mousedom.plausible): said, not refused
     warnings: tuple[str, ...] = ()
 

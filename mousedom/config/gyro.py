@@ -1,0 +1,53 @@
+"""The ``gyro:`` section: which IIO gyro, how it is mounted, and what the heading uses.
+
+    gyro:
+      name: mpu6050        # or path: /sys/bus/iio/devices/iio:device0
+      axis: z              # the sensor axis along body z (up)
+      sign: 1              # -1: that axis points down (mounted upside down)
+      sample_hz: 200       # optional: written to sampling_frequency
+      noise: 8.7e-5        # optional: rad/s/sqrt(Hz)
+      use: both            # both | gyro | mice
+
+The defaults are those of ``GyroConfig``'s fields; docs/gyro.md says what each means.
+"""
+
+from __future__ import annotations
+
+import os
+
+from mousedom.config.rig import GyroConfig, default
+from mousedom.yamldoc import Reader
+
+GYRO_KEYS = ("name", "path", "axis", "sign", "sample_hz", "noise", "use")
+AXES = ("x", "y", "z")
+USES = ("both", "gyro", "mice")
+
+
+def read_gyro(r: Reader, *, need_sources: bool = True) -> GyroConfig:
+    """The top level's ``gyro:`` mapping; ConfigError naming file, line and key.
+
+    ``need_sources=False`` (replay, calibration) lets it leave out name and path, as the
+    mice may leave out where they come from."""
+    g = r.sub("gyro", GYRO_KEYS)
+    name = g.string("name")
+    path = g.string("path")
+    if path is not None and not os.path.isabs(path):
+        raise g.err("path", f"must be an absolute path (/sys/bus/iio/devices/iio:deviceN or "
+                            f"/dev/iio:deviceN), got {path!r}")  # fmt: skip
+    if name == "":
+        raise g.err("name", "must not be empty (the IIO device's name attribute, e.g. mpu6050)")
+    axis = g.choice("axis", AXES, default(GyroConfig, "axis", str))
+    sign = g.integer("sign", default(GyroConfig, "sign", int))
+    if sign not in (1, -1):
+        raise g.err("sign", f"must be 1 or -1 (-1: the axis points down), got {sign}")
+    sample_hz = g.number("sample_hz", within=(0.1, 100000.0)) if g.has("sample_hz") else None
+    noise = g.number("noise", default(GyroConfig, "noise", float), positive=True,
+                     within=(0.0, 1.0))  # fmt: skip
+    use = g.choice("use", USES, default(GyroConfig, "use", str))
+    # "needs name" is noise next to "nmae: unknown key (did you mean name?)"
+    if need_sources and name is None and path is None and not {"name", "path"} & g.suggested:
+        raise r.err("gyro", "needs name (the IIO device's name, e.g. mpu6050) or path "
+                            "(/sys/bus/iio/devices/iio:deviceN)")  # fmt: skip
+    return GyroConfig(
+        name=name, path=path, axis=axis, sign=sign, sample_hz=sample_hz, noise=noise, use=use
+    )
