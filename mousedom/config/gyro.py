@@ -16,11 +16,11 @@ from __future__ import annotations
 import os
 
 from mousedom.config.rig import GyroConfig, default
+from mousedom.fusion.choices import GYRO_USES
 from mousedom.yamldoc import Reader
 
 GYRO_KEYS = ("name", "path", "axis", "sign", "sample_hz", "noise", "use")
 AXES = ("x", "y", "z")
-USES = ("both", "gyro", "mice")
 
 
 def read_gyro(r: Reader, *, need_sources: bool = True) -> GyroConfig:
@@ -43,7 +43,7 @@ def read_gyro(r: Reader, *, need_sources: bool = True) -> GyroConfig:
     sample_hz = g.number("sample_hz", within=(0.1, 100000.0)) if g.has("sample_hz") else None
     noise = g.number("noise", default(GyroConfig, "noise", float), positive=True,
                      within=(0.0, 1.0))  # fmt: skip
-    use = g.choice("use", USES, default(GyroConfig, "use", str))
+    use = g.choice("use", GYRO_USES, default(GyroConfig, "use", str))
     # "needs name" is noise next to "nmae: unknown key (did you mean name?)"
     if need_sources and name is None and path is None and not {"name", "path"} & g.suggested:
         raise r.err("gyro", "needs name (the IIO device's name, e.g. mpu6050) or path "
