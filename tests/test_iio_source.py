@@ -4,6 +4,7 @@ same rates and stamps, the polled fallback, errors naming path and attribute, ho
 
 from __future__ import annotations
 
+import errno
 import os
 import re
 import shutil
@@ -423,3 +424,39 @@ def test_permission_on_a_sysfs_attribute_names_it_and_the_rule(tmp_path, monkeyp
         source(tmp_path).open()
     monkeypatch.undo()
     assert enabled(sysdir) == set() and attr(sysdir, "current_timestamp_clock") == "realtime"
+
+
+def test_enodev_from_the_node_is_gone(tmp_path, monkeypatch):
+    """A real device unbound or unplugged fails the read with ENODEV (a FIFO cannot)."""
+    add_gyro(tmp_path)
+    src = source(tmp_path)
+    src.open()
+    fd = src.fileno()
+    real_read = os.read
+
+    def unplugged(f, n):
+        if f == fd:
+            raise OSError(errno.ENODEV, "No such device")
+        return real_read(f, n)
+
+    monkeypatch.setattr(os, "read", unplugged)
+    with pytest.raises(SourceGone, match=r"iio:device0: device gone \(No such device\)"):
+        src.read(T0)
+    assert not src.health.connected and src.fileno() == -1
+
+
+def test_a_node_in_use_elsewhere_is_refused_before_anything_changes(tmp_path, monkeypatch):
+    sysdir = add_gyro(tmp_path)
+    real_open = os.open
+
+    def busy(path, flags, *a):
+        if str(path).endswith("dev/iio:device0"):
+            raise OSError(errno.EBUSY, "Device or resource busy")
+        return real_open(path, flags, *a)
+
+    monkeypatch.setattr(os, "open", busy)
+    with pytest.raises(SourceUnavailable, match="iio:device0: in use by another reader"):
+        source(tmp_path, sample_hz=400).open()
+    monkeypatch.undo()
+    assert attr(sysdir, "current_timestamp_clock") == "realtime"
+    assert attr(sysdir, "sampling_frequency") == "50" and enabled(sysdir) == set()
