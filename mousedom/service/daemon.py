@@ -33,7 +33,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from mousedom import invocation
-from mousedom.config import Config, MouseConfig
+from mousedom.config import Config
 from mousedom.service.control import ClientCommands
 from mousedom.service.factory import make_source
 from mousedom.service.output import Output
@@ -56,7 +56,7 @@ __all__ = ["WAKE_SLACK_S", "Daemon", "Slot", "make_source", "plan_wake"]
 log = logging.getLogger(__name__)
 
 Clock = Callable[[], float]
-SourceFactory = Callable[[MouseConfig, Clock], Source]
+SourceFactory = Callable[[Any, Clock], Source]  # (a mouse's or the gyro's config, clock)
 
 STATUS_S = 1.0  # SOURCE broadcast period
 # The most a wake spends on clients' events before the sources get their turn: at 50 Hz a
@@ -237,7 +237,8 @@ class Daemon:
         if self.record_path:
             from mousedom.service.live_record import Recording
 
-            kinds = [s.source.kind for s in self.sensors.slots]
+            # (the mice's: the native format keeps motion reports, not a gyro's samples)
+            kinds = [s.source.kind for s in self.sensors.slots[: len(config.mice)]]
             self._recording = Recording(self.record_path, config, kinds)
             self.outputs.add(self._recording)
             log.info("recording the sensors' reports to %s", self.record_path)

@@ -6,18 +6,25 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from mousedom.config import MouseConfig
+from mousedom.config import GyroConfig, MouseConfig
 from mousedom.errors import UserError
 from mousedom.sources.base import Source
 
 Clock = Callable[[], float]
 
 
-def make_source(mouse: MouseConfig, clock: Clock = time.monotonic, loop: bool = False) -> Source:
-    """The backend a mouse's config asks for: evdev, serial ADNS-3080 or replay.
+def make_source(
+    mouse: MouseConfig | GyroConfig, clock: Clock = time.monotonic, loop: bool = False
+) -> Source:
+    """The backend a mouse's config asks for: evdev, serial ADNS-3080 or replay; for the
+    rig's gyro, its IIO device.
 
     A replay is paced on ``clock`` (real time) and starts again at its end with ``loop``.
     """
+    if isinstance(mouse, GyroConfig):
+        from mousedom.sources.iio import GyroSource
+
+        return GyroSource(mouse, clock=clock)
     try:
         if mouse.evdev is not None:
             from mousedom.sources.evdev import EvdevSource
@@ -38,6 +45,9 @@ def make_source(mouse: MouseConfig, clock: Clock = time.monotonic, loop: bool = 
     raise UserError(f"mice.{mouse.name}: says nowhere where the mouse comes from")
 
 
-def source_key(mouse: MouseConfig) -> tuple[Any, ...]:
-    """What identifies a mouse's device: when it changes on reload, the source is reopened."""
+def source_key(mouse: MouseConfig | GyroConfig) -> tuple[Any, ...]:
+    """What identifies a sensor's device: when it changes on reload, the source is reopened
+    (a gyro's whole section: its axis, sign and rate are set when it opens)."""
+    if isinstance(mouse, GyroConfig):
+        return ("gyro", mouse)
     return (mouse.evdev, mouse.serial, mouse.replay, mouse.replay_device)

@@ -30,6 +30,9 @@ class Output(ABC):
     def reports(self, index: int, t: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> None:  # noqa: B027
         """Reports of mouse ``index`` as read from its sensor (stamps, counts)."""
 
+    def gyro(self, t: np.ndarray, rate: np.ndarray) -> None:  # noqa: B027
+        """The rig's gyro's samples as read: stamps, yaw rates (rad/s, CCW positive)."""
+
     def checkpoint(self, complete: float) -> None:  # noqa: B027
         """Once a second: every report stamped up to ``complete`` has been handed over."""
 
@@ -51,5 +54,6 @@ class Output(ABC):
 
     @property
     def wants_reports(self) -> bool:
-        """Whether ``reports`` does anything (it is called per read: skipped if not)."""
-        return type(self).reports is not Output.reports
+        """Whether ``reports`` or ``gyro`` does anything (they are called per read:
+        skipped if not)."""
+        return type(self).reports is not Output.reports or type(self).gyro is not Output.gyro

@@ -13,7 +13,7 @@ from __future__ import annotations
 import functools
 import json
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -22,7 +22,8 @@ from mousedom import __version__
 PROTO_MAJOR = 1
 # 1: POSE has excluded, suspect and consistent; SOURCE state and reason
 # 2: SOURCE scale, scale_spread, scale_applied and scale_warning (the learnt scale)
-PROTO_MINOR = 2
+# 3: POSE gyro (bias, bias_sigma, agree) and a SOURCE named gyro, on rigs with a gyro
+PROTO_MINOR = 3
 
 # Which keys each command takes; anything else is a mistake worth telling the client about.
 COMMANDS: dict[str, tuple[str, ...]] = {
@@ -261,6 +262,7 @@ def pose_message(
     excluded: Iterable[str] = (),
     suspect: Iterable[str] = (),
     consistent: bool = True,
+    gyro: Sequence[float] = (),
 ) -> dict[str, Any]:
     """A POSE: odometry-frame pose, body-frame velocities, covariance of (x, y, theta).
 
@@ -269,9 +271,12 @@ def pose_message(
     gone, ``excluded`` those the fault-tolerant fusion left out (their readings disagreed,
     or their sensor said they were not tracking), ``suspect`` those used but in doubt.
     ``consistent`` is False where the mice disagreed and nobody could be blamed (the
-    covariance is inflated for that window).
+    covariance is inflated for that window).  With a gyro (``gyro``: the window's turn,
+    bias, bias sigma and agreement statistic, PoseRow.gyro), ``"gyro"`` gives its bias
+    (rad/s), the bias's sigma and the chi-square (1 dof) of its agreement with the mice
+    (null where it had no samples).
     """
-    return {
+    msg = {
         "class": "POSE",
         "t": round(float(t), 6),
         "x": _finite(pose[0]),
@@ -288,6 +293,10 @@ def pose_message(
         "suspect": list(suspect),
         "consistent": bool(consistent),
     }
+    if len(gyro):
+        _, bias, sigma, stat = gyro
+        msg["gyro"] = {"bias": _finite(bias), "bias_sigma": _finite(sigma), "agree": _finite(stat)}
+    return msg
 
 
 def _json_float(v: float) -> str:
@@ -307,6 +316,7 @@ _POSE_FINITE = (
     '"excluded":%s,"suspect":%s,"consistent":%s}\n'
 )
 _POSE_ANY = _POSE_FINITE.replace("%r", "%s")  # values already written by _json_float
+_GYRO = ',"gyro":{"bias":%s,"bias_sigma":%s,"agree":%s}}\n'
 
 
 def encode_pose(
@@ -320,6 +330,7 @@ def encode_pose(
     excluded: tuple[str, ...] = (),
     suspect: tuple[str, ...] = (),
     consistent: bool = True,
+    gyro: Sequence[float] = (),
 ) -> bytes:
     """``encode(pose_message(...))`` byte for byte, without the dict and the generic JSON
     encoder: the daemon writes one per window (tests check both give the same bytes).
@@ -334,18 +345,19 @@ def encode_pose(
     # value is written on its own, null where JSON has no number.
     if not math.isfinite(sum(values)):
         template, written = _POSE_ANY, tuple(_json_float(v) for v in values)
-    return (
-        template
-        % (
-            *written,
-            int(used),
-            "true" if updating else "false",
-            _json_names(missing),
-            _json_names(excluded),
-            _json_names(suspect),
-            "true" if consistent else "false",
-        )
-    ).encode()
+    line = template % (
+        *written,
+        int(used),
+        "true" if updating else "false",
+        _json_names(missing),
+        _json_names(excluded),
+        _json_names(suspect),
+        "true" if consistent else "false",
+    )
+    if len(gyro):  # the rig's gyro: before the closing brace
+        _, bias, sigma, stat = gyro
+        line = line[:-2] + _GYRO % tuple(_json_float(float(v)) for v in (bias, sigma, stat))
+    return line.encode()
 
 
 def source_message(health: dict[str, Any], **extra: Any) -> dict[str, Any]:

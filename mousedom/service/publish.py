@@ -90,6 +90,10 @@ class Outputs:
         for out in list(self._reporters):
             self._call(out, out.reports, index, t, dx, dy)
 
+    def gyro(self, t: np.ndarray, rate: np.ndarray) -> None:
+        for out in list(self._reporters):
+            self._call(out, out.gyro, t, rate)
+
     def checkpoint(self, complete: float) -> None:
         for out in list(self.items):
             self._call(out, out.checkpoint, complete)
@@ -137,6 +141,7 @@ class SocketOutput(Output):
             names[0],
             names[1],
             row.consistent,
+            row.gyro,
         )
         # A client at a lower rate takes the POSE nearest its own grid (server.py).
         self.server.broadcast_pose(row.t, line, 0.5 / self.running.config.rate_hz)
@@ -174,6 +179,7 @@ class Publisher:
         # when a SOURCE message is made (see fold_window_health).
         self.window_residuals: list[Any] = []
         self._last_health: tuple[Any, Any] | None = None
+        self._last_gyro: Any = ()  # the last window's gyro (PoseRow.gyro) for its SOURCE
         # The learnt scales' warnings, logged when they appear, persist or end (scales.py)
         self.scale_log = ScaleLog()
 
@@ -197,6 +203,7 @@ class Publisher:
                 outputs.publish(pose)
         last = rows[-1]
         self._last_health = (last.state, last.reason)
+        self._last_gyro = last.gyro
         learner = self.running.tracker.scales
         if self.scale_log.due(learner):  # renewed (twice a second of windows): its warnings
             self.scale_log.renewed(learner, self.running.config.names, self.clock())
@@ -226,6 +233,8 @@ class Publisher:
         out = []
         for slot in self.sensors.slots:
             h = slot.source.health
+            # a mouse's learnt scale, or the gyro's bias (its slot comes after the mice)
+            extra = scales[slot.index] if slot.index < len(scales) else self._gyro_fields()
             out.append(
                 source_message(
                     h.as_dict(),
@@ -235,10 +244,17 @@ class Publisher:
                     excluded=not slot.live or slot.health_state == Health.EXCLUDED,
                     state="gone" if not slot.live else robust.STATES[slot.health_state],
                     reason=robust.REASONS[slot.health_reason] or None,
-                    **scales[slot.index],
+                    **extra,
                 )
             )
         return out
+
+    def _gyro_fields(self) -> dict[str, float | None]:
+        """The gyro's SOURCE fields: its bias and the bias's sigma after the last window."""
+        gyro = self._last_gyro
+        if not len(gyro):
+            return {"bias": None, "bias_sigma": None}
+        return {"bias": float(gyro[1]), "bias_sigma": float(gyro[2])}
 
     def every_second(self, now: float) -> None:
         """The SOURCE messages to the clients and the outputs, and the outputs' checkpoint

@@ -20,7 +20,7 @@ from mousedom.service.publish import Publisher
 from mousedom.service.running import Running
 from mousedom.service.sdnotify import Notifier
 from mousedom.service.server import Server
-from mousedom.service.slots import Sensors
+from mousedom.service.slots import Sensors, sensors_of
 
 if TYPE_CHECKING:
     from mousedom.fusion.tracker import Tracker
@@ -70,7 +70,7 @@ class Reloader:
         self._stop_recording_if_mice_changed(new)
         self.publisher.fold_window_health()  # the old slots' last windows, before they move
         self.running.replace(new, tracker)
-        self.sensors.replace(new.mice, now)
+        self.sensors.replace(sensors_of(new), now)
         for what in self.restart_only(new):
             log.warning("%s changed: takes effect at the next restart", what)
         self.server.apply_settings(new.server)

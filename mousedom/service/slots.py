@@ -19,18 +19,30 @@ from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 
-from mousedom.config import MouseConfig
+from mousedom.config import Config, GyroConfig, MouseConfig
+from mousedom.fusion.gyro import GYRO, gyro_period
 from mousedom.fusion.robust import Health, Reason
 from mousedom.service.factory import source_key
 from mousedom.service.running import Running
 from mousedom.sources.base import Source, SourceGone, SourceHealth, SourceUnavailable
+from mousedom.sources.iio import GyroSamples
 
 log = logging.getLogger(__name__)
 
 Clock = Callable[[], float]
-SourceFactory = Callable[[MouseConfig, Clock], Source]
+SourceFactory = Callable[[Any, Clock], Source]  # (a Sensor, the clock): factory.make_source
 
 RETRY_S = 1.0  # how often a vanished sensor is looked for again
+
+
+def sensor_name(sensor: Sensor) -> str:
+    """A mouse's name, or "gyro" (a gyro's ``name`` is its IIO device's)."""
+    return GYRO if isinstance(sensor, GyroConfig) else sensor.name
+
+
+def sensors_of(config: Config) -> list[Sensor]:
+    """The config's sensors in the tracker's order: the mice, then the gyro if any."""
+    return [*config.mice, *([config.gyro] if config.gyro is not None else [])]
 
 
 class ReportSink(Protocol):
@@ -39,6 +51,8 @@ class ReportSink(Protocol):
     wants_reports: bool
 
     def reports(self, index: int, t: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> None: ...
+
+    def gyro(self, t: np.ndarray, rate: np.ndarray) -> None: ...
 
 
 class PlannedSensor(NamedTuple):
@@ -51,12 +65,17 @@ class PlannedSensor(NamedTuple):
     health: SourceHealth | None
 
 
+Sensor = MouseConfig | GyroConfig  # what a slot reads: a mouse, or the rig's gyro
+
+
 @dataclass
 class Slot:
-    """One configured sensor as the loop sees it, and the figures its SOURCE says."""
+    """One configured sensor as the loop sees it, and the figures its SOURCE says.  The
+    mice's slots come first, in the config's order (their index is the tracker's); the
+    gyro's, if the rig has one, last (the tracker's sensor N)."""
 
     index: int
-    mouse: MouseConfig
+    mouse: Sensor
     source: Source
     live: bool = False
     fd: int | None = None
@@ -72,7 +91,14 @@ class Slot:
 
     @property
     def name(self) -> str:
-        return self.mouse.name
+        return sensor_name(self.mouse)
+
+    @property
+    def period(self) -> float:
+        """The longest time between two of its reports while it reports."""
+        if isinstance(self.mouse, GyroConfig):
+            return gyro_period(self.mouse)
+        return 1.0 / self.mouse.report_hz
 
     def add_residual(self, rx: float, ry: float) -> None:
         """One window's residual of this mouse into its sums (non-finite ones skipped)."""
@@ -118,8 +144,8 @@ class Sensors:
     # ------------------------------------------------------------------ lifecycle
 
     def start(self, now: float) -> None:
-        """A slot per configured mouse, each opened (or its retry planned)."""
-        self.slots = [self._new_slot(i, m) for i, m in enumerate(self.running.config.mice)]
+        """A slot per configured sensor, each opened (or its retry planned)."""
+        self.slots = [self._new_slot(i, m) for i, m in enumerate(sensors_of(self.running.config))]
         self._live_changed()
         for slot in self.slots:
             self.try_open(slot, now)
@@ -127,14 +153,14 @@ class Sensors:
     def max_latency(self) -> float:
         return max((s.latency for s in self.slots), default=0.0)
 
-    def replace(self, mice: Sequence[MouseConfig], now: float) -> None:
+    def replace(self, mice: Sequence[Sensor], now: float) -> None:
         """The slots of a reloaded config: a mouse whose device is unchanged keeps its open
         source (and its place in the epoll); the others are closed, or opened anew.  The
         running tracker is already the new one."""
         old = {s.name: s for s in self.slots}
         slots = []
         for i, mouse in enumerate(mice):
-            prev = old.pop(mouse.name, None)
+            prev = old.pop(sensor_name(mouse), None)
             if prev is not None and source_key(prev.mouse) == source_key(mouse):
                 prev.index, prev.mouse = i, mouse
                 slots.append(prev)
@@ -164,7 +190,7 @@ class Sensors:
 
     # ------------------------------------------------------------------ opening
 
-    def _new_slot(self, index: int, mouse: MouseConfig) -> Slot:
+    def _new_slot(self, index: int, mouse: Sensor) -> Slot:
         source = self.source_factory(mouse, self.clock)
         # A paced source hands over every report due by ``now``: none comes late.
         latency = 0.0 if source.paced else source.latency
@@ -182,6 +208,9 @@ class Sensors:
             slot.retry_at = now + RETRY_S
             self.running.tracker.set_live(slot.index, False, now)
             return
+        # (a gyro knows only once open whether it reads a buffer or polls: paced)
+        slot.paced = slot.source.paced
+        slot.latency = 0.0 if slot.paced else slot.source.latency
         slot.fd = fd if fd is not None and fd >= 0 and not slot.paced else None
         if slot.fd is not None:
             self.poll.register(slot.fd, select.EPOLLIN)
@@ -265,6 +294,13 @@ class Sensors:
             self._gone(slot, now, f"read failed: {e}")
             return
         tracker = self.running.tracker
+        if isinstance(slot.mouse, GyroConfig):
+            for samples in batches:
+                if isinstance(samples, GyroSamples) and len(samples.t):
+                    tracker.push_gyro(samples.t, samples.rate)
+                    if self.sink.wants_reports:
+                        self.sink.gyro(samples.t, samples.rate)
+            return
         for batch in batches:
             t, dx, dy = batch.columns()
             if len(t):
@@ -305,7 +341,7 @@ class Sensors:
         self.missing_names = tuple(s.name for s in self.slots if not s.live)
         self.names_by_state = {}
         self.plan = [
-            PlannedSensor(1.0 / s.mouse.report_hz, s.latency, None if s.paced else s.source.health)
+            PlannedSensor(s.period, s.latency, None if s.paced else s.source.health)
             for s in self.slots
             if s.live
         ]
