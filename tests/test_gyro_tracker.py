@@ -97,13 +97,14 @@ def _drive_errors(layout: str, model: str, use: str | None, seed: int, duration:
 
 def test_a_gyro_halves_the_heading_error_of_two_mice_on_an_axle():
     """Over seeds of 30 s drives of two mice on the axle: the median heading error with
-    an MPU-6050-like gyro under 0.6 of the mice's alone (measured 0.47; bench/gyro.py has
-    the figures and the issue's target of a third), the position's too."""
+    an MPU-6050-like gyro at most half the mice's alone (measured 0.34: the issue's
+    target is a third, bench/gyro.py has the figures over more seeds and 60 s), the
+    position's smaller too."""
     without, with_gyro = [], []
     for seed in range(8):
         without.append(np.abs(_drive_errors("pair", "diff-drive", None, seed, 30.0)[0]))
         with_gyro.append(np.abs(_drive_errors("pair", "diff-drive", "both", seed, 30.0)[0]))
-    assert np.median([e[2] for e in with_gyro]) < 0.6 * np.median([e[2] for e in without])
+    assert np.median([e[2] for e in with_gyro]) < 0.5 * np.median([e[2] for e in without])
     assert np.median([math.hypot(*e[:2]) for e in with_gyro]) < np.median(
         [math.hypot(*e[:2]) for e in without]
     )

@@ -43,6 +43,7 @@ import numpy as np
 
 from mousedom.config import GyroConfig
 from mousedom.fusion.choices import GYRO_USES
+from mousedom.fusion.gyrojudge import RELEARN_S, GyroJudge, MiceView, Verdict
 
 GYRO = "gyro"  # the gyro's name where sensors are named (Tracker.set_live, SOURCE)
 
@@ -62,6 +63,15 @@ class GyroNoise:
     bias_walk: float  # bias random walk W, rad/s/sqrt(s)
     bias_sigma: float  # the bias's standard deviation before anything is learnt, rad/s
 
+
+# No mouse counting for this long is a standstill (seconds): a mouse moving at 1 mm/s
+# counts every 25 ms at 1000 CPI
+STILL_S = 0.25
+
+# A turn slower than this, seen by the gyro while every mouse stands still, is its bias
+# moving, not the robot (rad/s: 3 deg/s, ten times a robot's creep and far beyond a
+# calibrated MEMS gyro's bias change over a drive)
+STILL_TURN = math.radians(3.0)
 
 # A gyro whose config gives no sample rate samples at least this often: the longest span a
 # sample covers (a sample after a longer gap covers this much, as a mouse's report does).
@@ -101,6 +111,16 @@ class GyroWindow(NamedTuple):
     used: bool  # whether it entered the pose (False: no samples, or use = mice)
 
 
+class Judged(NamedTuple):
+    """A window's motion after the gyro (``GyroFusion.judged``)."""
+
+    q: list[float]
+    c: Matrix3
+    report: GyroWindow
+    blamed: tuple[int, ...]  # mice left out for disagreeing with the gyro
+    consistent: bool  # False: mice and gyro disagreed and nobody could be blamed
+
+
 class BiasState:
     """The gyro's bias estimate (b_hat, P), carried from window to window, and ``cross``:
     the covariance of the heading's error with the bias's (see GyroFusion.window)."""
@@ -120,12 +140,21 @@ class GyroFusion:
     as the pose is); ``window`` takes Python floats (the daemon's path), ``windows`` arrays
     (replay's), looping over the windows because the bias is sequential."""
 
-    def __init__(self, noise: GyroNoise, period: float, use: str = "both") -> None:
+    def __init__(
+        self,
+        noise: GyroNoise,
+        period: float,
+        use: str = "both",
+        judge: GyroJudge | None = None,
+    ) -> None:
         if use not in GYRO_USES:
             raise ValueError(f"gyro use {use!r}: choose one of {', '.join(GYRO_USES)}")
         self.noise = noise
         self.period = period
         self.use = use
+        self.judge = judge  # faults seen through the gyro (gyrojudge.py); None: not judged
+        self._disagree = 0  # windows in a row the gyro disagreed with agreeing mice
+        self._quiet = 0  # windows in a row no mouse in the solve counted anything
         self.state = BiasState(0.0, noise.bias_sigma**2)
         self._walk_var = noise.bias_walk**2 * period  # the bias's growth per window
         self._white_var = noise.density**2 * period  # the integral's white noise
@@ -136,14 +165,21 @@ class GyroFusion:
         self.state.cross = 0.0
 
     def window(
-        self, q: Sequence[float], c: Matrix3, turn: float | None, ok: bool, still: bool = False
+        self,
+        q: Sequence[float],
+        c: Matrix3,
+        turn: float | None,
+        ok: bool,
+        still: bool = False,
+        extra: float = 0.0,
     ) -> tuple[list[float], Matrix3, GyroWindow]:
         """The window's (q, C) with the gyro's ``turn`` (None: no samples) folded in as
         ``use`` says; ``ok`` False (the mice lacked rank) leaves q alone and learns
         nothing (no motion is invented).  ``still``: no live mouse counted anything, so the
         robot stood still: nothing turned, exactly (C_aa = 0 whatever the mice's noise
         model says of a window without counts), the window measures the bias alone and
-        the heading stays, whatever ``use`` (a zero-velocity update).
+        the heading stays, whatever ``use`` (a zero-velocity update).  ``extra``: variance
+        of the mice's turn that q's covariance does not hold (GyroJudge.timing_var).
 
         The bias's error is the same from one window to the next: a heading made with it
         drifts by T times it every window, which independent windows' variances would not
@@ -162,6 +198,10 @@ class GyroFusion:
         t = self.period
         if turn is None or not ok:
             return list(q), c, GyroWindow(math.nan, st.bias, math.sqrt(st.var), math.nan, False)
+        mice_c = c
+        if extra and not still:
+            c = [row[:] for row in c]
+            c[2][2] += extra
         caa = 0.0 if still else c[2][2]
         prior_bias, prior, cross = st.bias, st.var, st.cross
         e = turn - q[2] - prior_bias * t
@@ -175,7 +215,7 @@ class GyroFusion:
         drift = -2.0 * kappa * t * cross  # the heading's error with the bias's, carried
         report = GyroWindow(turn, st.bias, math.sqrt(st.var), e * e / s, kappa > 0.0)
         if kappa == 0.0:  # the mice's (use = mice, or a standstill)
-            return list(q), c, report
+            return list(q), mice_c, report
         if self.use == "both":
             ca = [row[2] for row in c]
             q2 = [v + k * e / s for v, k in zip(q, ca, strict=True)]
@@ -193,6 +233,71 @@ class GyroFusion:
         cyy = c[1][1] - ly * ly * caa + ly * ly * r
         c2 = [[cxx, cxy, lx * r], [cxy, cyy, ly * r], [lx * r, ly * r, max(0.0, r + drift)]]
         return q2, c2, report
+
+    def judged(
+        self, q: Sequence[float], c: Matrix3, turn: float | None, ok: bool, mice: MiceView
+    ) -> Judged:
+        """``window`` with the agreement test first: a window where mice and gyro disagree
+        beyond the fault screen's false-alarm rate is judged (gyrojudge.py), not fused,
+        and teaches the bias nothing.  Without a judge, or with use = mice, as ``window``
+        (still: no used mouse counted)."""
+        judge = self.judge
+        if judge is None:
+            return Judged(*self.window(q, c, turn, ok), (), True)
+        # Still: no mouse in the solve counted for STILL_S.  A window without counts alone
+        # is not: a mouse creeping at a few mm/s counts once in several windows.  Such a
+        # window's zero turn is as uncertain as a count of each mouse (sigma), whatever
+        # the noise model says of windows without counts.
+        silent = not judge.moved(mice)
+        self._quiet = self._quiet + 1 if silent else 0
+        still = self._quiet * self.period >= STILL_S
+        if turn is None or not ok:
+            return Judged(*self.window(q, c, turn, ok, still), (), True)
+        extra = 0.0
+        if not still:
+            extra = judge.timing_var(mice)
+            if silent:
+                extra = max(extra, judge.sigma_turn_var(mice) - c[2][2])
+        if self.use == "mice":
+            return Judged(*self.window(q, c, turn, ok, still, extra), (), True)
+        st, t = self.state, self.period
+        prior = st.var + self._walk_var
+        caa = 0.0 if still else c[2][2] + extra
+        e = turn - (0.0 if still else q[2]) - st.bias * t
+        s = caa + t * t * prior + self._white_var
+        stat = e * e / s
+        if stat <= judge.threshold:
+            self._disagree = 0
+            return Judged(*self.window(q, c, turn, ok, still, extra), (), True)
+        n_used = sum(1 for u in mice.used if u)
+        self._disagree += 1
+        if self._disagree * t >= RELEARN_S:
+            # Disagreeing this long with mice that agree (or stand still): the gyro's bias
+            # moved (or was learnt wrong): learnt again from here
+            st.var = max(st.var, self.noise.bias_sigma**2)
+            self._disagree = 0
+            return Judged(*self.window(q, c, turn, ok, still, extra), (), True)
+        st.var = prior  # nothing learnt from a window judged
+        a, var_a = turn - st.bias * t, t * t * prior + self._white_var
+        if n_used >= 3 and (still or mice.consistent):
+            # three mice that agree, or stand still (they do not all lose the floor at
+            # once): the gyro is wrong (saturated, a bias that moved)
+            verdict = Verdict(list(q), c, (), False, True, False)
+        elif still and abs(e) <= STILL_TURN * t:
+            # a slow turn seen only by the gyro: the robot starting to turn (the gyro sees
+            # it before the mice count) or its bias moving: the heading takes the gyro's
+            verdict = judge.gyro_heading(c, a, var_a)
+        elif still:
+            verdict = judge.silent_mice_blamed(c, a, var_a, mice)
+        else:
+            verdict = judge.leave_one_out(q, c, a, var_a, mice)
+        c2 = verdict.c
+        if verdict.gyro_used:  # the heading's error takes the bias's (see window)
+            c2 = [row[:] for row in c2]
+            c2[2][2] = max(0.0, c2[2][2] - 2.0 * t * st.cross)
+            st.cross -= t * prior
+        report = GyroWindow(turn, st.bias, math.sqrt(st.var), stat, verdict.gyro_used)
+        return Judged(verdict.q, c2, report, verdict.blamed, verdict.consistent)
 
     def windows(
         self, q: np.ndarray, cov: np.ndarray, turn: np.ndarray, ok: np.ndarray, still: np.ndarray

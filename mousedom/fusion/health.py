@@ -31,12 +31,14 @@ class Reason(IntEnum):
     SILENT = 2  # silent while the others move
     SATURATED = 3
     LOW_QUALITY = 4
+    GYRO = 5  # its motion disagrees with the gyro's turn (fusion/gyro.py)
 
 
 TRACKING, SUSPECT, EXCLUDED, MISSING = Health
 STATES = tuple(h.name.lower() for h in Health)  # ("tracking", "suspect", ...)
-NONE, INCONSISTENT, SILENT, SATURATED, LOW_QUALITY = Reason
-REASONS = ("", "inconsistent", "silent while others move", "saturated", "low quality")
+NONE, INCONSISTENT, SILENT, SATURATED, LOW_QUALITY, GYRO = Reason
+REASONS = ("", "inconsistent", "silent while others move", "saturated", "low quality",
+           "disagrees with the gyro")  # fmt: skip
 assert len(REASONS) == len(Reason)
 
 

@@ -30,10 +30,10 @@ from mousedom.fusion import noiserate, robust, scalelearn
 from mousedom.fusion.countfunction import CountFunction
 from mousedom.fusion.evidence import SensorEvidence
 from mousedom.fusion.geometry import rank_problem
-from mousedom.fusion.gyro import GYRO, GyroFusion, gyro_noise, gyro_period
+from mousedom.fusion.gyro import GYRO
 from mousedom.fusion.posebatch import PoseBatch
 from mousedom.fusion.tracker_batch import ArrayPath
-from mousedom.fusion.tracker_gyro import GyroClock
+from mousedom.fusion.tracker_gyro import GyroClock, gyro_parts
 from mousedom.fusion.tracker_learn import Learners, Renewal
 from mousedom.fusion.tracker_one import OneWindowPath
 from mousedom.fusion.tracker_state import Carried, PathSetup, WindowGrid
@@ -79,22 +79,21 @@ class Tracker:
         self._mice = [CountFunction(1.0 / m.report_hz, config.late_report_s)
                       for m in config.mice]  # fmt: skip
         self._names = {m.name: i for i, m in enumerate(config.mice)}
+        # (N,2,2) counts -> body metres: the config's, or with the learnt scales applied;
+        # the tracker's (and tests') record of it, handed to the paths by _rebind
+        self._to_body = counts_matrices(config.mice)
+        positions = np.array([[m.mount.x, m.mount.y] for m in config.mice])
+        sigma = np.array([sigma_metres(m) for m in config.mice])
         # A gyro (config.gyro): its samples' integral is a count function as a mouse's
         # counts are, closed with the same edges; it is sensor N in _clocks (after the
         # mice), named "gyro" in complete_each / set_live.
         self._gyro: GyroClock | None = None
         gyro_fusion = None
         if config.gyro is not None:
-            self._gyro = GyroClock(gyro_period(config.gyro), config.late_report_s)
+            self._gyro, gyro_fusion = gyro_parts(config, self.model, positions, sigma)
             self._names[GYRO] = self.n_mice
-            gyro_fusion = GyroFusion(gyro_noise(config.gyro), self.period, config.gyro.use)
         # every count function whose frontier holds the windows back
         self._clocks = self._mice + ([self._gyro] if self._gyro is not None else [])
-        # (N,2,2) counts -> body metres: the config's, or with the learnt scales applied;
-        # the tracker's (and tests') record of it, handed to the paths by _rebind
-        self._to_body = counts_matrices(config.mice)
-        positions = np.array([[m.mount.x, m.mount.y] for m in config.mice])
-        sigma = np.array([sigma_metres(m) for m in config.mice])
         self._complete_all = -math.inf
         self._counts_out = [[0.0, 0.0] for _ in range(self.n_mice)]  # see counts_out
         self.screen: robust.Screen | None = None

@@ -8,10 +8,15 @@ judges them (``screenbatch``), and the pose and its covariance are carried throu
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from mousedom.fusion import integrate, models, robust, screenbatch
 from mousedom.fusion.covariance import CovarianceState, propagate, world_step_noise
+from mousedom.fusion.gyro import GyroFusion
+from mousedom.fusion.gyrojudge import MiceView
+from mousedom.fusion.health import Reason
 from mousedom.fusion.posebatch import PoseBatch
 from mousedom.fusion.tracker_state import Carried, PathSetup
 
@@ -67,11 +72,10 @@ class ArrayPath:
         sol, health, reason, consistent = self._screened(d, mask, sol, evidence)
         q = np.where(sol.ok[:, None], sol.q, 0.0)
         qcov, gyro = sol.cov, None
+        used = sol.used
         if setup.gyro is not None and turn is not None:  # the gyro's reading of the turns
-            counted = np.abs(d) > (models.STILL * setup.sigma)[None, :, None]
-            still = ~np.any(counted & mask[:, :, None], axis=(1, 2))
-            q, qcov, said = setup.gyro.windows(q, sol.cov, turn, sol.ok, still)
-            gyro = np.array([s[:4] for s in said], dtype=np.float64).reshape(len(q), 4)
+            q, qcov, gyro, used = self._with_gyro(setup.gyro, q, sol, d, mask, turn,
+                                                  health, reason, consistent)  # fmt: skip
         partials = integrate.step_partials(q)  # the noise's Jacobian; its S, C make the step
         steps = integrate.body_step(q, setup.integrator, partials[:2])
         carried = self._carried
@@ -92,7 +96,7 @@ class ArrayPath:
             vy=q[:, 1] * rate,
             omega=q[:, 2] * rate,
             cov=cov,
-            used=sol.used,
+            used=used,
             ok=sol.ok,
             residual=sol.residual,
             counts=counts,
@@ -105,6 +109,40 @@ class ArrayPath:
             else np.broadcast_to(self._scale, counts.shape).copy(),
             gyro=gyro,
         )
+
+    def _with_gyro(
+        self,
+        fusion: GyroFusion,
+        q: np.ndarray,
+        sol: models.Solution,
+        d: np.ndarray,
+        mask: np.ndarray,
+        turn: np.ndarray,
+        health: np.ndarray,
+        reason: np.ndarray,
+        consistent: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The gyro's turn in each window, judged where it disagrees (GyroFusion.judged),
+        in window order (the bias is sequential); the mice it blames excluded in
+        ``health`` and ``reason`` and ``consistent`` cleared where nobody could be, in
+        place.  Returns (q, q's covariance, the gyro's columns, mice used)."""
+        n = len(q)
+        q2, c2 = q.copy(), sol.cov.copy()
+        gyro = np.empty((n, 4))
+        used = sol.used.copy()
+        in_solve = mask & (health != robust.EXCLUDED)
+        for k in range(n):
+            tk = float(turn[k])
+            mice = MiceView(d[k].tolist(), in_solve[k].tolist(), bool(consistent[k]))
+            j = fusion.judged(q[k].tolist(), sol.cov[k].tolist(),
+                              None if math.isnan(tk) else tk, bool(sol.ok[k]), mice)  # fmt: skip
+            q2[k], c2[k] = j.q, j.c
+            gyro[k] = j.report[:4]
+            consistent[k] = consistent[k] and j.consistent
+            for i in j.blamed:
+                health[k, i], reason[k, i] = robust.EXCLUDED, Reason.GYRO
+                used[k] -= 1
+        return q2, c2, gyro, used
 
     def _screened(
         self, d: np.ndarray, mask: np.ndarray, sol: models.Solution, evidence: Evidence | None

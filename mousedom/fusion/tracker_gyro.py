@@ -13,12 +13,20 @@ import math
 
 import numpy as np
 
+from mousedom.config import Config
+from mousedom.fusion import models
 from mousedom.fusion.countfunction import CountFunction
-from mousedom.fusion.gyro import gyro_turns
+from mousedom.fusion.gyro import GyroFusion, gyro_noise, gyro_period, gyro_turns
+from mousedom.fusion.gyrojudge import GyroJudge
 
 
 class GyroClock(CountFunction):
-    """The gyro's turn over time (see the module docstring)."""
+    """The gyro's turn over time (see the module docstring).  A window before its first
+    sample's stamp has no turn (None): the first sample only starts the spans."""
+
+    def __init__(self, period: float, late_report_s: float) -> None:
+        super().__init__(period, late_report_s)
+        self.first_t = math.inf  # the first sample's stamp: the turn is known from here
 
     def push(self, t: np.ndarray | list, rate: np.ndarray | list) -> float | None:
         """Queue samples (stamps, rad/s); the first stamp, or None if there were none.
@@ -34,6 +42,7 @@ class GyroClock(CountFunction):
             raise ValueError("push_gyro: times and rates must be finite numbers")
         t, turn = gyro_turns(t, rate, self.last_t, self.period)
         self.queue(t, turn, np.zeros_like(turn), float(t.max()))
+        self.first_t = min(self.first_t, float(t[0]))
         return float(t[0])
 
     def turns(self, edges: np.ndarray) -> np.ndarray:
@@ -44,10 +53,32 @@ class GyroClock(CountFunction):
         self.close(edges, out=closed)
         live = np.ones(n, dtype=bool)
         self.close_live(edges, out=live)
+        live &= edges[:-1] >= self.first_t
         return np.where(live, closed[:, 0], np.nan)
 
     def turn_one(self, start: float, end: float) -> float | None:
         """The next window's turn (the one-window path's), None if the gyro was not live
         throughout."""
         turn = self.close_one(end)[0]
+        if start < self.first_t:
+            return None
         return turn if not self.dead or self.live_in(start, end) else None
+
+
+def gyro_parts(
+    config: Config, model: str, positions: np.ndarray, sigma: np.ndarray
+) -> tuple[GyroClock, GyroFusion]:
+    """A rig's gyro in the tracker: its count function, and its part of each window's
+    solve, judging disagreements with the mice where fault handling is on."""
+    gyro = config.gyro
+    if gyro is None:
+        raise ValueError("the config has no gyro")
+    judge = None
+    if config.robust.enabled:  # faults seen through the gyro (gyrojudge.py)
+        cols = (0, 2) if model == "diff-drive" else (0, 1, 2)
+        judge = GyroJudge(positions, sigma, cols, config.robust.false_alarm,
+                          (models.STILL * sigma).tolist(),
+                          config.robust.relative_noise)  # fmt: skip
+    period = 1.0 / config.rate_hz
+    fusion = GyroFusion(gyro_noise(gyro), period, gyro.use, judge)
+    return GyroClock(gyro_period(gyro), config.late_report_s), fusion

@@ -16,6 +16,8 @@ from typing import NamedTuple
 import numpy as np
 
 from mousedom.fusion import models, onewindow, robust
+from mousedom.fusion.gyrojudge import MiceView
+from mousedom.fusion.health import Reason
 from mousedom.fusion.posebatch import PoseBatch, PoseRow
 from mousedom.fusion.tracker_state import Carried, PathSetup
 
@@ -40,6 +42,16 @@ class LinearPlan(NamedTuple):
 # whether those mice have rank.  A plain tuple, not a NamedTuple: made every window, and a
 # NamedTuple's constructor costs several times a tuple display.
 LinearSolution = tuple[list[float], list[list[float]], list[int], Matrix3, bool]
+
+
+def _blame(
+    state: tuple[int, ...], reason: tuple[int, ...], idx: list[int], blamed: tuple[int, ...]
+) -> tuple[tuple[int, ...], tuple[int, ...], list[int]]:
+    """The window's health with the mice the gyro blamed excluded (GyroJudge)."""
+    st, why = list(state), list(reason)
+    for i in blamed:
+        st[i], why[i] = robust.EXCLUDED, Reason.GYRO
+    return tuple(st), tuple(why), [i for i in idx if i not in blamed]
 
 
 class OneWindowPath:
@@ -151,11 +163,14 @@ class OneWindowPath:
             reason = tuple(h.reason for h in screen.health)
         gyro: list[float] | tuple = ()
         if self.gyro is not None:  # the gyro's reading of the turn (fusion/gyro.py)
-            still = self._still
-            moved = any(abs(d_all[2 * i]) > still[i] or abs(d_all[2 * i + 1]) > still[i]
-                        for i in range(n) if live[i])  # fmt: skip
-            q, c3, said = self.gyro.window(q, c3, turn, ok, not moved)
+            pairs = [d_all[2 * i : 2 * i + 2] for i in range(n)]
+            in_solve = [i in idx for i in range(n)]
+            j = self.gyro.judged(q, c3, turn, ok, MiceView(pairs, in_solve, consistent))
+            q, c3, said = j.q, j.c, j.report
             gyro = [said.turn, said.bias, said.bias_sigma, said.stat]
+            consistent = consistent and j.consistent
+            if j.blamed:
+                state, reason, idx = _blame(state, reason, idx, j.blamed)
         ux, uy, a = q
         sx, sy = onewindow.body_step(ux, uy, a, self._integrator)
         carried = self._carried

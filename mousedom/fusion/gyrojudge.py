@@ -1,0 +1,193 @@
+"""Faults seen through the gyro: which of mice and gyro to believe when they disagree.
+
+The gyro's agreement statistic (fusion/gyro.py: e^2 / S, chi-square with one degree of
+freedom when both tell the truth) is tested at the fault screen's false-alarm rate.  A
+window that fails it is judged, not fused:
+
+- every mouse in the solve was silent, yet the gyro turned beyond its bias: the robot
+  moved and the mice did not see it (lifted, or a dead one on a one-mouse rig).  They are
+  blamed; the heading is the gyro's and the translation unknown (not counted, and the
+  window is marked inconsistent).
+- three or more mice that agree among themselves (their own screen passed): the gyro is
+  wrong (saturated, a bias jump).  It is left out of the window and its bias is not
+  learnt from it; after ``RELEARN_S`` of such windows in a row its bias's uncertainty is
+  reset, so that it is learnt again from the mice (a bias that jumped).
+- fewer mice: each one in turn is left out, and the rest are solved with the gyro's turn
+  as one more row.  The explanation is taken if it is the only one that fits, or the only
+  one that leaves out a silent mouse (a lifted mouse reads nothing: two mice on an axle,
+  one lifted while driving straight, read as a pivot that the gyro does not see).
+  Otherwise the window is inconsistent: the mice's motion is kept, nobody is blamed.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import numpy as np
+
+from mousedom.fusion import chi2
+
+RELEARN_S = 0.5  # gyro disagreeing with agreeing mice this long: its bias is learnt again
+
+Matrix3 = list[list[float]]
+
+
+class MiceView(NamedTuple):
+    """What the judge needs of a window's mice."""
+
+    d: Sequence[Sequence[float]]  # each mouse's body-frame displacement (x, y), metres
+    used: Sequence[bool]  # the mice in the solve
+    consistent: bool  # whether their own screen found them consistent
+
+
+class Verdict(NamedTuple):
+    """A failed agreement judged: the window's motion, who is blamed, what it says."""
+
+    q: list[float]
+    c: Matrix3
+    blamed: tuple[int, ...]  # mice left out for disagreeing with the gyro
+    gyro_used: bool  # the gyro's turn is in q
+    consistent: bool  # False: nobody could be blamed, or the translation is unknown
+    learn: bool  # the window may teach the bias (never when judged)
+
+
+class GyroJudge:
+    """The rig's geometry and test threshold, for judging disagreements (module doc)."""
+
+    def __init__(
+        self,
+        positions: np.ndarray,
+        sigma: np.ndarray,
+        cols: tuple[int, ...],
+        false_alarm: float,
+        still: Sequence[float],
+        relative: float = 0.0,
+    ) -> None:
+        self.positions = np.asarray(positions, dtype=float)
+        self.sigma = np.asarray(sigma, dtype=float)
+        self.cols = cols  # the twist's components the model solves for
+        self.threshold = chi2.quantile(1.0 - false_alarm, 1)
+        self.false_alarm = false_alarm
+        self.still = list(still)  # below these a reading is no count, metres
+        # Each mouse's reading error in proportion to its motion (robust.relative_noise):
+        # a report stamped a little late moves counts from one window to the next, which
+        # q's covariance does not hold and the gyro, stamped by the kernel, does not share
+        self.relative = relative
+
+    def moved(self, mice: MiceView) -> bool:
+        """Whether any mouse in the solve counted anything."""
+        return any(
+            abs(d[0]) > s or abs(d[1]) > s
+            for d, u, s in zip(mice.d, mice.used, self.still, strict=True)
+            if u
+        )
+
+    def timing_var(self, mice: MiceView) -> float:
+        """The variance the turn of the mice in the solve gets from their errors in
+        proportion to their motion: the rotation of a weighted rigid fit, 1 / sum_i w_i
+        |p_i - c|^2 with w_i = 1 / (relative |d_i|)^2 and c the weighted centre (Kim &
+        Lee's estimator's turn for isotropic errors), less that of their sigma alone."""
+        if not self.relative:
+            return 0.0
+        idx = [i for i, u in enumerate(mice.used) if u]
+        if len(idx) < 2:
+            return 0.0
+        p = self.positions[idx]
+        d2 = np.array([mice.d[i][0] ** 2 + mice.d[i][1] ** 2 for i in idx])
+        base = self.sigma[idx] ** 2
+        both = base + self.relative**2 * d2
+
+        def turn_var(var: np.ndarray) -> float:
+            w = 1.0 / var
+            centre = (w[:, None] * p).sum(axis=0) / w.sum()
+            spread = float((w * ((p - centre) ** 2).sum(axis=1)).sum())
+            return 1.0 / spread if spread > 0.0 else 0.0
+
+        return max(0.0, turn_var(both) - turn_var(base))
+
+    def sigma_turn_var(self, mice: MiceView) -> float:
+        """The turn's variance of the mice in the solve from their sigma alone (a count
+        each): what a window without counts knows of the turn while the robot may creep."""
+        idx = [i for i, u in enumerate(mice.used) if u]
+        if len(idx) < 2:
+            return math.inf
+        p = self.positions[idx]
+        w = 1.0 / self.sigma[idx] ** 2
+        centre = (w[:, None] * p).sum(axis=0) / w.sum()
+        spread = float((w * ((p - centre) ** 2).sum(axis=1)).sum())
+        return 1.0 / spread if spread > 0.0 else math.inf
+
+    def gyro_heading(self, c: Matrix3, a: float, var_a: float) -> Verdict:
+        """The heading the gyro's turn ``a`` (variance ``var_a``), the translation none."""
+        c2 = [row[:] for row in c]
+        c2[0][2] = c2[1][2] = c2[2][0] = c2[2][1] = 0.0
+        c2[2][2] = var_a
+        return Verdict([0.0, 0.0, a], c2, (), True, True, False)
+
+    def silent_mice_blamed(self, c: Matrix3, a: float, var_a: float, mice: MiceView) -> Verdict:
+        """The gyro turned by ``a`` (variance ``var_a``), faster than a bias, while every
+        used mouse was still: they are blamed, the translation is unknown."""
+        blamed = tuple(i for i, u in enumerate(mice.used) if u)
+        v = self.gyro_heading(c, a, var_a)
+        return v._replace(blamed=blamed, consistent=False)
+
+    def leave_one_out(
+        self, q: Sequence[float], c: Matrix3, a: float, var_a: float, mice: MiceView
+    ) -> Verdict:
+        """Two or fewer mice that disagree with the gyro: the one explanation that fits
+        (see the module docstring), or none."""
+        used = [i for i, u in enumerate(mice.used) if u]
+        fits = []
+        for j in used:
+            others = [i for i in used if i != j]
+            if not others:
+                continue
+            solved = self._solve_with_gyro(others, mice.d, a, var_a)
+            if solved is not None:
+                fits.append((j, solved))
+        silent = [
+            (j, s)
+            for j, s in fits
+            if abs(mice.d[j][0]) <= self.still[j] and abs(mice.d[j][1]) <= self.still[j]
+        ]
+        pick = silent if len(silent) == 1 else fits if len(fits) == 1 else []
+        if not pick:
+            return Verdict(list(q), c, (), False, False, False)
+        j, (q2, c2) = pick[0]
+        return Verdict(q2, c2, (j,), True, True, False)
+
+    def _solve_with_gyro(
+        self, mice: list[int], d: Sequence[Sequence[float]], a: float, var_a: float
+    ) -> tuple[list[float], Matrix3] | None:
+        """Weighted least squares of ``mice`` (Kim & Lee's rows) with the gyro's turn as
+        one more row; None if it lacks rank or its residual fails the test."""
+        rows, obs, weights = [], [], []
+        for i in mice:
+            px, py = self.positions[i]
+            w = 1.0 / self.sigma[i] ** 2
+            rows += [[1.0, 0.0, -py], [0.0, 1.0, px]]
+            obs += [d[i][0], d[i][1]]
+            weights += [w, w]
+        rows.append([0.0, 0.0, 1.0])
+        obs.append(a)
+        weights.append(1.0 / var_a)
+        cols = list(self.cols)
+        design = np.array(rows)[:, cols]
+        w = np.array(weights)
+        info = design.T @ (design * w[:, None])
+        if np.linalg.matrix_rank(info) < len(cols):
+            return None
+        cov = np.linalg.inv(info)
+        x = cov @ (design.T @ (w * np.array(obs)))
+        residual = np.array(obs) - design @ x
+        dof = len(obs) - len(cols)
+        if dof > 0 and float(np.sum(w * residual**2)) > chi2.quantile(1.0 - self.false_alarm, dof):
+            return None
+        q = [0.0, 0.0, 0.0]
+        c3 = np.zeros((3, 3))
+        for k, col in enumerate(cols):
+            q[col] = float(x[k])
+        c3[np.ix_(cols, cols)] = cov
+        return q, c3.tolist()
