@@ -141,9 +141,9 @@ def test_unknown_version_and_bad_header(tmp_path):
     p = tmp_path / "v.mdcap"
     body = json.dumps({"devices": [], "time_base": "relative"}).encode()
     p.write_bytes(
-        MAGIC + struct.pack("<HHI", 2, 0, len(body)) + body + struct.pack("<I", zlib.crc32(body))
-    )
-    with pytest.raises(UserError, match="unknown native capture version 2.0"):
+        MAGIC + struct.pack("<HHI", 3, 0, len(body)) + body + struct.pack("<I", zlib.crc32(body))
+    )  # 2.0 is a file with a gyro (tests/test_capture_gyro.py)
+    with pytest.raises(UserError, match=r"unknown native capture version 3.0 .*knows 1.x and 2.x"):
         open_capture(p)
     p.write_bytes(MAGIC + struct.pack("<HHI", 1, 0, len(body)) + body + b"\0\0\0\0")
     with pytest.raises(UserError, match="header CRC mismatch"):

@@ -57,12 +57,18 @@ MAX_TIME_S = 1e10
 EPOCH_THRESHOLD = 1e8
 
 
+# What a capture's device is: a mouse read through evdev (its decoded motion reports), a
+# serial sensor (its raw bytes), or a gyro read through Linux IIO (its yaw-rate samples).
+DEVICE_KINDS = ("evdev", "serial", "iio")
+GYRO_KIND = "iio"
+
+
 @dataclass
 class DeviceInfo:
     """One input device of a capture: enough to map it onto a mouse of the config."""
 
     name: str
-    kind: str = "evdev"  # "evdev" or "serial"
+    kind: str = "evdev"  # DEVICE_KINDS: "evdev", "serial" or "iio" (a gyro)
     bus: int | None = None
     vendor: int | None = None
     product: int | None = None
@@ -91,8 +97,9 @@ class DeviceInfo:
                 raise ValueError(f"device field {key!r} is {v!r}, not {names}")
         if not known.get("name"):
             raise ValueError("a device has no name")
-        if known.get("kind", "evdev") not in ("evdev", "serial"):
-            raise ValueError(f"device kind {known['kind']!r} is not 'evdev' or 'serial'")
+        if known.get("kind", "evdev") not in DEVICE_KINDS:
+            kinds = ", ".join(map(repr, DEVICE_KINDS))
+            raise ValueError(f"device kind {known['kind']!r} is not one of {kinds}")
         return cls(**known)
 
 
@@ -170,6 +177,15 @@ class DeviceStats:
         self.lost_y = st.dropped_dy
         self.unterminated = st.incomplete_events
 
+    def add_rates(self, t: np.ndarray) -> None:
+        """A gyro's samples (its ``reports``; motion counts stay 0)."""
+        if not len(t):
+            return
+        self.reports += len(t)
+        if self.first_t is None:
+            self.first_t = float(t[0])
+        self.last_t = float(t[-1])
+
     def merge(self, other: DeviceStats) -> None:
         """Add counters recorded elsewhere (e.g. a native file's notes of its source)."""
         for name in SOURCE_COUNTERS:
@@ -199,10 +215,20 @@ class Serial:
 
 
 @dataclass
+class Rates:
+    """A gyro's samples (native captures): stamps and yaw rates, exactly as recorded."""
+
+    device: int
+    t: np.ndarray  # float64 seconds, non-decreasing
+    rate: np.ndarray  # float64 rad/s about body z, counter-clockwise positive
+
+
+@dataclass
 class Batch:
     motion: list[Motion]
     serial: list[Serial]
     complete: float  # all reports of the feed's devices stamped <= this have been yielded
+    gyro: list[Rates] = field(default_factory=list)  # a gyro's samples (native captures)
 
 
 class FrameBatcher:

@@ -15,6 +15,7 @@ from collections.abc import Iterator
 import numpy as np
 
 from mousedom.capture.base import (
+    GYRO_KIND,
     TIME_BASES,
     Batch,
     Capture,
@@ -23,18 +24,22 @@ from mousedom.capture.base import (
     DeviceStats,
     Feed,
     Motion,
+    Rates,
     Serial,
 )
 from mousedom.capture.base import open_binary as _open
 from mousedom.capture.native_format import (
     CHUNK,
     CHUNK_MAGIC,
+    FIXED_KINDS,
+    GYRO_VERSION,
     INFLATE_SLACK,
     MAGIC,
     MAX_CHUNK,
     MAX_INFLATE_RATIO,
     MOTION,
     NOTE,
+    RATE,
     SERIAL,
     SYNC,
     VERSION,
@@ -45,6 +50,7 @@ from mousedom.capture.native_format import (
     motion_columns,
     note_counters,
     plausible_time,
+    rate_columns,
     read_header,
     serial_pieces,
 )
@@ -54,8 +60,8 @@ from mousedom.errors import located
 # Re-exported: the format's names that importers (tests, fuzzers, the recorder) take from
 # here; the layout lives in native_format, the writer in native_writer.
 _chunk_crc = chunk_crc
-__all__ = ["CHUNK", "MAGIC", "MOTION", "VERSION", "ZLIB", "NativeCapture", "NativeWriter",
-           "is_native", "note_counters"]  # fmt: skip
+__all__ = ["CHUNK", "GYRO_VERSION", "MAGIC", "MOTION", "RATE", "VERSION", "ZLIB",
+           "NativeCapture", "NativeWriter", "is_native", "note_counters"]  # fmt: skip
 
 
 class NativeCapture(Capture):
@@ -64,13 +70,19 @@ class NativeCapture(Capture):
     def __init__(self, path: str, data_path: str | None = None) -> None:
         super().__init__(path, data_path)
         with _open(self.data_path) as f:
-            self.header, self._body_offset = read_header(path, f)
+            self.header, self.major, self._body_offset = read_header(path, f)
         h = self.header
         try:
             self.devices = [DeviceInfo.from_dict(d) for d in h["devices"]]
             self.time_base = h["time_base"]
             if self.time_base not in TIME_BASES:
                 raise ValueError(f"unknown time_base {self.time_base!r}")
+            gyros = [d.name for d in self.devices if d.kind == GYRO_KIND]
+            if gyros and self.major < GYRO_VERSION[0]:
+                raise ValueError(
+                    f"device {gyros[0]!r} is a gyro ({GYRO_KIND!r}), which a version "
+                    f"{self.major}.x file cannot hold (gyros came with {GYRO_VERSION[0]}.0)"
+                )
         except (KeyError, TypeError, ValueError) as e:
             raise CaptureError(located(path, None, f"header: {e}")) from None
         self.config_text: str | None = h.get("config")
@@ -97,7 +109,7 @@ class NativeCapture(Capture):
         one (for a header that does not state it)."""
         first = None
         for kind, _source, count, payload, offset in self._chunks(check_tail=False, head_only=8):
-            if kind in (MOTION, SERIAL) and count:  # both start with the f8 times
+            if kind in (MOTION, SERIAL, RATE) and count:  # all start with the f8 times
                 if len(payload) < 8:
                     raise CaptureError(
                         located(self.path, None, f"byte offset {offset}: chunk of "
@@ -118,8 +130,7 @@ class NativeCapture(Capture):
         return [Feed(tuple(range(len(self.devices))), self._batches())]
 
     def _batches(self, max_pending: int = 1 << 20) -> Iterator[Batch]:
-        motion: list[Motion] = []
-        serial: list[Serial] = []
+        out = Batch([], [], -np.inf)
         pending = 0
         last = [-np.inf] * len(self.devices)
         for kind, source, count, payload, offset in self._chunks(check_tail=True):
@@ -132,47 +143,77 @@ class NativeCapture(Capture):
                         f"{source}, but the header lists {len(self.devices)} devices",
                     )
                 )
+            self._check_kind(kind, source, offset)
             st = self.stats[source]
             if kind == MOTION:
                 t, dx, dy = motion_columns(self.path, payload, count, offset)
-                if len(t) and (t[0] < last[source] or (np.diff(t) < 0).any()):
-                    raise CaptureError(
-                        located(
-                            self.path,
-                            None,
-                            f"byte offset {offset}: time goes "
-                            f"backwards for device {self.devices[source].name!r}",
-                        )
-                    )
-                if len(t):
-                    last[source] = float(t[-1])
+                self._in_order(t, last, source, offset)
                 st.add_motion(t, dx, dy)
-                motion.append(Motion(source, t, dx, dy))
+                out.motion.append(Motion(source, t, dx, dy))
+                pending += count
+            elif kind == RATE:
+                t, rate = rate_columns(self.path, payload, count, offset)
+                self._in_order(t, last, source, offset)
+                st.add_rates(t)
+                out.gyro.append(Rates(source, t, rate))
                 pending += count
             elif kind == SERIAL:
                 t, pieces = serial_pieces(self.path, payload, count, offset)
                 st.serial_bytes += sum(map(len, pieces))
-                serial.append(Serial(source, t, pieces))
+                out.serial.append(Serial(source, t, pieces))
                 pending += count
             elif kind == NOTE:
-                try:
-                    st.merge(DeviceStats(**note_counters(json.loads(payload))))
-                except (ValueError, RecursionError) as e:
-                    raise CaptureError(
-                        located(self.path, None, f"byte offset {offset}: malformed note: {e}")
-                    ) from None
+                self._note(st, payload, offset)
             elif kind == SYNC:
                 (w,) = struct.unpack("<d", payload[:8]) if len(payload) == 8 else (np.nan,)
                 if not plausible_time(w) and w != np.inf:
                     raise CaptureError(
                         located(self.path, None, f"byte offset {offset}: malformed sync")
                     )
-                yield Batch(motion, serial, w)
-                motion, serial, pending = [], [], 0
+                out.complete = w
+                yield out
+                out, pending = Batch([], [], -np.inf), 0
             if pending >= max_pending:
-                yield Batch(motion, serial, -np.inf)
-                motion, serial, pending = [], [], 0
-        yield Batch(motion, serial, np.inf)
+                yield out
+                out, pending = Batch([], [], -np.inf), 0
+        out.complete = np.inf
+        yield out
+
+    def _check_kind(self, kind: int, source: int, offset: int) -> None:
+        """A gyro's chunks are RATE and a RATE chunk is a gyro's (a file of version 2 or
+        later, which the header's devices have been checked for)."""
+        if kind not in (MOTION, RATE):
+            return
+        gyro = self.devices[source].kind == GYRO_KIND
+        if gyro != (kind == RATE):
+            what = "gyro samples" if kind == RATE else "motion reports"
+            raise CaptureError(
+                located(self.path, None, f"byte offset {offset}: {what} for device "
+                        f"{self.devices[source].name!r}, which is of kind "
+                        f"{self.devices[source].kind!r}")
+            )  # fmt: skip
+
+    def _in_order(self, t: np.ndarray, last: list[float], source: int, offset: int) -> None:
+        """A device's stamps never go backwards, within a chunk or from one to the next."""
+        if len(t) and (t[0] < last[source] or (np.diff(t) < 0).any()):
+            raise CaptureError(
+                located(
+                    self.path,
+                    None,
+                    f"byte offset {offset}: time goes "
+                    f"backwards for device {self.devices[source].name!r}",
+                )
+            )
+        if len(t):
+            last[source] = float(t[-1])
+
+    def _note(self, st: DeviceStats, payload: bytes, offset: int) -> None:
+        try:
+            st.merge(DeviceStats(**note_counters(json.loads(payload))))
+        except (ValueError, RecursionError) as e:
+            raise CaptureError(
+                located(self.path, None, f"byte offset {offset}: malformed note: {e}")
+            ) from None
 
     def _chunks(
         self, *, check_tail: bool, head_only: int | None = None
@@ -216,8 +257,8 @@ class NativeCapture(Capture):
         (CaptureError naming the offset otherwise): the work a chunk causes is bounded by
         its size on disk, not by what it claims."""
         limit = min(MAX_CHUNK, MAX_INFLATE_RATIO * len(stored) + INFLATE_SLACK)
-        if kind == MOTION:
-            limit = min(limit, 16 * count)  # exactly this, or motion_columns refuses it
+        if kind in FIXED_KINDS:
+            limit = min(limit, 16 * count)  # exactly this, or their columns are refused
         d = zlib.decompressobj()
         try:
             if head_only is not None:

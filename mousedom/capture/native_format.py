@@ -14,7 +14,15 @@ Chunk kinds: MOTION (count reports as columns: f8 t[count], i4 dx[count], i4 dy[
 SERIAL (count pieces of raw serial bytes: f8 t[count], u4 len[count], then the bytes),
 NOTE (JSON counters of what a converted source skipped or dropped), SYNC (one f8: every
 report of every source stamped at or before it is in the file by now; readers use it to
-close windows while streaming).  Flag bit 0: the payload is zlib-compressed.
+close windows while streaming), RATE (count samples of a gyro, an "iio" device, as
+columns: f8 t[count], f8 rate[count], rad/s).  Flag bit 0: the payload is
+zlib-compressed.
+
+Versions: a file is written as the oldest version that holds its devices: 1.0 without a
+gyro (what every reader of this format reads), 2.0 with one.  A gyro's samples are not
+something an older reader may skip (it would take the RATE chunk for corruption, or read
+the rig without the gyro its config names), so they take a new major version, which
+readers of 1.x refuse by name.
 
 Why this shape: a crash can only tear the chunk being written, and each chunk is checked
 by its CRC, so a reader keeps every whole chunk and reports the torn tail with its size.
@@ -32,15 +40,22 @@ from typing import Any, BinaryIO
 
 import numpy as np
 
-from mousedom.capture.base import MAX_TIME_S, SOURCE_COUNTERS, CaptureError
+from mousedom.capture.base import GYRO_KIND, MAX_TIME_S, SOURCE_COUNTERS, CaptureError
 from mousedom.errors import located
 
 MAGIC = b"MDCAP\r\n\x1a"
-VERSION = (1, 0)
+VERSION = (1, 0)  # a file without a gyro: readable by every reader of the format
+GYRO_VERSION = (2, 0)  # a file with a gyro (an "iio" device and its RATE chunks)
+KNOWN_MAJORS = (VERSION[0], GYRO_VERSION[0])
 CHUNK_MAGIC = b"MDCK"
 CHUNK = struct.Struct("<4sBBHIII")
-MOTION, SERIAL, NOTE, SYNC = 1, 2, 3, 4
-KINDS = (MOTION, SERIAL, NOTE, SYNC)
+MOTION, SERIAL, NOTE, SYNC, RATE = 1, 2, 3, 4, 5
+KINDS = (MOTION, SERIAL, NOTE, SYNC, RATE)
+# Chunks of fixed columns, 16 bytes per report or sample: what count states is their size.
+FIXED_KINDS = (MOTION, RATE)
+# No gyro measures this (MEMS parts reach 70 rad/s, 4000 deg/s): a larger rate, or one
+# that is not finite, is corruption; so a window's sum of them stays finite.
+MAX_RATE = 1e6  # rad/s
 ZLIB = 1
 MAX_CHUNK = 64 << 20  # larger payloads are corruption, not data
 # A compressed chunk may inflate to at most this many times its stored size (and never past
@@ -75,7 +90,8 @@ def check_chunk_head(head: bytes) -> str | None:
     return None
 
 
-def read_header(path: str, f: BinaryIO) -> tuple[dict[str, Any], int]:
+def read_header(path: str, f: BinaryIO) -> tuple[dict[str, Any], int, int]:
+    """The header's JSON, the file's major version and where the chunks start."""
     magic = f.read(len(MAGIC))
     if magic != MAGIC:
         raise CaptureError(located(path, None, "byte offset 0: not a mousedom native capture"))
@@ -83,13 +99,14 @@ def read_header(path: str, f: BinaryIO) -> tuple[dict[str, Any], int]:
     if len(fixed) < 8:
         raise CaptureError(located(path, None, "byte offset 8: header cut short"))
     major, minor, n = struct.unpack("<HHI", fixed)
-    if major != VERSION[0]:
+    if major not in KNOWN_MAJORS:
+        known = " and ".join(f"{k}.x" for k in KNOWN_MAJORS)
         raise CaptureError(
             located(
                 path,
                 None,
                 f"byte offset 8: unknown native capture version {major}.{minor} "
-                f"(this reader knows {VERSION[0]}.x)",
+                f"(this reader knows {known})",
             )
         )
     if n > MAX_CHUNK:
@@ -106,7 +123,12 @@ def read_header(path: str, f: BinaryIO) -> tuple[dict[str, Any], int]:
             raise ValueError("no device list")
     except ValueError as e:
         raise CaptureError(located(path, None, f"byte offset 16: bad header: {e}")) from None
-    return header, len(MAGIC) + 8 + n + 4
+    return header, major, len(MAGIC) + 8 + n + 4
+
+
+def version_for(kinds: list[str]) -> tuple[int, int]:
+    """The version a file of devices of these kinds is written as (module docstring)."""
+    return GYRO_VERSION if GYRO_KIND in kinds else VERSION
 
 
 def motion_columns(
@@ -124,6 +146,28 @@ def motion_columns(
     if not (np.abs(t) < MAX_TIME_S).all():  # NaN fails this too
         raise CaptureError(located(path, None, f"byte offset {offset}: time out of range"))
     return t, dx, dy
+
+
+def rate_columns(
+    path: str, payload: bytes, count: int, offset: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """A RATE chunk's columns (t, rate), checked: bit for bit what the writer was given."""
+    if len(payload) != 16 * count:
+        raise CaptureError(
+            located(path, None, f"byte offset {offset}: gyro chunk of {count} samples holds "
+                    f"{len(payload)} bytes, not {16 * count}")
+        )  # fmt: skip
+    t = np.frombuffer(payload, "<f8", count)
+    rate = np.frombuffer(payload, "<f8", count, 8 * count)
+    if not (np.abs(t) < MAX_TIME_S).all():  # NaN fails this too
+        raise CaptureError(located(path, None, f"byte offset {offset}: time out of range"))
+    if not (np.abs(rate) < MAX_RATE).all():
+        k = int(np.argmin(np.abs(rate) < MAX_RATE))
+        raise CaptureError(
+            located(path, None, f"byte offset {offset}: gyro sample {k} has rate "
+                    f"{float(rate[k])!r}: not a rate (finite, below {MAX_RATE:g} rad/s)")
+        )  # fmt: skip
+    return t, rate
 
 
 def plausible_time(t: float) -> bool:

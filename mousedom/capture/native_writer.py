@@ -11,21 +11,30 @@ from typing import Any, BinaryIO, cast
 
 import numpy as np
 
-from mousedom.capture.base import MAX_TIME_S, TIME_BASES, CaptureError, DeviceInfo, DeviceStats
+from mousedom.capture.base import (
+    GYRO_KIND,
+    MAX_TIME_S,
+    TIME_BASES,
+    CaptureError,
+    DeviceInfo,
+    DeviceStats,
+)
 from mousedom.capture.native_format import (
     CHUNK,
     CHUNK_MAGIC,
     MAGIC,
+    MAX_RATE,
     MOTION,
     NOTE,
     NOTE_FIELDS,
+    RATE,
     SERIAL,
     SYNC,
-    VERSION,
     ZLIB,
     chunk_crc,
     note_counters,
     plausible_time,
+    version_for,
 )
 from mousedom.safewrite import open_stream
 
@@ -33,9 +42,11 @@ from mousedom.safewrite import open_stream
 class NativeWriter:
     """Append-only writer.  Call ``sync(t)`` whenever every source is complete up to t.
 
-    Motion is buffered per source and written as one chunk per source at ``sync``, at
-    ``flush`` or when a buffer holds ``chunk_reports`` reports; each chunk is flushed to the
-    OS at once (and fsync'ed when ``fsync`` is true) so a crash loses only the buffers.
+    Motion (and a gyro's samples) is buffered per source and written as one chunk per
+    source at ``sync``, at ``flush`` or when a buffer holds ``chunk_reports`` reports; each
+    chunk is flushed to the OS at once (and fsync'ed when ``fsync`` is true) so a crash
+    loses only the buffers.  A file with a gyro device (kind "iio") is version 2.0, one
+    without is 1.0 (native_format's docstring says why).
     """
 
     def __init__(
@@ -64,12 +75,15 @@ class NativeWriter:
         self.compress = compress
         self.chunk_reports = chunk_reports
         self.fsync = fsync
-        self._buf: list[list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = [[] for _ in devices]
+        # Per source, its columns (t, dx, dy) or, for a gyro, (t, rate), as given
+        self._buf: list[list[tuple[np.ndarray, ...]]] = [[] for _ in devices]
         self._buffered = [0] * len(devices)
         self.reports_written = 0
+        self.samples_written = 0  # a gyro's
+        version = version_for([d.kind for d in devices])
         header = {
             "format": "mousedom-capture",
-            "version": list(VERSION),
+            "version": list(version),
             "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
             "time_base": time_base,
             "devices": [d.as_dict() for d in devices],
@@ -77,28 +91,63 @@ class NativeWriter:
             **(meta or {}),
         }
         body = json.dumps(header, sort_keys=True).encode()
-        self._f.write(MAGIC + struct.pack("<HHI", *VERSION, len(body)) + body)
+        self._f.write(MAGIC + struct.pack("<HHI", *version, len(body)) + body)
         self._f.write(struct.pack("<I", zlib.crc32(body)))
         self._f.flush()
 
     def motion(self, device: int, t, dx, dy) -> None:
+        self._of_kind(device, motion=True)
         t = np.ascontiguousarray(t, dtype="<f8")
         if not len(t):
             return
-        bad = ~(np.abs(t) < MAX_TIME_S)
-        if bad.any():  # the reader refuses them: never write them
-            k = int(np.argmax(bad))
-            raise CaptureError(
-                f"device {self.devices[device].name!r}: report {k} of a batch has time "
-                f"{t[k]!r}: the native format holds finite times below {MAX_TIME_S:g} s only"
-            )
+        self._check_times(device, t, "report")
         dx, dy = np.asarray(dx), np.asarray(dy)
         for d in (dx, dy):
             # A frame's summed counts may exceed the i4 columns: refuse rather than wrap.
             if d.dtype.itemsize > 4 and len(d) and (d.min() < -(2**31) or d.max() >= 2**31):
                 self._too_big(device, t, dx, dy)
-        self._buf[device].append((t, dx.astype("<i4"), dy.astype("<i4")))
-        self._buffered[device] += len(t)
+        self._buffer(device, (t, dx.astype("<i4"), dy.astype("<i4")))
+
+    def gyro(self, device: int, t, rate) -> None:
+        """A gyro's samples (device of kind "iio"): stamps (s) and yaw rates (rad/s),
+        stored as float64 exactly as given."""
+        self._of_kind(device, motion=False)
+        t = np.ascontiguousarray(t, dtype="<f8")
+        rate = np.ascontiguousarray(rate, dtype="<f8")
+        if t.shape != rate.shape or t.ndim != 1:
+            raise ValueError(f"gyro: t and rate must be 1-D of one length, got "
+                             f"{t.shape}, {rate.shape}")  # fmt: skip
+        if not len(t):
+            return
+        self._check_times(device, t, "sample")
+        bad = ~(np.abs(rate) < MAX_RATE)
+        if bad.any():  # the reader refuses them: never write them
+            k = int(np.argmax(bad))
+            raise CaptureError(
+                f"device {self.devices[device].name!r}: sample {k} of a batch has rate "
+                f"{float(rate[k])!r}: the native format holds finite rates below {MAX_RATE:g} rad/s"
+            )
+        self._buffer(device, (t.copy(), rate.copy()))  # the caller may reuse its arrays
+
+    def _of_kind(self, device: int, *, motion: bool) -> None:
+        """Motion for mice, samples for the gyro: the reader refuses anything else."""
+        dev = self.devices[device]
+        if (dev.kind == GYRO_KIND) == motion:
+            what = "motion reports" if motion else "gyro samples"
+            raise ValueError(f"device {dev.name!r} is of kind {dev.kind!r}: no {what}")
+
+    def _check_times(self, device: int, t: np.ndarray, what: str) -> None:
+        bad = ~(np.abs(t) < MAX_TIME_S)
+        if bad.any():  # the reader refuses them: never write them
+            k = int(np.argmax(bad))
+            raise CaptureError(
+                f"device {self.devices[device].name!r}: {what} {k} of a batch has time "
+                f"{float(t[k])!r}: the native format holds finite times below {MAX_TIME_S:g} s only"
+            )
+
+    def _buffer(self, device: int, columns: tuple[np.ndarray, ...]) -> None:
+        self._buf[device].append(columns)
+        self._buffered[device] += len(columns[0])
         if self._buffered[device] >= self.chunk_reports:
             self._flush_motion(device)
 
@@ -167,19 +216,25 @@ class NativeWriter:
         self.close()
 
     def _flush_motion(self, device: int) -> None:
+        """A source's buffered columns as chunks: MOTION (t, dx, dy), or RATE (t, rate)
+        for a gyro."""
         parts = self._buf[device]
         if not parts:
             return
-        t = np.concatenate([p[0] for p in parts])
-        dx = np.concatenate([p[1] for p in parts])
-        dy = np.concatenate([p[2] for p in parts])
+        columns = [np.concatenate([p[i] for p in parts]) for i in range(len(parts[0]))]
         self._buf[device] = []
         self._buffered[device] = 0
-        for s in range(0, len(t), self.chunk_reports):
+        kind = RATE if self.devices[device].kind == GYRO_KIND else MOTION
+        n = len(columns[0])
+        for s in range(0, n, self.chunk_reports):
             e = s + self.chunk_reports
-            payload = t[s:e].tobytes() + dx[s:e].tobytes() + dy[s:e].tobytes()
-            self._chunk(MOTION, device, len(t[s:e]), payload)
-            self.reports_written += len(t[s:e])
+            payload = b"".join(c[s:e].tobytes() for c in columns)
+            count = len(columns[0][s:e])
+            self._chunk(kind, device, count, payload)
+            if kind == RATE:
+                self.samples_written += count
+            else:
+                self.reports_written += count
 
     def _chunk(self, kind: int, source: int, count: int, payload: bytes) -> None:
         flags = 0
