@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from mousedom.fusion.gyro import GyroFusion, GyroNoise
+from mousedom.fusion.gyrobias import SPAN_S
 
 T = 0.01
 NOISE = GyroNoise(density=math.radians(0.005), bias_walk=math.radians(0.001),
@@ -136,12 +137,15 @@ def test_windows_is_window_over_arrays():
 
 
 def test_a_standstill_measures_the_bias_alone_and_keeps_the_heading():
-    """No live mouse counted: the robot stood still (a zero-velocity update), whatever
-    variance the mice's noise model gives a window without counts."""
+    """The robot stood still (a zero-velocity update), whatever variance the mice's
+    noise model gives a window without counts: the heading stays, and once a span the
+    summed turns are a reading of the bias alone (gyrobias.py)."""
     fusion = GyroFusion(NOISE, T, "both")
     c = np.diag([1e-8, 1e-8, 1e-6]).tolist()
-    q, c2, said = fusion.window([0.0, 0.0, 0.0], c, 2e-4, True, still=True)
-    assert q == [0.0, 0.0, 0.0] and c2 == c and not said.used
-    prior = NOISE.bias_sigma**2 + NOISE.bias_walk**2 * T
-    s = T * T * prior + NOISE.density**2 * T  # the mice's C_aa taken as 0
-    assert fusion.state.bias == pytest.approx(T * prior * 2e-4 / s, rel=1e-12)
+    n = round(SPAN_S / T)
+    for _ in range(n):
+        q, c2, said = fusion.window([0.0, 0.0, 0.0], c, 2e-4, True, still=True)
+        assert q == [0.0, 0.0, 0.0] and c2 == c and not said.used
+    prior = NOISE.bias_sigma**2 + n * NOISE.bias_walk**2 * T
+    s = (n * T) ** 2 * prior + n * NOISE.density**2 * T  # the mice's C_aa taken as 0
+    assert fusion.state.bias == pytest.approx(n * T * prior * n * 2e-4 / s, rel=1e-9)

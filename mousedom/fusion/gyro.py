@@ -43,6 +43,7 @@ import numpy as np
 
 from mousedom.config import GyroConfig
 from mousedom.fusion.choices import GYRO_USES
+from mousedom.fusion.gyrobias import BiasLearner
 from mousedom.fusion.gyrojudge import RELEARN_S, GyroJudge, MiceView, Verdict
 
 GYRO = "gyro"  # the gyro's name where sensors are named (Tracker.set_live, SOURCE)
@@ -121,18 +122,6 @@ class Judged(NamedTuple):
     consistent: bool  # False: mice and gyro disagreed and nobody could be blamed
 
 
-class BiasState:
-    """The gyro's bias estimate (b_hat, P), carried from window to window, and ``cross``:
-    the covariance of the heading's error with the bias's (see GyroFusion.window)."""
-
-    __slots__ = ("bias", "var", "cross")
-
-    def __init__(self, bias: float, var: float) -> None:
-        self.bias = bias
-        self.var = var
-        self.cross = 0.0
-
-
 class GyroFusion:
     """One window at a time: the update of the module docstring, and the bias it learns.
 
@@ -155,8 +144,10 @@ class GyroFusion:
         self.judge = judge  # faults seen through the gyro (gyrojudge.py); None: not judged
         self._disagree = 0  # windows in a row the gyro disagreed with agreeing mice
         self._quiet = 0  # windows in a row no mouse in the solve counted anything
-        self.state = BiasState(0.0, noise.bias_sigma**2)
-        self._walk_var = noise.bias_walk**2 * period  # the bias's growth per window
+        false_alarm = judge.false_alarm if judge is not None else 1e-4
+        self.state = BiasLearner(
+            noise.bias_sigma, noise.bias_walk, noise.density, period, false_alarm
+        )
         self._white_var = noise.density**2 * period  # the integral's white noise
 
     def heading_set(self) -> None:
@@ -172,48 +163,43 @@ class GyroFusion:
         ok: bool,
         still: bool = False,
         extra: float = 0.0,
+        trusted: bool = False,
     ) -> tuple[list[float], Matrix3, GyroWindow]:
         """The window's (q, C) with the gyro's ``turn`` (None: no samples) folded in as
         ``use`` says; ``ok`` False (the mice lacked rank) leaves q alone and learns
-        nothing (no motion is invented).  ``still``: no live mouse counted anything, so the
-        robot stood still: nothing turned, exactly (C_aa = 0 whatever the mice's noise
-        model says of a window without counts), the window measures the bias alone and
-        the heading stays, whatever ``use`` (a zero-velocity update).  ``extra``: variance
-        of the mice's turn that q's covariance does not hold (GyroJudge.timing_var).
+        nothing (no motion is invented).  ``still``: the robot stood still (GyroFusion
+        .judged): nothing turned, exactly (C_aa = 0 whatever the mice's noise model says
+        of a window without counts), the window measures the bias alone and the heading
+        stays, whatever ``use`` (a zero-velocity update).  ``extra``: variance of the
+        mice's turn from their timing (GyroJudge.timing_var), which q's covariance does
+        not hold; ``trusted``: the mice would win a disagreement (gyrobias.py).
 
-        The bias's error is the same from one window to the next: a heading made with it
-        drifts by T times it every window, which independent windows' variances would not
-        add up to.  So the error of the heading and of the bias are carried together: with
-        kappa the gyro's share of the window's turn (C_aa / S for both, 1 for gyro, 0 for
-        mice), the turn's error is (1 - kappa) n_mice + kappa n_gyro - kappa T db, and
-
-            var(heading) grows by  C'_aa - 2 kappa T cross
-            cross' = (1 - T^2 P / S) (cross - kappa T P) + (T P / S)(kappa N^2 T - (1 - kappa) C_aa)
-
-        (cross: the covariance of the heading's error with the bias's).  The first term is
-        q's own variance after the update; the second goes into C'_aa, which the pose's
-        covariance adds up."""
+        The window's innovation goes to the bias learner, which learns once a span
+        (gyrobias.py).  The bias's error is the same from one window to the next: a
+        heading made with it drifts by T times it every window, which independent
+        windows' variances would not add up to; with kappa the gyro's share of the
+        window's turn (C_aa / S for both, 1 for gyro, 0 for mice), the heading's variance
+        grows by C'_aa - 2 kappa T cross (cross: the covariance of the heading's error
+        with the bias's, BiasLearner.cross)."""
         st = self.state
-        st.var += self._walk_var
+        st.predict()
         t = self.period
         if turn is None or not ok:
-            return list(q), c, GyroWindow(math.nan, st.bias, math.sqrt(st.var), math.nan, False)
+            return list(q), c, GyroWindow(math.nan, st.bias, st.sigma, math.nan, False)
         mice_c = c
-        if extra and not still:
+        timing = 0.0 if still else extra
+        if timing:
             c = [row[:] for row in c]
-            c[2][2] += extra
+            c[2][2] += timing
         caa = 0.0 if still else c[2][2]
-        prior_bias, prior, cross = st.bias, st.var, st.cross
-        e = turn - q[2] - prior_bias * t
+        bias, prior, cross = st.bias, st.var, st.cross
+        e = turn - (0.0 if still else q[2]) - bias * t
         s = caa + t * t * prior + self._white_var
-        st.bias = prior_bias + t * prior * e / s
-        st.var = prior - t * t * prior * prior / s
         kappa = 0.0 if still else {"both": caa / s, "gyro": 1.0, "mice": 0.0}[self.use]
-        st.cross = (1.0 - t * t * prior / s) * (cross - kappa * t * prior) + (t * prior / s) * (
-            kappa * self._white_var - (1.0 - kappa) * caa
-        )
         drift = -2.0 * kappa * t * cross  # the heading's error with the bias's, carried
-        report = GyroWindow(turn, st.bias, math.sqrt(st.var), e * e / s, kappa > 0.0)
+        st.carry(kappa)
+        st.observe(e, caa - timing, timing, kappa, trusted or still)
+        report = GyroWindow(turn, st.bias, st.sigma, e * e / s, kappa > 0.0)
         if kappa == 0.0:  # the mice's (use = mice, or a standstill)
             return list(q), mice_c, report
         if self.use == "both":
@@ -222,9 +208,9 @@ class GyroFusion:
             c2 = [[c[i][j] - ca[i] * ca[j] / s for j in range(3)] for i in range(3)]
             c2[2][2] = max(0.0, c2[2][2] + drift)
             return q2, c2, report
-        # use = gyro: the heading is the gyro's, corrected with the bias known before this
-        # window; the translation the mice's given that heading
-        a = turn - prior_bias * t
+        # use = gyro: the heading is the gyro's, corrected with the bias; the translation
+        # the mice's given that heading
+        a = turn - bias * t
         r = self._white_var + t * t * prior
         lx, ly = (c[0][2] / caa, c[1][2] / caa) if caa > 0.0 else (0.0, 0.0)
         q2 = [q[0] + lx * (a - q[2]), q[1] + ly * (a - q[2]), a]
@@ -251,39 +237,56 @@ class GyroFusion:
         silent = not judge.moved(mice)
         self._quiet = self._quiet + 1 if silent else 0
         still = self._quiet * self.period >= STILL_S
+        if turn is not None and not ok and self.use != "mice":
+            # The mice in the solve lack rank (one left of two on an axle): with the gyro's
+            # turn as one more row they may not
+            st = self.state
+            var_a = self.period**2 * (st.var + st.walk) + self._white_var
+            used = [i for i, u in enumerate(mice.used) if u]
+            solved = judge.solve_with_gyro(used, mice.d, turn - st.bias * self.period, var_a)
+            if solved is not None:
+                st.predict()
+                st.carry(1.0)
+                report = GyroWindow(turn, st.bias, st.sigma, math.nan, True)
+                return Judged(solved[0], solved[1], report, (), True)
         if turn is None or not ok:
             return Judged(*self.window(q, c, turn, ok, still), (), True)
         extra = 0.0
         if not still:
             extra = judge.timing_var(mice)
             if silent:
-                extra = max(extra, judge.sigma_turn_var(mice) - c[2][2])
+                floor = judge.sigma_turn_var(mice) - c[2][2]
+                if math.isfinite(floor):
+                    extra = max(extra, floor)
+        n_used = sum(1 for u in mice.used if u)
+        trusted = n_used >= 3 and mice.consistent
         if self.use == "mice":
-            return Judged(*self.window(q, c, turn, ok, still, extra), (), True)
+            return Judged(*self.window(q, c, turn, ok, still, extra, trusted), (), True)
         st, t = self.state, self.period
-        prior = st.var + self._walk_var
+        prior = st.var + st.walk
         caa = 0.0 if still else c[2][2] + extra
         e = turn - (0.0 if still else q[2]) - st.bias * t
         s = caa + t * t * prior + self._white_var
         stat = e * e / s
         if stat <= judge.threshold:
             self._disagree = 0
-            return Judged(*self.window(q, c, turn, ok, still, extra), (), True)
-        n_used = sum(1 for u in mice.used if u)
-        self._disagree += 1
+            return Judged(*self.window(q, c, turn, ok, still, extra, trusted), (), True)
+        slow = still and abs(e) <= STILL_TURN * t
+        self._disagree = self._disagree + 1 if trusted or still and n_used >= 3 or slow else 0
         if self._disagree * t >= RELEARN_S:
-            # Disagreeing this long with mice that agree (or stand still): the gyro's bias
-            # moved (or was learnt wrong): learnt again from here
-            st.var = max(st.var, self.noise.bias_sigma**2)
+            # Disagreeing this long, window after window, with mice the gyro cannot beat
+            # (three that agree or stand still; or a turn too slow to be the robot's): its
+            # bias moved far, or was learnt wrong: learnt again from here
+            st.relearn()
             self._disagree = 0
-            return Judged(*self.window(q, c, turn, ok, still, extra), (), True)
-        st.var = prior  # nothing learnt from a window judged
+            return Judged(*self.window(q, c, turn, ok, still, extra, trusted), (), True)
+        st.predict()  # nothing learnt from a window judged
         a, var_a = turn - st.bias * t, t * t * prior + self._white_var
         if n_used >= 3 and (still or mice.consistent):
             # three mice that agree, or stand still (they do not all lose the floor at
             # once): the gyro is wrong (saturated, a bias that moved)
             verdict = Verdict(list(q), c, (), False, True, False)
-        elif still and abs(e) <= STILL_TURN * t:
+        elif slow:
             # a slow turn seen only by the gyro: the robot starting to turn (the gyro sees
             # it before the mice count) or its bias moving: the heading takes the gyro's
             verdict = judge.gyro_heading(c, a, var_a)
@@ -295,8 +298,8 @@ class GyroFusion:
         if verdict.gyro_used:  # the heading's error takes the bias's (see window)
             c2 = [row[:] for row in c2]
             c2[2][2] = max(0.0, c2[2][2] - 2.0 * t * st.cross)
-            st.cross -= t * prior
-        report = GyroWindow(turn, st.bias, math.sqrt(st.var), stat, verdict.gyro_used)
+            st.carry(1.0)
+        report = GyroWindow(turn, st.bias, st.sigma, stat, verdict.gyro_used)
         return Judged(verdict.q, c2, report, verdict.blamed, verdict.consistent)
 
     def windows(
@@ -309,7 +312,10 @@ class GyroFusion:
         for k in range(len(q)):
             tk = float(turn[k])
             qk, ck, rep = self.window(
-                q[k].tolist(), cov[k].tolist(), None if math.isnan(tk) else tk, bool(ok[k]),
+                q[k].tolist(),
+                cov[k].tolist(),
+                None if math.isnan(tk) else tk,
+                bool(ok[k]),
                 bool(still[k]),
             )
             q2[k], c2[k] = qk, ck

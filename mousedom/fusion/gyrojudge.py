@@ -30,6 +30,7 @@ import numpy as np
 from mousedom.fusion import chi2
 
 RELEARN_S = 0.5  # gyro disagreeing with agreeing mice this long: its bias is learnt again
+UNDER = 0.5  # a mouse reading less than this share of its motion under-reads (lifted)
 
 Matrix3 = list[list[float]]
 
@@ -136,31 +137,43 @@ class GyroJudge:
     def leave_one_out(
         self, q: Sequence[float], c: Matrix3, a: float, var_a: float, mice: MiceView
     ) -> Verdict:
-        """Two or fewer mice that disagree with the gyro: the one explanation that fits
-        (see the module docstring), or none."""
+        """Two or fewer mice that disagree with the gyro: the one explanation that fits,
+        or the only one that leaves out a mouse reading less than half of what the rest
+        and the gyro say it should (a lifted mouse reads little or nothing; no healthy
+        one reads motion that did not happen); with one mouse left, that one blamed if
+        it under-reads the gyro's turn so, the heading the gyro's.  Otherwise none."""
         used = [i for i, u in enumerate(mice.used) if u]
+        if len(used) == 1:
+            j = used[0]
+            if self._under_reads(j, [0.0, 0.0, a], mice.d):
+                v = self.gyro_heading(c, a, var_a)
+                return v._replace(blamed=(j,), consistent=False)
+            return Verdict(list(q), c, (), False, False, False)
         fits = []
         for j in used:
             others = [i for i in used if i != j]
-            if not others:
-                continue
-            solved = self._solve_with_gyro(others, mice.d, a, var_a)
+            solved = self.solve_with_gyro(others, mice.d, a, var_a)
             if solved is not None:
                 fits.append((j, solved))
-        silent = [
-            (j, s)
-            for j, s in fits
-            if abs(mice.d[j][0]) <= self.still[j] and abs(mice.d[j][1]) <= self.still[j]
-        ]
-        pick = silent if len(silent) == 1 else fits if len(fits) == 1 else []
+        under = [(j, s) for j, s in fits if self._under_reads(j, s[0], mice.d)]
+        pick = under if len(under) == 1 else fits if len(fits) == 1 else []
         if not pick:
             return Verdict(list(q), c, (), False, False, False)
         j, (q2, c2) = pick[0]
         return Verdict(q2, c2, (j,), True, True, False)
 
-    def _solve_with_gyro(
+    def _under_reads(self, j: int, q: Sequence[float], d: Sequence[Sequence[float]]) -> bool:
+        """Whether mouse ``j`` read less than UNDER of what the motion ``q`` moves it by."""
+        px, py = self.positions[j]
+        ex, ey = q[0] - q[2] * py, q[1] + q[2] * px
+        expected = math.hypot(ex, ey)
+        return expected > self.still[j] and math.hypot(d[j][0], d[j][1]) < UNDER * expected
+
+    def solve_with_gyro(
         self, mice: list[int], d: Sequence[Sequence[float]], a: float, var_a: float
     ) -> tuple[list[float], Matrix3] | None:
+        if not mice:
+            return None
         """Weighted least squares of ``mice`` (Kim & Lee's rows) with the gyro's turn as
         one more row; None if it lacks rank or its residual fails the test."""
         rows, obs, weights = [], [], []
