@@ -11,7 +11,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 
-from mousedom.capture.base import Capture, CaptureError, DeviceInfo
+from mousedom.capture.base import GYRO_KIND, Capture, CaptureError, DeviceInfo
 from mousedom.capture.sniff import open_capture
 from mousedom.config import Config, EvdevMatch, MouseConfig
 
@@ -63,8 +63,13 @@ def _matches(mouse: MouseConfig, dev: DeviceInfo) -> bool:
 
 
 def _candidates(capture: Capture) -> list[int]:
-    """Devices that can be mice: they move (or may), or they are serial sensors."""
-    return [i for i, d in enumerate(capture.devices) if d.kind == "serial" or d.rel_xy is not False]
+    """Devices that can be mice: they move (or may), or they are serial sensors; never a
+    gyro (``find_gyro`` is its rule)."""
+    return [
+        i
+        for i, d in enumerate(capture.devices)
+        if d.kind != GYRO_KIND and (d.kind == "serial" or d.rel_xy is not False)
+    ]
 
 
 def _node(capture: Capture, i: int) -> str:
@@ -218,6 +223,49 @@ def assign(
     if require_all:
         assigner.check_all()
     return [assigner.result[k] for k in sorted(assigner.result)]
+
+
+@dataclass
+class GyroAssignment:
+    """The config's gyro comes from ``capture.devices[device]``."""
+
+    capture: Capture
+    device: int
+
+
+def find_gyro(config: Config, captures: list[Capture]) -> tuple[GyroAssignment | None, list[str]]:
+    """The captures' gyro for the config's ``gyro:`` section, and warnings.
+
+    A config without ``gyro:`` ignores a recorded gyro, with a warning (the mice replay
+    as configured: comparing a run with and without its gyro is a reason to do so).  A
+    config whose gyro no capture holds gets None and a warning: the replay then runs the
+    config without its gyro (``Replay``), rather than wait for samples that never come.
+    One gyro in the captures is the config's whatever its name (as the only mover of a
+    file is its mouse); of several, the one named as the config's ``gyro.name``."""
+    cfg_name = config.path or "the config"
+    found = [(c, i) for c in captures for i, d in enumerate(c.devices) if d.kind == GYRO_KIND]
+    if config.gyro is None:
+        return None, [
+            f"{c.path}: device {c.devices[i].name!r}{_node(c, i)} is a gyro and {cfg_name} "
+            "has no gyro: section: its samples are ignored (add gyro: to fuse them)"
+            for c, i in found
+        ]
+    if not found:
+        return None, [
+            f"{cfg_name} has a gyro: section but no capture holds a gyro: replayed without "
+            "it, from the mice alone"
+        ]
+    if len(found) > 1:
+        named = [(c, i) for c, i in found if c.devices[i].name == config.gyro.name]
+        if len(named) != 1:
+            held = ", ".join(f"{c.devices[i].name!r}{_node(c, i)} in {c.path}" for c, i in found)
+            raise CaptureError(
+                f"the captures hold {len(found)} gyros ({held}) and {len(named)} is named "
+                f"as {cfg_name}'s gyro.name ({config.gyro.name!r}): give the captures of "
+                "one gyro, or name it"
+            )
+        found = named
+    return GyroAssignment(*found[0]), []
 
 
 def captures_of(assignments: list[Assignment]) -> list[Capture]:

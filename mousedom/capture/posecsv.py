@@ -21,6 +21,11 @@ _ROW = "%.6f,%.9f,%.9f,%.9f,%.6f,%.6f,%.6f,%d,%d,%d"
 # mouse scale_x_<name>, scale_y_<name>: the learnt scale of its counts along its own axes
 # (REL_X, REL_Y; 1 where none is learnt).
 COV_COLUMNS = ("cov_xx", "cov_xy", "cov_xt", "cov_yy", "cov_yt", "cov_tt")
+# Last, for a rig with a gyro (replayed with it): its bias after the window (rad/s), the
+# bias's standard deviation (rad/s) and the agreement statistic of the window (mice against
+# gyro, chi-square with 1 degree of freedom), exponent form; nan where the gyro had no
+# samples yet (PoseBatch.gyro's columns 1 to 3).
+GYRO_COLUMNS = ("gyro_bias", "gyro_bias_sigma", "gyro_agree")
 _COV_INDEX = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 _COV_DIGITS = 6  # "%.6e": seven significant digits
 _SCALE_DIGITS = 6  # "%.6f"
@@ -41,9 +46,15 @@ def scale_columns(names: tuple[str, ...]) -> list[str]:
     return [f"{kind}_{n}" for n in _safe(names) for kind in ("scale_x", "scale_y")]
 
 
-def csv_columns(names: tuple[str, ...]) -> list[str]:
-    """The header of the replay CSV of a rig whose mice are ``names``."""
-    return [*CSV_COLUMNS, *health_columns(names), *COV_COLUMNS, *scale_columns(names)]
+def gyro_columns() -> list[str]:
+    """The gyro's columns, after the scales (a rig replayed with its gyro only)."""
+    return list(GYRO_COLUMNS)
+
+
+def csv_columns(names: tuple[str, ...], gyro: bool = False) -> list[str]:
+    """The header of the replay CSV of a rig whose mice are ``names`` (and its gyro)."""
+    return [*CSV_COLUMNS, *health_columns(names), *COV_COLUMNS, *scale_columns(names),
+            *(gyro_columns() if gyro else [])]  # fmt: skip
 
 
 class TextOut(Protocol):
@@ -55,15 +66,17 @@ class TextOut(Protocol):
 class CsvSink:
     """Writes pose batches as CSV rows (header first)."""
 
-    def __init__(self, out: TextOut, names: tuple[str, ...] = ()) -> None:
+    def __init__(self, out: TextOut, names: tuple[str, ...] = (), gyro: bool = False) -> None:
         self.out = out
         self.rows = 0
         self.n = len(names)
+        self.gyro = gyro  # the gyro's columns (GYRO_COLUMNS) after the scales
         self._tails: dict[int, str] = {}
         self.radix = max(self.n + 1, 5)  # used <= N mice, states < 4, reasons < 5
-        out.write(",".join(csv_columns(names)) + "\n")
+        out.write(",".join(csv_columns(names, gyro)) + "\n")
         # One row by %-format, for batches the array formatters do not take (not finite).
         fmt = _FLOATS + "%s" + "%.6e," * len(COV_COLUMNS) + "%.6f," * (2 * self.n)
+        fmt += "%.6e," * (len(GYRO_COLUMNS) if gyro else 0)
         self._row_format = fmt[:-1] + "\n"
 
     def __call__(self, b: PoseBatch) -> None:
@@ -89,18 +102,30 @@ class CsvSink:
         floats = np.column_stack([b.t, b.x, b.y, b.theta, b.vx, b.vy, b.omega])
         cov = np.asarray(b.cov)[:, [i for i, _ in _COV_INDEX], [j for _, j in _COV_INDEX]]
         scales = b.scales()[:, : self.n].reshape(n, 2 * self.n) if self.n else np.zeros((n, 0))
+        gyro = self._gyro(b)
         fields = fixed_bytes(floats, _DIGITS)
         cov_fields = scientific_bytes(cov, _COV_DIGITS)
         scale_fields = fixed_bytes(scales, np.full(2 * self.n, _SCALE_DIGITS)) if self.n else None
-        if fields is None or cov_fields is None or (self.n and scale_fields is None):
+        gyro_fields = scientific_bytes(gyro, _COV_DIGITS) if self.gyro else None
+        if (fields is None or cov_fields is None or (self.n and scale_fields is None)
+                or (self.gyro and gyro_fields is None)):  # fmt: skip
             # Not finite, or too large for the array formatters: one %-operation per row.
-            values = np.column_stack([floats, cov, scales]).tolist()
+            values = np.column_stack([floats, cov, scales, gyro]).tolist()
             fmt, rows = self._row_format, zip(values, inverse.tolist(), strict=True)
             self.out.write("".join(fmt % (*v[:7], tails[i], *v[7:]) for v, i in rows))
         else:
-            blocks = [fields, cov_fields] + ([scale_fields] if scale_fields is not None else [])
+            more = [f for f in (scale_fields, gyro_fields) if f is not None]
+            blocks = [fields, cov_fields, *more]
             self.out.write(_join_rows(blocks, tails, inverse))
         self.rows += n
+
+    def _gyro(self, b: PoseBatch) -> np.ndarray:
+        """The batch's gyro columns (n, 3); none without a gyro, nan if it has none."""
+        if not self.gyro:
+            return np.zeros((len(b), 0))
+        if b.gyro is None:
+            return np.full((len(b), len(GYRO_COLUMNS)), np.nan)
+        return np.asarray(b.gyro, dtype=np.float64)[:, 1 : 1 + len(GYRO_COLUMNS)]
 
 
 def _join_rows(

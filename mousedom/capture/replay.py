@@ -15,6 +15,7 @@ past.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -22,12 +23,19 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from mousedom.capture.assignment import Assignment, captures_of, mice_by_device
+from mousedom.capture.assignment import (
+    Assignment,
+    GyroAssignment,
+    captures_of,
+    find_gyro,
+    mice_by_device,
+)
 from mousedom.capture.base import Batch, Capture, Feed, Serial, lagging_first
 from mousedom.capture.posecsv import CsvSink, csv_columns, read_csv
-from mousedom.capture.summary import MouseSummary, Summary
+from mousedom.capture.summary import GyroSummary, MouseSummary, Summary
 from mousedom.capture.timebase import time_offset
 from mousedom.config import Config
+from mousedom.fusion.gyro import gyro_period
 from mousedom.fusion.tracker import PoseBatch, Tracker
 
 if TYPE_CHECKING:
@@ -67,7 +75,9 @@ MAX_GAP_S = 60.0
 class _FeedState:
     feed: Feed
     capture: Capture
-    mice: dict[int, tuple[int, ...]]  # device -> mouse indices (one file may feed two mice)
+    # device -> sensor indices: the mice it feeds (one file may feed two), or the gyro
+    # (the tracker's sensor N, after the N mice)
+    mice: dict[int, tuple[int, ...]]
     offset: float  # seconds subtracted from this feed's times
     watermark: float = -math.inf  # in tracker time
     done: bool = False
@@ -75,8 +85,9 @@ class _FeedState:
     serial: frozenset[int] = frozenset()  # devices that are serial sources
 
 
-# A mouse's reports read but not yet pushed: (t, dx, dy) blocks in time order.
-_Block = tuple[np.ndarray, np.ndarray, np.ndarray]
+# A sensor's input read but not yet pushed, in time order: a mouse's (t, dx, dy) blocks,
+# the gyro's (t, rate).
+_Block = tuple[np.ndarray, ...]
 
 
 class _Run:
@@ -90,13 +101,22 @@ class _Run:
         self.sink = sink
         self.summary = summary
         self.states = replay.feed_states()
-        n = len(self.config.mice)
-        self.ended: list[int] = []  # mice whose feed has ended
+        tracker = self.tracker
+        # The sensors in the tracker's order: the mice, then the gyro if it is replayed.
+        self.push: list[Callable[..., None]] = [
+            _mouse_push(tracker, k) for k in range(len(self.config.mice))
+        ]
+        periods = [1.0 / m.report_hz for m in self.config.mice]
+        if replay.gyro is not None and self.config.gyro is not None:
+            self.push.append(tracker.push_gyro)
+            periods.append(gyro_period(self.config.gyro))
+        n = len(self.push)
+        self.ended: list[int] = []  # sensors whose feed has ended
         self.pending: list[list[_Block]] = [[] for _ in range(n)]
-        self.want = [-math.inf] * n  # how far each mouse's input is complete
+        self.want = [-math.inf] * n  # how far each sensor's input is complete
         self.last_t = -math.inf  # the latest report read
         self.pushed_t = -math.inf  # the latest report handed to the tracker
-        self.longest_period = max((1.0 / m.report_hz for m in self.config.mice), default=0.0)
+        self.longest_period = max(periods, default=0.0)
 
     def emit(self, b: PoseBatch) -> None:
         if len(b):
@@ -105,8 +125,8 @@ class _Run:
 
     # ------------------------------------------------------------------ reading feeds
 
-    def queue(self, mouse: int, t: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> None:
-        self.pending[mouse].append((np.asarray(t, np.float64), dx, dy))
+    def queue(self, sensor: int, t: np.ndarray, *columns: np.ndarray) -> None:
+        self.pending[sensor].append((np.asarray(t, np.float64), *columns))
         self.last_t = max(self.last_t, float(t[-1]))
 
     def take(self, st: _FeedState, batch: Batch) -> None:
@@ -120,6 +140,11 @@ class _Run:
             mice = st.mice.get(chunk.device)
             if mice:
                 self._take_serial(st, chunk, mice)
+        for rates in batch.gyro:  # the gyro's samples: one more stream, as a mouse's
+            if len(rates.t):
+                t = rates.t - st.offset if st.offset else rates.t
+                for sensor in st.mice.get(rates.device, ()):
+                    self.queue(sensor, t, rates.rate)
         if batch.complete > -math.inf:
             self._advance(st, batch.complete - st.offset)
         finite = [s.watermark for s in self.states if not s.done and math.isfinite(s.watermark)]
@@ -167,10 +192,10 @@ class _Run:
         """
         while True:
             lim = self._limit()
-            for mouse in range(len(self.pending)):
-                self._push_until(mouse, lim)
-                if self.want[mouse] > -math.inf:
-                    self.tracker.complete_until(min(self.want[mouse], lim), mouse)
+            for sensor in range(len(self.pending)):
+                self._push_until(sensor, lim)
+                if self.want[sensor] > -math.inf:
+                    self.tracker.complete_until(min(self.want[sensor], lim), sensor)
             b = self.tracker.poll()
             self.emit(b)
             if self.skip_gap():
@@ -188,21 +213,23 @@ class _Run:
         # (skip_gap), not windowed through.
         return min(lim, max(self.pushed_t, tracker.frontier_time) + MAX_GAP_S)
 
-    def _push_until(self, mouse: int, lim: float) -> None:
-        """Hand the tracker the mouse's waiting reports stamped at or before ``lim``."""
-        waiting = self.pending[mouse]
+    def _push_until(self, sensor: int, lim: float) -> None:
+        """Hand the tracker the sensor's waiting input stamped at or before ``lim``."""
+        waiting = self.pending[sensor]
+        push = self.push[sensor]
         while waiting:
-            t, dx, dy = waiting[0]
+            block = waiting[0]
+            t = block[0]
             k = int(np.searchsorted(t, lim, side="right"))
             if k:
                 self.pushed_t = max(self.pushed_t, float(t[k - 1]))
             if k == len(t):
-                self.tracker.push(mouse, t, dx, dy)
+                push(*block)
                 waiting.pop(0)
                 continue
             if k:
-                self.tracker.push(mouse, t[:k], dx[:k], dy[:k])
-                waiting[0] = (t[k:], dx[k:], dy[k:])
+                push(*(c[:k] for c in block))
+                waiting[0] = tuple(c[k:] for c in block)
             break
 
     def skip_gap(self) -> bool:
@@ -229,12 +256,12 @@ class _Run:
         """The end: everything read is complete; close all but the last windows in
         bounded steps, then let the tracker close the rest."""
         n = len(self.pending)
-        for mouse in range(n):
-            self.want[mouse] = max(self.want[mouse], self.last_t)
+        for sensor in range(n):
+            self.want[sensor] = max(self.want[sensor], self.last_t)
         self.pump()
-        for mouse in range(n):
-            for t, dx, dy in self.pending[mouse]:  # nothing is left; kept so no count is lost
-                self.tracker.push(mouse, t, dx, dy)
+        for sensor in range(n):
+            for block in self.pending[sensor]:  # nothing is left; kept so no count is lost
+                self.push[sensor](*block)
         self.emit(self.tracker.finish())
         for st in self.states:
             for dev, dec in st.decoders.items():
@@ -252,11 +279,18 @@ class Replay:
         model: str | None = None,
         integrator: str | None = None,
     ) -> None:
-        self.config = config
         self.assignments = assignments
         self.captures = captures_of(assignments)
         self.offset, warnings = time_offset(self.captures)
-        self.warnings = list(warnings)
+        # The config's gyro from the captures; a config whose gyro none of them holds is
+        # replayed without it (find_gyro says so), never waiting for samples.
+        self.gyro: GyroAssignment | None
+        self.gyro, gyro_warnings = find_gyro(config, self.captures)
+        self.gyro_dropped = config.gyro is not None and self.gyro is None
+        if self.gyro_dropped:
+            config = dataclasses.replace(config, gyro=None)
+        self.config = config
+        self.warnings = list(warnings) + gyro_warnings
         firsts = [
             t - self._offset_of(c) for c in self.captures if (t := c.first_time()) is not None
         ]
@@ -271,6 +305,8 @@ class Replay:
         states: list[_FeedState] = []
         for cap in self.captures:
             devmap = mice_by_device(self.assignments, cap)
+            if self.gyro is not None and self.gyro.capture is cap:
+                devmap[self.gyro.device] = (len(self.config.mice),)  # the tracker's sensor N
             for feed in cap.feeds():
                 mice = {d: devmap[d] for d in feed.devices if d in devmap}
                 if mice:
@@ -317,17 +353,40 @@ class Replay:
                     **summary.health_of(a.mouse),
                 )
             )
+        if self.gyro is not None:
+            cap, dev = self.gyro.capture, self.gyro.device
+            summary.gyro = GyroSummary(cap.path, cap.devices[dev].name, cap.stats[dev],
+                                       *summary.gyro_bias)  # fmt: skip
+        summary.gyro_dropped = self.gyro_dropped
         for c in self.captures:
             summary.warnings += c.warnings
         summary.warnings = self.warnings + summary.warnings
-        for name, st in tracker.stats().items():
-            if st.get("late"):
+        for name, late in _late_reports(tracker).items():
+            if late:
                 summary.warnings.append(
-                    f"mouse {name}: {st['late']} reports came after their window had closed "
+                    f"mouse {name}: {late} reports came after their window had closed "
                     "and were moved into the next one"
                 )
         if not summary.windows:
             summary.warnings.append("no motion reports in the captures: no pose to write")
+
+
+def _late_reports(tracker: Tracker) -> dict[str, int]:
+    """Per mouse, its reports that came after their window had closed."""
+    try:
+        return {name: st["late"] for name, st in tracker.stats().items()}
+    except IndexError:
+        # Tracker.stats() of a rig with a gyro looks the gyro's name up among the mice
+        # (reported; the gyro has no late count): the mice's own, until it is fixed.
+        mice = tracker.config.names
+        return {name: tracker._mice[i].late for i, name in enumerate(mice)}
+
+
+def _mouse_push(tracker: Tracker, mouse: int) -> Callable[..., None]:
+    def push(t: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> None:
+        tracker.push(mouse, t, dx, dy)
+
+    return push
 
 
 def _pair(row: np.ndarray) -> tuple[float, float]:

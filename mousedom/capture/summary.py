@@ -41,6 +41,24 @@ class MouseSummary:
 
 
 @dataclass
+class GyroSummary:
+    """The replayed gyro: where it came from, its samples, its bias at the end."""
+
+    file: str
+    device: str
+    stats: DeviceStats  # its samples are the ``reports``
+    bias: float | None = None  # rad/s after the last window that had one; None: never
+    bias_sigma: float | None = None
+
+    @property
+    def samples_per_s(self) -> float:
+        s = self.stats
+        if s.reports < 2 or s.first_t is None or s.last_t is None or s.last_t <= s.first_t:
+            return 0.0
+        return (s.reports - 1) / (s.last_t - s.first_t)
+
+
+@dataclass
 class Summary:
     """What a replay did; filled while the batches stream through ``add``."""
 
@@ -64,6 +82,10 @@ class Summary:
     excluded_why: np.ndarray = field(default_factory=lambda: _no_reasons(0))
     suspect_why: np.ndarray = field(default_factory=lambda: _no_reasons(0))
     scale: np.ndarray | None = None  # (N, 2), None while no window had one learnt
+    # The gyro's bias and its sigma (rad/s) after the last window that gave them
+    gyro_bias: tuple[float | None, float | None] = (None, None)
+    gyro: GyroSummary | None = None  # the replayed gyro (filled in at the end)
+    gyro_dropped: bool = False  # the config's gyro was in no capture: replayed without it
 
     def add(self, b: PoseBatch) -> None:
         n = len(b)
@@ -88,6 +110,11 @@ class Summary:
             self.suspect_why[:, k] += np.count_nonzero(this & (state == robust.SUSPECT), axis=0)
         if b.scale is not None:
             self.scale = np.array(b.scale[-1], dtype=np.float64)
+        if b.gyro is not None:
+            known = np.flatnonzero(np.isfinite(b.gyro[:, 1]))
+            if len(known):
+                bias, sigma = b.gyro[known[-1], 1:3]
+                self.gyro_bias = (float(bias), float(sigma))
         xs = np.concatenate([[self._last_xy[0]], b.x])
         ys = np.concatenate([[self._last_xy[1]], b.y])
         self.path_length += float(np.hypot(np.diff(xs), np.diff(ys)).sum())

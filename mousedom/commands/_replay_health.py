@@ -4,6 +4,8 @@ a scale that says its CPI is wrong."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from mousedom.capture.summary import Summary
@@ -90,3 +92,19 @@ def scale_warning(name: str, axis: str, k: float, cpi: float) -> str | None:
         f"the other mice (its {axis} axis): check its CPI in the config: {cpi:g} there, the "
         f"others say about {cpi / k:.0f}"
     )
+
+
+def gyro_line(s: Summary) -> str | None:
+    """The summary's line for the gyro: its samples, their rate and its bias at the end
+    (deg/s, +- one sigma), or that the config's gyro was in no capture; None for a rig
+    replayed without one."""
+    if s.gyro_dropped:
+        return f"{'gyro':<12} none in the captures: replayed without it (the mice alone)"
+    g = s.gyro
+    if g is None:
+        return None
+    bias = "no bias learnt (no window with samples)"
+    if g.bias is not None and g.bias_sigma is not None:
+        bias = f"bias {math.degrees(g.bias):+.3f} +- {math.degrees(g.bias_sigma):.3f} deg/s"
+    return (f"{'gyro':<12} {g.stats.reports} samples, {g.samples_per_s:.1f} Hz, {bias}  "
+            f"{g.file} ({g.device})")  # fmt: skip

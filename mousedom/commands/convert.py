@@ -4,7 +4,9 @@
                      [--config RIG.yaml] [--no-compress]
 
 NAME becomes the device's mouse name in the native header, so the result replays with
-``--capture OUT.mdcap`` alone.  Inputs are merged by time in bounded memory.
+``--capture OUT.mdcap`` alone.  Inputs are merged by time in bounded memory.  A native
+input's gyro (an "iio" device) is kept with its samples, exactly; only the native format
+holds a gyro (evemu and libinput record describe input devices, not IIO sensors).
 """
 
 from __future__ import annotations
@@ -18,7 +20,15 @@ from typing import Any, BinaryIO, cast
 from mousedom import saferead
 from mousedom.allocator import keep_freed_memory
 from mousedom.capture.assignment import parse_capture_arg
-from mousedom.capture.base import TIME_BASES, Capture, CaptureError, DeviceInfo, Feed, lagging_first
+from mousedom.capture.base import (
+    GYRO_KIND,
+    TIME_BASES,
+    Capture,
+    CaptureError,
+    DeviceInfo,
+    Feed,
+    lagging_first,
+)
 from mousedom.capture.native_writer import NativeWriter
 from mousedom.capture.sniff import open_capture
 from mousedom.capture.timebase import time_offset
@@ -32,7 +42,8 @@ def register(subparsers) -> None:
         "convert",
         help="convert evemu / libinput record captures into one native capture",
         description="Merge captures (evemu, libinput record, native) into one mousedom "
-        "native capture (see docs/captures.md).",
+        "native capture (see docs/captures.md); a native input's gyro is kept (only the "
+        "native format holds one).",
     )
     p.add_argument(
         "--capture",
@@ -84,7 +95,10 @@ def run(args) -> int:
     for w in stats["warnings"]:
         print(f"mousedom: warning: {w}", file=sys.stderr)
     print(
-        f"{args.output}: {stats['devices']} devices, {stats['reports']} reports"
+        f"{args.output}: {stats['devices']} devices"
+        + (f" ({stats['gyros']} gyro)" if stats["gyros"] else "")
+        + f", {stats['reports']} reports"
+        + (f", {stats['samples']} gyro samples" if stats["gyros"] else "")
         + (f", {size} bytes" if size is not None else ""),
         file=sys.stderr,  # where it wrote, with the rest of the status (issue 29 item 6)
     )
@@ -159,14 +173,16 @@ def convert(
         compress=compress,
         meta=meta,
     ) as w:
-        reports = _copy(w, states, written)
+        reports, samples = _copy(w, states, written)
         for s in states:
             for dev, out_dev in s.out.items():
                 w.note(out_dev, s.capture.stats[dev])
         w.sync(math.inf)
     for _, cap in inputs:
         warnings += cap.warnings
-    return {"devices": len(devices), "reports": reports, "warnings": warnings, "written": written}
+    gyros = sum(d.kind == GYRO_KIND for d in devices)
+    return {"devices": len(devices), "reports": reports, "warnings": warnings, "written": written,
+            "gyros": gyros, "samples": samples}  # fmt: skip
 
 
 def _time_base(captures: list[Capture]) -> tuple[str, float, list[str]]:
@@ -185,13 +201,15 @@ def _time_base(captures: list[Capture]) -> tuple[str, float, list[str]]:
 def _gather(
     inputs: list[tuple[str | None, Capture]], offset: float
 ) -> tuple[list[DeviceInfo], list[_Input]]:
-    """The output's devices (each input's motion devices, in order) and the feeds that
-    carry them."""
+    """The output's devices (each input's motion devices and gyro, in order) and the feeds
+    that carry them."""
     devices: list[DeviceInfo] = []
     states: list[_Input] = []
     for name, cap in inputs:
-        movers = [i for i, d in enumerate(cap.devices) if d.rel_xy is not False]
-        if not movers:
+        movers = [i for i, d in enumerate(cap.devices)
+                  if d.rel_xy is not False and d.kind != GYRO_KIND]  # fmt: skip
+        gyros = [i for i, d in enumerate(cap.devices) if d.kind == GYRO_KIND]
+        if not movers and not gyros:
             raise CaptureError(f"{cap.path}: no device with REL_X/REL_Y motion")
         if name is not None and len(movers) > 1:
             raise CaptureError(
@@ -200,9 +218,10 @@ def _gather(
             )
         sub = offset if cap.time_base == "epoch" else 0.0
         index = {}
-        for i in movers:
+        for i in sorted(movers + gyros):
             d = cap.devices[i]
-            info = DeviceInfo(**{**d.as_dict(), "mouse": name if name is not None else d.mouse})
+            mouse = name if name is not None and i in movers else d.mouse
+            info = DeviceInfo(**{**d.as_dict(), "mouse": mouse})
             info.extra = {**d.extra, "converted_from": os.path.basename(cap.path)}
             index[i] = len(devices)
             devices.append(info)
@@ -236,10 +255,11 @@ def _first_time(captures: list[Capture], offset: float) -> float | None:
     return min(firsts) if firsts else None
 
 
-def _copy(w: NativeWriter, states: list[_Input], written: list[list[int]]) -> int:
+def _copy(w: NativeWriter, states: list[_Input], written: list[list[int]]) -> tuple[int, int]:
     """Merge the feeds by time into ``w``, a sync point wherever every feed has reached
-    one; tally what each output device got in ``written``; the reports written."""
-    reports = 0
+    one; tally what each output device got in ``written``; the reports and gyro samples
+    written."""
+    reports = samples = 0
     synced = -math.inf
     for st, batch in lagging_first(states):
         if batch is None:
@@ -256,6 +276,11 @@ def _copy(w: NativeWriter, states: list[_Input], written: list[list[int]]) -> in
         for chunk in batch.serial:  # raw ADNS-3080 bytes are kept as they are
             if chunk.device in st.out:
                 w.serial_many(st.out[chunk.device], (chunk.t - st.sub).tolist(), chunk.data)
+        for rates in batch.gyro:  # a gyro's samples, as they are (times rebased as motion)
+            if rates.device in st.out and len(rates.t):
+                w.gyro(st.out[rates.device], rates.t - st.sub if st.sub else rates.t, rates.rate)
+                samples += len(rates.t)
+                written[st.out[rates.device]][0] += len(rates.t)
         if batch.complete > -math.inf:
             st.watermark = batch.complete - st.sub
         marks = [s.watermark for s in states if not s.done]
@@ -263,7 +288,7 @@ def _copy(w: NativeWriter, states: list[_Input], written: list[list[int]]) -> in
         if math.isfinite(mark) and mark > synced:
             w.sync(mark)
             synced = mark
-    return reports
+    return reports, samples
 
 
 def read_back(path: str, output: str, written: list[list[int]]) -> None:

@@ -23,6 +23,7 @@ from mousedom.capture.replay import Replay
 from mousedom.capture.summary import Summary
 from mousedom.commands import _options as options
 from mousedom.commands._replay_health import (
+    gyro_line,
     health_lines,
     scale_warning,
     scale_warnings,
@@ -116,7 +117,7 @@ def run(args) -> int:
     inputs += [d for a in assignments if (d := getattr(a.capture, "desc_path", None))]
     _refuse_overwriting_inputs(args, inputs)
     replay = Replay(config, assignments, model=args.model, integrator=args.integrator)
-    sinks = _Sinks.open(args, config, inputs)
+    sinks = _Sinks.open(args, replay.config, inputs)  # (without a gyro no capture holds)
     sink: Callable[[PoseBatch], None] = sinks
     if args.speed:
         from mousedom.capture.pacing import Pacer, paced
@@ -204,7 +205,7 @@ class _Sinks:
             f = cast(TextIO, open_stream(args.output, inputs, text=True))
             sinks.out = _Output(f, args.output)
         if sinks.out is not None:
-            sinks.each.append(CsvSink(sinks.out, config.names))
+            sinks.each.append(CsvSink(sinks.out, config.names, gyro=config.gyro is not None))
         if args.mcap:
             from mousedom.config import Ros2Config
             from mousedom.service.mcapout import McapRecorder
@@ -436,6 +437,9 @@ def format_summary(s: Summary, replay: Replay, args) -> str:
             extra.append(f"{st.torn_bytes} bytes of torn tail skipped")
         if extra:
             lines.append(" " * 13 + "; ".join(extra))
+    gyro = gyro_line(s)
+    if gyro:
+        lines.append(gyro)
     lines.append("")
     lines += health_lines(s, _cpis(cfg))
     return "\n".join(lines)
