@@ -237,8 +237,8 @@ class Daemon:
         if self.record_path:
             from mousedom.service.live_record import Recording
 
-            # (the mice's: the native format keeps motion reports, not a gyro's samples)
-            kinds = [s.source.kind for s in self.sensors.slots[: len(config.mice)]]
+            # (every sensor's: the mice's, then the gyro's, whose samples it keeps too)
+            kinds = [s.source.kind for s in self.sensors.slots]
             self._recording = Recording(self.record_path, config, kinds)
             self.outputs.add(self._recording)
             log.info("recording the sensors' reports to %s", self.record_path)

@@ -1,7 +1,8 @@
 """``mousedom run --record FILE``: what the daemon fused, kept as a native capture.
 
 Every report that reaches the tracker is appended (decoded motion, host monotonic time,
-evdev convention), with the config in the header, so that ``mousedom replay FILE`` shows
+evdev convention), and the gyro's samples if the rig has one (stamps and yaw rates in
+rad/s, as fused), with the config in the header, so that ``mousedom replay FILE`` shows
 afterwards what the robot saw.  The native format survives a crash up to the last SYNC,
 written once a second; SIGTERM/SIGINT flush and close it.  (``mousedom record`` is the
 bench tool that keeps a serial sensor's raw bytes too.)
@@ -14,10 +15,11 @@ import logging
 import numpy as np
 
 from mousedom import saferead
-from mousedom.capture.base import DeviceInfo
+from mousedom.capture.base import GYRO_KIND, DeviceInfo
 from mousedom.capture.native import NativeWriter
-from mousedom.config import Config, MouseConfig
+from mousedom.config import Config, GyroConfig, MouseConfig
 from mousedom.errors import UserError
+from mousedom.fusion.gyro import GYRO
 from mousedom.fusion.posebatch import PoseRow
 from mousedom.service.output import Output
 
@@ -34,6 +36,18 @@ def _device(mouse: MouseConfig, source_kind: str) -> DeviceInfo:
     return DeviceInfo(name=mouse.name, kind="evdev", mouse=mouse.name, rel_xy=True, extra=extra)
 
 
+def _gyro_device(gyro: GyroConfig, source_kind: str) -> DeviceInfo:
+    """The gyro as the config names it (the daemon may open it only later: its scale is
+    not known here; ``mousedom record`` keeps it)."""
+    extra: dict[str, object] = {"source": source_kind, "axis": gyro.axis, "sign": gyro.sign}
+    if gyro.path:
+        extra["node"] = gyro.path
+    if gyro.sample_hz is not None:
+        extra["sample_hz"] = gyro.sample_hz
+    return DeviceInfo(name=gyro.name or gyro.path or GYRO, kind=GYRO_KIND, rel_xy=False,
+                      extra=extra)  # fmt: skip
+
+
 class Recording(Output):
     """An open native capture of the daemon's input: an output that keeps the reports.
 
@@ -42,16 +56,26 @@ class Recording(Output):
     chunk), and the fusion, which robots rely on, goes on."""
 
     def __init__(self, path: str, config: Config, source_kinds: list[str]) -> None:
+        """``source_kinds``: each sensor's source kind, the mice's and then, for a rig
+        with a gyro, the gyro's (the daemon's slots in the tracker's order)."""
         text = None
         if config.path:
             try:
                 text = saferead.read_text(config.path)
             except (OSError, UnicodeDecodeError):
                 text = None
+        n = len(config.mice)
+        devices = [_device(m, k) for m, k in zip(config.mice, source_kinds[:n], strict=True)]
+        # The gyro's samples go to the device after the mice's (None: no gyro)
+        self.gyro_device: int | None = None
+        if config.gyro is not None:
+            kind = source_kinds[n] if len(source_kinds) > n else GYRO_KIND
+            devices.append(_gyro_device(config.gyro, kind))
+            self.gyro_device = n
         try:
             self.writer = NativeWriter(
                 path,
-                [_device(m, k) for m, k in zip(config.mice, source_kinds, strict=True)],
+                devices,
                 config_text=text,
                 time_base="monotonic",
                 meta={"recorder": "mousedom run --record", "config_path": config.path},
@@ -62,6 +86,7 @@ class Recording(Output):
         self.path = path
         self.names = config.names
         self.reports_kept = 0
+        self.samples_kept = 0  # the gyro's
 
         self.closed = False
 
@@ -76,6 +101,11 @@ class Recording(Output):
         self.writer.motion(index, t, np.rint(dx), np.rint(dy))
         self.reports_kept += len(t)
 
+    def gyro(self, t: np.ndarray, rate: np.ndarray) -> None:
+        if self.gyro_device is not None:
+            self.writer.gyro(self.gyro_device, t, rate)
+            self.samples_kept += len(t)
+
     def checkpoint(self, complete: float) -> None:
         """Everything stamped up to ``complete`` is in the file (a crash keeps it)."""
         self.writer.sync(complete)
@@ -85,4 +115,5 @@ class Recording(Output):
             return
         self.closed = True
         self.writer.close()
-        log.info("recording %s closed: %d reports", self.path, self.reports_kept)
+        gyro = f", {self.samples_kept} gyro samples" if self.gyro_device is not None else ""
+        log.info("recording %s closed: %d reports%s", self.path, self.reports_kept, gyro)
