@@ -270,6 +270,7 @@ class GyroFusion:
         stat = e * e / s
         if stat <= judge.threshold:
             self._disagree = 0
+            judge.last_blamed = None
             return Judged(*self.window(q, c, turn, ok, still, extra, trusted), (), True)
         slow = still and abs(e) <= STILL_TURN * t
         self._disagree = self._disagree + 1 if trusted or still and n_used >= 3 or slow else 0
@@ -294,6 +295,7 @@ class GyroFusion:
             verdict = judge.silent_mice_blamed(c, a, var_a, mice)
         else:
             verdict = judge.leave_one_out(q, c, a, var_a, mice)
+        judge.last_blamed = verdict.blamed[0] if len(verdict.blamed) == 1 else None
         c2 = verdict.c
         if verdict.gyro_used:  # the heading's error takes the bias's (see window)
             c2 = [row[:] for row in c2]

@@ -30,7 +30,10 @@ import numpy as np
 from mousedom.fusion import chi2
 
 RELEARN_S = 0.5  # gyro disagreeing with agreeing mice this long: its bias is learnt again
-UNDER = 0.5  # a mouse reading less than this share of its motion under-reads (lifted)
+UNDER = 0.75  # a mouse reading less than this share of its motion under-reads (lifted)
+# A window's translation that no mouse saw: taken as none, with the variance of a robot
+# at this speed (m/s: a floor robot's pace) over the window
+UNSEEN_SPEED = 1.0
 
 Matrix3 = list[list[float]]
 
@@ -65,12 +68,15 @@ class GyroJudge:
         false_alarm: float,
         still: Sequence[float],
         relative: float = 0.0,
+        period: float = 0.01,
     ) -> None:
         self.positions = np.asarray(positions, dtype=float)
         self.sigma = np.asarray(sigma, dtype=float)
         self.cols = cols  # the twist's components the model solves for
         self.threshold = chi2.quantile(1.0 - false_alarm, 1)
         self.false_alarm = false_alarm
+        self.period = period  # the window's length, seconds
+        self.last_blamed: int | None = None  # the mouse blamed in the window before
         self.still = list(still)  # below these a reading is no count, metres
         # Each mouse's reading error in proportion to its motion (robust.relative_noise):
         # a report stamped a little late moves counts from one window to the next, which
@@ -93,6 +99,11 @@ class GyroJudge:
         if not self.relative:
             return 0.0
         idx = [i for i, u in enumerate(mice.used) if u]
+        if len(idx) == 1:  # Hong's one mouse ahead of the axle: a = d_y / p_x
+            i = idx[0]
+            px = self.positions[i][0]
+            moved2 = mice.d[i][0] ** 2 + mice.d[i][1] ** 2
+            return self.relative**2 * moved2 / (px * px) if px else 0.0
         if len(idx) < 2:
             return 0.0
         p = self.positions[idx]
@@ -131,8 +142,17 @@ class GyroJudge:
         """The gyro turned by ``a`` (variance ``var_a``), faster than a bias, while every
         used mouse was still: they are blamed, the translation is unknown."""
         blamed = tuple(i for i, u in enumerate(mice.used) if u)
-        v = self.gyro_heading(c, a, var_a)
-        return v._replace(blamed=blamed, consistent=False)
+        return self._unseen(self.gyro_heading(c, a, var_a), blamed)
+
+    def _unseen(self, v: Verdict, blamed: tuple[int, ...]) -> Verdict:
+        """``v`` with no mouse left to see the translation: the mice ``blamed``, the
+        window inconsistent, the translation taken as none with the variance of a robot
+        at UNSEEN_SPEED (an unknown motion is not a small one)."""
+        c2 = [row[:] for row in v.c]
+        unseen = (UNSEEN_SPEED * self.period) ** 2
+        c2[0][0] += unseen
+        c2[1][1] += unseen
+        return v._replace(c=c2, blamed=blamed, consistent=False)
 
     def leave_one_out(
         self, q: Sequence[float], c: Matrix3, a: float, var_a: float, mice: MiceView
@@ -146,8 +166,7 @@ class GyroJudge:
         if len(used) == 1:
             j = used[0]
             if self._under_reads(j, [0.0, 0.0, a], mice.d):
-                v = self.gyro_heading(c, a, var_a)
-                return v._replace(blamed=(j,), consistent=False)
+                return self._unseen(self.gyro_heading(c, a, var_a), (j,))
             return Verdict(list(q), c, (), False, False, False)
         fits = []
         for j in used:
@@ -155,19 +174,37 @@ class GyroJudge:
             solved = self.solve_with_gyro(others, mice.d, a, var_a)
             if solved is not None:
                 fits.append((j, solved))
-        under = [(j, s) for j, s in fits if self._under_reads(j, s[0], mice.d)]
-        pick = under if len(under) == 1 else fits if len(fits) == 1 else []
-        if not pick:
+        if len(fits) == 1:
+            j, (q2, c2) = fits[0]
+            return Verdict(q2, c2, (j,), True, True, False)
+        # the mouse that under-reads most, if clearly the most (half the next one's share);
+        # where two under-read alike (one mouse reading half in a pivot looks like the
+        # other reading double), the one blamed in the window before, if it is one of them:
+        # a fault lasts
+        shares = sorted((self._share(j, s[0], mice.d), j, s) for j, s in fits)
+        under = [(share, j, s) for share, j, s in shares if share < UNDER]
+        pick = None
+        if under and (len(shares) == 1 or shares[1][0] > 2.0 * shares[0][0] + 0.1):
+            pick = shares[0]
+        elif self.last_blamed is not None:
+            pick = next((u for u in under if u[1] == self.last_blamed), None)
+        if pick is None:
             return Verdict(list(q), c, (), False, False, False)
-        j, (q2, c2) = pick[0]
+        _, j, (q2, c2) = pick
         return Verdict(q2, c2, (j,), True, True, False)
 
     def _under_reads(self, j: int, q: Sequence[float], d: Sequence[Sequence[float]]) -> bool:
         """Whether mouse ``j`` read less than UNDER of what the motion ``q`` moves it by."""
+        return self._share(j, q, d) < UNDER
+
+    def _share(self, j: int, q: Sequence[float], d: Sequence[Sequence[float]]) -> float:
+        """How much of what the motion ``q`` moves mouse ``j`` by it read (inf: the motion
+        moves it by less than three of its sigma, too little to tell)."""
         px, py = self.positions[j]
-        ex, ey = q[0] - q[2] * py, q[1] + q[2] * px
-        expected = math.hypot(ex, ey)
-        return expected > self.still[j] and math.hypot(d[j][0], d[j][1]) < UNDER * expected
+        expected = math.hypot(q[0] - q[2] * py, q[1] + q[2] * px)
+        if expected <= 3.0 * self.sigma[j]:
+            return math.inf
+        return math.hypot(d[j][0], d[j][1]) / expected
 
     def solve_with_gyro(
         self, mice: list[int], d: Sequence[Sequence[float]], a: float, var_a: float

@@ -74,11 +74,11 @@ def gyro_parts(
     if gyro is None:
         raise ValueError("the config has no gyro")
     judge = None
+    period = 1.0 / config.rate_hz
     if config.robust.enabled:  # faults seen through the gyro (gyrojudge.py)
         cols = (0, 2) if model == "diff-drive" else (0, 1, 2)
         judge = GyroJudge(positions, sigma, cols, config.robust.false_alarm,
-                          (models.STILL * sigma).tolist(),
-                          config.robust.relative_noise)  # fmt: skip
-    period = 1.0 / config.rate_hz
+                          (models.STILL * sigma).tolist(), config.robust.relative_noise,
+                          period)  # fmt: skip
     fusion = GyroFusion(gyro_noise(gyro), period, gyro.use, judge)
     return GyroClock(gyro_period(gyro), config.late_report_s), fusion
