@@ -6,12 +6,17 @@ from __future__ import annotations
 
 import math
 import os
+import signal
+import subprocess
+import sys
 import threading
 import time
 
 import numpy as np
-from conftest import run_mousedom
+from conftest import mousedom_env, run_mousedom
+from iio_fakes import MPU6050_SCALE, Writer, add_gyro, attr, gyro_records, stamps_ns
 from test_daemon import PipeSource
+from test_evdev_fakes import motion_bytes
 
 from mousedom.capture import open_capture
 from mousedom.config import GyroConfig, load_config
@@ -107,3 +112,68 @@ def test_run_record_keeps_the_gyro_samples_that_were_fused(tmp_path):
     proc = run_mousedom("replay", "-c", str(rig), "--capture", str(out))
     assert proc.returncode == 0, proc.stderr
     assert "gyro         40 samples, 200.0 Hz" in proc.stdout
+
+
+def _open_writer(node, deadline: float) -> Writer:
+    """The kernel's side of the fake /dev/iio:device0, once record has opened it."""
+    while True:
+        try:
+            return Writer(node)
+        except OSError:  # ENXIO: no reader yet
+            assert time.monotonic() < deadline, "record never opened the gyro"
+            time.sleep(0.02)
+
+
+def test_record_a_rig_with_a_fake_iio_gyro_then_replay_it(tmp_path):
+    root = tmp_path / "machine"
+    sysdir = add_gyro(root)
+    mouse = tmp_path / "left.fifo"
+    os.mkfifo(mouse)
+    cfg = tmp_path / "rig.yaml"
+    cfg.write_text(
+        "rate_hz: 100\nmodel: diff-drive\nmice:\n"
+        f"  left: {{cpi: 800, mount: {{x: 0.1, y: 0.0, yaw: 0}}, evdev: {{path: {mouse}}}}}\n"
+        "gyro: {name: mpu6050, axis: z, sign: -1, sample_hz: 200}\n"
+    )
+    out = tmp_path / "run.mdcap"
+    p = subprocess.Popen(
+        [sys.executable, "-m", "mousedom", "record", "--root", str(root), "--config", str(cfg),
+         "-o", str(out), "--status-interval", "0.2"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=mousedom_env(),
+    )  # fmt: skip
+    try:
+        m = os.open(mouse, os.O_WRONLY)  # waits for the reader
+        g = _open_writer(root / "dev" / "iio:device0", time.monotonic() + 20)
+        t0 = time.monotonic() - 1.6  # all 1.5 s of samples stamped before now (none re-stamped)
+        raw = np.arange(-150, 150, dtype=np.int64) * 7
+        ns = stamps_ns(t0, len(raw), hz=200.0)
+        g.write(gyro_records(raw[:100].tolist(), ns[:100].tolist()))
+        os.write(m, motion_bytes(t0, np.full(50, 3), np.zeros(50, int), dt=0.004))
+        g.write(gyro_records(raw[100:].tolist(), ns[100:].tolist()))
+        time.sleep(0.8)
+        p.send_signal(signal.SIGINT)
+        err = p.communicate(timeout=20)[1]
+        g.close()
+        os.close(m)
+    finally:
+        p.kill()
+    assert p.returncode == 0, err
+    assert "Traceback" not in err
+    assert "gyro (iio " in err and "gyro 300 samples" in err
+    assert attr(sysdir, "buffer/enable") == "0"  # the device left as found
+    cap = open_capture(str(out))
+    assert [d.kind for d in cap.devices] == ["evdev", "iio"]
+    dev = cap.devices[1]
+    assert dev.name == "mpu6050" and dev.extra["axis"] == "z" and dev.extra["sign"] == -1
+    assert dev.extra["scale"] == float(MPU6050_SCALE) and dev.extra["mode"] == "buffered"
+    assert dev.extra["node"] == str(root / "dev" / "iio:device0")
+    got = [r for feed in cap.feeds() for b in feed.batches for r in b.gyro]
+    t = np.concatenate([r.t for r in got])
+    rate = np.concatenate([r.rate for r in got])
+    # what the source gives: sign * raw * scale, stamped by the records' nanoseconds
+    np.testing.assert_array_equal(rate, -1 * (raw.astype(np.float64) + 0.0) * float(MPU6050_SCALE))
+    np.testing.assert_array_equal(t, ns.astype(np.float64) / 1e9)
+    assert cap.stats[0].reports == 50
+    proc = run_mousedom("replay", "-c", str(cfg), "--capture", str(out))
+    assert proc.returncode == 0, proc.stderr
+    assert "gyro         300 samples, 200.0 Hz" in proc.stdout

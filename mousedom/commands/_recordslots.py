@@ -7,9 +7,9 @@ downsampler's raw bytes and evdev's per-device notes, and has no tracker and no 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, ClassVar
 
-from mousedom.config import Config, MouseConfig, SerialSource
+from mousedom.config import Config, GyroConfig, MouseConfig, SerialSource
 from mousedom.errors import UserError
 from mousedom.sources.base import Source
 from mousedom.sources.discovery import SystemPaths
@@ -18,6 +18,8 @@ if TYPE_CHECKING:
     from mousedom.capture.base import DeviceInfo as CaptureDevice
     from mousedom.sources.discovery import DeviceInfo
     from mousedom.sources.evdev import EvdevSource
+    from mousedom.sources.iio import GyroSource
+    from mousedom.sources.iio_sysfs import IioPaths
 
 
 @dataclass
@@ -53,6 +55,10 @@ class Slot:
     next_retry: float = 0.0
     reports: int = 0
     last_reports: int = 0
+
+    @property
+    def name(self) -> str:
+        return self.mouse.name
 
     @property
     def serial(self) -> bool:
@@ -99,6 +105,61 @@ def make_slot(
         raw = SerialBytes()
         return Slot(index, mouse, AdnsSource(mouse, on_raw=raw.add), raw=raw)
     raise UserError(f"{where}: a replay source cannot be recorded (it is a recording already)")
+
+
+@dataclass
+class GyroSlot:
+    """The rig's gyro (``gyro:``) and what it has recorded: its samples, as the daemon
+    would fuse them (axis, sign and scale applied), into the capture's "iio" device."""
+
+    index: int  # its device in the capture: after the mice
+    config: GyroConfig
+    source: GyroSource
+    connected: bool = True
+    polled: bool = False  # read on every loop turn (the source's polled fallback)
+    next_retry: float = 0.0
+    reports: int = 0  # samples
+    last_reports: int = 0
+    name: ClassVar[str] = "gyro"  # the tracker's name for it (fusion.gyro.GYRO)
+
+    @property
+    def node(self) -> str:
+        dev = self.source.device
+        if dev is None:
+            return self.config.path or self.config.name or "gyro"
+        return str(dev.node)
+
+
+def make_gyro_slot(cfg: Config, index: int, iio: IioPaths | None = None) -> GyroSlot | None:
+    """The gyro's slot, if the rig has one (``iio``: where IIO devices are, for --root)."""
+    if cfg.gyro is None:
+        return None
+    from mousedom.sources.iio import GyroSource
+
+    return GyroSlot(index, cfg.gyro, GyroSource(cfg.gyro, iio))
+
+
+def gyro_device_info(slot: GyroSlot) -> CaptureDevice:
+    """The gyro as opened: its IIO name and node, and how its samples were made."""
+    from mousedom.capture.base import GYRO_KIND
+    from mousedom.capture.base import DeviceInfo as CaptureDevice
+
+    src, dev = slot.source, slot.source.device
+    return CaptureDevice(
+        name=dev.name if dev is not None else slot.node,
+        kind=GYRO_KIND,
+        rel_xy=False,
+        extra={
+            "node": slot.node,
+            "sysfs": str(dev.sysdir) if dev is not None else None,
+            "axis": slot.config.axis,
+            "sign": slot.config.sign,
+            "scale": src.scale,  # rad/s per LSB, as read at open
+            "offset": src.offset,  # LSB
+            "sample_hz": slot.config.sample_hz,
+            "mode": src.mode.value if src.mode is not None else None,
+        },
+    )
 
 
 def fileno_of(source: Source) -> int:

@@ -2,6 +2,7 @@
 
 Evdev mice are recorded as their decoded motion reports (t on CLOCK_MONOTONIC, summed
 REL_X/REL_Y per SYN_REPORT frame) plus a NOTE per mouse with what was skipped or dropped;
+the rig's gyro (``gyro:``) as its samples (t, yaw rate in rad/s: what the daemon fuses);
 serial sources (the ADNS-3080 downsampler) as the raw bytes read from the port, each read
 stamped with its host arrival time, so that replay can parse them with the same code as
 the live daemon (the port is driven by ``AdnsSource``, which also sets K and CPI, through
@@ -28,10 +29,13 @@ from typing import TYPE_CHECKING
 from mousedom import saferead
 from mousedom.commands import _options as options
 from mousedom.commands._recordslots import (
+    GyroSlot,
     Slot,
     describe,
     device_info,
     fileno_of,
+    gyro_device_info,
+    make_gyro_slot,
     make_slot,
     node_of,
 )
@@ -42,7 +46,9 @@ from mousedom.sources.base import SourceGone, SourceUnavailable
 from mousedom.sources.discovery import SystemPaths, paths_for_root
 
 if TYPE_CHECKING:
-    pass
+    from mousedom.sources.iio_sysfs import IioPaths
+
+Sensor = Slot | GyroSlot  # what the loop reads: a mouse's slot, or the gyro's
 
 log = logging.getLogger(__name__)
 
@@ -77,7 +83,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--root",
         metavar="DIR",
         help="look for evdev mice under DIR/dev/input, DIR/sys/class/input and "
-        "DIR/run/udev/data (as `mousedom list --root`: containers, tests)",
+        "DIR/run/udev/data, and for the gyro under DIR/sys/bus/iio/devices and DIR/dev "
+        "(as `mousedom list --root`: containers, tests)",
     )
     p.set_defaults(func=run)
 
@@ -97,16 +104,20 @@ class Recorder:
         fsync: bool,
         stop: list[int],
         paths: SystemPaths | None = None,
+        iio: IioPaths | None = None,
     ) -> None:
         from mousedom.capture.native import NativeWriter
 
         self.slots = [make_slot(cfg, i, m, paths) for i, m in enumerate(cfg.mice)]
-        for s in self.slots:
+        self.gyro = make_gyro_slot(cfg, len(self.slots), iio)
+        self.sensors: list[Sensor] = [*self.slots, *([self.gyro] if self.gyro else [])]
+        for s in self.sensors:
             try:
                 s.source.open()
             except SourceUnavailable as e:
                 self.close_sources()
-                raise UserError(f"{cfg.path}: mice.{s.mouse.name}: {e}", exit_code=1) from None
+                where = "gyro" if isinstance(s, GyroSlot) else f"mice.{s.name}"
+                raise UserError(f"{cfg.path}: {where}: {e}", exit_code=1) from None
         try:
             _check_distinct(cfg, self.slots, output)
         except UserError:
@@ -115,7 +126,8 @@ class Recorder:
         try:
             self.writer = NativeWriter(
                 output,
-                [device_info(s) for s in self.slots],
+                [device_info(s) for s in self.slots]
+                + ([gyro_device_info(self.gyro)] if self.gyro else []),
                 config_text=config_text,
                 time_base="monotonic",
                 fsync=fsync,
@@ -129,25 +141,31 @@ class Recorder:
             self.close_sources()
             raise UserError(f"{output}: cannot write: {e.strerror}", exit_code=1) from None
         self.sel = selectors.DefaultSelector()
-        for s in self.slots:
+        for s in self.sensors:
             self._register(s)
         self._stop = stop  # the signal handler appends to it
         self.output = output
         self._quiet = False  # stderr went away: no more status lines
 
-    def _register(self, s: Slot) -> None:
+    def _register(self, s: Sensor) -> None:
         fd = fileno_of(s.source)
         s.polled = fd < 0
         if not s.polled:
             self.sel.register(fd, selectors.EVENT_READ, s)
 
-    def _unregister(self, s: Slot) -> None:
+    def _unregister(self, s: Sensor) -> None:
         for key in list(self.sel.get_map().values()):
             if key.data is s:
                 self.sel.unregister(key.fileobj)
 
-    def _read(self, s: Slot, now: float) -> None:
+    def _read(self, s: Sensor, now: float) -> None:
         try:
+            if isinstance(s, GyroSlot):
+                for samples in s.source.read(now):
+                    with self._writing():
+                        self.writer.gyro(s.index, samples.t, samples.rate)
+                    s.reports += len(samples)
+                return
             for batch in s.source.read(now):  # a serial source's bytes went to on_raw
                 if not s.serial:
                     with self._writing():
@@ -158,7 +176,7 @@ class Recorder:
             s.connected, s.next_retry = False, now + RETRY_S
             self.say(f"record: {_without_name(s, e)}; waiting for it to come back")
 
-    def _retry(self, s: Slot, now: float) -> None:
+    def _retry(self, s: Sensor, now: float) -> None:
         s.next_retry = now + RETRY_S
         try:
             s.source.open()
@@ -166,8 +184,8 @@ class Recorder:
             return
         s.connected = True
         self._register(s)
-        node = getattr(getattr(s.source, "device", None), "node", s.mouse.name)
-        self.say(f"record: {s.mouse.name}: back ({node})")
+        node = getattr(getattr(s.source, "device", None), "node", s.name)
+        self.say(f"record: {s.name}: back ({node})")
 
     def say(self, line: str) -> None:
         """A status line on stderr.  The recording is the job, the status is decoration: a
@@ -208,10 +226,13 @@ class Recorder:
 
     def status(self, elapsed: float, dt: float) -> str:
         parts = []
-        for s in self.slots:
+        for s in self.sensors:
             rate = (s.reports - s.last_reports) / dt if dt > 0 else 0.0
             s.last_reports = s.reports
             state = "" if s.connected else " (gone)"
+            if isinstance(s, GyroSlot):
+                parts.append(f"gyro {s.reports} samples {rate:.0f} Hz{state}")
+                continue
             if s.raw is not None:
                 parts.append(
                     f"{s.mouse.name} {s.raw.total} B {s.reports} reports {rate:.0f} Hz{state}"
@@ -253,7 +274,7 @@ class Recorder:
     def _loop(self, duration: float | None, status_every: float) -> None:
         t0 = time.monotonic()
         last_flush = last_status = t0
-        polled = any(s.polled for s in self.slots)
+        polled = any(s.polled for s in self.sensors)
         while not self._stop:
             now = time.monotonic()
             if duration is not None and now - t0 >= duration:
@@ -263,7 +284,7 @@ class Recorder:
             for key, _ in self.sel.select(timeout):
                 self._read(key.data, time.monotonic())
             now = time.monotonic()
-            for s in self.slots:
+            for s in self.sensors:
                 if not s.connected and now >= s.next_retry:
                     self._retry(s, now)
                 elif s.connected and s.polled:
@@ -281,7 +302,7 @@ class Recorder:
 
     def finish(self, elapsed: float) -> None:
         now = time.monotonic()
-        for s in self.slots:  # one last drain: what arrived before the stop is kept
+        for s in self.sensors:  # one last drain: what arrived before the stop is kept
             if s.connected:
                 self._read(s, now)
         self._flush()
@@ -297,13 +318,13 @@ class Recorder:
         with self._writing():
             self.writer.close()
         self.close_sources()
-        for s in self.slots:  # the last line gives average rates over the whole run
+        for s in self.sensors:  # the last line gives average rates over the whole run
             s.last_reports = 0
         self.say(self.status(elapsed, elapsed).replace("record:", "record: done", 1))
         self.say(f"record: wrote {self.output}")
 
     def close_sources(self) -> None:
-        for s in self.slots:
+        for s in self.sensors:
             s.source.close()
 
 
@@ -335,8 +356,16 @@ def run(args: argparse.Namespace) -> int:
     # write fails with EFBIG and the user is told (the file stays readable either way).
     signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
     paths = paths_for_root(args.root)
-    rec = Recorder(cfg, config_text, args.output, fsync=args.fsync, stop=stop, paths=paths)
-    names = ", ".join(f"{s.mouse.name} ({describe(s)})" for s in rec.slots)
+    iio = None
+    if args.root is not None:
+        from mousedom.sources.iio_sysfs import IioPaths
+
+        iio = IioPaths.under(args.root)
+    rec = Recorder(cfg, config_text, args.output, fsync=args.fsync, stop=stop, paths=paths,
+                   iio=iio)  # fmt: skip
+    names = ", ".join(f"{s.name} ({describe(s)})" for s in rec.slots)
+    if rec.gyro is not None:
+        names += f", gyro (iio {rec.gyro.node})"
     rec.say(f"record: {args.output}: recording {names}")
     try:
         rec.run(args.duration, args.status_interval)
@@ -370,7 +399,7 @@ def _check_distinct(cfg: Config, slots: list[Slot], output: str) -> None:
             )
 
 
-def _without_name(s: Slot, e: Exception) -> str:
+def _without_name(s: Sensor, e: Exception) -> str:
     """'left: device gone' (sources put their name first already; don't say it twice)."""
     text = str(e)
-    return text if text.startswith(f"{s.mouse.name}: ") else f"{s.mouse.name}: {text}"
+    return text if text.startswith(f"{s.name}: ") else f"{s.name}: {text}"
