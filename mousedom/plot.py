@@ -47,6 +47,8 @@ class PlotCollector:
         self._n = 0
         self._skip = 0
         self._last: np.ndarray | None = None
+        # the gyro's bias and its sigma (rad/s) at the rows kept, where the rig has one
+        self._gyro: list[np.ndarray] = []
 
     def __call__(self, b: PoseBatch) -> None:
         if not len(b):
@@ -60,6 +62,8 @@ class PlotCollector:
         self._last = rows[-1]  # the final pose is marked "end": never decimated away
         idx = np.arange(self._skip, len(b), self.step)
         kept = rows[idx]
+        if b.gyro is not None:
+            self._gyro.append(np.column_stack([b.t, b.gyro[:, 1], b.gyro[:, 2]])[idx])
         if len(idx) and self.step > 1:
             nm = state.shape[1]
             kept[:, kept.shape[1] - nm :] = np.maximum.reduceat(state, idx, axis=0)
@@ -73,7 +77,13 @@ class PlotCollector:
             data = data[::2]
             data[:, data.shape[1] - nm :] = worst
             self._parts, self._n = [data], len(data)
+            if self._gyro:
+                self._gyro = [np.concatenate(self._gyro)[::2]]
             self.step *= 2
+
+    def gyro(self) -> np.ndarray:
+        """(t, bias, bias sigma) of the rows kept, (0, 3) without a gyro."""
+        return np.concatenate(self._gyro) if self._gyro else np.zeros((0, 3))
 
     def data(self) -> np.ndarray:
         last = self._last  # set with the first part
@@ -119,8 +129,10 @@ def figure(
 
     data = collector.data()
     residual = redundancy(model, len(names)) > 0 and data.shape[1] > RES
-    fig, axes = plt.subplots(1, 2 if residual else 1, figsize=(12 if residual else 7, 5.5))
-    ax1 = axes[0] if residual else axes
+    gyro = collector.gyro()
+    panels = 1 + residual + (len(gyro) > 0)
+    fig, axes = plt.subplots(1, panels, figsize=(7 + 5 * (panels - 1), 5.5), squeeze=False)
+    ax1 = axes[0][0]
     ax1.set_xlabel("x (m)")
     ax1.set_ylabel("y (m)")
     ax1.set_title("trajectory (odometry frame)")
@@ -150,8 +162,10 @@ def figure(
         # path that fills the box (a square, a loop), and the path is what the plot is for.
         ax1.legend(loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=4, fontsize=8,
                    frameon=False)  # fmt: skip
+    if len(gyro):
+        _gyro_panel(axes[0][-1], gyro)
     if residual:
-        ax2 = axes[1]
+        ax2 = axes[0][1]
         health = data[:, RES + len(names) :]
         for i, name in enumerate(names):
             label = name if not rates or name not in rates else f"{name} ({rates[name]:.0f} Hz)"
@@ -171,6 +185,20 @@ def figure(
         fig.suptitle(title)
     fig.tight_layout()
     return fig
+
+
+def _gyro_panel(ax, gyro: np.ndarray) -> None:
+    """The gyro's learnt bias over time, with its one-sigma band (deg/s)."""
+    t, bias, sigma = (np.degrees(gyro[:, k]) if k else gyro[:, k] for k in range(3))
+    ok = np.isfinite(bias) & np.isfinite(sigma)
+    ax.plot(t[ok], bias[ok], color="tab:purple", lw=1.0, label="bias")
+    ax.fill_between(t[ok], bias[ok] - sigma[ok], bias[ok] + sigma[ok], color="tab:purple",
+                    alpha=0.2, label="1 sigma")  # fmt: skip
+    ax.set_xlabel("t (s)")
+    ax.set_ylabel("gyro bias (deg/s)")
+    ax.set_title("gyro bias (learnt online)")
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="best", fontsize=8)
 
 
 def _shade(ax, t: np.ndarray, state: np.ndarray, color: str, name: str) -> None:

@@ -120,3 +120,18 @@ def test_the_end_pose_covariance_is_honest_with_a_gyro(layout, model):
         err, cov = _drive_errors(layout, model, "both", seed, 20.0)
         nees.append(scenarios.nees(err, cov)[0])
     assert 1.0 < np.mean(nees) < 5.0, nees
+
+
+def test_the_replay_plot_draws_the_gyros_bias():
+    from mousedom.plot import PlotCollector, figure  # (the plot extra: in the test command)
+
+    rig, cfg = _with_gyro(sim.three_mouse_rig(), simgyro.SimGyro())
+    result = sim.simulate(rig, TRAJ, seed=2)
+    batch, _ = sim.run_tracker(result, cfg)
+    collect = PlotCollector()
+    collect(batch)
+    fig = figure(collect, cfg.names, model=cfg.model)
+    panel = next(ax for ax in fig.axes if ax.get_title() == "gyro bias (learnt online)")
+    (line,) = [ln for ln in panel.get_lines() if ln.get_label() == "bias"]
+    bias = line.get_ydata()
+    assert abs(bias[-1] - 0.5) < 0.1  # deg/s: the simulated gyro's

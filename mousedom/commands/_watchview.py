@@ -44,7 +44,20 @@ def pose_lines(m: dict[str, Any], t_start: float) -> list[str]:
         f"time             {m['t'] - t_start:9.2f} s since the watch began",
         f"mice             {m['used']} used, {state}" + _health(m, "; "),
     ]
+    if m.get("gyro"):
+        lines.append(f"gyro             {gyro_text(m['gyro'])}")
     return lines
+
+
+def gyro_text(g: dict[str, Any]) -> str:
+    """POSE's gyro (protocol 1.3): its learnt bias, and how well it agreed with the mice."""
+    bias, sigma = g.get("bias"), g.get("bias_sigma")
+    deg = 180 / math.pi
+    text = f"bias {_num(bias, '+.3f', deg)} +- {_num(sigma, '.3f', deg)} deg/s"
+    agree = g.get("agree")
+    if agree is not None:
+        text += f", agreement chi2 {agree:.1f}" + (" (DISAGREES)" if agree > 15.0 else "")
+    return text
 
 
 def _health(m: dict[str, Any], sep: str) -> str:
@@ -69,6 +82,8 @@ def pose_line(m: dict[str, Any], t_start: float) -> str:
         f"  left {_num(m['vy'], '+.3f')} m/s  turn {_num(turn, '+.2f')} deg/s"
         f"  {m['used']} used, {state}"
     )
+    if m.get("gyro"):
+        line += f"  gyro {gyro_text(m['gyro'])}"
     return line + _health(m, "  ")
 
 
@@ -95,6 +110,9 @@ def scale_text(s: dict[str, Any]) -> str:
     larger to agree with the others), "applied" where the fusion uses it; "-" where none
     is learnt (fewer than three mice, fault handling off, too little motion yet, or a
     daemon older than protocol 1.2)."""
+    if s.get("kind") == "iio":  # the gyro: its learnt bias instead
+        bias = s.get("bias")
+        return "-" if bias is None else f"bias {math.degrees(bias):+.3f} deg/s"
     g = s.get("scale")
     if g is None:
         return "-"
