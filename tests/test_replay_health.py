@@ -50,8 +50,9 @@ def test_the_summary_counts_each_mouses_states_batch_by_batch_and_keeps_the_last
     names = ("no reason given", *robust.REASONS[1:])
 
     def why(kind: int) -> dict[str, int]:
-        n = [int(((state[:, 2] == kind) & (reason[:, 2] == k)).sum()) for k in range(5)]
-        order = sorted(range(5), key=lambda k: (-n[k], k))  # most frequent first
+        kinds = range(len(robust.REASONS))
+        n = [int(((state[:, 2] == kind) & (reason[:, 2] == k)).sum()) for k in kinds]
+        order = sorted(kinds, key=lambda k: (-n[k], k))  # most frequent first
         return {names[k]: n[k] for k in order if n[k]}
 
     health = s.health_of(2)

@@ -373,13 +373,7 @@ class Replay:
 
 def _late_reports(tracker: Tracker) -> dict[str, int]:
     """Per mouse, its reports that came after their window had closed."""
-    try:
-        return {name: st["late"] for name, st in tracker.stats().items()}
-    except IndexError:
-        # Tracker.stats() of a rig with a gyro looks the gyro's name up among the mice
-        # (reported; the gyro has no late count): the mice's own, until it is fixed.
-        mice = tracker.config.names
-        return {name: tracker._mice[i].late for i, name in enumerate(mice)}
+    return {name: st["late"] for name, st in tracker.stats().items()}
 
 
 def _mouse_push(tracker: Tracker, mouse: int) -> Callable[..., None]:

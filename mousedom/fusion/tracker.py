@@ -338,9 +338,10 @@ class Tracker:
     def stats(self) -> dict[str, dict[str, int]]:
         for m in self._mice:
             self._ingest(m)
-        return {
+        return {  # the mice's (the gyro's name is among the sensors', after them)
             name: {"late": self._mice[i].late, "backwards": self._mice[i].backwards}
             for name, i in self._names.items()
+            if i < self.n_mice
         }
 
     def poll(self) -> PoseBatch:
