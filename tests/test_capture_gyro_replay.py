@@ -165,12 +165,13 @@ def test_csv_and_summary_of_a_replay_with_a_gyro(tmp_path):
     header = proc.stdout.split("\n", 1)[0].split(",")
     names = tuple(m.name for m in rig.mice)
     assert header == csv_columns(names) + gyro_columns()
-    assert header[-3:] == ["gyro_bias", "gyro_bias_sigma", "gyro_agree"]
+    assert header[-4:] == ["gyro_bias", "gyro_bias_sigma", "gyro_agree", "gyro_scale"]
     data = read_csv(proc.stdout)
     cfg = sim.rig_config(rig)
     want, _ = sim.run_tracker(res, cfg)
     np.testing.assert_array_equal(data["theta"], np.round(want.theta, 9))
-    for column, k in (("gyro_bias", 1), ("gyro_bias_sigma", 2), ("gyro_agree", 3)):
+    for column, k in (("gyro_bias", 1), ("gyro_bias_sigma", 2), ("gyro_agree", 3),
+                      ("gyro_scale", 4)):  # fmt: skip
         np.testing.assert_allclose(data[column], want.gyro[:, k], rtol=1e-6, atol=0)
     # the summary's line for the gyro
     proc = run_mousedom("replay", "-c", str(cfg_path), "--capture", str(path))

@@ -101,7 +101,7 @@ def test_the_daemon_fuses_a_real_iio_gyro_and_replays_to_the_same_pose(tmp_path)
                                   args=(result, time.monotonic() + 0.3, mice, node))  # fmt: skip
         feeder.start()
         pose = c.until("POSE")
-        assert set(pose["gyro"]) == {"bias", "bias_sigma", "agree"}
+        assert set(pose["gyro"]) == {"bias", "bias_sigma", "agree", "scale"}
         feeder.join(30)
     finally:
         d.request_stop()

@@ -22,10 +22,11 @@ _ROW = "%.6f,%.9f,%.9f,%.9f,%.6f,%.6f,%.6f,%d,%d,%d"
 # (REL_X, REL_Y; 1 where none is learnt).
 COV_COLUMNS = ("cov_xx", "cov_xy", "cov_xt", "cov_yy", "cov_yt", "cov_tt")
 # Last, for a rig with a gyro (replayed with it): its bias after the window (rad/s), the
-# bias's standard deviation (rad/s) and the agreement statistic of the window (mice against
-# gyro, chi-square with 1 degree of freedom), exponent form; nan where the gyro had no
-# samples yet (PoseBatch.gyro's columns 1 to 3).
-GYRO_COLUMNS = ("gyro_bias", "gyro_bias_sigma", "gyro_agree")
+# bias's standard deviation (rad/s), the agreement statistic of the window (mice against
+# gyro, chi-square with 1 degree of freedom) and its scale error (it reads 1 + scale times
+# the turn), exponent form; nan where the gyro had no samples yet (PoseBatch.gyro's
+# columns 1 to 4).
+GYRO_COLUMNS = ("gyro_bias", "gyro_bias_sigma", "gyro_agree", "gyro_scale")
 _COV_INDEX = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 _COV_DIGITS = 6  # "%.6e": seven significant digits
 _SCALE_DIGITS = 6  # "%.6f"

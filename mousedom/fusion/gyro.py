@@ -109,7 +109,12 @@ class GyroWindow(NamedTuple):
     bias: float  # the bias after the window, rad/s
     bias_sigma: float  # its standard deviation, rad/s
     stat: float  # e^2 / S: chi-square (1 dof) when mice and gyro agree
+    scale: float  # the scale error learnt so far: the gyro reads (1 + scale) times the turn
     used: bool  # whether it entered the pose (False: no samples, or use = mice)
+
+    def row(self) -> list[float]:
+        """PoseRow.gyro: turn, bias, bias sigma, agreement, scale."""
+        return [self.turn, self.bias, self.bias_sigma, self.stat, self.scale]
 
 
 class Judged(NamedTuple):
@@ -153,7 +158,8 @@ class GyroFusion:
     def heading_set(self) -> None:
         """The heading was set from outside (reset, fix): its error no longer owes
         anything to the bias's."""
-        self.state.cross = 0.0
+        self.state.cross = [0.0, 0.0]
+        self.state.turned = 0.0
 
     def window(
         self,
@@ -183,42 +189,45 @@ class GyroFusion:
         with the bias's, BiasLearner.cross)."""
         st = self.state
         st.predict()
-        t = self.period
         if turn is None or not ok:
-            return list(q), c, GyroWindow(math.nan, st.bias, st.sigma, math.nan, False)
+            return list(q), c, self._report(math.nan, math.nan, False)
         mice_c = c
         timing = 0.0 if still else extra
         if timing:
             c = [row[:] for row in c]
             c[2][2] += timing
+        k1 = 1.0 + st.scale
+        a_mice = 0.0 if still else q[2]
         caa = 0.0 if still else c[2][2]
-        bias, prior, cross = st.bias, st.var, st.cross
-        e = turn - (0.0 if still else q[2]) - bias * t
-        s = caa + t * t * prior + self._white_var
-        kappa = 0.0 if still else {"both": caa / s, "gyro": 1.0, "mice": 0.0}[self.use]
-        drift = -2.0 * kappa * t * cross  # the heading's error with the bias's, carried
-        st.carry(kappa)
-        st.observe(e, caa - timing, timing, kappa, trusted or still)
-        report = GyroWindow(turn, st.bias, st.sigma, e * e / s, kappa > 0.0)
+        e = turn - k1 * a_mice - st.bias * self.period
+        s = k1 * k1 * caa + st.hph(a_mice) + self._white_var
+        kappa = 0.0 if still else {"both": k1 * k1 * caa / s, "gyro": 1.0, "mice": 0.0}[self.use]
+        drift = st.carry(kappa, a_mice)  # the heading's error with (bias, scale)'s
+        a_gyro, var_gyro = st.corrected(turn), (self._white_var + st.hph(a_mice)) / (k1 * k1)
+        st.observe(e, a_mice, caa - timing, timing, kappa, trusted or still)
+        report = self._report(turn, e * e / s, kappa > 0.0)
         if kappa == 0.0:  # the mice's (use = mice, or a standstill)
             return list(q), mice_c, report
         if self.use == "both":
-            ca = [row[2] for row in c]
-            q2 = [v + k * e / s for v, k in zip(q, ca, strict=True)]
+            ca = [row[2] * k1 for row in c]
+            q2 = [v + g * e / s for v, g in zip(q, ca, strict=True)]
             c2 = [[c[i][j] - ca[i] * ca[j] / s for j in range(3)] for i in range(3)]
             c2[2][2] = max(0.0, c2[2][2] + drift)
             return q2, c2, report
-        # use = gyro: the heading is the gyro's, corrected with the bias; the translation
-        # the mice's given that heading
-        a = turn - bias * t
-        r = self._white_var + t * t * prior
+        # use = gyro: the heading is the gyro's, corrected with its bias and scale; the
+        # translation the mice's given that heading
+        r = var_gyro
         lx, ly = (c[0][2] / caa, c[1][2] / caa) if caa > 0.0 else (0.0, 0.0)
-        q2 = [q[0] + lx * (a - q[2]), q[1] + ly * (a - q[2]), a]
+        q2 = [q[0] + lx * (a_gyro - q[2]), q[1] + ly * (a_gyro - q[2]), a_gyro]
         cxx = c[0][0] - lx * lx * caa + lx * lx * r
         cxy = c[0][1] - lx * ly * caa + lx * ly * r
         cyy = c[1][1] - ly * ly * caa + ly * ly * r
         c2 = [[cxx, cxy, lx * r], [cxy, cyy, ly * r], [lx * r, ly * r, max(0.0, r + drift)]]
         return q2, c2, report
+
+    def _report(self, turn: float, stat: float, used: bool) -> GyroWindow:
+        st = self.state
+        return GyroWindow(turn, st.bias, st.sigma, stat, st.scale, used)
 
     def judged(
         self, q: Sequence[float], c: Matrix3, turn: float | None, ok: bool, mice: MiceView
@@ -241,14 +250,17 @@ class GyroFusion:
             # The mice in the solve lack rank (one left of two on an axle): with the gyro's
             # turn as one more row they may not
             st = self.state
-            var_a = self.period**2 * (st.var + st.walk) + self._white_var
+            st.predict()
+            k1 = 1.0 + st.scale
+            a = st.corrected(turn)
+            var_a = (self._white_var + st.hph(a)) / (k1 * k1)
             used = [i for i, u in enumerate(mice.used) if u]
-            solved = judge.solve_with_gyro(used, mice.d, turn - st.bias * self.period, var_a)
+            solved = judge.solve_with_gyro(used, mice.d, a, var_a)
             if solved is not None:
-                st.predict()
-                st.carry(1.0)
-                report = GyroWindow(turn, st.bias, st.sigma, math.nan, True)
-                return Judged(solved[0], solved[1], report, (), True)
+                q2, c2 = solved
+                c2[2][2] = max(0.0, c2[2][2] + st.carry(1.0, a))
+                return Judged(q2, c2, self._report(turn, math.nan, True), (), True)
+            return Judged(list(q), c, self._report(turn, math.nan, False), (), True)
         if turn is None or not ok:
             return Judged(*self.window(q, c, turn, ok, still), (), True)
         extra = 0.0
@@ -263,10 +275,12 @@ class GyroFusion:
         if self.use == "mice":
             return Judged(*self.window(q, c, turn, ok, still, extra, trusted), (), True)
         st, t = self.state, self.period
-        prior = st.var + st.walk
+        k1 = 1.0 + st.scale
+        a_mice = 0.0 if still else q[2]
         caa = 0.0 if still else c[2][2] + extra
-        e = turn - (0.0 if still else q[2]) - st.bias * t
-        s = caa + t * t * prior + self._white_var
+        e = turn - k1 * a_mice - st.bias * t
+        hph = st.hph(a_mice) + st.walk * t * t  # (the window's own wander, as window adds)
+        s = k1 * k1 * caa + hph + self._white_var
         stat = e * e / s
         if stat <= judge.threshold:
             self._disagree = 0
@@ -282,7 +296,8 @@ class GyroFusion:
             self._disagree = 0
             return Judged(*self.window(q, c, turn, ok, still, extra, trusted), (), True)
         st.predict()  # nothing learnt from a window judged
-        a, var_a = turn - st.bias * t, t * t * prior + self._white_var
+        a = st.corrected(turn)
+        var_a = (self._white_var + st.hph(a)) / (k1 * k1)
         if n_used >= 3 and (still or mice.consistent):
             # three mice that agree, or stand still (they do not all lose the floor at
             # once): the gyro is wrong (saturated, a bias that moved)
@@ -297,11 +312,10 @@ class GyroFusion:
             verdict = judge.leave_one_out(q, c, a, var_a, mice)
         judge.last_blamed = verdict.blamed[0] if len(verdict.blamed) == 1 else None
         c2 = verdict.c
-        if verdict.gyro_used:  # the heading's error takes the bias's (see window)
+        if verdict.gyro_used:  # the heading's error takes (bias, scale)'s (see window)
             c2 = [row[:] for row in c2]
-            c2[2][2] = max(0.0, c2[2][2] - 2.0 * t * st.cross)
-            st.carry(1.0)
-        report = GyroWindow(turn, st.bias, st.sigma, stat, verdict.gyro_used)
+            c2[2][2] = max(0.0, c2[2][2] + st.carry(1.0, a))
+        report = self._report(turn, stat, verdict.gyro_used)
         return Judged(verdict.q, c2, report, verdict.blamed, verdict.consistent)
 
     def windows(

@@ -1,23 +1,30 @@
-"""The gyro's bias, learnt from spans of windows where mice and gyro agree.
+"""The gyro's bias and scale, learnt from spans of windows where mice and gyro agree.
+
+The gyro reads g = (1 + s) a + b T + n per window: a the turn, b its bias (rad/s), s its
+scale error (an MPU-6050's sensitivity is within 3 % of its datasheet's).  Both are
+learnt online: the bias wherever the mice tell the turn (exactly when standing still),
+the scale in turns.
 
 Per window the mice's turn is far noisier than over a span: a report stamped a little late
 moves counts from one window to the next, so each window's turn is off by as much as the
 next one's is off the other way.  Over a span of windows only the counts moved across the
-span's two edges remain.  So the bias is not learnt window by window (as if those errors
-were independent, which would learn it slowly and over-confidently), but once a span
-(``SPAN_S``) from the span's summed innovation
+span's two edges remain.  So (b, s) is not learnt window by window (as if those errors were
+independent, which would learn slowly and over-confidently), but once a span (``SPAN_S``)
+from the span's summed innovation
 
-    E = sum_k (g_k - a_k - b_hat T) = -n T db + sum_k (n_gyro,k - n_mice,k)
+    E = sum_k (g_k - (1 + s_hat) a_k - b_hat T) = -H dx + sum_k (n_gyro,k - (1 + s_hat) n_mice,k)
 
-with variance S = sum_k C_aa,k (the mice's white errors) + 2 t (the timing errors of the
-span's two edges, t the span's mean per-window timing variance) + n N^2 T + (n T)^2 P.
-E^2 / S is chi-square (1 dof) when both tell the truth: a span that fails it teaches
-nothing, unless the mice it holds are trusted (three or more that agree, or a standstill):
-then the gyro's bias moved, and it is learnt again (its variance reset).
+with H = [n T, sum_k a_k], dx the estimate's error, and variance S = H P H^T + R, R the
+mice's white errors summed, twice the span's mean timing variance (its two edges) and the
+gyro's white noise, each mouse term times (1 + s_hat)^2.  E^2 / S is chi-square (1 dof)
+when both tell the truth: a span that fails it teaches nothing, unless the mice it holds
+are trusted (three or more that agree, or a standstill): then the gyro's bias moved, and
+(b, s) are learnt again (their variances reset).
 
-Between renewals the bias's error is constant, and a heading made with it drifts by T db
-per window: ``cross``, the covariance of the heading's error with the bias's, carries
-that (GyroFusion.window adds -2 kappa T cross to each window's heading variance).
+Between renewals the error dx is constant, and a heading made with the gyro drifts by
+H_k dx / (1 + s_hat) a window: ``cross``, the covariance of the heading's error with dx,
+carries that (GyroFusion.window adds -2 kappa / (1 + s_hat) H_k cross to each window's
+heading variance).
 """
 
 from __future__ import annotations
@@ -26,11 +33,29 @@ import math
 
 from mousedom.fusion import chi2
 
-SPAN_S = 0.25  # seconds of windows per renewal of the bias
+SPAN_S = 0.25  # seconds of windows per renewal
+# The scale error's standard deviation before anything is learnt: an MPU-6050's
+# sensitivity tolerance (PS-MPU-6000A-00 rev. 3.4, table 6.1: +-3 %)
+SCALE_SIGMA = 0.03
+# How well the mice know a turn's size: their CPIs are calibrated to about this, so the
+# gyro's scale is not learnt closer to theirs than this over a span's turn
+MICE_TURN_SCALE = 0.003
+
+Vec2 = list[float]
+Mat2 = list[list[float]]
+
+
+def _hph(h: Vec2, p: Mat2) -> float:
+    return h[0] * (p[0][0] * h[0] + p[0][1] * h[1]) + h[1] * (p[1][0] * h[0] + p[1][1] * h[1])
+
+
+def _ph(p: Mat2, h: Vec2) -> Vec2:
+    return [p[0][0] * h[0] + p[0][1] * h[1], p[1][0] * h[0] + p[1][1] * h[1]]
 
 
 class BiasLearner:
-    """The bias (b_hat, its variance P, ``cross``) and the span being summed."""
+    """The gyro's (bias, scale) estimate, their covariance P, ``cross`` and the span being
+    summed (see the module docstring)."""
 
     def __init__(
         self,
@@ -39,12 +64,18 @@ class BiasLearner:
         density: float,
         period: float,
         false_alarm: float = 1e-4,
+        scale_sigma: float = SCALE_SIGMA,
     ) -> None:
         self.bias = 0.0  # rad/s
-        self.var = sigma * sigma  # P
-        self.cross = 0.0  # cov(heading error, bias error)
-        self._sigma2 = sigma * sigma  # P when the bias is learnt again
-        self._walk = walk * walk * period  # P's growth per window
+        self.scale = 0.0  # the scale error s: the gyro reads (1 + s) times the turn
+        self._prior = [[sigma * sigma, 0.0], [0.0, scale_sigma * scale_sigma]]
+        self.p = [row[:] for row in self._prior]
+        self.cross = [0.0, 0.0]  # cov(heading error, (bias, scale) error)
+        self.owed = 0.0  # heading (rad) the renewals since the last take_owed give back
+        # sum of kappa / (1 + s_hat) a_k over every window since the heading was set: the
+        # scale is the same for all of them, so a better estimate of it is owed by all
+        self.turned = 0.0
+        self._walk = walk * walk * period  # the bias's variance's growth per window
         self._white = density * density * period  # one window's white turn noise
         self._period = period
         self._span = max(1, round(SPAN_S / period))
@@ -54,73 +85,128 @@ class BiasLearner:
     def _reset_span(self) -> None:
         self._n = 0
         self._e = 0.0
+        self._turn = 0.0  # the mice's turn, summed: H's second element
         self._white_sum = 0.0  # the mice's white variance, summed
         self._timing = 0.0  # their timing variance, summed (its mean counts twice)
-        self._ncov = 0.0  # sum of kappa N^2 T - (1 - kappa) C_aa (see the module)
+        self._ncov = 0.0  # the heading's noise with E's (see the module)
+        self._used = [0.0, 0.0]  # sum of kappa / (1 + s_hat) H_k: how the heading used them
         self._trusted = True  # every window's mice trusted (three that agree, or still)
 
     @property
+    def var(self) -> float:
+        """The bias's variance."""
+        return self.p[0][0]
+
+    @property
+    def sigma(self) -> float:
+        return math.sqrt(self.p[0][0])
+
+    @property
     def walk(self) -> float:
-        """P's growth per window."""
+        """The bias's variance's growth per window."""
         return self._walk
+
+    def h(self, a: float) -> Vec2:
+        """One window's H: how the turn's reading moves with (bias, scale)."""
+        return [self._period, a]
+
+    def hph(self, a: float) -> float:
+        """The variance one window's reading of a turn ``a`` gets from (bias, scale)."""
+        return _hph(self.h(a), self.p)
 
     def predict(self) -> None:
         """A window passes: the bias may have wandered."""
-        self.var += self._walk
+        self.p[0][0] += self._walk
 
     def relearn(self) -> None:
-        """The bias moved far: its variance reset, the span being summed dropped."""
-        self.var = max(self.var, self._sigma2)
+        """The bias moved far: (bias, scale) variances reset, the span dropped."""
+        self.p = [[max(self.p[0][0], self._prior[0][0]), 0.0],
+                  [0.0, max(self.p[1][1], self._prior[1][1])]]  # fmt: skip
         self._reset_span()
 
-    def carry(self, kappa: float) -> None:
-        """The window's heading took ``kappa`` of the gyro's turn, with the bias's error."""
-        self.cross -= kappa * self._period * self.var
+    def take_owed(self) -> float:
+        """The heading owed by the renewals so far (then none)."""
+        owed, self.owed = self.owed, 0.0
+        return owed
 
-    def observe(self, e: float, white: float, timing: float, kappa: float, trusted: bool) -> None:
-        """One window of the span: its innovation ``e`` (g - a - b_hat T), the mice's white
-        and timing variances of their turn, the gyro's share ``kappa`` in the heading,
-        whether its mice are trusted."""
+    def corrected(self, turn: float) -> float:
+        """The gyro's ``turn`` with the bias and scale taken out."""
+        return (turn - self.bias * self._period) / (1.0 + self.scale)
+
+    def carry(self, kappa: float, a: float) -> float:
+        """The window's heading took ``kappa`` of the gyro's turn (``a`` the turn), with
+        (bias, scale)'s error: returns the heading variance it owes the cross term, and
+        carries that error in ``cross``."""
+        g = kappa / (1.0 + self.scale)
+        h = self.h(a)
+        drift = -2.0 * g * (h[0] * self.cross[0] + h[1] * self.cross[1])
+        ph = _ph(self.p, h)
+        self.cross = [self.cross[0] - g * ph[0], self.cross[1] - g * ph[1]]
+        return drift
+
+    def observe(
+        self, e: float, a: float, white: float, timing: float, kappa: float, trusted: bool
+    ) -> None:
+        """One window of the span: its innovation ``e`` (g - (1 + s) a - b T), the mice's
+        turn ``a``, their white and timing variances, the gyro's share ``kappa`` in the
+        heading, whether its mice are trusted."""
+        k1 = 1.0 + self.scale
         self._n += 1
         self._e += e
-        self._white_sum += white
-        self._timing += timing
-        self._ncov += kappa * self._white - (1.0 - kappa) * (white + timing)
+        self._turn += a
+        self._white_sum += k1 * k1 * white
+        self._timing += k1 * k1 * timing
+        self._ncov += kappa * self._white / k1 - (1.0 - kappa) * k1 * (white + timing)
+        self._used[0] += kappa / k1 * self._period
+        self._used[1] += kappa / k1 * a
+        self.turned += kappa / k1 * a
         self._trusted = self._trusted and trusted
         # tested every window (a bias that jumped is seen within a few), learnt from once a
         # span
         if self._n >= self._span or not self._agrees():
             self.renew()
 
+    def _span_h(self) -> Vec2:
+        return [self._n * self._period, self._turn]
+
+    def _rest(self) -> float:
+        mice_scale = (MICE_TURN_SCALE * self._turn) ** 2
+        return self._white_sum + 2.0 * self._timing / self._n + self._n * self._white + mice_scale
+
     def _agrees(self) -> bool:
         """Whether the span so far passes the test (see the module docstring)."""
-        n = self._n
-        nt = n * self._period
-        s = self._white_sum + 2.0 * self._timing / n + n * self._white + nt * nt * self.var
+        s = _hph(self._span_h(), self.p) + self._rest()
         return self._e * self._e <= self._threshold * s
 
     def renew(self) -> bool | None:
         """End the span: learn from it if it agrees (or its mice are trusted); whether it
-        agreed (None: no window in it)."""
-        n = self._n
-        if not n:
+        agreed (None: no window in it).  The heading the span's windows made with the
+        estimate before is owed what the new one gives them (``owed``: the tracker turns
+        the pose by it, as the mice's learnt scales give theirs back)."""
+        if not self._n:
             return None
-        nt = n * self._period
-        rest = self._white_sum + 2.0 * self._timing / n + n * self._white
         agreed = self._agrees()
-        if not agreed:
-            if not self._trusted:
-                self._reset_span()
-                return False
-            self.var = max(self.var, self._sigma2)  # the bias moved: learnt again
-        s = rest + nt * nt * self.var
-        k = nt * self.var / s
-        self.bias += k * self._e
-        self.cross = (1.0 - k * nt) * self.cross + k * self._ncov
-        self.var -= k * nt * self.var
+        if not agreed and not self._trusted:
+            self._reset_span()
+            return False
+        if not agreed:  # the bias moved: learnt again
+            self.p = [[max(self.p[0][0], self._prior[0][0]), 0.0],
+                      [0.0, max(self.p[1][1], self._prior[1][1])]]  # fmt: skip
+        h = self._span_h()
+        s = _hph(h, self.p) + self._rest()
+        ph = _ph(self.p, h)
+        k = [ph[0] / s, ph[1] / s]
+        # E = -H dx + N: the estimate moves against the error it reads
+        step = [k[0] * self._e, k[1] * self._e]
+        self.bias += step[0]
+        self.scale += step[1]
+        # the corrected turn (g - b T) / (1 + s) of each window moves by -(T db + a ds) /
+        # (1 + s), and the heading took kappa of it: the bias's change is owed by this
+        # span's windows (it wanders), the scale's by every window since the heading was set
+        self.owed -= self._used[0] * step[0] + self.turned * step[1]
+        hx = h[0] * self.cross[0] + h[1] * self.cross[1]
+        self.cross = [self.cross[0] - k[0] * hx + k[0] * self._ncov,
+                      self.cross[1] - k[1] * hx + k[1] * self._ncov]  # fmt: skip
+        self.p = [[self.p[i][j] - k[i] * ph[j] for j in range(2)] for i in range(2)]
         self._reset_span()
         return agreed
-
-    @property
-    def sigma(self) -> float:
-        return math.sqrt(self.var)

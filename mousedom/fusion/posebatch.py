@@ -38,10 +38,12 @@ class PoseRow(NamedTuple):
     # N x 2: each mouse's learnt scale per axis (REL_X, REL_Y) applied in the window, the
     # factor its counts were multiplied by (robust.ScaleLearner); () where none is learnt
     scale: list[list[float]] | tuple = ()
-    # The gyro's word on the window (fusion.gyro.GyroWindow's turn, bias, bias_sigma,
-    # stat); () where the rig has no gyro
+    # The gyro's word on the window (fusion.gyro.GyroWindow.row: turn, bias, bias_sigma,
+    # stat, scale); () where the rig has no gyro
     gyro: list[float] | tuple = ()
 
+
+GYRO_FIELDS = 5  # PoseRow.gyro: turn, bias, bias sigma, agreement, scale
 
 _DTYPES = {"used": int, "ok": bool, "state": np.int8, "reason": np.int8, "consistent": bool}
 
@@ -67,8 +69,9 @@ class PoseBatch:
     consistent: np.ndarray  # (n,) bool: False where the mice disagreed, nobody blamed
     qcov: np.ndarray  # (n,3,3) covariance of the window's twist increment (u_x, u_y, a)
     scale: np.ndarray | None = None  # (n,N,2) learnt scale per mouse and axis; None: all 1
-    # (n,4) the gyro's turn (rad), bias (rad/s), bias sigma (rad/s) and agreement statistic
-    # (chi-square, 1 dof) per window, NaN where it had no samples; None: no gyro
+    # (n,5) the gyro's turn (rad), bias (rad/s), bias sigma (rad/s), agreement statistic
+    # (chi-square, 1 dof) and scale error per window, NaN where it had no samples; None: no
+    # gyro
     gyro: np.ndarray | None = None
 
     @classmethod
@@ -141,7 +144,10 @@ class PoseBatch:
             columns["scale"] = np.concatenate([b.scales() for b in batches])
         if any(b.gyro is not None for b in batches):
             columns["gyro"] = np.concatenate(
-                [b.gyro if b.gyro is not None else np.full((len(b), 4), np.nan) for b in batches]
+                [
+                    b.gyro if b.gyro is not None else np.full((len(b), GYRO_FIELDS), np.nan)
+                    for b in batches
+                ]
             )
         return cls(**columns)
 
@@ -159,8 +165,8 @@ def _scale_column(column: tuple) -> np.ndarray | None:
 
 
 def _gyro_column(column: tuple) -> np.ndarray | None:
-    """The ``gyro`` field of rows as an (n, 4) array (NaN rows where a row has none), None
+    """The ``gyro`` field of rows as an (n, GYRO_FIELDS) array (NaN rows where a row has none), None
     if no row has one."""
     if all(len(v) == 0 for v in column):
         return None
-    return np.array([v if len(v) else (np.nan,) * 4 for v in column], dtype=np.float64)
+    return np.array([v if len(v) else (np.nan,) * GYRO_FIELDS for v in column], dtype=np.float64)

@@ -17,7 +17,7 @@ from mousedom.fusion.covariance import CovarianceState, propagate, world_step_no
 from mousedom.fusion.gyro import GyroFusion
 from mousedom.fusion.gyrojudge import MiceView
 from mousedom.fusion.health import Reason
-from mousedom.fusion.posebatch import PoseBatch
+from mousedom.fusion.posebatch import GYRO_FIELDS, PoseBatch
 from mousedom.fusion.tracker_state import Carried, PathSetup
 
 # per window: the scale evidence and whether it is low (fusion.evidence), as arrays
@@ -73,11 +73,14 @@ class ArrayPath:
         q = np.where(sol.ok[:, None], sol.q, 0.0)
         qcov, gyro = sol.cov, None
         used = sol.used
+        turned = q  # what the pose turns by: q, and the heading the gyro's renewals give back
         if setup.gyro is not None and turn is not None:  # the gyro's reading of the turns
-            q, qcov, gyro, used = self._with_gyro(setup.gyro, q, sol, d, mask, turn,
-                                                  health, reason, consistent)  # fmt: skip
-        partials = integrate.step_partials(q)  # the noise's Jacobian; its S, C make the step
-        steps = integrate.body_step(q, setup.integrator, partials[:2])
+            q, qcov, gyro, used, owed = self._with_gyro(setup.gyro, q, sol, d, mask, turn,
+                                                        health, reason, consistent)  # fmt: skip
+            turned = q.copy()
+            turned[:, 2] += owed
+        partials = integrate.step_partials(turned)  # the noise's Jacobian; its S, C: the step
+        steps = integrate.body_step(turned, setup.integrator, partials[:2])
         carried = self._carried
         poses = integrate.compose(np.array(carried.pose), steps)
         theta_before = np.concatenate([[carried.pose[2]], poses[:-1, 2]])
@@ -121,15 +124,17 @@ class ArrayPath:
         health: np.ndarray,
         reason: np.ndarray,
         consistent: np.ndarray,
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The gyro's turn in each window, judged where it disagrees (GyroFusion.judged),
         in window order (the bias is sequential); the mice it blames excluded in
         ``health`` and ``reason`` and ``consistent`` cleared where nobody could be, in
-        place.  Returns (q, q's covariance, the gyro's columns, mice used)."""
+        place.  Returns (q, q's covariance, the gyro's columns, mice used, the heading
+        its renewals give back in each window: gyrobias.BiasLearner.renew)."""
         n = len(q)
         q2, c2 = q.copy(), sol.cov.copy()
-        gyro = np.empty((n, 4))
+        gyro = np.empty((n, GYRO_FIELDS))
         used = sol.used.copy()
+        owed = np.zeros(n)
         in_solve = mask & (health != robust.EXCLUDED)
         for k in range(n):
             tk = float(turn[k])
@@ -137,12 +142,13 @@ class ArrayPath:
             j = fusion.judged(q[k].tolist(), sol.cov[k].tolist(),
                               None if math.isnan(tk) else tk, bool(sol.ok[k]), mice)  # fmt: skip
             q2[k], c2[k] = j.q, j.c
-            gyro[k] = j.report[:4]
+            gyro[k] = j.report.row()
+            owed[k] = fusion.state.take_owed()
             consistent[k] = consistent[k] and j.consistent
             for i in j.blamed:
                 health[k, i], reason[k, i] = robust.EXCLUDED, Reason.GYRO
                 used[k] -= 1
-        return q2, c2, gyro, used
+        return q2, c2, gyro, used, owed
 
     def _screened(
         self, d: np.ndarray, mask: np.ndarray, sol: models.Solution, evidence: Evidence | None

@@ -167,17 +167,19 @@ class OneWindowPath:
             in_solve = [i in idx for i in range(n)]
             j = self.gyro.judged(q, c3, turn, ok, MiceView(pairs, in_solve, consistent))
             q, c3, said = j.q, j.c, j.report
-            gyro = [said.turn, said.bias, said.bias_sigma, said.stat]
+            gyro = said.row()
             consistent = consistent and j.consistent
             if j.blamed:
                 state, reason, idx = _blame(state, reason, idx, j.blamed)
         ux, uy, a = q
-        sx, sy = onewindow.body_step(ux, uy, a, self._integrator)
+        # the heading the gyro's renewals give back turns the pose, not the twist reported
+        owed = self.gyro.state.take_owed() if self.gyro is not None else 0.0
+        sx, sy = onewindow.body_step(ux, uy, a + owed, self._integrator)
         carried = self._carried
         x0, y0, th0 = carried.pose
         cb, sb = math.cos(th0), math.sin(th0)
-        x, y, th = x0 + (cb * sx - sb * sy), y0 + (sb * sx + cb * sy), th0 + a
-        g = onewindow.noise(th0, ux, uy, a, c3)
+        x, y, th = x0 + (cb * sx - sb * sy), y0 + (sb * sx + cb * sy), th0 + a + owed
+        g = onewindow.noise(th0, ux, uy, a + owed, c3)
         cov = onewindow.propagate(carried.cov, carried.at, (x, y), g)
         carried.pose, carried.cov, carried.at = [x, y, th], cov, [x, y]
         rate = self._rate

@@ -22,7 +22,7 @@ from mousedom import __version__
 PROTO_MAJOR = 1
 # 1: POSE has excluded, suspect and consistent; SOURCE state and reason
 # 2: SOURCE scale, scale_spread, scale_applied and scale_warning (the learnt scale)
-# 3: POSE gyro (bias, bias_sigma, agree) and a SOURCE named gyro, on rigs with a gyro
+# 3: POSE gyro (bias, bias_sigma, agree, scale) and a SOURCE named gyro, on rigs with a gyro
 PROTO_MINOR = 3
 
 # Which keys each command takes; anything else is a mistake worth telling the client about.
@@ -272,9 +272,9 @@ def pose_message(
     or their sensor said they were not tracking), ``suspect`` those used but in doubt.
     ``consistent`` is False where the mice disagreed and nobody could be blamed (the
     covariance is inflated for that window).  With a gyro (``gyro``: the window's turn,
-    bias, bias sigma and agreement statistic, PoseRow.gyro), ``"gyro"`` gives its bias
-    (rad/s), the bias's sigma and the chi-square (1 dof) of its agreement with the mice
-    (null where it had no samples).
+    bias, bias sigma, agreement statistic and scale, PoseRow.gyro), ``"gyro"`` gives its
+    bias (rad/s), the bias's sigma, the chi-square (1 dof) of its agreement with the mice
+    (null where it had no samples) and its scale error (it reads 1 + scale times the turn).
     """
     msg = {
         "class": "POSE",
@@ -294,8 +294,9 @@ def pose_message(
         "consistent": bool(consistent),
     }
     if len(gyro):
-        _, bias, sigma, stat = gyro
-        msg["gyro"] = {"bias": _finite(bias), "bias_sigma": _finite(sigma), "agree": _finite(stat)}
+        _, bias, sigma, stat, scale = gyro
+        msg["gyro"] = {"bias": _finite(bias), "bias_sigma": _finite(sigma),
+                       "agree": _finite(stat), "scale": _finite(scale)}  # fmt: skip
     return msg
 
 
@@ -316,7 +317,7 @@ _POSE_FINITE = (
     '"excluded":%s,"suspect":%s,"consistent":%s}\n'
 )
 _POSE_ANY = _POSE_FINITE.replace("%r", "%s")  # values already written by _json_float
-_GYRO = ',"gyro":{"bias":%s,"bias_sigma":%s,"agree":%s}}\n'
+_GYRO = ',"gyro":{"bias":%s,"bias_sigma":%s,"agree":%s,"scale":%s}}\n'
 
 
 def encode_pose(
@@ -355,8 +356,9 @@ def encode_pose(
         "true" if consistent else "false",
     )
     if len(gyro):  # the rig's gyro: before the closing brace
-        _, bias, sigma, stat = gyro
-        line = line[:-2] + _GYRO % tuple(_json_float(float(v)) for v in (bias, sigma, stat))
+        _, bias, sigma, stat, scale = gyro
+        values = (bias, sigma, stat, scale)
+        line = line[:-2] + _GYRO % tuple(_json_float(float(v)) for v in values)
     return line.encode()
 
 
