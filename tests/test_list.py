@@ -24,7 +24,8 @@ def test_list_on_this_machine_without_dev_input():
     assert "no input devices" in p.stdout and "/dev/input does not exist" in p.stdout
     assert p.stderr == ""
     j = json.loads(run_mousedom("list", "--json").stdout)
-    assert j == {"input_dir": "/dev/input", "present": False, "nodes": 0, "devices": []}
+    assert j == {"input_dir": "/dev/input", "present": False, "nodes": 0, "devices": [],
+                 "gyros": []}  # fmt: skip
 
 
 def test_list_fake_machine_text_and_json(tmp_path):
@@ -152,3 +153,17 @@ def test_list_with_config_says_which_device_each_mouse_is(tmp_path):
     assert "2 devices match name='Twin'" in mice["left"]["error"]
     assert "event3" in mice["left"]["error"] and "event4" in mice["left"]["error"]
     assert mice["right"]["node"] is None and "no input device matches" in mice["right"]["error"]
+
+
+def test_list_names_the_iio_gyros_and_the_section_that_names_one(tmp_path):
+    from iio_fakes import add_gyro
+
+    add_device(tmp_path, 3, "Mouse")
+    add_gyro(tmp_path, 0, "mpu6050")
+    p = run_mousedom("list", "--root", str(tmp_path))
+    assert p.returncode == 0, p.stderr
+    assert "iio:device0  mpu6050" in p.stdout and "gyro: {name: mpu6050}" in p.stdout
+    assert "1 IIO gyro" in p.stdout
+    j = json.loads(run_mousedom("list", "--json", "--root", str(tmp_path)).stdout)
+    assert [g["name"] for g in j["gyros"]] == ["mpu6050"]
+    assert j["gyros"][0]["node"] == str(tmp_path / "dev" / "iio:device0")

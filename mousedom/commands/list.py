@@ -20,6 +20,7 @@ from mousedom.sources.discovery import (
     paths_for_root,
     scan,
 )
+from mousedom.sources.iio_sysfs import IioDevice, IioPaths, list_devices
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -28,7 +29,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="list input devices with REL_X and REL_Y (candidate mice)",
         description="List every evdev device with REL_X and REL_Y: node, name, phys, uniq, "
         "vendor:product, /dev/input/by-id and by-path links, MOUSE_DPI from udev, and a "
-        "config rule that names it.",
+        "config rule that names it; and every IIO device with a gyro (in_anglvel) channel, "
+        "with the gyro: section that names it.",
     )
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.add_argument(
@@ -140,9 +142,26 @@ def _config_text(config_path: str, matches: dict[str, dict[str, str | None]]) ->
     return "\n".join(lines) + "\n"
 
 
+def gyros(root: str | None) -> list[IioDevice]:
+    """The IIO devices with a gyro channel (in_anglvel_*): the rig's candidate gyros."""
+    found = list_devices(IioPaths.under(root or "/"))
+    return [d for d in found if any(d.sysdir.glob("in_anglvel_*"))]
+
+
+def _gyro_text(found: list[IioDevice]) -> str:
+    if not found:
+        return "no IIO gyro (no device with an in_anglvel channel)\n"
+    lines = []
+    for d in found:
+        lines += [f"{d.sysdir.name}  {d.name}", f"  node     {d.node}",
+                  f"  sysfs    {d.sysdir}", f"  config   gyro: {{name: {d.name}}}"]  # fmt: skip
+    return "\n".join(lines) + f"\n{len(found)} IIO gyro{'s' if len(found) != 1 else ''}\n"
+
+
 def run(args: argparse.Namespace) -> int:
     paths = paths_for_root(args.root)
     result = scan(paths)
+    found = gyros(args.root)
     matches = config_matches(args.config, result) if args.config else None
     if args.json:
         doc = {
@@ -150,12 +169,16 @@ def run(args: argparse.Namespace) -> int:
             "present": result.present,
             "nodes": result.nodes,
             "devices": [d.as_dict() for d in result.devices],
+            "gyros": [
+                {"sysfs": str(d.sysdir), "node": str(d.node), "name": d.name} for d in found
+            ],  # fmt: skip
         }
         if matches is not None:
             doc["config"] = {"path": args.config, "mice": matches}
         sys.stdout.write(json.dumps(doc, indent=2) + "\n")
     else:
         sys.stdout.write(_text(result))
+        sys.stdout.write("\n" + _gyro_text(found))
         if matches is not None:
             sys.stdout.write("\n" + _config_text(args.config, matches))
     if matches and any(r["error"] for r in matches.values()):
