@@ -11,3 +11,4 @@ INTEGRATORS = ("exact", "taylor", "euler", "midpoint")
 # What a gyro's heading is made of (config's gyro.use; fusion/gyro.py): the gyro and the
 # mice together, the gyro alone, the mice alone (the gyro's bias is learnt all the same).
 GYRO_USES = ("both", "gyro", "mice")
+GYRO = "gyro"  # the gyro's name where sensors are named (Tracker.set_live, SOURCE)

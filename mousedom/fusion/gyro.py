@@ -42,11 +42,10 @@ from typing import NamedTuple
 import numpy as np
 
 from mousedom.config import GyroConfig
+from mousedom.fusion.choices import GYRO as GYRO  # (re-exported: the gyro's name)
 from mousedom.fusion.choices import GYRO_USES
 from mousedom.fusion.gyrobias import BiasLearner
 from mousedom.fusion.gyrojudge import RELEARN_S, GyroJudge, MiceView, Verdict
-
-GYRO = "gyro"  # the gyro's name where sensors are named (Tracker.set_live, SOURCE)
 
 # What the config does not say: the bias's random walk and how far off it may be at the
 # start (simgyro.py says where these figures come from).

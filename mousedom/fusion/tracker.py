@@ -22,22 +22,25 @@ once) and the daemon (a few at a time) run exactly the same code.
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from mousedom.config import Config
 from mousedom.fusion import noiserate, robust, scalelearn
+from mousedom.fusion.choices import GYRO
 from mousedom.fusion.countfunction import CountFunction
 from mousedom.fusion.evidence import SensorEvidence
 from mousedom.fusion.geometry import rank_problem
-from mousedom.fusion.gyro import GYRO
 from mousedom.fusion.posebatch import PoseBatch
 from mousedom.fusion.tracker_batch import ArrayPath
-from mousedom.fusion.tracker_gyro import GyroClock, gyro_parts
 from mousedom.fusion.tracker_learn import Learners, Renewal
 from mousedom.fusion.tracker_one import OneWindowPath
 from mousedom.fusion.tracker_state import Carried, PathSetup, WindowGrid
 from mousedom.fusion.units import counts_matrices, sigma_metres
+
+if TYPE_CHECKING:
+    from mousedom.fusion.tracker_gyro import GyroClock
 
 
 def _counts_array(c) -> np.ndarray:
@@ -89,7 +92,9 @@ class Tracker:
         # mice), named "gyro" in complete_each / set_live.
         self._gyro: GyroClock | None = None
         gyro_fusion = None
-        if config.gyro is not None:
+        if config.gyro is not None:  # (late: a rig without one loads none of it)
+            from mousedom.fusion.tracker_gyro import gyro_parts
+
             self._gyro, gyro_fusion = gyro_parts(config, self.model, positions, sigma)
             self._names[GYRO] = self.n_mice
         # every count function whose frontier holds the windows back

@@ -9,16 +9,18 @@ judges them (``screenbatch``), and the pose and its covariance are carried throu
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from mousedom.fusion import integrate, models, robust, screenbatch
 from mousedom.fusion.covariance import CovarianceState, propagate, world_step_noise
-from mousedom.fusion.gyro import GyroFusion
-from mousedom.fusion.gyrojudge import MiceView
 from mousedom.fusion.health import Reason
 from mousedom.fusion.posebatch import GYRO_FIELDS, PoseBatch
 from mousedom.fusion.tracker_state import Carried, PathSetup
+
+if TYPE_CHECKING:
+    from mousedom.fusion.gyro import GyroFusion
 
 # per window: the scale evidence and whether it is low (fusion.evidence), as arrays
 Evidence = tuple[np.ndarray, np.ndarray]
@@ -130,6 +132,8 @@ class ArrayPath:
         ``health`` and ``reason`` and ``consistent`` cleared where nobody could be, in
         place.  Returns (q, q's covariance, the gyro's columns, mice used, the heading
         its renewals give back in each window: gyrobias.BiasLearner.renew)."""
+        from mousedom.fusion.gyrojudge import MiceView
+
         n = len(q)
         q2, c2 = q.copy(), sol.cov.copy()
         gyro = np.empty((n, GYRO_FIELDS))

@@ -16,7 +16,6 @@ from typing import NamedTuple
 import numpy as np
 
 from mousedom.fusion import models, onewindow, robust
-from mousedom.fusion.gyrojudge import MiceView
 from mousedom.fusion.health import Reason
 from mousedom.fusion.posebatch import PoseBatch, PoseRow
 from mousedom.fusion.tracker_state import Carried, PathSetup
@@ -163,6 +162,8 @@ class OneWindowPath:
             reason = tuple(h.reason for h in screen.health)
         gyro: list[float] | tuple = ()
         if self.gyro is not None:  # the gyro's reading of the turn (fusion/gyro.py)
+            from mousedom.fusion.gyrojudge import MiceView
+
             pairs = [d_all[2 * i : 2 * i + 2] for i in range(n)]
             in_solve = [i in idx for i in range(n)]
             j = self.gyro.judged(q, c3, turn, ok, MiceView(pairs, in_solve, consistent))

@@ -11,11 +11,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from mousedom.fusion import robust
-from mousedom.fusion.gyro import GyroFusion
+
+if TYPE_CHECKING:
+    from mousedom.fusion.gyro import GyroFusion
 
 
 @dataclass(frozen=True)

@@ -19,7 +19,7 @@ from mousedom.capture.base import GYRO_KIND, DeviceInfo
 from mousedom.capture.native import NativeWriter
 from mousedom.config import Config, GyroConfig, MouseConfig
 from mousedom.errors import UserError
-from mousedom.fusion.gyro import GYRO
+from mousedom.fusion.choices import GYRO
 from mousedom.fusion.posebatch import PoseRow
 from mousedom.service.output import Output
 

@@ -20,12 +20,11 @@ from typing import Any, NamedTuple, Protocol
 import numpy as np
 
 from mousedom.config import Config, GyroConfig, MouseConfig
-from mousedom.fusion.gyro import GYRO, gyro_period
+from mousedom.fusion.choices import GYRO
 from mousedom.fusion.robust import Health, Reason
 from mousedom.service.factory import source_key
 from mousedom.service.running import Running
 from mousedom.sources.base import Source, SourceGone, SourceHealth, SourceUnavailable
-from mousedom.sources.iio import GyroSamples
 
 log = logging.getLogger(__name__)
 
@@ -97,6 +96,8 @@ class Slot:
     def period(self) -> float:
         """The longest time between two of its reports while it reports."""
         if isinstance(self.mouse, GyroConfig):
+            from mousedom.fusion.gyro import gyro_period
+
             return gyro_period(self.mouse)
         return 1.0 / self.mouse.report_hz
 
@@ -295,6 +296,8 @@ class Sensors:
             return
         tracker = self.running.tracker
         if isinstance(slot.mouse, GyroConfig):
+            from mousedom.sources.iio import GyroSamples  # (late: a rig without one loads none)
+
             for samples in batches:
                 if isinstance(samples, GyroSamples) and len(samples.t):
                     tracker.push_gyro(samples.t, samples.rate)
