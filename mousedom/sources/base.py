@@ -231,8 +231,7 @@ class Source(ABC):
             self.health.error = str(e) or "device gone"
             self.close()
             raise
-        health = self.health
-        for b in batches:  # counted here, not in a helper: this runs per source per window
+        for b in batches:
             t = b.columns()[0]
             n = len(t)
             if not n:
@@ -247,16 +246,22 @@ class Source(ABC):
                     self._far_stamps(n_far, worst)
                     if b.quality is not None:  # the sensor's word on the same reports
                         bound_stamps(b.quality[0], now)
-            health.reports += n
-            health.last_t = float(t[-1])
-            # Report rate over a sliding ~1 s span: cheap and good enough for status.
-            t0 = self._rate_t0
-            if t0 is None or now - t0 > 1.0:
-                if t0 is not None and now > t0:
-                    health.reports_per_s = self._rate_n / (now - t0)
-                self._rate_t0, self._rate_n = now, 0
-            self._rate_n += n
+            self._count(n, float(t[-1]), now)
         return batches
+
+    def _count(self, n: int, last_t: float, now: float) -> None:
+        """``n`` reports read at ``now``, the last stamped ``last_t``: the health's counts,
+        last stamp and report rate over a sliding ~1 s span (cheap, good enough for
+        status)."""
+        health = self.health
+        health.reports += n
+        health.last_t = last_t
+        t0 = self._rate_t0
+        if t0 is None or now - t0 > 1.0:
+            if t0 is not None and now > t0:
+                health.reports_per_s = self._rate_n / (now - t0)
+            self._rate_t0, self._rate_n = now, 0
+        self._rate_n += n
 
     @abstractmethod
     def _open(self) -> None: ...

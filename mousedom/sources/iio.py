@@ -316,18 +316,6 @@ class GyroSource(Source):
     def _read(self, now: float) -> list[Reports]:
         raise TypeError(f"{self.name}: a gyro gives GyroSamples: call read()")
 
-    def _count(self, n: int, last_t: float, now: float) -> None:
-        """Reports, last stamp and rate over ~1 s, as ``Source.read`` counts them."""
-        health = self.health
-        health.reports += n
-        health.last_t = last_t
-        t0 = self._rate_t0
-        if t0 is None or now - t0 > 1.0:
-            if t0 is not None and now > t0:
-                health.reports_per_s = self._rate_n / (now - t0)
-            self._rate_t0, self._rate_n = now, 0
-        self._rate_n += n
-
     def _drain(self, now: float) -> GyroSamples | None:
         if self._gone is not None:
             raise SourceGone(self._gone)
