@@ -119,26 +119,6 @@ def test_the_agreement_statistic_is_chi_square_when_both_tell_the_truth():
     assert np.mean(stats[1000:]) == pytest.approx(1.0, abs=0.12)
 
 
-def test_windows_is_window_over_arrays():
-    rng = np.random.default_rng(11)
-    sols = [_mice_solve(rng, 3) for _ in range(30)]
-    q = np.array([s[3] for s in sols])
-    cov = np.array([s[4] for s in sols])
-    turn = q[:, 2] + rng.normal(0.0, 1e-4, 30)
-    turn[5] = np.nan  # no samples in that window
-    ok = np.ones(30, dtype=bool)
-    ok[9] = False
-    one, arr = GyroFusion(NOISE, T, "both"), GyroFusion(NOISE, T, "both")
-    still = np.zeros(30, dtype=bool)
-    still[12:15] = True
-    q2, c2, said = arr.windows(q, cov, turn, ok, still)
-    for k in range(30):
-        tk = None if np.isnan(turn[k]) else float(turn[k])
-        qk, ck, sk = one.window(q[k].tolist(), cov[k].tolist(), tk, bool(ok[k]), bool(still[k]))
-        assert q2[k].tolist() == qk and c2[k].tolist() == ck
-        assert said[k] == sk or (math.isnan(sk.turn) and math.isnan(said[k].turn))
-
-
 def test_a_standstill_measures_the_bias_alone_and_keeps_the_heading():
     """The robot stood still (a zero-velocity update), whatever variance the mice's
     noise model gives a window without counts: the heading stays, and once a span the

@@ -1,35 +1,34 @@
-"""A MEMS gyro's yaw rate in the window's solve, with its bias as a slowly varying state.
+"""A MEMS gyro's yaw rate in the window's solve, its bias and scale slowly varying states.
 
 Each window the mice give the twist increment q = (u_x, u_y, a) with its covariance C
 (models.py, after the fault screen).  The gyro's samples, integrated over the same window
 (the tracker closes them with a count function, as a mouse's counts), give one more
 reading of the turn:
 
-    g = a + b T + n,    n ~ N(0, N^2 T)
+    g = (1 + s) a + b T + n,    n ~ N(0, N^2 T)
 
-with b the gyro's bias (rad/s), T the window's length and N the rate noise density
-(rad/s/sqrt(Hz)): the integral of white rate noise over T has variance N^2 T (the angle
-random walk).  The bias drifts as a random walk of density W (rad/s/sqrt(s)): between two
-windows its variance grows by W^2 T.
+with b the gyro's bias (rad/s), s its scale error, T the window's length and N the rate
+noise density (rad/s/sqrt(Hz)): the integral of white rate noise over T has variance
+N^2 T (the angle random walk).  The bias drifts as a random walk of density W
+(rad/s/sqrt(s)): between two windows its variance grows by W^2 T.
 
-The window's update is the Kalman update of the joint state (q, b), prior
-(q_mice, C) and (b_hat, P), by the one reading g (H = [0, 0, 1, T]):
+With (b, s) known to the covariance P (gyrobias.py, which learns them once a span), the
+window's update is the Kalman update of q by the one reading g (H_q = [0, 0, 1 + s]):
 
-    innovation  e = g - a_mice - b_hat T,      S = C_aa + T^2 P + N^2 T
-    q' = q + C[:, a] e / S                      C' = C - C[:, a] C[a, :] / S
-    b' = b_hat + T P e / S                      P' = P - T^2 P^2 / S
+    innovation  e = g - (1 + s) a_mice - b T,    S = (1 + s)^2 C_aa + h P h^T + N^2 T
+    q' = q + (1 + s) C[:, a] e / S               C' = C - (1 + s)^2 C[:, a] C[a, :] / S
 
-which is the same as adding the gyro's row to the weighted least squares of the mice
-(Kim & Lee's estimator with one more row: q's information grows by e3 e3^T / (N^2 T + T^2 P)).
-At a standstill the mice say exactly that nothing turned (C_aa is nothing), so the window
-measures the bias alone; while moving, the redundancy of mice and gyro does.  e^2 / S is
-chi-square with one degree of freedom when mice and gyro both tell the truth: the test of
-their agreement.
+with h = [T, a_mice]: the same as adding the gyro's row to the weighted least squares of
+the mice (Kim & Lee's estimator with one more row, weighted by 1 / (N^2 T + h P h^T):
+tests/test_gyro_fusion.py).  At a standstill the mice say exactly that nothing turned
+(C_aa is nothing), so the window measures the bias alone; while moving, the redundancy of
+mice and gyro does.  e^2 / S is chi-square with one degree of freedom when mice and gyro
+both tell the truth: the test of their agreement (gyrojudge.py judges a failure).
 
 What the heading is made of is the user's choice (``choices.GYRO_USES``): ``both`` (the
-update above), ``mice`` (the bias is still learnt, the pose is the mice's) or ``gyro``
-(the heading is the gyro's alone, a = g - b_hat T with variance N^2 T + T^2 P, and the
-translation the mice's given that heading: u = u_mice + C_ua / C_aa (a - a_mice)).
+update above), ``mice`` (bias and scale are still learnt, the pose is the mice's) or
+``gyro`` (the heading is the gyro's alone, a = (g - b T) / (1 + s), and the translation
+the mice's given that heading: u = u_mice + C_ua / C_aa (a - a_mice)).
 """
 
 from __future__ import annotations
@@ -130,8 +129,8 @@ class GyroFusion:
     """One window at a time: the update of the module docstring, and the bias it learns.
 
     The tracker's two solving paths share one (the bias is carried from window to window,
-    as the pose is); ``window`` takes Python floats (the daemon's path), ``windows`` arrays
-    (replay's), looping over the windows because the bias is sequential."""
+    as the pose is); ``judged`` and ``window`` take one window's Python floats, the array
+    path calling them window by window (the bias is sequential)."""
 
     def __init__(
         self,
@@ -316,23 +315,3 @@ class GyroFusion:
             c2[2][2] = max(0.0, c2[2][2] + st.carry(1.0, a))
         report = self._report(turn, stat, verdict.gyro_used)
         return Judged(verdict.q, c2, report, verdict.blamed, verdict.consistent)
-
-    def windows(
-        self, q: np.ndarray, cov: np.ndarray, turn: np.ndarray, ok: np.ndarray, still: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, list[GyroWindow]]:
-        """``window`` over arrays: q (n, 3), cov (n, 3, 3), turn (n,) (NaN: no samples),
-        ok (n,), still (n,)."""
-        q2, c2 = q.copy(), cov.copy()
-        out = []
-        for k in range(len(q)):
-            tk = float(turn[k])
-            qk, ck, rep = self.window(
-                q[k].tolist(),
-                cov[k].tolist(),
-                None if math.isnan(tk) else tk,
-                bool(ok[k]),
-                bool(still[k]),
-            )
-            q2[k], c2[k] = qk, ck
-            out.append(rep)
-        return q2, c2, out
