@@ -14,6 +14,14 @@ from mousedom.fusion import robust
 from mousedom.fusion.tracker import PoseBatch
 
 
+def measured_rate(s: DeviceStats) -> float:
+    """Reports (or samples) a second between a device's first and last stamp; 0 with
+    fewer than two."""
+    if s.reports < 2 or s.first_t is None or s.last_t is None or s.last_t <= s.first_t:
+        return 0.0
+    return (s.reports - 1) / (s.last_t - s.first_t)
+
+
 @dataclass
 class MouseSummary:
     name: str
@@ -34,10 +42,7 @@ class MouseSummary:
     @property
     def reports_per_s(self) -> float:
         """The measured report rate (``rate_hz`` is the config's window rate)."""
-        s = self.stats
-        if s.reports < 2 or s.first_t is None or s.last_t is None or s.last_t <= s.first_t:
-            return 0.0
-        return (s.reports - 1) / (s.last_t - s.first_t)
+        return measured_rate(self.stats)
 
 
 @dataclass
@@ -52,10 +57,7 @@ class GyroSummary:
 
     @property
     def samples_per_s(self) -> float:
-        s = self.stats
-        if s.reports < 2 or s.first_t is None or s.last_t is None or s.last_t <= s.first_t:
-            return 0.0
-        return (s.reports - 1) / (s.last_t - s.first_t)
+        return measured_rate(self.stats)
 
 
 @dataclass
