@@ -35,7 +35,7 @@ def _run(mouse: int, lag: float, resolved: bool, seed: int):
     rng = np.random.default_rng(seed)
     screen = _screen()
     q_true = np.array([0.004, 0.0, rng.uniform(-0.02, 0.02)])
-    screen._set_prev(screen.predict(q_true))
+    screen.accepted(screen.predict(q_true)[None], screen.predict(q_true)[None])
     total_q, total_d, states, corrected = np.zeros(3), np.zeros((4, 2)), [], 0
     direction = screen.predict(q_true)[mouse] / np.linalg.norm(screen.predict(q_true)[mouse])
     for k in range(60):

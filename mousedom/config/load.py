@@ -25,13 +25,14 @@ def _robust(r: Reader) -> RobustConfig:
     if isinstance(v, bool):  # `robust: false` turns it off (for comparison)
         return RobustConfig(enabled=v)
     s = r.sub("robust", ("enabled", "false_alarm", "relative_noise", "readmit_s",
-                         "learn_scale", "scale_limit"))  # fmt: skip
+                         "late_s", "learn_scale", "scale_limit"))  # fmt: skip
     d = RobustConfig()
     robust = RobustConfig(
         enabled=s.boolean("enabled", d.enabled),
         false_alarm=s.number("false_alarm", d.false_alarm, within=(1e-12, 0.5)),
         relative_noise=s.number("relative_noise", d.relative_noise, within=(0.0, 1.0)),
         readmit_s=s.number("readmit_s", d.readmit_s, within=(0.0, 3600.0)),
+        late_s=s.number("late_s", d.late_s, within=(0.0, 60.0)),
         learn_scale=s.boolean("learn_scale", d.learn_scale),
         scale_limit=s.number("scale_limit", d.scale_limit, within=(0.0, 0.5)),
     )

@@ -87,6 +87,9 @@ class RobustConfig:
     false_alarm: float = 1e-4  # chance per window that a healthy rig fails the test
     relative_noise: float = 0.05  # reading error in proportion to motion (CPI, stamps)
     readmit_s: float = 0.25  # consistent motion an excluded mouse needs to be used again
+    # how long a mouse whose shortfall is the motion of its last moments (its counts owed,
+    # as after a USB host's stall) is held out as "late" before it is called excluded
+    late_s: float = 0.05
     # each mouse's scale relative to the others is learnt online from the redundancy of
     # three or more mice and reported (fusion.scalelearn); applied within +-scale_limit
     # where learn_scale is true

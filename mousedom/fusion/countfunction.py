@@ -68,6 +68,12 @@ class CountFunction:
         self.dead: list[list[float]] = []  # [from, to) spans in which the mouse is not live
         self.counts_in = [0.0, 0.0]  # REL_X, REL_Y pushed (floats: added to per read)
         self.late = 0  # reports stamped behind the closed frontier (moved forward)
+        # The report span (s) straddling the anchor, where longer than 1.5 P, else 0: a
+        # window whose edge cuts a long span (a USB catch-up) took its share of it in
+        # proportion to time, wrong by a part of the change of motion over the span
+        # (noisemodel: the granularity term).
+        self.anchor_span = 0.0
+        self.window_span = 0.0  # close_one's last window's: the larger of its edges'
         self.backwards = 0  # reports stamped before the previous one (clamped)
 
     @property
@@ -278,14 +284,29 @@ class CountFunction:
 
     # ------------------------------------------------------------------ closing windows
 
-    def close(self, edges: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    def _long(self, length: float) -> float:
+        return length if length > 1.5 * self.period else 0.0
+
+    def close(
+        self, edges: np.ndarray, out: np.ndarray | None = None, spans: np.ndarray | None = None
+    ) -> np.ndarray:
         """Counts (n, 2) of the windows between consecutive ``edges`` (arrays), after which
         the anchor moves to the last edge.  The first edge is the current anchor.  ``out``:
-        an (n, 2) array (a view is fine) to write them into."""
+        an (n, 2) array (a view is fine) to write them into; ``spans``, an (n,) one for
+        each window's longest long span cut by its edges (``anchor_span``)."""
         counts = np.empty((len(edges) - 1, 2)) if out is None else out
         if not self.n_knots():
             counts[:] = 0.0
+            if spans is not None:
+                spans[:] = 0.0
+            self.anchor_span = 0.0
             return counts
+        if spans is not None:
+            at = self._cut_spans(edges[1:])
+            spans[:] = np.maximum(np.concatenate([[self.anchor_span], at[:-1]]), at)
+            self.anchor_span = float(at[-1])
+        else:
+            self.anchor_span = float(self._cut_spans(edges[-1:])[0])
         # F is relative to the closed frontier, so its value there is 0: the first window's
         # counts are F at its end, each later one's the difference of F at its two ends.
         kt, kfx, kfy = self.knot_array()
@@ -310,11 +331,26 @@ class CountFunction:
         knots[1:, 1:] = kept[1:] - level[:, None]
         self.knots = knots
 
+    def _cut_spans(self, at: np.ndarray) -> np.ndarray:
+        """For each time in ``at``: the length of the rising span strictly around it,
+        where over 1.5 P (else 0), on the knot array (``cut_span`` one at a time)."""
+        kt, kx, ky = self.knot_array()
+        j = np.searchsorted(kt, at, side="right")
+        inside = (j > 0) & (j < len(kt))
+        jj, j0 = np.minimum(j, len(kt) - 1), np.maximum(j - 1, 0)
+        inside &= (kt[j0] < at) & (np.abs(kx[jj] - kx[j0]) + np.abs(ky[jj] - ky[j0]) > 0.5)
+        length = np.where(inside, kt[jj] - kt[j0], 0.0)
+        return np.where(length > 1.5 * self.period, length, 0.0)
+
     def close_one(self, end: float) -> tuple[float, float]:
         """``close`` for one window ending at ``end``, on the knot lists."""
         kt, kx, ky = self.knot_lists()
         if not kt:
+            self.anchor_span = self.window_span = 0.0
             return 0.0, 0.0
+        cut = self._long(cut_span(end, kt, kx, ky))
+        self.window_span = cut if cut > self.anchor_span else self.anchor_span
+        self.anchor_span = cut
         fx, fy = interp_at(end, kt, kx), interp_at(end, kt, ky)
         j = bisect_left(kt, end)
         self.knots = (
@@ -367,6 +403,7 @@ class CountFunction:
         """Windows up to ``end`` were skipped with nothing in them (Tracker.skip_quiet):
         no knots to keep."""
         self.knots = ([], [], [])
+        self.anchor_span = 0.0
         self.forget_dead(end)
 
     def live_in(self, start: float, end: float) -> bool:
@@ -396,3 +433,16 @@ def interp_at(x: float, xp: list[float], fp: list[float]) -> float:
     # xp[j] < x < xp[j + 1], all finite: the result is finite (numpy's NaN repair is moot)
     slope = (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j])
     return slope * (x - xp[j]) + fp[j]
+
+
+def cut_span(x: float, kt: list[float], kx: list[float], ky: list[float]) -> float:
+    """The length of the rising span strictly around ``x``, or 0: the float twin of
+    ``CountFunction._cut_spans``, the same comparisons.  Rising: by over half a count (a
+    report holds whole counts; knots relative to a fractional anchor differ by rounding
+    where F is flat)."""
+    j = bisect_right(kt, x)
+    if j == 0 or j >= len(kt) or not kt[j - 1] < x:
+        return 0.0
+    if abs(kx[j] - kx[j - 1]) + abs(ky[j] - ky[j - 1]) <= 0.5:
+        return 0.0
+    return kt[j] - kt[j - 1]

@@ -18,6 +18,10 @@ class Health(IntEnum):
     SUSPECT = 1  # used, but flagged
     EXCLUDED = 2  # left out of the solve
     MISSING = 3  # no live sensor
+    # left out of the solve while its counts are owed: it is short by the motion of its last
+    # moments (a USB host's stall, stamps late), and what it owes is added back when they
+    # arrive; past robust.late_s, or owing what no lateness explains, it is EXCLUDED
+    LATE = 4
 
 
 class Reason(IntEnum):
@@ -34,7 +38,7 @@ class Reason(IntEnum):
     GYRO = 5  # its motion disagrees with the gyro's turn (fusion/gyro.py)
 
 
-TRACKING, SUSPECT, EXCLUDED, MISSING = Health
+TRACKING, SUSPECT, EXCLUDED, MISSING, LATE = Health
 STATES = tuple(h.name.lower() for h in Health)  # ("tracking", "suspect", ...)
 NONE, INCONSISTENT, SILENT, SATURATED, LOW_QUALITY, GYRO = Reason
 REASONS = ("", "inconsistent", "silent while others move", "saturated", "low quality",

@@ -34,6 +34,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 _MEDIAN_CHI2_2 = 2.0 * math.log(2.0)
 _MIN_SAMPLES = 10
@@ -234,6 +235,7 @@ class NoiseModel:
         self.rho2 = float(rho) ** 2
         periods = np.asarray(report_periods, dtype=float)
         self.gran2 = (0.25 * np.minimum(1.0, periods / window)) ** 2
+        self.window = float(window)
         self.block = max(20, math.ceil(1.0 / window - 1e-9))
         self.lam_f = np.full(self.n, _START_FLOOR)
         self.lam_r = np.ones(self.n)
@@ -255,15 +257,34 @@ class NoiseModel:
     # ----------------------------------------------------------------- the variance
 
     def parts(
-        self, d: np.ndarray, p: np.ndarray, prev_p: np.ndarray, m2: np.ndarray | None = None
+        self,
+        d: np.ndarray,
+        p: np.ndarray,
+        prev_p: np.ndarray,
+        m2: np.ndarray | None = None,
+        gran2: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """(floor (N,), proportional (..., N)) parts of s^2 for readings d and predictions p
-        (..., N, 2); ``m2``, if given, is ``motion2(d, p)``."""
+        (..., N, 2); ``m2``, if given, is ``motion2(d, p)``; ``gran2`` the granularity
+        coefficients where not the mice's own (``gran2_for``)."""
         if m2 is None:
             m2 = motion2(d, p)
         a2 = norm2(p - prev_p)
+        g2 = self.gran2 if gran2 is None else gran2
         # the floor per mouse (N,): it broadcasts against the (..., N) proportional part
-        return self.lam_f * self.sig2, self.lam_r * (self.rho2 * m2 + self.gran2 * a2)
+        return self.lam_f * self.sig2, self.lam_r * (self.rho2 * m2 + g2 * a2)
+
+    def gran2_for(self, spans: ArrayLike | None) -> np.ndarray | None:
+        """The granularity coefficients (squared) of a window whose edges cut report spans
+        ``spans`` (N,) s long (0: none; None: no window has one).  An edge inside a span
+        of length L took a share of its counts in proportion to time, while the motion
+        changed over L by L/T times its change over a window of T (|p - p'|, with which
+        the term is multiplied): wrong by up to L/8 of that change of velocity, so the
+        coefficient is (L/T)^2 / 8 where that exceeds the mouse's own."""
+        if spans is None:
+            return None
+        g = (np.asarray(spans, dtype=float) / self.window) ** 2 / 8.0
+        return np.maximum(self.gran2, g * g)
 
     # ----------------------------------------------------------------- learning
 

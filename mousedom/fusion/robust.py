@@ -56,6 +56,7 @@ from mousedom.fusion import chi2
 from mousedom.fusion.health import (
     EXCLUDED,
     INCONSISTENT,
+    LATE,
     LOW_QUALITY,
     MISSING,
     NONE,
@@ -69,13 +70,14 @@ from mousedom.fusion.health import (
     MouseHealth,
     Reason,
 )
+from mousedom.fusion.lateness import Lateness
 from mousedom.fusion.noisemodel import NoiseModel
 from mousedom.fusion.rigidtest import RigidTest, Statistic
 
 # The health's names are the screen's vocabulary (robust.EXCLUDED, robust.REASONS, ...).
-__all__ = ["EXCLUDED", "INCONSISTENT", "LOW_QUALITY", "MISSING", "NONE", "REASONS", "SATURATED",
-           "SILENT", "STATES", "SUSPECT", "TRACKING", "Decision", "Health", "Reason",
-           "Screen"]  # fmt: skip
+__all__ = ["EXCLUDED", "INCONSISTENT", "LATE", "LOW_QUALITY", "MISSING", "NONE", "REASONS",
+           "SATURATED", "SILENT", "STATES", "SUSPECT", "TRACKING", "Decision", "Health",
+           "Reason", "Screen"]  # fmt: skip
 
 # How much smoother than the next one the winning explanation's motion must be (tie_break).
 _CONTINUITY_MARGIN = 3.0
@@ -142,6 +144,7 @@ class Screen(RigidTest):
         self._owed = np.zeros((self.n, 2))
         self._owed_s2 = np.zeros(self.n)
         self._readmitted: list[int] = []
+        self.lateness = Lateness(self.n, window, settings.late_s)
 
     # ----------------------------------------------------------------- basics
 
@@ -170,8 +173,12 @@ class Screen(RigidTest):
         """(N, 2) the previous window's predictions."""
         return np.array(self._prev, dtype=float).reshape(self.n, 2)
 
-    def _set_prev(self, p: np.ndarray) -> None:
-        self._prev = np.asarray(p, dtype=float).tolist()
+    def accepted(self, p: np.ndarray, d: np.ndarray) -> None:
+        """Windows done: their predictions p (rows, N, 2) and readings d, oldest first
+        (the continuity of motion and lateness look back over them)."""
+        self._prev = np.asarray(p[-1], dtype=float).tolist()
+        self.history.extend(d[-self.history_len :])
+        self.lateness.remember_rows(p)
 
     def _count_window(self) -> None:
         self.noise.seen += 1
@@ -221,6 +228,7 @@ class Screen(RigidTest):
                     nm.sample(i, r2, floor, prop, h[i])
         self._prev = [[ux - a * y, uy + a * x] for x, y in self._xy]
         self.history.append(d)
+        self.lateness.remember(self._prev)
         self._count_window()
         return True
 
@@ -237,14 +245,18 @@ class Screen(RigidTest):
         live: np.ndarray,
         squal_scale: ArrayLike | None = None,
         low_quality: ArrayLike | None = None,
+        spans: ArrayLike | None = None,
     ) -> Decision:
-        """The exact per-window decision (module docstring, steps 1-4); updates health."""
+        """The exact per-window decision (module docstring, steps 1-4); updates health.
+        ``spans`` (N,): the long report spans the window's edges cut, per mouse (0: none;
+        the noise model's granularity term grows with them)."""
         n = self.n
         d = np.asarray(d, dtype=float).reshape(n, 2)
         live = np.asarray(live, dtype=bool)
         scale = np.ones(n) if squal_scale is None else np.asarray(squal_scale, dtype=float)
         lowq = np.zeros(n, dtype=bool) if low_quality is None else np.asarray(low_quality)
-        excluded = np.array([h.state == EXCLUDED for h in self.health])
+        gran2 = self.noise.gran2_for(spans)
+        excluded = np.array([h.state in (EXCLUDED, LATE) for h in self.health])
         used = live & ~excluded
         if self._solve(d, used) is None:
             used = live.copy()  # the healthy ones alone cannot: the excluded must serve
@@ -264,13 +276,14 @@ class Screen(RigidTest):
                 suspect |= gated  # cannot do without it: used, but flagged
             q = self._solve(d, used)
             p = self.predict(q) if q is not None else p
-        floor, prop = self.noise.parts(d, p, self.prev_p)
+        floor, prop = self.noise.parts(d, p, self.prev_p, gran2=gran2)
         s2 = floor * scale + prop
         inflate, consistent = 1.0, True
         stat = self._statistic(d, used, s2)
         if stat is not None and stat.dof > 0 and not self._passes(stat):
             blamed = self._identify(d, used, s2)
-            swap = None if blamed is not None else self._reexamine(d, live, used, gate, scale)
+            swap = (None if blamed is not None
+                    else self._reexamine(d, live, used, gate, scale, gran2))  # fmt: skip
             if swap is not None:
                 # the kept set is wrong, the mice held out are not all: fewer exclusions
                 # explain the window with them back (they come back suspect, see _update)
@@ -294,7 +307,7 @@ class Screen(RigidTest):
                 inflate = stat.t / stat.dof
                 suspect |= used
                 reason[used & (reason == NONE)] = INCONSISTENT
-        floor, prop = self.noise.parts(d, p, self.prev_p)
+        floor, prop = self.noise.parts(d, p, self.prev_p, gran2=gran2)
         floor = floor * scale
         self._update(d, p, live, used, suspect, reason, consistent, floor, prop)
         correction = self._reconcile(used) if self._readmitted else None
@@ -304,8 +317,7 @@ class Screen(RigidTest):
             h = self.leverage(used)
             for i in np.flatnonzero(used & moving & ~suspect).tolist():
                 self.noise.sample(i, float(r2[i]), float(floor[i]), float(prop[i]), float(h[i]))
-        self._set_prev(p)
-        self.history.append(d)
+        self.accepted(p[None], d[None])
         self._count_window()
         return Decision(used=used, inflate=inflate, consistent=consistent, correction=correction)
 
@@ -343,7 +355,7 @@ class Screen(RigidTest):
             return None
         return self._solve(owed, with_them)
 
-    def _reexamine(self, d, live, used, gate, scale) -> list[int] | None:
+    def _reexamine(self, d, live, used, gate, scale, gran2=None) -> list[int] | None:
         """Revisit earlier exclusions when the kept set fails and nobody in it can be
         blamed (module step 3b): among all live mice the sensor did not gate, the
         explanation of this window, if it excludes no more mice than are held out (the
@@ -359,7 +371,7 @@ class Screen(RigidTest):
         q = self._solve(d, every)
         if q is None:
             return None
-        floor, prop = self.noise.parts(d, self.predict(q), self.prev_p)
+        floor, prop = self.noise.parts(d, self.predict(q), self.prev_p, gran2=gran2)
         s2 = floor * scale + prop
         swap = self._identify(d, every, s2)
         if swap is None or len(swap) > int(held_out.sum()):
@@ -450,7 +462,6 @@ class Screen(RigidTest):
         s2 = floor + prop
         m2 = np.maximum(np.sum(d * d, axis=1), np.sum(p * p, axis=1))
         not_proportional = s2 - self.noise.lam_r * self.noise.rho2 * m2
-        thr2 = self._thresholds[2]
         for i, h in enumerate(self.health):
             if not live[i]:
                 h.state, h.reason, h.good = MISSING, NONE, 0
@@ -458,38 +469,73 @@ class Screen(RigidTest):
             if h.state == MISSING:
                 h.state, h.reason, h.good = TRACKING, NONE, 0
             if not used[i]:
-                if h.state != EXCLUDED or reason[i] != NONE:
-                    # excluded by this window (blamed, or gated by its sensor's evidence)
-                    h.state, h.reason, h.good = EXCLUDED, reason[i] or INCONSISTENT, 0
-                    self._owed[i] = d[i] - p[i]
-                    self._owed_s2[i] = s2[i]
-                    continue
-                self._owed[i] += d[i] - p[i]
-                self._owed_s2[i] = max(self._owed_s2[i], s2[i])
-                # Excluded earlier: count the windows that would have shown its fault
-                # (the others moved it well beyond its error) and where it agreed.
-                r = d[i] - p[i]
-                if r @ r > thr2 * s2[i]:
-                    h.good = 0
-                    h.reason = SILENT if self._silent(d, i) else INCONSISTENT
-                elif h.reason in (SATURATED, LOW_QUALITY):
-                    # Its own sensor said why, and says so no more: a fifth of the wait
-                    # (a longer one only loses a good mouse, here the one whose speed
-                    # limit a fast rig keeps crossing).
-                    h.good += 1
-                    if h.good >= self.readmit_evidence:
-                        h.state, h.reason, h.good = TRACKING, NONE, 0
-                elif p[i] @ p[i] > 4.0 * thr2 * not_proportional[i]:
-                    h.good += 1
-                    if h.good >= self.readmit:
-                        h.state, h.reason, h.good = TRACKING, NONE, 0
-                        self._readmitted.append(i)
+                self._held_out(i, h, d, p, reason[i], s2[i], not_proportional[i])
                 continue
             if suspect[i]:
                 h.state, h.reason, h.good = SUSPECT, reason[i] or INCONSISTENT, 0
-            elif h.state == EXCLUDED:  # in use only because the rest lack rank
+            elif h.state in (EXCLUDED, LATE):  # in use only because the rest lack rank
                 h.state, h.good = SUSPECT, 0
             elif h.state == SUSPECT and consistent:
                 h.good += 1
                 if h.good >= self.readmit:
                     h.state, h.reason, h.good = TRACKING, NONE, 0
+
+    def _held_out(self, i: int, h: MouseHealth, d: np.ndarray, p: np.ndarray, why: int,
+                  s2: float, not_proportional: float) -> None:  # fmt: skip
+        """_update for a live mouse left out of this window's solve: held out by it
+        (blamed, or gated by its sensor's evidence), or held out before (late, or
+        excluded and counting toward re-admission)."""
+        thr2 = self._thresholds[2]
+        if h.state not in (EXCLUDED, LATE) or why != NONE:
+            # late where it is short by its last moments' motion (lateness), unless it
+            # was excluded already (held out again by a re-examination)
+            self._owed[i] = d[i] - p[i]
+            self._owed_s2[i] = s2
+            h.good = 0
+            tol2 = thr2 * 2.0 * s2
+            if (h.state != EXCLUDED and why in (SILENT, INCONSISTENT)
+                    and self.lateness.explains(i, self._owed[i], p[i], tol2)):  # fmt: skip
+                h.state, h.reason = LATE, why
+                self.lateness.held[i] = 1
+            else:
+                h.state, h.reason = EXCLUDED, why or INCONSISTENT
+            return
+        self._owed[i] += d[i] - p[i]
+        self._owed_s2[i] = max(self._owed_s2[i], s2)
+        if h.state == LATE:
+            self._late(d, p, i, h, thr2 * 2.0 * self._owed_s2[i])
+            return
+        # Excluded earlier: count the windows that would have shown its fault (the others
+        # moved it well beyond its error) and where it agreed.
+        r = d[i] - p[i]
+        if r @ r > thr2 * s2:
+            h.good = 0
+            h.reason = SILENT if self._silent(d, i) else INCONSISTENT
+        elif h.reason in (SATURATED, LOW_QUALITY):
+            # Its own sensor said why, and says so no more: a fifth of the wait (a longer
+            # one only loses a good mouse, here the one whose speed limit a fast rig
+            # keeps crossing).
+            h.good += 1
+            if h.good >= self.readmit_evidence:
+                h.state, h.reason, h.good = TRACKING, NONE, 0
+        elif p[i] @ p[i] > 4.0 * thr2 * not_proportional:
+            h.good += 1
+            if h.good >= self.readmit:
+                h.state, h.reason, h.good = TRACKING, NONE, 0
+                self._readmitted.append(i)
+
+    def _late(self, d: np.ndarray, p: np.ndarray, i: int, h: MouseHealth, tol2: float) -> None:
+        """A late mouse after one more window: back once its debt is paid (what it owed is
+        then added to the pose, ``_reconcile``); excluded once it has lagged beyond
+        ``late_s`` or owes what no lateness explains (``lateness``)."""
+        owed = self._owed[i]
+        if float(owed @ owed) <= tol2:
+            h.state, h.reason, h.good = TRACKING, NONE, 0
+            self._readmitted.append(i)
+            return
+        late = self.lateness
+        late.held[i] += 1
+        if late.held[i] > late.limit or not late.explains(i, owed, p[i], tol2):
+            h.state, h.good = EXCLUDED, 0
+            if self._silent(d, i):
+                h.reason = SILENT

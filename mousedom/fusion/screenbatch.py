@@ -27,9 +27,12 @@ def screen(
     q: np.ndarray,
     squal_scale: np.ndarray | None = None,
     low_quality: np.ndarray | None = None,
+    spans: np.ndarray | None = None,
 ):
     """d: (n, N, 2) readings; mask: (n, N) live mice; q: (n, 3) the plain solution with
-    that mask.  Returns (used (n, N), inflate (n,), consistent (n,), state (n, N) int8,
+    that mask; spans: (n, N) long report spans cut by each window's edges, or None (rows
+    with one go to ``decide``, whose noise model allows for them).  Returns (used (n, N),
+    inflate (n,), consistent (n,), state (n, N) int8,
     reason (n, N) int8, correction (n, 3) or None: Decision.correction, by row)."""
     n, nm = mask.shape
     used = mask.copy()
@@ -48,6 +51,8 @@ def screen(
         evidence |= np.any(mask & (squal_scale != 1.0), axis=1)
     if low_quality is not None:
         evidence |= np.any(mask & low_quality, axis=1)
+    if spans is not None:
+        evidence |= np.any(mask & (spans > 0), axis=1)
     # Each row's live pattern and its leverages; one pattern throughout (the usual case)
     # is passed to the common case's test as one row.
     if len(changes):
@@ -84,13 +89,12 @@ def screen(
                     # block end that changes a factor (the arrays are then made again).
                     values = samples if sc.dof(int(mask[i].sum())) > 0 else None
                     stop = sc.noise.extend_blocks(values, i - base, stop - base) + base
-                    sc._set_prev(p[stop - 1])
-                    sc.history.extend(d[max(i, stop - sc.history_len) : stop])
+                    sc.accepted(p[i:stop], d[i:stop])
                     i = stop
                     continue
         sq = None if squal_scale is None else squal_scale[i]
         lq = None if low_quality is None else low_quality[i]
-        dec = sc.decide(d[i], mask[i], sq, lq)
+        dec = sc.decide(d[i], mask[i], sq, lq, None if spans is None else spans[i])
         used[i] = dec.used
         inflate[i] = dec.inflate
         consistent[i] = dec.consistent

@@ -437,9 +437,11 @@ class Tracker:
         edges = self._grid.start_time() + self.period * np.arange(k_old, k_new + 1)
         counts = np.zeros((n, self.n_mice, 2))
         mask = np.ones((n, self.n_mice), dtype=bool)
+        spans = np.zeros((n, self.n_mice))
         for i, m in enumerate(self._mice):
-            m.close(edges, out=counts[:, i])
+            m.close(edges, out=counts[:, i], spans=spans[:, i])
             m.close_live(edges, out=mask[:, i])
+        long = spans if spans.any() else None  # windows cutting a long span (USB catch-up)
         self._grid.closed = k_new
         for acc, (cx, cy) in zip(self._counts_out, counts.sum(axis=0).tolist(), strict=True):
             acc[0] += cx
@@ -448,7 +450,7 @@ class Tracker:
         turns = None if self._gyro is None else self._gyro.turns(edges)
         learners = self._learners
         if learners is None:
-            return self._batch.solve(edges[1:], counts, mask, evidence, turns)
+            return self._batch.solve(edges[1:], counts, mask, evidence, turns, long)
         # The learnt scales change at block ends: each block's windows with its own.
         out, a = [], 0
         while a < n:
@@ -456,7 +458,8 @@ class Tracker:
             ev = None if evidence is None else (evidence[0][a:b], evidence[1][a:b])
             start = self._carried.pose[:2]
             tb = None if turns is None else turns[a:b]
-            part = self._batch.solve(edges[a + 1 : b + 1], counts[a:b], mask[a:b], ev, tb)
+            lb = None if long is None else long[a:b]
+            part = self._batch.solve(edges[a + 1 : b + 1], counts[a:b], mask[a:b], ev, tb, lb)
             renewal = learners.add(counts[a:b], part, mask[a:b], start)
             if renewal is not None:
                 self._renew(renewal)
@@ -469,9 +472,12 @@ class Tracker:
         k = self._grid.closed
         start, end = self._grid.edge(k), self._grid.edge(k + 1)
         counts, live_list = [], []
+        long = False
         for m, acc in zip(self._mice, self._counts_out, strict=True):
             cx, cy = m.close_one(end)
             counts.append((cx, cy))
+            if m.window_span:
+                long = True
             acc[0] += cx  # floats, not an array: numpy's += of a list cost 3 us a window
             acc[1] += cy
             live_list.append(not m.dead or m.live_in(start, end))
@@ -481,13 +487,15 @@ class Tracker:
         self._grid.closed = k + 1
         evidence = self.evidence.window(start, end) if self.evidence else None
         before = self._carried.pose[:2]
+        spans = [m.window_span for m in self._mice] if long else None
         if self.model == "bonarini":  # numerical linearisation: the array path
             ev = None if evidence is None else (np.array([evidence[0]]), np.array([evidence[1]]))
             tb = None if gyro is None else np.array([math.nan if turn is None else turn])
+            sb = None if spans is None else np.array([spans])
             batch = self._batch.solve(np.array([end]), np.array([counts]), np.array([live]),
-                                      ev, tb)  # fmt: skip
+                                      ev, tb, sb)  # fmt: skip
         else:
-            batch = self._one.solve(end, counts, live, evidence, turn)
+            batch = self._one.solve(end, counts, live, evidence, turn, spans)
         learners = self._learners
         if learners is not None:
             renewal = learners.add_row(counts, batch.rows()[0], live, before)

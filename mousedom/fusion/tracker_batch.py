@@ -57,9 +57,12 @@ class ArrayPath:
         mask: np.ndarray,
         evidence: Evidence | None = None,
         turn: np.ndarray | None = None,
+        spans: np.ndarray | None = None,
     ) -> PoseBatch:
         """The windows ending at ``t_end`` (n,) from each mouse's raw ``counts`` (n, N, 2)
-        with the mice live in each (``mask``, (n, N)); the pose carried through them."""
+        with the mice live in each (``mask``, (n, N)); the pose carried through them.
+        ``spans`` (n, N): the long report spans each window's edges cut (CountFunction),
+        or None where there are none."""
         setup = self._setup
         # d[k, n, i] = sum_j M[n, i, j] c[k, n, j]: two products and one sum, as
         # onewindow.body_counts does, column by column (an einsum took twice as long, the
@@ -71,7 +74,7 @@ class ArrayPath:
             for i in range(2):
                 np.add(cx * m[n, i, 0], cy * m[n, i, 1], out=d[:, n, i])
         sol = models.solve(setup.model, d, setup.positions, setup.sigma, mask, self._noise)
-        sol, health, reason, consistent = self._screened(d, mask, sol, evidence)
+        sol, health, reason, consistent = self._screened(d, mask, sol, evidence, spans)
         q = np.where(sol.ok[:, None], sol.q, 0.0)
         qcov, gyro = sol.cov, None
         used = sol.used
@@ -155,7 +158,12 @@ class ArrayPath:
         return q2, c2, gyro, used, owed
 
     def _screened(
-        self, d: np.ndarray, mask: np.ndarray, sol: models.Solution, evidence: Evidence | None
+        self,
+        d: np.ndarray,
+        mask: np.ndarray,
+        sol: models.Solution,
+        evidence: Evidence | None,
+        spans: np.ndarray | None = None,
     ) -> tuple[models.Solution, np.ndarray, np.ndarray, np.ndarray]:
         """The fault-tolerant screen over an array of windows (mousedom.fusion.robust):
         the solution re-solved without the mice it excluded, with the covariance of
@@ -169,7 +177,7 @@ class ArrayPath:
         q = np.where(sol.ok[:, None], sol.q, 0.0)
         scale, low = evidence if evidence is not None else (None, None)
         used, inflate, consistent, state, reason, correction = screenbatch.screen(
-            setup.screen, d, mask, q, scale, low
+            setup.screen, d, mask, q, scale, low, spans
         )
         altered = used != mask
         changed = np.flatnonzero(np.any(altered, axis=1)) if altered.any() else np.zeros(0, int)

@@ -125,10 +125,12 @@ class OneWindowPath:
         live: Live,
         evidence: tuple[list[float], list[bool]] | None = None,
         turn: float | None = None,
+        spans: list[float] | None = None,
     ) -> PoseBatch:
         """The window ending at ``t_end`` from each mouse's raw ``counts`` (REL_X, REL_Y),
         as ``ArrayPath.solve`` gives it for one window of a linear model; the pose
-        carried on."""
+        carried on.  ``spans``: each mouse's long report span cut by the window's edges
+        (CountFunction.window_span), or None where none is."""
         # Every mouse's counts in body metres, once: the solve takes the live ones, the
         # screen all (the products per mouse are the same whichever subset is asked).
         n = self._n
@@ -136,7 +138,8 @@ class OneWindowPath:
         q, residual, idx, c3, ok = self._linear_one(d_all, live)
         consistent = True
         screen = self._screen
-        if screen is None or screen.fast_one(d_all, q, live, evidence is not None):
+        special = evidence is not None or spans is not None
+        if screen is None or screen.fast_one(d_all, q, live, special):
             # The common case (or no screen): every live mouse tracking, the rest missing,
             # and no reason for either (robust's health gives no other to those states).
             rows = self._steady.get(live)
@@ -149,7 +152,7 @@ class OneWindowPath:
         else:
             scale, low = evidence if evidence is not None else (None, None)
             d_pairs = np.array(d_all).reshape(n, 2)
-            dec = screen.decide(d_pairs, np.array(live, dtype=bool), scale, low)
+            dec = screen.decide(d_pairs, np.array(live, dtype=bool), scale, low, spans)
             used = tuple(dec.used.tolist())
             if used != live:
                 q, residual, idx, c3, ok = self._linear_one(d_all, used)

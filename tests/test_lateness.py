@@ -1,0 +1,129 @@
+"""A late mouse is told from a faulty one (issue 31, item 1; fusion/lateness.py).
+
+The polyline distance is checked against its definition on random motions, and the
+screen, run window by window on a square of four mice, holds a mouse that lags and then
+catches up as LATE (never EXCLUDED) and gives the pose what it owed, while a mouse whose
+debt no lateness explains (a jump sideways, a lift that outlasts ``late_s``) is excluded."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from mousedom.config import RobustConfig
+from mousedom.fusion import models, robust
+from mousedom.fusion.lateness import lag_distance2
+
+XY = np.array([[0.1, 0.08], [0.1, -0.08], [-0.1, 0.08], [-0.1, -0.08]])
+SIGMA = np.full(4, 1e-5)
+WINDOW = 0.01
+
+motions = st.lists(
+    st.tuples(st.floats(-1e-2, 1e-2), st.floats(-1e-2, 1e-2)), min_size=1, max_size=8
+).map(np.array)
+
+
+@settings(max_examples=200, deadline=None)
+@given(motions, st.floats(0.0, 1.0), st.integers(0, 7))
+def test_every_lag_lies_on_the_polyline(recent, f, j):
+    """A mouse late by the first j windows and a fraction f of the next owes exactly that
+    motion: distance 0."""
+    j = min(j, len(recent) - 1)
+    owed = -(recent[:j].sum(axis=0) + f * recent[j])
+    assert lag_distance2(owed, recent) <= 1e-20 + 1e-12 * float(owed @ owed)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.floats(1e-4, 1e-2), st.integers(1, 8), st.floats(-1e-2, 1e-2), st.floats(-2.0, 3.0))
+def test_the_distance_from_a_straight_run(speed, n, side, along):
+    """Straight motion: the polyline is the segment from 0 to -n*speed along x; a debt off
+    it is as far as the nearest point of that segment."""
+    recent = np.tile([speed, 0.0], (n, 1))
+    owed = np.array([-along * n * speed, side])
+    outside = max(0.0, along - 1.0, -along) * n * speed
+    assert lag_distance2(owed, recent) == pytest.approx(outside**2 + side**2, rel=1e-9, abs=1e-24)
+
+
+def _screen(late_s: float) -> robust.Screen:
+    settings_ = RobustConfig(late_s=late_s)
+    screen = robust.Screen("lsq", XY, SIGMA, np.full(4, 0.001), WINDOW, settings_, None)
+    screen.noise.lam_f[:] = 1.0
+    screen.noise.lam_r[:] = 1.0
+    screen.noise._sync()
+    return screen
+
+
+def _run(mouse: int, bend, seed: int, late_s: float = 0.05, windows: int = 40):
+    """Windows at a steady twist with ``bend(k, d, direction)`` applied to the mouse's
+    reading; returns (sum of the windows' twists, the all-mice twist of the summed
+    readings, the mouse's states)."""
+    rng = np.random.default_rng(seed)
+    screen = _screen(late_s)
+    q_true = np.array([0.004, 0.0, rng.uniform(-0.02, 0.02)])
+    p = screen.predict(q_true)
+    screen.accepted(p[None], p[None])
+    direction = p[mouse] / np.linalg.norm(p[mouse])
+    total_q, total_d, states = np.zeros(3), np.zeros((4, 2)), []
+    for k in range(windows):
+        d = p + rng.normal(0.0, 2e-6, (4, 2))
+        bend(k, d, direction)
+        dec = screen.decide(d, np.ones(4, dtype=bool))
+        q = screen._solve(d, dec.used)
+        total_q += q + (dec.correction if dec.correction is not None else 0.0)
+        total_d += d
+        states.append(screen.health[mouse].state)
+    est = models._estimator(XY.tobytes(), SIGMA.tobytes(), np.ones(4, bool).tobytes(), (0, 1, 2))
+    return total_q, est[1] @ total_d.reshape(-1), states
+
+
+@pytest.mark.parametrize("mouse", range(4))
+@pytest.mark.parametrize("seed", range(3))
+@pytest.mark.parametrize("catch_up", [1, 2, 4])
+def test_a_mouse_that_catches_up_is_late_never_excluded(mouse, seed, catch_up):
+    """Short by most of a window's motion (its counts held up), the counts arriving
+    ``catch_up`` windows later, within late_s (5 windows): LATE, back to TRACKING, and the
+    pose has every count."""
+
+    def bend(k, d, direction):
+        if k == 10:
+            d[mouse] *= 0.2  # the lag: 80 % of this window's counts come later
+        elif k == 10 + catch_up:
+            d[mouse] += 0.8 * np.linalg.norm(d[mouse]) * direction
+
+    total_q, all_mice, states = _run(mouse, bend, seed)
+    assert robust.LATE in states
+    assert robust.EXCLUDED not in states
+    assert states[-1] == robust.TRACKING
+    assert abs(total_q[2] - all_mice[2]) < 1e-4, (total_q, all_mice)
+    assert np.allclose(total_q[:2], all_mice[:2], atol=2e-5)
+
+
+@pytest.mark.parametrize("mouse", range(4))
+def test_a_debt_no_lateness_explains_is_excluded_at_once(mouse):
+    """A jump sideways to the motion: excluded in its window, never held as late."""
+
+    def bend(k, d, direction):
+        if k == 10:
+            d[mouse] += 5e-3 * np.array([-direction[1], direction[0]])
+
+    _, _, states = _run(mouse, bend, 0)
+    assert states[10] == robust.EXCLUDED
+    assert robust.LATE not in states
+
+
+@pytest.mark.parametrize("late_s", [0.03, 0.05, 0.1])
+def test_a_lift_is_late_for_late_s_then_excluded(late_s):
+    """A lift owes exactly its missed motion, which lies on the polyline: held as late for
+    late_s, then excluded; its debt is never given to the pose."""
+
+    def bend(k, d, direction):
+        if k >= 10:
+            d[0] = 0.0
+
+    total_q, all_mice, states = _run(0, bend, 0, late_s=late_s)
+    limit = round(late_s / WINDOW)
+    assert states[10 : 10 + limit] == [robust.LATE] * limit
+    assert states[10 + limit] == robust.EXCLUDED
+    assert robust.TRACKING not in states[10:]
