@@ -202,14 +202,16 @@ def _gyro_panel(ax, gyro: np.ndarray) -> None:
 
 
 def _shade(ax, t: np.ndarray, state: np.ndarray, color: str, name: str) -> None:
-    """Spans where the fault-tolerant fusion excluded the mouse (solid) or doubted it
-    (hatched), in the mouse's colour."""
-    for code, style in ((2, {"alpha": 0.18}), (1, {"alpha": 0.08, "hatch": "//"})):
+    """Spans where the fault-tolerant fusion excluded the mouse (solid), doubted it
+    (hatched) or held it out as late (dotted), in the mouse's colour."""
+    names = {2: "excluded", 1: "suspect", 4: "late"}
+    for code, style in ((2, {"alpha": 0.18}), (1, {"alpha": 0.08, "hatch": "//"}),
+                        (4, {"alpha": 0.05, "hatch": ".."})):  # fmt: skip
         on = state == code
         if not on.any():
             continue
         edges = np.flatnonzero(np.diff(np.concatenate([[0], on.astype(int), [0]])))
-        label: str | None = f"{name} {'excluded' if code == 2 else 'suspect'}"
+        label: str | None = f"{name} {names[code]}"
         for a, b in zip(edges[0::2], edges[1::2], strict=True):
             ax.axvspan(t[a], t[min(b, len(t) - 1)], color=color, lw=0, label=label, **style)
             label = None

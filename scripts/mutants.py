@@ -96,7 +96,7 @@ MUTANTS = [
     Mutant(
         "no-reexamination-of-earlier-blame",
         "mousedom/fusion/robust.py",
-        "else self._reexamine(d, live, used, gate, scale)",
+        "else self._reexamine(d, live, used, gate, scale, gran2)",
         "else None",
         ("tests/test_robust_pairs.py",),
         "a healthy mouse blamed where the geometry could not tell stays out for good",
@@ -232,7 +232,7 @@ MUTANTS = [
     Mutant(
         "robust-no-proportional-noise",
         "mousedom/fusion/noisemodel.py",
-        "        return self.lam_f * self.sig2, self.lam_r * (self.rho2 * m2 + self.gran2 * a2)\n",
+        "        return self.lam_f * self.sig2, self.lam_r * (self.rho2 * m2 + g2 * a2)\n",
         "        return self.lam_f * self.sig2, 0.0 * m2\n",
         ("tests/test_robust.py",),
         "the expected error forgets the part in proportion to motion: false alarms",
@@ -240,10 +240,10 @@ MUTANTS = [
     Mutant(
         "robust-never-readmits",
         "mousedom/fusion/robust.py",
-        "                elif p[i] @ p[i] > 4.0 * thr2 * not_proportional[i]:\n"
-        "                    h.good += 1\n",
-        "                elif p[i] @ p[i] > 4.0 * thr2 * not_proportional[i]:\n"
-        "                    h.good += 0\n",
+        "        elif p[i] @ p[i] > 4.0 * thr2 * not_proportional:\n"
+        "            h.good += 1\n",
+        "        elif p[i] @ p[i] > 4.0 * thr2 * not_proportional:\n"
+        "            h.good += 0\n",
         ("tests/test_robust.py",),
         "an excluded mouse that agrees again is never used again",
     ),

@@ -14,7 +14,7 @@ from mousedom.fusion.tracker import PoseBatch
 CSV_COLUMNS = ("t", "x", "y", "theta", "vx", "vy", "omega", "used", "ok", "consistent")
 _ROW = "%.6f,%.9f,%.9f,%.9f,%.6f,%.6f,%.6f,%d,%d,%d"
 # Then per mouse: state_<name> (fusion.robust.STATES: 0 tracking, 1 suspect, 2 excluded,
-# 3 missing) and reason_<name> (fusion.robust.REASONS: 0 none, 1 inconsistent, 2 silent
+# 3 missing, 4 late) and reason_<name> (fusion.robust.REASONS: 0 none, 1 inconsistent, 2 silent
 # while others move, 3 saturated, 4 low quality), as numbers so the file stays numeric.
 # Then the pose covariance, the upper triangle of the batch's cov over (x, y, theta) in the
 # units of the pose columns (m^2, m^2, m rad, m^2, m rad, rad^2), exponent form, and per

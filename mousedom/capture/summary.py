@@ -32,6 +32,7 @@ class MouseSummary:
     counts_out: tuple[float, float] = (0.0, 0.0)
     excluded: int = 0  # windows after which the fusion had it excluded (robust.EXCLUDED)
     suspect: int = 0  # ... suspect (robust.SUSPECT)
+    late: int = 0  # ... late: held out while its counts were owed (robust.LATE)
     # Those windows by the reason the fusion gave (robust.REASONS' text: count), the most
     # frequent first; a reason never given is left out.
     excluded_why: dict[str, int] = field(default_factory=dict)
@@ -81,6 +82,7 @@ class Summary:
     # len(REASONS)): column k counts robust.REASONS[k]; the last learnt scale.
     excluded: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     suspect: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    late: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     excluded_why: np.ndarray = field(default_factory=lambda: _no_reasons(0))
     suspect_why: np.ndarray = field(default_factory=lambda: _no_reasons(0))
     scale: np.ndarray | None = None  # (N, 2), None while no window had one learnt
@@ -99,10 +101,12 @@ class Summary:
         if len(self.excluded) != state.shape[1]:
             self.excluded = np.zeros(state.shape[1], dtype=np.int64)
             self.suspect = np.zeros(state.shape[1], dtype=np.int64)
+            self.late = np.zeros(state.shape[1], dtype=np.int64)
             self.excluded_why = _no_reasons(state.shape[1])
             self.suspect_why = _no_reasons(state.shape[1])
         self.excluded += np.count_nonzero(state == robust.EXCLUDED, axis=0)
         self.suspect += np.count_nonzero(state == robust.SUSPECT, axis=0)
+        self.late += np.count_nonzero(state == robust.LATE, axis=0)
         # A code the fusion does not name (none should occur) counts as "no reason given".
         reason = np.asarray(b.reason, dtype=np.int64)
         reason = np.where((reason >= 0) & (reason < len(robust.REASONS)), reason, robust.NONE)
@@ -135,6 +139,7 @@ class Summary:
         return {
             "excluded": int(self.excluded[mouse]) if counted else 0,
             "suspect": int(self.suspect[mouse]) if counted else 0,
+            "late": int(self.late[mouse]) if counted else 0,
             "excluded_why": _why(self.excluded_why[mouse]) if counted else {},
             "suspect_why": _why(self.suspect_why[mouse]) if counted else {},
             "scale": scale,

@@ -159,6 +159,8 @@ def check_daemon(live: Live, cfg: Config | None, timeout: float) -> list[Check]:
 
 
 _STATE_HINT = {
+    "late": "its counts come late (a busy USB host): they are added back when they arrive; "
+    "often, and the daemon's host is overloaded",
     "suspect": "its readings are in doubt: watch it (`mousedom watch`)",
     "excluded": "the fusion goes on without it: is it on the floor, its lens clean, its "
     'mount and CPI right? (docs/models.md, "Faults")',

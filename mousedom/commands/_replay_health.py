@@ -42,13 +42,16 @@ def health_lines(s: Summary, cpi: dict[str, tuple[float, float]]) -> list[str]:
     scale warnings."""
     # The rows are indented: a line that starts with a mouse's name stays its row above.
     # The reasons are indented further: their own lines, so the table stays narrow.
-    lines = [f"{'mouse health':<14} {'excluded':>15} {'suspect':>15}   learnt scale at the end"]
+    lines = [
+        f"{'mouse health':<14} {'excluded':>15} {'suspect':>15} {'late':>15}   "
+        "learnt scale at the end"
+    ]
     for m in s.mice:
         scale = "not learnt"
         if m.scale is not None:
             x, y = (round(100 * (k - 1), 1) + 0.0 for k in m.scale)  # + 0.0: no "-0.0"
             scale = f"x {x:+.1f} %  y {y:+.1f} %"
-        share = f"{_share(m.excluded, s.windows):>15} {_share(m.suspect, s.windows):>15}"
+        share = " ".join(f"{_share(k, s.windows):>15}" for k in (m.excluded, m.suspect, m.late))
         lines.append(f"  {m.name:<12} {share}   {scale}")
         for kind, why in (("excluded", m.excluded_why), ("suspect", m.suspect_why)):
             line = why_line(kind, why, s.windows)

@@ -100,7 +100,7 @@ def source_state(s: dict[str, Any]) -> str:
     if not s.get("connected"):
         return "gone"
     state = s.get("state")
-    if state:  # the fault-tolerant engine's words: tracking, suspect, excluded
+    if state:  # the fault-tolerant engine's words: tracking, late, suspect, excluded
         return str(state)
     return "excluded" if s.get("excluded") else "tracking"
 
@@ -199,7 +199,8 @@ def source_table(sources: list[dict[str, Any]], color: bool = False, width: int 
 def _paint(text: str, state: str, color: bool) -> str:
     if not color:
         return text
-    code = {"tracking": GREEN, "suspect": YELLOW, "excluded": YELLOW, "gone": RED}.get(state)
+    code = {"tracking": GREEN, "late": GREEN, "suspect": YELLOW, "excluded": YELLOW,
+            "gone": RED}.get(state)  # fmt: skip
     return f"{code}{text}{RESET}" if code else text
 
 

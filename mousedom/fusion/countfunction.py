@@ -74,6 +74,9 @@ class CountFunction:
         # (noisemodel: the granularity term).
         self.anchor_span = 0.0
         self.window_span = 0.0  # close_one's last window's: the larger of its edges'
+        # where the rising span the anchor cuts began (NaN: it cuts none): the anchor knot
+        # stands in for that span's start once windows are closed inside it
+        self.cut_from = math.nan
         self.backwards = 0  # reports stamped before the previous one (clamped)
 
     @property
@@ -299,14 +302,12 @@ class CountFunction:
             counts[:] = 0.0
             if spans is not None:
                 spans[:] = 0.0
-            self.anchor_span = 0.0
+            self.anchor_span, self.cut_from = 0.0, math.nan
             return counts
+        at, start = self._cut_spans(edges[1:] if spans is not None else edges[-1:])
         if spans is not None:
-            at = self._cut_spans(edges[1:])
             spans[:] = np.maximum(np.concatenate([[self.anchor_span], at[:-1]]), at)
-            self.anchor_span = float(at[-1])
-        else:
-            self.anchor_span = float(self._cut_spans(edges[-1:])[0])
+        self.anchor_span, self.cut_from = float(at[-1]), float(start[-1])
         # F is relative to the closed frontier, so its value there is 0: the first window's
         # counts are F at its end, each later one's the difference of F at its two ends.
         kt, kfx, kfy = self.knot_array()
@@ -331,24 +332,31 @@ class CountFunction:
         knots[1:, 1:] = kept[1:] - level[:, None]
         self.knots = knots
 
-    def _cut_spans(self, at: np.ndarray) -> np.ndarray:
-        """For each time in ``at``: the length of the rising span strictly around it,
-        where over 1.5 P (else 0), on the knot array (``cut_span`` one at a time)."""
+    def _cut_spans(self, at: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """For each time in ``at``: the length of the rising span strictly around it
+        where over 1.5 P (else 0), and where it began (NaN: none), on the knot array
+        (``cut_span`` one at a time)."""
         kt, kx, ky = self.knot_array()
         j = np.searchsorted(kt, at, side="right")
         inside = (j > 0) & (j < len(kt))
         jj, j0 = np.minimum(j, len(kt) - 1), np.maximum(j - 1, 0)
-        inside &= (kt[j0] < at) & (np.abs(kx[jj] - kx[j0]) + np.abs(ky[jj] - ky[j0]) > 0.5)
-        length = np.where(inside, kt[jj] - kt[j0], 0.0)
-        return np.where(length > 1.5 * self.period, length, 0.0)
+        cut = (j0 == 0) & (self.cut_from == self.cut_from)  # in the span the anchor cut
+        rises = np.abs(kx[jj] - kx[j0]) + np.abs(ky[jj] - ky[j0]) > 0.5
+        inside &= (kt[j0] < at) & (cut | rises)
+        begin = np.where(cut, self.cut_from, kt[j0])
+        start = np.where(inside, begin, math.nan)
+        length = np.where(inside, kt[jj] - begin, 0.0)
+        return np.where(length > 1.5 * self.period, length, 0.0), start
 
     def close_one(self, end: float) -> tuple[float, float]:
         """``close`` for one window ending at ``end``, on the knot lists."""
         kt, kx, ky = self.knot_lists()
         if not kt:
             self.anchor_span = self.window_span = 0.0
+            self.cut_from = math.nan
             return 0.0, 0.0
-        cut = self._long(cut_span(end, kt, kx, ky))
+        self.cut_from, length = cut_span(end, kt, kx, ky, self.cut_from)
+        cut = self._long(length)
         self.window_span = cut if cut > self.anchor_span else self.anchor_span
         self.anchor_span = cut
         fx, fy = interp_at(end, kt, kx), interp_at(end, kt, ky)
@@ -403,7 +411,7 @@ class CountFunction:
         """Windows up to ``end`` were skipped with nothing in them (Tracker.skip_quiet):
         no knots to keep."""
         self.knots = ([], [], [])
-        self.anchor_span = 0.0
+        self.anchor_span, self.cut_from = 0.0, math.nan
         self.forget_dead(end)
 
     def live_in(self, start: float, end: float) -> bool:
@@ -435,14 +443,19 @@ def interp_at(x: float, xp: list[float], fp: list[float]) -> float:
     return slope * (x - xp[j]) + fp[j]
 
 
-def cut_span(x: float, kt: list[float], kx: list[float], ky: list[float]) -> float:
-    """The length of the rising span strictly around ``x``, or 0: the float twin of
-    ``CountFunction._cut_spans``, the same comparisons.  Rising: by over half a count (a
-    report holds whole counts; knots relative to a fractional anchor differ by rounding
-    where F is flat)."""
+def cut_span(
+    x: float, kt: list[float], kx: list[float], ky: list[float], cut_from: float
+) -> tuple[float, float]:
+    """(where it began, its length) of the rising span strictly around ``x``, or (NaN, 0):
+    the float twin of ``CountFunction._cut_spans``, the same comparisons.  Rising: by over
+    half a count (a report holds whole counts; knots relative to a fractional anchor
+    differ by rounding where F is flat).  The first knot is the anchor: the rest of a span
+    it cut (which began at ``cut_from``) rises whatever is left of it."""
     j = bisect_right(kt, x)
     if j == 0 or j >= len(kt) or not kt[j - 1] < x:
-        return 0.0
+        return math.nan, 0.0
+    if j == 1 and cut_from == cut_from:  # in the span the anchor cut (its rest may be tiny)
+        return cut_from, kt[j] - cut_from
     if abs(kx[j] - kx[j - 1]) + abs(ky[j] - ky[j - 1]) <= 0.5:
-        return 0.0
-    return kt[j] - kt[j - 1]
+        return math.nan, 0.0
+    return kt[j - 1], kt[j] - kt[j - 1]

@@ -168,7 +168,9 @@ def mount_transform(
 
 # diagnostic_msgs/msg/DiagnosticStatus levels
 OK, WARN, ERROR, STALE = 0, 1, 2, 3
-_LEVEL = {"tracking": OK, "suspect": WARN, "excluded": ERROR, "missing": ERROR, "gone": ERROR}
+# late: healthy, its counts held up (a USB host's stall); they are added back on arrival
+_LEVEL = {"tracking": OK, "late": OK, "suspect": WARN, "excluded": ERROR, "missing": ERROR,
+          "gone": ERROR}  # fmt: skip
 
 
 def diagnostics(st: dict[str, int], sources: list[dict[str, Any]]) -> dict[str, Any]:
