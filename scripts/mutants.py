@@ -248,6 +248,14 @@ MUTANTS = [
         "an excluded mouse that agrees again is never used again",
     ),
     Mutant(
+        "span-term-from-its-own-reading",
+        "mousedom/fusion/robust.py",
+        "                out[i] = self.predict(q)[i]\n",
+        "                pass\n",
+        ("tests/test_lateness.py",),
+        "a jump spread over a cut report span widens its own tolerance and is kept",
+    ),
+    Mutant(
         "screen-batch-never-decides",
         "mousedom/fusion/screenbatch.py",
         "            bad = np.flatnonzero(~fast | evidence[i:horizon]) + i\n",

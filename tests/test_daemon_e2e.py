@@ -21,6 +21,7 @@ from conftest import run_mousedom
 from daemon_fixtures import RATE, Conn, rig_runner
 
 from mousedom.fusion import sim
+from mousedom.service.protocol import PROTO_MINOR
 
 
 @pytest.fixture
@@ -452,7 +453,7 @@ def test_a_wrong_cpi_is_in_source_and_logged_once(rig_run):
                          sim.turn(-math.pi / 2, 1.0))  # fmt: skip
     run = rig_run(drive, rig=rig, faulty=faulty)
     c = Conn(run.daemon.socket_path)
-    assert c.until("VERSION")["proto_minor"] == 3
+    assert c.until("VERSION")["proto_minor"] == PROTO_MINOR
     first = c.until("SOURCE", lambda m: m["name"] == "front")
     assert {"scale", "scale_spread", "scale_applied", "scale_warning"} <= set(first)
     left = c.until("SOURCE", lambda m: m["name"] == "left" and m["scale_warning"], limit=20000)

@@ -127,3 +127,68 @@ def test_a_lift_is_late_for_late_s_then_excluded(late_s):
     assert states[10 : 10 + limit] == [robust.LATE] * limit
     assert states[10 + limit] == robust.EXCLUDED
     assert robust.TRACKING not in states[10:]
+
+
+def _accelerating(mouse: int, share, seed: int, span: float = 0.027, windows: int = 30):
+    """Windows of a twist that speeds up by a tenth of a millimetre per window, the
+    mouse's readings in windows 10-12 bent by ``share(k, d, rng, truth)`` (truth(k): the
+    exact readings of window k), those windows' edges cutting a report span of ``span`` s
+    on it (what ``CountFunction.close`` says of a report after a silence); returns the
+    mouse's states."""
+    rng = np.random.default_rng(seed)
+    screen = _screen(0.05)
+    q0 = np.array([0.004, 0.0, rng.uniform(-0.02, 0.02)])
+    dq = np.array([1e-4, 0.0, 0.0]) * rng.choice([-1.0, 1.0])
+
+    def truth(k: float) -> np.ndarray:
+        return screen.predict(q0 + k * dq)
+
+    screen.accepted(truth(-1)[None], truth(-1)[None])
+    states = []
+    for k in range(windows):
+        d = truth(k) + rng.normal(0.0, 2e-6, (4, 2))
+        spans = np.zeros(4)
+        if 10 <= k <= 12:
+            share(k, d, rng, truth)
+            spans[mouse] = span
+        screen.decide(d, np.ones(4, dtype=bool), spans=spans)
+        states.append(screen.health[mouse].state)
+    return states
+
+
+@pytest.mark.parametrize("mouse", range(4))
+@pytest.mark.parametrize("seed", range(4))
+def test_a_jump_spread_over_a_cut_span_does_not_excuse_itself(mouse, seed):
+    """A jump (6-9 mm, any direction) in a report after a silence is spread by the count
+    function over the windows the report spans, whose granularity term grows with the
+    span (NoiseModel.gran2_for).  That term's change of motion comes from the other mice:
+    taken from the all-mice prediction, which the jump's share moves, it would let the
+    jump through (it did, before: a 9 mm jump on the triangle's 1 kHz mouse kept)."""
+    jump = np.zeros(2)
+
+    def share(k, d, rng, truth):
+        if k == 10:
+            ang = rng.uniform(0.0, 2.0 * np.pi)
+            jump[:] = rng.uniform(6e-3, 9e-3) * np.array([np.cos(ang), np.sin(ang)])
+        d[mouse] += jump / 3.0
+
+    states = _accelerating(mouse, share, seed)
+    # held out at once; as late where the jump points back along the motion (a lag looks
+    # the same for one window), excluded before its shares are over
+    assert states[10] in (robust.EXCLUDED, robust.LATE), states[8:14]
+    assert states[12] == robust.EXCLUDED, states[8:14]
+
+
+@pytest.mark.parametrize("mouse", range(4))
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("span", [0.027, 0.05])
+def test_a_catch_up_spread_over_a_cut_span_is_kept(mouse, seed, span):
+    """The control: the same windows holding the mouse's true counts spread evenly over
+    the three windows (a USB catch-up while the robot speeds up, split in proportion to
+    time): never excluded."""
+
+    def even(k, d, rng, truth):
+        d[mouse] += truth(11)[mouse] - truth(k)[mouse]
+
+    states = _accelerating(mouse, even, seed, span)
+    assert robust.EXCLUDED not in states, states

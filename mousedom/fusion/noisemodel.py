@@ -263,13 +263,15 @@ class NoiseModel:
         prev_p: np.ndarray,
         m2: np.ndarray | None = None,
         gran2: np.ndarray | None = None,
+        gran_p: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """(floor (N,), proportional (..., N)) parts of s^2 for readings d and predictions p
         (..., N, 2); ``m2``, if given, is ``motion2(d, p)``; ``gran2`` the granularity
-        coefficients where not the mice's own (``gran2_for``)."""
+        coefficients where not the mice's own (``gran2_for``), ``gran_p`` the predictions
+        its change of motion is taken from where not p (``Screen._span_p``)."""
         if m2 is None:
             m2 = motion2(d, p)
-        a2 = norm2(p - prev_p)
+        a2 = norm2((p if gran_p is None else gran_p) - prev_p)
         g2 = self.gran2 if gran2 is None else gran2
         # the floor per mouse (N,): it broadcasts against the (..., N) proportional part
         return self.lam_f * self.sig2, self.lam_r * (self.rho2 * m2 + g2 * a2)

@@ -276,14 +276,15 @@ class Screen(RigidTest):
                 suspect |= gated  # cannot do without it: used, but flagged
             q = self._solve(d, used)
             p = self.predict(q) if q is not None else p
-        floor, prop = self.noise.parts(d, p, self.prev_p, gran2=gran2)
+        gp = None if gran2 is None else self._span_p(d, used, p, spans)
+        floor, prop = self.noise.parts(d, p, self.prev_p, gran2=gran2, gran_p=gp)
         s2 = floor * scale + prop
         inflate, consistent = 1.0, True
         stat = self._statistic(d, used, s2)
         if stat is not None and stat.dof > 0 and not self._passes(stat):
             blamed = self._identify(d, used, s2)
             swap = (None if blamed is not None
-                    else self._reexamine(d, live, used, gate, scale, gran2))  # fmt: skip
+                    else self._reexamine(d, live, used, gate, scale, gran2, spans))  # fmt: skip
             if swap is not None:
                 # the kept set is wrong, the mice held out are not all: fewer exclusions
                 # explain the window with them back (they come back suspect, see _update)
@@ -307,7 +308,8 @@ class Screen(RigidTest):
                 inflate = stat.t / stat.dof
                 suspect |= used
                 reason[used & (reason == NONE)] = INCONSISTENT
-        floor, prop = self.noise.parts(d, p, self.prev_p, gran2=gran2)
+        gp = None if gran2 is None else self._span_p(d, used, p, spans)
+        floor, prop = self.noise.parts(d, p, self.prev_p, gran2=gran2, gran_p=gp)
         floor = floor * scale
         self._update(d, p, live, used, suspect, reason, consistent, floor, prop)
         correction = self._reconcile(used) if self._readmitted else None
@@ -320,6 +322,24 @@ class Screen(RigidTest):
         self.accepted(p[None], d[None])
         self._count_window()
         return Decision(used=used, inflate=inflate, consistent=consistent, correction=correction)
+
+    def _span_p(
+        self, d: np.ndarray, used: np.ndarray, p: np.ndarray, spans: ArrayLike | None
+    ) -> np.ndarray:
+        """The predictions the granularity term of a mouse whose report span the window's
+        edges cut takes its change of motion from: the other mice's (leave one out), where
+        they have the rank.  From p itself, a jump spread over the span would move p, and
+        with it its own tolerance, by a share of the jump: a glitch would excuse itself."""
+        out = p
+        cut = np.asarray(spans if spans is not None else np.zeros(self.n), dtype=float) > 0
+        for i in np.flatnonzero(cut & used).tolist():
+            rest = used.copy()
+            rest[i] = False
+            q = self._solve(d, rest)
+            if q is not None:
+                out = out.copy() if out is p else out
+                out[i] = self.predict(q)[i]
+        return out
 
     def _reconcile(self, used: np.ndarray) -> np.ndarray | None:
         """The twist the mice re-admitted in this window owe the pose, or None.
@@ -355,7 +375,7 @@ class Screen(RigidTest):
             return None
         return self._solve(owed, with_them)
 
-    def _reexamine(self, d, live, used, gate, scale, gran2=None) -> list[int] | None:
+    def _reexamine(self, d, live, used, gate, scale, gran2=None, spans=None) -> list[int] | None:
         """Revisit earlier exclusions when the kept set fails and nobody in it can be
         blamed (module step 3b): among all live mice the sensor did not gate, the
         explanation of this window, if it excludes no more mice than are held out (the
@@ -371,7 +391,9 @@ class Screen(RigidTest):
         q = self._solve(d, every)
         if q is None:
             return None
-        floor, prop = self.noise.parts(d, self.predict(q), self.prev_p, gran2=gran2)
+        p = self.predict(q)
+        gp = None if gran2 is None else self._span_p(d, every, p, spans)
+        floor, prop = self.noise.parts(d, p, self.prev_p, gran2=gran2, gran_p=gp)
         s2 = floor * scale + prop
         swap = self._identify(d, every, s2)
         if swap is None or len(swap) > int(held_out.sum()):
