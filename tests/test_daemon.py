@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import logging
+import math
 import os
 import struct
 import threading
@@ -12,10 +13,13 @@ import time
 import numpy as np
 import pytest
 from daemon_fixtures import Conn
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from mousedom.commands.run import JournalFormatter, configure_logging
 from mousedom.config import parse_config
 from mousedom.errors import UserError
+from mousedom.fusion.countfunction import CountFunction
 from mousedom.service.daemon import WAKE_SLACK_S, Daemon, plan_wake
 from mousedom.service.factory import make_source
 from mousedom.sources.base import Reports, Source, SourceGone
@@ -121,6 +125,47 @@ def test_plan_wake_predicts_the_first_report_after_the_window():
     wake, _ = plan_wake(end, [(0.008, 0.003, end - 1.0002)])
     assert end < wake - WAKE_SLACK_S <= end + 0.008
     assert plan_wake(end, []) == (end + WAKE_SLACK_S, end)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.floats(0.0002, 0.02),  # period
+    st.floats(0.0, 0.01),  # latency
+    st.floats(0.0, 0.5),  # bridge (late_report_s)
+    st.floats(-0.3, 0.02),  # last report, relative to the window's end
+)
+def test_give_up_is_when_the_silence_rule_closes_the_window(period, latency, bridge, last):
+    """give_up is the first moment CountFunction's frontier passes ``end`` for a mouse
+    silent since ``last`` (complete = now - latency): not before, where the loop would
+    only spin (it did, for up to late_report_s after every stop), nor after."""
+    end = 10.0
+    last += end
+    _, give_up = plan_wake(end, [(period, latency, last)], bridge)
+    cf = CountFunction(period, bridge)
+    cf.queue([last], [1], [0], last)
+    cf.ingest(-math.inf)  # as Tracker.poll does before asking
+    cf.complete_to(give_up - latency + 1e-9)
+    assert cf.frontier() >= end - 1e-9
+    if last < end:  # (one that reported at the end closes it once P/2 has passed)
+        cf = CountFunction(period, bridge)
+        cf.queue([last], [1], [0], last)
+        cf.ingest(-math.inf)
+        cf.complete_to(give_up - latency - 1e-6)
+        assert cf.frontier() < end
+
+
+def test_the_loop_sleeps_while_a_stopped_rig_is_waited_for(inproc):
+    """Both mice stop: windows wait late_report_s (0.1 s) for a catch-up, asleep on the
+    descriptors, then close by the silence rule at the window rate."""
+    d, src = inproc("lsq", {"a": (0.1, 0.0), "b": (-0.1, 0.0)})
+    c = Conn(d.server.path)
+    c.until("VERSION")
+    now = time.monotonic()
+    for s in src.values():
+        s.write([now], [1.0], [0.0])
+    w0 = d.wakes
+    time.sleep(0.5)
+    assert d.wakes - w0 < 100  # 25 windows at 50 Hz, status
 
 
 def test_counts_are_conserved_through_the_loop(inproc):

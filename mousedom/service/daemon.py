@@ -351,6 +351,7 @@ class Daemon:
         return plan_wake(
             end,
             [(p, lat, h.last_t if h is not None else None) for p, lat, h in self.sensors.plan],
+            running.config.late_report_s,
         )
 
     # ------------------------------------------------------------------ the parts' callbacks

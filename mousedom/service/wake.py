@@ -7,23 +7,33 @@ import math
 WAKE_SLACK_S = 0.0001  # after a report's predicted time: pipe and scheduler delays
 
 
-def plan_wake(end: float, mice: list[tuple[float, float, float | None]]) -> tuple[float, float]:
+def plan_wake(
+    end: float, mice: list[tuple[float, float, float | None]], bridge: float = 0.0
+) -> tuple[float, float]:
     """When to read the sources for the window ending at ``end``, and when to give up.
 
     ``mice`` holds (report period, latency, stamp of the last report read or None) of each
-    live mouse.  Reading every report as it arrives (4 mice at 1000 Hz: 4000 wakes a
-    second) costs far more than the fusion.  A window can close only once every live mouse
-    has reported past its end, and mice report on a steady clock (USB polling), so each
-    one's first report after ``end`` is predictable from its last one: the loop sleeps until
-    the latest prediction (plus a little slack) and reads everything at once.  If a mouse
-    is late it waits on the descriptors, at most until ``give_up``, when the silence rule
-    (no report for a period plus the latency: the mouse did not move) closes the window.
+    live mouse; ``bridge`` is ``late_report_s``.  Reading every report as it arrives (4 mice
+    at 1000 Hz: 4000 wakes a second) costs far more than the fusion.  A window can close
+    only once every live mouse has reported past its end, and mice report on a steady clock
+    (USB polling), so each one's first report after ``end`` is predictable from its last
+    one: the loop sleeps until the latest prediction (plus a little slack) and reads
+    everything at once.  If a mouse is late it waits on the descriptors, at most until
+    ``give_up``, when the count function's rules close the window
+    (``CountFunction.frontier``): a mouse silent since ``last`` is taken for still once it
+    has been silent ``max(period, bridge)`` and a period has passed since ``end`` (before
+    that, a catch-up report may still cover the window); one that reported past ``end``
+    once no report can join that one's span.  Giving up earlier would only spin: every
+    wake until then finds nothing to close.
     """
     wake = give_up = end
     for period, latency, last in mice:
-        give_up = max(give_up, end + latency + period)
         if last is None or last > end:
+            # past the end: final once no report can join its span (P/2 later)
+            done = end + period if last is None else max(end + period, last + 0.5 * period)
+            give_up = max(give_up, done + latency)
             continue
+        give_up = max(give_up, max(end + period, last + max(period, bridge)) + latency)
         # the first report slot strictly after ``end`` on this mouse's own clock
         wake = max(wake, last + (math.floor((end - last) / period) + 1) * period)
     return min(wake, give_up) + WAKE_SLACK_S, give_up
