@@ -96,7 +96,7 @@ MUTANTS = [
     Mutant(
         "no-reexamination-of-earlier-blame",
         "mousedom/fusion/robust.py",
-        "else self._reexamine(d, live, used, gate, scale, gran2)",
+        "else self._reexamine(d, live, used, gate, scale, gran2, spans)",
         "else None",
         ("tests/test_robust_pairs.py",),
         "a healthy mouse blamed where the geometry could not tell stays out for good",

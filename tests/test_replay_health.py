@@ -25,7 +25,7 @@ def _batch(n: int, rng, n_mice: int = 3, scale: np.ndarray | None = None) -> Pos
         t=np.arange(n) * 0.01, x=z, y=z, theta=z, vx=z, vy=z, omega=z,
         cov=np.zeros((n, 3, 3)), used=np.full(n, n_mice), ok=np.ones(n, dtype=bool),
         residual=np.zeros((n, n_mice, 2)), counts=np.zeros((n, n_mice, 2)),
-        state=rng.choice(4, (n, n_mice), p=[0.7, 0.1, 0.15, 0.05]).astype(np.int8),
+        state=rng.choice(5, (n, n_mice), p=[0.7, 0.1, 0.1, 0.05, 0.05]).astype(np.int8),
         reason=rng.choice(len(robust.REASONS), (n, n_mice)).astype(np.int8),
         consistent=np.ones(n, dtype=bool),
         qcov=np.zeros((n, 3, 3)), scale=scale,
@@ -45,6 +45,7 @@ def test_the_summary_counts_each_mouses_states_batch_by_batch_and_keeps_the_last
     assert s.windows == len(state) == 994
     assert s.excluded.tolist() == (state == robust.EXCLUDED).sum(axis=0).tolist()
     assert s.suspect.tolist() == (state == robust.SUSPECT).sum(axis=0).tolist()
+    assert s.late.tolist() == (state == robust.LATE).sum(axis=0).tolist()
     assert s.scale is not None and s.scale.tolist() == last.tolist()
     reason = np.concatenate([b.reason for b in batches])
     names = ("no reason given", *robust.REASONS[1:])
@@ -59,6 +60,7 @@ def test_the_summary_counts_each_mouses_states_batch_by_batch_and_keeps_the_last
     assert health == {
         "excluded": int((state[:, 2] == robust.EXCLUDED).sum()),
         "suspect": int((state[:, 2] == robust.SUSPECT).sum()),
+        "late": int((state[:, 2] == robust.LATE).sum()),
         "excluded_why": why(robust.EXCLUDED),
         "suspect_why": why(robust.SUSPECT),
         "scale": (1.12, 0.95),
@@ -76,11 +78,11 @@ def test_the_summary_counts_each_mouses_states_batch_by_batch_and_keeps_the_last
 
 
 def _mouse(name: str, excluded: int, suspect: int, scale, path=(100, 900),
-           excluded_why=None, suspect_why=None) -> MouseSummary:  # fmt: skip
+           excluded_why=None, suspect_why=None, late=0) -> MouseSummary:  # fmt: skip
     stats = DeviceStats(path_x=path[0], path_y=path[1])
     return MouseSummary(name, "f.mdcap", name, stats, excluded=excluded, suspect=suspect,
                         scale=scale, excluded_why=excluded_why or {},
-                        suspect_why=suspect_why or {})  # fmt: skip
+                        suspect_why=suspect_why or {}, late=late)  # fmt: skip
 
 
 def test_health_lines_give_shares_and_scales_and_warn_of_a_wrong_cpi():
@@ -88,19 +90,19 @@ def test_health_lines_give_shares_and_scales_and_warn_of_a_wrong_cpi():
     s.mice = [
         _mouse("front", 500, 12, (1.029, 0.999),
                excluded_why={"silent while others move": 482, "inconsistent": 18},
-               suspect_why={"inconsistent": 12}),
+               suspect_why={"inconsistent": 12}, late=40),
         _mouse("left", 0, 0, (1.0, 1.001)),
         _mouse("right", 3, 1999, (0.893, 0.893), excluded_why={"saturated": 3},
                suspect_why={"inconsistent": 1998, "low quality": 1}),
     ]  # fmt: skip
     cpi = {"front": (800.0, 800.0), "left": (800.0, 800.0), "right": (800.0, 800.0)}
     assert health_lines(s, cpi) == [
-        "mouse health          excluded         suspect   learnt scale at the end",
-        "  front           500 (25.0 %)      12 (0.6 %)   x +2.9 %  y -0.1 %",
+        "mouse health          excluded         suspect            late   learnt scale at the end",
+        "  front           500 (25.0 %)      12 (0.6 %)      40 (2.0 %)   x +2.9 %  y -0.1 %",
         "    excluded: silent while others move 24.1 %, inconsistent 0.9 %",
         "    suspect: inconsistent 0.6 %",
-        "  left               0 (0.0 %)       0 (0.0 %)   x +0.0 %  y +0.1 %",
-        "  right              3 (0.1 %)  1999 (100.0 %)   x -10.7 %  y -10.7 %",
+        "  left               0 (0.0 %)       0 (0.0 %)       0 (0.0 %)   x +0.0 %  y +0.1 %",
+        "  right              3 (0.1 %)  1999 (100.0 %)       0 (0.0 %)   x -10.7 %  y -10.7 %",
         "    excluded: saturated 0.1 %",
         "    suspect: inconsistent 99.9 %, low quality 0.1 %",
         "warning: mouse right reads 12 % more than the other mice (its y axis): check its CPI "
@@ -130,7 +132,7 @@ def test_health_lines_give_shares_and_scales_and_warn_of_a_wrong_cpi():
     assert why_line("suspect", {}, 100_000) is None
     s.mice = [_mouse("solo", 0, 40, None)]
     assert health_lines(s, {"solo": (400.0, 400.0)})[1:] == [
-        "  solo               0 (0.0 %)      40 (2.0 %)   not learnt"
+        "  solo               0 (0.0 %)      40 (2.0 %)       0 (0.0 %)   not learnt"
     ]
 
 
