@@ -155,7 +155,7 @@ def test_give_up_is_when_the_silence_rule_closes_the_window(period, latency, bri
 
 
 def test_the_loop_sleeps_while_a_stopped_rig_is_waited_for(inproc):
-    """Both mice stop: windows wait late_report_s (0.1 s) for a catch-up, asleep on the
+    """Both mice stop: windows wait late_report_s (0.15 s) for a catch-up, asleep on the
     descriptors, then close by the silence rule at the window rate."""
     d, src = inproc("lsq", {"a": (0.1, 0.0), "b": (-0.1, 0.0)})
     c = Conn(d.server.path)

@@ -141,8 +141,11 @@ class Config:
     robust: RobustConfig = field(default_factory=RobustConfig)
     # How late a report may come and still count where it was measured: a report within
     # this of the mouse's previous one covers all the time since (a USB catch-up report),
-    # and windows wait this long for a silent mouse before closing without it.
-    late_report_s: float = 0.1
+    # and windows wait this long for a silent mouse before closing without it.  0.15 s:
+    # two chained USB gaps of 50-65 ms (a host that skips polls twice in a row) and the
+    # slot between are still counted where measured; the wait adds nothing to the 99th
+    # percentile of a window's delay (14 ms), 0.2 s would (38 ms; bench/latency.py).
+    late_report_s: float = 0.15
     ros2: Ros2Config | None = None  # outputs.ros2: None means no DDS output
     foxglove: FoxgloveConfig | None = None  # outputs.foxglove: None means no live view
     metrics: MetricsConfig | None = None  # outputs.metrics: None means no Prometheus endpoint
