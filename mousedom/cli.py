@@ -22,7 +22,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="mousedom", description="Optical-mouse odometry for robots."
     )
-    parser.add_argument("-V", "--version", action="version", version=f"mousedom {__version__}")
+    from mousedom import core
+
+    parser.add_argument(
+        "-V", "--version", action="version", version=f"mousedom {__version__} (core: {core.NAME})"
+    )
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging on stderr")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
@@ -34,6 +38,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    try:
+        from mousedom import core  # noqa: F401  (MOUSEDOM_CORE is judged once, here first)
+    except UserError as error:
+        print(f"mousedom: error: {error}", file=sys.stderr)
+        return error.exit_code
     try:
         return _main(argv)
     except KeyboardInterrupt:  # Ctrl-C while the commands are still being imported

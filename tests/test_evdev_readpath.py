@@ -9,6 +9,8 @@ import os
 
 import numpy as np
 import pytest
+from cores import names as core_names
+from cores import using
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from test_evdev_fakes import stamps_on_their_own_clock  # noqa: F401 (a fixture, used by name)
@@ -110,6 +112,11 @@ def test_whole_xy_frames_are_sliced_exactly_as_the_loop_reads_them(rows, frame_c
     """Reads cut at frame boundaries take the sliced path (checked), others and reads after
     an open frame the loop; frames, times (bit for bit), statistics and leftovers agree
     with the vectorised path either way."""
+    with using("python"):  # the Python's own twin paths (the compiled core has one)
+        _sliced_as_the_loop(rows, frame_cuts, skew, open_)
+
+
+def _sliced_as_the_loop(rows, frame_cuts, skew, open_):
     data = to_bytes(rows)
     if open_:  # a frame left open by an earlier read: its REL_X joins the first frame
         data = to_bytes([((0, 5), (EV_REL, REL_X), 7)]) + data
@@ -137,7 +144,13 @@ def test_whole_xy_frames_are_sliced_exactly_as_the_loop_reads_them(rows, frame_c
 def test_feed_bytes_equals_the_numpy_path(rows, offsets, rnd):
     """Chunk by chunk: frames, times (bit for bit), dx, dy, leftover bytes, statistics and
     the open frame agree with the vectorised path; also when one assembler alternates
-    between both paths (the live source does when a read is big)."""
+    between both paths (the live source does when a read is big).  With each core."""
+    for name in core_names():
+        with using(name):
+            _equal_to_the_numpy_path(rows, offsets, rnd)
+
+
+def _equal_to_the_numpy_path(rows, offsets, rnd):
     data = to_bytes(rows)
     ref, new, mixed = FrameAssembler(0), FrameAssembler(), FrameAssembler(0)
     rest_ref = rest_new = rest_mix = b""

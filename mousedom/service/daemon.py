@@ -32,7 +32,7 @@ import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-from mousedom import invocation
+from mousedom import core, invocation
 from mousedom.config import Config
 from mousedom.service.control import ClientCommands
 from mousedom.service.factory import make_source
@@ -249,6 +249,7 @@ class Daemon:
             self.window_cpu = self.metrics.window_cpu
             self.outputs.add(self.metrics)
         self.server.open()
+        log.info("core: %s", core.NAME)
         log.info(
             "listening on %s; watch it with: %s",
             self.server.path,

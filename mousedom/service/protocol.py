@@ -17,7 +17,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from mousedom import __version__
+from mousedom import __version__, core
 
 PROTO_MAJOR = 1
 # 1: POSE has excluded, suspect and consistent; SOURCE state and reason
@@ -249,6 +249,7 @@ def version_message(
         "model": model,
         "sensors": list(sensors),
         "control": control,  # whether this peer may send reset/fix
+        "core": core.NAME,  # which core fuses (1.4): "c", or "python (why)"
     }
 
 

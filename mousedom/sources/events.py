@@ -37,6 +37,8 @@ from typing import Any
 
 import numpy as np
 
+from mousedom import core
+
 # struct input_event on 64-bit Linux (x86_64, aarch64, ...): struct timeval
 # {long tv_sec; long tv_usec}, __u16 type, __u16 code, __s32 value = 24 bytes, no padding.
 # (32-bit ABIs use 16-byte records; mousedom targets 64-bit hosts only.)
@@ -150,6 +152,12 @@ class AssemblerStats:
         return dict(self.__dict__)
 
 
+# The AssemblerStats fields the compiled core's feed_bytes adds to, in the order it returns
+# them (csrc/core.c, the ST_ constants).
+_STAT_FIELDS = ("events", "frames", "motion_frames", "skipped", "syn_dropped", "dropped_frames",
+                "dropped_dx", "dropped_dy", "dropped_events", "rel_x_in", "rel_y_in")  # fmt: skip
+
+
 def _as_frames(lists: tuple[list[float], list[int], list[int]]) -> MotionFrames:
     t, dx, dy = lists
     if not t:
@@ -226,6 +234,10 @@ class FrameAssembler:
         would convert back to lists are paid.  Meant for reads of up to a few hundred
         records; bulk input takes ``feed_events``.
         """
+        if core.native is not None:
+            done = self._feed_native(buf)
+            if done is not None:
+                return done
         n = len(buf) // EVENT_SIZE
         end = n * EVENT_SIZE
         if end == len(buf):
@@ -240,6 +252,26 @@ class FrameAssembler:
             if frames is not None:
                 return (*frames, rest)
         t, dx, dy = self._feed_loop(EVENT_STRUCT.iter_unpack(buf), n)
+        return t, dx, dy, rest
+
+    def _feed_native(
+        self, buf: bytes | bytearray | memoryview
+    ) -> tuple[list[float], list[int], list[int], bytes] | None:
+        """``feed_bytes`` in the compiled core (csrc/core.c, the same rules as
+        ``_feed_loop``), or None where its int64 sums would overflow (the Python then
+        runs: a frame of 2^32 reports of the largest count; no device gets there)."""
+        out = core.native.feed_bytes(buf, (
+            self._open_dx, self._open_dy, self._open_motion, self._open_dropped,
+            self._open_events, self._open_nonsyn, self._open_t,
+        ))  # fmt: skip
+        if out is None:
+            return None
+        t, dx, dy, rest, open_frame, added = out
+        (self._open_dx, self._open_dy, self._open_motion, self._open_dropped,
+         self._open_events, self._open_nonsyn, self._open_t) = open_frame  # fmt: skip
+        st = self.stats
+        for name, v in zip(_STAT_FIELDS, added, strict=True):
+            setattr(st, name, getattr(st, name) + v)
         return t, dx, dy, rest
 
     def _xy_frames(

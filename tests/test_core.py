@@ -1,0 +1,154 @@
+"""The compiled core (issue 28; csrc/core.c, mousedom/core.py) equals its Python reference
+bit for bit, on generated streams, hostile bytes and any cut; it falls back to the Python
+where its int64 sums would overflow; and a user can see and choose which core runs.
+
+The compiled core's memory safety under AddressSanitizer and UBSan: test_core_sanitized.py."""
+
+from __future__ import annotations
+
+import os
+import struct
+import subprocess
+import sys
+
+import cores
+import pytest
+from conftest import REPO, mousedom_env, run_mousedom
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from test_evdev_readpath import cut, records, to_bytes
+
+from mousedom import core
+from mousedom.sources.events import EV_REL, REL_X, SYN_REPORT, FrameAssembler
+
+needs_core = pytest.mark.skipif(
+    core.native is None and not cores.REQUIRED,
+    reason="the compiled core is not built here (CI builds it: MOUSEDOM_REQUIRE_CORE=1)",
+)
+
+
+def test_the_core_is_built_where_ci_requires_it():
+    """In CI (MOUSEDOM_REQUIRE_CORE=1) a missing compiled core is a failure, not a skip."""
+    if cores.REQUIRED:
+        assert core.native is not None, core.NAME
+        assert core.NAME == "c"
+    else:
+        assert core.NAME == "c" or core.NAME.startswith("python (")
+
+
+def _state(a: FrameAssembler) -> tuple:
+    return (a._open_dx, a._open_dy, a._open_motion, a._open_dropped, a._open_events,
+            a._open_nonsyn, struct.pack("<d", a._open_t), a.stats.as_dict())  # fmt: skip
+
+
+def _run(name: str, chunks: list[bytes]) -> list:
+    """Each read's frames (times as their bytes) and leftover, then the state and the flush."""
+    a = FrameAssembler()
+    out, rest = [], b""
+    with cores.using(name):
+        for chunk in chunks:
+            t, dx, dy, rest = a.feed_bytes(rest + chunk)
+            assert all(type(v) is float for v in t) and all(type(v) is int for v in dx + dy)
+            out.append(([struct.pack("<d", v) for v in t], dx, dy, rest, _state(a)))
+    f = a.flush()
+    out.append((f.t.tobytes(), f.dx.tolist(), f.dy.tolist(), _state(a)))
+    return out
+
+
+@needs_core
+@settings(max_examples=400, deadline=None)
+@given(records, st.lists(st.integers(0, 24 * 120), max_size=10))
+def test_feed_bytes_is_the_python_bit_for_bit(rows, offsets):
+    """Events of every kind (SYN_DROPPED, other SYN, buttons, any type and code), values
+    to the int32 limits, stamps running backwards or near 2^40 s, cut at any byte: the
+    frames, times, leftovers, open frame and statistics are the Python's after every read."""
+    chunks = list(cut(to_bytes(rows), offsets))
+    assert _run("c", chunks) == _run("python", chunks)
+
+
+@needs_core
+@settings(max_examples=300, deadline=None)
+@given(st.binary(max_size=24 * 40), st.lists(st.integers(0, 24 * 40), max_size=6))
+def test_feed_bytes_on_hostile_bytes_is_the_python(data, offsets):
+    """Any bytes at all (negative seconds, microseconds beyond a second, keys no kernel
+    sends), cut anywhere: the same as the Python, and nothing read past the buffer."""
+    chunks = list(cut(data, offsets))
+    assert _run("c", chunks) == _run("python", chunks)
+
+
+def _rec(sec: int, usec: int, type_: int, code: int, value: int) -> bytes:
+    return struct.pack("<qqHHi", sec, usec, type_, code, value)
+
+
+@needs_core
+@pytest.mark.parametrize("start", [2**63 - 5, -(2**63) + 5, 2**70])
+def test_an_overflowing_sum_falls_back_to_the_python(start):
+    """A frame whose REL_X sum leaves int64 (an open frame carried that far; no device gets
+    there, but Python's integers do not overflow): the compiled core declines, the Python
+    runs, and the result is the Python's exactly."""
+    away, back = (2**31 - 1, -(2**31)) if start > 0 else (-(2**31), 2**31 - 1)
+    data = _rec(1, 0, EV_REL, REL_X, away) * 3 + _rec(1, 0, EV_REL, REL_X, back) * 3
+    data += _rec(1, 1, 0, SYN_REPORT, 0)
+    assert core.native.feed_bytes(data, (start, 0, True, False, 1, 1, 0.0)) is None
+    results = []
+    for name in ("c", "python"):
+        a = FrameAssembler()
+        a._open_dx, a._open_motion, a._open_events, a._open_nonsyn = start, True, 1, 1
+        with cores.using(name):
+            results.append((a.feed_bytes(data), a.stats.as_dict()))
+    assert results[0] == results[1]
+    assert results[0][0][1] == [start + 3 * away + 3 * back]
+
+
+@needs_core
+def test_the_core_refuses_a_malformed_state_with_a_python_error():
+    """The open frame it is handed is checked, not trusted."""
+    with pytest.raises(ValueError, match="7 fields"):
+        core.native.feed_bytes(b"", (0, 0))
+    with pytest.raises(TypeError):
+        core.native.feed_bytes(b"", (0, 0, False, False, 0, 0, "t"))
+    with pytest.raises(TypeError):
+        core.native.feed_bytes("not bytes", (0, 0, False, False, 0, 0, 0.0))
+
+
+def _version(env_core: str | None) -> subprocess.CompletedProcess:
+    env = mousedom_env()
+    env.pop("MOUSEDOM_CORE", None)
+    if env_core is not None:
+        env["MOUSEDOM_CORE"] = env_core
+    return run_mousedom("--version", env=env)
+
+
+def test_version_says_which_core_runs_and_the_switch_forces_the_python():
+    out = _version(None)
+    assert out.returncode == 0
+    assert f"(core: {core.NAME})" in out.stdout
+    forced = _version("python")
+    assert forced.returncode == 0
+    assert "(core: python (MOUSEDOM_CORE=python))" in forced.stdout
+
+
+def test_a_wrong_switch_value_is_a_clear_error():
+    out = _version("fortran")
+    assert out.returncode == 2
+    assert "MOUSEDOM_CORE='fortran': expected 'c' or 'python'" in out.stderr
+    assert "Traceback" not in out.stderr
+
+
+def test_requiring_the_compiled_core_where_it_is_missing_is_a_clear_error(tmp_path):
+    """MOUSEDOM_CORE=c on a checkout without the built module: exit 2, one line, what to do.
+    (A copy of the package without its compiled module stands for such a machine.)"""
+    import shutil
+
+    pkg = tmp_path / "mousedom"
+    shutil.copytree(REPO / "mousedom", pkg, ignore=shutil.ignore_patterns("_core*", "__pycache__"))
+    env = {**os.environ, "MOUSEDOM_CORE": "c", "PYTHONPATH": str(tmp_path)}
+    out = subprocess.run([sys.executable, "-m", "mousedom", "--version"], env=env,
+                         capture_output=True, text=True, cwd=tmp_path, timeout=60)  # fmt: skip
+    assert out.returncode == 2, out.stderr
+    assert "MOUSEDOM_CORE=c, but the compiled core does not load" in out.stderr
+    assert "docs/install.md" in out.stderr and "Traceback" not in out.stderr
+    env["MOUSEDOM_CORE"] = ""
+    out = subprocess.run([sys.executable, "-m", "mousedom", "--version"], env=env,
+                         capture_output=True, text=True, cwd=tmp_path, timeout=60)  # fmt: skip
+    assert out.returncode == 0 and "(core: python (no compiled core built))" in out.stdout
