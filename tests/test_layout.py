@@ -6,7 +6,7 @@
     sources                                devices -> reports (evdev, ADNS-3080)
     fusion                                 the pure engine: no I/O, time as data
     config, yamldoc, errors, safeyaml,     what every room uses
-    safewrite, invocation
+    safewrite, invocation, core
 
 A module may import from its own room and from the rooms below it, never from above
 (docs/architecture.md).  One exception is written down: ``config`` checks a rig's rank at
@@ -42,6 +42,8 @@ LAYERS = [
         "angles",
         "invocation",
         "allocator",
+        "core",
+        "_core",
         "__init__",
     },
 ]

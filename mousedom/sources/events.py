@@ -260,7 +260,9 @@ class FrameAssembler:
         """``feed_bytes`` in the compiled core (csrc/core.c, the same rules as
         ``_feed_loop``), or None where its int64 sums would overflow (the Python then
         runs: a frame of 2^32 reports of the largest count; no device gets there)."""
-        out = core.native.feed_bytes(buf, (
+        native = core.native
+        assert native is not None  # (feed_bytes asks first)
+        out = native.feed_bytes(buf, (
             self._open_dx, self._open_dy, self._open_motion, self._open_dropped,
             self._open_events, self._open_nonsyn, self._open_t,
         ))  # fmt: skip
