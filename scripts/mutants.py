@@ -240,10 +240,8 @@ MUTANTS = [
     Mutant(
         "robust-never-readmits",
         "mousedom/fusion/robust.py",
-        "        elif p[i] @ p[i] > 4.0 * thr2 * not_proportional:\n"
-        "            h.good += 1\n",
-        "        elif p[i] @ p[i] > 4.0 * thr2 * not_proportional:\n"
-        "            h.good += 0\n",
+        "        elif p[i] @ p[i] > 4.0 * thr2 * not_proportional:\n            h.good += 1\n",
+        "        elif p[i] @ p[i] > 4.0 * thr2 * not_proportional:\n            h.good += 0\n",
         ("tests/test_robust.py",),
         "an excluded mouse that agrees again is never used again",
     ),
