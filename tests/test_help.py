@@ -54,7 +54,10 @@ def test_shared_options_are_spelled_one_way(name):
 
 @pytest.mark.parametrize("flag", ["-V", "--version"])
 def test_version_flag(flag):
-    from mousedom import __version__
+    from mousedom import __version__, core
 
     p = run_mousedom(flag)
-    assert p.returncode == 0 and p.stdout.strip() == f"mousedom {__version__}", p
+    # and which core runs (docs/install.md)
+    assert (
+        p.returncode == 0 and p.stdout.strip() == f"mousedom {__version__} (core: {core.NAME})"
+    ), p
