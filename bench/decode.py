@@ -235,6 +235,25 @@ def main() -> None:
             f"  {frames * 3:5d} events/read ({'small' if small else 'bulk'} path): ours "
             f"{ours / 1e6:6.2f} M/s, python-evdev {theirs / 1e6:6.2f} M/s   x{ours / theirs:5.1f}"
         )
+    # The small path on each core (docs/install.md), in this run: us per read.
+    from mousedom import core
+
+    if core.native is None:
+        print(f"the small path on the compiled core: not here ({core.NAME})")
+        return
+    print("the small path (feed_bytes) per read on each core, us (median of many reads)")
+    native = core.native
+    for frames in (1, 3, 10, 50, 300):
+        chunk = mouse_stream(frames, seed=frames)
+        reps = max(a.repeats * 20, 20_000 // frames)
+        per_read = {}
+        for name, which in (("c", native), ("python", None)):
+            core.native = which
+            per_read[name] = 3 * frames / bench(small_path, chunk, reps) * 1e6
+        core.native = native
+        c_us, py_us = per_read["c"], per_read["python"]
+        print(f"  {frames * 3:5d} events/read: compiled {c_us:7.2f} us, Python {py_us:7.2f} us"
+              f"   x{py_us / c_us:5.1f}")  # fmt: skip
 
 
 if __name__ == "__main__":
