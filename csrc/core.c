@@ -223,8 +223,163 @@ done:
     return result;
 }
 
+/* ---------------------------------------------------------------- reports -> knots */
+
+/* One axis's counts: whole numbers summed as int64 (as Python sums its ints, exactly) or
+ * floats summed as doubles, each in the list's order. */
+typedef struct {
+    int is_int;
+    int64_t ci; /* the running sum, whole counts */
+    double cf;  /* the running sum, float counts */
+} Axis;
+
+/* Checks one axis's list and that every prefix sum fits: 1 fine, 0 decline, -1 error. */
+static int axis_check(PyObject *list, Py_ssize_t n, int *is_int) {
+    PyObject *first = PyList_GET_ITEM(list, 0);
+    *is_int = PyLong_CheckExact(first);
+    if (!*is_int && !PyFloat_CheckExact(first)) return 0;
+    int64_t sum = 0;
+    for (Py_ssize_t k = 0; k < n; k++) {
+        PyObject *o = PyList_GET_ITEM(list, k);
+        if (*is_int) {
+            if (!PyLong_CheckExact(o)) return 0;
+            int ovf = 0;
+            long long v = PyLong_AsLongLongAndOverflow(o, &ovf);
+            if (v == -1 && PyErr_Occurred()) return -1;
+            if (ovf || __builtin_add_overflow(sum, (int64_t)v, &sum)) return 0;
+        } else if (!PyFloat_CheckExact(o)) {
+            return 0;
+        }
+    }
+    return 1;
+}
+
+/* The count at k added to the axis; returns the count as a double (Python's float(a)). */
+static double axis_add(Axis *ax, PyObject *o, int first) {
+    if (ax->is_int) {
+        int64_t v = (int64_t)PyLong_AsLongLong(o); /* checked to fit by axis_check */
+        ax->ci = first ? v : ax->ci + v;
+        return (double)v;
+    }
+    double v = PyFloat_AS_DOUBLE(o);
+    ax->cf = first ? v : ax->cf + v;
+    return v;
+}
+
+static double axis_sum(const Axis *ax) { return ax->is_int ? (double)ax->ci : ax->cf; }
+
+static PyObject *axis_object(const Axis *ax) {
+    return ax->is_int ? PyLong_FromLongLong(ax->ci) : PyFloat_FromDouble(ax->cf);
+}
+
+/* Sets list[i] to a new float (the list takes the reference and drops the old item's);
+ * -1 on error. */
+static int set_float(PyObject *list, Py_ssize_t i, double v) {
+    PyObject *o = PyFloat_FromDouble(v);
+    if (o == NULL) return -1;
+    return PyList_SetItem(list, i, o);
+}
+
+static int append_two(PyObject *list, double a, double b) {
+    PyObject *oa = PyFloat_FromDouble(a), *ob = PyFloat_FromDouble(b);
+    int bad = oa == NULL || ob == NULL || PyList_Append(list, oa) < 0 ||
+              PyList_Append(list, ob) < 0;
+    Py_XDECREF(oa);
+    Py_XDECREF(ob);
+    return bad ? -1 : 0;
+}
+
+static double last_float(PyObject *list, Py_ssize_t back) {
+    return PyFloat_AsDouble(PyList_GET_ITEM(list, PyList_GET_SIZE(list) - back));
+}
+
+PyDoc_STRVAR(ingest_small_doc,
+"ingest_small(t, dx, dy, kt, kx, ky, knot_t, edge, period, bridge, join)\n"
+"    -> (cx, cy, backwards, late, knot_t) or None\n\n"
+"CountFunction.ingest_small's loop: the reports (t, dx, dy lists) become knots appended\n"
+"to the lists kt, kx, ky (changed in place); returns the counts' sums (int where the\n"
+"counts are ints, else float), the reports stamped backwards and behind the edge, and\n"
+"the last report's stamp.  None, with the lists untouched, where the lists hold other\n"
+"than float times and all-int or all-float counts per axis, or an int sum would leave\n"
+"int64 (the caller runs the Python).");
+
+static PyObject *ingest_small(PyObject *self, PyObject *args) {
+    (void)self;
+    PyObject *t, *dx, *dy, *kt, *kx, *ky;
+    double knot_t, edge, period, bridge, join;
+    if (!PyArg_ParseTuple(args, "O!O!O!O!O!O!ddddd", &PyList_Type, &t, &PyList_Type, &dx,
+                          &PyList_Type, &dy, &PyList_Type, &kt, &PyList_Type, &kx,
+                          &PyList_Type, &ky, &knot_t, &edge, &period, &bridge, &join))
+        return NULL;
+    Py_ssize_t n = PyList_GET_SIZE(t), nk = PyList_GET_SIZE(kt);
+    if (n == 0 || PyList_GET_SIZE(dx) != n || PyList_GET_SIZE(dy) != n ||
+        PyList_GET_SIZE(kx) != nk || PyList_GET_SIZE(ky) != nk)
+        Py_RETURN_NONE;
+    for (Py_ssize_t k = 0; k < n; k++)
+        if (!PyFloat_CheckExact(PyList_GET_ITEM(t, k))) Py_RETURN_NONE;
+    for (Py_ssize_t k = 0; k < nk; k++)
+        if (!PyFloat_CheckExact(PyList_GET_ITEM(kt, k)) ||
+            !PyFloat_CheckExact(PyList_GET_ITEM(kx, k)) ||
+            !PyFloat_CheckExact(PyList_GET_ITEM(ky, k)))
+            Py_RETURN_NONE;
+    Axis ax = {0, 0, 0.0}, ay = {0, 0, 0.0};
+    int ok = axis_check(dx, n, &ax.is_int);
+    if (ok == 1) ok = axis_check(dy, n, &ay.is_int);
+    if (ok < 0) return NULL;
+    if (ok == 0) Py_RETURN_NONE;
+
+    double lx = 0.0, ly = 0.0;
+    if (nk) {
+        lx = last_float(kx, 1);
+        ly = last_float(ky, 1);
+    }
+    double run = knot_t, prev = knot_t;
+    long long backwards = 0, late = 0;
+    for (Py_ssize_t k = 0; k < n; k++) {
+        double a = axis_add(&ax, PyList_GET_ITEM(dx, k), k == 0);
+        double b = axis_add(&ay, PyList_GET_ITEM(dy, k), k == 0);
+        double ti = PyFloat_AS_DOUBLE(PyList_GET_ITEM(t, k));
+        if (run > ti)
+            backwards++;
+        else
+            run = ti;
+        ti = run;
+        if (ti < edge) {
+            late++;
+            ti = edge;
+        }
+        double x = axis_sum(&ax) + lx, y = axis_sum(&ay) + ly;
+        double gap = ti - prev;
+        Py_ssize_t m = PyList_GET_SIZE(kt);
+        if (gap < join && m >= 2 && last_float(kt, 1) == prev && prev > edge &&
+            ti - last_float(kt, 2) <= bridge) {
+            /* held up on its way: the previous report's span stretches to take it */
+            if (set_float(kt, m - 1, ti) < 0 || set_float(kx, m - 1, x) < 0 ||
+                set_float(ky, m - 1, y) < 0)
+                return NULL;
+            prev = ti;
+            continue;
+        }
+        /* the span: since the previous report within the bridge, else one period */
+        double start = gap <= bridge ? prev : ti - period;
+        if (edge > start) start = edge;
+        if (append_two(kt, start, ti) < 0 || append_two(kx, x - a, x) < 0 ||
+            append_two(ky, y - b, y) < 0)
+            return NULL;
+        prev = ti;
+    }
+    PyObject *ox = axis_object(&ax), *oy = axis_object(&ay);
+    if (ox == NULL || oy == NULL) {
+        Py_XDECREF(ox);
+        Py_XDECREF(oy);
+        return NULL;
+    }
+    return Py_BuildValue("(NNLLd)", ox, oy, backwards, late, prev);
+}
+
 static PyMethodDef methods[] = {
     {"feed_bytes", feed_bytes, METH_VARARGS, feed_bytes_doc},
+    {"ingest_small", ingest_small, METH_VARARGS, ingest_small_doc},
     {NULL, NULL, 0, NULL},
 };
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
+import math
 import os
 import random
 import shutil
@@ -101,9 +102,52 @@ def _carried(rnd: random.Random) -> tuple:
     return dx, dy, motion, dropped, events, nonsyn, rnd.random() if events else 0.0
 
 
+def _ingest_same(sanitized, rnd: random.Random, reference) -> bool:
+    """CountFunction.ingest_small's loop on random reports and knots, both cores: the
+    same knots and results (or the core declines, with the knots untouched)."""
+    n = rnd.randint(1, 40)
+    stamp = lambda: round(rnd.uniform(-1.0, 1.0), rnd.choice([3, 4, 9]))  # noqa: E731
+    t = sorted(stamp() for _ in range(n))
+    for _ in range(rnd.randint(0, 3)):
+        t[rnd.randrange(n)] = stamp()
+
+    def axis() -> list:
+        kind = rnd.random()
+        if kind < 0.6:
+            return [rnd.choice([rnd.randint(-40, 40), rnd.randint(-(2**31), 2**31)])
+                    for _ in range(n)]  # fmt: skip
+        if kind < 0.9:
+            return [rnd.uniform(-1e6, 1e6) for _ in range(n)]
+        return [rnd.choice([1, 2.5, True, 2**63, -(2**64)]) for _ in range(n)]
+
+    dx, dy = axis(), axis()
+    nk = 2 * rnd.randint(0, 3)
+    kt = sorted(stamp() for _ in range(nk))
+    kx = [float(rnd.randint(-99, 99)) for _ in range(nk)]
+    ky = [float(rnd.randint(-99, 99)) for _ in range(nk)]
+    period = rnd.choice([0.001, 0.008])
+    rest = (rnd.choice([kt[-1] if kt else 0.0, stamp(), -math.inf]),
+            rnd.choice([stamp(), -math.inf]), period,
+            max(period, rnd.choice([0.0, 0.15])), period / 2)  # fmt: skip
+    c_lists, py_lists = [kt[:], kx[:], ky[:]], [kt[:], kx[:], ky[:]]
+    got = sanitized.ingest_small(t, dx, dy, *c_lists, *rest)
+    if got is None:
+        return c_lists == [kt, kx, ky]
+    try:
+        want = reference(t, dx, dy, *py_lists, *rest)
+    except TypeError:
+        return False  # the core took what Python cannot add
+    same = [struct.pack("<d", v) if isinstance(v, float) else v for v in got]
+    ref = [struct.pack("<d", v) if isinstance(v, float) else v for v in want]
+    bits = [[struct.pack("<d", v) for v in lst] for lst in c_lists]
+    ref_bits = [[struct.pack("<d", v) for v in lst] for lst in py_lists]
+    return same == ref and bits == ref_bits
+
+
 def child(seconds: float, seed: int) -> int:
     sys.path.insert(0, str(REPO))
     from mousedom import core
+    from mousedom.fusion.countfunction import _ingest_loop
     from mousedom.sources.events import FrameAssembler
 
     spec = importlib.util.spec_from_file_location("_core", os.environ["FUZZ_CORE_MODULE"])
@@ -134,6 +178,10 @@ def child(seconds: float, seed: int) -> int:
             results.append(out)
         # the raw call too, on any state, with no Python in between
         sanitized.feed_bytes(chunks[-1] if chunks else b"", carried)
+        if not _ingest_same(sanitized, rnd, _ingest_loop):
+            print(f"fuzz_core: case {cases} (seed {seed}): ingest_small differs from the "
+                  "Python", file=sys.stderr)  # fmt: skip
+            return 1
         if results[0] != results[1]:
             print(f"fuzz_core: case {cases} (seed {seed}) differs from the Python", file=sys.stderr)
             return 1

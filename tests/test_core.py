@@ -6,6 +6,7 @@ The compiled core's memory safety under AddressSanitizer and UBSan: test_core_sa
 
 from __future__ import annotations
 
+import math
 import os
 import struct
 import subprocess
@@ -19,6 +20,7 @@ from hypothesis import strategies as st
 from test_evdev_readpath import cut, records, to_bytes
 
 from mousedom import core
+from mousedom.fusion.countfunction import _ingest_loop
 from mousedom.sources.events import EV_REL, REL_X, SYN_REPORT, FrameAssembler
 
 needs_core = pytest.mark.skipif(
@@ -152,3 +154,72 @@ def test_requiring_the_compiled_core_where_it_is_missing_is_a_clear_error(tmp_pa
     out = subprocess.run([sys.executable, "-m", "mousedom", "--version"], env=env,
                          capture_output=True, text=True, cwd=tmp_path, timeout=60)  # fmt: skip
     assert out.returncode == 0 and "(core: python (no compiled core built))" in out.stdout
+
+
+# ----------------------------------------------------------------- reports -> knots
+
+stamps = st.floats(-1.0, 1.0, allow_nan=False).map(lambda v: round(v, 4))
+whole = st.integers(-(2**31), 2**31 - 1) | st.integers(-40, 40)
+counts = st.lists(whole, min_size=1, max_size=40) | st.lists(
+    st.floats(-1e6, 1e6, allow_nan=False), min_size=1, max_size=40
+)
+
+
+@st.composite
+def ingests(draw):
+    """(t, dx, dy, kt, kx, ky, knot_t, edge, period, bridge, join) as the tracker hands
+    them: reports in any order (stamps running backwards, behind the edge, bunched or far
+    apart), counts whole or fractional per axis, knots already held."""
+    dx = draw(counts)
+    n = len(dx)
+    dy = draw(st.lists(whole, min_size=n, max_size=n) | st.lists(
+        st.floats(-1e6, 1e6, allow_nan=False), min_size=n, max_size=n))  # fmt: skip
+    t = sorted(draw(st.lists(stamps, min_size=n, max_size=n)))
+    for k in draw(st.lists(st.integers(0, n - 1), max_size=3)):  # a few run backwards
+        t[k] = draw(stamps)
+    nk = draw(st.integers(0, 3)) * 2
+    kt = sorted(draw(st.lists(stamps, min_size=nk, max_size=nk)))
+    kx = [float(v) for v in draw(st.lists(st.integers(-100, 100), min_size=nk, max_size=nk))]
+    ky = [float(v) for v in draw(st.lists(st.integers(-100, 100), min_size=nk, max_size=nk))]
+    knot_t = kt[-1] if kt and draw(st.booleans()) else draw(stamps | st.just(-math.inf))
+    edge = draw(stamps | st.just(-math.inf))
+    period = draw(st.sampled_from([0.001, 0.002, 0.008]))
+    bridge = max(period, draw(st.sampled_from([0.0, 0.1, 0.15])))
+    return (t, dx, dy, kt, kx, ky, knot_t, edge, period, bridge, 0.5 * period)
+
+
+def _bits(values: list) -> list:
+    return [struct.pack("<d", v) if isinstance(v, float) else ("int", v) for v in values]
+
+
+@needs_core
+@settings(max_examples=400, deadline=None)
+@given(ingests())
+def test_ingest_small_is_the_python_bit_for_bit(case):
+    """The knots (appended and joined), the sums (ints stay ints), the counts of reports
+    run backwards and behind the edge, and the last stamp: the Python's, bit for bit."""
+    t, dx, dy, kt, kx, ky, *rest = case
+    py_lists = [kt[:], kx[:], ky[:]]
+    c_lists = [kt[:], kx[:], ky[:]]
+    want = _ingest_loop(t, dx, dy, *py_lists, *rest)
+    got = core.native.ingest_small(t, dx, dy, *c_lists, *rest)
+    assert got is not None
+    assert _bits(list(got)) == _bits(list(want))
+    assert [_bits(v) for v in c_lists] == [_bits(v) for v in py_lists]
+
+
+@needs_core
+@pytest.mark.parametrize(
+    "dx",
+    [[1, 2.5], [True, 1], [2**63, 1], [2**62, 2**62], [1, "x"]],
+    ids=["mixed", "bool", "too-big", "sum-too-big", "not-a-number"],
+)
+def test_ingest_small_declines_what_it_cannot_do_exactly_and_touches_nothing(dx):
+    """Counts that are not all ints or all floats on an axis, or int sums beyond int64:
+    None, the knot lists as they were (the Python then runs, with Python's numbers)."""
+    kt, kx, ky = [0.0, 0.001], [0.0, 1.0], [0.0, 0.0]
+    lists = (kt[:], kx[:], ky[:])
+    got = core.native.ingest_small([0.002, 0.003], dx, [0, 0], *lists, 0.001, 0.0, 0.001,
+                                   0.1, 0.0005)  # fmt: skip
+    assert got is None
+    assert lists == (kt, kx, ky)

@@ -28,8 +28,11 @@ from __future__ import annotations
 
 import math
 from bisect import bisect_left, bisect_right
+from typing import Any
 
 import numpy as np
+
+from mousedom import core
 
 # The knots as three Python lists: times, cumulative REL_X, cumulative REL_Y
 KnotLists = tuple[list[float], list[float], list[float]]
@@ -241,44 +244,17 @@ class CountFunction:
             dy += pdy if isinstance(pdy, list) else pdy.tolist()
         period, bridge, join = self.period, self.bridge, self.join
         kt, kx, ky = self.knot_lists()
-        lx, ly = (kx[-1], ky[-1]) if kt else (0.0, 0.0)
-        run = prev = self.knot_t
-        cx, cy = dx[0], dy[0]  # np.cumsum starts from the first value, not from 0 + it
-        backwards = late = 0
-        for k, (ti, a, b) in enumerate(zip(t, dx, dy, strict=True)):
-            if k:
-                cx += a
-                cy += b
-            if run > ti:
-                backwards += 1
-            else:
-                run = ti
-            ti = run
-            if ti < edge:
-                late += 1
-                ti = edge
-            x, y = cx + lx, cy + ly
-            gap = ti - prev
-            n = len(kt)
-            if (
-                gap < join
-                and n >= 2
-                and kt[n - 1] == prev
-                and prev > edge
-                and (ti - kt[n - 2] <= bridge)
-            ):
-                # held up on its way: the previous report's span stretches to take it
-                kt[n - 1], kx[n - 1], ky[n - 1] = ti, x, y
-                prev = ti
-                continue
-            # the span: since the previous report within the bridge, else one period
-            start = prev if gap <= bridge else ti - period
-            if edge > start:
-                start = edge
-            kt += (start, ti)
-            kx += (x - a, x)
-            ky += (y - b, y)
-            prev = ti
+        native = core.native
+        done = None
+        if native is not None:  # the same loop compiled (csrc/core.c), or None: declined
+            done = native.ingest_small(t, dx, dy, kt, kx, ky, self.knot_t, edge, period,
+                                       bridge, join)  # fmt: skip
+        if done is not None:
+            cx, cy, backwards, late, prev = done
+        else:
+            cx, cy, backwards, late, prev = _ingest_loop(
+                t, dx, dy, kt, kx, ky, self.knot_t, edge, period, bridge, join
+            )
         self.counts_in[0] += cx
         self.counts_in[1] += cy
         self.backwards += backwards
@@ -459,3 +435,51 @@ def cut_span(
     if abs(kx[j] - kx[j - 1]) + abs(ky[j] - ky[j - 1]) <= 0.5:
         return math.nan, 0.0
     return kt[j - 1], kt[j] - kt[j - 1]
+
+
+def _ingest_loop(
+    t: list, dx: list, dy: list, kt: list, kx: list, ky: list, knot_t: float, edge: float,
+    period: float, bridge: float, join: float,
+) -> tuple[Any, Any, int, int, float]:  # fmt: skip
+    """``CountFunction.ingest_small``'s loop (the compiled core's ``ingest_small`` is this,
+    in C): the reports become knots appended to kt, kx, ky; returns the counts' sums, the
+    reports stamped backwards and behind ``edge``, and the last report's stamp."""
+    lx, ly = (kx[-1], ky[-1]) if kt else (0.0, 0.0)
+    run = prev = knot_t
+    cx, cy = dx[0], dy[0]  # np.cumsum starts from the first value, not from 0 + it
+    backwards = late = 0
+    for k, (ti, a, b) in enumerate(zip(t, dx, dy, strict=True)):
+        if k:
+            cx += a
+            cy += b
+        if run > ti:
+            backwards += 1
+        else:
+            run = ti
+        ti = run
+        if ti < edge:
+            late += 1
+            ti = edge
+        x, y = cx + lx, cy + ly
+        gap = ti - prev
+        n = len(kt)
+        if (
+            gap < join
+            and n >= 2
+            and kt[n - 1] == prev
+            and prev > edge
+            and (ti - kt[n - 2] <= bridge)
+        ):
+            # held up on its way: the previous report's span stretches to take it
+            kt[n - 1], kx[n - 1], ky[n - 1] = ti, x, y
+            prev = ti
+            continue
+        # the span: since the previous report within the bridge, else one period
+        start = prev if gap <= bridge else ti - period
+        if edge > start:
+            start = edge
+        kt += (start, ti)
+        kx += (x - a, x)
+        ky += (y - b, y)
+        prev = ti
+    return cx, cy, backwards, late, prev
