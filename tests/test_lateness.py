@@ -192,3 +192,40 @@ def test_a_catch_up_spread_over_a_cut_span_is_kept(mouse, seed, span):
 
     states = _accelerating(mouse, even, seed, span)
     assert robust.EXCLUDED not in states, states
+
+
+@pytest.mark.parametrize("mouse", range(4))
+@pytest.mark.parametrize("seed", range(3))
+@pytest.mark.parametrize("short", [3, 4, 5])
+def test_an_unflagged_lag_paid_back_is_not_a_fault(mouse, seed, short, monkeypatch):
+    """A mouse short by a little for a few windows (its stamps late by a long tail:
+    each window within its tolerance, so it is used), then paying it all back at once,
+    beyond the window's tolerance: its counts are counted once, where they came, and the
+    mouse is never excluded; the pose has every count.  Without the look back over the
+    windows before (``Screen._caught_up``), the same readings exclude it."""
+
+    def bend(k, d, direction):
+        if 10 <= k < 10 + short:
+            d[mouse] -= 0.15 * np.linalg.norm(d[mouse]) * direction
+        elif k == 10 + short:
+            d[mouse] += short * 0.15 * np.linalg.norm(d[mouse]) * direction
+
+    total_q, all_mice, states = _run(mouse, bend, seed)
+    assert robust.EXCLUDED not in states and robust.LATE not in states, states
+    assert np.allclose(total_q, all_mice, atol=1e-9), (total_q, all_mice)
+    monkeypatch.setattr(robust.Screen, "_caught_up", lambda *a: False)
+    _, _, states = _run(mouse, bend, seed)
+    assert robust.EXCLUDED in states, states  # (the test above is not vacuous)
+
+
+@pytest.mark.parametrize("mouse", range(4))
+@pytest.mark.parametrize("short", [3, 4, 5])
+def test_the_same_excess_with_no_lag_before_is_excluded(mouse, short):
+    """The payback of the test above, with nothing owed before it: a jump forward."""
+
+    def bend(k, d, direction):
+        if k == 10 + short:
+            d[mouse] += short * 0.15 * np.linalg.norm(d[mouse]) * direction
+
+    _, _, states = _run(mouse, bend, 0)
+    assert states[10 + short] == robust.EXCLUDED, states

@@ -67,6 +67,20 @@ class RigidTest:
             self._leverages[key] = h
         return h
 
+    def hat_block(self, used: np.ndarray, j: int) -> np.ndarray | None:
+        """Mouse j's 2x2 block of the hat matrix A B of the solve with ``used`` (j among
+        them): its reading's share in its own prediction.  Its residual with it in use is
+        (I - block) times its residual under the others (block deletion); None without
+        rank."""
+        used = np.asarray(used, dtype=bool)
+        est = models._estimator(self.positions.tobytes(), self.sigma.tobytes(),
+                                used.tobytes(), self.cols)  # fmt: skip
+        if est is None or not used[j]:
+            return None
+        k = int(np.count_nonzero(used[:j]))
+        hat = est[0] @ est[1]
+        return hat[2 * k : 2 * k + 2, 2 * k : 2 * k + 2]
+
     def predict(self, q: np.ndarray) -> np.ndarray:
         """Each mouse's displacement (..., N, 2) under body twist increments q (..., 3)."""
         q = np.asarray(q, dtype=float)

@@ -84,6 +84,10 @@ _CONTINUITY_MARGIN = 3.0
 _FIT_MARGIN = chi2.quantile(0.999, 1)
 # How far back the continuity of motion is judged from (_tie_break).
 HISTORY_S = 0.05
+# A mouse whose hat block has an eigenvalue beyond this is not looked back on for a
+# paid-back lag (Screen._caught_up): (I - block)^-1 would multiply the earlier windows'
+# residuals, noise included, by more than 4 along it.
+_CATCH_UP_LEVERAGE = 0.75
 
 
 class Explanation(NamedTuple):
@@ -281,8 +285,14 @@ class Screen(RigidTest):
         s2 = floor * scale + prop
         inflate, consistent = 1.0, True
         stat = self._statistic(d, used, s2)
+        caught_up = False
         if stat is not None and stat.dof > 0 and not self._passes(stat):
             blamed = self._identify(d, used, s2)
+            if blamed is not None and self._caught_up(d, used, blamed, s2):
+                blamed, caught_up = None, True
+        if caught_up:
+            pass  # counts moved between windows, not a fault: the window stands as solved
+        elif stat is not None and stat.dof > 0 and not self._passes(stat):
             swap = (None if blamed is not None
                     else self._reexamine(d, live, used, gate, scale, gran2, spans))  # fmt: skip
             if swap is not None:
@@ -313,7 +323,7 @@ class Screen(RigidTest):
         floor = floor * scale
         self._update(d, p, live, used, suspect, reason, consistent, floor, prop)
         correction = self._reconcile(used) if self._readmitted else None
-        if consistent and self.dof(int(used.sum())) > 0:
+        if consistent and not caught_up and self.dof(int(used.sum())) > 0:
             r2 = np.sum((d - p) ** 2, axis=1)
             moving = np.maximum(np.sum(d * d, 1), np.sum(p * p, 1)) > self.noise.sig2
             h = self.leverage(used)
@@ -322,6 +332,44 @@ class Screen(RigidTest):
         self.accepted(p[None], d[None])
         self._count_window()
         return Decision(used=used, inflate=inflate, consistent=consistent, correction=correction)
+
+    def _caught_up(self, d: np.ndarray, used: np.ndarray, blamed: list[int],
+                   s2: np.ndarray) -> bool:  # fmt: skip
+        """Whether the mice blamed for this window read more than the others say only by
+        counts late from the windows just before, in which they were used and read short
+        within their tolerance (stamps late by a long tail; a report held up): a lag that
+        was never flagged, paid back.  Then the readings summed from one of those windows
+        through this one agree with the others (each earlier residual, shrunk by the mouse's
+        own weight in the solve it was used in, taken back to full size), within the test
+        that gives a late mouse's debt back (``_reconcile``); the counts are the mouse's,
+        counted once, and the window is solved with it.  A jump, a lift or an under-read
+        owes far more than a few windows' tolerance and is blamed as before."""
+        if len(blamed) != 1 or len(self.history) < 2:
+            return False
+        j = blamed[0]
+        if self.health[j].state != TRACKING or self._silent(d, j):
+            return False
+        rest = used.copy()
+        rest[j] = False
+        q = self._solve(d, rest)
+        if q is None:
+            return False
+        owed = d[j] - self.predict(q)[j]
+        block = self.hat_block(used, j)
+        if block is None or not np.all(np.abs(np.linalg.eigvals(block)) <= _CATCH_UP_LEVERAGE):
+            # its own weight hid nearly all of its residual in the windows before: taken
+            # back to full size, their noise would be multiplied past any test
+            return False
+        full = np.linalg.inv(np.eye(2) - block)  # a residual in use -> under the others
+        tol2 = self._thresholds[2] * 2.0 * float(s2[j])
+        past_d, past_p = list(self.history), list(self.lateness.recent)
+        for k in range(1, min(len(past_d), len(past_p)) + 1):
+            dk = np.asarray(past_d[-k], dtype=float).reshape(self.n, 2)[j]
+            pk = np.asarray(past_p[-k], dtype=float).reshape(self.n, 2)[j]
+            owed = owed + full @ (dk - pk)
+            if float(owed @ owed) <= tol2:
+                return True
+        return False
 
     def _span_p(
         self, d: np.ndarray, used: np.ndarray, p: np.ndarray, spans: ArrayLike | None
