@@ -31,11 +31,11 @@ def _runs(kind: str) -> list[tuple[scenarios.Run, scenarios.Run, int]]:
             batch, _ = scenarios.run(result, cfg)
             st = np.asarray(batch.state)
             new = (st[1:] == robust.EXCLUDED) & (st[:-1] != robust.EXCLUDED)
-            late = int(new.any(axis=1).sum())
+            excl = int(new.any(axis=1).sum())
             out.append((
                 scenarios.measure(result, cfg),
                 scenarios.measure(result, conditions.condition_config(base, cond, robust=False)),
-                late,
+                excl,
             ))  # fmt: skip
     return out
 
@@ -59,6 +59,6 @@ def test_a_healthy_mouse_is_excluded_less_than_once_per_10000_windows(runs, kind
     excluded there, 5 times in these 36,000 windows, until a lag paid back at once was
     recognised: robust.Screen._caught_up)."""
     windows = sum(d.windows for d, _, _ in runs[kind])
-    excluded = sum(late for _, _, late in runs[kind])
+    excluded = sum(excl for _, _, excl in runs[kind])
     assert windows > 35_000
     assert excluded / windows < 1e-4, (excluded, windows)
