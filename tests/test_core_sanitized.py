@@ -7,20 +7,15 @@ live in the fuzzed process, and every Python object is its own allocation
 from __future__ import annotations
 
 import os
-import shutil
 import subprocess
 import sys
 
 import cores
-import pytest
 from conftest import REPO
 
 FUZZ_S = 15.0  # the suite's share; CI's fuzz budget for the core
 
-needs_gcc = pytest.mark.skipif(
-    shutil.which(os.environ.get("CC", "gcc")) is None and not cores.REQUIRED,
-    reason="no C compiler here (CI has one: MOUSEDOM_REQUIRE_CORE=1)",
-)
+needs_gcc = cores.needs_gcc
 
 
 @needs_gcc

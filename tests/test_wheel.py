@@ -10,16 +10,12 @@ import sys
 import venv
 
 import cores
-import pytest
 from conftest import REPO
 
 SKIP = (".git", ".venv", ".ros-venv", "build", "dist", "__pycache__", "*.so", "*.egg-info",
         ".hypothesis", ".pytest_cache", ".ruff_cache", ".mypy_cache", "firmware")  # fmt: skip
 
-needs_gcc = pytest.mark.skipif(
-    shutil.which(os.environ.get("CC", "gcc")) is None and not cores.REQUIRED,
-    reason="no C compiler here (CI has one: MOUSEDOM_REQUIRE_CORE=1)",
-)
+needs_gcc = cores.needs_gcc
 
 
 @needs_gcc
