@@ -240,10 +240,26 @@ MUTANTS = [
     Mutant(
         "robust-never-readmits",
         "mousedom/fusion/robust.py",
-        "        elif p[i] @ p[i] > 4.0 * thr2 * not_proportional:\n            h.good += 1\n",
-        "        elif p[i] @ p[i] > 4.0 * thr2 * not_proportional:\n            h.good += 0\n",
+        "        elif shows:\n            h.good += 1\n",
+        "        elif shows:\n            h.good += 0\n",
         ("tests/test_robust.py",),
         "an excluded mouse that agrees again is never used again",
+    ),
+    Mutant(
+        "readmitted-mouse-given-nothing-it-agreed",
+        "mousedom/fusion/robust.py",
+        "        if good >= self.readmit_evidence:\n            self._banked[i] += self._run[i]\n",
+        "        if False:\n            self._banked[i] += self._run[i]\n",
+        ("tests/test_reconcile.py",),
+        "a mouse re-admitted after a jump or a lift loses the windows it agreed in meanwhile",
+    ),
+    Mutant(
+        "lifted-mouse-silence-agrees",
+        "mousedom/fusion/robust.py",
+        "        if h.good > 0 or shows:\n",
+        "        if True:\n",
+        ("tests/test_reconcile.py",),
+        "a lifted mouse's silence, within a tolerance the motion widened, is given back",
     ),
     Mutant(
         "span-term-from-its-own-reading",

@@ -147,6 +147,14 @@ class Screen(RigidTest):
         # exclusion, and the largest expected error of a window in it (_reconcile).
         self._owed = np.zeros((self.n, 2))
         self._owed_s2 = np.zeros(self.n)
+        # The same sum over the windows of its exclusion in which it agreed with the
+        # others, run by run (a run ends where it disagrees, and counts where it showed
+        # the mouse sound: _bank), and their expected errors summed: what it is owed
+        # where the whole sum is not (a jump, a lift): _reconcile.
+        self._run = np.zeros((self.n, 2))
+        self._run_s2 = np.zeros(self.n)
+        self._banked = np.zeros((self.n, 2))
+        self._banked_s2 = np.zeros(self.n)
         self._readmitted: list[int] = []
         self.lateness = Lateness(self.n, window, settings.late_s)
 
@@ -283,6 +291,7 @@ class Screen(RigidTest):
         gp = None if gran2 is None else self._span_p(d, used, p, spans)
         floor, prop = self.noise.parts(d, p, self.prev_p, gran2=gran2, gran_p=gp)
         s2 = floor * scale + prop
+        tested = (used, p)  # what floor and prop were computed for (a change rebinds both)
         inflate, consistent = 1.0, True
         stat = self._statistic(d, used, s2)
         caught_up = False
@@ -318,8 +327,9 @@ class Screen(RigidTest):
                 inflate = stat.t / stat.dof
                 suspect |= used
                 reason[used & (reason == NONE)] = INCONSISTENT
-        gp = None if gran2 is None else self._span_p(d, used, p, spans)
-        floor, prop = self.noise.parts(d, p, self.prev_p, gran2=gran2, gran_p=gp)
+        if used is not tested[0] or p is not tested[1]:  # a mouse blamed, swapped or gated
+            gp = None if gran2 is None else self._span_p(d, used, p, spans)
+            floor, prop = self.noise.parts(d, p, self.prev_p, gran2=gran2, gran_p=gp)
         floor = floor * scale
         self._update(d, p, live, used, suspect, reason, consistent, floor, prop)
         correction = self._reconcile(used) if self._readmitted else None
@@ -407,18 +417,28 @@ class Screen(RigidTest):
         B_i r_i to its solution (B_i the mouse's columns of the estimator with it in use,
         r_i its residual under the others), and summed over the exclusion that is B_i
         times the sum.  Exact for the heading; for the position up to the turn within
-        the exclusion."""
+        the exclusion.  A mouse whose whole sum fails gets the runs of windows it agreed
+        in while it waited (``_bank``: after a lift, between and after jumps), where their
+        sum is within its expected error: in use, in effect, from the window after its
+        fault."""
         back, self._readmitted = self._readmitted, []
         owed = np.zeros((self.n, 2))
         with_them = used.copy()
         thr2 = self._thresholds[2]
         for i in back:
-            r = self._owed[i]
+            r, a = self._owed[i], self._banked[i]
             if float(r @ r) <= thr2 * 2.0 * self._owed_s2[i]:
                 owed[i] = r
                 with_them[i] = True
+            elif self._banked_s2[i] > 0 and float(a @ a) <= thr2 * self._banked_s2[i]:
+                # the whole sum holds the fault; the windows it agreed in are the mouse's
+                # (what the least squares would have taken had it been in use in them)
+                owed[i] = a
+                with_them[i] = True
             self._owed[i] = 0.0
             self._owed_s2[i] = 0.0
+            self._banked[i] = 0.0
+            self._banked_s2[i] = 0.0
         if not owed.any():
             return None
         return self._solve(owed, with_them)
@@ -561,6 +581,8 @@ class Screen(RigidTest):
             # was excluded already (held out again by a re-examination)
             self._owed[i] = d[i] - p[i]
             self._owed_s2[i] = s2
+            self._run[i] = self._banked[i] = 0.0
+            self._run_s2[i] = self._banked_s2[i] = 0.0
             h.good = 0
             tol2 = thr2 * 2.0 * s2
             if (h.state != EXCLUDED and why in (SILENT, INCONSISTENT)
@@ -579,20 +601,39 @@ class Screen(RigidTest):
         # moved it well beyond its error) and where it agreed.
         r = d[i] - p[i]
         if r @ r > thr2 * s2:
+            self._bank(i, h.good)
             h.good = 0
             h.reason = SILENT if self._silent(d, i) else INCONSISTENT
-        elif h.reason in (SATURATED, LOW_QUALITY):
+            return
+        shows = p[i] @ p[i] > 4.0 * thr2 * not_proportional  # moved enough to show a fault
+        if h.good > 0 or shows:
+            # a run starts where the mouse shows itself sound: before, a lifted mouse's
+            # silence can pass where the motion's changes widen every tolerance
+            self._run[i] += r
+            self._run_s2[i] += s2
+        if h.reason in (SATURATED, LOW_QUALITY):
             # Its own sensor said why, and says so no more: a fifth of the wait (a longer
             # one only loses a good mouse, here the one whose speed limit a fast rig
             # keeps crossing).
             h.good += 1
             if h.good >= self.readmit_evidence:
                 h.state, h.reason, h.good = TRACKING, NONE, 0
-        elif p[i] @ p[i] > 4.0 * thr2 * not_proportional:
+        elif shows:
             h.good += 1
             if h.good >= self.readmit:
+                self._bank(i, h.good)
                 h.state, h.reason, h.good = TRACKING, NONE, 0
                 self._readmitted.append(i)
+
+    def _bank(self, i: int, good: int) -> None:
+        """End mouse i's run of agreeing windows: kept toward what it is owed where it held
+        enough windows that would have shown a fault (a lifted mouse agrees in a still
+        window, and only there), dropped otherwise."""
+        if good >= self.readmit_evidence:
+            self._banked[i] += self._run[i]
+            self._banked_s2[i] += self._run_s2[i]
+        self._run[i] = 0.0
+        self._run_s2[i] = 0.0
 
     def _late(self, d: np.ndarray, p: np.ndarray, i: int, h: MouseHealth, tol2: float) -> None:
         """A late mouse after one more window: back once its debt is paid (what it owed is
