@@ -254,6 +254,14 @@ MUTANTS = [
         "a mouse re-admitted after a jump or a lift loses the windows it agreed in meanwhile",
     ),
     Mutant(
+        "fault-onset-kept",
+        "mousedom/fusion/robust.py",
+        "            if float(r @ u) <= tol:\n                break\n",
+        "            if True:\n                break\n",
+        ("tests/test_reconcile.py",),
+        "the window a fault began in, within the test, keeps the fault's share for good",
+    ),
+    Mutant(
         "lifted-mouse-silence-agrees",
         "mousedom/fusion/robust.py",
         "        if h.good > 0 or shows:\n",

@@ -28,6 +28,11 @@ together with the others.  Per window (docs/models.md, "Faults"):
 4. An excluded mouse is re-admitted after ``readmit_s`` of windows in which it agreed with
    the others while they moved enough to have shown the fault; one its own sensor's
    evidence excluded, after a fifth of that once the evidence is gone and it agrees.
+5. What a held-out mouse read is settled with the pose by corrections to the window's
+   twist (``Decision.correction``), so that every count counts once and a fault from its
+   start only: the windows just before its exclusion in which its fault began are taken
+   back (``_take_back``); at re-admission a late mouse's counts are given back whole, a
+   faulty one's from the windows it agreed in (``_reconcile``).
 
 Sensor evidence gates a mouse before any of this: SQUAL below ``min_squal`` or the
 sensor's overflow flag ("low quality"), a reading or a prediction beyond ``max_speed``
@@ -88,6 +93,9 @@ HISTORY_S = 0.05
 # paid-back lag (Screen._caught_up): (I - block)^-1 would multiply the earlier windows'
 # residuals, noise included, by more than 4 along it.
 _CATCH_UP_LEVERAGE = 0.75
+# How many windows before a mouse's exclusion its fault's onset is looked for in
+# (Screen._take_back): a fault starts within a window and grows past the test in a few.
+TAKE_BACK_WINDOWS = 3
 
 
 class Explanation(NamedTuple):
@@ -105,7 +113,8 @@ class Decision:
     inflate: float  # the q covariance's factor (1 unless inconsistent and unattributed)
     consistent: bool
     # (3,) to add to the window's twist increment: what mice re-admitted in it would have
-    # given over their exclusion, where that shows they were late, not wrong (_reconcile)
+    # given over their exclusion (_reconcile), less what mice held out of it took while
+    # their fault began (_take_back)
     correction: np.ndarray | None = None
 
 
@@ -331,8 +340,9 @@ class Screen(RigidTest):
             gp = None if gran2 is None else self._span_p(d, used, p, spans)
             floor, prop = self.noise.parts(d, p, self.prev_p, gran2=gran2, gran_p=gp)
         floor = floor * scale
+        was_used = [h.state in (TRACKING, SUSPECT) for h in self.health]
         self._update(d, p, live, used, suspect, reason, consistent, floor, prop)
-        correction = self._reconcile(used) if self._readmitted else None
+        correction = self._settle(used, live & ~used, was_used, reason, floor + prop)
         if consistent and not caught_up and self.dof(int(used.sum())) > 0:
             r2 = np.sum((d - p) ** 2, axis=1)
             moving = np.maximum(np.sum(d * d, 1), np.sum(p * p, 1)) > self.noise.sig2
@@ -380,6 +390,61 @@ class Screen(RigidTest):
             if float(owed @ owed) <= tol2:
                 return True
         return False
+
+    def _settle(self, used: np.ndarray, out: np.ndarray, was_used: list[bool],
+                reason: np.ndarray, s2: np.ndarray) -> np.ndarray | None:  # fmt: skip
+        """The window's correction (module step 5): what the mice re-admitted in it are
+        owed, less what the mice held out of it, used before, took while their fault
+        began."""
+        correction = self._reconcile(used) if self._readmitted else None
+        for i in np.flatnonzero(out).tolist():
+            if was_used[i] and reason[i] in (SILENT, INCONSISTENT):
+                back = self._take_back(i, used, float(s2[i]))
+                if back is not None:
+                    correction = back if correction is None else correction + back
+        return correction
+
+    def _take_back(self, i: int, used: np.ndarray, s2: float) -> np.ndarray | None:
+        """The twist to take back from the windows just before mouse i was held out, in
+        which it was used while its fault began (``Decision.correction``), or None.
+
+        A fault starts within a window and often passes the test in the first one or two
+        (its share of the window, a mouse of high leverage): those windows keep its error
+        for good, where a user who knew would have left the mouse out from the fault's
+        start.  Going back from the last window, each in which the mouse's residual under
+        the others lies along its residual now by more than its expected error there (the
+        fault's direction; a healthy window's noise seldom does, and the walk stops at the
+        first that does not) is solved again without it, and the difference taken back.
+        What is taken back joins what the mouse owes (``_owed``): a late mouse that pays
+        back is given it all again (``_reconcile``)."""
+        now = self._owed[i]
+        size = math.sqrt(float(now @ now))
+        with_i = used.copy()
+        with_i[i] = True
+        block = self.hat_block(with_i, i)
+        if size == 0.0 or block is None or self._solve(np.zeros((self.n, 2)), used) is None:
+            return None
+        u = now / size
+        # the residual under the others has the covariance s2 (I - block)^-1
+        spread = float(u @ np.linalg.solve(np.eye(2) - block, u))
+        if not spread > 0.0:
+            return None
+        tol = math.sqrt(s2 * spread)
+        taken_r, taken_q = np.zeros(2), np.zeros(3)
+        for dk in list(self.history)[::-1][:TAKE_BACK_WINDOWS]:
+            dk = np.asarray(dk, dtype=float).reshape(self.n, 2)
+            rest = self._solve(dk, used)
+            both = self._solve(dk, with_i)
+            assert rest is not None and both is not None  # the rank was checked above
+            r = dk[i] - self.predict(rest)[i]
+            if float(r @ u) <= tol:
+                break
+            taken_r += r
+            taken_q += both - rest
+        if not taken_r.any():
+            return None
+        self._owed[i] += taken_r
+        return -taken_q
 
     def _span_p(
         self, d: np.ndarray, used: np.ndarray, p: np.ndarray, spans: ArrayLike | None
