@@ -32,7 +32,7 @@ together with the others.  Per window (docs/models.md, "Faults"):
    twist (``Decision.correction``), so that every count counts once and a fault from its
    start only: the windows just before its exclusion in which its fault began are taken
    back (``_take_back``); at re-admission a late mouse's counts are given back whole, a
-   faulty one's from the windows it agreed in (``_reconcile``).
+   faulty one's from the windows it agreed in (``ledger``).
 
 Sensor evidence gates a mouse before any of this: SQUAL below ``min_squal`` or the
 sensor's overflow flag ("low quality"), a reading or a prediction beyond ``max_speed``
@@ -76,6 +76,7 @@ from mousedom.fusion.health import (
     Reason,
 )
 from mousedom.fusion.lateness import Lateness
+from mousedom.fusion.ledger import Ledger
 from mousedom.fusion.noisemodel import NoiseModel
 from mousedom.fusion.rigidtest import RigidTest, Statistic
 
@@ -113,7 +114,7 @@ class Decision:
     inflate: float  # the q covariance's factor (1 unless inconsistent and unattributed)
     consistent: bool
     # (3,) to add to the window's twist increment: what mice re-admitted in it would have
-    # given over their exclusion (_reconcile), less what mice held out of it took while
+    # given over their exclusion (ledger), less what mice held out of it took while
     # their fault began (_take_back)
     correction: np.ndarray | None = None
 
@@ -152,19 +153,8 @@ class Screen(RigidTest):
         # already have bent (_tie_break).
         self.history_len = max(2, round(HISTORY_S / window))
         self.history: deque[Any] = deque(maxlen=self.history_len)
-        # Each excluded mouse's readings less the others' account of them, summed over its
-        # exclusion, and the largest expected error of a window in it (_reconcile).
-        self._owed = np.zeros((self.n, 2))
-        self._owed_s2 = np.zeros(self.n)
-        # The same sum over the windows of its exclusion in which it agreed with the
-        # others, run by run (a run ends where it disagrees, and counts where it showed
-        # the mouse sound: _bank), and their expected errors summed: what it is owed
-        # where the whole sum is not (a jump, a lift): _reconcile.
-        self._run = np.zeros((self.n, 2))
-        self._run_s2 = np.zeros(self.n)
-        self._banked = np.zeros((self.n, 2))
-        self._banked_s2 = np.zeros(self.n)
-        self._readmitted: list[int] = []
+        # What each held-out mouse owes the pose, settled at its re-admission (ledger).
+        self.ledger = Ledger(self.n, self._thresholds[2], self.readmit_evidence)
         self.lateness = Lateness(self.n, window, settings.late_s)
 
     # ----------------------------------------------------------------- basics
@@ -361,7 +351,7 @@ class Screen(RigidTest):
         was never flagged, paid back.  Then the readings summed from one of those windows
         through this one agree with the others (each earlier residual, shrunk by the mouse's
         own weight in the solve it was used in, taken back to full size), within the test
-        that gives a late mouse's debt back (``_reconcile``); the counts are the mouse's,
+        that gives a late mouse's debt back (``ledger``); the counts are the mouse's,
         counted once, and the window is solved with it.  A jump, a lift or an under-read
         owes far more than a few windows' tolerance and is blamed as before."""
         if len(blamed) != 1 or len(self.history) < 2:
@@ -396,7 +386,7 @@ class Screen(RigidTest):
         """The window's correction (module step 5): what the mice re-admitted in it are
         owed, less what the mice held out of it, used before, took while their fault
         began."""
-        correction = self._reconcile(used) if self._readmitted else None
+        correction = self.ledger.settle(used, self._solve) if self.ledger.readmitted else None
         for i in np.flatnonzero(out).tolist():
             if was_used[i] and reason[i] in (SILENT, INCONSISTENT):
                 back = self._take_back(i, used, float(s2[i]))
@@ -415,9 +405,9 @@ class Screen(RigidTest):
         the others lies along its residual now by more than its expected error there (the
         fault's direction; a healthy window's noise seldom does, and the walk stops at the
         first that does not) is solved again without it, and the difference taken back.
-        What is taken back joins what the mouse owes (``_owed``): a late mouse that pays
-        back is given it all again (``_reconcile``)."""
-        now = self._owed[i]
+        What is taken back joins what the mouse owes: a late mouse that pays back is given
+        it all again (``ledger``)."""
+        now = self.ledger.owed[i]
         size = math.sqrt(float(now @ now))
         with_i = used.copy()
         with_i[i] = True
@@ -443,7 +433,7 @@ class Screen(RigidTest):
             taken_q += both - rest
         if not taken_r.any():
             return None
-        self._owed[i] += taken_r
+        self.ledger.take(i, taken_r)
         return -taken_q
 
     def _span_p(
@@ -463,50 +453,6 @@ class Screen(RigidTest):
                 out = out.copy() if out is p else out
                 out[i] = self.predict(q)[i]
         return out
-
-    def _reconcile(self, used: np.ndarray) -> np.ndarray | None:
-        """The twist the mice re-admitted in this window owe the pose, or None.
-
-        A healthy mouse whose stamps run late (a USB host's delay, a long-tailed one) can
-        fail a window and be excluded; its late counts then arrive while it is out, and
-        were they dropped, the shortfall it showed before would be kept and its
-        compensation thrown away: a heading offset for good, several times the drive's
-        whole error on some rigs (issue 31).  So an excluded mouse's readings less what
-        the others said it moved are summed over its exclusion (``_owed``).  A late mouse's
-        sum is its lateness at the end less that at the start: no larger than one
-        window's error, and the test says so (chi-square with 2 degrees of freedom at the
-        false-alarm rate, against twice the largest expected error of a window in the
-        exclusion).  A lifted, under-reading or jumping mouse owes the motion it missed
-        or invented: far beyond.  Where it passes, the window gets what the mouse would
-        have added had it been in use throughout: adding a mouse to a least squares adds
-        B_i r_i to its solution (B_i the mouse's columns of the estimator with it in use,
-        r_i its residual under the others), and summed over the exclusion that is B_i
-        times the sum.  Exact for the heading; for the position up to the turn within
-        the exclusion.  A mouse whose whole sum fails gets the runs of windows it agreed
-        in while it waited (``_bank``: after a lift, between and after jumps), where their
-        sum is within its expected error: in use, in effect, from the window after its
-        fault."""
-        back, self._readmitted = self._readmitted, []
-        owed = np.zeros((self.n, 2))
-        with_them = used.copy()
-        thr2 = self._thresholds[2]
-        for i in back:
-            r, a = self._owed[i], self._banked[i]
-            if float(r @ r) <= thr2 * 2.0 * self._owed_s2[i]:
-                owed[i] = r
-                with_them[i] = True
-            elif self._banked_s2[i] > 0 and float(a @ a) <= thr2 * self._banked_s2[i]:
-                # the whole sum holds the fault; the windows it agreed in are the mouse's
-                # (what the least squares would have taken had it been in use in them)
-                owed[i] = a
-                with_them[i] = True
-            self._owed[i] = 0.0
-            self._owed_s2[i] = 0.0
-            self._banked[i] = 0.0
-            self._banked_s2[i] = 0.0
-        if not owed.any():
-            return None
-        return self._solve(owed, with_them)
 
     def _reexamine(self, d, live, used, gate, scale, gran2=None, spans=None) -> list[int] | None:
         """Revisit earlier exclusions when the kept set fails and nobody in it can be
@@ -644,29 +590,25 @@ class Screen(RigidTest):
         if h.state not in (EXCLUDED, LATE) or why != NONE:
             # late where it is short by its last moments' motion (lateness), unless it
             # was excluded already (held out again by a re-examination)
-            self._owed[i] = d[i] - p[i]
-            self._owed_s2[i] = s2
-            self._run[i] = self._banked[i] = 0.0
-            self._run_s2[i] = self._banked_s2[i] = 0.0
+            self.ledger.hold(i, d[i] - p[i], s2)
             h.good = 0
             tol2 = thr2 * 2.0 * s2
             if (h.state != EXCLUDED and why in (SILENT, INCONSISTENT)
-                    and self.lateness.explains(i, self._owed[i], p[i], tol2)):  # fmt: skip
+                    and self.lateness.explains(i, self.ledger.owed[i], p[i], tol2)):  # fmt: skip
                 h.state, h.reason = LATE, why
                 self.lateness.held[i] = 1
             else:
                 h.state, h.reason = EXCLUDED, why or INCONSISTENT
             return
-        self._owed[i] += d[i] - p[i]
-        self._owed_s2[i] = max(self._owed_s2[i], s2)
+        self.ledger.carry(i, d[i] - p[i], s2)
         if h.state == LATE:
-            self._late(d, p, i, h, thr2 * 2.0 * self._owed_s2[i])
+            self._late(d, p, i, h, thr2 * 2.0 * self.ledger.owed_s2[i])
             return
         # Excluded earlier: count the windows that would have shown its fault (the others
         # moved it well beyond its error) and where it agreed.
         r = d[i] - p[i]
         if r @ r > thr2 * s2:
-            self._bank(i, h.good)
+            self.ledger.end_run(i, h.good)
             h.good = 0
             h.reason = SILENT if self._silent(d, i) else INCONSISTENT
             return
@@ -674,8 +616,7 @@ class Screen(RigidTest):
         if h.good > 0 or shows:
             # a run starts where the mouse shows itself sound: before, a lifted mouse's
             # silence can pass where the motion's changes widen every tolerance
-            self._run[i] += r
-            self._run_s2[i] += s2
+            self.ledger.agree(i, r, s2)
         if h.reason in (SATURATED, LOW_QUALITY):
             # Its own sensor said why, and says so no more: a fifth of the wait (a longer
             # one only loses a good mouse, here the one whose speed limit a fast rig
@@ -686,28 +627,18 @@ class Screen(RigidTest):
         elif shows:
             h.good += 1
             if h.good >= self.readmit:
-                self._bank(i, h.good)
+                self.ledger.end_run(i, h.good)
                 h.state, h.reason, h.good = TRACKING, NONE, 0
-                self._readmitted.append(i)
-
-    def _bank(self, i: int, good: int) -> None:
-        """End mouse i's run of agreeing windows: kept toward what it is owed where it held
-        enough windows that would have shown a fault (a lifted mouse agrees in a still
-        window, and only there), dropped otherwise."""
-        if good >= self.readmit_evidence:
-            self._banked[i] += self._run[i]
-            self._banked_s2[i] += self._run_s2[i]
-        self._run[i] = 0.0
-        self._run_s2[i] = 0.0
+                self.ledger.readmit(i)
 
     def _late(self, d: np.ndarray, p: np.ndarray, i: int, h: MouseHealth, tol2: float) -> None:
         """A late mouse after one more window: back once its debt is paid (what it owed is
-        then added to the pose, ``_reconcile``); excluded once it has lagged beyond
+        then added to the pose, ``ledger``); excluded once it has lagged beyond
         ``late_s`` or owes what no lateness explains (``lateness``)."""
-        owed = self._owed[i]
+        owed = self.ledger.owed[i]
         if float(owed @ owed) <= tol2:
             h.state, h.reason, h.good = TRACKING, NONE, 0
-            self._readmitted.append(i)
+            self.ledger.readmit(i)
             return
         late = self.lateness
         late.held[i] += 1

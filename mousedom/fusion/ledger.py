@@ -1,0 +1,103 @@
+"""What the mice held out of the solve owe the pose (issue 31: every count counted once, and a
+fault counted from its start only).
+
+A mouse held out of a window is not forgotten: its reading less what the others said it
+moved (its residual under them, r) is written to its account, window by window, until it is
+used again.  At re-admission the account is settled with the pose by a correction to the
+window's twist: adding a mouse to a least squares adds B_i r_i to its solution (B_i the
+mouse's columns of the estimator with it in use), so summed over the exclusion the pose
+gets B_i times the sum (``settle``, by solving the sum as if it were a reading).
+
+- **Whole**: a late mouse's sum is its lateness at the end less that at the start, no
+  larger than one window's error: chi-square with 2 degrees of freedom at the false-alarm
+  rate, against twice the largest expected error of a window in the exclusion.  A lifted,
+  under-reading or jumping mouse owes the motion it missed or invented: far beyond.
+- **Runs**: then only the runs of windows it agreed in while it waited are given back
+  (after a lift, between and after a seam's jumps), where their sum is within its expected
+  error.  A run starts at a window that moved the mouse enough to show a fault (a lifted
+  mouse's silence passes where changes of motion widen every tolerance) and counts where
+  it held a fifth of the re-admission's windows of such (``end_run``).
+- **Taken back**: the windows just before a mouse was held out, in which its fault began
+  within the test, are taken from the pose when it is held out (``Screen._take_back``);
+  their residuals join the account (``take``), so a late mouse that pays back gets them
+  again.
+
+Exact for the heading; for the position up to the turn within the exclusion.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+Solve = Callable[[np.ndarray, np.ndarray], "np.ndarray | None"]  # (d (N, 2), used) -> q
+
+
+class Ledger:
+    """The accounts of a rig's N mice (see the module); ``thr2`` the 2-degree-of-freedom
+    test's threshold, ``evidence`` the windows a run needs to count."""
+
+    def __init__(self, n: int, thr2: float, evidence: int) -> None:
+        self.n = n
+        self.thr2 = thr2
+        self.evidence = evidence
+        self.owed = np.zeros((n, 2))  # the sum of residuals over the exclusion
+        self.owed_s2 = np.zeros(n)  # the largest expected error of a window in it
+        self._run = np.zeros((n, 2))  # the run of agreeing windows going on
+        self._run_s2 = np.zeros(n)
+        self._banked = np.zeros((n, 2))  # the runs that counted
+        self._banked_s2 = np.zeros(n)
+        self.readmitted: list[int] = []  # mice back in use in this window
+
+    def hold(self, i: int, r: np.ndarray, s2: float) -> None:
+        """Mouse i held out afresh with residual r (expected error s2): a new account."""
+        self.owed[i] = r
+        self.owed_s2[i] = s2
+        self._run[i] = self._banked[i] = 0.0
+        self._run_s2[i] = self._banked_s2[i] = 0.0
+
+    def carry(self, i: int, r: np.ndarray, s2: float) -> None:
+        """One more window held out."""
+        self.owed[i] += r
+        self.owed_s2[i] = max(self.owed_s2[i], s2)
+
+    def take(self, i: int, r: np.ndarray) -> None:
+        """Residuals of windows taken back from the pose join the account."""
+        self.owed[i] += r
+
+    def agree(self, i: int, r: np.ndarray, s2: float) -> None:
+        """A window of the exclusion in which mouse i agreed, in a run."""
+        self._run[i] += r
+        self._run_s2[i] += s2
+
+    def end_run(self, i: int, good: int) -> None:
+        """The run ends (a window it disagreed in, or its re-admission) having held ``good``
+        windows that would have shown a fault: kept where that is enough."""
+        if good >= self.evidence:
+            self._banked[i] += self._run[i]
+            self._banked_s2[i] += self._run_s2[i]
+        self._run[i] = 0.0
+        self._run_s2[i] = 0.0
+
+    def readmit(self, i: int) -> None:
+        self.readmitted.append(i)
+
+    def settle(self, used: np.ndarray, solve: Solve) -> np.ndarray | None:
+        """The twist the mice re-admitted in this window are owed (see the module), or None;
+        their accounts are closed."""
+        back, self.readmitted = self.readmitted, []
+        owed = np.zeros((self.n, 2))
+        with_them = used.copy()
+        for i in back:
+            r, a = self.owed[i], self._banked[i]
+            if float(r @ r) <= self.thr2 * 2.0 * self.owed_s2[i]:
+                owed[i] = r
+                with_them[i] = True
+            elif self._banked_s2[i] > 0 and float(a @ a) <= self.thr2 * self._banked_s2[i]:
+                owed[i] = a
+                with_them[i] = True
+            self.hold(i, np.zeros(2), 0.0)
+        if not owed.any():
+            return None
+        return solve(owed, with_them)
