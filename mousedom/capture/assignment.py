@@ -38,6 +38,16 @@ class Assignment:
     device: int
 
 
+class Assignments(list[Assignment]):
+    """The mice's assignments, in the config's order, and the captures opened for the
+    gyro alone (``gyro_only``: a file given without NAME= that holds a gyro and no mouse
+    of the config, or the config's ``gyro.replay``); ``captures_of`` includes them."""
+
+    def __init__(self, items: list[Assignment], gyro_only: list[Capture] | None = None) -> None:
+        super().__init__(items)
+        self.gyro_only = list(gyro_only or [])
+
+
 def _evdev_matches(match: EvdevMatch, dev: DeviceInfo) -> bool:
     given = False
     for key in ("name", "phys", "uniq", "vendor", "product"):
@@ -99,6 +109,7 @@ class _Assigner:
         self.cfg_name = config.path or "the config"
         self.opened: dict[str, Capture] = {}
         self.result: dict[int, Assignment] = {}
+        self.gyro_only: list[Capture] = []
 
     def open(self, path: str) -> Capture:
         key = os.path.realpath(path)
@@ -169,7 +180,9 @@ class _Assigner:
             if hits:
                 self.put(hits[0], cap, i, "matched")
                 used = True
-        if not used:
+        if not used and any(d.kind == GYRO_KIND for d in cap.devices):
+            self.gyro_only.append(cap)  # a gyro's capture (find_gyro takes it, or says so)
+        elif not used:
             raise CaptureError(
                 f"{path}: no device ({_describe(cap, cands)}) matches a mouse of "
                 f"{self.cfg_name} ({', '.join(config.names)}); give it as NAME={path}"
@@ -220,9 +233,14 @@ def assign(
     for k, m in enumerate(config.mice):
         if k not in assigner.result and m.replay:
             assigner.from_config(k, m, m.replay)
+    if config.gyro is not None and config.gyro.replay is not None:
+        cap = assigner.open(config.gyro.replay)  # the daemon's gyro replay, replayed alike
+        held = [a.capture for a in assigner.result.values()] + assigner.gyro_only
+        if all(cap is not c for c in held):
+            assigner.gyro_only.append(cap)
     if require_all:
         assigner.check_all()
-    return [assigner.result[k] for k in sorted(assigner.result)]
+    return Assignments([assigner.result[k] for k in sorted(assigner.result)], assigner.gyro_only)
 
 
 @dataclass
@@ -269,11 +287,12 @@ def find_gyro(config: Config, captures: list[Capture]) -> tuple[GyroAssignment |
 
 
 def captures_of(assignments: list[Assignment]) -> list[Capture]:
-    """The opened captures, each once, in the order of the assignments."""
+    """The opened captures, each once, in the order of the assignments (then those opened
+    for the gyro alone, ``Assignments.gyro_only``)."""
     seen: list[Capture] = []
-    for a in assignments:
-        if all(a.capture is not s for s in seen):
-            seen.append(a.capture)
+    for cap in [a.capture for a in assignments] + getattr(assignments, "gyro_only", []):
+        if all(cap is not s for s in seen):
+            seen.append(cap)
     return seen
 
 

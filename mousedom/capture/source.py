@@ -22,6 +22,11 @@ clock shares one anchor (the clock time at which the first of them opened, and t
 file's first event), and with ``loop`` they all restart after the file's overall last
 report, not their own.  Built from a ``MouseConfig`` (as the daemon does, for mice with
 ``replay:`` in the config), a source loops by default.
+
+``GyroReplaySource`` replays a capture's gyro the same way (``gyro: replay:``), its
+``read`` giving ``GyroSamples`` as the IIO source does: the recorded rates have the mount's
+axis and sign applied already.  Mice and gyro of one file share the anchor and restart
+together.
 """
 
 from __future__ import annotations
@@ -34,9 +39,11 @@ from collections.abc import Callable, Iterator
 import numpy as np
 
 from mousedom.capture.base import Capture, CaptureError
+from mousedom.capture.native_format import GYRO_KIND
 from mousedom.capture.sniff import open_capture
-from mousedom.config import MouseConfig
+from mousedom.config import GyroConfig, MouseConfig
 from mousedom.sources.base import Reports, Source, SourceGone, SourceUnavailable
+from mousedom.sources.iio import GyroSamples
 
 # (file, clock) -> (clock time, data time) at which the first replay of that file started.
 _ANCHORS: dict[tuple[str, int], tuple[float, float]] = {}
@@ -108,11 +115,12 @@ class ReplaySource(Source):
         periods = []
         for feed in cap.feeds():
             for batch in feed.batches:
-                for mo in batch.motion:
-                    if len(mo.t):
-                        last = max(last, float(mo.t[-1]))
-                    if len(mo.t) > 1:
-                        periods.append(float(np.median(np.diff(mo.t[:1000]))))
+                stamps = [mo.t for mo in batch.motion] + [r.t for r in batch.gyro]
+                for t in stamps:
+                    if len(t):
+                        last = max(last, float(t[-1]))
+                    if len(t) > 1:
+                        periods.append(float(np.median(np.diff(t[:1000]))))
         # The same gap for every mouse of the file, so that they restart together.
         periods = [p for p in periods if p > 0]
         if periods:
@@ -162,6 +170,11 @@ class ReplaySource(Source):
         self._it = None
 
     def _read(self, now: float) -> list[Reports]:
+        rows = self._due_rows(now)
+        return [] if rows is None else [Reports(self.name, *rows)]
+
+    def _due_rows(self, now: float) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """Every report due by ``now``, restamped: (t, dx, dy), or None."""
         if self._capture is None:
             raise SourceGone("replay not open")
         parts_t, parts_dx, parts_dy = [], [], []
@@ -180,15 +193,8 @@ class ReplaySource(Source):
             if len(self._buf_t):
                 break
         if not parts_t:
-            return []
-        return [
-            Reports(
-                self.name,
-                np.concatenate(parts_t),
-                np.concatenate(parts_dx),
-                np.concatenate(parts_dy),
-            )
-        ]
+            return None
+        return np.concatenate(parts_t), np.concatenate(parts_dx), np.concatenate(parts_dy)
 
     # ----------------------------------------------------------------- pacing
 
@@ -232,3 +238,59 @@ class ReplaySource(Source):
             return None
         now = self.clock() if now is None else now
         return max(0.0, due - now) if math.isfinite(due) else None
+
+
+class GyroReplaySource(ReplaySource):
+    """A capture's gyro as the rig's gyro, paced on the clock (``gyro: replay:``): ``read``
+    gives ``GyroSamples`` (stamps restamped as the mice's, rates as recorded)."""
+
+    kind = "replay"
+
+    def __init__(
+        self,
+        gyro: GyroConfig,
+        name: str = "gyro",
+        loop: bool = True,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        if gyro.replay is None:
+            raise ValueError("a gyro replay needs gyro.replay")
+        super().__init__(name, gyro.replay, device=gyro.replay_device, loop=loop, clock=clock)
+        self.gyro = gyro
+
+    def _pick(self, cap: Capture) -> int:
+        gyros = [i for i, d in enumerate(cap.devices) if d.kind == GYRO_KIND]
+        if self.device is not None:
+            gyros = [
+                i for i in gyros
+                if self.device in (cap.devices[i].name, cap.devices[i].extra.get("node"))
+            ]  # fmt: skip
+        elif self.gyro.name is not None and len(gyros) > 1:
+            gyros = [i for i in gyros if cap.devices[i].name == self.gyro.name]
+        if len(gyros) != 1:
+            held = ", ".join(repr(d.name) for d in cap.devices if d.kind == GYRO_KIND)
+            raise CaptureError(
+                f"{self.path}: cannot tell which device is the gyro (gyros: {held or 'none'}); "
+                "name it with gyro.replay.device"
+            )
+        return gyros[0]
+
+    def _reports(self, batches) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        for batch in batches:
+            for r in batch.gyro:
+                if r.device == self._dev and len(r.t):
+                    yield r.t, r.rate, r.rate  # (the third column unused)
+
+    def read(self, now: float) -> list[GyroSamples]:  # type: ignore[override]
+        """The samples due by ``now`` (the health counted as for any source)."""
+        try:
+            rows = self._due_rows(now)
+        except SourceGone as e:
+            self.health.connected = False
+            self.health.error = str(e)
+            raise
+        if rows is None:
+            return []
+        t, rate, _ = rows
+        self._count(len(t), float(t[-1]), now)
+        return [GyroSamples(self.name, t, np.asarray(rate, dtype=float))]

@@ -7,6 +7,7 @@
       sample_hz: 200       # optional: written to sampling_frequency
       noise: 8.7e-5        # optional: rad/s/sqrt(Hz)
       use: both            # both | gyro | mice
+      replay: run.mdcap    # instead of name or path: a capture's gyro, paced in real time
 
 The defaults are those of ``GyroConfig``'s fields; docs/gyro.md says what each means.
 """
@@ -14,20 +15,24 @@ The defaults are those of ``GyroConfig``'s fields; docs/gyro.md says what each m
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
+from mousedom.config.mice import read_replay
 from mousedom.config.rig import GyroConfig, default
 from mousedom.fusion.choices import GYRO_USES
 from mousedom.yamldoc import Reader
 
-GYRO_KEYS = ("name", "path", "axis", "sign", "sample_hz", "noise", "use")
+GYRO_KEYS = ("name", "path", "axis", "sign", "sample_hz", "noise", "use", "replay")
 AXES = ("x", "y", "z")
 
 
-def read_gyro(r: Reader, *, need_sources: bool = True) -> GyroConfig:
+def read_gyro(r: Reader, *, need_sources: bool = True, base_dir: Path = Path(".")) -> GyroConfig:
     """The top level's ``gyro:`` mapping; ConfigError naming file, line and key.
 
     ``need_sources=False`` (replay, calibration) lets it leave out name and path, as the
-    mice may leave out where they come from."""
+    mice may leave out where they come from.  ``replay:`` (a capture's gyro, resolved
+    against ``base_dir`` as the mice's are) stands instead of name and path: the capture
+    holds the rates with the recorded mount's axis and sign applied already."""
     g = r.sub("gyro", GYRO_KEYS)
     name = g.string("name")
     path = g.string("path")
@@ -44,10 +49,19 @@ def read_gyro(r: Reader, *, need_sources: bool = True) -> GyroConfig:
     noise = g.number("noise", default(GyroConfig, "noise", float), positive=True,
                      within=(0.0, 1.0))  # fmt: skip
     use = g.choice("use", GYRO_USES, default(GyroConfig, "use", str))
+    replay, replay_device = None, None
+    if g.has("replay"):
+        given = [k for k in ("name", "path") if g.has(k)]
+        if given:
+            raise g.err("replay", f"a gyro has one source: {given[0]} is given already")
+        file, replay_device = read_replay(g, base_dir)
+        replay = str(base_dir / file)
     # "needs name" is noise next to "nmae: unknown key (did you mean name?)"
-    if need_sources and name is None and path is None and not {"name", "path"} & g.suggested:
-        raise r.err("gyro", "needs name (the IIO device's name, e.g. mpu6050) or path "
-                            "(/sys/bus/iio/devices/iio:deviceN)")  # fmt: skip
+    if (need_sources and name is None and path is None and replay is None
+            and not {"name", "path"} & g.suggested):  # fmt: skip
+        raise r.err("gyro", "needs name (the IIO device's name, e.g. mpu6050), path "
+                            "(/sys/bus/iio/devices/iio:deviceN) or replay (a capture)")  # fmt: skip
     return GyroConfig(
-        name=name, path=path, axis=axis, sign=sign, sample_hz=sample_hz, noise=noise, use=use
-    )
+        name=name, path=path, axis=axis, sign=sign, sample_hz=sample_hz, noise=noise, use=use,
+        replay=replay, replay_device=replay_device,
+    )  # fmt: skip

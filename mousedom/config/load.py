@@ -97,7 +97,8 @@ def parse_config(
     robust = (doc.attempt(_robust, top) if top.has("robust") else None) or RobustConfig()
     outputs = doc.attempt(read_outputs, top) if top.has("outputs") else None
     ros2, foxglove, metrics = outputs or (None, None, None)
-    gyro = doc.attempt(read_gyro, top, need_sources=need_sources) if top.has("gyro") else None
+    gyro = (doc.attempt(read_gyro, top, need_sources=need_sources, base_dir=base_dir)
+            if top.has("gyro") else None)  # fmt: skip
     calibration = doc.attempt(top.string, "calibration")
     calibration_path = str(base_dir / calibration) if calibration else None
     doc.raise_problems()

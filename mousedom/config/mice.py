@@ -91,7 +91,9 @@ def _serial(r: Reader) -> SerialSource:
     return src
 
 
-def _replay(r: Reader, base_dir: Path) -> tuple[str, str | None]:
+def read_replay(r: Reader, base_dir: Path) -> tuple[str, str | None]:
+    """A ``replay:`` key (a file, or ``{file, device}``): the file as written and the
+    device (None: the capture's only one, or the one the sensor's name picks)."""
     v = r.raw("replay")
     if isinstance(v, dict):
         rr = r.sub("replay", ("file", "device"))
@@ -134,7 +136,7 @@ def read_mouse(doc: YamlDoc, name: str, value: Any, base_dir: Path) -> MouseConf
     elif r.has("serial"):
         source["serial"] = doc.attempt(_serial, r)
     elif r.has("replay"):
-        source["replay"] = doc.attempt(_replay, r, base_dir)
+        source["replay"] = doc.attempt(read_replay, r, base_dir)
     parts = [cpi, mount, flip, sigma, report_hz, *source.values()]
     if any(p is None for p in parts):
         return None

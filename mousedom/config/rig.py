@@ -124,6 +124,8 @@ class GyroConfig:
     sample_hz: float | None = None  # written to sampling_frequency; None: the device's own
     noise: float = MPU6050_NOISE  # white-noise density of the rate, rad/s/sqrt(Hz)
     use: str = "both"  # heading from: both (gyro and mice) | gyro | mice
+    replay: str | None = None  # a capture's gyro instead of a device (absolute path)
+    replay_device: str | None = None  # its name or node, where the capture holds several
 
 
 # Keyword-only: the top-level defaults (rate_hz, model, integrator) stand before the

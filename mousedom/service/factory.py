@@ -1,4 +1,5 @@
-"""Which source class reads a configured mouse: evdev, serial ADNS-3080 or replay."""
+"""Which source class reads a configured mouse (evdev, serial ADNS-3080 or replay) or the
+gyro (IIO, or replay)."""
 
 from __future__ import annotations
 
@@ -17,11 +18,15 @@ def make_source(
     mouse: MouseConfig | GyroConfig, clock: Clock = time.monotonic, loop: bool = False
 ) -> Source:
     """The backend a mouse's config asks for: evdev, serial ADNS-3080 or replay; for the
-    rig's gyro, its IIO device.
+    rig's gyro, its IIO device or its capture.
 
     A replay is paced on ``clock`` (real time) and starts again at its end with ``loop``.
     """
     if isinstance(mouse, GyroConfig):
+        if mouse.replay is not None:
+            from mousedom.capture.source import GyroReplaySource
+
+            return GyroReplaySource(mouse, loop=loop, clock=clock)
         from mousedom.sources.iio import GyroSource
 
         return GyroSource(mouse, clock=clock)
