@@ -32,6 +32,34 @@ def _screen() -> robust.Screen:
     return screen
 
 
+def _window(screen: robust.Screen, d: np.ndarray) -> tuple[np.ndarray, int]:
+    """One window of four live mice decided: its twist as the tracker takes it (the
+    correction added), and 1 if it had one."""
+    dec = screen.decide(d, np.ones(4, dtype=bool))
+    q = screen._solve(d, dec.used)
+    assert q is not None
+    if dec.correction is None:
+        return q, 0
+    return q + dec.correction, 1
+
+
+def _informed_solve(mouse: int):
+    """(readings, left out) -> the twist of the least squares with every mouse, or with
+    ``mouse`` left out: what a user who knew when it was faulty would run."""
+    every_mask = np.ones(4, bool)
+    rest_mask = every_mask.copy()
+    rest_mask[mouse] = False
+    every, rest = (
+        models._estimator(XY.tobytes(), SIGMA.tobytes(), m.tobytes(), (0, 1, 2))[1]
+        for m in (every_mask, rest_mask)
+    )
+
+    def solve(d: np.ndarray, left_out: bool) -> np.ndarray:
+        return rest @ d[rest_mask].reshape(-1) if left_out else every @ d.reshape(-1)
+
+    return solve
+
+
 def _run(mouse: int, lag: float, resolved: bool, seed: int, readings: list | None = None):
     """(sum of the windows' twists, the all-mice twist of the summed readings, states,
     windows corrected); each window's readings appended to ``readings``."""
@@ -53,11 +81,8 @@ def _run(mouse: int, lag: float, resolved: bool, seed: int, readings: list | Non
             d[mouse] = 0.0  # lifted: nothing comes
         if readings is not None:
             readings.append(d.copy())
-        dec = screen.decide(d, np.ones(4, dtype=bool))
-        q = screen._solve(d, dec.used)
-        if dec.correction is not None:
-            q = q + dec.correction
-            corrected += 1
+        q, c = _window(screen, d)
+        corrected += c
         total_q += q
         total_d += d
         states.append([h.state for h in screen.health])
@@ -87,16 +112,9 @@ def test_a_lifted_mouse_is_not_made_up(mouse):
     assert any(s[mouse] == robust.EXCLUDED for s in states)
     assert states[-1][mouse] == robust.TRACKING  # back once it reads again
     assert corrected == 1
-    every = models._estimator(XY.tobytes(), SIGMA.tobytes(), np.ones(4, bool).tobytes(),
-                              (0, 1, 2))[1]  # fmt: skip
-    rest_mask = np.ones(4, bool)
-    rest_mask[mouse] = False
-    rest = models._estimator(XY.tobytes(), SIGMA.tobytes(), rest_mask.tobytes(), (0, 1, 2))[1]
+    informed_solve = _informed_solve(mouse)
     # informed: the mouse left out of the windows it read wrong in (6-14), in all others
-    informed = sum(
-        rest @ d[rest_mask].reshape(-1) if 6 <= k < 15 else every @ d.reshape(-1)
-        for k, d in enumerate(readings)
-    )
+    informed = sum(informed_solve(d, 6 <= k < 15) for k, d in enumerate(readings))
     assert np.allclose(total_q, informed, rtol=0, atol=1e-9), (total_q, informed)
     # and that is short of every count by the lifted windows' motion (1.7e-3 rad and more)
     assert abs(total_q[2] - all_mice[2]) > 1e-3, (total_q, all_mice)
@@ -111,11 +129,7 @@ def test_a_jumping_mouse_is_given_back_the_windows_it_agreed_in(mouse):
     screen = _screen()
     q_true = np.array([0.004, 0.0, 0.01])
     screen.accepted(screen.predict(q_true)[None], screen.predict(q_true)[None])
-    rest_mask = np.ones(4, bool)
-    rest_mask[mouse] = False
-    every = models._estimator(XY.tobytes(), SIGMA.tobytes(), np.ones(4, bool).tobytes(),
-                              (0, 1, 2))[1]  # fmt: skip
-    rest = models._estimator(XY.tobytes(), SIGMA.tobytes(), rest_mask.tobytes(), (0, 1, 2))[1]
+    informed_solve = _informed_solve(mouse)
     jumps = (5, 15)  # 10 windows apart: fewer than readmit_s (25), more than a fifth
     total_q, informed, corrected, states = np.zeros(3), np.zeros(3), 0, []
     for k in range(80):
@@ -124,13 +138,10 @@ def test_a_jumping_mouse_is_given_back_the_windows_it_agreed_in(mouse):
             # a seam: 4 mm each way, the same twice (two that cancel would be a lag paid
             # back, and rightly given back whole)
             d[mouse] += np.array([0.004, -0.004])
-        dec = screen.decide(d, np.ones(4, dtype=bool))
-        q = screen._solve(d, dec.used)
-        if dec.correction is not None:
-            q = q + dec.correction
-            corrected += 1
+        q, c = _window(screen, d)
+        corrected += c
         total_q += q
-        informed += rest @ d[rest_mask].reshape(-1) if k in jumps else every @ d.reshape(-1)
+        informed += informed_solve(d, k in jumps)
         states.append(screen.health[mouse].state)
     assert states[jumps[0]] == robust.EXCLUDED and states[jumps[1]] == robust.EXCLUDED
     assert states[-1] == robust.TRACKING and corrected == 1
@@ -168,11 +179,7 @@ def test_the_window_a_fault_began_in_is_taken_back(mouse, seed):
     screen = _screen()
     q_true = np.array([0.004, 0.0, rng.uniform(-0.02, 0.02)])
     screen.accepted(screen.predict(q_true)[None], screen.predict(q_true)[None])
-    rest_mask = np.ones(4, bool)
-    rest_mask[mouse] = False
-    every = models._estimator(XY.tobytes(), SIGMA.tobytes(), np.ones(4, bool).tobytes(),
-                              (0, 1, 2))[1]  # fmt: skip
-    rest = models._estimator(XY.tobytes(), SIGMA.tobytes(), rest_mask.tobytes(), (0, 1, 2))[1]
+    informed_solve = _informed_solve(mouse)
     total_q, informed, states, corrected = np.zeros(3), np.zeros(3), [], 0
     for k in range(70):
         d = screen.predict(q_true) + rng.normal(0.0, 2e-6, (4, 2))
@@ -180,14 +187,11 @@ def test_the_window_a_fault_began_in_is_taken_back(mouse, seed):
             d[mouse] *= 0.85
         elif 6 <= k < 20:
             d[mouse] *= 0.5
-        dec = screen.decide(d, np.ones(4, dtype=bool))
-        q = screen._solve(d, dec.used)
-        if dec.correction is not None:
-            q = q + dec.correction
-            corrected += 1
+        q, c = _window(screen, d)
+        corrected += c
         total_q += q
         faulty = 5 <= k < 20
-        informed += rest @ d[rest_mask].reshape(-1) if faulty else every @ d.reshape(-1)
+        informed += informed_solve(d, faulty)
         states.append(screen.health[mouse].state)
     assert states[5] == robust.TRACKING and states[6] != robust.TRACKING
     assert states[-1] == robust.TRACKING and corrected == 2  # taken back, then given back
