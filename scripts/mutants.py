@@ -270,6 +270,14 @@ MUTANTS = [
         "the window a fault began in, within the test, keeps the fault's share for good",
     ),
     Mutant(
+        "take-back-past-readmission",
+        "mousedom/fusion/robust.py",
+        "        back = min(TAKE_BACK_WINDOWS, self.used_run[i])",
+        "        back = TAKE_BACK_WINDOWS",
+        ("tests/test_reconcile.py",),
+        "windows a mouse was not used in are taken back from the pose as if it had been",
+    ),
+    Mutant(
         "lifted-mouse-silence-agrees",
         "mousedom/fusion/robust.py",
         "        if h.good > 0 or shows:\n",

@@ -63,7 +63,7 @@ def _run(mouse: int, bend, seed: int, late_s: float = 0.05, windows: int = 40):
     screen = _screen(late_s)
     q_true = np.array([0.004, 0.0, rng.uniform(-0.02, 0.02)])
     p = screen.predict(q_true)
-    screen.accepted(p[None], p[None])
+    screen.accepted(p[None], p[None], [True] * screen.n)
     direction = p[mouse] / np.linalg.norm(p[mouse])
     total_q, total_d, states = np.zeros(3), np.zeros((4, 2)), []
     for k in range(windows):
@@ -143,7 +143,7 @@ def _accelerating(mouse: int, share, seed: int, span: float = 0.027, windows: in
     def truth(k: float) -> np.ndarray:
         return screen.predict(q0 + k * dq)
 
-    screen.accepted(truth(-1)[None], truth(-1)[None])
+    screen.accepted(truth(-1)[None], truth(-1)[None], [True] * screen.n)
     states = []
     for k in range(windows):
         d = truth(k) + rng.normal(0.0, 2e-6, (4, 2))

@@ -66,7 +66,7 @@ def _run(mouse: int, lag: float, resolved: bool, seed: int, readings: list | Non
     rng = np.random.default_rng(seed)
     screen = _screen()
     q_true = np.array([0.004, 0.0, rng.uniform(-0.02, 0.02)])
-    screen.accepted(screen.predict(q_true)[None], screen.predict(q_true)[None])
+    screen.accepted(screen.predict(q_true)[None], screen.predict(q_true)[None], [True] * 4)
     total_q, total_d, states, corrected = np.zeros(3), np.zeros((4, 2)), [], 0
     direction = screen.predict(q_true)[mouse] / np.linalg.norm(screen.predict(q_true)[mouse])
     for k in range(60):
@@ -128,7 +128,7 @@ def test_a_jumping_mouse_is_given_back_the_windows_it_agreed_in(mouse):
     rng = np.random.default_rng(mouse)
     screen = _screen()
     q_true = np.array([0.004, 0.0, 0.01])
-    screen.accepted(screen.predict(q_true)[None], screen.predict(q_true)[None])
+    screen.accepted(screen.predict(q_true)[None], screen.predict(q_true)[None], [True] * 4)
     informed_solve = _informed_solve(mouse)
     jumps = (5, 15)  # 10 windows apart: fewer than readmit_s (25), more than a fifth
     total_q, informed, corrected, states = np.zeros(3), np.zeros(3), 0, []
@@ -178,7 +178,7 @@ def test_the_window_a_fault_began_in_is_taken_back(mouse, seed):
     rng = np.random.default_rng(seed)
     screen = _screen()
     q_true = np.array([0.004, 0.0, rng.uniform(-0.02, 0.02)])
-    screen.accepted(screen.predict(q_true)[None], screen.predict(q_true)[None])
+    screen.accepted(screen.predict(q_true)[None], screen.predict(q_true)[None], [True] * 4)
     informed_solve = _informed_solve(mouse)
     total_q, informed, states, corrected = np.zeros(3), np.zeros(3), [], 0
     for k in range(70):
@@ -196,3 +196,35 @@ def test_the_window_a_fault_began_in_is_taken_back(mouse, seed):
     assert states[5] == robust.TRACKING and states[6] != robust.TRACKING
     assert states[-1] == robust.TRACKING and corrected == 2  # taken back, then given back
     assert np.allclose(total_q, informed, rtol=0, atol=1e-9), (total_q, informed)
+
+
+@pytest.mark.parametrize("mouse", range(4))
+def test_nothing_is_taken_back_from_windows_the_mouse_was_not_used_in(mouse):
+    """A mouse excluded for a jump comes back reading 15 % short (each window within the
+    test, their sum not: nothing given back at re-admission), then reads half and is held
+    out again at once: the windows before it was back were never its, and nothing is taken
+    back from them (Screen.used_run)."""
+    rng = np.random.default_rng(mouse)
+    screen = _screen()
+    q_true = np.array([0.004, 0.0, 0.01])
+    screen.accepted(screen.predict(q_true)[None], screen.predict(q_true)[None], [True] * 4)
+    total_q, used_sum, corrected, states = np.zeros(3), np.zeros(3), 0, []
+    for k in range(40):
+        d = screen.predict(q_true) + rng.normal(0.0, 2e-6, (4, 2))
+        if k == 5:
+            d[mouse] += np.array([0.004, -0.004])  # a seam
+        elif k > 5:
+            d[mouse] *= 0.85 if screen.health[mouse].state != robust.TRACKING else 0.5
+        dec = screen.decide(d, np.ones(4, dtype=bool))
+        q = screen._solve(d, dec.used)
+        used_sum += q
+        if dec.correction is not None:
+            q = q + dec.correction
+            corrected += 1
+        total_q += q
+        states.append(screen.health[mouse].state)
+        if k > 6 and states[-2] == robust.TRACKING and states[-1] != robust.TRACKING:
+            break  # held out again in its first window back
+    else:
+        pytest.fail(f"mouse {mouse} was not re-admitted and held out again: {states}")
+    assert corrected == 0, (total_q, used_sum)

@@ -61,7 +61,7 @@ def test_a_wrong_blame_is_revisited_when_the_kept_mice_fail():
     d[1] = 0.0  # fr lifted
     for i, why in ((1, robust.SILENT), (2, robust.INCONSISTENT)):
         screen.health[i].state, screen.health[i].reason = robust.EXCLUDED, why
-    screen.accepted(screen.predict(q)[None], screen.predict(q)[None])
+    screen.accepted(screen.predict(q)[None], screen.predict(q)[None], [True, False, False, True])
     dec = screen.decide(d, np.ones(4, dtype=bool))
     assert dec.used.tolist() == [False, False, True, True]
     # fl, newly blamed, reads half its motion: after one window that is what a mouse late

@@ -50,6 +50,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -153,6 +154,7 @@ class Screen(RigidTest):
         # already have bent (_tie_break).
         self.history_len = max(2, round(HISTORY_S / window))
         self.history: deque[Any] = deque(maxlen=self.history_len)
+        self.used_run = [0] * self.n  # windows in a row each mouse was used in (_used_for)
         # What each held-out mouse owes the pose, settled at its re-admission (ledger).
         self.ledger = Ledger(self.n, self._thresholds[2], self.readmit_evidence)
         self.lateness = Lateness(self.n, window, settings.late_s)
@@ -184,12 +186,23 @@ class Screen(RigidTest):
         """(N, 2) the previous window's predictions."""
         return np.array(self._prev, dtype=float).reshape(self.n, 2)
 
-    def accepted(self, p: np.ndarray, d: np.ndarray) -> None:
+    def accepted(self, p: np.ndarray, d: np.ndarray, used: Sequence[bool]) -> None:
         """Windows done: their predictions p (rows, N, 2) and readings d, oldest first
-        (the continuity of motion and lateness look back over them)."""
+        (the continuity of motion and lateness look back over them), every row solved
+        with the mice ``used``."""
         self._prev = np.asarray(p[-1], dtype=float).tolist()
         self.history.extend(d[-self.history_len :])
         self.lateness.remember_rows(p)
+        self._used_for(used, len(p))
+
+    def _used_for(self, used: Sequence[bool], rows: int) -> None:
+        """``rows`` more windows solved with the mice ``used``: each mouse's count of
+        the latest windows in a row it was used in (how far back its readings were its
+        own part of the solve: _caught_up, _take_back)."""
+        cap = self.history_len
+        self.used_run = [
+            min(r + rows, cap) if u else 0 for r, u in zip(self.used_run, used, strict=True)
+        ]
 
     def _count_window(self) -> None:
         self.noise.seen += 1
@@ -240,6 +253,7 @@ class Screen(RigidTest):
         self._prev = [[ux - a * y, uy + a * x] for x, y in self._xy]
         self.history.append(d)
         self.lateness.remember(self._prev)
+        self._used_for(live, 1)
         self._count_window()
         return True
 
@@ -339,7 +353,7 @@ class Screen(RigidTest):
             h = self.leverage(used)
             for i in np.flatnonzero(used & moving & ~suspect).tolist():
                 self.noise.sample(i, float(r2[i]), float(floor[i]), float(prop[i]), float(h[i]))
-        self.accepted(p[None], d[None])
+        self.accepted(p[None], d[None], used.tolist())
         self._count_window()
         return Decision(used=used, inflate=inflate, consistent=consistent, correction=correction)
 
@@ -373,7 +387,7 @@ class Screen(RigidTest):
         full = np.linalg.inv(np.eye(2) - block)  # a residual in use -> under the others
         tol2 = self._thresholds[2] * 2.0 * float(s2[j])
         past_d, past_p = list(self.history), list(self.lateness.recent)
-        for k in range(1, min(len(past_d), len(past_p)) + 1):
+        for k in range(1, min(len(past_d), len(past_p), self.used_run[j]) + 1):
             dk = np.asarray(past_d[-k], dtype=float).reshape(self.n, 2)[j]
             pk = np.asarray(past_p[-k], dtype=float).reshape(self.n, 2)[j]
             owed = owed + full @ (dk - pk)
@@ -421,7 +435,8 @@ class Screen(RigidTest):
             return None
         tol = math.sqrt(s2 * spread)
         taken_r, taken_q = np.zeros(2), np.zeros(3)
-        for dk in list(self.history)[::-1][:TAKE_BACK_WINDOWS]:
+        back = min(TAKE_BACK_WINDOWS, self.used_run[i])  # windows it was in the solve of
+        for dk in list(self.history)[::-1][:back]:
             dk = np.asarray(dk, dtype=float).reshape(self.n, 2)
             rest = self._solve(dk, used)
             both = self._solve(dk, with_i)

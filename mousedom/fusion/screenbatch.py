@@ -89,7 +89,7 @@ def screen(
                     # block end that changes a factor (the arrays are then made again).
                     values = samples if sc.dof(int(mask[i].sum())) > 0 else None
                     stop = sc.noise.extend_blocks(values, i - base, stop - base) + base
-                    sc.accepted(p[i:stop], d[i:stop])
+                    sc.accepted(p[i:stop], d[i:stop], steady)
                     i = stop
                     continue
         sq = None if squal_scale is None else squal_scale[i]
