@@ -3,7 +3,7 @@ informed reference on the same simulated drives, and false exclusions on healthy
 
     .venv/bin/python bench/robust.py [--seeds 7] [--duration 60] [--layouts triangle,square]
         [--section faults,healthy,timing,noise,scale,pairs,nees] [--pair-seeds 3]
-        [--all-pairs] [--condition-layouts triangle,square,pentagon]
+        [--pair-first-seed 0] [--all-pairs] [--condition-layouts triangle,square,pentagon]
         [--scale-layouts triangle,square] [--pair-layouts square,pentagon]
 
 For each layout and fault kind (mousedom.fusion.scenarios: a minute's drive, mice at 125 to
@@ -210,14 +210,16 @@ def _ratio(t: scenarios.Trial) -> float:
 def pairs_section(args, layouts: list[str]) -> None:
     motions = scenarios.PAIR_MOTIONS
     how = "every motion" if args.all_pairs else "one motion in turn"
-    _header(f"pairs (two mice faulty together; {args.pair_seeds} seeds, {how})", args)
+    first = args.pair_first_seed
+    _header(f"pairs (two mice faulty together; seeds {first} to {first + args.pair_seeds - 1}, "
+            f"{how})", args)  # fmt: skip
     worst: tuple[float, str] = (0.0, "")
     over = total = beyond_informed = 0
     for layout in layouts:
         trials: list[scenarios.Trial] = []
         by_kinds: dict[str, list[scenarios.Trial]] = {}
         by_motion: dict[str, list[scenarios.Trial]] = {m: [] for m in motions}
-        for seed in range(args.pair_seeds):
+        for seed in range(first, first + args.pair_seeds):
             for i, (kinds, mice) in enumerate(scenarios.pair_cases(layout)):
                 chosen = motions if args.all_pairs else (motions[(i + seed) % len(motions)],)
                 for during in chosen:
@@ -274,6 +276,12 @@ def main() -> None:
     ap.add_argument("--scale-layouts", default="triangle,square")
     ap.add_argument("--pair-layouts", default="square,pentagon")
     ap.add_argument("--pair-seeds", type=int, default=3)
+    ap.add_argument(
+        "--pair-first-seed",
+        type=int,
+        default=0,
+        help="the first pair seed (others than the default's: --pair-first-seed 3)",
+    )
     every = "every pair case in every motion for every seed (3 times longer)"
     ap.add_argument("--all-pairs", action="store_true", help=every)
     args = ap.parse_args()
