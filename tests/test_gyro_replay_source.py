@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import run_mousedom
 from test_capture_gyro_replay import (
     GYRO_DEVICE,
     assert_same_poses,
@@ -61,6 +62,9 @@ def test_the_config_takes_a_capture_for_the_gyro(tmp_path):
     assert (cfg.gyro.replay, cfg.gyro.replay_device) == ("/data/x.mdcap", "mpu6050")
     with pytest.raises(ConfigError, match=r"c\.yaml:\d+.*replay.*one source: name"):
         parse_config(_config_text(Path("x"), "{name: mpu6050, replay: x.mdcap}"),
+                     str(tmp_path / "c.yaml"))  # fmt: skip
+    with pytest.raises(ConfigError, match=r"c\.yaml:\d+: gyro\.sign: does not apply to a replayed"):
+        parse_config(_config_text(Path("x"), "{replay: x.mdcap, sign: -1}"),
                      str(tmp_path / "c.yaml"))  # fmt: skip
     with pytest.raises(ConfigError, match=r"gyro.*needs name.*or replay"):
         parse_config(_config_text(Path("x"), "{axis: z}"), str(tmp_path / "c.yaml"))
@@ -132,6 +136,9 @@ def test_the_gyro_is_picked_by_name_or_node_and_a_file_without_one_says_so(tmp_p
         src = GyroReplaySource(cfg.gyro, clock=clock, loop=False)
         src.open()
         assert np.concatenate([b.rate for b in src.read(1e6)]).tolist() == want
+        # `mousedom replay` of the same config takes the same gyro
+        r = Replay(cfg, assign(cfg, []))
+        assert r.gyro is not None and r.gyro.device == src._dev
     cfg = _one_mouse(p, "{replay: two.mdcap}", tmp_path)
     with pytest.raises(CaptureError, match=r"two\.mdcap: cannot tell which device is the gyro"):
         GyroReplaySource(cfg.gyro, clock=clock).open()
@@ -199,3 +206,20 @@ def test_a_capture_of_the_gyro_alone_replays_with_the_mice_of_another(tmp_path):
         got: list[PoseBatch] = []
         r.run(got.append)
         assert_same_poses(PoseBatch.concat(got, len(cfg.mice)), want, exact=False)
+
+
+def test_replay_will_not_write_over_the_gyros_capture(tmp_path):
+    """-o naming the capture that holds the gyro alone is refused, as for the mice's."""
+    rig, res = simulated()
+    mice, alone = tmp_path / "mice.mdcap", tmp_path / "gyro.mdcap"
+    write_capture(mice, rig, res, gyro=False)
+    with NativeWriter(alone, [GYRO_DEVICE], time_base="monotonic") as w:
+        w.gyro(0, res.gyro.t, res.gyro.rate)
+    config = tmp_path / "c.yaml"
+    config.write_text(_config_text(mice, "{use: both}"))
+    before = alone.read_bytes()
+    proc = run_mousedom("replay", "--config", str(config), "--capture", str(mice),
+                        "--capture", str(alone), "-o", str(alone))  # fmt: skip
+    assert proc.returncode != 0 and "gyro.mdcap" in proc.stderr, proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert alone.read_bytes() == before

@@ -251,6 +251,18 @@ class GyroAssignment:
     device: int
 
 
+def gyro_devices(capture: Capture, device: str | None = None) -> list[int]:
+    """The capture's gyros; of them, the one named ``device`` (its name or recorded node)."""
+    found = [i for i, d in enumerate(capture.devices) if d.kind == GYRO_KIND]
+    if device is None:
+        return found
+    return [i for i in found if device in (capture.devices[i].name, _node_of(capture, i))]
+
+
+def _node_of(capture: Capture, i: int) -> object:
+    return capture.devices[i].extra.get("node")
+
+
 def find_gyro(config: Config, captures: list[Capture]) -> tuple[GyroAssignment | None, list[str]]:
     """The captures' gyro for the config's ``gyro:`` section, and warnings.
 
@@ -259,9 +271,25 @@ def find_gyro(config: Config, captures: list[Capture]) -> tuple[GyroAssignment |
     config whose gyro no capture holds gets None and a warning: the replay then runs the
     config without its gyro (``Replay``), rather than wait for samples that never come.
     One gyro in the captures is the config's whatever its name (as the only mover of a
-    file is its mouse); of several, the one named as the config's ``gyro.name``."""
+    file is its mouse); of several, the one named as the config's ``gyro.name``.  A config
+    whose gyro is a capture's (``gyro.replay``, the daemon's) takes it from that file, as
+    the daemon does (``GyroReplaySource``): its one gyro, or the one ``replay.device``
+    names."""
     cfg_name = config.path or "the config"
-    found = [(c, i) for c in captures for i, d in enumerate(c.devices) if d.kind == GYRO_KIND]
+    found = [(c, i) for c in captures for i in gyro_devices(c)]
+    gyro = config.gyro
+    if gyro is not None and gyro.replay is not None:
+        key = os.path.realpath(gyro.replay)
+        cap = next((c for c in captures if os.path.realpath(c.path) == key), None)
+        hits = [] if cap is None else gyro_devices(cap, gyro.replay_device)
+        if cap is None or len(hits) != 1:
+            held = ", ".join(f"{cap.devices[i].name!r}{_node(cap, i)}"
+                             for i in gyro_devices(cap)) if cap else ""  # fmt: skip
+            raise CaptureError(
+                f"{gyro.replay}: gyro.replay: {len(hits)} gyros match (the file holds "
+                f"{held or 'none'}); name one with gyro.replay.device"
+            )
+        return GyroAssignment(cap, hits[0]), []
     if config.gyro is None:
         return None, [
             f"{c.path}: device {c.devices[i].name!r}{_node(c, i)} is a gyro and {cfg_name} "

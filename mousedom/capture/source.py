@@ -38,8 +38,8 @@ from collections.abc import Callable, Iterator
 
 import numpy as np
 
+from mousedom.capture.assignment import gyro_devices
 from mousedom.capture.base import Capture, CaptureError
-from mousedom.capture.native_format import GYRO_KIND
 from mousedom.capture.sniff import open_capture
 from mousedom.config import GyroConfig, MouseConfig
 from mousedom.sources.base import Reports, Source, SourceGone, SourceUnavailable
@@ -259,16 +259,9 @@ class GyroReplaySource(ReplaySource):
         self.gyro = gyro
 
     def _pick(self, cap: Capture) -> int:
-        gyros = [i for i, d in enumerate(cap.devices) if d.kind == GYRO_KIND]
-        if self.device is not None:
-            gyros = [
-                i for i in gyros
-                if self.device in (cap.devices[i].name, cap.devices[i].extra.get("node"))
-            ]  # fmt: skip
-        elif self.gyro.name is not None and len(gyros) > 1:
-            gyros = [i for i in gyros if cap.devices[i].name == self.gyro.name]
+        gyros = gyro_devices(cap, self.device)  # as `mousedom replay` picks it (find_gyro)
         if len(gyros) != 1:
-            held = ", ".join(repr(d.name) for d in cap.devices if d.kind == GYRO_KIND)
+            held = ", ".join(repr(cap.devices[i].name) for i in gyro_devices(cap))
             raise CaptureError(
                 f"{self.path}: cannot tell which device is the gyro (gyros: {held or 'none'}); "
                 "name it with gyro.replay.device"

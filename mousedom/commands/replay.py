@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, TextIO, cast
 
 from mousedom.allocator import keep_freed_memory
 from mousedom.angles import wrap_degrees
-from mousedom.capture.assignment import assign, parse_capture_arg
+from mousedom.capture.assignment import assign, captures_of, parse_capture_arg
 from mousedom.capture.posecsv import CsvSink
 from mousedom.capture.replay import Replay
 from mousedom.capture.summary import Summary
@@ -113,8 +113,9 @@ def run(args) -> int:
             f"{args.config}: nothing to replay: give --capture NAME=FILE (or replay: in the config)"
         )
     assignments = assign(config, specs)
-    inputs = [args.config] + [a.capture.path for a in assignments]
-    inputs += [d for a in assignments if (d := getattr(a.capture, "desc_path", None))]
+    captures = captures_of(assignments)  # the mice's, and a gyro's file of its own
+    inputs = [args.config] + [c.path for c in captures]
+    inputs += [d for c in captures if (d := getattr(c, "desc_path", None))]
     _refuse_overwriting_inputs(args, inputs)
     replay = Replay(config, assignments, model=args.model, integrator=args.integrator)
     sinks = _Sinks.open(args, replay.config, inputs)  # (without a gyro no capture holds)

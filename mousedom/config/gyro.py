@@ -54,6 +54,10 @@ def read_gyro(r: Reader, *, need_sources: bool = True, base_dir: Path = Path("."
         given = [k for k in ("name", "path") if g.has(k)]
         if given:
             raise g.err("replay", f"a gyro has one source: {given[0]} is given already")
+        mounted = [k for k in ("axis", "sign", "sample_hz") if g.has(k)]
+        if mounted:
+            raise g.err(mounted[0], "does not apply to a replayed gyro: the capture holds its "
+                                    "rates with the mount's axis and sign applied")  # fmt: skip
         file, replay_device = read_replay(g, base_dir)
         replay = str(base_dir / file)
     # "needs name" is noise next to "nmae: unknown key (did you mean name?)"

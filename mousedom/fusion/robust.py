@@ -154,7 +154,8 @@ class Screen(RigidTest):
         # already have bent (_tie_break).
         self.history_len = max(2, round(HISTORY_S / window))
         self.history: deque[Any] = deque(maxlen=self.history_len)
-        self.used_run = [0] * self.n  # windows in a row each mouse was used in (_used_for)
+        # the mice each of those windows was solved with (_take_back, _caught_up)
+        self.used_history: deque[tuple[bool, ...]] = deque(maxlen=self.history_len)
         # What each held-out mouse owes the pose, settled at its re-admission (ledger).
         self.ledger = Ledger(self.n, self._thresholds[2], self.readmit_evidence)
         self.lateness = Lateness(self.n, window, settings.late_s)
@@ -196,13 +197,19 @@ class Screen(RigidTest):
         self._used_for(used, len(p))
 
     def _used_for(self, used: Sequence[bool], rows: int) -> None:
-        """``rows`` more windows solved with the mice ``used``: each mouse's count of
-        the latest windows in a row it was used in (how far back its readings were its
-        own part of the solve: _caught_up, _take_back)."""
-        cap = self.history_len
-        self.used_run = [
-            min(r + rows, cap) if u else 0 for r, u in zip(self.used_run, used, strict=True)
-        ]
+        """``rows`` more windows solved with the mice ``used`` (how far back a mouse's
+        readings were its own part of the solve, and with whom: _caught_up, _take_back)."""
+        row = used if type(used) is tuple else tuple(bool(u) for u in used)  # (fast_one's)
+        self.used_history.extend([row] * min(rows, self.history_len))
+
+    def used_run(self, i: int) -> int:
+        """The latest windows in a row mouse i was used in (up to ``history_len``)."""
+        run = 0
+        for used in reversed(self.used_history):
+            if not used[i]:
+                break
+            run += 1
+        return run
 
     def _count_window(self) -> None:
         self.noise.seen += 1
@@ -387,7 +394,7 @@ class Screen(RigidTest):
         full = np.linalg.inv(np.eye(2) - block)  # a residual in use -> under the others
         tol2 = self._thresholds[2] * 2.0 * float(s2[j])
         past_d, past_p = list(self.history), list(self.lateness.recent)
-        for k in range(1, min(len(past_d), len(past_p), self.used_run[j]) + 1):
+        for k in range(1, min(len(past_d), len(past_p), self.used_run(j)) + 1):
             dk = np.asarray(past_d[-k], dtype=float).reshape(self.n, 2)[j]
             pk = np.asarray(past_p[-k], dtype=float).reshape(self.n, 2)[j]
             owed = owed + full @ (dk - pk)
@@ -401,51 +408,57 @@ class Screen(RigidTest):
         owed, less what the mice held out of it, used before, took while their fault
         began."""
         correction = self.ledger.settle(used, self._solve) if self.ledger.readmitted else None
+        # each past window's mice as the take-backs leave them: two mice held out together
+        # come out of a window one after the other, which sums to the pair's exact share
+        kept: dict[int, np.ndarray] = {}
         for i in np.flatnonzero(out).tolist():
             if was_used[i] and reason[i] in (SILENT, INCONSISTENT):
-                back = self._take_back(i, used, float(s2[i]))
+                back = self._take_back(i, float(s2[i]), kept)
                 if back is not None:
                     correction = back if correction is None else correction + back
         return correction
 
-    def _take_back(self, i: int, used: np.ndarray, s2: float) -> np.ndarray | None:
+    def _take_back(self, i: int, s2: float, kept: dict[int, np.ndarray]) -> np.ndarray | None:
         """The twist to take back from the windows just before mouse i was held out, in
         which it was used while its fault began (``Decision.correction``), or None.
 
         A fault starts within a window and often passes the test in the first one or two
         (its share of the window, a mouse of high leverage): those windows keep its error
         for good, where a user who knew would have left the mouse out from the fault's
-        start.  Going back from the last window, each in which the mouse's residual under
-        the others lies along its residual now by more than its expected error there (the
-        fault's direction; a healthy window's noise seldom does, and the walk stops at the
-        first that does not) is solved again without it, and the difference taken back.
-        What is taken back joins what the mouse owes: a late mouse that pays back is given
-        it all again (``ledger``)."""
+        start.  Going back from the last window, each that used it and in which its
+        residual under the others lies along its residual now by more than its expected
+        error now (the fault's direction; the walk stops at the first that does not) is
+        solved again without it, with the mice that window was solved with
+        (``used_history``; ``kept``: less those taken out of it already), and the
+        difference taken back.  What is taken back joins what the mouse owes: a late mouse
+        that pays back is given it all again (``ledger``)."""
         now = self.ledger.owed[i]
         size = math.sqrt(float(now @ now))
-        with_i = used.copy()
-        with_i[i] = True
-        block = self.hat_block(with_i, i)
-        if size == 0.0 or block is None or self._solve(np.zeros((self.n, 2)), used) is None:
+        if size == 0.0:
             return None
         u = now / size
-        # the residual under the others has the covariance s2 (I - block)^-1
-        spread = float(u @ np.linalg.solve(np.eye(2) - block, u))
-        if not spread > 0.0:
-            return None
-        tol = math.sqrt(s2 * spread)
         taken_r, taken_q = np.zeros(2), np.zeros(3)
-        back = min(TAKE_BACK_WINDOWS, self.used_run[i])  # windows it was in the solve of
-        for dk in list(self.history)[::-1][:back]:
-            dk = np.asarray(dk, dtype=float).reshape(self.n, 2)
-            rest = self._solve(dk, used)
-            both = self._solve(dk, with_i)
-            assert rest is not None and both is not None  # the rank was checked above
+        rows = list(self.history)[::-1]
+        sets = list(self.used_history)[::-1]
+        for k in range(min(TAKE_BACK_WINDOWS, len(rows), len(sets))):
+            with_i = kept.get(k, np.array(sets[k], dtype=bool))
+            if not with_i[i]:
+                break  # not in that window's solve: nothing of it to take back
+            rest_k = with_i.copy()
+            rest_k[i] = False
+            dk = np.asarray(rows[k], dtype=float).reshape(self.n, 2)
+            rest, both = self._solve(dk, rest_k), self._solve(dk, with_i)
+            block = self.hat_block(with_i, i)
+            if rest is None or both is None or block is None:
+                break
+            # the residual under the others has the covariance s2 (I - block)^-1
+            spread = float(u @ np.linalg.solve(np.eye(2) - block, u))
             r = dk[i] - self.predict(rest)[i]
-            if float(r @ u) <= tol:
+            if not spread > 0.0 or float(r @ u) <= math.sqrt(s2 * spread):
                 break
             taken_r += r
             taken_q += both - rest
+            kept[k] = rest_k
         if not taken_r.any():
             return None
         self.ledger.take(i, taken_r)
@@ -589,8 +602,9 @@ class Screen(RigidTest):
                 continue
             if suspect[i]:
                 h.state, h.reason, h.good = SUSPECT, reason[i] or INCONSISTENT, 0
-            elif h.state in (EXCLUDED, LATE):  # in use only because the rest lack rank
+            elif h.state in (EXCLUDED, LATE):  # back by a re-examination, or for rank
                 h.state, h.good = SUSPECT, 0
+                self.ledger.readmit(i)  # in use again: what it is owed is settled now
             elif h.state == SUSPECT and consistent:
                 h.good += 1
                 if h.good >= self.readmit:
