@@ -278,6 +278,14 @@ MUTANTS = [
         "windows a mouse was not used in are taken back from the pose as if it had been",
     ),
     Mutant(
+        "saturated-mouse-given-nothing-back",
+        "mousedom/fusion/robust.py",
+        "                self.ledger.readmit(i)\n        elif shows:",
+        "                pass\n        elif shows:",
+        ("tests/test_reconcile.py",),
+        "a mouse back from its sensor's word loses the windows it agreed in meanwhile",
+    ),
+    Mutant(
         "lifted-mouse-silence-agrees",
         "mousedom/fusion/robust.py",
         "        if h.good > 0 or shows:\n",

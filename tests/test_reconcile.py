@@ -254,3 +254,35 @@ def test_a_window_is_taken_back_with_the_mice_it_was_solved_with():
         if k == 7:
             assert dec.used.tolist() == [False, True, True, True]
         assert dec.correction is None, (k, dec.correction)
+
+
+@pytest.mark.parametrize("mouse", range(4))
+def test_a_mouse_back_from_saturation_is_given_the_windows_it_agreed_in(mouse):
+    """Past its speed limit the mouse reads half (gated, excluded by its sensor's word);
+    slower again it agrees, and is back after a fifth of readmit_s: the windows it agreed
+    in meanwhile are given back, so the sum is the least squares with it left out of the
+    fast windows only."""
+    rng = np.random.default_rng(mouse)
+    limit = np.full(4, np.inf)
+    limit[mouse] = 0.6  # m/s: 6 mm per 10 ms window
+    screen = robust.Screen("lsq", XY, SIGMA, np.full(4, 0.001), 0.01, RobustConfig(), limit)
+    screen.noise.lam_f[:] = 1.0
+    screen.noise.lam_r[:] = 1.0
+    screen.noise._sync()
+    slow, fast = np.array([0.004, 0.0, 0.01]), np.array([0.008, 0.0, 0.01])
+    screen.accepted(screen.predict(slow)[None], screen.predict(slow)[None], [True] * 4)
+    informed_solve = _informed_solve(mouse)
+    total_q, informed, corrected, states = np.zeros(3), np.zeros(3), 0, []
+    for k in range(40):
+        q_true = fast if 5 <= k < 10 else slow
+        d = screen.predict(q_true) + rng.normal(0.0, 2e-6, (4, 2))
+        if 5 <= k < 10:
+            d[mouse] *= 0.5  # beyond its limit: it reads short
+        q, c = _window(screen, d)
+        total_q += q
+        corrected += c
+        informed += informed_solve(d, 5 <= k < 10)
+        states.append(screen.health[mouse].state)
+    assert states[5] == robust.EXCLUDED and states[-1] == robust.TRACKING
+    assert screen.health[mouse].reason == robust.NONE and corrected == 1
+    assert np.allclose(total_q, informed, rtol=0, atol=1e-9), (total_q, informed)

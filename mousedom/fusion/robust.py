@@ -616,6 +616,13 @@ class Screen(RigidTest):
         (blamed, or gated by its sensor's evidence), or held out before (late, or
         excluded and counting toward re-admission)."""
         thr2 = self._thresholds[2]
+        if h.state in (EXCLUDED, LATE) and why in (SATURATED, LOW_QUALITY):
+            # its sensor's word on a mouse held out already: out for that now, and what it
+            # owes goes on (a late mouse's debt is still to be paid back)
+            self.ledger.carry(i, d[i] - p[i], s2)
+            self.ledger.end_run(i, h.good)
+            h.state, h.reason, h.good = EXCLUDED, why, 0
+            return
         if h.state not in (EXCLUDED, LATE) or why != NONE:
             # late where it is short by its last moments' motion (lateness), unless it
             # was excluded already (held out again by a re-examination)
@@ -652,7 +659,9 @@ class Screen(RigidTest):
             # keeps crossing).
             h.good += 1
             if h.good >= self.readmit_evidence:
+                self.ledger.end_run(i, h.good)
                 h.state, h.reason, h.good = TRACKING, NONE, 0
+                self.ledger.readmit(i)
         elif shows:
             h.good += 1
             if h.good >= self.readmit:
