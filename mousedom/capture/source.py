@@ -262,8 +262,10 @@ class GyroReplaySource(ReplaySource):
         gyros = gyro_devices(cap, self.device)  # as `mousedom replay` picks it (find_gyro)
         if len(gyros) != 1:
             held = ", ".join(repr(cap.devices[i].name) for i in gyro_devices(cap))
+            if not held:
+                raise CaptureError(f"{self.path}: gyro.replay: the capture holds no gyro")
             raise CaptureError(
-                f"{self.path}: cannot tell which device is the gyro (gyros: {held or 'none'}); "
+                f"{self.path}: cannot tell which device is the gyro (gyros: {held}); "
                 "name it with gyro.replay.device"
             )
         return gyros[0]
