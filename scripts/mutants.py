@@ -280,8 +280,10 @@ MUTANTS = [
     Mutant(
         "saturated-mouse-given-nothing-back",
         "mousedom/fusion/robust.py",
-        "                self.ledger.readmit(i)\n        elif shows:",
-        "                pass\n        elif shows:",
+        "                self.ledger.readmit(i, h.good)\n"
+        "                h.state, h.reason, h.good = TRACKING, NONE, 0\n        elif shows:",
+        "                pass\n"
+        "                h.state, h.reason, h.good = TRACKING, NONE, 0\n        elif shows:",
         ("tests/test_reconcile.py",),
         "a mouse back from its sensor's word loses the windows it agreed in meanwhile",
     ),

@@ -256,11 +256,8 @@ def gyro_devices(capture: Capture, device: str | None = None) -> list[int]:
     found = [i for i, d in enumerate(capture.devices) if d.kind == GYRO_KIND]
     if device is None:
         return found
-    return [i for i in found if device in (capture.devices[i].name, _node_of(capture, i))]
-
-
-def _node_of(capture: Capture, i: int) -> object:
-    return capture.devices[i].extra.get("node")
+    devs = capture.devices
+    return [i for i in found if device in (devs[i].name, devs[i].extra.get("node"))]
 
 
 def find_gyro(config: Config, captures: list[Capture]) -> tuple[GyroAssignment | None, list[str]]:

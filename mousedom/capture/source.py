@@ -256,7 +256,6 @@ class GyroReplaySource(ReplaySource):
         if gyro.replay is None:
             raise ValueError("a gyro replay needs gyro.replay")
         super().__init__(name, gyro.replay, device=gyro.replay_device, loop=loop, clock=clock)
-        self.gyro = gyro
 
     def _pick(self, cap: Capture) -> int:
         gyros = gyro_devices(cap, self.device)  # as `mousedom replay` picks it (find_gyro)

@@ -80,7 +80,10 @@ class Ledger:
         self._run[i] = 0.0
         self._run_s2[i] = 0.0
 
-    def readmit(self, i: int) -> None:
+    def readmit(self, i: int, good: int = 0) -> None:
+        """Mouse i back in use: its run ends (``end_run``), its account is settled in
+        this window (``settle``)."""
+        self.end_run(i, good)
         self.readmitted.append(i)
 
     def settle(self, used: np.ndarray, solve: Solve) -> np.ndarray | None:

@@ -311,7 +311,7 @@ class Screen(RigidTest):
         gp = None if gran2 is None else self._span_p(d, used, p, spans)
         floor, prop = self.noise.parts(d, p, self.prev_p, gran2=gran2, gran_p=gp)
         s2 = floor * scale + prop
-        tested = (used, p)  # what floor and prop were computed for (a change rebinds both)
+        tested_used, tested_p = used, p  # what floor and prop are for (a change rebinds)
         inflate, consistent = 1.0, True
         stat = self._statistic(d, used, s2)
         caught_up = False
@@ -347,7 +347,7 @@ class Screen(RigidTest):
                 inflate = stat.t / stat.dof
                 suspect |= used
                 reason[used & (reason == NONE)] = INCONSISTENT
-        if used is not tested[0] or p is not tested[1]:  # a mouse blamed, swapped or gated
+        if used is not tested_used or p is not tested_p:  # a mouse blamed, swapped or gated
             gp = None if gran2 is None else self._span_p(d, used, p, spans)
             floor, prop = self.noise.parts(d, p, self.prev_p, gran2=gran2, gran_p=gp)
         floor = floor * scale
@@ -659,15 +659,13 @@ class Screen(RigidTest):
             # keeps crossing).
             h.good += 1
             if h.good >= self.readmit_evidence:
-                self.ledger.end_run(i, h.good)
+                self.ledger.readmit(i, h.good)
                 h.state, h.reason, h.good = TRACKING, NONE, 0
-                self.ledger.readmit(i)
         elif shows:
             h.good += 1
             if h.good >= self.readmit:
-                self.ledger.end_run(i, h.good)
+                self.ledger.readmit(i, h.good)
                 h.state, h.reason, h.good = TRACKING, NONE, 0
-                self.ledger.readmit(i)
 
     def _late(self, d: np.ndarray, p: np.ndarray, i: int, h: MouseHealth, tol2: float) -> None:
         """A late mouse after one more window: back once its debt is paid (what it owed is
