@@ -311,6 +311,30 @@ MUTANTS = [
         ("tests/test_robust.py",),
         "replay's array screen accepts every window the daemon would have decided",
     ),
+    Mutant(
+        "gyro-saturation-ignored-array",
+        "mousedom/fusion/tracker_gyro.py",
+        "        live &= closed[:, 1] < SATURATED_S\n",
+        "",
+        ("tests/test_gyro_saturation.py",),
+        "replay's windows take a saturated gyro's clipped rate as the turn",
+    ),
+    Mutant(
+        "gyro-saturation-ignored-one-window",
+        "mousedom/fusion/tracker_gyro.py",
+        "if start < self.first_t or held >= SATURATED_S:",
+        "if start < self.first_t:",
+        ("tests/test_gyro_saturation.py",),
+        "the daemon's windows take a saturated gyro's clipped rate as the turn",
+    ),
+    Mutant(
+        "iio-saturation-one-end",
+        "mousedom/sources/iio.py",
+        "at = (raw <= lo) | (raw >= hi)",
+        "at = raw >= hi",
+        ("tests/test_gyro_saturation.py",),
+        "a gyro clipped at the low end of its raw range is not marked",
+    ),
 ]
 
 

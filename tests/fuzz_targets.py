@@ -219,6 +219,8 @@ def _native_valid(rng: random.Random) -> Case:
 
     n_dev = rng.randint(1, 3)
     devices = [DeviceInfo(name=f"d{k}", mouse=f"m{k}", rel_xy=True) for k in range(n_dev)]
+    if rng.random() < 0.4:  # a gyro too, some of its samples marked saturated
+        devices.append(DeviceInfo(name="g", kind="iio", rel_xy=False))
     with tempfile.TemporaryDirectory() as tmp:
         path = os.path.join(tmp, "x.mdcap")
         truth = [[0, 0] for _ in devices]
@@ -232,6 +234,12 @@ def _native_valid(rng: random.Random) -> Case:
                     truth[k] = [sum(dx), sum(dy)]
                 if rng.random() < 0.5:
                     w.sync(reps[-1][0] if reps else 0.0)
+            if len(devices) > n_dev:  # (samples, saturated) is its truth
+                reps = _reports(rng, rng.randint(0, 300))
+                sat = [rng.random() < 0.1 for _ in reps]
+                if reps:
+                    w.gyro(n_dev, [r[0] for r in reps], [r[1] / 7.0 for r in reps], sat)
+                truth[n_dev] = [len(reps), sum(sat)]
         with open(path, "rb") as f:
             data = f.read()
     return Case("native", "valid", data, tuple(map(tuple, truth)), ".mdcap")
@@ -248,7 +256,9 @@ def _run_capture(case: Case, tmp: str) -> str:
     for feed in cap.feeds():
         for _ in feed.batches:
             pass
-    got = tuple((s.net_x + s.lost_x, s.net_y + s.lost_y) for s in cap.stats)
+    got = tuple((s.reports, s.saturated) if d.kind == "iio" else
+                (s.net_x + s.lost_x, s.net_y + s.lost_y)
+                for d, s in zip(cap.devices, cap.stats, strict=True))  # fmt: skip
     if case.kind == "valid":
         want = case.truth if case.target != "evemu" else (case.truth,)
         if got != tuple(tuple(w) for w in want):
@@ -291,6 +301,29 @@ def _motion_of(cap) -> dict[int, tuple]:
     }
 
 
+def _gyro_of(cap) -> dict[int, tuple]:
+    """Each gyro's (t, rate, saturated) as read, saturated False where unmarked."""
+    import numpy as np
+
+    got: dict[int, list] = {}
+    for feed in cap.feeds():
+        for batch in feed.batches:
+            for r in batch.gyro:
+                sat = np.zeros(len(r.t), bool) if r.saturated is None else r.saturated
+                got.setdefault(r.device, []).append((r.t, r.rate, sat))
+    return {d: tuple(np.concatenate(c) for c in zip(*rs, strict=True)) for d, rs in got.items()}
+
+
+def _gyro_differs(want: dict[int, tuple], got: dict[int, tuple]) -> str:
+    import numpy as np
+
+    for d, w in want.items():
+        g = got.get(d, ())
+        if len(w) != len(g) or not all(np.array_equal(a, b) for a, b in zip(w, g, strict=True)):
+            return f"device {d}: gyro samples or their marks differ after the round trip"
+    return ""
+
+
 def _run_roundtrip(case: Case, tmp: str) -> str:
     """convert -> native -> read back: every device's reports (times to the microsecond,
     counts exactly) and its counters (frames, dropped, lost counts of either sign) as the
@@ -314,16 +347,27 @@ def _run_roundtrip(case: Case, tmp: str) -> str:
     # Epoch times are rebased when the inputs mix time bases (the replay would do the same).
     offset, _ = time_offset([cap for _, cap in inputs])
     mixed = len({cap.time_base for _, cap in inputs}) > 1
+    want_gyro: dict[int, tuple] = {}
     for _, cap in inputs:
+        gyros = _gyro_of(cap)
         motion = _motion_of(cap)  # (re)streams the capture, so its stats are whole
         sub = offset if mixed and cap.time_base == "epoch" else 0.0
         for d, dev in enumerate(cap.devices):
+            if dev.kind == "iio":  # a gyro: its samples and marks, exactly
+                g = gyros.get(d)
+                want_gyro[len(want_motion)] = () if g is None else (g[0] - sub, g[1], g[2])
+                want_motion.append(None)
+                want_stats.append(cap.stats[d])
+                continue
             if dev.rel_xy is False:
                 continue
             m = motion.get(d)
             want_motion.append(None if m is None or not len(m[0]) else (m[0] - sub, m[1], m[2]))
             want_stats.append(cap.stats[d])
     back = open_capture(out)
+    bad = _gyro_differs(want_gyro, _gyro_of(back))
+    if bad:
+        return bad
     got_motion = _motion_of(back)
     if len(back.devices) != len(want_motion):
         return f"{len(want_motion)} devices written, {len(back.devices)} read back"
@@ -631,7 +675,7 @@ def _damage_native_chunk(rng: random.Random, raw: bytes) -> bytes:
     if field == 0:
         count = rng.choice([0, count + 1, count * 1000 + 7, 2**32 - 1])
     elif field == 1:
-        kind = rng.choice([0, 1, 2, 3, 4, 9])
+        kind = rng.choice([0, 1, 2, 3, 4, 5, 6, 9])
     elif field == 2:
         source = rng.choice([source + 1, 0xFFFF])
     elif field == 3 and len(payload) >= 8:

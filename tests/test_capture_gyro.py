@@ -107,7 +107,7 @@ def test_a_file_without_gyro_stays_version_1_and_one_with_is_version_2(tmp_path)
     # What a reader of 1.x checks first: the major version at byte offset 8; it refuses
     # 2.0 by name ("unknown native capture version 2.0 (this reader knows 1.x)").
     assert struct.unpack("<HH", a.read_bytes()[8:12]) == VERSION == (1, 0)
-    assert struct.unpack("<HH", b.read_bytes()[8:12]) == GYRO_VERSION == (2, 0)
+    assert struct.unpack("<HH", b.read_bytes()[8:12]) == GYRO_VERSION == (2, 1)
     n = struct.unpack("<I", a.read_bytes()[12:16])[0]
     assert json.loads(a.read_bytes()[16 : 16 + n])["version"] == [1, 0]
 

@@ -35,7 +35,7 @@ gyro: {name: fakegyro, axis: z, sign: -1, sample_hz: 200}
 
 
 class PipeGyro(Source):
-    """A gyro whose (t, rate) float64 records come through a pipe."""
+    """A gyro whose (t, rate, saturated) float64 records come through a pipe."""
 
     kind = "iio"
 
@@ -59,16 +59,18 @@ class PipeGyro(Source):
         if not data:
             raise SourceGone("gyro: end of stream")
         data = self._rest + data
-        n = len(data) // 16
-        self._rest = data[16 * n :]
-        rec = np.frombuffer(data[: 16 * n], dtype="<f8").reshape(-1, 2)
-        return [GyroSamples("gyro", rec[:, 0].copy(), rec[:, 1].copy())]
+        n = len(data) // 24
+        self._rest = data[24 * n :]
+        rec = np.frombuffer(data[: 24 * n], dtype="<f8").reshape(-1, 3)
+        sat = rec[:, 2] != 0
+        return [GyroSamples("gyro", rec[:, 0].copy(), rec[:, 1].copy(),
+                            sat if sat.any() else None)]  # fmt: skip
 
     def _read(self, now: float):
         raise TypeError("a gyro")
 
-    def write(self, t, rate) -> None:
-        os.write(self.w, np.column_stack([t, rate]).astype("<f8").tobytes())
+    def write(self, t, rate, saturated) -> None:
+        os.write(self.w, np.column_stack([t, rate, saturated]).astype("<f8").tobytes())
 
 
 def test_run_record_keeps_the_gyro_samples_that_were_fused(tmp_path):
@@ -88,10 +90,12 @@ def test_run_record_keeps_the_gyro_samples_that_were_fused(tmp_path):
     now = time.monotonic()
     t = now + 0.005 * np.arange(40)
     rate = np.linspace(-0.3, 0.7, 40) + math.pi / 1e3  # bits a rounding would lose
+    sat = np.zeros(40, bool)
+    sat[[3, 4, 30]] = True  # read at the converter's limit
     try:
         while d.recording is None or not os.path.exists(d.server.path):
             time.sleep(0.01)
-        gyro.write(t, rate)
+        gyro.write(t, rate, sat)
         mice["a"].write([now + 0.01], [5.0], [-7.0])
         deadline = time.monotonic() + 5
         while d.recording.samples_kept < 40 and time.monotonic() < deadline:
@@ -108,10 +112,13 @@ def test_run_record_keeps_the_gyro_samples_that_were_fused(tmp_path):
     got_t = np.concatenate([r.t for r in got])
     got_rate = np.concatenate([r.rate for r in got])
     assert got_t.tobytes() == t.tobytes() and got_rate.tobytes() == rate.tobytes()
+    got_sat = [np.zeros(len(r.t), bool) if r.saturated is None else r.saturated for r in got]
+    assert np.concatenate(got_sat).tolist() == sat.tolist()
     # and it replays with its gyro
     proc = run_mousedom("replay", "-c", str(rig), "--capture", str(out))
     assert proc.returncode == 0, proc.stderr
     assert "gyro         40 samples, 200.0 Hz" in proc.stdout
+    assert "3 saturated (left out)" in proc.stdout
 
 
 def _open_writer(node, deadline: float) -> Writer:
@@ -146,6 +153,7 @@ def test_record_a_rig_with_a_fake_iio_gyro_then_replay_it(tmp_path):
         g = _open_writer(root / "dev" / "iio:device0", time.monotonic() + 20)
         t0 = time.monotonic() - 1.6  # all 1.5 s of samples stamped before now (none re-stamped)
         raw = np.arange(-150, 150, dtype=np.int64) * 7
+        raw[[10, 11, 200]] = [32767, 32767, -32768]  # the converter's limits: saturated
         ns = stamps_ns(t0, len(raw), hz=200.0)
         g.write(gyro_records(raw[:100].tolist(), ns[:100].tolist()))
         os.write(m, motion_bytes(t0, np.full(50, 3), np.zeros(50, int), dt=0.004))
@@ -173,7 +181,19 @@ def test_record_a_rig_with_a_fake_iio_gyro_then_replay_it(tmp_path):
     # what the source gives: sign * raw * scale, stamped by the records' nanoseconds
     np.testing.assert_array_equal(rate, -1 * (raw.astype(np.float64) + 0.0) * float(MPU6050_SCALE))
     np.testing.assert_array_equal(t, ns.astype(np.float64) / 1e9)
+    sat = np.concatenate([np.zeros(len(r.t), bool) if r.saturated is None else r.saturated
+                          for r in got])  # fmt: skip
+    assert np.flatnonzero(sat).tolist() == [10, 11, 200] and cap.stats[1].saturated == 3
     assert cap.stats[0].reports == 50
     proc = run_mousedom("replay", "-c", str(cfg), "--capture", str(out))
     assert proc.returncode == 0, proc.stderr
     assert "gyro         300 samples, 200.0 Hz" in proc.stdout
+    assert "3 saturated (left out)" in proc.stdout
+    # convert keeps the marks
+    conv = tmp_path / "conv.mdcap"
+    proc = run_mousedom("convert", "--capture", str(out), "-o", str(conv))
+    assert proc.returncode == 0, proc.stderr
+    again = [r for feed in open_capture(str(conv)).feeds() for b in feed.batches for r in b.gyro]
+    sat2 = np.concatenate([np.zeros(len(r.t), bool) if r.saturated is None else r.saturated
+                           for r in again])  # fmt: skip
+    assert sat2.tolist() == sat.tolist()

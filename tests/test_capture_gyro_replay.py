@@ -14,6 +14,7 @@ import pytest
 from conftest import run_mousedom
 
 from mousedom.capture import DeviceInfo, NativeWriter, assign, open_capture
+from mousedom.capture.native import GYRO_VERSION
 from mousedom.capture.posecsv import csv_columns, gyro_columns
 from mousedom.capture.replay import Replay, read_csv
 from mousedom.config import parse_config
@@ -60,7 +61,7 @@ def write_capture(path, rig, res, *, gyro: bool = True, step: float = 0.25, chun
             if gyro:
                 g = res.gyro
                 sel = (g.t >= lo) & (g.t < hi)
-                w.gyro(len(rig.mice), g.t[sel], g.rate[sel])
+                w.gyro(len(rig.mice), g.t[sel], g.rate[sel], g.saturated[sel])
             w.sync(min(np.nextafter(hi, -np.inf), end))
             k += 1
 
@@ -211,7 +212,7 @@ def test_convert_keeps_the_gyro(tmp_path):
     assert "1 gyro" in proc.stderr and f"{len(res.gyro.t)} gyro samples" in proc.stderr
     cap = open_capture(str(out))
     assert [d.kind for d in cap.devices] == ["evdev"] * 3 + ["iio"]
-    assert struct.unpack("<HH", out.read_bytes()[8:12]) == (2, 0)
+    assert struct.unpack("<HH", out.read_bytes()[8:12]) == GYRO_VERSION
     g = [r for feed in cap.feeds() for b in feed.batches for r in b.gyro]
     t = np.concatenate([r.t for r in g])
     rate = np.concatenate([r.rate for r in g])

@@ -30,11 +30,12 @@ def _with_gyro(rig: sim.Rig, gyro: simgyro.SimGyro, use: str = "both"):
 def test_turns_are_rate_times_the_span_since_the_sample_before():
     t = np.array([1.0, 1.005, 1.010, 1.05])
     rate = np.array([2.0, 2.0, 4.0, 1.0])
-    kept, turn = gyro_turns(t, rate, -math.inf, 0.02)
+    kept, turn, spans = gyro_turns(t, rate, -math.inf, 0.02)
     assert kept.tolist() == t.tolist()
     # the first only starts the spans; after a gap, one period (a report's rule)
     assert turn == pytest.approx([0.0, 2.0 * 0.005, 4.0 * 0.005, 1.0 * 0.02])
-    kept, turn = gyro_turns(t[1:], rate[1:], 1.0, 0.02)  # continued from the one before
+    assert spans == pytest.approx([0.0, 0.005, 0.005, 0.02])
+    kept, turn, _ = gyro_turns(t[1:], rate[1:], 1.0, 0.02)  # continued from the one before
     assert turn == pytest.approx([2.0 * 0.005, 4.0 * 0.005, 0.02])
 
 

@@ -152,6 +152,7 @@ class DeviceStats:
     first_t: float | None = None
     last_t: float | None = None
     serial_bytes: int = 0
+    saturated: int = 0  # a gyro's samples read at its converter's limit
 
     def add_motion(self, t: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> None:
         n = len(t)
@@ -177,11 +178,13 @@ class DeviceStats:
         self.lost_y = st.dropped_dy
         self.unterminated = st.incomplete_events
 
-    def add_rates(self, t: np.ndarray) -> None:
+    def add_rates(self, t: np.ndarray, saturated: np.ndarray | None = None) -> None:
         """A gyro's samples (its ``reports``; motion counts stay 0)."""
         if not len(t):
             return
         self.reports += len(t)
+        if saturated is not None:
+            self.saturated += int(saturated.sum())
         if self.first_t is None:
             self.first_t = float(t[0])
         self.last_t = float(t[-1])
@@ -221,6 +224,8 @@ class Rates:
     device: int
     t: np.ndarray  # float64 seconds, non-decreasing
     rate: np.ndarray  # float64 rad/s about body z, counter-clockwise positive
+    # bool per sample: read at the converter's limit (a bound, not the rate); None: none
+    saturated: np.ndarray | None = None
 
 
 @dataclass

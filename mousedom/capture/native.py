@@ -40,6 +40,8 @@ from mousedom.capture.native_format import (
     MOTION,
     NOTE,
     RATE,
+    RATE_SATURATED,
+    RECORD_BYTES,
     SERIAL,
     SYNC,
     VERSION,
@@ -109,7 +111,7 @@ class NativeCapture(Capture):
         one (for a header that does not state it)."""
         first = None
         for kind, _source, count, payload, offset in self._chunks(check_tail=False, head_only=8):
-            if kind in (MOTION, SERIAL, RATE) and count:  # all start with the f8 times
+            if kind in (MOTION, SERIAL, RATE, RATE_SATURATED) and count:  # f8 times first
                 if len(payload) < 8:
                     raise CaptureError(
                         located(self.path, None, f"byte offset {offset}: chunk of "
@@ -151,11 +153,11 @@ class NativeCapture(Capture):
                 st.add_motion(t, dx, dy)
                 out.motion.append(Motion(source, t, dx, dy))
                 pending += count
-            elif kind == RATE:
-                t, rate = rate_columns(self.path, payload, count, offset)
+            elif kind in (RATE, RATE_SATURATED):
+                t, rate, saturated = rate_columns(self.path, payload, count, offset, kind)
                 self._in_order(t, last, source, offset)
-                st.add_rates(t)
-                out.gyro.append(Rates(source, t, rate))
+                st.add_rates(t, saturated)
+                out.gyro.append(Rates(source, t, rate, saturated))
                 pending += count
             elif kind == SERIAL:
                 t, pieces = serial_pieces(self.path, payload, count, offset)
@@ -180,13 +182,13 @@ class NativeCapture(Capture):
         yield out
 
     def _check_kind(self, kind: int, source: int, offset: int) -> None:
-        """A gyro's chunks are RATE and a RATE chunk is a gyro's (a file of version 2 or
-        later, which the header's devices have been checked for)."""
-        if kind not in (MOTION, RATE):
+        """A gyro's chunks are RATE (or RATE_SATURATED) and such a chunk is a gyro's (a
+        file of version 2 or later, which the header's devices have been checked for)."""
+        if kind not in (MOTION, RATE, RATE_SATURATED):
             return
         gyro = self.devices[source].kind == GYRO_KIND
-        if gyro != (kind == RATE):
-            what = "gyro samples" if kind == RATE else "motion reports"
+        if gyro != (kind != MOTION):
+            what = "gyro samples" if kind != MOTION else "motion reports"
             raise CaptureError(
                 located(self.path, None, f"byte offset {offset}: {what} for device "
                         f"{self.devices[source].name!r}, which is of kind "
@@ -258,7 +260,8 @@ class NativeCapture(Capture):
         its size on disk, not by what it claims."""
         limit = min(MAX_CHUNK, MAX_INFLATE_RATIO * len(stored) + INFLATE_SLACK)
         if kind in FIXED_KINDS:
-            limit = min(limit, 16 * count)  # exactly this, or their columns are refused
+            # exactly this, or their columns are refused
+            limit = min(limit, RECORD_BYTES[kind] * count)
         d = zlib.decompressobj()
         try:
             if head_only is not None:
@@ -272,7 +275,8 @@ class NativeCapture(Capture):
             raise CaptureError(
                 located(self.path, None, f"byte offset {offset}: a chunk of {len(stored)} "
                         f"compressed bytes inflates past {limit} bytes (at most "
-                        f"{MAX_INFLATE_RATIO}x its size, {16 * count} for {count} reports): "
+                        f"{MAX_INFLATE_RATIO}x its size, {RECORD_BYTES.get(kind, 16) * count} for "
+                        f"{count} reports): "
                         "a decompression bomb, not a capture")
             )  # fmt: skip
         if not d.eof:

@@ -15,14 +15,18 @@ SERIAL (count pieces of raw serial bytes: f8 t[count], u4 len[count], then the b
 NOTE (JSON counters of what a converted source skipped or dropped), SYNC (one f8: every
 report of every source stamped at or before it is in the file by now; readers use it to
 close windows while streaming), RATE (count samples of a gyro, an "iio" device, as
-columns: f8 t[count], f8 rate[count], rad/s).  Flag bit 0: the payload is
+columns: f8 t[count], f8 rate[count], rad/s), RATE_SATURATED (the same with a third
+column u1 saturated[count], 1 where the sample was read at its converter's limit, else 0;
+written instead of RATE for a chunk that holds such a sample).  Flag bit 0: the payload is
 zlib-compressed.
 
 Versions: a file is written as the oldest version that holds its devices: 1.0 without a
 gyro (what every reader of this format reads), 2.0 with one.  A gyro's samples are not
 something an older reader may skip (it would take the RATE chunk for corruption, or read
 the rig without the gyro its config names), so they take a new major version, which
-readers of 1.x refuse by name.
+readers of 1.x refuse by name.  2.1 added RATE_SATURATED: a reader of 2.0 reads a 2.1
+file up to the first chunk holding a saturated sample, which it refuses as malformed (with
+its byte offset) rather than read a clipped rate as a turn.
 
 Why this shape: a crash can only tear the chunk being written, and each chunk is checked
 by its CRC, so a reader keeps every whole chunk and reports the torn tail with its size.
@@ -45,14 +49,17 @@ from mousedom.errors import located
 
 MAGIC = b"MDCAP\r\n\x1a"
 VERSION = (1, 0)  # a file without a gyro: readable by every reader of the format
-GYRO_VERSION = (2, 0)  # a file with a gyro (an "iio" device and its RATE chunks)
+GYRO_VERSION = (2, 1)  # a file with a gyro (an "iio" device and its RATE chunks)
 KNOWN_MAJORS = (VERSION[0], GYRO_VERSION[0])
 CHUNK_MAGIC = b"MDCK"
 CHUNK = struct.Struct("<4sBBHIII")
-MOTION, SERIAL, NOTE, SYNC, RATE = 1, 2, 3, 4, 5
-KINDS = (MOTION, SERIAL, NOTE, SYNC, RATE)
-# Chunks of fixed columns, 16 bytes per report or sample: what count states is their size.
-FIXED_KINDS = (MOTION, RATE)
+MOTION, SERIAL, NOTE, SYNC, RATE, RATE_SATURATED = 1, 2, 3, 4, 5, 6
+KINDS = (MOTION, SERIAL, NOTE, SYNC, RATE, RATE_SATURATED)
+GYRO_KINDS = (RATE, RATE_SATURATED)  # a gyro's chunks, and only a gyro's
+# Chunks of fixed columns, so many bytes per report or sample: what count states is their
+# size.
+RECORD_BYTES = {MOTION: 16, RATE: 16, RATE_SATURATED: 17}
+FIXED_KINDS = tuple(RECORD_BYTES)
 # No gyro measures this (MEMS parts reach 70 rad/s, 4000 deg/s): a larger rate, or one
 # that is not finite, is corruption; so a window's sum of them stays finite.
 MAX_RATE = 1e6  # rad/s
@@ -149,16 +156,28 @@ def motion_columns(
 
 
 def rate_columns(
-    path: str, payload: bytes, count: int, offset: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """A RATE chunk's columns (t, rate), checked: bit for bit what the writer was given."""
-    if len(payload) != 16 * count:
+    path: str, payload: bytes, count: int, offset: int, kind: int = RATE
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """A RATE or RATE_SATURATED chunk's columns (t, rate, saturated or None), checked: bit
+    for bit what the writer was given."""
+    size = RECORD_BYTES[kind] * count
+    if len(payload) != size:
         raise CaptureError(
             located(path, None, f"byte offset {offset}: gyro chunk of {count} samples holds "
-                    f"{len(payload)} bytes, not {16 * count}")
+                    f"{len(payload)} bytes, not {size}")
         )  # fmt: skip
     t = np.frombuffer(payload, "<f8", count)
     rate = np.frombuffer(payload, "<f8", count, 8 * count)
+    saturated = None
+    if kind == RATE_SATURATED:
+        flags = np.frombuffer(payload, "u1", count, 16 * count)
+        if (flags > 1).any():
+            k = int(np.argmax(flags > 1))
+            raise CaptureError(
+                located(path, None, f"byte offset {offset}: gyro sample {k} is marked "
+                        f"saturated {int(flags[k])}: 0 or 1")
+            )  # fmt: skip
+        saturated = flags.astype(bool)
     if not (np.abs(t) < MAX_TIME_S).all():  # NaN fails this too
         raise CaptureError(located(path, None, f"byte offset {offset}: time out of range"))
     if not (np.abs(rate) < MAX_RATE).all():
@@ -167,7 +186,7 @@ def rate_columns(
             located(path, None, f"byte offset {offset}: gyro sample {k} has rate "
                     f"{float(rate[k])!r}: not a rate (finite, below {MAX_RATE:g} rad/s)")
         )  # fmt: skip
-    return t, rate
+    return t, rate, saturated
 
 
 def plausible_time(t: float) -> bool:

@@ -28,6 +28,7 @@ from mousedom.capture.native_format import (
     NOTE,
     NOTE_FIELDS,
     RATE,
+    RATE_SATURATED,
     SERIAL,
     SYNC,
     ZLIB,
@@ -45,7 +46,7 @@ class NativeWriter:
     Motion (and a gyro's samples) is buffered per source and written as one chunk per
     source at ``sync``, at ``flush`` or when a buffer holds ``chunk_reports`` reports; each
     chunk is flushed to the OS at once (and fsync'ed when ``fsync`` is true) so a crash
-    loses only the buffers.  A file with a gyro device (kind "iio") is version 2.0, one
+    loses only the buffers.  A file with a gyro device (kind "iio") is version 2.1, one
     without is 1.0 (native_format's docstring says why).
     """
 
@@ -75,7 +76,7 @@ class NativeWriter:
         self.compress = compress
         self.chunk_reports = chunk_reports
         self.fsync = fsync
-        # Per source, its columns (t, dx, dy) or, for a gyro, (t, rate), as given
+        # Per source, its columns (t, dx, dy) or, for a gyro, (t, rate, saturated), as given
         self._buf: list[list[tuple[np.ndarray, ...]]] = [[] for _ in devices]
         self._buffered = [0] * len(devices)
         self.reports_written = 0
@@ -108,15 +109,19 @@ class NativeWriter:
                 self._too_big(device, t, dx, dy)
         self._buffer(device, (t, dx.astype("<i4"), dy.astype("<i4")))
 
-    def gyro(self, device: int, t, rate) -> None:
+    def gyro(self, device: int, t, rate, saturated=None) -> None:
         """A gyro's samples (device of kind "iio"): stamps (s) and yaw rates (rad/s),
-        stored as float64 exactly as given."""
+        stored as float64 exactly as given, and which were read at the converter's limit
+        (``saturated``, bool per sample; None: none)."""
         self._of_kind(device, motion=False)
         t = np.ascontiguousarray(t, dtype="<f8")
         rate = np.ascontiguousarray(rate, dtype="<f8")
         if t.shape != rate.shape or t.ndim != 1:
             raise ValueError(f"gyro: t and rate must be 1-D of one length, got "
                              f"{t.shape}, {rate.shape}")  # fmt: skip
+        sat = np.zeros(t.shape, "u1") if saturated is None else np.asarray(saturated, bool)
+        if sat.shape != t.shape:
+            raise ValueError(f"gyro: saturated must be as long as t, got {sat.shape}")
         if not len(t):
             return
         self._check_times(device, t, "sample")
@@ -127,7 +132,8 @@ class NativeWriter:
                 f"device {self.devices[device].name!r}: sample {k} of a batch has rate "
                 f"{float(rate[k])!r}: the native format holds finite rates below {MAX_RATE:g} rad/s"
             )
-        self._buffer(device, (t.copy(), rate.copy()))  # the caller may reuse its arrays
+        # (copies: the caller may reuse its arrays)
+        self._buffer(device, (t.copy(), rate.copy(), sat.astype("u1")))
 
     def _of_kind(self, device: int, *, motion: bool) -> None:
         """Motion for mice, samples for the gyro: the reader refuses anything else."""
@@ -216,8 +222,8 @@ class NativeWriter:
         self.close()
 
     def _flush_motion(self, device: int) -> None:
-        """A source's buffered columns as chunks: MOTION (t, dx, dy), or RATE (t, rate)
-        for a gyro."""
+        """A source's buffered columns as chunks: MOTION (t, dx, dy), or for a gyro RATE
+        (t, rate), RATE_SATURATED (t, rate, saturated) where a sample of the chunk is."""
         parts = self._buf[device]
         if not parts:
             return
@@ -228,9 +234,13 @@ class NativeWriter:
         n = len(columns[0])
         for s in range(0, n, self.chunk_reports):
             e = s + self.chunk_reports
-            payload = b"".join(c[s:e].tobytes() for c in columns)
-            count = len(columns[0][s:e])
-            self._chunk(kind, device, count, payload)
+            part = [c[s:e] for c in columns]
+            count = len(part[0])
+            this = kind
+            if kind == RATE:
+                this = RATE_SATURATED if part[2].any() else RATE
+                part = part if this == RATE_SATURATED else part[:2]
+            self._chunk(this, device, count, b"".join(c.tobytes() for c in part))
             if kind == RATE:
                 self.samples_written += count
             else:

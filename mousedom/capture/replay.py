@@ -143,8 +143,10 @@ class _Run:
         for rates in batch.gyro:  # the gyro's samples: one more stream, as a mouse's
             if len(rates.t):
                 t = rates.t - st.offset if st.offset else rates.t
+                sat = rates.saturated
+                sat = np.zeros(len(t), bool) if sat is None else sat
                 for sensor in st.mice.get(rates.device, ()):
-                    self.queue(sensor, t, rates.rate)
+                    self.queue(sensor, t, rates.rate, sat)
         if batch.complete > -math.inf:
             self._advance(st, batch.complete - st.offset)
         finite = [s.watermark for s in self.states if not s.done and math.isfinite(s.watermark)]

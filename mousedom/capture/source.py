@@ -273,7 +273,8 @@ class GyroReplaySource(ReplaySource):
         for batch in batches:
             for r in batch.gyro:
                 if r.device == self._dev and len(r.t):
-                    yield r.t, r.rate, r.rate  # (the third column unused)
+                    sat = np.zeros(len(r.t), bool) if r.saturated is None else r.saturated
+                    yield r.t, r.rate, sat
 
     def read(self, now: float) -> list[GyroSamples]:  # type: ignore[override]
         """The samples due by ``now`` (the health counted as for any source)."""
@@ -285,6 +286,8 @@ class GyroReplaySource(ReplaySource):
             raise
         if rows is None:
             return []
-        t, rate, _ = rows
+        t, rate, sat = rows
         self._count(len(t), float(t[-1]), now)
-        return [GyroSamples(self.name, t, np.asarray(rate, dtype=float))]
+        saturated = np.asarray(sat, dtype=bool)
+        return [GyroSamples(self.name, t, np.asarray(rate, dtype=float),
+                            saturated if saturated.any() else None)]  # fmt: skip

@@ -109,5 +109,7 @@ def gyro_line(s: Summary) -> str | None:
     bias = "no bias learnt (no window with samples)"
     if g.bias is not None and g.bias_sigma is not None:
         bias = f"bias {math.degrees(g.bias):+.3f} +- {math.degrees(g.bias_sigma):.3f} deg/s"
+    if g.stats.saturated:  # those windows' heading is the mice's alone
+        bias += f", {g.stats.saturated} saturated (left out)"
     return (f"{'gyro':<12} {g.stats.reports} samples, {g.samples_per_s:.1f} Hz, {bias}  "
             f"{g.file} ({g.device})")  # fmt: skip

@@ -278,7 +278,8 @@ def _copy(w: NativeWriter, states: list[_Input], written: list[list[int]]) -> tu
                 w.serial_many(st.out[chunk.device], (chunk.t - st.sub).tolist(), chunk.data)
         for rates in batch.gyro:  # a gyro's samples, as they are (times rebased as motion)
             if rates.device in st.out and len(rates.t):
-                w.gyro(st.out[rates.device], rates.t - st.sub if st.sub else rates.t, rates.rate)
+                w.gyro(st.out[rates.device], rates.t - st.sub if st.sub else rates.t, rates.rate,
+                       rates.saturated)  # fmt: skip
                 samples += len(rates.t)
                 written[st.out[rates.device]][0] += len(rates.t)
         if batch.complete > -math.inf:

@@ -163,7 +163,7 @@ class Recorder:
             if isinstance(s, GyroSlot):
                 for samples in s.source.read(now):
                     with self._writing():
-                        self.writer.gyro(s.index, samples.t, samples.rate)
+                        self.writer.gyro(s.index, samples.t, samples.rate, samples.saturated)
                     s.reports += len(samples)
                 return
             for batch in s.source.read(now):  # a serial source's bytes went to on_raw

@@ -90,14 +90,15 @@ def gyro_period(config: GyroConfig) -> float:
 
 def gyro_turns(
     t: np.ndarray, rate: np.ndarray, last_t: float, period: float
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Samples (stamps, rad/s) as the angle each turned: its rate times the span it
     covers, the time since the sample before (``last_t`` for the first), at most
     ``period`` (the count function's rule for a report's span).  A first sample ever
-    (``last_t`` -inf) only starts the spans: its own is unknown, so it turns nothing."""
+    (``last_t`` -inf) only starts the spans: its own is unknown, so it turns nothing.
+    Returns the stamps, the angles and the spans."""
     spans = np.diff(t, prepend=last_t)
     spans = np.where(np.isfinite(spans), np.clip(spans, 0.0, period), 0.0)
-    return t, rate * spans
+    return t, rate * spans, spans
 
 
 class GyroWindow(NamedTuple):

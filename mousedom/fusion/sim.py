@@ -444,7 +444,8 @@ def run_tracker(result: SimResult, config: Config | None = None, **tracker_kw):
     for name, rep in result.reports.items():
         tracker.push(name, rep.t, rep.dx, rep.dy)
     if result.gyro is not None and cfg.gyro is not None:
-        tracker.push_gyro(result.gyro.t, result.gyro.rate)
+        g = result.gyro
+        tracker.push_gyro(g.t, g.rate, g.saturated if g.saturated.any() else None)
     return tracker.finish(), tracker
 
 
@@ -459,12 +460,13 @@ def run_tracker_live(result: SimResult, tracker) -> list:
     )
     g = result.gyro
     if g is not None and tracker.config.gyro is not None:  # the gyro's samples among them
-        merged = sorted(merged + [(t, "", rate, 0.0) for t, rate in
-                                  zip(g.t.tolist(), g.rate.tolist(), strict=True)])  # fmt: skip
+        merged = sorted(merged + [(t, "", rate, float(sat)) for t, rate, sat in
+                                  zip(g.t.tolist(), g.rate.tolist(), g.saturated.tolist(),
+                                      strict=True)])  # fmt: skip
     out = []
     for t, name, dx, dy in merged:
-        if not name:
-            tracker.push_gyro([t], [dx])
+        if not name:  # a gyro sample: (stamp, rate, saturated)
+            tracker.push_gyro([t], [dx], [bool(dy)])
         else:
             tracker.push(name, [t], [int(dx) if float(dx).is_integer() else dx],
                          [int(dy) if float(dy).is_integer() else dy])  # fmt: skip

@@ -220,12 +220,18 @@ class Tracker:
         if self.screen is not None:
             self.evidence.push(self._index(mouse), t, squal, overflow)
 
-    def push_gyro(self, t: np.ndarray | list, rate: np.ndarray | list) -> None:
+    def push_gyro(
+        self,
+        t: np.ndarray | list,
+        rate: np.ndarray | list,
+        saturated: np.ndarray | list | None = None,
+    ) -> None:
         """The gyro's samples: stamps and yaw rates (rad/s, CCW positive), each the mean
-        rate since the sample before (tracker_gyro.GyroClock)."""
+        rate since the sample before, and which of them were read at the converter's limit
+        (``saturated``, None: none; those windows take no gyro turn: tracker_gyro.GyroClock)."""
         if self._gyro is None:
             raise ValueError("push_gyro: the config has no gyro")
-        first = self._gyro.push(t, rate)
+        first = self._gyro.push(t, rate, saturated)
         if first is not None:
             self._start(first)
 

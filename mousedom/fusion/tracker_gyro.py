@@ -3,8 +3,14 @@
 A gyro sample stamped t is the mean yaw rate since the sample before; times the span it
 covers (at most one sample period, a mouse report's rule) it is the angle turned, which
 rises over that span as a mouse's counts do.  So the gyro's turn is a ``CountFunction``
-(its REL_X column; REL_Y stays 0) and a window's turn is its difference at the window's
-edges: split in proportion to time, telescoping, nothing lost.
+(its REL_X column) and a window's turn is its difference at the window's edges: split in
+proportion to time, telescoping, nothing lost.
+
+A sample read at the limit of its converter (saturated: the robot turned at least that
+fast) says nothing exact of the turn.  Its span goes to the REL_Y column, so a window's
+REL_Y is the time within it that the gyro was saturated, split at the edges by the same
+rule: a window holding any of it has no gyro turn (None, NaN), and its heading is the mice's
+alone, on any rig, exactly as in a window the gyro missed.
 """
 
 from __future__ import annotations
@@ -19,6 +25,10 @@ from mousedom.fusion.countfunction import CountFunction
 from mousedom.fusion.gyro import GyroFusion, gyro_noise, gyro_period, gyro_turns
 from mousedom.fusion.gyrojudge import GyroJudge
 
+# A window holding less saturated time than this holds none: what the split at an edge
+# leaves of a saturated sample outside it is at most rounding (a sample spans milliseconds)
+SATURATED_S = 1e-9
+
 
 class GyroClock(CountFunction):
     """The gyro's turn over time (see the module docstring).  A window before its first
@@ -28,20 +38,30 @@ class GyroClock(CountFunction):
         super().__init__(period, late_report_s)
         self.first_t = math.inf  # the first sample's stamp: the turn is known from here
 
-    def push(self, t: np.ndarray | list, rate: np.ndarray | list) -> float | None:
-        """Queue samples (stamps, rad/s); the first stamp, or None if there were none.
-        ValueError for shapes that differ or values that are not finite numbers."""
+    def push(
+        self,
+        t: np.ndarray | list,
+        rate: np.ndarray | list,
+        saturated: np.ndarray | list | None = None,
+    ) -> float | None:
+        """Queue samples (stamps, rad/s, and where given which were saturated); the first
+        stamp, or None if there were none.  ValueError for shapes that differ or values
+        that are not finite numbers."""
         t = np.asarray(t, dtype=np.float64)
         rate = np.asarray(rate, dtype=np.float64)
         if not (t.ndim == 1 and t.shape == rate.shape):
             raise ValueError(f"push_gyro: t and rate must be 1-D of one length, got "
                              f"{t.shape}, {rate.shape}")  # fmt: skip
+        sat = None if saturated is None else np.asarray(saturated, dtype=bool)
+        if sat is not None and sat.shape != t.shape:
+            raise ValueError(f"push_gyro: saturated must be as long as t, got {sat.shape}")
         if t.size == 0:
             return None
         if not math.isfinite(t.sum() + rate.sum()):
             raise ValueError("push_gyro: times and rates must be finite numbers")
-        t, turn = gyro_turns(t, rate, self.last_t, self.period)
-        self.queue(t, turn, np.zeros_like(turn), float(t.max()))
+        t, turn, spans = gyro_turns(t, rate, self.last_t, self.period)
+        held = np.zeros_like(turn) if sat is None else np.where(sat, spans, 0.0)
+        self.queue(t, turn, held, float(t.max()))
         self.first_t = min(self.first_t, float(t[0]))
         return float(t[0])
 
@@ -54,13 +74,14 @@ class GyroClock(CountFunction):
         live = np.ones(n, dtype=bool)
         self.close_live(edges, out=live)
         live &= edges[:-1] >= self.first_t
+        live &= closed[:, 1] < SATURATED_S
         return np.where(live, closed[:, 0], np.nan)
 
     def turn_one(self, start: float, end: float) -> float | None:
         """The next window's turn (the one-window path's), None if the gyro was not live
-        throughout."""
-        turn = self.close_one(end)[0]
-        if start < self.first_t:
+        throughout or saturated within it."""
+        turn, held = self.close_one(end)
+        if start < self.first_t or held >= SATURATED_S:
             return None
         return turn if not self.dead or self.live_in(start, end) else None
 

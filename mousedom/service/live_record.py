@@ -101,9 +101,9 @@ class Recording(Output):
         self.writer.motion(index, t, np.rint(dx), np.rint(dy))
         self.reports_kept += len(t)
 
-    def gyro(self, t: np.ndarray, rate: np.ndarray) -> None:
+    def gyro(self, t: np.ndarray, rate: np.ndarray, saturated: np.ndarray | None = None) -> None:
         if self.gyro_device is not None:
-            self.writer.gyro(self.gyro_device, t, rate)
+            self.writer.gyro(self.gyro_device, t, rate, saturated)
             self.samples_kept += len(t)
 
     def checkpoint(self, complete: float) -> None:

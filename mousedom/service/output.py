@@ -30,8 +30,11 @@ class Output(ABC):
     def reports(self, index: int, t: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> None:  # noqa: B027
         """Reports of mouse ``index`` as read from its sensor (stamps, counts)."""
 
-    def gyro(self, t: np.ndarray, rate: np.ndarray) -> None:  # noqa: B027
-        """The rig's gyro's samples as read: stamps, yaw rates (rad/s, CCW positive)."""
+    def gyro(  # noqa: B027
+        self, t: np.ndarray, rate: np.ndarray, saturated: np.ndarray | None = None
+    ) -> None:
+        """The rig's gyro's samples as read: stamps, yaw rates (rad/s, CCW positive), and
+        which were read at the converter's limit (None: none)."""
 
     def checkpoint(self, complete: float) -> None:  # noqa: B027
         """Once a second: every report stamped up to ``complete`` has been handed over."""

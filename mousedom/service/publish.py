@@ -90,9 +90,9 @@ class Outputs:
         for out in list(self._reporters):
             self._call(out, out.reports, index, t, dx, dy)
 
-    def gyro(self, t: np.ndarray, rate: np.ndarray) -> None:
+    def gyro(self, t: np.ndarray, rate: np.ndarray, saturated: np.ndarray | None = None) -> None:
         for out in list(self._reporters):
-            self._call(out, out.gyro, t, rate)
+            self._call(out, out.gyro, t, rate, saturated)
 
     def checkpoint(self, complete: float) -> None:
         for out in list(self.items):

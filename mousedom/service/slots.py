@@ -51,7 +51,9 @@ class ReportSink(Protocol):
 
     def reports(self, index: int, t: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> None: ...
 
-    def gyro(self, t: np.ndarray, rate: np.ndarray) -> None: ...
+    def gyro(
+        self, t: np.ndarray, rate: np.ndarray, saturated: np.ndarray | None = None
+    ) -> None: ...
 
 
 class PlannedSensor(NamedTuple):
@@ -300,9 +302,9 @@ class Sensors:
 
             for samples in batches:
                 if isinstance(samples, GyroSamples) and len(samples.t):
-                    tracker.push_gyro(samples.t, samples.rate)
+                    tracker.push_gyro(samples.t, samples.rate, samples.saturated)
                     if self.sink.wants_reports:
-                        self.sink.gyro(samples.t, samples.rate)
+                        self.sink.gyro(samples.t, samples.rate, samples.saturated)
             return
         for batch in batches:
             t, dx, dy = batch.columns()

@@ -27,7 +27,11 @@ buffer and puts them back, newest first, so the device is left as it was found.
 from the timestamp channel's nanoseconds) and ``rate`` (float64 rad/s about the body z
 axis, counter-clockwise positive) = sign * (raw + offset) * scale.  Stamps far from ``now``
 are re-stamped as base.py's ``bound_stamp_array`` does, then made non-decreasing as the
-mice's are.
+mice's are.  ``saturated`` marks the samples whose raw value is at either end of what the
+channel's ``_type`` holds (``ScanType.raw_range``): the converter clipped them, so their
+rate says only that the turn was at least that fast.  The polled fallback reads the range
+from the same ``_type`` attribute where the device publishes scan elements at all; without
+one it cannot tell (``raw_range`` None in SOURCE: docs/gyro.md).
 
 Polled fallback: without a usable buffer (no scan elements or ``buffer/`` directory, no
 ``in_timestamp`` element, no character device, an empty ``trigger/current_trigger``, or no
@@ -110,6 +114,9 @@ class GyroSamples:
     gyro: str
     t: np.ndarray
     rate: np.ndarray
+    # bool per sample: read at the limit of the raw range (the rate is then only a bound);
+    # None: none was, or the source cannot tell
+    saturated: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.t)
@@ -146,6 +153,8 @@ class GyroSource(Source):
         self.scale = math.nan  # rad/s per LSB
         self.offset = 0.0  # LSB, added before the scale
         self.layout: RecordLayout | None = None
+        self.raw_range: tuple[int, int] | None = None  # the raw values' ends: saturation
+        self.saturated = 0  # samples read at either end
         self._fd = -1
         self._stream = False  # the node is a FIFO (tests): EOF with POLLHUP is the unplug
         self._rest = b""
@@ -218,6 +227,7 @@ class GyroSource(Source):
             self.sysfs.set(length, str(BUFFER_SCANS))
         self.sysfs.set(buffer / "enable", "1")
         self.layout = self._layout(scan)
+        self.raw_range = self.layout.field(self.channel).element.type.raw_range
         self.mode, self.polled_because = GyroMode.BUFFERED, None
         self.paced = False
 
@@ -271,10 +281,24 @@ class GyroSource(Source):
                 f"{self.name}: {raw}: missing, and no buffer to read instead ({why})"
             )
         self.sysfs.text(raw)  # readable now, or refused now
+        self.raw_range = self._polled_range(dev)
         self._set_rate(dev)
         self.mode, self.polled_because = GyroMode.POLLED, why
         self.paced = True  # no descriptor: read on the daemon's schedule
         log.warning("%s: polling %s: %s (docs/gyro.md)", self.name, raw, why)
+
+    def _polled_range(self, dev: IioDevice) -> tuple[int, int] | None:
+        """The raw range as the channel's scan type gives it, where the device publishes
+        one without a usable buffer (no trigger, say); None where it does not."""
+        scan = scan_dir(dev.sysdir, self.channel)
+        if scan is None:
+            return None
+        at = scan / f"{self.channel}_type"
+        try:
+            return parse_scan_type(self.sysfs.text(at), str(at)).raw_range
+        except LayoutError as e:
+            log.warning("%s: %s: saturation is not detected", self.name, e)
+            return None
 
     def fileno(self) -> int:
         return self._fd
@@ -292,7 +316,7 @@ class GyroSource(Source):
                 pass
             self._fd = -1
         self.sysfs.restore()
-        self.mode, self.layout = None, None
+        self.mode, self.layout, self.raw_range = None, None, None
 
     # ----------------------------------------------------------------- data plane
 
@@ -335,10 +359,10 @@ class GyroSource(Source):
             if gone is not None:
                 raise SourceGone(gone)
             return None
-        raw = decoded.columns[self.channel].astype(np.float64)
+        raw = decoded.columns[self.channel]
         stamps = decoded.columns[TIMESTAMP].astype(np.float64) / 1e9
-        rate = self.config.sign * (raw + self.offset) * self.scale
-        return self._stamped(stamps, rate, now)
+        rate = self.config.sign * (raw.astype(np.float64) + self.offset) * self.scale
+        return self._stamped(stamps, rate, now, self._at_limit(raw))
 
     def _read_bytes(self, chunk: int) -> tuple[bytes | None, str | None]:
         """What the node holds (with the last read's partial record in front), and why
@@ -387,14 +411,28 @@ class GyroSource(Source):
             self._dropped(f"{raw_at}: {text[:40]!r} is not an integer")
             return None
         rate = self.config.sign * (raw + self.offset) * self.scale
-        return self._stamped(np.array([(t0 + t1) / 2]), np.array([rate], dtype=np.float64), now)
+        return self._stamped(np.array([(t0 + t1) / 2]), np.array([rate], dtype=np.float64), now,
+                             self._at_limit(np.array([raw])))  # fmt: skip
+
+    def _at_limit(self, raw: np.ndarray) -> np.ndarray | None:
+        """Which raw values are at either end of the range (None: none, or no range)."""
+        if self.raw_range is None:
+            return None
+        lo, hi = self.raw_range
+        at = (raw <= lo) | (raw >= hi)
+        if not at.any():
+            return None
+        self.saturated += int(at.sum())
+        return at
 
     def _dropped(self, why: str) -> None:
         """A sample that could not be read (an I2C error): counted, said, not fatal."""
         self.health.dropped += 1
         self.health.error = f"{self.name}: {why} ({self.health.dropped} sample(s) lost)"
 
-    def _stamped(self, stamps: np.ndarray, rate: np.ndarray, now: float) -> GyroSamples:
+    def _stamped(
+        self, stamps: np.ndarray, rate: np.ndarray, now: float, saturated: np.ndarray | None
+    ) -> GyroSamples:
         # Far stamps first: one must not become the floor every later stamp is raised to.
         bounded, n_far, worst = bound_stamp_array(stamps, now)
         self._far_stamps(n_far, worst)
@@ -402,7 +440,7 @@ class GyroSource(Source):
         self.time_backwards += back
         self._last_t = float(t[-1])
         self._update_health()
-        return GyroSamples(self.name, t, rate)
+        return GyroSamples(self.name, t, rate, saturated)
 
     def _update_health(self) -> None:
         dev = self.device
@@ -418,6 +456,8 @@ class GyroSource(Source):
             scale=self.scale,
             offset=self.offset,
             record_bytes=self.layout.size if self.layout else None,
+            raw_range=list(self.raw_range) if self.raw_range else None,
+            saturated=self.saturated,
             time_backwards=self.time_backwards,
             truncated_bytes=self.truncated_bytes,
         )

@@ -61,6 +61,15 @@ class ScanType(NamedTuple):
         """The bytes this channel takes in a record, which is also its alignment."""
         return self.storagebits // 8 * self.repeat
 
+    @property
+    def raw_range(self) -> tuple[int, int]:
+        """The least and greatest value the valid bits hold (as decoded): a reading at
+        either end is the converter's limit, where the sensor saturates (an MPU-6050's
+        ``le:s16/16>>0`` clips at -32768 and 32767)."""
+        if self.signed:
+            return -(1 << (self.realbits - 1)), (1 << (self.realbits - 1)) - 1
+        return 0, (1 << self.realbits) - 1
+
 
 class Element(NamedTuple):
     """An enabled channel of the record: its name (``in_anglvel_z``), scan index, type."""
