@@ -7,8 +7,10 @@ each from 2 s at rest (a robot just switched on: where the gyro's bias is first 
 on a one-mouse diff-drive rig (Hong's: the mouse 0.1 m ahead of the axle), two mice on
 the axle (diff-drive) and three (lsq), with an MPU-6050-like gyro (fusion/simgyro.py:
 datasheet noise, a 0.5 deg/s bias that wanders).  Healthy mice, one mouse lifted for 3 s
-or under-reading by half for 5 s (fusion/scenarios.py's faults), and a gyro whose scale
-is 3 % off (an MPU-6050's sensitivity tolerance).  For each: the
+or under-reading by half for 5 s (fusion/scenarios.py's faults), a gyro whose scale
+is 3 % off (an MPU-6050's sensitivity tolerance), and one whose range the drive's faster
+turns exceed (it clips at 0.8 rad/s, as a gyro set to a sensitive range on a robot that
+then spins fast: its samples there marked saturated, as the IIO source marks them).  For each: the
 median over seeds of the end pose's heading and position errors, mice alone and mice
 with the gyro (use: both), their ratio, and the end-pose NEES (3 is honest); for the
 lift, the share of its windows in which the lifted mouse was left out.
@@ -38,7 +40,9 @@ RIGS = {
     "2 mice (axle)": ("pair", "diff-drive"),
     "3 mice": ("triangle", "lsq"),
 }
-FAULTS = ("none", "lift", "under-read", "gyro +3 %")  # the last: the gyro's scale is off
+# the last two: the gyro's scale is off; its range is exceeded
+FAULTS = ("none", "lift", "under-read", "gyro +3 %", "gyro clips")
+CLIP = 0.8  # rad/s: "gyro clips"'s full scale (the drives turn at up to 1.9 rad/s)
 REST_S = 2.0
 
 
@@ -53,8 +57,10 @@ def base_rig(layout: str, model: str) -> sim.Rig:
 def one_run(layout: str, model: str, fault: str, seed: int, seconds: float) -> dict:
     scale_error = 0.03 if fault == "gyro +3 %" else 0.0  # within an MPU-6050's tolerance
     gyro = simgyro.SimGyro(phase=0.0007 * seed, scale_error=scale_error)
+    if fault == "gyro clips":
+        gyro = dataclasses.replace(gyro, full_scale=CLIP)
     rig = dataclasses.replace(base_rig(layout, model), gyro=gyro)
-    mouse_fault = "none" if scale_error else fault
+    mouse_fault = "none" if fault.startswith("gyro") else fault
     f = scenarios.fault_for(mouse_fault, rig, seconds, seed)
     f = dataclasses.replace(f, start=f.start + REST_S, end=f.end + REST_S)
     rig = scenarios.apply(rig, f)
