@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from iio_fakes import Writer, add_gyro, gyro_records, stamps_ns
+from iio_fakes import MPU6050_SCALE, Writer, add_gyro, gyro_records, stamps_ns
 from test_capture_gyro import GYRO, MOUSE, _chunk, _file, _rate_payload, read_all
 
 from mousedom.capture import CaptureError, NativeWriter
@@ -81,6 +81,21 @@ def test_polled_samples_are_marked_where_the_device_publishes_a_scan_type(tmp_pa
     (sysdir / "in_anglvel_z_raw").write_text("-12\n")
     [b] = src.read(T0 + 0.02)
     assert b.saturated is None
+    src.close()
+
+
+def test_a_polled_reading_no_gyro_makes_is_dropped_and_said(tmp_path):
+    """A raw attribute far beyond any range (hostile, or a driver's bug) would be a turn of
+    a billion radians in a window: dropped, counted, and said with what it read."""
+    sysdir = add_gyro(tmp_path, raw={"z": str(10**30)}, buffered=False)
+    src = GyroSource(GyroConfig(name="mpu6050", sample_hz=100), IioPaths.under(str(tmp_path)),
+                     clock=lambda: T0)  # fmt: skip
+    src.open()
+    assert src.read(T0) == []
+    assert src.health.dropped == 1 and "not a gyro's" in (src.health.error or "")
+    (sysdir / "in_anglvel_z_raw").write_text("-12\n")
+    [b] = src.read(T0 + 0.02)
+    assert b.rate.tolist() == [-12 * float(MPU6050_SCALE)]
     src.close()
 
 

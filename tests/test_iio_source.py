@@ -379,6 +379,14 @@ def test_clock_that_cannot_be_set_is_refused_and_nothing_stays_changed(tmp_path,
             "in_anglvel_z_index: '-1' is not a scan index",
         ),
         (
+            lambda d: (d / "scan_elements" / "in_anglvel_z_type").write_text("le:s16/16X2>>0"),
+            "in_anglvel_z_type: repeats 2 values a record; a rate channel holds one",
+        ),
+        (
+            lambda d: (d / "scan_elements" / "in_timestamp_type").write_text("le:s32/32>>0"),
+            "in_timestamp_type: not one 64-bit timestamp a record",
+        ),
+        (
             lambda d: (d / "scan_elements" / "in_timestamp_index").write_text("6"),
             "have the same scan index 6",
         ),

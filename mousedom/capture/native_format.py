@@ -46,6 +46,7 @@ import numpy as np
 
 from mousedom.capture.base import GYRO_KIND, MAX_TIME_S, SOURCE_COUNTERS, CaptureError
 from mousedom.errors import located
+from mousedom.sources.base import MAX_RATE
 
 MAGIC = b"MDCAP\r\n\x1a"
 VERSION = (1, 0)  # a file without a gyro: readable by every reader of the format
@@ -60,9 +61,7 @@ GYRO_KINDS = (RATE, RATE_SATURATED)  # a gyro's chunks, and only a gyro's
 # size.
 RECORD_BYTES = {MOTION: 16, RATE: 16, RATE_SATURATED: 17}
 FIXED_KINDS = tuple(RECORD_BYTES)
-# No gyro measures this (MEMS parts reach 70 rad/s, 4000 deg/s): a larger rate, or one
-# that is not finite, is corruption; so a window's sum of them stays finite.
-MAX_RATE = 1e6  # rad/s
+# A larger rate, or one that is not finite, is corruption (sources.base.MAX_RATE).
 ZLIB = 1
 MAX_CHUNK = 64 << 20  # larger payloads are corruption, not data
 # A compressed chunk may inflate to at most this many times its stored size (and never past

@@ -23,7 +23,6 @@ from mousedom.capture.native_format import (
     CHUNK,
     CHUNK_MAGIC,
     MAGIC,
-    MAX_RATE,
     MOTION,
     NOTE,
     NOTE_FIELDS,
@@ -38,6 +37,7 @@ from mousedom.capture.native_format import (
     version_for,
 )
 from mousedom.safewrite import open_stream
+from mousedom.sources.base import MAX_RATE
 
 
 class NativeWriter:

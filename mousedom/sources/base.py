@@ -27,6 +27,11 @@ from numpy.typing import ArrayLike
 STAMP_AHEAD_S = 1.0
 STAMP_BEHIND_S = 60.0
 
+# No gyro measures this (MEMS parts reach 70 rad/s, 4000 deg/s): a gyro source drops a
+# sample that reads more (a hostile scale attribute, a raw reading out of its range), and
+# the native capture format refuses one, so a window's sum of them stays finite.
+MAX_RATE = 1e6  # rad/s
+
 
 def bound_stamps(t: list[float], now: float) -> tuple[int, float]:
     """Re-stamp, in place, the stamps of ``t`` outside [now - STAMP_BEHIND_S, now +

@@ -66,7 +66,14 @@ from pathlib import Path
 import numpy as np
 
 from mousedom.config import GyroConfig
-from mousedom.sources.base import Reports, Source, SourceGone, SourceUnavailable, bound_stamp_array
+from mousedom.sources.base import (
+    MAX_RATE,
+    Reports,
+    Source,
+    SourceGone,
+    SourceUnavailable,
+    bound_stamp_array,
+)
 from mousedom.sources.evdev import _clamp_forward
 from mousedom.sources.iio_layout import (
     Element,
@@ -269,6 +276,19 @@ class GyroSource(Source):
                 raise SourceUnavailable(
                     f"{self.name}: {scan / (channel + '_en')}: still not 1 after writing 1"
                 )
+        for el in elements:
+            # one rate and one 64-bit nanosecond stamp per record, as the kernel publishes
+            # them: anything else would decode into columns of another shape or meaning
+            if el.name == self.channel and el.type.repeat != 1:
+                raise SourceUnavailable(
+                    f"{self.name}: {scan / (el.name + '_type')}: repeats {el.type.repeat} "
+                    "values a record; a rate channel holds one"
+                )
+            if el.name == TIMESTAMP and (el.type.repeat != 1 or el.type.realbits != 64):
+                raise SourceUnavailable(
+                    f"{self.name}: {scan / (el.name + '_type')}: not one 64-bit timestamp "
+                    "a record (the kernel's is s64 nanoseconds)"
+                )
         try:
             return record_layout(elements)
         except LayoutError as e:
@@ -432,7 +452,19 @@ class GyroSource(Source):
 
     def _stamped(
         self, stamps: np.ndarray, rate: np.ndarray, now: float, saturated: np.ndarray | None
-    ) -> GyroSamples:
+    ) -> GyroSamples | None:
+        bad = ~(np.abs(rate) < MAX_RATE)
+        if bad.any():  # no gyro reads this: the scale or offset attribute is not its own
+            k = int(np.argmax(bad))
+            self._dropped(f"a rate of {float(rate[k])!r} rad/s (raw times scale {self.scale!r}"
+                          f" plus offset): not a gyro's")  # fmt: skip
+            self.health.dropped += int(bad.sum()) - 1
+            keep = ~bad
+            stamps, rate = stamps[keep], rate[keep]
+            saturated = None if saturated is None else saturated[keep]
+            if not len(stamps):
+                self._update_health()
+                return None
         # Far stamps first: one must not become the floor every later stamp is raised to.
         bounded, n_far, worst = bound_stamp_array(stamps, now)
         self._far_stamps(n_far, worst)
