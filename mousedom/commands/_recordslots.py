@@ -16,6 +16,7 @@ from mousedom.sources.discovery import SystemPaths
 
 if TYPE_CHECKING:
     from mousedom.capture.base import DeviceInfo as CaptureDevice
+    from mousedom.service.ros2imu import Ros2ImuSource
     from mousedom.sources.discovery import DeviceInfo
     from mousedom.sources.evdev import EvdevSource
     from mousedom.sources.iio import GyroSource
@@ -114,7 +115,7 @@ class GyroSlot:
 
     index: int  # its device in the capture: after the mice
     config: GyroConfig
-    source: GyroSource
+    source: GyroSource | Ros2ImuSource
     connected: bool = True
     polled: bool = False  # read on every loop turn (the source's polled fallback)
     next_retry: float = 0.0
@@ -124,7 +125,9 @@ class GyroSlot:
 
     @property
     def node(self) -> str:
-        dev = self.source.device
+        if self.config.ros2 is not None:
+            return self.config.ros2.topic
+        dev = getattr(self.source, "device", None)
         if dev is None:
             return self.config.path or self.config.name or "gyro"
         return str(dev.node)
@@ -134,6 +137,10 @@ def make_gyro_slot(cfg: Config, index: int, iio: IioPaths | None = None) -> Gyro
     """The gyro's slot, if the rig has one (``iio``: where IIO devices are, for --root)."""
     if cfg.gyro is None:
         return None
+    if cfg.gyro.ros2 is not None:
+        from mousedom.service.ros2imu import Ros2ImuSource
+
+        return GyroSlot(index, cfg.gyro, Ros2ImuSource(cfg.gyro))
     from mousedom.sources.iio import GyroSource
 
     return GyroSlot(index, cfg.gyro, GyroSource(cfg.gyro, iio))
@@ -144,7 +151,19 @@ def gyro_device_info(slot: GyroSlot) -> CaptureDevice:
     from mousedom.capture.base import GYRO_KIND
     from mousedom.capture.base import DeviceInfo as CaptureDevice
 
-    src, dev = slot.source, slot.source.device
+    src = slot.source
+    ros2 = slot.config.ros2
+    if ros2 is not None:  # an IMU's topic: what it is, as the source read it
+        return CaptureDevice(
+            name=ros2.topic, kind=GYRO_KIND, rel_xy=False,
+            extra={"source": "ros2", "topic": ros2.topic, "domain_id": src.health.extra.get(
+                "domain_id"), "stamps": ros2.stamps, "axis": slot.config.axis,
+                   "sign": slot.config.sign},
+        )  # fmt: skip
+    from mousedom.sources.iio import GyroSource
+
+    assert isinstance(src, GyroSource)
+    dev = src.device
     return CaptureDevice(
         name=dev.name if dev is not None else slot.node,
         kind=GYRO_KIND,

@@ -365,7 +365,7 @@ def run(args: argparse.Namespace) -> int:
                    iio=iio)  # fmt: skip
     names = ", ".join(f"{s.name} ({describe(s)})" for s in rec.slots)
     if rec.gyro is not None:
-        names += f", gyro (iio {rec.gyro.node})"
+        names += f", gyro ({rec.gyro.source.kind} {rec.gyro.node})"
     rec.say(f"record: {args.output}: recording {names}")
     try:
         rec.run(args.duration, args.status_interval)

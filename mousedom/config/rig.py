@@ -114,6 +114,19 @@ MPU6050_NOISE = math.radians(0.005)
 
 
 @dataclass(frozen=True)
+class GyroRos2:
+    """A gyro read from a ROS 2 ``sensor_msgs/Imu`` topic over DDS (``gyro: {ros2: ...}``):
+    the angular velocity of an IMU whose driver publishes in ROS 2."""
+
+    topic: str  # absolute, e.g. /imu/data
+    domain_id: int | None = None  # None: $ROS_DOMAIN_ID, else 0 (as ROS 2 does)
+    # what the headers' stamps are on: system (ROS time, what drivers stamp with) or
+    # monotonic (a driver stamping with the steady clock); "receipt": the time each
+    # message is taken, for drivers whose stamps are neither (sim time, zero)
+    stamps: str = "system"
+
+
+@dataclass(frozen=True)
 class GyroConfig:
     """The optional gyro (``gyro:``, docs/gyro.md): an IIO device and how it is mounted."""
 
@@ -126,6 +139,7 @@ class GyroConfig:
     use: str = "both"  # heading from: both (gyro and mice) | gyro | mice
     replay: str | None = None  # a capture's gyro instead of a device (absolute path)
     replay_device: str | None = None  # its name or node, where the capture holds several
+    ros2: GyroRos2 | None = None  # an IMU's sensor_msgs/Imu topic instead of a device
 
 
 # Keyword-only: the top-level defaults (rate_hz, model, integrator) stand before the

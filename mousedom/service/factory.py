@@ -1,5 +1,5 @@
 """Which source class reads a configured mouse (evdev, serial ADNS-3080 or replay) or the
-gyro (IIO, or replay)."""
+gyro (IIO, a ROS 2 Imu topic, or replay)."""
 
 from __future__ import annotations
 
@@ -27,6 +27,10 @@ def make_source(
             from mousedom.capture.source import GyroReplaySource
 
             return GyroReplaySource(mouse, loop=loop, clock=clock)
+        if mouse.ros2 is not None:
+            from mousedom.service.ros2imu import Ros2ImuSource
+
+            return Ros2ImuSource(mouse, clock=clock)
         from mousedom.sources.iio import GyroSource
 
         return GyroSource(mouse, clock=clock)

@@ -44,8 +44,11 @@ def _gyro_device(gyro: GyroConfig, source_kind: str) -> DeviceInfo:
         extra["node"] = gyro.path
     if gyro.sample_hz is not None:
         extra["sample_hz"] = gyro.sample_hz
-    return DeviceInfo(name=gyro.name or gyro.path or GYRO, kind=GYRO_KIND, rel_xy=False,
-                      extra=extra)  # fmt: skip
+    topic = gyro.ros2.topic if gyro.ros2 is not None else None
+    if topic is not None:
+        extra["topic"] = topic
+    return DeviceInfo(name=gyro.name or gyro.path or topic or GYRO, kind=GYRO_KIND,
+                      rel_xy=False, extra=extra)  # fmt: skip
 
 
 class Recording(Output):

@@ -63,6 +63,13 @@ FIELDS: dict[str, tuple[tuple[str, str], ...]] = {
     "geometry_msgs/Vector3Stamped": (
         ("std_msgs/Header", "header"), ("geometry_msgs/Vector3", "vector"),
     ),
+    "sensor_msgs/Imu": (
+        ("std_msgs/Header", "header"), ("geometry_msgs/Quaternion", "orientation"),
+        ("float64[9]", "orientation_covariance"), ("geometry_msgs/Vector3", "angular_velocity"),
+        ("float64[9]", "angular_velocity_covariance"),
+        ("geometry_msgs/Vector3", "linear_acceleration"),
+        ("float64[9]", "linear_acceleration_covariance"),
+    ),
 }  # fmt: skip
 
 # REP-2011 type hashes of the published types (the same in Humble and Jazzy; tests check
@@ -83,6 +90,7 @@ TF = "tf2_msgs/TFMessage"
 DIAGNOSTICS = "diagnostic_msgs/DiagnosticArray"
 COUNTS = "geometry_msgs/Vector3Stamped"
 INITIALPOSE = "geometry_msgs/PoseWithCovarianceStamped"  # read, not published
+IMU = "sensor_msgs/Imu"  # read (gyro: ros2:), not published
 
 
 def _base(ftype: str) -> str:

@@ -127,7 +127,8 @@ def _dds_stderr() -> Iterator[Callable[[], str]]:
     failed: a config error, no interface) while the participant is made; yields a function
     giving that text.  What it wrote is passed on to stderr afterwards, as it would be,
     unless the block failed: then the one error line that names the cause carries it.
-    Called once, while the daemon starts and has no other thread: fd 2 is the process's."""
+    Called where a participant is made (the daemon's start, a ROS 2 gyro joined again):
+    fd 2 is the process's, so what another thread writes meanwhile is passed on after."""
     try:
         sys.stderr.flush()
         saved = os.dup(2)
@@ -167,6 +168,36 @@ def _why_no_participant(domain: int, said: str) -> str:
     return f"ROS 2 output: no DDS participant on domain {domain}: {cause}{hint}; see {DOCS}"
 
 
+# The Domain objects this process configured, by domain id, kept while it lives: Cyclone
+# reads a domain's configuration when its first entity is made, and deleting the Domain
+# object would delete every participant in it (the output's and the gyro's share one).
+_DOMAINS: dict[int, Any] = {}
+
+
+def participant(domain: int) -> Any:
+    """A DDS participant on ``domain``, the domain configured as ``dds_config`` says the
+    first time; Ros2Unavailable saying why where none can be made."""
+    require()
+    from cyclonedds.core import DDSException
+    from cyclonedds.domain import Domain, DomainParticipant
+
+    with _dds_stderr() as said:
+        if domain not in _DOMAINS:
+            try:
+                _DOMAINS[domain] = Domain(domain, dds_config())
+            except DDSException:
+                if "config:" in said():  # Cyclone refused the configuration: say so
+                    raise Ros2Unavailable(_why_no_participant(domain, said())) from None
+                _DOMAINS[domain] = None  # made by another part of this process
+                log.warning("DDS domain %d existed already in this process: its "
+                            "configuration stands (ROS 2 nodes on Fast DDS may not match "
+                            "our topics)", domain)  # fmt: skip
+        try:
+            return DomainParticipant(domain)
+        except DDSException:
+            raise Ros2Unavailable(_why_no_participant(domain, said())) from None
+
+
 class _RawWriter:
     """A DataWriter fed CDR bytes: cyclonedds' ``write`` wants an object of the topic's
     type and calls its ``serialize``; this hands it one whose ``serialize`` is the bytes."""
@@ -197,9 +228,6 @@ class Ros2Output(Output):
         mice: tuple[MouseConfig, ...] = (),
     ) -> None:
         """``mice``: their mounts go on /tf_static (base frame -> <mouse>_mouse)."""
-        require()
-        from cyclonedds.core import DDSException
-        from cyclonedds.domain import Domain, DomainParticipant
         from cyclonedds.pub import DataWriter
         from cyclonedds.qos import Policy, Qos
         from cyclonedds.topic import Topic
@@ -209,22 +237,7 @@ class Ros2Output(Output):
         self.domain = domain_id(cfg)
         self.rep = conv.Rep105()
         types = msgs.idl_types()
-        with _dds_stderr() as said:
-            try:
-                # made first, the domain has our configuration; the participant joins it
-                self.dds_domain: Any = Domain(self.domain, dds_config())
-            except DDSException:
-                self.dds_domain = None  # exists already in this process, or a bad config
-                if "config:" in said():  # Cyclone refused the configuration: say so
-                    raise Ros2Unavailable(_why_no_participant(self.domain, said())) from None
-            try:
-                self.participant = DomainParticipant(self.domain)
-            except DDSException:
-                raise Ros2Unavailable(_why_no_participant(self.domain, said())) from None
-        if self.dds_domain is None:
-            log.warning("DDS domain %d existed already in this process: its configuration "
-                        "stands (ROS 2 nodes on Fast DDS may not receive our topics)",
-                        self.domain)  # fmt: skip
+        self.participant: Any = participant(self.domain)
 
         def writer(topic: str, name: str, depth: int):
             qos = Qos(
@@ -358,4 +371,3 @@ class Ros2Output(Output):
         self.odom = self.tf = self.diag = None
         self.counts = []
         self.participant = None
-        self.dds_domain = None
