@@ -24,6 +24,7 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 from conftest import REPO
 from daemon_fixtures import Conn, wait_listening
@@ -218,3 +219,50 @@ def test_rviz_initialpose_from_rclpy_fixes_the_pose_and_moves_map_to_odom(ros2, 
     steps = [math.hypot(b["x"] - a["x"], b["y"] - a["y"])
              for a, b in zip(odoms, odoms[1:], strict=False)]  # fmt: skip
     assert max(steps) < 0.05  # odom never jumps
+
+
+def test_an_imu_driver_on_fast_dds_is_the_daemons_gyro(ros2, tmp_path):
+    """``gyro: {ros2: /imu/data}``: an rclpy node publishing sensor_msgs/Imu as IMU drivers
+    do (sensor-data QoS, ROS time stamps) on Fast DDS; the daemon (Cyclone) fuses it and
+    ``run --record`` keeps each sample it got: the rates exactly as published, stamped
+    where the node stamped them (ROS time moved onto CLOCK_MONOTONIC)."""
+    from mousedom.capture import open_capture
+
+    domain = random.Random().randrange(1, 100)
+    cfg = _config(tmp_path, domain)
+    cfg.write_text(cfg.read_text().split("outputs:")[0]
+                   + f"gyro: {{ros2: {{topic: /imu/data, domain_id: {domain}}}}}\n")  # fmt: skip
+    sock = tmp_path / "run" / "mousedom.sock"
+    rec = tmp_path / "rec.mdcap"
+    out = tmp_path / "imu.jsonl"
+    env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    env.pop("ROS_DOMAIN_ID", None)
+    env.pop("CYCLONEDDS_URI", None)
+    env["RMW_IMPLEMENTATION"] = "rmw_fastrtps_cpp"
+    seconds = 4.0
+    # the clocks' lead, from inside the namespace: the recording's stamps are monotonic
+    script = (
+        NETNS + f"{sys.executable} -m mousedom run --config {cfg} --socket {sock} "
+        f"--record {rec} 2>{tmp_path / 'daemon.log'} & daemon=$!; sleep 2; "
+        f"ROS_DOMAIN_ID={domain} {ros2} {REPO / 'tests' / 'ros2_rclpy_imu.py'} {seconds} {out}; "
+        f"{sys.executable} -c 'import time; print(time.time() - time.monotonic())'; "
+        "sleep 0.5; kill -TERM $daemon; wait $daemon"
+    )
+    proc = subprocess.run(["unshare", "-n", "bash", "-c", script], env=env,
+                          capture_output=True, text=True, timeout=seconds + 60)  # fmt: skip
+    log = (tmp_path / "daemon.log").read_text()
+    assert proc.returncode == 0, proc.stdout + proc.stderr + log
+    lead = float(proc.stdout.split()[-1])
+    sent = [json.loads(x) for x in out.read_text().splitlines()]
+    assert len(sent) > 400, len(sent)
+    cap = open_capture(str(rec))
+    assert cap.devices[-1].extra["topic"] == "/imu/data"
+    got = [r for feed in cap.feeds() for b in feed.batches for r in b.gyro]
+    t = np.concatenate([r.t for r in got])
+    rates = np.concatenate([r.rate for r in got])
+    by_rate = {m["z"]: m["sec"] + m["nanosec"] * 1e-9 - lead for m in sent}
+    assert len(rates) >= 0.9 * len(sent), (len(rates), len(sent), log[-2000:])
+    assert all(r in by_rate for r in rates.tolist())  # each a published rate, exactly
+    stamped = np.array([by_rate[r] for r in rates.tolist()])
+    np.testing.assert_allclose(t, stamped, rtol=0, atol=0.01)  # (the lead, read apart)
+    assert "reading /imu/data (sensor_msgs/Imu) on ROS 2 domain" in log
