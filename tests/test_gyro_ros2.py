@@ -216,3 +216,25 @@ def test_the_daemon_fuses_and_records_an_imu_topic(tmp_path, dds):
     assert len(rates) >= 0.9 * len(sent)
     it = iter(sent)
     assert all(any(r == s for s in it) for r in rates)
+
+
+def test_without_the_extra_the_gyro_says_how_to_install_it_and_the_mice_go_on(tmp_path):
+    """A machine without cyclonedds: the gyro's source is unavailable with the line that
+    says what to install (the daemon retries it; its mice are read meanwhile)."""
+    import subprocess
+    import sys
+
+    from test_ros2 import _without
+
+    env = _without(tmp_path, "cyclonedds")
+    code = (
+        "from mousedom.config import GyroConfig, GyroRos2\n"
+        "from mousedom.service.ros2imu import Ros2ImuSource\n"
+        "from mousedom.sources.base import SourceUnavailable\n"
+        "s = Ros2ImuSource(GyroConfig(ros2=GyroRos2('/imu')))\n"
+        "try:\n    s.open()\nexcept SourceUnavailable as e:\n    print(e)\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                          text=True, timeout=60)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert "gyro: /imu (" in proc.stdout and "pip install 'mousedom[ros2]'" in proc.stdout

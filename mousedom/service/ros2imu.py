@@ -82,16 +82,17 @@ class Ros2ImuSource(Source):
         from mousedom.config import Ros2Config
         from mousedom.errors import UserError
         from mousedom.service import ros2msgs as msgs
-        from mousedom.service.ros2out import domain_id, participant
+        from mousedom.service.ros2out import domain_id, participant, require
 
         try:
+            require()  # the ros2 extra: said how to install it, as the output says
             from cyclonedds.qos import Policy, Qos
             from cyclonedds.sub import DataReader
             from cyclonedds.topic import Topic
 
             # its own domain, else as the output's rule says ($ROS_DOMAIN_ID, else 0)
             self.domain = domain_id(Ros2Config(domain_id=self.ros2.domain_id))
-            part = participant(self.domain)
+            part = participant(self.domain, "the gyro's ROS 2 topic")
             qos = Qos(
                 Policy.Reliability.BestEffort,
                 Policy.Durability.Volatile,
@@ -101,7 +102,7 @@ class Ros2ImuSource(Source):
             self.reader = DataReader(part, topic, qos)
             self._participant = part
         except UserError as e:  # no cyclonedds, no participant: said as the source's error
-            raise SourceUnavailable(f"{self.name}: {self.ros2.topic}: {e}") from None
+            raise SourceUnavailable(f"{self.name}: {self.ros2.topic} ({e})") from None
         self._update_health()
         log.info("%s: reading %s (sensor_msgs/Imu) on ROS 2 domain %d", self.name,
                  self.ros2.topic, self.domain)  # fmt: skip

@@ -155,7 +155,7 @@ def _read_back(tmp: Any) -> str:
     return text + ("\n(... cut at 1 MiB)" if tmp.read(1) else "")
 
 
-def _why_no_participant(domain: int, said: str) -> str:
+def _why_no_participant(domain: int, said: str, what: str = "ROS 2 output") -> str:
     # Cyclone's lines: "<time> [<domain>] <thread>: <message>"
     lines = [ln.split(": ", 1)[-1].strip() for ln in said.splitlines() if ln.strip()]
     cause = "; ".join(dict.fromkeys(lines)) or "Cyclone DDS gave no reason"
@@ -165,7 +165,7 @@ def _why_no_participant(domain: int, said: str) -> str:
                 "restrictions need the ros2 drop-in)")  # fmt: skip
     elif "config" in cause:
         hint = " (check CYCLONEDDS_URI)"
-    return f"ROS 2 output: no DDS participant on domain {domain}: {cause}{hint}; see {DOCS}"
+    return f"{what}: no DDS participant on domain {domain}: {cause}{hint}; see {DOCS}"
 
 
 # The Domain objects this process configured, by domain id, kept while it lives: Cyclone
@@ -174,28 +174,34 @@ def _why_no_participant(domain: int, said: str) -> str:
 _DOMAINS: dict[int, Any] = {}
 
 
-def participant(domain: int) -> Any:
+def participant(domain: int, what: str = "ROS 2 output") -> Any:
     """A DDS participant on ``domain``, the domain configured as ``dds_config`` says the
-    first time; Ros2Unavailable saying why where none can be made."""
+    first time; Ros2Unavailable saying why (``what`` wanted it) where none can be made."""
     require()
     from cyclonedds.core import DDSException
     from cyclonedds.domain import Domain, DomainParticipant
 
+    made = None
     with _dds_stderr() as said:
         if domain not in _DOMAINS:
             try:
-                _DOMAINS[domain] = Domain(domain, dds_config())
-            except DDSException:
+                made = Domain(domain, dds_config())
+            except DDSException:  # a bad configuration, no interface, or made elsewhere
                 if "config:" in said():  # Cyclone refused the configuration: say so
-                    raise Ros2Unavailable(_why_no_participant(domain, said())) from None
-                _DOMAINS[domain] = None  # made by another part of this process
-                log.warning("DDS domain %d existed already in this process: its "
-                            "configuration stands (ROS 2 nodes on Fast DDS may not match "
-                            "our topics)", domain)  # fmt: skip
+                    raise Ros2Unavailable(_why_no_participant(domain, said(), what)) from None
         try:
-            return DomainParticipant(domain)
+            part = DomainParticipant(domain)
         except DDSException:
-            raise Ros2Unavailable(_why_no_participant(domain, said())) from None
+            raise Ros2Unavailable(_why_no_participant(domain, said(), what)) from None
+    if domain not in _DOMAINS:
+        _DOMAINS[domain] = made
+        if made is None:  # the participant joined a domain another part of us made
+            log.warning(
+                "DDS domain %d existed already in this process: its configuration "
+                "stands (ROS 2 nodes on Fast DDS may not match our topics)",
+                domain,
+            )
+    return part
 
 
 class _RawWriter:
@@ -228,6 +234,7 @@ class Ros2Output(Output):
         mice: tuple[MouseConfig, ...] = (),
     ) -> None:
         """``mice``: their mounts go on /tf_static (base frame -> <mouse>_mouse)."""
+        require()
         from cyclonedds.pub import DataWriter
         from cyclonedds.qos import Policy, Qos
         from cyclonedds.topic import Topic
