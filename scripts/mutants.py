@@ -335,6 +335,22 @@ MUTANTS = [
         ("tests/test_gyro_saturation.py",),
         "a gyro clipped at the low end of its raw range is not marked",
     ),
+    Mutant(
+        "ros2-gyro-invalid-sample",
+        "mousedom/service/ros2imu.py",
+        "taken += [m for m in got if not isinstance(m, InvalidSample)]",
+        "taken += list(got)",
+        ("tests/test_gyro_ros2.py",),
+        "a ROS 2 IMU driver that quits crashes the gyro's read",
+    ),
+    Mutant(
+        "ros2-gyro-never-silent",
+        "mousedom/service/ros2imu.py",
+        "if self._heard is not None and now - self._heard > SILENT_S:",
+        "if False:",
+        ("tests/test_gyro_ros2.py",),
+        "a ROS 2 IMU driver that stopped reads as a gyro that turns nothing",
+    ),
 ]
 
 

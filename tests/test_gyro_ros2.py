@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import random
+import threading
 import time
 
 import numpy as np
@@ -43,7 +44,7 @@ def test_the_config_names_a_topic_its_domain_and_clock(tmp_path):
         ("{ros2: /imu, name: mpu6050}", r"gyro\.ros2: a gyro has one source: name"),
         ("{ros2: /imu, replay: x.mdcap}", "a gyro has one source: replay"),
         ("{ros2: {topic: /imu, domain_id: 300}}", "between 0 and 232"),
-        ("{ros2: {topic: /imu, stamps: sim}}", "must be one of system, monotonic"),
+        ("{ros2: {topic: /imu, stamps: receipt}}", "must be one of system, monotonic, got"),
         ("{ros2: {topc: /imu}}", "did you mean topic"),
     ):
         with pytest.raises(ConfigError, match=words):
@@ -167,6 +168,40 @@ def test_stamps_far_from_the_clock_are_restamped_and_counted(dds):
     assert src.health.extra["stamps_restamped"] == 5
 
 
+def test_a_driver_that_stops_or_goes_is_gone_and_comes_back(dds, monkeypatch):
+    """No message for SILENT_S after some came: the topic is gone (the windows after it take
+    the mice's heading), and joined again it is back with the next message.  A writer that
+    is deleted hands its disposal over as an invalid sample: skipped, not a crash."""
+    from mousedom.service import ros2imu
+    from mousedom.sources.base import SourceGone
+
+    monkeypatch.setattr(ros2imu, "SILENT_S", 0.2)
+    src = ros2imu.Ros2ImuSource(GyroConfig(ros2=GyroRos2("/imu/data", dds)))
+    src.open()
+    w = ImuWriter(dds)
+    w.matched()
+    lead = time.time() - time.monotonic()
+    w.write(time.monotonic() + lead, (0.0, 0.0, 0.25))
+    _, rate = _read_all(src, 1)
+    assert rate.tolist() == [0.25]
+    w.w = None  # the driver quits: its writer deleted (an invalid sample comes)
+    import gc
+
+    gc.collect()
+    time.sleep(0.05)
+    assert src.read(time.monotonic()) == []  # (nothing, and no crash)
+    time.sleep(0.25)
+    with pytest.raises(SourceGone, match="no message for 0.2 s"):
+        src.read(time.monotonic())
+    assert not src.health.connected
+    src.open()  # the daemon's retry
+    w = ImuWriter(dds)
+    w.matched()
+    w.write(time.monotonic() + lead, (0.0, 0.0, -0.5))
+    _, rate = _read_all(src, 1)
+    assert rate.tolist() == [-0.5] and src.health.connected
+
+
 def test_the_daemon_fuses_and_records_an_imu_topic(tmp_path, dds):
     """``mousedom run --record`` on replayed mice and a ROS 2 IMU: SOURCE says the topic and
     its samples, POSE carries the gyro's bias, and the recording holds the rates exactly
@@ -194,12 +229,24 @@ def test_the_daemon_fuses_and_records_an_imu_topic(tmp_path, dds):
         w = ImuWriter(dds)
         w.matched()
         lead = time.time() - time.monotonic()
-        for i in range(300):  # 1.5 s of a 200 Hz IMU
-            z = 0.05 * math.sin(i / 20.0)
-            w.write(time.monotonic() + lead, (0.0, 0.0, z))
-            sent.append(-z)
-            time.sleep(0.005)
-        source = c.until("SOURCE", lambda m: m["name"] == "gyro" and m["reports"] > 250)
+        stop = threading.Event()
+
+        def drive() -> None:  # a 200 Hz IMU, until the checks are done
+            i = 0
+            while not stop.is_set() and i < 2000:
+                z = 0.05 * math.sin(i / 20.0)
+                w.write(time.monotonic() + lead, (0.0, 0.0, z))
+                sent.append(-z)
+                i += 1
+                time.sleep(0.005)
+
+        driver = threading.Thread(target=drive)
+        driver.start()
+        try:
+            source = c.until("SOURCE", lambda m: m["name"] == "gyro" and m["reports"] > 250)
+        finally:
+            stop.set()
+            driver.join()
         assert source["kind"] == "ros2" and source["connected"]
         assert source["topic"] == "/imu/data" and source["domain_id"] == dds
         assert source["frame_id"] == "imu_link" and source.get("stamps_restamped", 0) == 0

@@ -87,14 +87,17 @@ def test_polled_samples_are_marked_where_the_device_publishes_a_scan_type(tmp_pa
 def test_a_polled_reading_no_gyro_makes_is_dropped_and_said(tmp_path):
     """A raw attribute far beyond any range (hostile, or a driver's bug) would be a turn of
     a billion radians in a window: dropped, counted, and said with what it read."""
-    sysdir = add_gyro(tmp_path, raw={"z": str(10**30)}, buffered=False)
+    sysdir = add_gyro(tmp_path, raw={"z": str(10**15)}, buffered=False)
     src = GyroSource(GyroConfig(name="mpu6050", sample_hz=100), IioPaths.under(str(tmp_path)),
                      clock=lambda: T0)  # fmt: skip
     src.open()
     assert src.read(T0) == []
     assert src.health.dropped == 1 and "not a gyro's" in (src.health.error or "")
+    (sysdir / "in_anglvel_z_raw").write_text("9" * 400 + "\n")  # past a float's range
+    assert src.read(T0 + 0.02) == []
+    assert src.health.dropped == 2 and "no reading of a converter" in (src.health.error or "")
     (sysdir / "in_anglvel_z_raw").write_text("-12\n")
-    [b] = src.read(T0 + 0.02)
+    [b] = src.read(T0 + 0.04)
     assert b.rate.tolist() == [-12 * float(MPU6050_SCALE)]
     src.close()
 

@@ -25,8 +25,9 @@ gyro (what every reader of this format reads), 2.0 with one.  A gyro's samples a
 something an older reader may skip (it would take the RATE chunk for corruption, or read
 the rig without the gyro its config names), so they take a new major version, which
 readers of 1.x refuse by name.  2.1 added RATE_SATURATED: a reader of 2.0 reads a 2.1
-file up to the first chunk holding a saturated sample, which it refuses as malformed (with
-its byte offset) rather than read a clipped rate as a turn.
+file up to the first chunk holding a saturated sample, which it takes for a malformed one
+(an error naming its offset where good chunks follow, a torn tail where it is the last):
+it never reads a clipped rate as a turn.
 
 Why this shape: a crash can only tear the chunk being written, and each chunk is checked
 by its CRC, so a reader keeps every whole chunk and reports the torn tail with its size.

@@ -28,7 +28,7 @@ from mousedom.yamldoc import Reader
 GYRO_KEYS = ("name", "path", "axis", "sign", "sample_hz", "noise", "use", "replay", "ros2")
 AXES = ("x", "y", "z")
 SOURCES = ("name", "path", "replay", "ros2")  # a gyro has one
-IMU_STAMPS = ("system", "monotonic", "receipt")
+IMU_STAMPS = ("system", "monotonic")
 
 
 def read_ros2(g: Reader) -> GyroRos2:

@@ -121,8 +121,7 @@ class GyroRos2:
     topic: str  # absolute, e.g. /imu/data
     domain_id: int | None = None  # None: $ROS_DOMAIN_ID, else 0 (as ROS 2 does)
     # what the headers' stamps are on: system (ROS time, what drivers stamp with) or
-    # monotonic (a driver stamping with the steady clock); "receipt": the time each
-    # message is taken, for drivers whose stamps are neither (sim time, zero)
+    # monotonic (a driver stamping with the steady clock)
     stamps: str = "system"
 
 

@@ -14,13 +14,20 @@ Stamps: each message's ``header.stamp``, on the clock ``stamps`` names: ``system
 time, what drivers stamp with) is moved onto CLOCK_MONOTONIC by the system clock's lead
 read at each take; ``monotonic`` is taken as it is.  Stamps far from the read's time (sim
 time, a driver that stamps zero) are re-stamped to it and counted (``stamps_restamped``),
-as every source's are.  A message whose ``angular_velocity_covariance[0]`` is -1 has no
+as every source's are (the samples of one read then share a stamp, and all but the first
+turn nothing: a driver on another clock is not one to fuse).  A message whose
+``angular_velocity_covariance[0]`` is -1 has no
 angular velocity (REP-145) and one whose rate is not finite, or no gyro's (``MAX_RATE``),
 is dropped and counted: neither is a turn.  Saturation is not marked: the message has no
 word for it (the fusion's judgement of the gyro against three or more mice still stands).
 
 No descriptor to wait on (cyclonedds' Python API has none): the source is ``paced``, read
-on each turn of the daemon's loop.
+on each turn of the daemon's loop.  A driver that stops publishing sends nothing to say so
+(an IIO device's unplug wakes its reader): after ``SILENT_S`` without a message the topic
+counts as gone (``SourceGone``), so that the windows after it take the mice's heading
+rather than a gyro that turned nothing; the daemon joins it again a second later, and it
+is back with its next message.  Samples that are not data (the writer's disposal or
+unregistration, which Cyclone hands over as "invalid samples") are skipped.
 """
 
 from __future__ import annotations
@@ -49,6 +56,8 @@ log = logging.getLogger(__name__)
 
 HISTORY = 1024  # messages kept between two reads: seconds of a 200 Hz IMU
 TAKE = 256  # per take (a read takes until none is left, at most HISTORY)
+# No message for this long (after one came) is a driver gone: IMUs publish at 50-1000 Hz
+SILENT_S = 0.5
 
 
 class Ros2ImuSource(Source):
@@ -74,6 +83,7 @@ class Ros2ImuSource(Source):
         self.reader: Any = None
         self._participant: Any = None
         self._last_t = -math.inf
+        self._heard: float | None = None  # when the last message was taken
         self.no_rate = 0  # messages without an angular velocity (covariance[0] = -1)
         self.time_backwards = 0
         self.frame_id: str | None = None
@@ -103,6 +113,7 @@ class Ros2ImuSource(Source):
             self._participant = part
         except UserError as e:  # no cyclonedds, no participant: said as the source's error
             raise SourceUnavailable(f"{self.name}: {self.ros2.topic} ({e})") from None
+        self._heard = None
         self._update_health()
         log.info("%s: reading %s (sensor_msgs/Imu) on ROS 2 domain %d", self.name,
                  self.ros2.topic, self.domain)  # fmt: skip
@@ -122,14 +133,23 @@ class Ros2ImuSource(Source):
         if self.reader is None:
             self.health.connected = False
             raise SourceGone(f"{self.name}: {self.ros2.topic}: not open")
+        from cyclonedds.internal import InvalidSample
+
         taken: list[Any] = []
         for _ in range(HISTORY // TAKE):
             got = self.reader.take(N=TAKE)
-            taken += got
+            taken += [m for m in got if not isinstance(m, InvalidSample)]
             if len(got) < TAKE:
                 break
         if not taken:
+            if self._heard is not None and now - self._heard > SILENT_S:
+                self.health.connected = False
+                self.health.error = (f"{self.name}: {self.ros2.topic}: no message for "
+                                     f"{SILENT_S:g} s (the driver stopped?)")  # fmt: skip
+                self.close()
+                raise SourceGone(self.health.error)
             return []
+        self._heard = now
         batch = self._samples(taken, now)
         if batch is None:
             return []

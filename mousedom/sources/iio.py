@@ -430,6 +430,9 @@ class GyroSource(Source):
         except ValueError:
             self._dropped(f"{raw_at}: {text[:40]!r} is not an integer")
             return None
+        if abs(raw) >= 1 << 64:  # no converter gives it (and a float would overflow)
+            self._dropped(f"{raw_at}: {text[:40]!r} is no reading of a converter")
+            return None
         rate = self.config.sign * (raw + self.offset) * self.scale
         return self._stamped(np.array([(t0 + t1) / 2]), np.array([rate], dtype=np.float64), now,
                              self._at_limit(np.array([raw])))  # fmt: skip
@@ -440,10 +443,7 @@ class GyroSource(Source):
             return None
         lo, hi = self.raw_range
         at = (raw <= lo) | (raw >= hi)
-        if not at.any():
-            return None
-        self.saturated += int(at.sum())
-        return at
+        return at if at.any() else None
 
     def _dropped(self, why: str) -> None:
         """A sample that could not be read (an I2C error): counted, said, not fatal."""
@@ -465,6 +465,8 @@ class GyroSource(Source):
             if not len(stamps):
                 self._update_health()
                 return None
+        if saturated is not None:  # (counted as handed over)
+            self.saturated += int(saturated.sum())
         # Far stamps first: one must not become the floor every later stamp is raised to.
         bounded, n_far, worst = bound_stamp_array(stamps, now)
         self._far_stamps(n_far, worst)
