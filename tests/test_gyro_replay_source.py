@@ -66,7 +66,7 @@ def test_the_config_takes_a_capture_for_the_gyro(tmp_path):
     with pytest.raises(ConfigError, match=r"c\.yaml:\d+: gyro\.sign: does not apply to a replayed"):
         parse_config(_config_text(Path("x"), "{replay: x.mdcap, sign: -1}"),
                      str(tmp_path / "c.yaml"))  # fmt: skip
-    with pytest.raises(ConfigError, match=r"gyro.*needs name.*or replay"):
+    with pytest.raises(ConfigError, match=r"gyro.*needs name.*replay.*or ros2"):
         parse_config(_config_text(Path("x"), "{axis: z}"), str(tmp_path / "c.yaml"))
 
 
