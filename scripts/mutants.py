@@ -351,6 +351,14 @@ MUTANTS = [
         ("tests/test_gyro_ros2.py",),
         "a ROS 2 IMU driver that stopped reads as a gyro that turns nothing",
     ),
+    Mutant(
+        "gyro-relearn-teaches-scale",
+        "mousedom/fusion/gyrobias.py",
+        "            h = [h[0], 0.0]  # (the scale, independent of it now, learns nothing here)\n",
+        "",
+        ("tests/test_gyro_faults.py",),
+        "a gyro clipped unseen, learnt again from trusted mice, takes the clip as its scale",
+    ),
 ]
 
 

@@ -19,7 +19,8 @@ mice's white errors summed, twice the span's mean timing variance (its two edges
 gyro's white noise, each mouse term times (1 + s_hat)^2.  E^2 / S is chi-square (1 dof)
 when both tell the truth: a span that fails it teaches nothing, unless the mice it holds
 are trusted (three or more that agree, or a standstill): then the gyro's bias moved, and
-(b, s) are learnt again (their variances reset).
+b is learnt again from that span (its variance reset; the scale's kept, and not taught by
+the span: a clip in a fast turn would read as a new scale).
 
 Between renewals the error dx is constant, and a heading made with the gyro drifts by
 H_k dx / (1 + s_hat) a window: ``cross``, the covariance of the heading's error with dx,
@@ -118,10 +119,17 @@ class BiasLearner:
         """A window passes: the bias may have wandered."""
         self.p[0][0] += self._walk
 
+    def _bias_reset(self) -> None:
+        """The bias's variance back to its prior (the scale's kept: see ``relearn``)."""
+        self.p = [[max(self.p[0][0], self._prior[0][0]), 0.0], [0.0, self.p[1][1]]]
+
     def relearn(self) -> None:
-        """The bias moved far: (bias, scale) variances reset, the span dropped."""
-        self.p = [[max(self.p[0][0], self._prior[0][0]), 0.0],
-                  [0.0, max(self.p[1][1], self._prior[1][1])]]  # fmt: skip
+        """The bias moved far: its variance reset, the span dropped.  The scale's is kept:
+        a MEMS gyro's bias jumps (a knock, heat) but its scale does not, and what looks
+        like a new scale to mice that win a disagreement is a gyro clipped at its range in
+        a fast turn; learnt as a scale, a clip turned every window's heading since the
+        start by the scale's change (tens of degrees over a drive)."""
+        self._bias_reset()
         self._reset_span()
 
     def take_owed(self) -> float:
@@ -189,10 +197,10 @@ class BiasLearner:
         if not agreed and not self._trusted:
             self._reset_span()
             return False
-        if not agreed:  # the bias moved: learnt again
-            self.p = [[max(self.p[0][0], self._prior[0][0]), 0.0],
-                      [0.0, max(self.p[1][1], self._prior[1][1])]]  # fmt: skip
         h = self._span_h()
+        if not agreed:  # the bias moved: learnt again from this span, alone (see relearn)
+            self._bias_reset()
+            h = [h[0], 0.0]  # (the scale, independent of it now, learns nothing here)
         s = _hph(h, self.p) + self._rest()
         ph = _ph(self.p, h)
         k = [ph[0] / s, ph[1] / s]
