@@ -19,6 +19,7 @@ import contextlib
 import logging
 import math
 import os
+import re
 import sys
 import tempfile
 import time
@@ -145,7 +146,10 @@ def _dds_stderr() -> Iterator[Callable[[], str]]:
             os.dup2(saved, 2)
             os.close(saved)
             text = _read_back(tmp)
-            if text and not failed:  # on failure the error message carries it
+            if failed:  # the error message carries Cyclone's lines; the rest go on
+                text = "".join(ln for ln in text.splitlines(keepends=True)
+                               if not _CYCLONE_LINE.match(ln))  # fmt: skip
+            if text:
                 sys.stderr.write(text)
 
 
@@ -155,9 +159,13 @@ def _read_back(tmp: Any) -> str:
     return text + ("\n(... cut at 1 MiB)" if tmp.read(1) else "")
 
 
+# Cyclone's lines: "<time> [<domain>] <thread>: <message>"; anything else on fd 2 meanwhile
+# is another thread's (the daemon's log), not a reason
+_CYCLONE_LINE = re.compile(r"\s*\d+\.\d+ \[-?\d+\]\s+[^:]*: ")
+
+
 def _why_no_participant(domain: int, said: str, what: str = "ROS 2 output") -> str:
-    # Cyclone's lines: "<time> [<domain>] <thread>: <message>"
-    lines = [ln.split(": ", 1)[-1].strip() for ln in said.splitlines() if ln.strip()]
+    lines = [ln.split(": ", 1)[-1].strip() for ln in said.splitlines() if _CYCLONE_LINE.match(ln)]
     cause = "; ".join(dict.fromkeys(lines)) or "Cyclone DDS gave no reason"
     hint = ""
     if "interfaces" in cause:
@@ -187,7 +195,8 @@ def participant(domain: int, what: str = "ROS 2 output") -> Any:
             try:
                 made = Domain(domain, dds_config())
             except DDSException:  # a bad configuration, no interface, or made elsewhere
-                if "config:" in said():  # Cyclone refused the configuration: say so
+                refused = [ln for ln in said().splitlines() if _CYCLONE_LINE.match(ln)]
+                if any("config:" in ln for ln in refused):  # Cyclone refused our config
                     raise Ros2Unavailable(_why_no_participant(domain, said(), what)) from None
         try:
             part = DomainParticipant(domain)
