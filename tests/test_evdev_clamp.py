@@ -8,7 +8,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mousedom.sources.evdev import _clamp_forward, _clamp_list
+from mousedom.sources.base import clamp_forward as _clamp_forward
+from mousedom.sources.evdev import _clamp_list
 
 stamps = st.floats(-10.0, 10.0, allow_nan=False)
 

@@ -33,7 +33,6 @@ unregistration, which Cyclone hands over as "invalid samples") are skipped.
 from __future__ import annotations
 
 import logging
-import math
 import time
 from collections.abc import Callable
 from typing import Any
@@ -47,9 +46,7 @@ from mousedom.sources.base import (
     Source,
     SourceGone,
     SourceUnavailable,
-    bound_stamp_array,
 )
-from mousedom.sources.evdev import _clamp_forward
 from mousedom.sources.iio import GyroSamples
 
 log = logging.getLogger(__name__)
@@ -82,10 +79,8 @@ class Ros2ImuSource(Source):
         self.domain: int | None = None
         self.reader: Any = None
         self._participant: Any = None
-        self._last_t = -math.inf
         self._heard: float | None = None  # when the last message was taken
         self.no_rate = 0  # messages without an angular velocity (covariance[0] = -1)
-        self.time_backwards = 0
         self.frame_id: str | None = None
 
     def _open(self) -> None:
@@ -181,11 +176,7 @@ class Ros2ImuSource(Source):
         self._update_health()
         if not t:
             return None
-        bounded, n_far, worst = bound_stamp_array(np.asarray(t, dtype=np.float64), now)
-        self._far_stamps(n_far, worst)
-        stamps, back = _clamp_forward(bounded, self._last_t)
-        self.time_backwards += back
-        self._last_t = float(stamps[-1])
+        stamps = self._forward(np.asarray(t, dtype=np.float64), now)
         self.health.extra["time_backwards"] = self.time_backwards
         return GyroSamples(self.name, stamps, np.asarray(rate, dtype=np.float64))
 

@@ -33,6 +33,13 @@ STAMP_BEHIND_S = 60.0
 MAX_RATE = 1e6  # rad/s
 
 
+def clamp_forward(t: np.ndarray, last: float) -> tuple[np.ndarray, int]:
+    """Stamps made non-decreasing (each at least the previous one, starting from ``last``),
+    and how many were moved."""
+    out = np.maximum.accumulate(np.concatenate([[last], t]))[1:]
+    return out, int(np.count_nonzero(out > t))
+
+
 def bound_stamps(t: list[float], now: float) -> tuple[int, float]:
     """Re-stamp, in place, the stamps of ``t`` outside [now - STAMP_BEHIND_S, now +
     STAMP_AHEAD_S] to ``now``; (how many, the largest distance from ``now``, 0.0 if none).
@@ -199,6 +206,23 @@ class Source(ABC):
         self._rate_t0: float | None = None
         self._rate_n = 0
         self.stamps_restamped = 0  # reports whose stamp was far from the clock (see above)
+        # Stamps are made non-decreasing at the boundary (``_forward``): the tracker and
+        # the capture format rely on it.  A kernel clock does not run backwards, but a FIFO
+        # writer's, a driver's or a replug's restarted stream's stamps can.
+        self._last_t = -math.inf  # the last stamp handed over
+        self.time_backwards = 0  # reports stamped before the one before (moved forward)
+
+    def _forward(self, stamps: np.ndarray, now: float) -> np.ndarray:
+        """A read's stamps as handed over: far ones re-stamped to ``now`` first (one must
+        not become the floor every later stamp is raised to), then each raised to at least
+        the one before it, from the last handed over; counted (``stamps_restamped``,
+        ``time_backwards``)."""
+        bounded, n_far, worst = bound_stamp_array(stamps, now)
+        self._far_stamps(n_far, worst)
+        t, back = clamp_forward(bounded, self._last_t)
+        self.time_backwards += back
+        self._last_t = float(t[-1])
+        return t
 
     def _far_stamps(self, n: int, worst: float) -> None:
         """Count re-stamped reports and say so in the health (SOURCE, the log once)."""

@@ -39,7 +39,6 @@ from mousedom.sources.base import (
     Source,
     SourceGone,
     SourceUnavailable,
-    bound_stamp_array,
     bound_stamps,
 )
 from mousedom.sources.discovery import (
@@ -98,11 +97,6 @@ class EvdevSource(Source):
         self._rest = b""  # bytes of an incomplete record, completed by the next read
         self._gone: str | None = None  # the device went away; raise after handing over data
         self.truncated_bytes = 0  # bytes of incomplete records lost at unplug
-        # Stamps are made non-decreasing here, at the boundary: the tracker and the capture
-        # format both rely on it.  A kernel clock does not run backwards, but a FIFO
-        # writer's stamps can, and so can a replug that restarts a stream's clock.
-        self._last_t = -np.inf
-        self.time_backwards = 0  # reports stamped before the previous one (moved forward)
         self.grabbed = False
         self.small_read = SMALL_READ  # tests set 0 to force the bulk path
         self._health_key: tuple | None = None
@@ -263,15 +257,10 @@ class EvdevSource(Source):
         self._gone = gone  # raised by the next call, after these frames are delivered
         if not len(frames):
             return []
-        # Far stamps first: one must not become the floor that every later stamp is
-        # raised to (see base.STAMP_AHEAD_S).
-        bounded, n_far, worst = bound_stamp_array(frames.t, now)
-        self._far_stamps(n_far, worst)
-        t, back = _clamp_forward(bounded, self._last_t)
-        if back:
-            self.time_backwards += back
+        before = self.time_backwards
+        t = self._forward(frames.t, now)
+        if self.time_backwards != before:
             self._update_health()
-        self._last_t = float(t[-1])
         return [Reports(self.name, t, frames.dx.astype(np.float64), frames.dy)]
 
     def _small(self, buf: bytes, now: float) -> list[Reports]:
@@ -316,16 +305,8 @@ class EvdevSource(Source):
         )
 
 
-def _clamp_forward(t: np.ndarray, last: float) -> tuple[np.ndarray, int]:
-    """Stamps made non-decreasing (each at least the previous one, starting from ``last``),
-    and how many were moved: the bulk path's clamp (a live read's few stamps take
-    ``_clamp_list``)."""
-    out = np.maximum.accumulate(np.concatenate([[last], t]))[1:]
-    return out, int(np.count_nonzero(out > t))
-
-
 def _clamp_list(t: list[float], last: float) -> int:
-    """``_clamp_forward`` in place on a list: each stamp raised to at least the previous
+    """``base.clamp_forward`` in place on a list: each stamp raised to at least the previous
     one (starting from ``last``); returns how many were moved."""
     run = last
     for v in t:

@@ -72,9 +72,7 @@ from mousedom.sources.base import (
     Source,
     SourceGone,
     SourceUnavailable,
-    bound_stamp_array,
 )
-from mousedom.sources.evdev import _clamp_forward
 from mousedom.sources.iio_layout import (
     Element,
     LayoutError,
@@ -167,9 +165,7 @@ class GyroSource(Source):
         self._rest = b""
         self._gone: str | None = None
         self.sysfs = Attributes(name)  # what open wrote, and what close puts back
-        self._last_t = -np.inf
         self._due = -np.inf  # the polled fallback's next sample
-        self.time_backwards = 0
         self.truncated_bytes = 0
 
     # ----------------------------------------------------------------- open / close
@@ -467,12 +463,7 @@ class GyroSource(Source):
                 return None
         if saturated is not None:  # (counted as handed over)
             self.saturated += int(saturated.sum())
-        # Far stamps first: one must not become the floor every later stamp is raised to.
-        bounded, n_far, worst = bound_stamp_array(stamps, now)
-        self._far_stamps(n_far, worst)
-        t, back = _clamp_forward(bounded, self._last_t)
-        self.time_backwards += back
-        self._last_t = float(t[-1])
+        t = self._forward(stamps, now)
         self._update_health()
         return GyroSamples(self.name, t, rate, saturated)
 
