@@ -263,6 +263,12 @@ def test_the_daemon_fuses_and_records_an_imu_topic(tmp_path, dds):
     assert len(rates) >= 0.9 * len(sent)
     it = iter(sent)
     assert all(any(r == s for s in it) for r in rates)
+    # and `mousedom replay` of the same config fuses the recording with its gyro
+    from conftest import run_mousedom
+
+    proc = run_mousedom("replay", "-c", str(config), "--capture", str(rec))
+    assert proc.returncode == 0, proc.stderr
+    assert f"gyro         {len(rates)} samples" in proc.stdout, proc.stdout
 
 
 def test_without_the_extra_the_gyro_says_how_to_install_it_and_the_mice_go_on(tmp_path):
