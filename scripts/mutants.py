@@ -352,6 +352,15 @@ MUTANTS = [
         "a ROS 2 IMU driver that stopped reads as a gyro that turns nothing",
     ),
     Mutant(
+        "gyro-relearn-resets-scale",
+        "mousedom/fusion/gyrobias.py",
+        "self.p = [[max(self.p[0][0], self._prior[0][0]), 0.0], [0.0, self.p[1][1]]]",
+        "self.p = [[max(self.p[0][0], self._prior[0][0]), 0.0],\n"
+        "                  [0.0, max(self.p[1][1], self._prior[1][1])]]",
+        ("tests/test_gyro_faults.py",),
+        "a bias that jumped is learnt again with the scale's variance reset (as before)",
+    ),
+    Mutant(
         "gyro-relearn-teaches-scale",
         "mousedom/fusion/gyrobias.py",
         "            h = [h[0], 0.0]  # (the scale, independent of it now, learns nothing here)\n",
