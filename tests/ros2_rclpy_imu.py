@@ -5,7 +5,9 @@
 Publishes sensor_msgs/msg/Imu on TOPIC (/imu/data) at 200 Hz for SECONDS with the QoS IMU
 drivers use (rclpy's qos_profile_sensor_data: best effort, keep last 5), stamped with the
 node's clock (ROS time), frame imu_link, a turn rate about z that changes every message;
-writes each message's stamp and angular velocity as a JSON line to OUT.jsonl.
+writes each message's stamp and angular velocity as a JSON line to OUT.jsonl, then a last
+line {"nodes": [[name, namespace], ...], "subscriptions": {node: [[topic, [types]]]}}
+for the nodes it saw (mousedom's gyro among them).
 """
 
 import json
@@ -45,6 +47,10 @@ def main() -> None:
             )
             i += 1
             time.sleep(0.005)
+        nodes = node.get_node_names_and_namespaces()
+        subs = {name: node.get_subscriber_names_and_types_by_node(name, ns)
+                for name, ns in nodes if name != "imu_driver"}  # fmt: skip
+        out.write(json.dumps({"nodes": nodes, "subscriptions": subs}) + "\n")
     node.destroy_node()
     rclpy.shutdown()
 

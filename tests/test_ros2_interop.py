@@ -254,6 +254,10 @@ def test_an_imu_driver_on_fast_dds_is_the_daemons_gyro(ros2, tmp_path):
     assert proc.returncode == 0, proc.stdout + proc.stderr + log
     lead = float(proc.stdout.split()[-1])
     sent = [json.loads(x) for x in out.read_text().splitlines()]
+    graph = sent.pop()
+    assert ["mousedom_gyro", "/"] in graph["nodes"], graph  # a node of the ROS 2 graph,
+    subs = [tuple(map(str, (t, ty))) for t, ty in graph["subscriptions"]["mousedom_gyro"]]
+    assert ("/imu/data", str(["sensor_msgs/msg/Imu"])) in subs, graph  # subscribing
     assert len(sent) > 400, len(sent)
     cap = open_capture(str(rec))
     assert cap.devices[-1].extra["topic"] == "/imu/data"

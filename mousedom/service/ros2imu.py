@@ -21,6 +21,9 @@ angular velocity (REP-145) and one whose rate is not finite, or no gyro's (``MAX
 is dropped and counted: neither is a turn.  Saturation is not marked: the message has no
 word for it (the fusion's judgement of the gyro against three or more mice still stands).
 
+In the ROS 2 graph the reader is node ``mousedom_gyro``'s (``GYRO_NODE``): ``ros2 node
+list`` shows it, ``ros2 topic info /imu/data`` counts it among the subscribers.
+
 No descriptor to wait on (cyclonedds' Python API has none): the source is ``paced``, read
 on each turn of the daemon's loop.  A driver that stops publishing sends nothing to say so
 (an IIO device's unplug wakes its reader): after ``SILENT_S`` without a message the topic
@@ -55,6 +58,7 @@ HISTORY = 1024  # messages kept between two reads: seconds of a 200 Hz IMU
 TAKE = 256  # per take (a read takes until none is left, at most HISTORY)
 # No message for this long (after one came) is a driver gone: IMUs publish at 50-1000 Hz
 SILENT_S = 0.5
+GYRO_NODE = "mousedom_gyro"  # the reader's node in the ROS 2 graph (the output's: mousedom)
 
 
 class Ros2ImuSource(Source):
@@ -79,6 +83,7 @@ class Ros2ImuSource(Source):
         self.domain: int | None = None
         self.reader: Any = None
         self._participant: Any = None
+        self._graph: Any = None
         self._heard: float | None = None  # when the last message was taken
         self.no_rate = 0  # messages without an angular velocity (covariance[0] = -1)
         self.frame_id: str | None = None
@@ -106,6 +111,10 @@ class Ros2ImuSource(Source):
             topic = Topic(part, "rt" + self.ros2.topic, msgs.idl_types()[msgs.IMU], qos=qos)
             self.reader = DataReader(part, topic, qos)
             self._participant = part
+            from mousedom.service.ros2graph import NodeAnnouncer
+
+            self._graph = NodeAnnouncer(part, GYRO_NODE, "/")
+            self._graph.announce([self.reader], [])
         except UserError as e:  # no cyclonedds, no participant: said as the source's error
             raise SourceUnavailable(f"{self.name}: {self.ros2.topic} ({e})") from None
         self._heard = None
@@ -121,6 +130,7 @@ class Ros2ImuSource(Source):
 
     def close(self) -> None:
         self.reader = None
+        self._graph = None
         self._participant = None
 
     def read(self, now: float) -> list[GyroSamples]:  # type: ignore[override]
