@@ -9,10 +9,11 @@ import os
 import struct
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
-from daemon_fixtures import Conn
+from daemon_fixtures import Conn, wait_listening
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -100,6 +101,7 @@ def inproc(tmp_path):
         while not os.path.exists(d.server.path):
             assert time.monotonic() < deadline
             time.sleep(0.01)
+        wait_listening(Path(d.server.path), None, 10)  # (the file is there before listen)
         running.append((d, th))
         d.thread = th  # tests that stop it themselves join it before reading its state
         return d, sources
@@ -285,8 +287,7 @@ def test_reload_swaps_changed_mice_and_keeps_the_pose(tmp_path):
     th = threading.Thread(target=d.run)
     th.start()
     try:
-        while not os.path.exists(d.server.path):
-            time.sleep(0.01)
+        wait_listening(Path(d.server.path), None, 10)  # (the file is there before listen)
         c = Conn(d.server.path)
         c.until("VERSION")
         c.send({"cmd": "reset", "x": 3.0, "y": -1.0})

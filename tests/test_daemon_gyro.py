@@ -13,11 +13,12 @@ import math
 import os
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
 from conftest import run_mousedom
-from daemon_fixtures import Conn
+from daemon_fixtures import Conn, wait_listening
 from iio_fakes import MPU6050_SCALE, Writer, add_gyro, gyro_records
 from test_daemon import PipeSource
 
@@ -93,6 +94,7 @@ def test_the_daemon_fuses_a_real_iio_gyro_and_replays_to_the_same_pose(tmp_path)
         while d.recording is None or not os.path.exists(d.server.path):
             assert time.monotonic() < deadline, "the daemon did not start"
             time.sleep(0.01)
+        wait_listening(Path(d.server.path), None, 10)  # (the file is there before listen)
         c = Conn(d.server.path)
         sources = [c.until("SOURCE") for _ in range(4)]
         gyro_source = next(s for s in sources if s["name"] == "gyro")
