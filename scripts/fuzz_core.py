@@ -3,7 +3,7 @@
 
     python scripts/fuzz_core.py [--seconds 60] [--seed N] [--build-dir DIR]
 
-Builds csrc/core.c with ``-fsanitize=address,undefined -fno-sanitize-recover=all`` and
+Builds csrc/*.c with ``-fsanitize=address,undefined -fno-sanitize-recover=all`` and
 warnings as errors (``-Wall -Wextra -Werror``) into a scratch directory, then runs this
 script again in a child with the ASan runtime preloaded (Python itself is not
 instrumented) and that build in place of ``mousedom._core``.  The child feeds the core
@@ -41,7 +41,7 @@ def build(out_dir: Path) -> Path:
     cmd = [
         os.environ.get("CC", "gcc"), "-shared", "-fPIC", "-O1", "-g", "-ffp-contract=off",
         *SANITIZE, *WARN, f"-I{sysconfig.get_paths()['include']}",
-        str(REPO / "csrc" / "core.c"), "-o", str(out),
+        *sorted(str(c) for c in (REPO / "csrc").glob("*.c")), "-lm", "-o", str(out),
     ]  # fmt: skip
     done = subprocess.run(cmd, capture_output=True, text=True, check=False)
     if done.returncode != 0:

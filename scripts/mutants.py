@@ -47,9 +47,9 @@ MUTANTS = [
     ),
     Mutant(
         "cov-heading-after-one-window",
-        "mousedom/fusion/tracker_one.py",
-        "g = onewindow.noise(th0, ux, uy, a + owed, c3)",
-        "g = onewindow.noise(th, ux, uy, a + owed, c3)",
+        "mousedom/fusion/onewindow.py",
+        "g = noise(th0, ux, uy, a + owed, c3)",
+        "g = noise(th, ux, uy, a + owed, c3)",
         ("tests/test_covariance_truth.py",),
         "window noise rotated by the heading after the window (one-window path)",
     ),

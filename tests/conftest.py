@@ -33,7 +33,7 @@ def _build_core_in_place() -> None:
     older than its source: the tests then run the core the code in front of them has.
     Without a compiler the build fails quietly and the Python runs (tests/cores.py; CI
     requires the compiled core).  Before anything imports mousedom."""
-    sources = [REPO / "csrc" / "core.c", REPO / "setup.py"]
+    sources = [*(REPO / "csrc").iterdir(), REPO / "setup.py"]
     built = list((REPO / "mousedom").glob("_core.*.so"))
     newest = max(p.stat().st_mtime for p in sources)
     if built and min(p.stat().st_mtime for p in built) >= newest:

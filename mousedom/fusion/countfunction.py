@@ -331,17 +331,11 @@ class CountFunction:
             self.anchor_span = self.window_span = 0.0
             self.cut_from = math.nan
             return 0.0, 0.0
-        self.cut_from, length = cut_span(end, kt, kx, ky, self.cut_from)
+        self.cut_from, length, fx, fy, *knots = close_knots(end, kt, kx, ky, self.cut_from)
         cut = self._long(length)
         self.window_span = cut if cut > self.anchor_span else self.anchor_span
         self.anchor_span = cut
-        fx, fy = interp_at(end, kt, kx), interp_at(end, kt, ky)
-        j = bisect_left(kt, end)
-        self.knots = (
-            [end, *kt[j:]],
-            [0.0, *[v - fx for v in kx[j:]]],
-            [0.0, *[v - fy for v in ky[j:]]],
-        )
+        self.knots = tuple(knots)  # type: ignore[assignment]
         return fx, fy
 
     # ------------------------------------------------------------ what the tracker says
@@ -435,6 +429,25 @@ def cut_span(
     if abs(kx[j] - kx[j - 1]) + abs(ky[j] - ky[j - 1]) <= 0.5:
         return math.nan, 0.0
     return kt[j - 1], kt[j] - kt[j - 1]
+
+
+def close_knots(
+    end: float, kt: list[float], kx: list[float], ky: list[float], cut_from: float
+) -> tuple[float, float, float, float, list[float], list[float], list[float]]:
+    """``CountFunction.close_one``'s window ending at ``end`` out of its knots (at least
+    one): the rising span the edge cuts (``cut_span``: where it began, its length), F at
+    the edge (fx, fy), and the knots rebased there (new lists), relative to F at the edge.
+    In the compiled core where it is built (csrc/knots.c); this is its specification."""
+    native = core.native
+    if native is not None:
+        done = native.close_knots(end, kt, kx, ky, cut_from)
+        if done is not None:
+            return done
+    cut_from, length = cut_span(end, kt, kx, ky, cut_from)
+    fx, fy = interp_at(end, kt, kx), interp_at(end, kt, ky)
+    j = bisect_left(kt, end)
+    return (cut_from, length, fx, fy, [end, *kt[j:]], [0.0, *[v - fx for v in kx[j:]]],
+            [0.0, *[v - fy for v in ky[j:]]])  # fmt: skip
 
 
 def _ingest_loop(

@@ -7,14 +7,19 @@ was most of the daemon's CPU.  Here the same formulas run on Python floats and a
 3x3 products.  Replay (millions of windows) keeps the array path; tests/test_onewindow.py
 checks with hypothesis that both paths give the same windows (models, integrators, dead mice,
 rank loss).
+
+``body_counts``, ``linear`` and ``advance`` run in the compiled core where it is built
+(csrc/onewindow.c, issue 28): the functions here are its specification, and
+tests/test_core_window.py holds the two equal bit for bit.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from operator import mul
 
+from mousedom import core
 from mousedom.fusion import integrate
 
 _SINC = [float(c) for c in integrate._SINC_COEF]
@@ -120,15 +125,17 @@ def propagate(cov: Matrix3, prev: Sequence[float], pos: Sequence[float], g: Matr
     return [[0.5 * (p[i][j] + p[j][i]) for j in range(3)] for i in range(3)]
 
 
-def body_counts(
-    to_body: list[list[list[float]]], counts: list[tuple[float, float]], live: Iterable[int]
-) -> list[float]:
-    """The live mice's counts in body-frame metres, flattened (x1, y1, x2, ...): einsum
+def body_counts(to_body: list[list[list[float]]], counts: list[tuple[float, float]]) -> list[float]:
+    """Every mouse's counts in body-frame metres, flattened (x1, y1, x2, ...): einsum
     "nij,nj->ni" of the tracker's array path (two products and one sum per entry, which
     floating-point addition gives the same whatever the order)."""
+    native = core.native
+    if native is not None:
+        done = native.body_counts(to_body, counts)
+        if done is not None:
+            return done
     d: list[float] = []
-    for i in live:
-        (m00, m01), (m10, m11) = to_body[i]
+    for i, ((m00, m01), (m10, m11)) in enumerate(to_body):
         cx, cy = counts[i]
         d += (m00 * cx + m01 * cy, m10 * cx + m11 * cy)
     return d
@@ -140,6 +147,33 @@ def linear(
     """models._linear for one window: q restricted to the model's columns (B d) and the
     residual d - A q of the live mice, flattened like ``d``.  A and B are the cached
     estimator's matrices as row lists."""
+    native = core.native
+    if native is not None:
+        done = native.linear(d, a_rows, b_rows)
+        if done is not None:
+            return done
     # map(mul) rather than comprehensions: no frame per dot product (Python 3.11)
     qk = [sum(map(mul, row, d)) for row in b_rows]
     return qk, [v - sum(map(mul, row, qk)) for v, row in zip(d, a_rows, strict=True)]
+
+
+def advance(
+    pose: Sequence[float], cov: Matrix3, at: Sequence[float], q: Sequence[float], owed: float,
+    c3: Matrix3, method: str,
+) -> tuple[list[float], Matrix3]:  # fmt: skip
+    """The pose (x, y, theta) and its covariance about the point ``at`` carried over one
+    window's twist ``q`` (ux, uy, a) of covariance ``c3``, turned by ``owed`` radians more
+    (the gyro's renewals give heading back to the pose, not to the twist): the pose and
+    its covariance (about the new position) after the window."""
+    native = core.native
+    if native is not None:
+        done = native.advance(pose, cov, at, q, owed, c3, method, _SINC, _DSINC, _SWITCH)
+        if done is not None:
+            return done
+    ux, uy, a = q
+    sx, sy = body_step(ux, uy, a + owed, method)
+    x0, y0, th0 = pose
+    cb, sb = math.cos(th0), math.sin(th0)
+    x, y, th = x0 + (cb * sx - sb * sy), y0 + (sb * sx + cb * sy), th0 + a + owed
+    g = noise(th0, ux, uy, a + owed, c3)
+    return [x, y, th], propagate(cov, at, (x, y), g)

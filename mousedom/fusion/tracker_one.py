@@ -10,7 +10,6 @@ array path (numerical linearisation).
 
 from __future__ import annotations
 
-import math
 from typing import NamedTuple
 
 import numpy as np
@@ -134,7 +133,7 @@ class OneWindowPath:
         # Every mouse's counts in body metres, once: the solve takes the live ones, the
         # screen all (the products per mouse are the same whichever subset is asked).
         n = self._n
-        d_all = onewindow.body_counts(self._to_body_rows, counts, range(n))
+        d_all = onewindow.body_counts(self._to_body_rows, counts)
         q, residual, idx, c3, ok = self._linear_one(d_all, live)
         consistent = True
         screen = self._screen
@@ -178,14 +177,11 @@ class OneWindowPath:
         ux, uy, a = q
         # the heading the gyro's renewals give back turns the pose, not the twist reported
         owed = self.gyro.state.take_owed() if self.gyro is not None else 0.0
-        sx, sy = onewindow.body_step(ux, uy, a + owed, self._integrator)
         carried = self._carried
-        x0, y0, th0 = carried.pose
-        cb, sb = math.cos(th0), math.sin(th0)
-        x, y, th = x0 + (cb * sx - sb * sy), y0 + (sb * sx + cb * sy), th0 + a + owed
-        g = onewindow.noise(th0, ux, uy, a + owed, c3)
-        cov = onewindow.propagate(carried.cov, carried.at, (x, y), g)
-        carried.pose, carried.cov, carried.at = [x, y, th], cov, [x, y]
+        pose_now, cov = onewindow.advance(carried.pose, carried.cov, carried.at, q, owed, c3,
+                                          self._integrator)  # fmt: skip
+        x, y, th = pose_now
+        carried.pose, carried.cov, carried.at = pose_now, cov, [x, y]
         rate = self._rate
         pose = PoseRow(t_end, x, y, th, ux * rate, uy * rate, a * rate, cov, len(idx), ok,
                     residual, counts, state, reason, consistent, c3, self._scale_row,

@@ -1,0 +1,211 @@
+"""The compiled core's window functions (csrc/knots.c, csrc/onewindow.c) equal their Python
+reference bit for bit: a window's counts out of a count function's knots
+(``countfunction.close_knots``), the body-frame counts, the linear solve, and the pose and
+covariance carried over a window (``onewindow.body_counts``, ``linear``, ``advance``); where
+they cannot do exactly what the Python does they decline (None), and the Python runs.
+
+The byte-level and hostile-input side (AddressSanitizer, UBSan) is scripts/fuzz_core.py,
+which drives these functions too (tests/test_core_sanitized.py)."""
+
+from __future__ import annotations
+
+import math
+import struct
+
+import cores
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from test_core import needs_core
+from test_onewindow import run
+
+from mousedom import core
+from mousedom.fusion import integrate, onewindow
+from mousedom.fusion.countfunction import close_knots
+from mousedom.fusion.tracker import PoseBatch
+
+
+def bits(v: object) -> object:
+    """Floats as their bytes (NaN, -0.0 and every last bit compared), containers inside out."""
+    if isinstance(v, float):
+        return struct.pack("<d", v)
+    if isinstance(v, (list, tuple)):
+        return type(v)(bits(x) for x in v)
+    return v
+
+
+def both(fn, *args):
+    """``fn(*args)`` on each core: (compiled, Python), each on its own copy of the lists."""
+    out = []
+    for name in ("c", "python"):
+        with cores.using(name):
+            out.append(fn(*[_copy(a) for a in args]))
+    return out
+
+
+def _copy(a: object) -> object:
+    return [_copy(x) for x in a] if isinstance(a, list) else a
+
+
+# Stamps on a coarse grid collide (knots on the edge, reports with one stamp); counts are
+# whole or fractional (a fractional anchor), and sometimes huge.
+stamps = st.integers(-40, 40).map(lambda k: k * 0.0025) | st.floats(-0.2, 0.2)
+levels = st.integers(-300, 300).map(float) | st.floats(-1e6, 1e6) | st.sampled_from([1e300])
+
+
+@st.composite
+def knot_lists(draw):
+    n = draw(st.integers(1, 80))
+    kt = sorted(draw(st.lists(stamps, min_size=n, max_size=n)))
+    kx = draw(st.lists(levels, min_size=n, max_size=n))
+    ky = draw(st.lists(levels, min_size=n, max_size=n))
+    return kt, kx, ky
+
+
+@needs_core
+@settings(max_examples=400, deadline=None)
+@given(
+    knot_lists(),
+    stamps | st.sampled_from([math.inf, -math.inf, math.nan]),
+    st.sampled_from([math.nan, -0.1, 0.0]) | stamps,
+)
+def test_close_knots_is_the_python_bit_for_bit(knots, end, cut_from):
+    """Edges before, on, between and after the knots (NaN too), spans the anchor cut or
+    not, more knots than the core's stack buffer; the input lists are not changed."""
+    kt, kx, ky = knots
+    before = bits([kt, kx, ky])
+    c, py = both(close_knots, end, kt, kx, ky, cut_from)
+    assert bits(c) == bits(py)
+    assert bits([kt, kx, ky]) == before
+    assert all(type(v) is float for lst in c[4:] for v in lst)
+
+
+@needs_core
+@pytest.mark.parametrize(
+    "knots",
+    [
+        ([0.0, 1], [0.0, 2.0], [0.0, 3.0]),  # an int time
+        ([0.0, 1.0], [0.0, 2], [0.0, 3.0]),  # an int count
+        ([0.0, 1.0], [0.0], [0.0, 3.0]),  # lengths differ
+        ([], [], []),  # no knot (close_one handles it before)
+        ([0.0, np.float64(1.0)], [0.0, 2.0], [0.0, 3.0]),  # a float subclass
+    ],
+)
+def test_close_knots_declines_what_it_cannot_do_exactly(knots):
+    assert core.native.close_knots(0.5, *knots, math.nan) is None
+
+
+@needs_core
+@settings(max_examples=300, deadline=None)
+@given(
+    st.integers(1, 8).flatmap(
+        lambda n: st.tuples(
+            st.lists(st.lists(st.lists(st.floats(-1e3, 1e3), min_size=2, max_size=2),
+                              min_size=2, max_size=2), min_size=n, max_size=n),
+            st.lists(st.tuples(st.floats(-1e9, 1e9), st.floats(-1e9, 1e9)), min_size=n,
+                     max_size=n),
+        )
+    )
+)  # fmt: skip
+def test_body_counts_is_the_python_bit_for_bit(case):
+    to_body, counts = case
+    c, py = both(onewindow.body_counts, to_body, counts)
+    assert bits(c) == bits(py)
+
+
+# Values whose sums cancel: where builtin sum compensates (Python 3.12 on) and where it
+# does not, the core must add as the Python it runs under does.
+terms = st.floats(-1e3, 1e3) | st.sampled_from([1e16, -1e16, 1.0, 3e-17, 0.1, -0.0])
+
+
+@needs_core
+@settings(max_examples=400, deadline=None)
+@given(st.integers(1, 8), st.integers(1, 3), st.data())
+def test_linear_is_the_python_bit_for_bit(m, k, data):
+    """q = B d and the residual d - A q, for every number of live mice and of columns."""
+    d = data.draw(st.lists(terms, min_size=2 * m, max_size=2 * m))
+    b_rows = data.draw(st.lists(st.lists(terms, min_size=2 * m, max_size=2 * m),
+                                min_size=k, max_size=k))  # fmt: skip
+    a_rows = data.draw(st.lists(st.lists(terms, min_size=k, max_size=k),
+                                min_size=2 * m, max_size=2 * m))  # fmt: skip
+    c, py = both(onewindow.linear, d, a_rows, b_rows)
+    assert bits(c) == bits(py)
+
+
+@needs_core
+def test_linear_and_body_counts_decline_other_shapes_and_types():
+    native = core.native
+    assert native.linear([1.0, 2.0], [[1.0], [1.0]], [[1.0, 2.0, 3.0]]) is None  # B's width
+    assert native.linear([1.0, 2.0], [[1.0]], [[1.0, 2.0]]) is None  # A's height
+    assert native.linear([1, 2.0], [[1.0], [1.0]], [[1.0, 2.0]]) is None  # an int
+    assert native.body_counts([[[1.0, 0.0], [0.0, 1.0]]], [(1, 2.0)]) is None
+    assert native.body_counts([[[1.0, 0.0], [0.0, 1.0]]], []) is None
+    assert native.body_counts([[[1.0, 0.0]]], [(1.0, 2.0)]) is None
+
+
+angles = st.floats(-8.0, 8.0) | st.floats(-1e-9, 1e-9) | st.sampled_from([0.0, -0.0, 1.0, 2.0])
+small = st.floats(-1e3, 1e3)
+
+
+def matrix3(elements=small):
+    return st.lists(st.lists(elements, min_size=3, max_size=3), min_size=3, max_size=3)
+
+
+@needs_core
+@settings(max_examples=400, deadline=None)
+@given(
+    st.tuples(small, small, angles).map(list),
+    matrix3(),
+    st.tuples(small, small).map(list),
+    st.tuples(st.floats(-1.0, 1.0), st.floats(-1.0, 1.0), angles).map(list),
+    angles,
+    matrix3(st.floats(0.0, 1e-3)),
+    st.sampled_from(integrate.INTEGRATORS),
+)
+def test_advance_is_the_python_bit_for_bit(pose, cov, at, q, owed, c3, method):
+    """Every integrator, both sides of the series' switch (a/2 below and above 1)."""
+    c, py = both(onewindow.advance, pose, cov, at, q, owed, c3, method)
+    assert bits(c) == bits(py)
+
+
+@needs_core
+def test_advance_declines_an_unknown_method_and_the_python_says_so():
+    args = ([0.0] * 3, [[0.0] * 3] * 3, [0.0] * 2, [0.0] * 3, 0.0, [[0.0] * 3] * 3)
+    assert core.native.advance(*args, "rk4", onewindow._SINC, onewindow._DSINC, 1.0) is None
+    with pytest.raises(ValueError, match="rk4"):
+        onewindow.advance(*args, "rk4")
+
+
+@needs_core
+@settings(max_examples=25, deadline=None)
+@given(
+    st.sampled_from(["lsq", "diff-drive"]),
+    st.sampled_from(integrate.INTEGRATORS),
+    st.lists(
+        st.tuples(st.integers(0, 2), st.floats(0.0, 0.25, allow_nan=False),
+                  st.integers(-127, 127), st.integers(-127, 127)),
+        max_size=120,
+    ),
+    st.lists(st.tuples(st.integers(0, 2), st.floats(0.001, 0.25), st.booleans()), max_size=6),
+    st.sampled_from([50.0, 100.0, 333.0]),
+)  # fmt: skip
+def test_the_tracker_gives_the_same_windows_on_either_core(
+    model, integrator, reports, deaths, rate_hz
+):
+    """The daemon's one-window path end to end: every field of every window (poses,
+    covariances, residuals, counts, health) identical, bit for bit, with mice dying and
+    coming back, reports out of order and late."""
+    out = {}
+    for name in ("c", "python"):
+        with cores.using(name):
+            *batches, stats, counts_in = run(model, integrator, reports, deaths, 1, rate_hz)
+        out[name] = (PoseBatch.concat(batches, 3), stats, counts_in)
+    (a, sa, ia), (b, sb, ib) = out["c"], out["python"]
+    assert sa == sb and np.array_equal(ia, ib)
+    for key, value in vars(a).items():
+        other = getattr(b, key)
+        if isinstance(value, np.ndarray):
+            assert value.dtype == other.dtype and value.tobytes() == other.tobytes(), key
+        else:
+            assert value == other, key
