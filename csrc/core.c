@@ -5,7 +5,7 @@
 
 static PyMethodDef methods[] = {
     ENTRY(feed_bytes), ENTRY(ingest_small), ENTRY(close_knots),
-    ENTRY(body_counts), ENTRY(linear), ENTRY(advance),
+    ENTRY(body_counts), ENTRY(linear), ENTRY(advance), ENTRY(steady_window),
     {NULL, NULL, 0, NULL},
 };
 

@@ -135,18 +135,49 @@ overflow:
 }
 
 const char core_feed_bytes_doc[] = PyDoc_STR(
-"feed_bytes(buf, open) -> (t, dx, dy, rest, open, stats) or None\n\n"
+"feed_bytes(buf, open[, stats, fields]) -> (t, dx, dy, rest, open, added) or None\n\n"
 "FrameAssembler.feed_bytes's rules over one read: ``open`` is the frame left open\n"
 "(dx, dy, motion, dropped, events, nonsyn, t); returns the motion frames closed in buf\n"
 "as three lists, the bytes of a trailing partial record, the frame now open, and what\n"
-"to add to each AssemblerStats field in its order.  None where an int64 would overflow\n"
-"(the caller runs the Python).");
+"to add to each AssemblerStats field in its order.  Given ``stats`` (an AssemblerStats)\n"
+"and ``fields`` (its field names in that order), adds them to it instead (``added`` is\n"
+"then None).  None, with nothing added, where an int64 would overflow (the caller runs\n"
+"the Python).");
+
+/* stats.<fields[i]> += st[i] for each st[i] that is not 0; -1 on a Python error. */
+static int add_stats(PyObject *stats, PyObject *fields, const int64_t *st) {
+    if (!PyTuple_CheckExact(fields) || PyTuple_GET_SIZE(fields) != ST_N) {
+        PyErr_SetString(PyExc_ValueError, "fields: expected a tuple of the 11 stats' names");
+        return -1;
+    }
+    for (int i = 0; i < ST_N; i++) {
+        if (st[i] == 0) continue;
+        PyObject *name = PyTuple_GET_ITEM(fields, i);
+        PyObject *old = PyObject_GetAttr(stats, name);
+        if (old == NULL) return -1;
+        PyObject *add = PyLong_FromLongLong(st[i]);
+        PyObject *sum = add == NULL ? NULL : PyNumber_Add(old, add);
+        Py_DECREF(old);
+        Py_XDECREF(add);
+        if (sum == NULL) return -1;
+        int bad = PyObject_SetAttr(stats, name, sum);
+        Py_DECREF(sum);
+        if (bad < 0) return -1;
+    }
+    return 0;
+}
 
 PyObject *core_feed_bytes(PyObject *self, PyObject *args) {
     (void)self;
     Py_buffer view;
-    PyObject *open;
-    if (!PyArg_ParseTuple(args, "y*O!", &view, &PyTuple_Type, &open)) return NULL;
+    PyObject *open, *target = NULL, *fields = NULL;
+    if (!PyArg_ParseTuple(args, "y*O!|OO", &view, &PyTuple_Type, &open, &target, &fields))
+        return NULL;
+    if ((target == NULL) != (fields == NULL)) {
+        PyErr_SetString(PyExc_TypeError, "feed_bytes: stats and fields go together");
+        PyBuffer_Release(&view);
+        return NULL;
+    }
     PyObject *result = NULL, *lt = NULL, *lx = NULL, *ly = NULL;
     OpenFrame of;
     int motion, dropped, ovf[4] = {0, 0, 0, 0};
@@ -188,15 +219,21 @@ PyObject *core_feed_bytes(PyObject *self, PyObject *args) {
         result = Py_NewRef(Py_None);
         goto done;
     }
-    PyObject *stats = PyTuple_New(ST_N);
-    if (stats == NULL) goto done;
-    for (int i = 0; i < ST_N; i++) {
-        PyObject *v = PyLong_FromLongLong(st[i]);
-        if (v == NULL) {
-            Py_DECREF(stats);
-            goto done;
+    PyObject *stats;
+    if (target != NULL) {
+        if (add_stats(target, fields, st) < 0) goto done;
+        stats = Py_NewRef(Py_None);
+    } else {
+        stats = PyTuple_New(ST_N);
+        if (stats == NULL) goto done;
+        for (int i = 0; i < ST_N; i++) {
+            PyObject *v = PyLong_FromLongLong(st[i]);
+            if (v == NULL) {
+                Py_DECREF(stats);
+                goto done;
+            }
+            PyTuple_SET_ITEM(stats, i, v);
         }
-        PyTuple_SET_ITEM(stats, i, v);
     }
     result = Py_BuildValue("(OOOy#(LLOOLLd)N)", lt, lx, ly, (const char *)buf + whole,
                            view.len - whole, (long long)of.dx, (long long)of.dy,

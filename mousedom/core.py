@@ -1,4 +1,4 @@
-"""Which core runs: the compiled one (``mousedom._core``, csrc/core.c) where it was built,
+"""Which core runs: the compiled one (``mousedom._core``, csrc/*.c) where it was built,
 else the Python, which is its specification (issue 28; docs/install.md).
 
 ``MOUSEDOM_CORE=python`` forces the Python even where the compiled core is built (to

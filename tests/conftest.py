@@ -32,14 +32,17 @@ def _build_core_in_place() -> None:
     not from the venv, so the compiled core is built here, in place, when it is missing or
     older than its source: the tests then run the core the code in front of them has.
     Without a compiler the build fails quietly and the Python runs (tests/cores.py; CI
-    requires the compiled core).  Before anything imports mousedom."""
+    requires the compiled core).  Before anything imports mousedom.  ``--force``: setuptools
+    judges by its own copy in build/, which a source edited within the second of a build
+    can look older than (the copy here keeps whole-second times), and would keep the
+    core of before the edit."""
     sources = [*(REPO / "csrc").iterdir(), REPO / "setup.py"]
     built = list((REPO / "mousedom").glob("_core.*.so"))
     newest = max(p.stat().st_mtime for p in sources)
     if built and min(p.stat().st_mtime for p in built) >= newest:
         return
     subprocess.run(
-        [sys.executable, "setup.py", "-q", "build_ext", "--inplace"],
+        [sys.executable, "setup.py", "-q", "build_ext", "--inplace", "--force"],
         cwd=REPO, capture_output=True, timeout=300, check=False,
     )  # fmt: skip
 

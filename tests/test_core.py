@@ -1,4 +1,4 @@
-"""The compiled core (issue 28; csrc/core.c, mousedom/core.py) equals its Python reference
+"""The compiled core (issue 28; csrc/*.c, mousedom/core.py) equals its Python reference
 bit for bit, on generated streams, hostile bytes and any cut; it falls back to the Python
 where its int64 sums would overflow; and a user can see and choose which core runs.
 
@@ -21,7 +21,7 @@ from test_evdev_readpath import cut, records, to_bytes
 
 from mousedom import core
 from mousedom.fusion.countfunction import _ingest_loop
-from mousedom.sources.events import EV_REL, REL_X, SYN_REPORT, FrameAssembler
+from mousedom.sources.events import _STAT_FIELDS, EV_REL, REL_X, SYN_REPORT, FrameAssembler
 
 needs_core = pytest.mark.skipif(
     core.native is None and not cores.REQUIRED,
@@ -111,6 +111,17 @@ def test_the_core_refuses_a_malformed_state_with_a_python_error():
         core.native.feed_bytes(b"", (0, 0, False, False, 0, 0, "t"))
     with pytest.raises(TypeError):
         core.native.feed_bytes("not bytes", (0, 0, False, False, 0, 0, 0.0))
+    empty = (0, 0, False, False, 0, 0, 0.0)
+    frame = struct.pack("<qqHHi", 1, 5, EV_REL, REL_X, 7) + struct.pack("<qqHHi", 1, 5, 0, 0, 0)
+    stats = FrameAssembler().stats
+    with pytest.raises(TypeError, match="go together"):
+        core.native.feed_bytes(frame, empty, stats)
+    with pytest.raises(ValueError, match="11 stats"):
+        core.native.feed_bytes(frame, empty, stats, ("events",))
+    with pytest.raises(AttributeError):
+        core.native.feed_bytes(frame, empty, object(), _STAT_FIELDS)
+    assert core.native.feed_bytes(frame, empty, stats, _STAT_FIELDS)[5] is None
+    assert (stats.events, stats.frames, stats.rel_x_in, stats.rel_y_in) == (2, 1, 7, 0)
 
 
 def _version(env_core: str | None) -> subprocess.CompletedProcess:

@@ -21,7 +21,7 @@ from test_core import needs_core
 from test_onewindow import run
 
 from mousedom import core
-from mousedom.fusion import integrate, onewindow
+from mousedom.fusion import integrate, onewindow, steady
 from mousedom.fusion.countfunction import close_knots
 from mousedom.fusion.tracker import PoseBatch
 
@@ -209,3 +209,77 @@ def test_the_tracker_gives_the_same_windows_on_either_core(
             assert value.dtype == other.dtype and value.tobytes() == other.tobytes(), key
         else:
             assert value == other, key
+
+
+@st.composite
+def steady_cases(draw):
+    """A rig of 1-8 mice, a live pattern, readings near the rigid prediction or far off,
+    noise parts that make either factor tell (or both, or neither), speed limits that
+    saturate now and then, every number of degrees of freedom."""
+    n = draw(st.integers(1, 8))
+    pos = st.floats(-0.3, 0.3)
+    step = st.floats(-0.02, 0.02) | st.sampled_from([0.0, -0.0])
+    var = st.floats(1e-12, 1e-6) | st.sampled_from([0.0])
+    pairs = st.lists(st.tuples(step, step).map(list), min_size=n, max_size=n)
+    rig = steady.Rig(
+        xy=draw(st.lists(st.tuples(pos, pos).map(list), min_size=n, max_size=n)),
+        max2=draw(st.lists(st.floats(1e-6, 1e-3) | st.just(math.inf), min_size=n, max_size=n)),
+        prev=draw(pairs),
+        floor=draw(st.lists(st.floats(1e-12, 1e-6), min_size=n, max_size=n)),
+        rho2=draw(st.lists(var, min_size=n, max_size=n)),
+        gran2=draw(st.lists(var, min_size=n, max_size=n)),
+        sig2=draw(st.lists(st.floats(1e-12, 1e-6), min_size=n, max_size=n)),
+        lam_r=draw(st.lists(st.floats(0.1, 10.0), min_size=n, max_size=n)),
+    )
+    live = tuple(draw(st.lists(st.booleans(), min_size=n, max_size=n)))
+    d = draw(st.lists(step, min_size=2 * n, max_size=2 * n))
+    q = [draw(step), draw(step), draw(st.floats(-0.5, 0.5))]
+    dof = draw(st.integers(-3, 2 * n))
+    threshold = draw(st.floats(0.0, 50.0) | st.just(math.inf))
+    leverage = draw(st.none() | st.lists(st.floats(0.0, 2.5), min_size=n, max_size=n))
+    return d, q, live, rig, threshold, dof, leverage
+
+
+@needs_core
+@settings(max_examples=500, deadline=None)
+@given(steady_cases())
+def test_steady_window_is_the_python_bit_for_bit(case):
+    """Accepted, saturated and over the threshold alike; the samples taken in order."""
+    c, py = both(steady.steady_window, *case)
+    assert bits(c) == bits(py)
+
+
+@needs_core
+def test_steady_window_declines_what_the_python_would_refuse():
+    """Other types, other lengths, and a zero divisor (the Python raises) go to the Python."""
+    rig = steady.Rig([[0.1, 0.0]], [math.inf], [[0.0, 0.0]], [1e-8], [1e-4], [0.0], [1e-8],
+                     [1.0])  # fmt: skip
+    args = ([0.001, 0.0], [0.001, 0.0, 0.0], (True,), rig, 5.0, 1, [0.5], 1.386)
+    native = core.native
+    assert native.steady_window(*args) is not False
+    assert native.steady_window([1, 0.0], *args[1:]) is False  # an int
+    assert native.steady_window(*args[:2], (1,), *args[3:]) is False  # not a bool
+    assert native.steady_window(*args[:3], rig._replace(max2=[]), *args[4:]) is False
+    assert native.steady_window(*args[:3], rig[:7], *args[4:]) is False  # not a Rig
+    zero = rig._replace(floor=[0.0], rho2=[0.0])
+    assert native.steady_window(args[0], [0.0, 0.0, 0.0], args[2], zero, *args[4:]) is False
+    with pytest.raises(ZeroDivisionError):
+        with cores.using("python"):
+            steady.steady_window(args[0], [0.0, 0.0, 0.0], args[2], zero, *args[4:7])
+
+
+@needs_core
+@pytest.mark.parametrize("ratio", [0.25, 4.0, 1.0])
+@pytest.mark.parametrize("ux", [0.003, 0.0125, 1e-5])
+def test_steady_window_samples_at_the_quarter_boundaries(ratio, ux):
+    """A factor is sampled where its part is at least a quarter of the other: exactly a
+    quarter (and exactly equal) on both cores alike."""
+    rho2 = 1e-3
+    prop = rho2 * (ux * ux) + 0.0 * 0.0  # as the test computes it: m2 = ux^2, no change
+    rig = steady.Rig([[0.0, 0.0], [0.0, 0.1]], [math.inf] * 2, [[ux, 0.0], [ux, 0.0]],
+                     [prop * ratio] * 2, [rho2] * 2, [0.0] * 2, [1e-12] * 2, [1.0] * 2)  # fmt: skip
+    d = [ux, 0.0, ux + 1e-4, 0.0]
+    c, py = both(steady.steady_window, d, [ux, 0.0, 0.0], (True, True), rig, math.inf, 1,
+                 [0.5, 0.5])  # fmt: skip
+    assert bits(c) == bits(py)
+    assert py[1] and py[2] if ratio == 1.0 else py[1] or py[2]

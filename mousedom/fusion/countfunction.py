@@ -246,7 +246,7 @@ class CountFunction:
         kt, kx, ky = self.knot_lists()
         native = core.native
         done = None
-        if native is not None:  # the same loop compiled (csrc/core.c), or None: declined
+        if native is not None:  # the same loop compiled (csrc/knots.c), or None: declined
             done = native.ingest_small(t, dx, dy, kt, kx, ky, self.knot_t, edge, period,
                                        bridge, join)  # fmt: skip
         if done is not None:

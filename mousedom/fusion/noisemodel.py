@@ -220,6 +220,23 @@ def motion2(d: np.ndarray, p: np.ndarray) -> np.ndarray:
     return np.maximum(norm2(d), norm2(p))
 
 
+def sample_values(
+    r2: float, floor: float, prop: float, h: float, sig2: float, lam_r: float
+) -> tuple[float | None, float | None]:
+    """One window's samples of a mouse's floor factor and proportional factor (None: no
+    sample) from its squared residual ``r2``, the two parts of its current s^2, its
+    leverage ``h``, its sigma^2 and its proportional factor now.  Each factor is estimated
+    from windows where its part is at least a quarter of the other, the other part taken
+    as it stands (``samples_for`` is this on arrays)."""
+    expected = _MEDIAN_CHI2_2 * (1.0 - 0.5 * h)
+    if expected <= 0:
+        return None, None
+    v = r2 / expected
+    by_floor = (v - prop) / sig2 if 4.0 * floor >= prop else None
+    by_prop = (v - floor) / (prop / lam_r) if 4.0 * prop >= floor and prop > 0 else None
+    return by_floor, by_prop
+
+
 class NoiseModel:
     def __init__(
         self,
@@ -292,16 +309,18 @@ class NoiseModel:
 
     def sample(self, i: int, r2: float, floor: float, prop: float, h: float) -> None:
         """One window's evidence from mouse i: squared residual r2, the two parts of its
-        current s^2 and its leverage h.  Each factor is estimated from windows where its
-        part is at least a quarter of the other, the other part taken as it stands."""
-        expected = _MEDIAN_CHI2_2 * (1.0 - 0.5 * h)
-        if expected <= 0:
-            return
-        v = r2 / expected
-        if 4.0 * floor >= prop:
-            self._floor[i].append((v - prop) / self.sig2_list[i])
-        if 4.0 * prop >= floor and prop > 0:
-            self._prop[i].append((v - floor) / (prop / self.lam_r_list[i]))
+        current s^2 and its leverage h (``sample_values``)."""
+        by_floor, by_prop = sample_values(r2, floor, prop, h, self.sig2_list[i],
+                                          self.lam_r_list[i])  # fmt: skip
+        self.take([(i, by_floor)] if by_floor is not None else [],
+                  [(i, by_prop)] if by_prop is not None else [])  # fmt: skip
+
+    def take(self, by_floor: list[tuple[int, float]], by_prop: list[tuple[int, float]]) -> None:
+        """Samples of the floor factor and of the proportional one, as (mouse, value)."""
+        for i, v in by_floor:
+            self._floor[i].append(v)
+        for i, v in by_prop:
+            self._prop[i].append(v)
 
     def samples_for(self, r2, floor, prop, h, eligible) -> tuple:
         """``sample``'s values for (n, N) arrays, where ``eligible``: (floor samples, where

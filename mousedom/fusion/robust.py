@@ -58,7 +58,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from mousedom.config import RobustConfig
-from mousedom.fusion import chi2
+from mousedom.fusion import chi2, steady
 from mousedom.fusion.health import (
     EXCLUDED,
     INCONSISTENT,
@@ -227,37 +227,21 @@ class Screen(RigidTest):
         displacement, flattened (x1, y1, x2, ...)."""
         if evidence or live != (self._steady if self._steady_known else self.steady()):
             return False
-        ux, uy, a = q
-        nm = self.noise
-        terms = []
-        total = 0.0
-        for i, (x, y) in enumerate(self._xy):
-            if not live[i]:
-                continue
-            px, py = ux - a * y, uy + a * x
-            dx, dy = d[2 * i], d[2 * i + 1]
-            m2 = max(dx * dx + dy * dy, px * px + py * py)
-            if m2 >= self._max2[i]:
-                return False  # saturated: decide
-            fx, fy = px - self._prev[i][0], py - self._prev[i][1]
-            floor = nm.f_floor[i]
-            prop = nm.f_rho2[i] * m2 + nm.f_gran2[i] * (fx * fx + fy * fy)
-            rx, ry = dx - px, dy - py
-            r2 = rx * rx + ry * ry
-            total += r2 / (floor + prop)
-            terms.append((i, r2, floor, prop, m2))
-        dof = 2 * len(terms) - self.k
-        if dof > 0 and total > self._thresholds[dof]:
-            return False
+        dof = 2 * sum(live) - self.k
+        leverage = None
         if dof > 0:
-            h = self._leverage_lists.get(live)
-            if h is None:
-                h = self._leverage_lists[live] = self.leverage(np.array(live)).tolist()
-            sig2 = nm.sig2_list
-            for i, r2, floor, prop, m2 in terms:
-                if m2 > sig2[i]:
-                    nm.sample(i, r2, floor, prop, h[i])
-        self._prev = [[ux - a * y, uy + a * x] for x, y in self._xy]
+            leverage = self._leverage_lists.get(live)
+            if leverage is None:
+                leverage = self._leverage_lists[live] = self.leverage(np.array(live)).tolist()
+        nm = self.noise
+        rig = steady.Rig(self._xy, self._max2, self._prev, nm.f_floor, nm.f_rho2, nm.f_gran2,
+                         nm.sig2_list, nm.lam_r_list)  # fmt: skip
+        threshold = self._thresholds[dof] if dof > 0 else math.inf
+        accepted = steady.steady_window(d, q, live, rig, threshold, dof, leverage)
+        if accepted is None:
+            return False
+        self._prev, by_floor, by_prop = accepted
+        nm.take(by_floor, by_prop)
         self.history.append(d)
         self.lateness.remember(self._prev)
         self._used_for(live, 1)

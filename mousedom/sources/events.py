@@ -153,7 +153,7 @@ class AssemblerStats:
 
 
 # The AssemblerStats fields the compiled core's feed_bytes adds to, in the order it returns
-# them (csrc/core.c, the ST_ constants).
+# them (csrc/decode.c, the ST_ constants).
 _STAT_FIELDS = ("events", "frames", "motion_frames", "skipped", "syn_dropped", "dropped_frames",
                 "dropped_dx", "dropped_dy", "dropped_events", "rel_x_in", "rel_y_in")  # fmt: skip
 
@@ -257,7 +257,7 @@ class FrameAssembler:
     def _feed_native(
         self, buf: bytes | bytearray | memoryview
     ) -> tuple[list[float], list[int], list[int], bytes] | None:
-        """``feed_bytes`` in the compiled core (csrc/core.c, the same rules as
+        """``feed_bytes`` in the compiled core (csrc/decode.c, the same rules as
         ``_feed_loop``), or None where its int64 sums would overflow (the Python then
         runs: a frame of 2^32 reports of the largest count; no device gets there)."""
         native = core.native
@@ -265,15 +265,12 @@ class FrameAssembler:
         out = native.feed_bytes(buf, (
             self._open_dx, self._open_dy, self._open_motion, self._open_dropped,
             self._open_events, self._open_nonsyn, self._open_t,
-        ))  # fmt: skip
+        ), self.stats, _STAT_FIELDS)  # fmt: skip
         if out is None:
             return None
-        t, dx, dy, rest, open_frame, added = out
+        t, dx, dy, rest, open_frame, _ = out  # (the statistics were added to self.stats)
         (self._open_dx, self._open_dy, self._open_motion, self._open_dropped,
          self._open_events, self._open_nonsyn, self._open_t) = open_frame  # fmt: skip
-        st = self.stats
-        for name, v in zip(_STAT_FIELDS, added, strict=True):
-            setattr(st, name, getattr(st, name) + v)
         return t, dx, dy, rest
 
     def _xy_frames(
