@@ -42,3 +42,9 @@ int core_all_floats(PyObject *list) {
         if (!PyFloat_CheckExact(PyList_GET_ITEM(list, k))) return 0;
     return 1;
 }
+
+int core_float_of(PyObject *o, double *v) {
+    if (!PyFloat_CheckExact(o)) return 0;
+    *v = PyFloat_AS_DOUBLE(o);
+    return 1;
+}

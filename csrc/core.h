@@ -45,6 +45,10 @@ int core_set_float(PyObject *list, Py_ssize_t i, double v);
 /* A new list of n floats from v; NULL on error. */
 PyObject *core_float_list(const double *v, Py_ssize_t n);
 
+/* An exact float's value into *v: 1, or 0 where o is not one (an int, a subclass): the
+ * Python would compute with the object itself, and an int may give a different result. */
+int core_float_of(PyObject *o, double *v);
+
 /* Whether every item of the list is exactly a float (not a subclass, not an int). */
 int core_all_floats(PyObject *list);
 

@@ -225,18 +225,19 @@ const char core_close_knots_doc[] = PyDoc_STR(
 "close_knots(end, kt, kx, ky, cut_from) -> (cut_from, length, fx, fy, kt, kx, ky) or None\n\n"
 "countfunction.close_knots: the window ending at ``end`` out of the knots (three lists of\n"
 "floats, at least one knot): the rising span the edge cuts (where it began, its length),\n"
-"F at the edge, and the knots rebased there (new lists).  None where the lists are not\n"
-"all floats of one length (the caller runs the Python).");
+"F at the edge, and the knots rebased there (new lists).  None where an argument is not\n"
+"a float or the lists are not all floats of one length (the caller runs the Python).");
 
 PyObject *core_close_knots(PyObject *self, PyObject *args) {
     (void)self;
-    PyObject *lt, *lx, *ly;
+    PyObject *lt, *lx, *ly, *oend, *ocut;
     double end, cut_from;
-    if (!PyArg_ParseTuple(args, "dO!O!O!d", &end, &PyList_Type, &lt, &PyList_Type, &lx,
-                          &PyList_Type, &ly, &cut_from))
+    if (!PyArg_ParseTuple(args, "OO!O!O!O", &oend, &PyList_Type, &lt, &PyList_Type, &lx,
+                          &PyList_Type, &ly, &ocut))
         return NULL;
     Py_ssize_t n = PyList_GET_SIZE(lt);
-    if (n == 0 || PyList_GET_SIZE(lx) != n || PyList_GET_SIZE(ly) != n ||
+    if (!core_float_of(oend, &end) || !core_float_of(ocut, &cut_from) || n == 0 ||
+        PyList_GET_SIZE(lx) != n || PyList_GET_SIZE(ly) != n ||
         !core_all_floats(lt) || !core_all_floats(lx) || !core_all_floats(ly))
         Py_RETURN_NONE;
     double small[3 * 64], *buf = small;

@@ -149,7 +149,7 @@ PyObject *core_linear(PyObject *self, PyObject *args) {
     int bad = 0;
     d = PyMem_Malloc((size_t)(m + 1) * sizeof(double));
     if (d == NULL) return PyErr_NoMemory();
-    if (!floats_of(ld, d, m)) goto decline;
+    if (m == 0 || !floats_of(ld, d, m)) goto decline; /* (sum of nothing is the int 0) */
     b = rows_of(lb, m, &nb, &bad);
     if (b == NULL) goto fail;
     a = rows_of(la, nb, &na, &bad);
@@ -294,13 +294,14 @@ const char core_advance_doc[] = PyDoc_STR(
 
 PyObject *core_advance(PyObject *self, PyObject *args) {
     (void)self;
-    PyObject *opose, *ocov, *oat, *oq, *oc3, *osinc, *odsinc;
+    PyObject *opose, *ocov, *oat, *oq, *oowed, *oc3, *osinc, *odsinc, *osw;
     double owed, pose[3], cov[3][3], at[2], q[3], c3[3][3];
     const char *name;
     Series s;
-    if (!PyArg_ParseTuple(args, "OOOOdOsOOd", &opose, &ocov, &oat, &oq, &owed, &oc3, &name,
-                          &osinc, &odsinc, &s.sw))
+    if (!PyArg_ParseTuple(args, "OOOOOOsOOO", &opose, &ocov, &oat, &oq, &oowed, &oc3, &name,
+                          &osinc, &odsinc, &osw))
         return NULL;
+    if (!core_float_of(oowed, &owed) || !core_float_of(osw, &s.sw)) Py_RETURN_NONE;
     int method = strcmp(name, "exact") == 0      ? EXACT
                  : strcmp(name, "taylor") == 0   ? TAYLOR
                  : strcmp(name, "euler") == 0    ? EULER
@@ -314,6 +315,8 @@ PyObject *core_advance(PyObject *self, PyObject *args) {
         !floats_of(oq, q, 3) || !matrix3_of(oc3, c3))
         Py_RETURN_NONE;
     double ux = q[0], uy = q[1], a = q[2], turn = a + owed;
+    /* math.sin and math.cos refuse infinities (ValueError): the Python says so */
+    if (isinf(pose[2]) || isinf(turn)) Py_RETURN_NONE;
     double sx, sy;
     body_step(&s, ux, uy, turn, method, &sx, &sy);
     double x0 = pose[0], y0 = pose[1], th0 = pose[2];

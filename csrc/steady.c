@@ -43,12 +43,15 @@ const char core_steady_window_doc[] = PyDoc_STR(
 
 PyObject *core_steady_window(PyObject *self, PyObject *args) {
     (void)self;
-    PyObject *od, *oq, *olive, *orig, *olev;
+    PyObject *od, *oq, *olive, *orig, *olev, *othreshold, *odof;
     double threshold, median_chi2;
-    Py_ssize_t dof;
-    if (!PyArg_ParseTuple(args, "OOOOdnOd", &od, &oq, &olive, &orig, &threshold, &dof, &olev,
+    if (!PyArg_ParseTuple(args, "OOOOOOOd", &od, &oq, &olive, &orig, &othreshold, &odof, &olev,
                           &median_chi2))
         return NULL;
+    if (!core_float_of(othreshold, &threshold) || !PyLong_CheckExact(odof)) Py_RETURN_FALSE;
+    int ovf = 0;
+    long long dof = PyLong_AsLongLongAndOverflow(odof, &ovf);
+    if (ovf) Py_RETURN_FALSE;
     if (!PyTuple_Check(orig) || PyTuple_GET_SIZE(orig) != RIG_N || !PyTuple_CheckExact(olive))
         Py_RETURN_FALSE;
     Py_ssize_t n = PyTuple_GET_SIZE(olive);

@@ -9,8 +9,10 @@ script again in a child with the ASan runtime preloaded (Python itself is not
 instrumented) and that build in place of ``mousedom._core``.  The child feeds the core
 random bytes, mouse-like event streams and extreme carried states, cut at random byte
 offsets, and checks every result against the Python reference (``FrameAssembler`` with
-the core off).  A read or write out of bounds, undefined behaviour (a signed overflow,
-a misaligned load) or a result unlike the Python's ends it with a non-zero exit status.
+the core off); and calls the window functions with random and hostile lists
+(scripts/fuzz_core_window.py).  A read or write out of bounds, undefined behaviour (a
+signed overflow, a misaligned load) or a result unlike the Python's ends it with a
+non-zero exit status.
 tests/test_core_sanitized.py runs it for a bounded time in the suite; longer runs here.
 """
 
@@ -146,6 +148,8 @@ def _ingest_same(sanitized, rnd: random.Random, reference) -> bool:
 
 def child(seconds: float, seed: int) -> int:
     sys.path.insert(0, str(REPO))
+    from fuzz_core_window import window_same  # (scripts/, this script's directory)
+
     from mousedom import core
     from mousedom.fusion.countfunction import _ingest_loop
     from mousedom.sources.events import FrameAssembler
@@ -185,6 +189,11 @@ def child(seconds: float, seed: int) -> int:
         if results[0] != results[1]:
             print(f"fuzz_core: case {cases} (seed {seed}) differs from the Python", file=sys.stderr)
             return 1
+        for _ in range(4):
+            differs = window_same(sanitized, rnd)
+            if differs is not None:
+                print(f"fuzz_core: case {cases} (seed {seed}): {differs}", file=sys.stderr)
+                return 1
         cases += 1
     print(f"fuzz_core: {cases} cases in {seconds:g} s, seed {seed}: no fault, all as the Python")
     return 0

@@ -25,11 +25,17 @@ from mousedom.fusion import integrate, onewindow, steady
 from mousedom.fusion.countfunction import close_knots
 from mousedom.fusion.tracker import PoseBatch
 
+# A NaN is compared as NaN, not by its bits: IEEE 754 leaves which operand's sign and
+# payload a NaN result carries unspecified, and the compiler may swap the operands of a
+# commutative operation (a * b as b * a), which is exact for every other value.
+NAN_BITS = "any NaN"
+
 
 def bits(v: object) -> object:
-    """Floats as their bytes (NaN, -0.0 and every last bit compared), containers inside out."""
-    if isinstance(v, float):
-        return struct.pack("<d", v)
+    """Floats as their bytes (-0.0 and every last bit compared; NaN see NAN_BITS),
+    containers inside out."""
+    if isinstance(v, float):  # any NaN as NaN (see NAN_BITS)
+        return "nan" if v != v else struct.pack("<d", v)
     if isinstance(v, (list, tuple)):
         return type(v)(bits(x) for x in v)
     return v

@@ -1,0 +1,142 @@
+"""The window functions of the compiled core under the fuzzer (scripts/fuzz_core.py):
+random calls, well formed or hostile, each against its Python reference.
+
+``close_knots``, ``body_counts``, ``linear``, ``advance`` and ``steady_window`` are handed
+lists of random sizes (past the core's stack buffers too) and values (NaN, infinities,
+-0.0, huge), and now and then a hostile leaf: an int, a string, None, a float subclass,
+a list one short or one long.  The core must then decline (None, or False for
+``steady_window``) or give exactly what the Python gives; a result where the Python
+raises is a difference too.  Under AddressSanitizer a read past any list is caught.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+import struct
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from mousedom import core
+from mousedom.fusion import onewindow, steady
+from mousedom.fusion.countfunction import close_knots
+from mousedom.fusion.noisemodel import _MEDIAN_CHI2_2
+
+SPECIAL = [math.nan, math.inf, -math.inf, -0.0, 0.0, 1e300, -1e-300, 5e-324]
+
+
+def _float(rnd: random.Random) -> float:
+    r = rnd.random()
+    if r < 0.05:
+        return rnd.choice(SPECIAL)
+    if r < 0.3:
+        return float(rnd.randint(-40, 40)) * 0.0025
+    return rnd.uniform(-1.0, 1.0) * 10 ** rnd.randint(-6, 3)
+
+
+def _floats(rnd: random.Random, n: int) -> list[float]:
+    return [_float(rnd) for _ in range(n)]
+
+
+def _hostile(rnd: random.Random, value: Any) -> Any:
+    """``value`` with one leaf, or one list's length, changed into what no caller passes."""
+    if not isinstance(value, (list, tuple)) or not value or rnd.random() < 0.3:
+        return rnd.choice([1, "x", None, np.float64(0.5), True, [0.0], ()])
+    items = list(value)
+    k = rnd.randrange(len(items))
+    r = rnd.random()
+    if r < 0.2:
+        items.pop(k)
+    elif r < 0.4:
+        items.append(items[k])
+    else:
+        items[k] = _hostile(rnd, items[k])
+    if hasattr(value, "_fields"):  # a NamedTuple (steady.Rig): one field changed
+        return type(value)(*items) if len(items) == len(value) else tuple(items)
+    return tuple(items) if isinstance(value, tuple) else items
+
+
+def _pairs(rnd: random.Random, n: int) -> list[list[float]]:
+    return [_floats(rnd, 2) for _ in range(n)]
+
+
+def _case(rnd: random.Random) -> tuple[str, tuple, tuple]:
+    """(name, the core's arguments, the reference's arguments)."""
+    name = rnd.choice(["close_knots", "body_counts", "linear", "advance", "steady_window"])
+    if name == "close_knots":
+        n = rnd.choice([1, 2, 5, 63, 64, 65, 200])
+        kt = sorted(_floats(rnd, n), key=lambda v: (math.isnan(v), v))
+        args: tuple = (_float(rnd), kt, _floats(rnd, n), _floats(rnd, n),
+                       rnd.choice([math.nan, _float(rnd)]))  # fmt: skip
+        return name, args, args
+    if name == "body_counts":
+        n = rnd.randint(0, 9)
+        args = ([[_floats(rnd, 2), _floats(rnd, 2)] for _ in range(n)],
+                [tuple(_floats(rnd, 2)) for _ in range(n)])  # fmt: skip
+        return name, args, args
+    if name == "linear":
+        m, k = rnd.randint(0, 9), rnd.randint(0, 4)
+        args = (_floats(rnd, m), [_floats(rnd, k) for _ in range(m)],
+                [_floats(rnd, m) for _ in range(k)])  # fmt: skip
+        return name, args, args
+    if name == "advance":
+        method = rnd.choice(["exact", "taylor", "euler", "midpoint", "rk4", ""])
+        m3 = [_floats(rnd, 3) for _ in range(3)]
+        args = (_floats(rnd, 3), m3, _floats(rnd, 2), _floats(rnd, 3), _float(rnd),
+                [_floats(rnd, 3) for _ in range(3)], method)  # fmt: skip
+        return name, (*args, onewindow._SINC, onewindow._DSINC, onewindow._SWITCH), args
+    n = rnd.choice([1, 2, 3, 4, 8, 64, 65])
+    rig = steady.Rig(_pairs(rnd, n), _floats(rnd, n), _pairs(rnd, n),
+                     *(_floats(rnd, n) for _ in range(5)))  # fmt: skip
+    live = tuple(rnd.random() < 0.8 for _ in range(n))
+    args = (_floats(rnd, 2 * n), _floats(rnd, 3), live, rig, _float(rnd),
+            rnd.randint(-2, 2 * n), rnd.choice([None, _floats(rnd, n)]))  # fmt: skip
+    return name, (*args, _MEDIAN_CHI2_2), args
+
+
+REFERENCES: dict[str, Callable[..., Any]] = {
+    "close_knots": close_knots,
+    "body_counts": onewindow.body_counts,
+    "linear": onewindow.linear,
+    "advance": onewindow.advance,
+    "steady_window": steady.steady_window,
+}
+
+
+def _bits(v: Any) -> Any:
+    """Floats as their bytes; any NaN as NaN (tests/test_core_window.py: NAN_BITS)."""
+    if isinstance(v, float):  # any NaN as NaN (docstring)
+        return "nan" if v != v else struct.pack("<d", v)
+    if isinstance(v, (list, tuple)):
+        return [_bits(x) for x in v]
+    return v
+
+
+def window_same(sanitized: Any, rnd: random.Random) -> str | None:
+    """One random call of a window function on the sanitized core against the Python:
+    None where they agree, else what differs."""
+    name, native_args, ref_args = _case(rnd)
+    if rnd.random() < 0.3:  # one argument hostile (the reference gets the same one)
+        k = rnd.randrange(len(ref_args))
+        bad = _hostile(rnd, ref_args[k])
+        ref_args = (*ref_args[:k], bad, *ref_args[k + 1 :])
+        native_args = (*native_args[:k], bad, *native_args[k + 1 :])
+    try:
+        got = getattr(sanitized, name)(*native_args)
+    except (TypeError, ValueError, OverflowError):
+        return None  # refused at the door, as PyArg_ParseTuple refuses
+    declined = got is False if name == "steady_window" else got is None
+    if declined:
+        return None
+    saved, core.native = core.native, None
+    try:
+        want = REFERENCES[name](*ref_args)
+    except Exception as e:  # noqa: BLE001 (any refusal: the core took what Python cannot)
+        return f"{name}: the core gave a result where the Python raised {e!r}"
+    finally:
+        core.native = saved
+    if _bits(got) != _bits(want):
+        return f"{name}: {got!r} against the Python's {want!r}"
+    return None
