@@ -4,7 +4,7 @@
 #define ENTRY(name) {#name, core_##name, METH_VARARGS, core_##name##_doc}
 
 static PyMethodDef methods[] = {
-    ENTRY(feed_bytes), ENTRY(ingest_small), ENTRY(close_knots),
+    ENTRY(feed_bytes), ENTRY(forward_list), ENTRY(ingest_small), ENTRY(close_knots),
     ENTRY(body_counts), ENTRY(linear), ENTRY(advance), ENTRY(steady_window),
     {NULL, NULL, 0, NULL},
 };

@@ -31,6 +31,7 @@
     PyObject *core_##name(PyObject *self, PyObject *args)
 
 CORE_FUNCTION(feed_bytes);
+CORE_FUNCTION(forward_list);
 CORE_FUNCTION(ingest_small);
 CORE_FUNCTION(close_knots);
 CORE_FUNCTION(body_counts);

@@ -247,3 +247,46 @@ done:
     return result;
 }
 
+
+/* ---------------------------------------------------------------- a read's stamps */
+
+const char core_forward_list_doc[] = PyDoc_STR(
+"forward_list(t, now, last, behind, ahead) -> (far, worst, moved) or None\n\n"
+"base.forward_list on a list of floats, in place: stamps outside [now - behind, now +\n"
+"ahead] (NaN too) re-stamped to ``now`` (how many, the largest distance, inf for a\n"
+"NaN), then each raised to at least the one before, from ``last`` (how many).  None,\n"
+"with the list untouched, where it holds other than floats or an argument is not one.");
+
+PyObject *core_forward_list(PyObject *self, PyObject *args) {
+    (void)self;
+    PyObject *t, *onow, *olast, *obehind, *oahead;
+    double now, last, behind, ahead;
+    if (!PyArg_ParseTuple(args, "O!OOOO", &PyList_Type, &t, &onow, &olast, &obehind, &oahead))
+        return NULL;
+    if (!core_float_of(onow, &now) || !core_float_of(olast, &last) ||
+        !core_float_of(obehind, &behind) || !core_float_of(oahead, &ahead) ||
+        !core_all_floats(t))
+        Py_RETURN_NONE;
+    double lo = now - behind, hi = now + ahead, worst = 0.0, run = last;
+    Py_ssize_t far = 0, moved = 0, n = PyList_GET_SIZE(t);
+    for (Py_ssize_t i = 0; i < n; i++) { /* bound_stamps */
+        double v = PyFloat_AS_DOUBLE(PyList_GET_ITEM(t, i));
+        if (!(lo <= v && v <= hi)) {
+            far++;
+            double off = fabs(v - now);
+            if (off != off) off = INFINITY;
+            if (off > worst) worst = off; /* max(worst, off) */
+            if (core_set_float(t, i, now) < 0) return NULL;
+        }
+    }
+    for (Py_ssize_t i = 0; i < n; i++) { /* clamp_list */
+        double v = PyFloat_AS_DOUBLE(PyList_GET_ITEM(t, i));
+        if (v < run) {
+            if (core_set_float(t, i, run) < 0) return NULL;
+            moved++;
+        } else {
+            run = v;
+        }
+    }
+    return Py_BuildValue("(ndn)", far, worst, moved);
+}

@@ -234,3 +234,34 @@ def test_ingest_small_declines_what_it_cannot_do_exactly_and_touches_nothing(dx)
                                    0.1, 0.0005)  # fmt: skip
     assert got is None
     assert lists == (kt, kx, ky)
+
+
+stamp_values = st.floats(99.0, 101.5) | st.sampled_from(
+    [math.nan, math.inf, -math.inf, 0.0, 1e300, 40.0, 38.9, 101.0]
+)
+
+
+@needs_core
+@settings(max_examples=400, deadline=None)
+@given(st.lists(stamp_values, max_size=40), st.floats(99.0, 101.0),
+       st.floats(99.0, 101.0) | st.sampled_from([-math.inf, math.nan]))  # fmt: skip
+def test_forward_list_is_the_python_bit_for_bit(t, now, last):
+    """A read's stamps: far ones (and NaN) re-stamped to the read's time, then made
+    non-decreasing, in place; the counts and the largest distance the same."""
+    from mousedom.sources.base import forward_list
+
+    out = {}
+    for name in cores.names():
+        lst = list(t)
+        with cores.using(name):
+            far, worst, moved = forward_list(lst, now, last)
+        out[name] = ([struct.pack("<d", v) for v in lst], far, struct.pack("<d", worst), moved)
+    assert len(set(map(repr, out.values()))) == 1, out
+
+
+@needs_core
+def test_forward_list_declines_other_than_floats_and_changes_nothing():
+    lst = [1.0, 2, 0.5]
+    assert core.native.forward_list(lst, 1.0, 0.0, 60.0, 1.0) is None
+    assert lst == [1.0, 2, 0.5]
+    assert core.native.forward_list([1.0], 1, 0.0, 60.0, 1.0) is None

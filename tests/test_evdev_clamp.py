@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mousedom.sources.base import clamp_forward as _clamp_forward
-from mousedom.sources.evdev import _clamp_list
+from mousedom.sources.base import clamp_list as _clamp_list
 
 stamps = st.floats(-10.0, 10.0, allow_nan=False)
 

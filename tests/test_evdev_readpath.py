@@ -18,7 +18,8 @@ from test_evdev_fakes import stamps_on_their_own_clock  # noqa: F401 (a fixture,
 from mousedom.config import EvdevMatch, Mount, MouseConfig
 from mousedom.sources.base import Reports, SourceGone
 from mousedom.sources.base import clamp_forward as _clamp_forward
-from mousedom.sources.evdev import SMALL_READ, EvdevSource, _clamp_list
+from mousedom.sources.base import clamp_list as _clamp_list
+from mousedom.sources.evdev import SMALL_READ, EvdevSource
 from mousedom.sources.events import (
     EV_KEY,
     EV_MSC,

@@ -17,6 +17,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from mousedom import core
+
 # A report's stamp is a time on the host's CLOCK_MONOTONIC, taken at or before the read that
 # delivers it.  A stamp beyond these bounds of the read's own time is a fault of the source
 # (a FIFO writer's bug, a stream read out of step with its 24-byte records, a clock that
@@ -57,6 +59,40 @@ def bound_stamps(t: list[float], now: float) -> tuple[int, float]:
             worst = max(worst, off if off == off else float("inf"))
             t[i] = now
     return n, worst
+
+
+def clamp_list(t: list[float], last: float) -> int:
+    """``clamp_forward`` in place on a list: each stamp raised to at least the previous one
+    (starting from ``last``); returns how many were moved."""
+    run = last
+    for v in t:
+        if v < run:
+            break
+        run = v
+    else:
+        return 0  # in order (the usual case): nothing written
+    run, back = last, 0
+    for i, v in enumerate(t):
+        if v < run:
+            t[i] = run
+            back += 1
+        else:
+            run = v
+    return back
+
+
+def forward_list(t: list[float], now: float, last: float) -> tuple[int, float, int]:
+    """``Source._forward``'s rule on a live read's list of stamps, in place: the far ones
+    re-stamped (``bound_stamps``: how many, the largest distance), then all made
+    non-decreasing from ``last`` (``clamp_list``: how many moved).  In the compiled core
+    where it is built (csrc/decode.c); this is its specification."""
+    native = core.native
+    if native is not None:
+        done = native.forward_list(t, now, last, STAMP_BEHIND_S, STAMP_AHEAD_S)
+        if done is not None:
+            return done
+    far, worst = bound_stamps(t, now)
+    return far, worst, clamp_list(t, last)
 
 
 def bound_stamp_array(t: np.ndarray, now: float) -> tuple[np.ndarray, int, float]:

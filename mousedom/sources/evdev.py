@@ -39,7 +39,7 @@ from mousedom.sources.base import (
     Source,
     SourceGone,
     SourceUnavailable,
-    bound_stamps,
+    forward_list,
 )
 from mousedom.sources.discovery import (
     AmbiguousDevice,
@@ -271,8 +271,8 @@ class EvdevSource(Source):
         if not t:
             self._update_health()
             return []
-        self._far_stamps(*bound_stamps(t, now))
-        back = _clamp_list(t, self._last_t)
+        far, worst, back = forward_list(t, now, self._last_t)
+        self._far_stamps(far, worst)
         if back:
             self.time_backwards += back
         self._update_health()
@@ -303,26 +303,6 @@ class EvdevSource(Source):
             truncated_bytes=self.truncated_bytes,
             time_backwards=self.time_backwards,
         )
-
-
-def _clamp_list(t: list[float], last: float) -> int:
-    """``base.clamp_forward`` in place on a list: each stamp raised to at least the previous
-    one (starting from ``last``); returns how many were moved."""
-    run = last
-    for v in t:
-        if v < run:
-            break
-        run = v
-    else:
-        return 0  # in order (the usual case): nothing written
-    run, back = last, 0
-    for i, v in enumerate(t):
-        if v < run:
-            t[i] = run
-            back += 1
-        else:
-            run = v
-    return back
 
 
 def _input_device(node: str) -> Any:
