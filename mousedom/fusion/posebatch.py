@@ -10,6 +10,7 @@ access, and ``rows()``, made from the arrays when asked.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, fields
 from typing import Any, NamedTuple
 
@@ -45,6 +46,7 @@ class PoseRow(NamedTuple):
 
 GYRO_FIELDS = 5  # PoseRow.gyro: turn, bias, bias sigma, agreement, scale
 
+_EMPTY: dict[int, PoseBatch] = {}  # PoseBatch.empty's, per number of mice
 _DTYPES = {"used": int, "ok": bool, "state": np.int8, "reason": np.int8, "consistent": bool}
 
 
@@ -97,7 +99,7 @@ class PoseBatch:
         del self.__dict__["_rows"]
         return self.__dict__[name]
 
-    def rows(self) -> list[PoseRow]:
+    def rows(self) -> Sequence[PoseRow]:
         """The poses as Python values (the rows it was made from, or the arrays' values)."""
         rows = self.__dict__.get("_rows")
         if rows is not None:
@@ -120,15 +122,22 @@ class PoseBatch:
 
     @classmethod
     def empty(cls, n_mice: int) -> PoseBatch:
-        z = np.zeros(0)
-        return cls(
-            t=z, x=z, y=z, theta=z, vx=z, vy=z, omega=z,
-            cov=np.zeros((0, 3, 3)), used=np.zeros(0, dtype=int), ok=np.zeros(0, dtype=bool),
-            residual=np.zeros((0, n_mice, 2)), counts=np.zeros((0, n_mice, 2)),
-            state=np.zeros((0, n_mice), dtype=np.int8),
-            reason=np.zeros((0, n_mice), dtype=np.int8), consistent=np.zeros(0, dtype=bool),
-            qcov=np.zeros((0, 3, 3)),
-        )  # fmt: skip
+        """No window: one shared batch per number of mice (the daemon's poll returns one at
+        most of its wakes; its arrays have no element to change, and no one sets a field).
+        Its rows are an empty tuple, so ``rows()`` is as cheap as for a batch of rows."""
+        batch = _EMPTY.get(n_mice)
+        if batch is None:
+            z = np.zeros(0)
+            batch = _EMPTY[n_mice] = cls(
+                t=z, x=z, y=z, theta=z, vx=z, vy=z, omega=z,
+                cov=np.zeros((0, 3, 3)), used=np.zeros(0, dtype=int), ok=np.zeros(0, dtype=bool),
+                residual=np.zeros((0, n_mice, 2)), counts=np.zeros((0, n_mice, 2)),
+                state=np.zeros((0, n_mice), dtype=np.int8),
+                reason=np.zeros((0, n_mice), dtype=np.int8), consistent=np.zeros(0, dtype=bool),
+                qcov=np.zeros((0, 3, 3)),
+            )  # fmt: skip
+            batch.__dict__["_rows"] = ()
+        return batch
 
     @classmethod
     def concat(cls, batches: list[PoseBatch], n_mice: int | None = None) -> PoseBatch:
