@@ -114,19 +114,55 @@ def inproc(tmp_path):
 
 def test_plan_wake_predicts_the_first_report_after_the_window():
     end = 10.0
-    mice = [(0.001, 0.003, end - 0.00075 + k * 0.00025) for k in range(4)]
+    mice = [(0.001, 0.003, end - 0.0009 + k * 0.0002) for k in range(4)]
     wake, give_up = plan_wake(end, mice)
-    # each mouse's next report is its last + 1 ms; the latest is end + 1 ms
-    assert wake == pytest.approx(end + 0.001 + WAKE_SLACK_S)
+    # each mouse's next report is its last + 1 ms, the latest end + 0.7 ms; its window is
+    # final at the report after (end + 1.7 ms: sooner than P/2 + the 3 ms latency)
+    assert wake == pytest.approx(end + 0.0017 + WAKE_SLACK_S)
     assert give_up == pytest.approx(end + 0.004)
     # a mouse already past the end and one never seen add nothing to wait for
     assert plan_wake(end, [(0.001, 0.003, end + 0.0005), (0.008, 0.003, None)])[0] == (
         pytest.approx(end + WAKE_SLACK_S)
     )
-    # a mouse silent for long: its slot after the end is still within one period
-    wake, _ = plan_wake(end, [(0.008, 0.003, end - 1.0002)])
-    assert end < wake - WAKE_SLACK_S <= end + 0.008
+    # a mouse silent for long: its slot after the end is still within one period, and
+    # that report's span is final 7 ms after it (P/2 and the latency), or by the silence
+    # rule's bound (a period and the latency after the end)
+    wake, give_up = plan_wake(end, [(0.008, 0.003, end - 1.0002)])
+    slot = end - 1.0002 + (math.floor(1.0002 / 0.008) + 1) * 0.008
+    assert wake - WAKE_SLACK_S == pytest.approx(min(slot + 0.007, end + 0.011))
+    assert give_up == pytest.approx(end + 0.011)
     assert plan_wake(end, []) == (end + WAKE_SLACK_S, end)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.floats(0.0002, 0.02),  # period
+    st.floats(0.0, 0.01),  # latency
+    st.floats(0.0, 0.5),  # bridge (late_report_s)
+    st.floats(-0.3, 0.0),  # last report, relative to the window's end
+)
+def test_the_wake_is_when_a_mouse_on_its_clock_closes_the_window(period, latency, bridge, last):
+    """A mouse reporting every period from ``last`` on: at the planned wake (its reports up
+    to then read, complete = now - latency) its frontier has passed ``end``, so one wake
+    closes the window; just before, it has not (an earlier wake only finds more to wait
+    for).  Where the silence rule's give_up comes first, the wake is capped there and the
+    next plan, with the report read, waits on."""
+    end = 10.0
+    last += end
+    wake, give_up = plan_wake(end, [(period, latency, last)], bridge)
+
+    def frontier_at(now: float) -> float:
+        cf = CountFunction(period, bridge)
+        k = np.arange(0, math.floor((now - last) / period + 1e-9) + 1)
+        t = (last + k * period).tolist()
+        cf.queue(t, [1] * len(t), [0] * len(t), t[-1])
+        cf.ingest(-math.inf)
+        cf.complete_to(now - latency)
+        return cf.frontier()
+
+    if wake - WAKE_SLACK_S < give_up:  # (else the silence rule's bound, tested below)
+        assert frontier_at(wake) >= end - 1e-9
+        assert frontier_at(wake - WAKE_SLACK_S - 1e-6) < end
 
 
 @settings(max_examples=300, deadline=None)
