@@ -261,9 +261,8 @@ PyObject *core_forward_list(PyObject *self, PyObject *args) {
     (void)self;
     PyObject *t, *onow, *olast, *obehind, *oahead;
     double now, last, behind, ahead;
-    if (!PyArg_ParseTuple(args, "O!OOOO", &PyList_Type, &t, &onow, &olast, &obehind, &oahead))
-        return NULL;
-    if (!core_float_of(onow, &now) || !core_float_of(olast, &last) ||
+    if (!PyArg_ParseTuple(args, "OOOOO", &t, &onow, &olast, &obehind, &oahead)) return NULL;
+    if (!PyList_CheckExact(t) || !core_float_of(onow, &now) || !core_float_of(olast, &last) ||
         !core_float_of(obehind, &behind) || !core_float_of(oahead, &ahead) ||
         !core_all_floats(t))
         Py_RETURN_NONE;

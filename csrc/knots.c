@@ -77,10 +77,12 @@ PyObject *core_ingest_small(PyObject *self, PyObject *args) {
     (void)self;
     PyObject *t, *dx, *dy, *kt, *kx, *ky;
     double knot_t, edge, period, bridge, join;
-    if (!PyArg_ParseTuple(args, "O!O!O!O!O!O!ddddd", &PyList_Type, &t, &PyList_Type, &dx,
-                          &PyList_Type, &dy, &PyList_Type, &kt, &PyList_Type, &kx,
-                          &PyList_Type, &ky, &knot_t, &edge, &period, &bridge, &join))
+    if (!PyArg_ParseTuple(args, "OOOOOOddddd", &t, &dx, &dy, &kt, &kx, &ky, &knot_t, &edge,
+                          &period, &bridge, &join))
         return NULL;
+    if (!PyList_CheckExact(t) || !PyList_CheckExact(dx) || !PyList_CheckExact(dy) ||
+        !PyList_CheckExact(kt) || !PyList_CheckExact(kx) || !PyList_CheckExact(ky))
+        Py_RETURN_NONE; /* (a subclass may change what indexing and += do) */
     Py_ssize_t n = PyList_GET_SIZE(t), nk = PyList_GET_SIZE(kt);
     if (n == 0 || PyList_GET_SIZE(dx) != n || PyList_GET_SIZE(dy) != n ||
         PyList_GET_SIZE(kx) != nk || PyList_GET_SIZE(ky) != nk)
@@ -232,9 +234,9 @@ PyObject *core_close_knots(PyObject *self, PyObject *args) {
     (void)self;
     PyObject *lt, *lx, *ly, *oend, *ocut;
     double end, cut_from;
-    if (!PyArg_ParseTuple(args, "OO!O!O!O", &oend, &PyList_Type, &lt, &PyList_Type, &lx,
-                          &PyList_Type, &ly, &ocut))
-        return NULL;
+    if (!PyArg_ParseTuple(args, "OOOOO", &oend, &lt, &lx, &ly, &ocut)) return NULL;
+    if (!PyList_CheckExact(lt) || !PyList_CheckExact(lx) || !PyList_CheckExact(ly))
+        Py_RETURN_NONE;
     Py_ssize_t n = PyList_GET_SIZE(lt);
     if (!core_float_of(oend, &end) || !core_float_of(ocut, &cut_from) || n == 0 ||
         PyList_GET_SIZE(lx) != n || PyList_GET_SIZE(ly) != n ||

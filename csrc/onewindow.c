@@ -47,8 +47,8 @@ const char core_body_counts_doc[] = PyDoc_STR(
 PyObject *core_body_counts(PyObject *self, PyObject *args) {
     (void)self;
     PyObject *to_body, *counts;
-    if (!PyArg_ParseTuple(args, "O!O!", &PyList_Type, &to_body, &PyList_Type, &counts))
-        return NULL;
+    if (!PyArg_ParseTuple(args, "OO", &to_body, &counts)) return NULL;
+    if (!PyList_CheckExact(to_body) || !PyList_CheckExact(counts)) Py_RETURN_NONE;
     Py_ssize_t n = PyList_GET_SIZE(to_body);
     if (PyList_GET_SIZE(counts) != n) Py_RETURN_NONE;
     PyObject *d = PyList_New(2 * n);
@@ -143,7 +143,8 @@ const char core_linear_doc[] = PyDoc_STR(
 PyObject *core_linear(PyObject *self, PyObject *args) {
     (void)self;
     PyObject *ld, *la, *lb, *result = NULL, *oq = NULL, *orr = NULL;
-    if (!PyArg_ParseTuple(args, "O!OO", &PyList_Type, &ld, &la, &lb)) return NULL;
+    if (!PyArg_ParseTuple(args, "OOO", &ld, &la, &lb)) return NULL;
+    if (!PyList_CheckExact(ld)) Py_RETURN_NONE;
     Py_ssize_t m = PyList_GET_SIZE(ld), nb = 0, na = 0;
     double *d = NULL, *b = NULL, *a = NULL, *q = NULL, *res = NULL;
     int bad = 0;
@@ -294,13 +295,17 @@ const char core_advance_doc[] = PyDoc_STR(
 
 PyObject *core_advance(PyObject *self, PyObject *args) {
     (void)self;
-    PyObject *opose, *ocov, *oat, *oq, *oowed, *oc3, *osinc, *odsinc, *osw;
+    PyObject *opose, *ocov, *oat, *oq, *oowed, *oc3, *oname, *osinc, *odsinc, *osw;
     double owed, pose[3], cov[3][3], at[2], q[3], c3[3][3];
-    const char *name;
     Series s;
-    if (!PyArg_ParseTuple(args, "OOOOOOsOOO", &opose, &ocov, &oat, &oq, &oowed, &oc3, &name,
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOO", &opose, &ocov, &oat, &oq, &oowed, &oc3, &oname,
                           &osinc, &odsinc, &osw))
         return NULL;
+    const char *name = PyUnicode_CheckExact(oname) ? PyUnicode_AsUTF8(oname) : NULL;
+    if (name == NULL) {
+        PyErr_Clear(); /* (a string that is not UTF-8: the Python says it is unknown) */
+        Py_RETURN_NONE;
+    }
     if (!core_float_of(oowed, &owed) || !core_float_of(osw, &s.sw)) Py_RETURN_NONE;
     int method = strcmp(name, "exact") == 0      ? EXACT
                  : strcmp(name, "taylor") == 0   ? TAYLOR

@@ -110,8 +110,24 @@ def _bits(v: Any) -> Any:
     if isinstance(v, float):  # any NaN as NaN (docstring)
         return "nan" if v != v else struct.pack("<d", v)
     if isinstance(v, (list, tuple)):
-        return [_bits(x) for x in v]
+        return (type(v).__name__, [_bits(x) for x in v])
     return v
+
+
+def _reference(name: str, args: tuple) -> tuple[Any, BaseException | None]:
+    """The Python's result (core off), or the exception it raises."""
+    saved, core.native = core.native, None
+    try:
+        return REFERENCES[name](*args), None
+    except Exception as e:  # noqa: BLE001 (any refusal)
+        return None, e
+    finally:
+        core.native = saved
+
+
+# What window_same did, case by case: compared (the core gave a result, the same as the
+# Python's), declined (the Python ran), refused (both raised).
+TALLY = {"compared": 0, "declined": 0, "refused": 0}
 
 
 def window_same(sanitized: Any, rnd: random.Random) -> str | None:
@@ -125,18 +141,20 @@ def window_same(sanitized: Any, rnd: random.Random) -> str | None:
         native_args = (*native_args[:k], bad, *native_args[k + 1 :])
     try:
         got = getattr(sanitized, name)(*native_args)
-    except (TypeError, ValueError, OverflowError):
-        return None  # refused at the door, as PyArg_ParseTuple refuses
-    declined = got is False if name == "steady_window" else got is None
-    if declined:
+    except (TypeError, ValueError, OverflowError) as e:
+        # refused at the door (an argument's type): the Python must refuse it too
+        _, raised = _reference(name, ref_args)
+        if raised is None:
+            return f"{name}: the core raised {e!r} where the Python gives a result"
+        TALLY["refused"] += 1
         return None
-    saved, core.native = core.native, None
-    try:
-        want = REFERENCES[name](*ref_args)
-    except Exception as e:  # noqa: BLE001 (any refusal: the core took what Python cannot)
-        return f"{name}: the core gave a result where the Python raised {e!r}"
-    finally:
-        core.native = saved
+    if got is (False if name == "steady_window" else None):
+        TALLY["declined"] += 1
+        return None
+    want, raised = _reference(name, ref_args)
+    if raised is not None:
+        return f"{name}: the core gave a result where the Python raised {raised!r}"
     if _bits(got) != _bits(want):
         return f"{name}: {got!r} against the Python's {want!r}"
+    TALLY["compared"] += 1
     return None

@@ -137,6 +137,9 @@ class PoseBatch:
                 qcov=np.zeros((0, 3, 3)),
             )  # fmt: skip
             batch.__dict__["_rows"] = ()
+            for value in batch.__dict__.values():
+                if isinstance(value, np.ndarray):
+                    value.flags.writeable = False  # shared: no one may change it
         return batch
 
     @classmethod
