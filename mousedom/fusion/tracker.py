@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from mousedom import core
 from mousedom.config import Config
 from mousedom.fusion import noiserate, robust, scalelearn
 from mousedom.fusion.choices import GYRO
@@ -188,7 +189,7 @@ class Tracker:
             if not len(t) == len(dx) == len(dy):
                 raise ValueError(f"push: t, dx, dy must be of one length, got "
                                  f"{len(t)}, {len(dx)}, {len(dy)}")  # fmt: skip
-            if t and len(t) <= self._INGEST_SMALL:
+            if t and len(t) <= self._INGEST_SMALL * self._LIST_SCALE:
                 self._queue_small(self._mice[i], t[:], dx[:], dy[:])
                 return
         t = np.asarray(t, dtype=np.float64)
@@ -256,7 +257,8 @@ class Tracker:
             edge = self.frontier_time
         # one read's reports (the daemon's case) without summing over the queue
         queued = len(pending[0][0]) if len(pending) == 1 else m.queued()
-        if queued <= self._INGEST_SMALL and len(m.knots[0]) <= self._KNOTS_SMALL:
+        small = self._INGEST_SMALL * (self._LIST_SCALE if type(pending[0][0]) is list else 1)
+        if queued <= small and len(m.knots[0]) <= self._KNOTS_SMALL:
             m.ingest_small(edge)
         else:
             m.ingest(edge)
@@ -266,6 +268,12 @@ class Tracker:
     # compare with the array path.
     _INGEST_SMALL = 64
     _KNOTS_SMALL = 256
+    # A live read's reports come as lists.  The compiled core's loops over them cost next
+    # to nothing per report, where numpy's cost per call is tens of microseconds: with it,
+    # lists stay on the list path up to this many times _INGEST_SMALL (a read of 80
+    # reports: a mouse at 8 kHz, 100 windows a second).  Arrays (replay's chunks) keep
+    # the array path, whose cost per report is far lower for thousands.
+    _LIST_SCALE = 1 if core.native is None else 16
 
     def complete_until(self, t: float, mouse: int | str | None = None) -> None:
         """Declare that every report stamped <= t has been pushed (one mouse, or all)."""
