@@ -206,21 +206,13 @@ static void read_floats(PyObject *list, double *v) {
 }
 
 /* [first, *v[j:]] (subtract 0) or [first, *(x - level for x in v[j:])]: a knot row
- * rebased at the window's edge, built as countfunction.close_knots builds it. */
+ * rebased at the window's edge, built as countfunction.close_knots builds it, in
+ * ``row`` (room for n - j + 1). */
 static PyObject *rebased(double first, const double *v, Py_ssize_t j, Py_ssize_t n,
-                         double level, int subtract) {
-    PyObject *list = PyList_New(n - j + 1);
-    if (list == NULL) return NULL;
-    for (Py_ssize_t k = 0; k <= n - j; k++) {
-        double x = k == 0 ? first : subtract ? v[j + k - 1] - level : v[j + k - 1];
-        PyObject *o = PyFloat_FromDouble(x);
-        if (o == NULL) {
-            Py_DECREF(list);
-            return NULL;
-        }
-        PyList_SET_ITEM(list, k, o);
-    }
-    return list;
+                         double level, int subtract, double *row) {
+    row[0] = first;
+    for (Py_ssize_t k = j; k < n; k++) row[k - j + 1] = subtract ? v[k] - level : v[k];
+    return core_float_list(row, n - j + 1);
 }
 
 const char core_close_knots_doc[] = PyDoc_STR(
@@ -242,12 +234,12 @@ PyObject *core_close_knots(PyObject *self, PyObject *args) {
         PyList_GET_SIZE(lx) != n || PyList_GET_SIZE(ly) != n ||
         !core_all_floats(lt) || !core_all_floats(lx) || !core_all_floats(ly))
         Py_RETURN_NONE;
-    double small[3 * 64], *buf = small;
+    double small[4 * 64 + 1], *buf = small; /* the knots, and a rebased row */
     if (n > 64) {
-        buf = PyMem_Malloc(3 * (size_t)n * sizeof(double));
+        buf = PyMem_Malloc((4 * (size_t)n + 1) * sizeof(double));
         if (buf == NULL) return PyErr_NoMemory();
     }
-    double *kt = buf, *kx = buf + n, *ky = buf + 2 * n;
+    double *kt = buf, *kx = buf + n, *ky = buf + 2 * n, *row = buf + 3 * n;
     read_floats(lt, kt);
     read_floats(lx, kx);
     read_floats(ly, ky);
@@ -255,9 +247,9 @@ PyObject *core_close_knots(PyObject *self, PyObject *args) {
     cut_span(end, kt, kx, ky, n, cut_from, &from, &length);
     double fx = interp_at(end, kt, kx, n), fy = interp_at(end, kt, ky, n);
     Py_ssize_t j = bisect_left(kt, n, end);
-    PyObject *nt = rebased(end, kt, j, n, 0.0, 0);
-    PyObject *nx = rebased(0.0, kx, j, n, fx, 1);
-    PyObject *ny = rebased(0.0, ky, j, n, fy, 1);
+    PyObject *nt = rebased(end, kt, j, n, 0.0, 0, row);
+    PyObject *nx = rebased(0.0, kx, j, n, fx, 1, row);
+    PyObject *ny = rebased(0.0, ky, j, n, fy, 1, row);
     if (buf != small) PyMem_Free(buf);
     if (nt == NULL || nx == NULL || ny == NULL) {
         Py_XDECREF(nt);

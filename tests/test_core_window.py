@@ -58,6 +58,16 @@ def both(fn, *args):
     return out
 
 
+def assert_same_batches(a: PoseBatch, b: PoseBatch) -> None:
+    """Every field of every window the same, bit for bit (dtypes too)."""
+    for key, value in vars(a).items():
+        other = getattr(b, key)
+        if isinstance(value, np.ndarray):
+            assert value.dtype == other.dtype and value.tobytes() == other.tobytes(), key
+        else:
+            assert value == other, key
+
+
 def _copy(a: object) -> object:
     return [_copy(x) for x in a] if isinstance(a, list) else a
 
@@ -217,12 +227,7 @@ def test_the_tracker_gives_the_same_windows_on_either_core(
         out[name] = (PoseBatch.concat(batches, 3), stats, counts_in)
     (a, sa, ia), (b, sb, ib) = out["c"], out["python"]
     assert sa == sb and np.array_equal(ia, ib)
-    for key, value in vars(a).items():
-        other = getattr(b, key)
-        if isinstance(value, np.ndarray):
-            assert value.dtype == other.dtype and value.tobytes() == other.tobytes(), key
-        else:
-            assert value == other, key
+    assert_same_batches(a, b)
 
 
 @st.composite
@@ -345,11 +350,6 @@ def test_a_simulated_drive_gives_the_same_windows_on_either_core(seed, model):
         out[name] = PoseBatch.concat(batches, 3)
     a, b = out["c"], out["python"]
     assert len(a) > 100
-    for key, value in vars(a).items():
-        other = getattr(b, key)
-        if isinstance(value, np.ndarray):
-            assert value.dtype == other.dtype and value.tobytes() == other.tobytes(), key
-        else:
-            assert value == other, key
+    assert_same_batches(a, b)
     for fn in ("close_knots", "body_counts", "linear", "advance", "steady_window"):
         assert counting.calls.get(fn, 0) > len(a) // 2, (fn, counting.calls)
