@@ -368,6 +368,38 @@ MUTANTS = [
         ("tests/test_gyro_faults.py",),
         "a gyro clipped unseen, learnt again from trusted mice, takes the clip as its scale",
     ),
+    Mutant(
+        "wake-at-first-report",
+        "mousedom/service/wake.py",
+        "            wake = max(wake, first + min(period, 0.5 * period + latency))",
+        "            wake = max(wake, first)",
+        ("tests/test_daemon.py",),
+        "the loop wakes at the first report after a window, which cannot close it yet",
+    ),
+    Mutant(
+        "steady-saturation-reading-only",
+        "mousedom/fusion/steady.py",
+        "m2 = max(dx * dx + dy * dy, px * px + py * py)",
+        "m2 = dx * dx + dy * dy",
+        ("tests/test_robust.py",),
+        "the common case misses a mouse the solve says moved beyond its speed",
+    ),
+    Mutant(
+        "steady-no-threshold",
+        "mousedom/fusion/steady.py",
+        "    if dof > 0 and total > threshold:\n        return None\n",
+        "",
+        ("tests/test_robust.py",),
+        "the common case accepts a window whose mice disagree",
+    ),
+    Mutant(
+        "noise-sample-floor-by-prop",
+        "mousedom/fusion/noisemodel.py",
+        "by_floor = (v - prop) / sig2 if 4.0 * floor >= prop else None",
+        "by_floor = (v - floor) / sig2 if 4.0 * floor >= prop else None",
+        ("tests/test_noisemodel.py", "tests/test_robust.py"),
+        "the floor factor's sample takes the wrong part of the variance out",
+    ),
 ]
 
 

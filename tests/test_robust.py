@@ -11,13 +11,14 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import cores
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mousedom.config import RobustConfig, parse_config
-from mousedom.fusion import chi2, robust, scenarios, sim
+from mousedom.fusion import chi2, robust, scenarios, sim, steady
 from mousedom.fusion.tracker import Tracker
 
 DURATION = 30.0
@@ -316,3 +317,20 @@ def test_the_one_window_path_decides_as_the_array_path(kind):
     np.testing.assert_allclose(one.x, batch.x, rtol=0, atol=1e-12)
     np.testing.assert_allclose(one.theta, batch.theta, rtol=0, atol=1e-12)
     np.testing.assert_allclose(one.cov, batch.cov, rtol=1e-9, atol=1e-18)
+
+
+@pytest.mark.parametrize("core_name", cores.names())
+def test_the_common_case_leaves_a_mouse_predicted_past_its_speed_to_the_decision(core_name):
+    """A saturated sensor reads less than it moved: the common case judges the larger of a
+    mouse's reading and the solve's prediction of it, so a mouse that read within its
+    speed but is predicted past it goes to the exact decision (SATURATED), on either core;
+    the same window with the prediction within the limit is accepted."""
+    rig = steady.Rig(xy=[[0.1, 0.0], [-0.1, 0.0]], max2=[1e-4, 1e-3], prev=[[0.0, 0.0]] * 2,
+                     floor=[1e-8] * 2, rho2=[4e-4] * 2, gran2=[0.0] * 2, sig2=[1e-8] * 2,
+                     lam_r=[1.0] * 2)  # fmt: skip
+    d = [0.0099, 0.0, 0.0101, 0.0]  # mouse 0 read 9.9 mm (its limit: 10 mm a window)
+    with cores.using(core_name):
+        assert steady.steady_window(d, [0.0101, 0.0, 0.0], (True, True), rig, 10.0, 1,
+                                    [0.5, 0.5]) is None  # fmt: skip
+        assert steady.steady_window(d, [0.0098, 0.0, 0.0], (True, True), rig, 10.0, 1,
+                                    [0.5, 0.5]) is not None  # fmt: skip
