@@ -175,7 +175,7 @@ MUTANTS = [
     ),
     Mutant(
         "clamp-list-does-not-write",
-        "mousedom/sources/evdev.py",
+        "mousedom/sources/base.py",
         "            t[i] = run\n",
         "            pass\n",
         ("tests/test_evdev_clamp.py",),
