@@ -485,3 +485,26 @@ def test_source_residual_and_state_are_those_of_the_published_windows(tmp_path, 
     assert b["residual"] == pytest.approx((sums[1] / counted[1]) ** 0.5, rel=1e-12)
     assert (a["state"], b["state"]) == ("tracking", "suspect")
     assert len(d.publisher.window_residuals) == 0
+
+
+def test_stop_requests_from_other_threads_race_the_stop_safely(inproc):
+    """request_stop from other threads while the loop stops and closes its wake pipe: no
+    write to a closed (or reused) descriptor (CI once saw EBADF here, at a teardown)."""
+    d, _ = inproc("lsq", {"a": (0.1, 0.0), "b": (-0.1, 0.0)})
+    errors: list[BaseException] = []
+
+    def hammer() -> None:
+        for _ in range(3000):
+            try:
+                d.request_stop()
+            except OSError as e:
+                errors.append(e)
+
+    threads = [threading.Thread(target=hammer) for _ in range(2)]
+    for th in threads:
+        th.start()
+    d.thread.join(10)
+    for th in threads:
+        th.join(10)
+    assert not d.thread.is_alive()
+    assert not errors, errors[:3]

@@ -28,6 +28,7 @@ import os
 import select
 import selectors
 import signal
+import threading
 import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
@@ -129,6 +130,10 @@ class Daemon:
         self._reload = False
         self._watching = False  # wake on readable sources (a window is due, not closed yet)
         self._wake_r, self._wake_w = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
+        # Another thread's request_stop writes to _wake_w while the loop may be closing it:
+        # without the lock the write can hit a closed descriptor (EBADF), or one the number
+        # was given to since.  Reentrant: a signal handler in the loop's thread may ask too.
+        self._wake_lock = threading.RLock()
         self._status_text = ""
         self._ready = False
         self._old_handlers: dict[int, Any] = {}
@@ -183,12 +188,13 @@ class Daemon:
         self._wake()
 
     def _wake(self) -> None:
-        if self._wake_w < 0:
-            return  # stopped already
-        try:
-            os.write(self._wake_w, b"\0")
-        except BlockingIOError:
-            pass  # the pipe is full, so the loop is going to wake anyway
+        with self._wake_lock:
+            if self._wake_w < 0:
+                return  # stopped already
+            try:
+                os.write(self._wake_w, b"\0")
+            except BlockingIOError:
+                pass  # the pipe is full, so the loop is going to wake anyway
 
     def _on_signal(self, signum: int, frame: Any) -> None:
         # Only flags here: the work happens in the loop (gpsd's rule).
@@ -412,9 +418,10 @@ class Daemon:
         if self.handle_signals:
             self._restore_signals()
         self.selector.close()
+        with self._wake_lock:  # the write end first: a write after it is skipped, not EPIPE
+            wake_w, self._wake_w = self._wake_w, -1
+            os.close(wake_w)
         os.close(self._wake_r)
-        wake_w, self._wake_w = self._wake_w, -1
-        os.close(wake_w)
         self.notifier.close()
         log.info("stopped after %d poses", self.publisher.poses)
 
