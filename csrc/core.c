@@ -48,3 +48,15 @@ int core_float_of(PyObject *o, double *v) {
     *v = PyFloat_AS_DOUBLE(o);
     return 1;
 }
+
+int core_floats_of(PyObject *seq, double *v, Py_ssize_t n) {
+    if (!(PyList_CheckExact(seq) || PyTuple_CheckExact(seq)) || PySequence_Fast_GET_SIZE(seq) != n)
+        return 0;
+    PyObject **items = PySequence_Fast_ITEMS(seq);
+    for (Py_ssize_t k = 0; k < n; k++) {
+        if (!PyFloat_CheckExact(items[k])) return 0;
+        v[k] = PyFloat_AS_DOUBLE(items[k]);
+    }
+    return 1;
+}
+

@@ -50,6 +50,9 @@ PyObject *core_float_list(const double *v, Py_ssize_t n);
  * Python would compute with the object itself, and an int may give a different result. */
 int core_float_of(PyObject *o, double *v);
 
+/* A list or tuple (exactly) of n exact floats into v: 1, or 0 where it is not one. */
+int core_floats_of(PyObject *seq, double *v, Py_ssize_t n);
+
 /* Whether every item of the list is exactly a float (not a subclass, not an int). */
 int core_all_floats(PyObject *list);
 

@@ -2,24 +2,12 @@
  * body-frame counts, the linear solve, and the pose and covariance carried on. */
 #include "core.h"
 
-/* Reads a list (or tuple) of exactly n floats into v: 1, or 0 where it is not one. */
-static int floats_of(PyObject *seq, double *v, Py_ssize_t n) {
-    if (!(PyList_CheckExact(seq) || PyTuple_CheckExact(seq)) || PySequence_Fast_GET_SIZE(seq) != n)
-        return 0;
-    PyObject **items = PySequence_Fast_ITEMS(seq);
-    for (Py_ssize_t k = 0; k < n; k++) {
-        if (!PyFloat_CheckExact(items[k])) return 0;
-        v[k] = PyFloat_AS_DOUBLE(items[k]);
-    }
-    return 1;
-}
-
 /* A 3x3 matrix as three lists of three floats: 1, or 0 where it is not one. */
 static int matrix3_of(PyObject *seq, double m[3][3]) {
     if (!(PyList_CheckExact(seq) || PyTuple_CheckExact(seq)) || PySequence_Fast_GET_SIZE(seq) != 3)
         return 0;
     for (int i = 0; i < 3; i++)
-        if (!floats_of(PySequence_Fast_GET_ITEM(seq, i), m[i], 3)) return 0;
+        if (!core_floats_of(PySequence_Fast_GET_ITEM(seq, i), m[i], 3)) return 0;
     return 1;
 }
 
@@ -57,9 +45,9 @@ PyObject *core_body_counts(PyObject *self, PyObject *args) {
         double m[2][2], c[2];
         PyObject *mi = PyList_GET_ITEM(to_body, i);
         if (!PyList_CheckExact(mi) || PyList_GET_SIZE(mi) != 2 ||
-            !floats_of(PyList_GET_ITEM(mi, 0), m[0], 2) ||
-            !floats_of(PyList_GET_ITEM(mi, 1), m[1], 2) ||
-            !floats_of(PyList_GET_ITEM(counts, i), c, 2)) {
+            !core_floats_of(PyList_GET_ITEM(mi, 0), m[0], 2) ||
+            !core_floats_of(PyList_GET_ITEM(mi, 1), m[1], 2) ||
+            !core_floats_of(PyList_GET_ITEM(counts, i), c, 2)) {
             Py_DECREF(d);
             Py_RETURN_NONE;
         }
@@ -126,7 +114,7 @@ static double *rows_of(PyObject *rows, Py_ssize_t m, Py_ssize_t *count, int *bad
     double *v = PyMem_Malloc((size_t)(r * m + 1) * sizeof(double));
     if (v == NULL) return NULL;
     for (Py_ssize_t i = 0; i < r; i++)
-        if (!floats_of(PyList_GET_ITEM(rows, i), v + i * m, m)) {
+        if (!core_floats_of(PyList_GET_ITEM(rows, i), v + i * m, m)) {
             PyMem_Free(v);
             *bad = 1;
             return NULL;
@@ -150,7 +138,7 @@ PyObject *core_linear(PyObject *self, PyObject *args) {
     int bad = 0;
     d = PyMem_Malloc((size_t)(m + 1) * sizeof(double));
     if (d == NULL) return PyErr_NoMemory();
-    if (m == 0 || !floats_of(ld, d, m)) goto decline; /* (sum of nothing is the int 0) */
+    if (m == 0 || !core_floats_of(ld, d, m)) goto decline; /* (sum of nothing is the int 0) */
     b = rows_of(lb, m, &nb, &bad);
     if (b == NULL) goto fail;
     a = rows_of(la, nb, &na, &bad);
@@ -315,9 +303,9 @@ PyObject *core_advance(PyObject *self, PyObject *args) {
     s.n_sinc = PyList_CheckExact(osinc) ? PyList_GET_SIZE(osinc) : 0;
     s.n_dsinc = PyList_CheckExact(odsinc) ? PyList_GET_SIZE(odsinc) : 0;
     if (method < 0 || s.n_sinc < 1 || s.n_sinc > 32 || s.n_dsinc < 1 || s.n_dsinc > 32 ||
-        !floats_of(osinc, s.sinc, s.n_sinc) || !floats_of(odsinc, s.dsinc, s.n_dsinc) ||
-        !floats_of(opose, pose, 3) || !matrix3_of(ocov, cov) || !floats_of(oat, at, 2) ||
-        !floats_of(oq, q, 3) || !matrix3_of(oc3, c3))
+        !core_floats_of(osinc, s.sinc, s.n_sinc) || !core_floats_of(odsinc, s.dsinc, s.n_dsinc) ||
+        !core_floats_of(opose, pose, 3) || !matrix3_of(ocov, cov) || !core_floats_of(oat, at, 2) ||
+        !core_floats_of(oq, q, 3) || !matrix3_of(oc3, c3))
         Py_RETURN_NONE;
     double ux = q[0], uy = q[1], a = q[2], turn = a + owed;
     /* math.sin and math.cos refuse infinities (ValueError): the Python says so */

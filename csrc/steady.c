@@ -3,22 +3,11 @@
 
 #define MAX_MICE 64
 
-/* A list of n floats into v (1), or 0 where it is not one. */
-static int list_floats(PyObject *list, double *v, Py_ssize_t n) {
-    if (!PyList_CheckExact(list) || PyList_GET_SIZE(list) != n) return 0;
-    for (Py_ssize_t k = 0; k < n; k++) {
-        PyObject *o = PyList_GET_ITEM(list, k);
-        if (!PyFloat_CheckExact(o)) return 0;
-        v[k] = PyFloat_AS_DOUBLE(o);
-    }
-    return 1;
-}
-
-/* A list of n pairs (lists of two floats) into v[2k], v[2k + 1]. */
+/* A list of n pairs (of two floats each) into v[2k], v[2k + 1]. */
 static int list_pairs(PyObject *list, double *v, Py_ssize_t n) {
     if (!PyList_CheckExact(list) || PyList_GET_SIZE(list) != n) return 0;
     for (Py_ssize_t k = 0; k < n; k++)
-        if (!list_floats(PyList_GET_ITEM(list, k), v + 2 * k, 2)) return 0;
+        if (!core_floats_of(PyList_GET_ITEM(list, k), v + 2 * k, 2)) return 0;
     return 1;
 }
 
@@ -59,18 +48,18 @@ PyObject *core_steady_window(PyObject *self, PyObject *args) {
     double max2[MAX_MICE], floor_[MAX_MICE], rho2[MAX_MICE], gran2[MAX_MICE];
     double sig2[MAX_MICE], lam_r[MAX_MICE];
     int live[MAX_MICE];
-    if (n < 1 || n > MAX_MICE || !list_floats(od, d, 2 * n) || !list_floats(oq, q, 3) ||
+    if (n < 1 || n > MAX_MICE || !core_floats_of(od, d, 2 * n) || !core_floats_of(oq, q, 3) ||
         !list_pairs(PyTuple_GET_ITEM(orig, XY), xy, n) ||
-        !list_floats(PyTuple_GET_ITEM(orig, MAX2), max2, n) ||
+        !core_floats_of(PyTuple_GET_ITEM(orig, MAX2), max2, n) ||
         !list_pairs(PyTuple_GET_ITEM(orig, PREV), prev, n) ||
-        !list_floats(PyTuple_GET_ITEM(orig, FLOOR), floor_, n) ||
-        !list_floats(PyTuple_GET_ITEM(orig, RHO2), rho2, n) ||
-        !list_floats(PyTuple_GET_ITEM(orig, GRAN2), gran2, n) ||
-        !list_floats(PyTuple_GET_ITEM(orig, SIG2), sig2, n) ||
-        !list_floats(PyTuple_GET_ITEM(orig, LAM_R), lam_r, n))
+        !core_floats_of(PyTuple_GET_ITEM(orig, FLOOR), floor_, n) ||
+        !core_floats_of(PyTuple_GET_ITEM(orig, RHO2), rho2, n) ||
+        !core_floats_of(PyTuple_GET_ITEM(orig, GRAN2), gran2, n) ||
+        !core_floats_of(PyTuple_GET_ITEM(orig, SIG2), sig2, n) ||
+        !core_floats_of(PyTuple_GET_ITEM(orig, LAM_R), lam_r, n))
         Py_RETURN_FALSE;
     int use_lev = dof > 0 && olev != Py_None;
-    if (use_lev && !list_floats(olev, lev, n)) Py_RETURN_FALSE;
+    if (use_lev && !core_floats_of(olev, lev, n)) Py_RETURN_FALSE;
     for (Py_ssize_t i = 0; i < n; i++) {
         PyObject *o = PyTuple_GET_ITEM(olive, i);
         if (o != Py_True && o != Py_False) Py_RETURN_FALSE;
