@@ -536,3 +536,24 @@ def test_after_a_stall_every_reading_client_gets_the_latest_pose_and_stays(rig_r
     for c in clients:  # all still connected, at the rate
         assert len(c.poses(0.3)) >= 5
     assert "dropping" not in run.daemon.log(), run.daemon.log()
+
+
+def test_the_running_loop_imports_nothing(rig_run):
+    """Every module the loop uses is imported before it listens: an import in the loop
+    (numpy.ma, at np.median's first call in the first scale solve, was 8 ms) stalls every
+    mouse's window behind it.  A drive long enough for the scale learner's solves, the
+    once-a-second SOURCE messages and a client's commands, with Python's import log on."""
+    traj = sim.sequence(sim.turn(math.pi / 2, 1.0), sim.straight(0.3, 0.2), sim.arc(0.3, 1.0))
+    run = rig_run(traj, env={"PYTHONPROFILEIMPORTTIME": "1"})
+    c = Conn(run.daemon.socket_path)
+    c.until("VERSION")
+    run.feeder.join(run.result.duration + 10)
+    c.send({"cmd": "status"})
+    st = c.until("STATUS")
+    assert st["pose"]["theta"] != 0.0  # the drive was fused
+    c.until("SOURCE")
+    assert run.daemon.stop() == 0
+    log = run.daemon.log()
+    listening = log.index("listening on ")
+    late = [ln for ln in log[listening:].splitlines() if ln.startswith("import time:")]
+    assert late == [], "\n".join(late)

@@ -8,9 +8,12 @@ import dataclasses
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from mousedom.fusion import scenarios, sim
 from mousedom.fusion.posebatch import PoseBatch
+from mousedom.fusion.scalelearn import median
 from mousedom.fusion.tracker import Tracker
 
 
@@ -189,3 +192,11 @@ def test_a_reset_moves_the_pose_and_nothing_else(at):
         return np.array(tracker.pose)
 
     assert np.allclose(run(100.0, 50.0) - run(0.0, 0.0), [100.0, 50.0, 0.0], atol=1e-9)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.floats(allow_nan=False, allow_infinity=False), min_size=1, max_size=12))
+def test_median_is_numpys_bit_for_bit(values):
+    v = np.array(values)
+    with np.errstate(over="ignore"):  # two middle values past the float range: inf, both
+        assert median(v) == float(np.median(v))

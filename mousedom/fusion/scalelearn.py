@@ -63,6 +63,15 @@ _RIDGE = 1e-6  # S + mu, mu this times S's diagonal: what the evidence leaves fr
 _MIN_EVIDENCE = 1e-3  # a mouse seen this little (S's diagonal against the most seen): not estimated
 
 
+def median(v: np.ndarray) -> float:
+    """``np.median`` of a finite 1-D array, bit for bit, without its first call's import
+    of numpy.ma (8 ms): in the daemon that call is the loop's first scale solve, and every
+    mouse's window waited behind it."""
+    s = np.sort(v)
+    k = len(s) // 2
+    return float(s[k]) if len(s) % 2 else float((s[k - 1] + s[k]) / 2)
+
+
 class ScaleLearner:
     """Each mouse's scale, learnt from the others (module docstring); kept per count axis
     (both the same) for the reports, which have a column per axis."""
@@ -320,9 +329,9 @@ class ScaleLearner:
             return False
         mu = _RIDGE * np.maximum(evidence, 1e-12 * evidence.max())
         g = np.linalg.solve(s + np.diag(mu), mu)
-        if not np.all(np.isfinite(g)) or np.median(g) <= 0:
+        if not np.all(np.isfinite(g)) or median(g) <= 0:
             return False
-        g = g / np.median(g)
+        g = g / median(g)
         # the spread: the fit's residual per degree of freedom, through the inverse of S
         # off its null direction (the common mode)
         dof = max(1.0, self.groups * (2 * self.n - len(self.cols)) - (self.n - 1))
