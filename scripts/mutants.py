@@ -400,6 +400,22 @@ MUTANTS = [
         ("tests/test_noisemodel.py", "tests/test_robust.py"),
         "the floor factor's sample takes the wrong part of the variance out",
     ),
+    Mutant(
+        "deferred-learning-never-settled-by-the-next-poll",
+        "mousedom/fusion/tracker.py",
+        "        self.settle()\n        k_old = self._grid.closed",
+        "        k_old = self._grid.closed",
+        ("tests/test_scalelearn.py",),
+        "a block end the daemon deferred is lost when the next window closes unsettled",
+    ),
+    Mutant(
+        "learning-not-deferred",
+        "mousedom/fusion/tracker.py",
+        "            if not defer_learning:\n                self.settle()",
+        "            self.settle()",
+        ("tests/test_scalelearn.py",),
+        "the block end stays between the window's last report and its POSE",
+    ),
 ]
 
 

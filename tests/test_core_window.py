@@ -15,6 +15,7 @@ import struct
 import cores
 import numpy as np
 import pytest
+from batches import assert_same_batches
 from hypothesis import event, given, settings
 from hypothesis import strategies as st
 from test_core import needs_core
@@ -56,16 +57,6 @@ def both(fn, *args):
         with cores.using(name):
             out.append(fn(*[_copy(a) for a in args]))
     return out
-
-
-def assert_same_batches(a: PoseBatch, b: PoseBatch) -> None:
-    """Every field of every window the same, bit for bit (dtypes too)."""
-    for key, value in vars(a).items():
-        other = getattr(b, key)
-        if isinstance(value, np.ndarray):
-            assert value.dtype == other.dtype and value.tobytes() == other.tobytes(), key
-        else:
-            assert value == other, key
 
 
 def _copy(a: object) -> object:

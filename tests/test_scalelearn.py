@@ -8,6 +8,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from batches import assert_same_batches
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -192,6 +193,46 @@ def test_a_reset_moves_the_pose_and_nothing_else(at):
         return np.array(tracker.pose)
 
     assert np.allclose(run(100.0, 50.0) - run(0.0, 0.0), [100.0, 50.0, 0.0], atol=1e-9)
+
+
+@pytest.mark.parametrize(("seed", "layout"), [(2, "triangle"), (7, "square"), (11, "wide")])
+def test_learning_after_the_pose_is_out_changes_no_window(seed, layout):
+    """The daemon publishes a window, then learns from the block it ended
+    (``poll(defer_learning=True)``, then ``Tracker.settle``).  With a CPI 3 % off, so that
+    the renewals apply scales and give back the turn they owe: every window as when the
+    tracker learns at once, whether the caller settles (every third poll here), the next
+    poll does, or a read of the pose does in between."""
+    base, result = _drive(seed, 1.03, layout)
+    cfg = scenarios.config(base)
+    t0 = float(result.motion.starts[0])
+    at_once = Tracker(cfg, t0=t0)
+    a = PoseBatch.concat(sim.run_tracker_live(result, at_once), len(base.mice))
+    deferred = Tracker(cfg, t0=t0)
+    polls, held, renewed = [0], [0], [0]
+
+    def poll(tracker: Tracker) -> PoseBatch:
+        left = tracker._learning_due  # left by the last poll: this one settles it
+        version = tracker.scales.version
+        batch = tracker.poll(defer_learning=True)
+        if left:
+            renewed[0] += tracker.scales.version - version
+        if tracker._learning_due and not left:
+            held[0] += 1  # a block filled: its learning is still to come
+            assert tracker.scales.version == version
+            polls[0] += 1
+            if polls[0] % 3 == 0:
+                tracker.settle()
+            elif polls[0] % 3 == 1:
+                assert tracker.pose and not tracker._learning_due  # reading it settles
+            if not tracker._learning_due:
+                renewed[0] += tracker.scales.version - version
+        return batch
+
+    b = PoseBatch.concat(sim.run_tracker_live(result, deferred, poll), len(base.mice))
+    assert held[0] >= 40  # 25 s: a block end every 0.5 s was deferred
+    assert renewed[0] >= 10  # and renewed the scales when settled
+    assert at_once.scales.scale[0, 0] != 1.0  # the scales were applied meanwhile
+    assert_same_batches(a, b)
 
 
 @settings(max_examples=300, deadline=None)

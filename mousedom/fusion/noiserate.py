@@ -112,17 +112,19 @@ class NoiseRate:
         self._rows.append((np.asarray(residual, dtype=float), np.asarray(eligible, dtype=bool),
                            np.asarray(moving, dtype=bool)))  # fmt: skip
         self._held += len(residual)
-        return self._block_end()
+        return self.end_block()
 
     def add_row(self, residual: list, eligible: bool, moving: bool) -> bool:
-        """``add`` for one window as Python values (the daemon's)."""
+        """``add`` for one window as Python values (the daemon's), without the learning:
+        True when the block is full, and ``end_block`` is due before the next window."""
         if not self.active:
             return False
         self._rows.append(([residual], [eligible], [moving]))
         self._held += 1
-        return self._block_end()
+        return self._held >= self.block
 
-    def _block_end(self) -> bool:
+    def end_block(self) -> bool:
+        """At a full block, learn from it (True); otherwise nothing (False)."""
         if self._held < self.block:
             return False
         parts = list(zip(*self._rows, strict=True))

@@ -171,20 +171,23 @@ class ScaleLearner:
         self._rows.append((np.asarray(counts), np.asarray(usable), np.asarray(held_out),
                            np.asarray(q), np.asarray(steps)))  # fmt: skip
         self._held += n
-        return self._block_end()
+        return self.end_block()
 
     def add_row(
         self, counts: list, usable: list, held_out: list, q: list, step: list | None = None
     ) -> bool:
-        """``add`` for one window as Python values (the daemon's: no numpy per window)."""
+        """``add`` for one window as Python values (the daemon's: no numpy per window),
+        without the learning: True when the block is full, and ``end_block`` is due before
+        the next window is added (the daemon runs it once the window's POSE is out)."""
         if not self.active:
             return False
         self._rows.append(([counts], [usable], [held_out], [q],
                            [step if step is not None else [0.0, 0.0]]))  # fmt: skip
         self._held += 1
-        return self._block_end()
+        return self._held >= self.block
 
-    def _block_end(self) -> bool:
+    def end_block(self) -> bool:
+        """At a full block, learn from it (True); otherwise nothing (False)."""
         if self._held < self.block:
             return False
         counts, usable, held_out, q, steps = (

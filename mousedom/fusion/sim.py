@@ -449,10 +449,11 @@ def run_tracker(result: SimResult, config: Config | None = None, **tracker_kw):
     return tracker.finish(), tracker
 
 
-def run_tracker_live(result: SimResult, tracker) -> list:
+def run_tracker_live(result: SimResult, tracker, poll=None) -> list:
     """Feed a simulation as a live daemon would: every report in time order, on its own,
-    as Python lists of an int count (what evdev gives), polling after each; then finish.
-    Returns the tracker's PoseBatches in order (the one-window path's output)."""
+    as Python lists of an int count (what evdev gives), polling after each (``poll``:
+    how, given the tracker; ``tracker.poll()`` by default); then finish.  Returns the
+    tracker's PoseBatches in order (the one-window path's output)."""
     merged = sorted(
         (t, name, dx, dy)
         for name, r in result.reports.items()
@@ -470,6 +471,6 @@ def run_tracker_live(result: SimResult, tracker) -> list:
         else:
             tracker.push(name, [t], [int(dx) if float(dx).is_integer() else dx],
                          [int(dy) if float(dy).is_integer() else dy])  # fmt: skip
-        out.append(tracker.poll())
+        out.append(tracker.poll() if poll is None else poll(tracker))
     out.append(tracker.finish())
     return out

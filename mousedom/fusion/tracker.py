@@ -123,6 +123,7 @@ class Tracker:
             self._learners = Learners(
                 setup, self._to_body, np.array([m.sigma for m in config.mice]), config.robust
             )
+        self._learning_due = False  # a block filled by poll(defer_learning=True): settle()
         self._rebind()
         self.evidence = SensorEvidence(
             [1.0 / m.report_hz for m in config.mice], [m.min_squal for m in config.mice]
@@ -147,6 +148,21 @@ class Tracker:
         scale = None if learners is None else learners.scales.estimate
         self._batch.rebind(self._to_body, noise, scale)
         self._one.rebind(self._to_body, noise, scale)
+
+    def settle(self) -> None:
+        """Learn from the block that ``poll(defer_learning=True)`` filled, if it did.
+
+        A block end (every 0.5 s) costs 1.5-2 ms, ten times a window: in the window that
+        ends the block it stood between the last report and the POSE, and set the p99 of
+        the daemon's latency.  What it learns is for the windows after that one, so the
+        daemon publishes first and settles then; every method that reads or moves the pose
+        or closes windows settles first, so the results are those of learning at once."""
+        if self._learning_due:
+            self._learning_due = False
+            assert self._learners is not None
+            renewal = self._learners.end_block()
+            if renewal is not None:
+                self._renew(renewal)
 
     def _renew(self, renewal: Renewal) -> None:
         """A learner's block end (``Learners.add``): new scales applied, if any, with the
@@ -309,15 +325,18 @@ class Tracker:
 
     @property
     def pose(self) -> tuple[float, float, float]:
+        self.settle()
         x, y, theta = self._carried.pose
         return x, y, theta
 
     @property
     def pose_cov(self) -> np.ndarray:
+        self.settle()
         return np.array(self._carried.cov)
 
     def reset(self, x: float = 0.0, y: float = 0.0, theta: float = 0.0) -> None:
         """Start the odometry frame again at the given pose, with zero uncertainty."""
+        self.settle()
         self._carried.reset(x, y, theta)
         self._rebase(heading=True)
 
@@ -329,6 +348,7 @@ class Tracker:
         The fixed coordinates take the given values and lose their uncertainty; the
         others, and their correlations with each other, are kept.
         """
+        self.settle()
         self._carried.fix(x, y, theta)
         self._rebase(heading=theta is not None)
 
@@ -363,8 +383,10 @@ class Tracker:
             if i < self.n_mice
         }
 
-    def poll(self) -> PoseBatch:
-        """Close every window that no future report can change."""
+    def poll(self, defer_learning: bool = False) -> PoseBatch:
+        """Close every window that no future report can change.  ``defer_learning``: a
+        learners' block that the one window closed fills is learnt at ``settle()``, not
+        here (the daemon's: it publishes the window first)."""
         if self.t0 is None:
             return PoseBatch.empty(self.n_mice)
         # The earliest frontier of the live mice (a mouse that is not live waits for
@@ -382,7 +404,7 @@ class Tracker:
                 target = f
         if not math.isfinite(target):
             return PoseBatch.empty(self.n_mice)
-        return self._close_until(self._grid.ending_by(target))
+        return self._close_until(self._grid.ending_by(target), defer_learning)
 
     def skip_quiet(self, until: float) -> tuple[float, float] | None:
         """Close the windows up to the last edge at or before ``until`` without solving
@@ -397,6 +419,7 @@ class Tracker:
         the pose (its covariance would grow a little per window)."""
         if self.t0 is None:
             return None
+        self.settle()
         k = self._grid.ending_by(until)
         if k <= self._grid.closed + 1:
             return None
@@ -434,7 +457,8 @@ class Tracker:
             self._ingest(m)
         return any(m.level().any() for m in self._clocks)
 
-    def _close_until(self, k_new: int) -> PoseBatch:
+    def _close_until(self, k_new: int, defer_learning: bool = False) -> PoseBatch:
+        self.settle()
         k_old = self._grid.closed
         if k_new <= k_old:
             return PoseBatch.empty(self.n_mice)
@@ -446,7 +470,7 @@ class Tracker:
             if m.n_knots() > self._KNOTS_SMALL:
                 small = False
         if small:
-            return self._close_one()
+            return self._close_one(defer_learning)
         n = k_new - k_old
         edges = self._grid.start_time() + self.period * np.arange(k_old, k_new + 1)
         counts = np.zeros((n, self.n_mice, 2))
@@ -481,7 +505,7 @@ class Tracker:
             a = b
         return PoseBatch.concat(out, self.n_mice)
 
-    def _close_one(self) -> PoseBatch:
+    def _close_one(self, defer_learning: bool) -> PoseBatch:
         """_close_until for the next window on Python floats: the daemon's case."""
         k = self._grid.closed
         start, end = self._grid.edge(k), self._grid.edge(k + 1)
@@ -511,10 +535,10 @@ class Tracker:
         else:
             batch = self._one.solve(end, counts, live, evidence, turn, spans)
         learners = self._learners
-        if learners is not None:
-            renewal = learners.add_row(counts, batch.rows()[0], live, before)
-            if renewal is not None:
-                self._renew(renewal)
+        if learners is not None and learners.add_row(counts, batch.rows()[0], live, before):
+            self._learning_due = True
+            if not defer_learning:
+                self.settle()
         return batch
 
     # Up to this many windows per poll, _close_one (floats, no validation) is used; tests

@@ -56,6 +56,7 @@ class Learners:
         # below these a reading is no count (models.STILL), in counts
         self._still_counts = models.STILL * sigma_counts
         self._still_counts_list = self._still_counts.tolist()  # add_row's
+        self._full = (False, False)  # (noise rate, scales): a block add_row filled
 
     @property
     def noise(self) -> models.StepNoise | None:
@@ -65,8 +66,9 @@ class Learners:
     def add_row(
         self, counts: list[tuple[float, float]], row: PoseRow, live: tuple[bool, ...],
         start: list[float],
-    ) -> Renewal | None:  # fmt: skip
-        """``add`` for the one window the daemon closed, on Python values."""
+    ) -> bool:  # fmt: skip
+        """``add`` for the one window the daemon closed, on Python values, without the
+        learning: True when a block is full, and ``end_block`` is due before the next."""
         tracking, excluded, inconsistent = robust.TRACKING, robust.EXCLUDED, robust.INCONSISTENT
         ok = row.consistent
         usable = [ok and v and st == tracking for v, st in zip(live, row.state, strict=True)]
@@ -83,6 +85,16 @@ class Learners:
             noise = self.noise_rate.add_row(row.residual, eligible, moving)
         step = [row.x - start[0], row.y - start[1]]
         scales = self.scales.add_row(counts, usable, held, q, step)
+        self._full = (noise, scales)
+        return noise or scales
+
+    def end_block(self) -> Renewal | None:
+        """The learning of the block ``add_row`` filled (the two learners are independent:
+        each learns from its own rows), and what the tracker renews from it."""
+        noise_full, scales_full = self._full
+        self._full = (False, False)
+        noise = noise_full and self.noise_rate is not None and self.noise_rate.end_block()
+        scales = scales_full and self.scales.end_block()
         return self._renewal(noise, scales)
 
     def add(

@@ -311,7 +311,9 @@ class Daemon:
         if timing is not None:
             timing.start(self.publisher.poses)
         self.sensors.read_due(now)
-        self.publisher.publish(self.running.tracker.poll())
+        tracker = self.running.tracker
+        self.publisher.publish(tracker.poll(defer_learning=True))
+        tracker.settle()  # a learners' block end: after the POSE is out (Tracker.settle)
         if timing is not None:
             timing.stop(self.publisher.poses)
 
