@@ -416,6 +416,14 @@ MUTANTS = [
         ("tests/test_scalelearn.py",),
         "the block end stays between the window's last report and its POSE",
     ),
+    Mutant(
+        "heap-frozen-for-good",
+        "mousedom/service/daemon.py",
+        "    gc.unfreeze()\n    gc.collect()\n    gc.freeze()",
+        "    gc.collect()\n    gc.freeze()",
+        ("tests/test_daemon.py",),
+        "what a reload replaced stays frozen, never collected",
+    ),
 ]
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gc
 import io
 import logging
 import math
@@ -9,6 +10,7 @@ import os
 import struct
 import threading
 import time
+import weakref
 from pathlib import Path
 
 import numpy as np
@@ -355,6 +357,50 @@ def test_reload_swaps_changed_mice_and_keeps_the_pose(tmp_path):
     finally:
         d.request_stop()
         th.join(5)
+
+
+class _Cycle:
+    """An object in a reference cycle: only the collector frees it."""
+
+    def __init__(self) -> None:
+        self.me = self
+
+
+def test_a_frozen_heap_is_unfrozen_and_collected_at_a_reload(tmp_path):
+    """``mousedom run`` freezes the heap once started (no 6-10 ms scans of it in the loop),
+    and at a reload unfreezes and collects it: what became garbage meanwhile is freed."""
+    from mousedom.config import load_config
+
+    (tmp_path / "rig.yaml").write_text(
+        "rate_hz: 50\nmodel: lsq\nmice:\n"
+        "  a: {evdev: {path: /dev/null}, cpi: 1000, mount: {x: 0.1, y: 0}}\n"
+        "  b: {evdev: {path: /dev/null}, cpi: 1000, mount: {x: -0.1, y: 0}}\n"
+    )
+    cycle = _Cycle()
+    gone = weakref.ref(cycle)
+    d = Daemon(load_config(tmp_path / "rig.yaml"), str(tmp_path / "d.sock"),
+               source_factory=lambda m, clock: PipeSource(m.name), handle_signals=False,
+               freeze_heap=True)  # fmt: skip
+    th = threading.Thread(target=d.run)
+    th.start()
+    try:
+        wait_listening(Path(d.server.path), None, 10)
+        assert gc.get_freeze_count() > 1000  # the start-up's objects, the cycle among them
+        del cycle
+        gc.collect()
+        assert gone() is not None  # frozen: the collector does not see it
+        d.request_reload()  # (the same config: a reload all the same)
+        deadline = time.monotonic() + 5
+        while gone() is not None and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert gone() is None
+        while gc.get_freeze_count() < 1000 and time.monotonic() < deadline:
+            time.sleep(0.01)  # (the loop freezes right after it collected)
+        assert gc.get_freeze_count() > 1000  # and frozen again
+    finally:
+        d.request_stop()
+        th.join(5)
+        gc.unfreeze()  # (this test's process is pytest's)
 
 
 def test_reload_that_removes_a_mouse_closes_it_and_stops_the_recording(tmp_path):

@@ -121,8 +121,9 @@ def run(args: argparse.Namespace) -> int:
         _start_outputs(args, config, outputs)
         socket_path = args.socket or config.server.socket or default_socket_path()
         factory = functools.partial(make_source, loop=True) if args.demo else make_source
+        # (this process is the daemon's: its heap is frozen from the collector's scans)
         daemon = Daemon(config, socket_path, source_factory=factory, record=args.record,
-                        outputs=outputs)  # fmt: skip
+                        outputs=outputs, freeze_heap=True)  # fmt: skip
         return daemon.run()
     finally:
         for out in outputs:
