@@ -424,6 +424,23 @@ MUTANTS = [
         ("tests/test_daemon.py",),
         "what a reload replaced stays frozen, never collected",
     ),
+    Mutant(
+        "screen-block-end-not-deferred",
+        "mousedom/fusion/robust.py",
+        "        if not defer_block_end and self.noise.seen >= self.noise.block:",
+        "        if self.noise.seen >= self.noise.block:",
+        ("tests/test_scalelearn.py",),
+        "the screen's noise model learns between the window's last report and its POSE",
+    ),
+    Mutant(
+        "screen-block-end-never-settled",
+        "mousedom/fusion/tracker.py",
+        "            if self.screen is not None:  # (first, as when it learns within the window)\n"
+        "                self.screen.settle()\n",
+        "",
+        ("tests/test_scalelearn.py",),
+        "a block end of the screen's noise model the daemon deferred is never learnt",
+    ),
 ]
 
 

@@ -197,18 +197,26 @@ def test_a_reset_moves_the_pose_and_nothing_else(at):
 
 @pytest.mark.parametrize(("seed", "layout"), [(2, "triangle"), (7, "square"), (11, "wide")])
 def test_learning_after_the_pose_is_out_changes_no_window(seed, layout):
-    """The daemon publishes a window, then learns from the block it ended
-    (``poll(defer_learning=True)``, then ``Tracker.settle``).  With a CPI 3 % off, so that
-    the renewals apply scales and give back the turn they owe: every window as when the
+    """The daemon publishes a window, then learns from the blocks it ended (the
+    learners', the screen's noise model's: ``poll(defer_learning=True)``, then
+    ``Tracker.settle``).  With a CPI 3 % off, so that the renewals apply scales and give
+    back the turn they owe, and a mouse noisier than configured, so that the screen's
+    noise model learns a factor for it: every window as when the
     tracker learns at once, whether the caller settles (every third poll here), the next
     poll does, or a read of the pose does in between."""
-    base, result = _drive(seed, 1.03, layout)
+    base = scenarios.rig(layout)
+    mice = list(base.mice)
+    mice[0] = dataclasses.replace(mice[0], cpi_x=mice[0].cpi_x * 1.03,
+                                  cpi_y=mice[0].cpi_y * 1.03)  # fmt: skip
+    mice[1] = dataclasses.replace(mice[1], noise=4 * mice[1].noise)  # a factor to learn
+    result = sim.simulate(dataclasses.replace(base, mice=tuple(mice)),
+                          scenarios.drive(25.0, seed), seed=seed)  # fmt: skip
     cfg = scenarios.config(base)
     t0 = float(result.motion.starts[0])
     at_once = Tracker(cfg, t0=t0)
     a = PoseBatch.concat(sim.run_tracker_live(result, at_once), len(base.mice))
     deferred = Tracker(cfg, t0=t0)
-    polls, held, renewed = [0], [0], [0]
+    polls, held, renewed, screened = [0], [0], [0], [0]
 
     def poll(tracker: Tracker) -> PoseBatch:
         left = tracker._learning_due  # left by the last poll: this one settles it
@@ -219,6 +227,7 @@ def test_learning_after_the_pose_is_out_changes_no_window(seed, layout):
         if tracker._learning_due and not left:
             held[0] += 1  # a block filled: its learning is still to come
             assert tracker.scales.version == version
+            screened[0] += tracker.screen.block_due  # the screen's noise model's, too
             polls[0] += 1
             if polls[0] % 3 == 0:
                 tracker.settle()
@@ -231,6 +240,8 @@ def test_learning_after_the_pose_is_out_changes_no_window(seed, layout):
     b = PoseBatch.concat(sim.run_tracker_live(result, deferred, poll), len(base.mice))
     assert held[0] >= 40  # 25 s: a block end every 0.5 s was deferred
     assert renewed[0] >= 10  # and renewed the scales when settled
+    assert screened[0] >= 20  # the screen's noise model's block end, every second
+    assert at_once.screen.noise.version >= 2  # and what it learnt changed its factors
     assert at_once.scales.scale[0, 0] != 1.0  # the scales were applied meanwhile
     assert_same_batches(a, b)
 

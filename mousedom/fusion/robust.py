@@ -211,16 +211,30 @@ class Screen(RigidTest):
             run += 1
         return run
 
-    def _count_window(self) -> None:
+    def _count_window(self, defer_block_end: bool) -> None:
+        """One more window solved; at a block's end the noise model learns from it, or
+        with ``defer_block_end`` it is left due for ``settle`` (Tracker.settle: the daemon
+        learns once the window's POSE is out)."""
         self.noise.seen += 1
+        if not defer_block_end and self.noise.seen >= self.noise.block:
+            self.noise.end_block()
+
+    @property
+    def block_due(self) -> bool:
+        """A window ended the noise model's block and it has not learnt from it yet."""
+        return self.noise.seen >= self.noise.block
+
+    def settle(self) -> None:
+        """The noise model's block end that a window left due, if one did."""
         if self.noise.seen >= self.noise.block:
             self.noise.end_block()
 
     # ----------------------------------------------------------------- common case
 
     def fast_one(
-        self, d: list[float], q: list[float], live: tuple[bool, ...], evidence: bool
-    ) -> bool:
+        self, d: list[float], q: list[float], live: tuple[bool, ...], evidence: bool,
+        defer_block_end: bool = False,
+    ) -> bool:  # fmt: skip
         """The common case on floats: True (and the window is accepted as solved) when the
         state is steady for ``live``, no sensor evidence (SQUAL, overflow) is in the window,
         no mouse is beyond its speed and the test passes.  ``d``: every mouse's body-frame
@@ -245,7 +259,7 @@ class Screen(RigidTest):
         self.history.append(d)
         self.lateness.remember(self._prev)
         self._used_for(live, 1)
-        self._count_window()
+        self._count_window(defer_block_end)
         return True
 
     # ----------------------------------------------------------------- the exact path
@@ -262,10 +276,12 @@ class Screen(RigidTest):
         squal_scale: ArrayLike | None = None,
         low_quality: ArrayLike | None = None,
         spans: ArrayLike | None = None,
+        defer_block_end: bool = False,
     ) -> Decision:
         """The exact per-window decision (module docstring, steps 1-4); updates health.
         ``spans`` (N,): the long report spans the window's edges cut, per mouse (0: none;
-        the noise model's granularity term grows with them)."""
+        the noise model's granularity term grows with them); ``defer_block_end``: see
+        ``_count_window``."""
         n = self.n
         d = np.asarray(d, dtype=float).reshape(n, 2)
         live = np.asarray(live, dtype=bool)
@@ -345,7 +361,7 @@ class Screen(RigidTest):
             for i in np.flatnonzero(used & moving & ~suspect).tolist():
                 self.noise.sample(i, float(r2[i]), float(floor[i]), float(prop[i]), float(h[i]))
         self.accepted(p[None], d[None], used.tolist())
-        self._count_window()
+        self._count_window(defer_block_end)
         return Decision(used=used, inflate=inflate, consistent=consistent, correction=correction)
 
     def _caught_up(self, d: np.ndarray, used: np.ndarray, blamed: list[int],

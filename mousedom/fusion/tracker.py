@@ -150,19 +150,22 @@ class Tracker:
         self._one.rebind(self._to_body, noise, scale)
 
     def settle(self) -> None:
-        """Learn from the block that ``poll(defer_learning=True)`` filled, if it did.
+        """Learn from the blocks that ``poll(defer_learning=True)`` filled, if it did.
 
-        A block end (every 0.5 s) costs 1.5-2 ms, ten times a window: in the window that
-        ends the block it stood between the last report and the POSE, and set the p99 of
-        the daemon's latency.  What it learns is for the windows after that one, so the
+        A learners' block end (every 0.5 s) costs 1.5-2 ms, ten times a window, and the
+        screen's noise model's (every second) 0.4 ms: in the window that ends the block it
+        stood between the last report and the POSE, and set the p99 of the daemon's
+        latency.  What it learns is for the windows after that one, so the
         daemon publishes first and settles then; every method that reads or moves the pose
         or closes windows settles first, so the results are those of learning at once."""
         if self._learning_due:
             self._learning_due = False
-            assert self._learners is not None
-            renewal = self._learners.end_block()
-            if renewal is not None:
-                self._renew(renewal)
+            if self.screen is not None:  # (first, as when it learns within the window)
+                self.screen.settle()
+            if self._learners is not None:
+                renewal = self._learners.end_block()
+                if renewal is not None:
+                    self._renew(renewal)
 
     def _renew(self, renewal: Renewal) -> None:
         """A learner's block end (``Learners.add``): new scales applied, if any, with the
@@ -533,12 +536,14 @@ class Tracker:
             batch = self._batch.solve(np.array([end]), np.array([counts]), np.array([live]),
                                       ev, tb, sb)  # fmt: skip
         else:
-            batch = self._one.solve(end, counts, live, evidence, turn, spans)
+            batch = self._one.solve(end, counts, live, evidence, turn, spans, defer_learning)
         learners = self._learners
         if learners is not None and learners.add_row(counts, batch.rows()[0], live, before):
             self._learning_due = True
-            if not defer_learning:
-                self.settle()
+        if not defer_learning:
+            self.settle()
+        elif self.screen is not None and self.screen.block_due:
+            self._learning_due = True
         return batch
 
     # Up to this many windows per poll, _close_one (floats, no validation) is used; tests

@@ -125,11 +125,13 @@ class OneWindowPath:
         evidence: tuple[list[float], list[bool]] | None = None,
         turn: float | None = None,
         spans: list[float] | None = None,
+        defer_block_end: bool = False,
     ) -> PoseBatch:
         """The window ending at ``t_end`` from each mouse's raw ``counts`` (REL_X, REL_Y),
         as ``ArrayPath.solve`` gives it for one window of a linear model; the pose
         carried on.  ``spans``: each mouse's long report span cut by the window's edges
-        (CountFunction.window_span), or None where none is."""
+        (CountFunction.window_span), or None where none is; ``defer_block_end``: the
+        screen's noise model learns from a block this window ends at ``Screen.settle``."""
         # Every mouse's counts in body metres, once: the solve takes the live ones, the
         # screen all (the products per mouse are the same whichever subset is asked).
         n = self._n
@@ -138,7 +140,7 @@ class OneWindowPath:
         consistent = True
         screen = self._screen
         special = evidence is not None or spans is not None
-        if screen is None or screen.fast_one(d_all, q, live, special):
+        if screen is None or screen.fast_one(d_all, q, live, special, defer_block_end):
             # The common case (or no screen): every live mouse tracking, the rest missing,
             # and no reason for either (robust's health gives no other to those states).
             rows = self._steady.get(live)
@@ -151,7 +153,8 @@ class OneWindowPath:
         else:
             scale, low = evidence if evidence is not None else (None, None)
             d_pairs = np.array(d_all).reshape(n, 2)
-            dec = screen.decide(d_pairs, np.array(live, dtype=bool), scale, low, spans)
+            dec = screen.decide(d_pairs, np.array(live, dtype=bool), scale, low, spans,
+                                defer_block_end)  # fmt: skip
             used = tuple(dec.used.tolist())
             if used != live:
                 q, residual, idx, c3, ok = self._linear_one(d_all, used)
