@@ -171,7 +171,8 @@ def _linear(
 ) -> None:
     """Weighted LSQ on the live mice for the windows ``rows``, restricted to q[cols]."""
     idx = np.flatnonzero(live)
-    est = _estimator(positions.tobytes(), sigma.tobytes(), live.tobytes(), tuple(cols))
+    key = (positions.tobytes(), sigma.tobytes(), live.tobytes(), tuple(cols))
+    est = _estimator(*key)
     if est is None:
         return  # rank deficient: ok stays False, q and cov stay 0
     a, b, c = est
@@ -187,8 +188,8 @@ def _linear(
         moving = np.any(np.abs(dl) > np.repeat(STILL * sigma[idx], 2), axis=1)
         c3 = np.where(
             moving[:, None, None],
-            sandwich(b, noise.moving[idx], cols),
-            sandwich(b, noise.rest[idx], cols),
+            noise_covariance(*key, noise.moving[idx].tobytes()),
+            noise_covariance(*key, noise.rest[idx].tobytes()),
         )
     if isinstance(rows, slice) and live.all():
         q[rows, cols] = qk
@@ -211,6 +212,23 @@ def sandwich(b: np.ndarray, variance: np.ndarray, cols: tuple[int, ...] | list[i
     c = (b * np.repeat(variance, 2)) @ b.T
     c3 = np.zeros((3, 3))
     c3[np.ix_(list(cols), list(cols))] = 0.5 * (c + c.T)
+    return c3
+
+
+@functools.lru_cache(maxsize=256)
+def noise_covariance(
+    positions: bytes, sigma: bytes, live: bytes, cols: tuple[int, ...], variance: bytes
+) -> np.ndarray:
+    """``sandwich`` of the estimator ``_estimator(positions, sigma, live, cols)`` (which
+    must not be None) with the live mice's ``variance`` (L,), read-only.  Cached on the
+    values, not on the StepNoise: the noise rate renews its StepNoise at every block end,
+    where only the moving variances change (the rest ones are the config's sigma times a
+    constant), and the screen's re-solve reuses the block's noise; a key of values needs
+    no invalidation when the tracker rebinds."""
+    est = _estimator(positions, sigma, live, cols)
+    assert est is not None  # the caller solved with it
+    c3 = sandwich(est[1], np.frombuffer(variance), cols)
+    c3.flags.writeable = False
     return c3
 
 

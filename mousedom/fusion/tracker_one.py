@@ -96,10 +96,13 @@ class OneWindowPath:
         plan = self._plans.get(live)
         if plan is None:
             cols = (0, 1, 2) if self._model == "lsq" else (0, 2)
-            key = np.array(live, dtype=bool).tobytes()
-            est = None
-            if any(live):
-                est = models._estimator(self._positions.tobytes(), self._sigma.tobytes(), key, cols)
+            key = (
+                self._positions.tobytes(),
+                self._sigma.tobytes(),
+                np.array(live, dtype=bool).tobytes(),
+                cols,
+            )
+            est = models._estimator(*key) if any(live) else None
             c3 = np.zeros((3, 3))
             a_rows: list[list[float]] | None = None
             b_rows: list[list[float]] | None = None
@@ -111,8 +114,9 @@ class OneWindowPath:
                     c3[np.ix_(cols, cols)] = est[2]
                     c_moving = c_rest = c3.tolist()
                 else:
-                    c_moving = models.sandwich(est[1], self._noise.moving[idx], cols).tolist()
-                    c_rest = models.sandwich(est[1], self._noise.rest[idx], cols).tolist()
+                    noise = self._noise
+                    c_moving = models.noise_covariance(*key, noise.moving[idx].tobytes()).tolist()
+                    c_rest = models.noise_covariance(*key, noise.rest[idx].tobytes()).tolist()
             plan = LinearPlan(a_rows, b_rows, idx, c_moving, c_rest, cols)
             self._plans[live] = plan
         return plan
