@@ -37,6 +37,7 @@ from __future__ import annotations
 import numpy as np
 
 from mousedom.fusion.models import StepNoise
+from mousedom.fusion.scalelearn import joined
 
 SHORT_S = 0.1  # the shorter span: past the telescoping part's reach (a report or two)
 LONG_S = 1.0  # the longer: ten times the motion, the same two ends
@@ -128,9 +129,8 @@ class NoiseRate:
         if self._held < self.block:
             return False
         parts = list(zip(*self._rows, strict=True))
-        r = np.concatenate([np.asarray(p, dtype=float).reshape(-1, self.n, 2) for p in parts[0]])
-        ok = np.concatenate([np.asarray(p, dtype=bool) for p in parts[1]])
-        mv = np.concatenate([np.asarray(p, dtype=float) for p in parts[2]])
+        r = joined(parts[0], float).reshape(-1, self.n, 2)
+        ok, mv = joined(parts[1], bool), joined(parts[2], float)
         self._rows, self._held = [], 0
         self.windows += len(ok)
         self._learn(r, ok, mv)
@@ -158,7 +158,8 @@ class NoiseRate:
             else:
                 run_r, run_m, new_from = r[a:b], mv[a:b], 0
             self._spans(run_r, run_m, new_from)
-            self._run_r, self._run_m = run_r[-self.long :], run_m[-self.long :]
+            # copies: r may be the caller's array (``joined``), and a view would follow it
+            self._run_r, self._run_m = run_r[-self.long :].copy(), run_m[-self.long :].copy()
         if not ok[-1]:
             self._run_r, self._run_m = self._run_r[:0], self._run_m[:0]
         self._estimate()

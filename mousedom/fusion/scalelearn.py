@@ -41,6 +41,7 @@ mouse tracking (used, not suspect), count.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -70,6 +71,16 @@ def median(v: np.ndarray) -> float:
     s = np.sort(v)
     k = len(s) // 2
     return float(s[k]) if len(s) % 2 else float((s[k - 1] + s[k]) / 2)
+
+
+def joined(chunks: Sequence[ArrayLike], dtype: type) -> np.ndarray:
+    """A block's rows as one array: the chunks (arrays from ``add``, one window's lists
+    from ``add_row``) concatenated; a lone chunk (replay's blocks: the tracker splits its
+    windows at block ends) as it is, for np.concatenate would copy it: so the caller's
+    array, maybe, to read and keep no view of."""
+    if len(chunks) == 1:
+        return np.asarray(chunks[0], dtype=dtype)
+    return np.concatenate([np.asarray(c, dtype=dtype) for c in chunks])
 
 
 class ScaleLearner:
@@ -108,6 +119,11 @@ class ScaleLearner:
         # The heading row of that least squares (every mouse in use): what each reading
         # adds to a window's turn (_turn_owed)
         self.turn_row = np.linalg.solve(aw @ a, aw)[-1] if self.n >= 3 else np.zeros(n2)
+        # _gave's per mouse and count axis (i, a): the turn row's body axis b times what
+        # count axis a moves body axis b, (i, b, a); and _learn_held_out's counts per body
+        # metre, both of the configuration (base never changes)
+        self._turn_base = self.turn_row.reshape(self.n, 2)[:, :, None] * self.base
+        self._base_inv = np.linalg.inv(self.base)
         self.gram = np.zeros((self.n, self.n))  # S, forgetting
         # per mouse, from the groups it was left out of: sum X.X, X.Y, Y.Y, groups
         self.held = np.zeros((4, self.n))
@@ -190,15 +206,16 @@ class ScaleLearner:
         """At a full block, learn from it (True); otherwise nothing (False)."""
         if self._held < self.block:
             return False
+        # (each is only read: a lone chunk may be the caller's array)
         counts, usable, held_out, q, steps = (
-            np.concatenate([np.asarray(c, dtype=dt) for c in chunks])
+            joined(chunks, dt)
             for chunks, dt in zip(zip(*self._rows, strict=True),
                                   (float, bool, bool, float, float), strict=True)
         )  # fmt: skip
         self._rows, self._held = [], 0
-        self._learn_held_out(counts.astype(float), held_out, q)
-        self._gave(counts.astype(float), usable, steps)
-        self._learn(counts.astype(float), usable)
+        self._learn_held_out(counts, held_out, q)
+        self._gave(counts, usable, steps)
+        self._learn(counts, usable)
         self._report_held_out()
         self._settle_turn()
         return True
@@ -207,9 +224,12 @@ class ScaleLearner:
         """Add the block's windows with every mouse in use to the turns each mouse gave,
         and to the walk those turns bent."""
         whole = usable.all(axis=1)
-        row = self.turn_row.reshape(self.n, 2)  # per mouse, per body axis
-        # mouse i's count axis a moves it base[i, :, a] * c[i, a] in body axes
-        per = np.einsum("ib,iba,kia->kia", row, self.base, counts)
+        # mouse i's count axis a moves it base[i, :, a] * c[i, a] in body axes, and the
+        # turn row makes that a turn: the sum over body axes written out (an einsum took
+        # twice as long), from einsum's start of 0.0, which makes a turn of -0.0 +0.0
+        # (so the sums below are einsum's, bit for bit)
+        tb = self._turn_base
+        per = 0.0 + tb[:, 0] * counts + tb[:, 1] * counts
         per[~whole] = 0.0
         per[: self._rebased] = 0.0  # before the pose was set from outside: owed nothing
         self._rebased = 0
@@ -285,7 +305,7 @@ class ScaleLearner:
             [q[:, None, 0] - q[:, None, 2] * pos[None, :, 1],
              q[:, None, 1] + q[:, None, 2] * pos[None, :, 0]], axis=2,
         )  # fmt: skip
-        pred = np.einsum("nij,knj->kni", np.linalg.inv(self.base), body)
+        pred = np.einsum("nij,knj->kni", self._base_inv, body)
         self.held *= self.forget
         for i in range(self.n):
             out = np.minimum.reduceat(held_out[:, i].astype(np.int8), starts) > 0

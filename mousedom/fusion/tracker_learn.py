@@ -114,9 +114,12 @@ class Learners:
             moving = np.any(counted & live, axis=1)
             eligible = usable.all(axis=1) & (batch.used == self._n)  # all in the solve
             noise = self.noise_rate.add(batch.residual, eligible, moving)
-        xy = np.stack([np.concatenate([[start[0]], batch.x]),
-                       np.concatenate([[start[1]], batch.y])], axis=1)  # fmt: skip
-        scales = self.scales.add(counts, usable, held_out, q, np.diff(xy, axis=0))
+        # the steps: each window's position less the one before it (np.diff's subtraction,
+        # without its stack of concatenations)
+        xy = np.empty((len(q) + 1, 2))
+        xy[0] = start
+        xy[1:, 0], xy[1:, 1] = batch.x, batch.y
+        scales = self.scales.add(counts, usable, held_out, q, xy[1:] - xy[:-1])
         return self._renewal(noise, scales)
 
     def _renewal(self, noise: bool, scales: bool) -> Renewal | None:
