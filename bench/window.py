@@ -9,9 +9,11 @@ and then the three phases of a window run as the loop runs them:
 
 - read: ``Sensors.read_due`` (one read per source, decoding, the tracker's queue);
 - poll: ``Tracker.poll`` (the count functions, the solve, the fault test, the covariance);
-- publish: ``Publisher.publish`` (the POSE line, the send to the client).
+- publish: ``Publisher.publish`` (the POSE line, the send to the client);
+- settle: ``Tracker.settle``, the learning of the blocks a window ends, after its POSE.
 
-Prints each phase's thread CPU time (median over the windows after the first tenth), and
+Prints each phase's thread CPU time (median over the windows after the first tenth), the
+first three's sum (the window's work before its POSE) at the 99th percentile, and
 for one window after the warm-up the bytecode it runs: distinct instructions (a window's
 cost after a sleep follows how much code and data it touches, see docs/performance.md),
 instructions executed and code objects.  The instruction counts are exact and the same
@@ -111,8 +113,9 @@ class Rig:
         box = []
         return (
             ("read", lambda: dm.sensors.read_due(self.now)),
-            ("poll", lambda: box.append(dm.tracker.poll())),
+            ("poll", lambda: box.append(dm.tracker.poll(defer_learning=True))),
             ("publish", lambda: dm.publisher.publish(box.pop())),
+            ("settle", lambda: dm.tracker.settle()),
         )
 
     def close(self) -> None:
@@ -126,16 +129,19 @@ def timed(rig: Rig, windows: int) -> dict[str, list[int]]:
     for w in range(windows):
         rig.feed()
         time.sleep(PERIOD)
-        total = 0
+        total = to_pose = 0
         for name, run in rig.phases():
             t0 = clock()
             run()
             spent = clock() - t0
             total += spent
+            if name != "settle":
+                to_pose += spent
             if w >= windows // 10:
                 costs[name].append(spent)
         if w >= windows // 10:
             costs["window"].append(total)
+            costs["to POSE"].append(to_pose)
     return costs
 
 
@@ -182,13 +188,18 @@ def main() -> None:
           f"{args.windows} windows, each after a {PERIOD * 1e3:g} ms sleep")  # fmt: skip
     print(f"{'phase':10s}{'CPU us (median)':>17s}{'distinct instr.':>17s}{'executed':>10s}"
           f"{'code objects':>14s}")  # fmt: skip
-    for name in ("read", "poll", "publish"):
+    for name in ("read", "poll", "publish", "settle"):
         distinct, executed, objects = code[name]
         print(f"{name:10s}{statistics.median(costs[name]) / 1e3:17.1f}{distinct:17d}"
               f"{executed:10d}{objects:14d}")  # fmt: skip
     total = [sum(v[i] for v in code.values()) for i in range(3)]  # (code objects: per phase)
     print(f"{'window':10s}{statistics.median(costs['window']) / 1e3:17.1f}{total[0]:17d}"
           f"{total[1]:10d}{total[2]:14d}")  # fmt: skip
+    before = sorted(costs["to POSE"])
+    p99 = before[99 * len(before) // 100]
+    print(f"before the POSE (read, poll, publish): median "
+          f"{statistics.median(before) / 1e3:.1f} us, p99 {p99 / 1e3:.1f} us, "
+          f"max {before[-1] / 1e3:.1f} us")  # fmt: skip
 
 
 if __name__ == "__main__":
