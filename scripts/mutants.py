@@ -441,6 +441,17 @@ MUTANTS = [
         ("tests/test_scalelearn.py",),
         "a block end of the screen's noise model the daemon deferred is never learnt",
     ),
+    Mutant(
+        "loop-learns-before-it-publishes",
+        "mousedom/service/daemon.py",
+        "        self.publisher.publish(tracker.poll(defer_learning=True))\n"
+        "        tracker.settle()",
+        "        batch = tracker.poll(defer_learning=True)\n"
+        "        tracker.settle()\n"
+        "        self.publisher.publish(batch)",
+        ("tests/test_daemon.py",),
+        "the loop learns from a block before the POSE of the window that ended it",
+    ),
 ]
 
 
