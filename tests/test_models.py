@@ -307,3 +307,33 @@ def test_lsq_is_invariant_to_the_order_of_mice(q, nm, seed):
     b = models.solve("lsq", d[:, perm], pos[perm], 1e-5)
     np.testing.assert_allclose(a.q, b.q, rtol=1e-8, atol=1e-13)
     np.testing.assert_allclose(a.residual[:, perm], b.residual, rtol=1e-8, atol=1e-13)
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    st.integers(3, 6).flatmap(
+        lambda n: st.tuples(
+            st.lists(st.floats(-0.3, 0.3), min_size=2 * n, max_size=2 * n),
+            st.lists(st.floats(0.05, 3.0), min_size=n, max_size=n),
+            st.lists(st.booleans(), min_size=n, max_size=n).filter(lambda v: sum(v) >= 2),
+            st.lists(st.floats(0.0, 1e-6), min_size=n, max_size=n),
+            st.lists(st.floats(0.0, 1e-6), min_size=n, max_size=n),
+        )
+    ),
+    st.sampled_from([(0, 1, 2), (0, 2)]),
+)
+def test_the_cached_noise_covariance_is_the_sandwich_of_its_values(drawn, cols):
+    """models.noise_covariance caches B diag(v) B^T on the values of its key: equal to
+    ``sandwich`` bit for bit for every variance asked (two in a row, so a stale entry
+    would show), and read-only (the cache hands the same array to every caller)."""
+    xy, sigma, live, v1, v2 = drawn
+    positions = np.array(xy).reshape(-1, 2)
+    key = (positions.tobytes(), np.array(sigma).tobytes(), np.array(live).tobytes(), cols)
+    est = models._estimator(*key)
+    if est is None:  # a rank-deficient pattern is solved by nobody
+        return
+    idx = np.flatnonzero(live)
+    for v in (np.array(v1)[idx], np.array(v2)[idx]):
+        got = models.noise_covariance(*key, v.tobytes())
+        assert got.tobytes() == models.sandwich(est[1], v, cols).tobytes()
+        assert not got.flags.writeable
