@@ -14,8 +14,8 @@
  *
  * One file per idea: decode.c (input_event records -> frames), knots.c (reports -> a
  * count function's knots, and a window's counts out of them), onewindow.c (one window's
- * solve and pose on floats), steady.c (the screen's common case); core.c holds the
- * module's table.
+ * solve and pose on floats), steady.c (the screen's common case), poseline.c (the POSE
+ * line); core.c holds the module's table.
  */
 #ifndef MOUSEDOM_CORE_H
 #define MOUSEDOM_CORE_H
@@ -38,6 +38,7 @@ CORE_FUNCTION(body_counts);
 CORE_FUNCTION(linear);
 CORE_FUNCTION(advance);
 CORE_FUNCTION(steady_window);
+CORE_FUNCTION(pose_line);
 
 /* Sets list[i] to a new float (the list takes the reference and drops the old item's);
  * -1 on error. */

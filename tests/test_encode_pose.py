@@ -3,12 +3,18 @@
 from __future__ import annotations
 
 import json
+import math
 
+import cores
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from test_core import needs_core
 
-from mousedom.service.protocol import encode, encode_pose, pose_message
+from mousedom import core
+from mousedom.fusion import scenarios, sim
+from mousedom.fusion.tracker import Tracker
+from mousedom.service.protocol import _json_names, encode, encode_pose, pose_message
 
 # every float, NaN and the infinities included (they must become null)
 anyfloat = st.floats(allow_nan=True, allow_infinity=True)
@@ -93,3 +99,58 @@ def test_every_field_lands_where_the_protocol_says():
             "suspect": ["left"],
             "consistent": False,
         }
+
+
+# The compiled core's line (csrc/poseline.c) against the Python's, byte for byte: every
+# float (NaN, the infinities, -0.0, subnormals: the core declines what is not finite),
+# names in any text (JSON escapes them), any count used.
+names = st.lists(st.text(max_size=8), max_size=3).map(tuple)
+
+
+@needs_core
+@settings(max_examples=300, deadline=None)
+@given(
+    st.floats(allow_nan=False, allow_infinity=False),
+    st.lists(anyfloat | finite, min_size=15, max_size=15),
+    st.integers(-(2**70), 2**70) | st.integers(0, 8),
+    st.booleans(),
+    names,
+    names,
+    names,
+    st.booleans(),
+    st.sampled_from([tuple, list]),
+)
+def test_the_compiled_pose_line_is_the_pythons(t, v, used, updating, missing, excluded,
+                                               suspect, consistent, seq):  # fmt: skip
+    args = (t, seq(v[0:3]), seq(v[3:6]), [seq(v[6:9]), seq(v[9:12]), seq(v[12:15])], used,
+            updating, missing, excluded, suspect, consistent)  # fmt: skip
+    lines = []
+    for name in ("c", "python"):
+        with cores.using(name):
+            lines.append(encode_pose(*args))
+    assert lines[0] == lines[1]
+    native = core.native.pose_line(round(t, 6), *args[1:6], *map(_json_names, args[6:9]),
+                                   consistent)  # fmt: skip
+    # it writes every line whose numbers are finite (a core that declines all fails here)
+    finite_line = all(math.isfinite(x) for x in (round(t, 6), *v)) and -(2**63) <= used < 2**63
+    assert (native is not None) == finite_line
+    assert native is None or native == lines[1]
+
+
+@needs_core
+def test_the_daemons_rows_are_written_by_the_compiled_core():
+    """What the daemon hands encode_pose (a PoseRow's Python values, a simulated drive's
+    windows on the one-window path) is of the types the core takes: it declines none."""
+    rig = scenarios.rig("square")
+    result = sim.simulate(rig, scenarios.drive(8.0, 5), seed=5)
+    tracker = Tracker(scenarios.config(rig), t0=float(result.motion.starts[0]))
+    rows = [r for b in sim.run_tracker_live(result, tracker) for r in b.rows()]
+    assert len(rows) >= 250
+    for r in rows:
+        pose, twist = (r.x, r.y, r.theta), (r.vx, r.vy, r.omega)
+        line = core.native.pose_line(round(r.t, 6), pose, twist, r.cov, r.used, r.ok, "[]", "[]",
+                                     "[]", r.consistent)  # fmt: skip
+        assert line is not None
+        with cores.using("python"):
+            assert line == encode_pose(r.t, pose, twist, r.cov, r.used, r.ok, (), (), (),
+                                       r.consistent)  # fmt: skip

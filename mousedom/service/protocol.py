@@ -337,7 +337,16 @@ def encode_pose(
 ) -> bytes:
     """``encode(pose_message(...))`` byte for byte, without the dict and the generic JSON
     encoder: the daemon writes one per window (tests check both give the same bytes).
-    Arguments are Python floats, ints and bools (``ndarray.tolist()``)."""
+    Arguments are Python floats, ints and bools (``ndarray.tolist()``).  The compiled core
+    writes the line where every number is finite and there is no gyro (csrc/poseline.c);
+    what it declines is written here."""
+    native = core.native
+    if native is not None and not len(gyro):
+        line = native.pose_line(round(float(t), 6), pose, twist, cov, used, updating,
+                                _json_names(missing), _json_names(excluded),
+                                _json_names(suspect), consistent)  # fmt: skip
+        if line is not None:
+            return line
     c0, c1, c2 = cov
     # float() of each (numpy scalars would write as np.float64(...)), by map: a few
     # bytecodes for the 16 values instead of a call each (this runs every window).
