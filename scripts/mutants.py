@@ -411,8 +411,8 @@ MUTANTS = [
     Mutant(
         "learning-not-deferred",
         "mousedom/fusion/tracker.py",
-        "            if not defer_learning:\n                self.settle()",
-        "            self.settle()",
+        "        if not defer_learning:\n            self.settle()\n        elif",
+        "        if True:\n            self.settle()\n        elif",
         ("tests/test_scalelearn.py",),
         "the block end stays between the window's last report and its POSE",
     ),
@@ -427,8 +427,8 @@ MUTANTS = [
     Mutant(
         "screen-block-end-not-deferred",
         "mousedom/fusion/robust.py",
-        "        if not defer_block_end and self.noise.seen >= self.noise.block:",
-        "        if self.noise.seen >= self.noise.block:",
+        "        if not defer_block_end:\n            self.settle()",
+        "        self.settle()",
         ("tests/test_scalelearn.py",),
         "the screen's noise model learns between the window's last report and its POSE",
     ),
@@ -451,6 +451,24 @@ MUTANTS = [
         "        self.publisher.publish(batch)",
         ("tests/test_daemon.py",),
         "the loop learns from a block before the POSE of the window that ended it",
+    ),
+    Mutant(
+        "loop-never-settles",
+        "mousedom/service/daemon.py",
+        "        tracker.settle()  # a learners' block end: after the POSE is out"
+        " (Tracker.settle)\n",
+        "",
+        ("tests/test_daemon.py",),
+        "the loop leaves a block's learning to its next poll: a fix in between misses it",
+    ),
+    Mutant(
+        "fix-does-not-settle",
+        "mousedom/fusion/tracker.py",
+        "        others, and their correlations with each other, are kept.\n"
+        '        """\n        self.settle()\n',
+        '        others, and their correlations with each other, are kept.\n        """\n',
+        ("tests/test_scalelearn.py",),
+        "a fix after a deferred block end sets the pose, then the learning gives back into it",
     ),
 ]
 

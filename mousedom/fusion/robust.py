@@ -216,8 +216,8 @@ class Screen(RigidTest):
         with ``defer_block_end`` it is left due for ``settle`` (Tracker.settle: the daemon
         learns once the window's POSE is out)."""
         self.noise.seen += 1
-        if not defer_block_end and self.noise.seen >= self.noise.block:
-            self.noise.end_block()
+        if not defer_block_end:
+            self.settle()
 
     @property
     def block_due(self) -> bool:
@@ -226,7 +226,7 @@ class Screen(RigidTest):
 
     def settle(self) -> None:
         """The noise model's block end that a window left due, if one did."""
-        if self.noise.seen >= self.noise.block:
+        if self.block_due:
             self.noise.end_block()
 
     # ----------------------------------------------------------------- common case

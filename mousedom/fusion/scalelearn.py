@@ -44,7 +44,7 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, DTypeLike
 
 GROUP_S = 0.1  # windows are summed over this long before they are compared
 BLOCK_S = 0.5  # the scales are renewed this often
@@ -70,10 +70,11 @@ def median(v: np.ndarray) -> float:
     mouse's window waited behind it."""
     s = np.sort(v)
     k = len(s) // 2
-    return float(s[k]) if len(s) % 2 else float((s[k - 1] + s[k]) / 2)
+    # np.median's own last step: the mean of the middle one or two (a mean of -0.0 is 0.0)
+    return float(np.mean(s[k : k + 1] if len(s) % 2 else s[k - 1 : k + 1]))
 
 
-def joined(chunks: Sequence[ArrayLike], dtype: type) -> np.ndarray:
+def joined(chunks: Sequence[ArrayLike], dtype: DTypeLike) -> np.ndarray:
     """A block's rows as one array: the chunks (arrays from ``add``, one window's lists
     from ``add_row``) concatenated; a lone chunk (replay's blocks: the tracker splits its
     windows at block ends) as it is, for np.concatenate would copy it: so the caller's

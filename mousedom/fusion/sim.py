@@ -29,7 +29,7 @@ and a gapped mouse draws as many stamp delays as it would have without its gaps.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -449,7 +449,7 @@ def run_tracker(result: SimResult, config: Config | None = None, **tracker_kw):
     return tracker.finish(), tracker
 
 
-def run_tracker_live(result: SimResult, tracker, poll=None) -> list:
+def run_tracker_live(result: SimResult, tracker, poll: Callable | None = None) -> list:
     """Feed a simulation as a live daemon would: every report in time order, on its own,
     as Python lists of an int count (what evdev gives), polling after each (``poll``:
     how, given the tracker; ``tracker.poll()`` by default); then finish.  Returns the

@@ -155,9 +155,12 @@ class Tracker:
         A learners' block end (every 0.5 s) costs 1.5-2 ms, ten times a window, and the
         screen's noise model's (every second) 0.4 ms: in the window that ends the block it
         stood between the last report and the POSE, and set the p99 of the daemon's
-        latency.  What it learns is for the windows after that one, so the
-        daemon publishes first and settles then; every method that reads or moves the pose
-        or closes windows settles first, so the results are those of learning at once."""
+        latency.  What it learns is for the windows after that one, so the daemon publishes
+        first and settles then.  Every method that sets the pose or closes windows settles
+        first, so the results are those of learning at once.  Reads (``pose``,
+        ``pose_cov``) do not, and may come from another thread (the metrics'): between the
+        two they give the published window's pose, without what the learning gives back.
+        """
         if self._learning_due:
             self._learning_due = False
             if self.screen is not None:  # (first, as when it learns within the window)
@@ -328,13 +331,13 @@ class Tracker:
 
     @property
     def pose(self) -> tuple[float, float, float]:
-        self.settle()
+        # (a read, so it does no work: the metrics thread reads it too; between
+        # poll(defer_learning=True) and settle() it is the published window's pose)
         x, y, theta = self._carried.pose
         return x, y, theta
 
     @property
     def pose_cov(self) -> np.ndarray:
-        self.settle()
         return np.array(self._carried.cov)
 
     def reset(self, x: float = 0.0, y: float = 0.0, theta: float = 0.0) -> None:
@@ -387,9 +390,10 @@ class Tracker:
         }
 
     def poll(self, defer_learning: bool = False) -> PoseBatch:
-        """Close every window that no future report can change.  ``defer_learning``: a
-        learners' block that the one window closed fills is learnt at ``settle()``, not
-        here (the daemon's: it publishes the window first)."""
+        """Close every window that no future report can change.  ``defer_learning``:
+        where one window closes (the daemon's case), the blocks it ends (the learners',
+        the screen's noise model's) are learnt at ``settle()``, not here: the daemon
+        publishes the window first.  Several windows (after a stall) learn as they go."""
         if self.t0 is None:
             return PoseBatch.empty(self.n_mice)
         # The earliest frontier of the live mice (a mouse that is not live waits for

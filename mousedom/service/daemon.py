@@ -97,7 +97,7 @@ class Daemon:
         freeze_heap: bool = False,
     ) -> None:
         """``freeze_heap``: the process is the daemon's own (``mousedom run``): its heap is
-        frozen at start and after each reload (``freeze_heap``, below)."""
+        frozen at start and after each reload (``freeze_heap``, above)."""
         # late: the numeric core loads when a daemon is made, not with the CLI
         from mousedom.fusion.tracker import Tracker
 
@@ -337,6 +337,7 @@ class Daemon:
         tracker = self.running.tracker
         self.publisher.publish(tracker.poll(defer_learning=True))
         tracker.settle()  # a learners' block end: after the POSE is out (Tracker.settle)
+        self.publisher.log_scales()  # (what that learning renewed)
         if timing is not None:
             timing.stop(self.publisher.poses)
 

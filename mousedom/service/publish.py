@@ -204,13 +204,19 @@ class Publisher:
         last = rows[-1]
         self._last_health = (last.state, last.reason)
         self._last_gyro = last.gyro
-        learner = self.running.tracker.scales
-        if self.scale_log.due(learner):  # renewed (twice a second of windows): its warnings
-            self.scale_log.renewed(learner, self.running.config.names, self.clock())
+        self.log_scales()
         if outputs:
             self._absolute_fixes()
         if len(residuals) > self._RESIDUALS_HELD:
             self.fold_window_health()
+
+    def log_scales(self) -> None:
+        """The learnt scales' warnings, if they were renewed (twice a second of windows)
+        since they were last read: after each window, and after the learning the loop does
+        once the window is out (Tracker.settle)."""
+        learner = self.running.tracker.scales
+        if self.scale_log.due(learner):
+            self.scale_log.renewed(learner, self.running.config.names, self.clock())
 
     def fold_window_health(self) -> None:
         """The held windows' residuals into each slot's sums, and the last window's health
@@ -276,6 +282,7 @@ class Publisher:
         socket's fix of all three coordinates is: map -> odom takes the jump (REP-105)."""
         for out, (x, y, theta) in self.outputs.fixes():
             tracker = self.running.tracker
+            tracker.settle()  # (the pose before the fix with what its window's learning gave)
             before = tracker.pose
             tracker.fix(x=x, y=y, theta=theta)
             log.info("pose set to (%.3f, %.3f, %.3f) by %s", x, y, theta, type(out).__name__)
