@@ -158,8 +158,9 @@ class Tracker:
         latency.  What it learns is for the windows after that one, so the daemon publishes
         first and settles then.  Every method that sets the pose or closes windows settles
         first, so the results are those of learning at once.  Reads (``pose``,
-        ``pose_cov``) do not, and may come from another thread (the metrics'): between the
-        two they give the published window's pose, without what the learning gives back.
+        ``pose_cov``, the learners' ``scales``, ``noise_rate``, ``screen``) do not, and
+        may come from another thread (the metrics'): between the two they give the
+        published window's state, without what the learning gives back or renews.
         """
         if self._learning_due:
             self._learning_due = False
