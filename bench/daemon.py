@@ -141,9 +141,21 @@ def write_config(d: Path, fifos: list[Path], rate_hz: float, extra: str = "") ->
     return path
 
 
+# Every child this bench starts (readers, daemons, feeders): main() ends them if the bench
+# itself is stopped, so that none goes on loading the machine (a ``mousedom run`` left by
+# a bench killed by ``timeout`` once ran for 40 minutes under the next measurements).
+_CHILDREN: list[subprocess.Popen] = []
+
+
+def _spawn(args: list[str], **kw) -> subprocess.Popen:
+    proc = subprocess.Popen(args, **kw)
+    _CHILDREN.append(proc)
+    return proc
+
+
 def start_feeder(fifos: list[Path], seconds: float, out: Path) -> subprocess.Popen:
     """The feeder runs as this file with --feed, in its own process (its own core)."""
-    return subprocess.Popen(
+    return _spawn(
         [sys.executable, __file__, "--feed", str(out), str(seconds), str(REPORT_HZ),
          *map(str, fifos)]
     )  # fmt: skip
@@ -202,7 +214,7 @@ def _start_daemon(
     config = write_config(d, fifos, rate_hz, extra)
     sock_path = d / "mousedom.sock"
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    daemon = subprocess.Popen(
+    daemon = _spawn(
         [
             sys.executable,
             *os.environ.get("BENCH_DAEMON_PY_ARGS", "").split(),
@@ -468,8 +480,7 @@ def run_floor(d: Path, seconds: float, rate_hz: float) -> dict:
     for f in fifos:
         os.mkfifo(f)
     env = dict(os.environ, BENCH_END=str(time.monotonic() + seconds + 4.0))
-    proc = subprocess.Popen([sys.executable, "-c", FLOOR, str(rate_hz), *map(str, fifos)],
-                            env=env)  # fmt: skip
+    proc = _spawn([sys.executable, "-c", FLOOR, str(rate_hz), *map(str, fifos)], env=env)
     time.sleep(0.3)
     feed = start_feeder(fifos, seconds + 1.5, d / "fstamps.npz")
     cpu, _, _ = _measure(proc, seconds)
@@ -488,8 +499,8 @@ def _run_script_reader(d: Path, name: str, script: str, seconds: float, rate_hz:
     sock_path = d / f"{name}.sock"
     env = dict(os.environ, BENCH_END=str(time.monotonic() + seconds + 4.0))
     xy = json.dumps([[float(x), float(y)] for x, y in positions(len(MICE))])
-    proc = subprocess.Popen([sys.executable, "-c", script, str(rate_hz), str(sock_path), xy,
-                             *map(str, fifos)], env=env)  # fmt: skip
+    proc = _spawn([sys.executable, "-c", script, str(rate_hz), str(sock_path), xy,
+                   *map(str, fifos)], env=env)  # fmt: skip
     while not sock_path.exists():
         time.sleep(0.01)
     client = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
@@ -554,6 +565,19 @@ def main() -> None:
         feeder(paths, float(seconds), out, float(report_hz))
         return
     configure(args.mice, args.report_hz)
+    # SIGTERM (a timeout's) as an exit, so that the children are ended below
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
+    try:
+        measure(args)
+    finally:
+        for proc in _CHILDREN:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+
+
+def measure(args: argparse.Namespace) -> None:
+    """The rounds and their figures (main's, once it has parsed the arguments)."""
     ours, floors, peers, minima = [], [], [], []
     with tempfile.TemporaryDirectory(prefix="mousedom-bench-") as tmp:
         for r in range(args.rounds):
