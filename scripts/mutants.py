@@ -411,8 +411,8 @@ MUTANTS = [
     Mutant(
         "learning-not-deferred",
         "mousedom/fusion/tracker.py",
-        "        if not defer_learning:\n            self.settle()\n        elif",
-        "        if True:\n            self.settle()\n        elif",
+        "        if not defer_learning:\n            self.settle()\n        return batch",
+        "        self.settle()\n        return batch",
         ("tests/test_scalelearn.py",),
         "the block end stays between the window's last report and its POSE",
     ),
@@ -435,8 +435,8 @@ MUTANTS = [
     Mutant(
         "screen-block-end-never-settled",
         "mousedom/fusion/tracker.py",
-        "            if self.screen is not None:  # (first, as when it learns within the window)\n"
-        "                self.screen.settle()\n",
+        "        if self.screen is not None:  # (first, as when it learns within the window)\n"
+        "            self.screen.settle()\n",
         "",
         ("tests/test_scalelearn.py",),
         "a block end of the screen's noise model the daemon deferred is never learnt",

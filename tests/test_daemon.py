@@ -246,11 +246,11 @@ def test_the_loop_publishes_a_window_before_it_learns_from_it(inproc):
     publish, poll = publisher.publish, tracker.poll
 
     def publishing(batch):
-        due_at_publish.append(tracker._learning_due)
+        due_at_publish.append(tracker.learning_due)
         publish(batch)
 
     def polling(defer_learning=False):
-        due_at_poll.append(tracker._learning_due)
+        due_at_poll.append(tracker.learning_due)
         return poll(defer_learning)
 
     publisher.publish, tracker.poll = publishing, polling  # (the loop looks them up)

@@ -220,19 +220,19 @@ def test_learning_after_the_pose_is_out_changes_no_window(seed, layout):
     polls, held, renewed, screened = [0], [0], [0], [0]
 
     def poll(tracker: Tracker) -> PoseBatch:
-        left = tracker._learning_due  # left by the last poll: this one settles it
+        left = tracker.learning_due  # left by the last poll: this one settles it
         version = tracker.scales.version
         batch = tracker.poll(defer_learning=True)
         if left:
             renewed[0] += tracker.scales.version - version
-        if tracker._learning_due and not left:
+        if tracker.learning_due and not left:
             held[0] += 1  # a block filled: its learning is still to come
             assert tracker.scales.version == version
             screened[0] += tracker.screen.block_due  # the screen's noise model's, too
             polls[0] += 1
             if polls[0] % 2 == 0:
                 tracker.settle()
-            if not tracker._learning_due:
+            if not tracker.learning_due:
                 renewed[0] += tracker.scales.version - version
         return batch
 
@@ -268,7 +268,7 @@ def test_setting_the_pose_after_a_deferred_block_end_learns_first(move):
         def poll(tracker: Tracker) -> PoseBatch:
             batch = tracker.poll(defer_learning=defer)
             polls[0] += 1
-            if tracker._learning_due:
+            if tracker.learning_due:
                 due.append(polls[0])
             if polls[0] == at:  # right after that poll, as a command would come
                 move(tracker)

@@ -123,7 +123,6 @@ class Tracker:
             self._learners = Learners(
                 setup, self._to_body, np.array([m.sigma for m in config.mice]), config.robust
             )
-        self._learning_due = False  # a block filled by poll(defer_learning=True): settle()
         self._rebind()
         self.evidence = SensorEvidence(
             [1.0 / m.report_hz for m in config.mice], [m.min_squal for m in config.mice]
@@ -162,14 +161,21 @@ class Tracker:
         may come from another thread (the metrics'): between the two they give the
         published window's state, without what the learning gives back or renews.
         """
-        if self._learning_due:
-            self._learning_due = False
-            if self.screen is not None:  # (first, as when it learns within the window)
-                self.screen.settle()
-            if self._learners is not None:
-                renewal = self._learners.end_block()
-                if renewal is not None:
-                    self._renew(renewal)
+        if self.screen is not None:  # (first, as when it learns within the window)
+            self.screen.settle()
+        learners = self._learners
+        if learners is not None and learners.due:
+            renewal = learners.end_block()
+            if renewal is not None:
+                self._renew(renewal)
+
+    @property
+    def learning_due(self) -> bool:
+        """A block ``poll(defer_learning=True)`` ended that ``settle`` has not learnt from."""
+        learners = self._learners
+        return (self.screen is not None and self.screen.block_due) or (
+            learners is not None and learners.due
+        )
 
     def _renew(self, renewal: Renewal) -> None:
         """A learner's block end (``Learners.add``): new scales applied, if any, with the
@@ -543,12 +549,10 @@ class Tracker:
         else:
             batch = self._one.solve(end, counts, live, evidence, turn, spans, defer_learning)
         learners = self._learners
-        if learners is not None and learners.add_row(counts, batch.rows()[0], live, before):
-            self._learning_due = True
+        if learners is not None:
+            learners.add_row(counts, batch.rows()[0], live, before)
         if not defer_learning:
             self.settle()
-        elif self.screen is not None and self.screen.block_due:
-            self._learning_due = True
         return batch
 
     # Up to this many windows per poll, _close_one (floats, no validation) is used; tests

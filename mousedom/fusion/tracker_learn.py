@@ -66,9 +66,9 @@ class Learners:
     def add_row(
         self, counts: list[tuple[float, float]], row: PoseRow, live: tuple[bool, ...],
         start: list[float],
-    ) -> bool:  # fmt: skip
+    ) -> None:  # fmt: skip
         """``add`` for the one window the daemon closed, on Python values, without the
-        learning: True when a block is full, and ``end_block`` is due before the next."""
+        learning: where a block is full (``due``), ``end_block`` comes before the next."""
         tracking, excluded, inconsistent = robust.TRACKING, robust.EXCLUDED, robust.INCONSISTENT
         ok = row.consistent
         usable = [ok and v and st == tracking for v, st in zip(live, row.state, strict=True)]
@@ -86,7 +86,11 @@ class Learners:
         step = [row.x - start[0], row.y - start[1]]
         scales = self.scales.add_row(counts, usable, held, q, step)
         self._full = (noise, scales)
-        return noise or scales
+
+    @property
+    def due(self) -> bool:
+        """add_row filled a block that end_block has not learnt from yet."""
+        return any(self._full)
 
     def end_block(self) -> Renewal | None:
         """The learning of the block ``add_row`` filled (the two learners are independent:

@@ -204,7 +204,6 @@ class Publisher:
         last = rows[-1]
         self._last_health = (last.state, last.reason)
         self._last_gyro = last.gyro
-        self.log_scales()
         if outputs:
             self._absolute_fixes()
         if len(residuals) > self._RESIDUALS_HELD:
@@ -212,8 +211,8 @@ class Publisher:
 
     def log_scales(self) -> None:
         """The learnt scales' warnings, if they were renewed (twice a second of windows)
-        since they were last read: after each window, and after the learning the loop does
-        once the window is out (Tracker.settle)."""
+        since they were last read.  The daemon asks once a window's learning is done (after
+        Tracker.settle, and after the last windows at a reload or a stop)."""
         learner = self.running.tracker.scales
         if self.scale_log.due(learner):
             self.scale_log.renewed(learner, self.running.config.names, self.clock())

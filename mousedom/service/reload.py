@@ -95,6 +95,7 @@ class Reloader:
         """What is already readable belongs to the old windows: read it, close them all."""
         self.sensors.read_live()
         self.publisher.publish(self.running.tracker.finish())
+        self.publisher.log_scales()
 
     def _stop_recording_if_mice_changed(self, new: Config) -> None:
         outputs = self.publisher.outputs
