@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import math
 import os
 import statistics
 import subprocess
@@ -96,16 +97,29 @@ class Rig:
             if time.monotonic() > deadline:
                 raise SystemExit("the client did not connect")
         self.k = 0
+        self.sent = [0] * n_mice  # reports written per mouse
+        self.last = [-math.inf] * n_mice  # the last one's stamp
 
     def feed(self) -> None:
-        """Window k's reports, each mouse's last one just past the window's end."""
-        start = T0 + self.k * PERIOD
-        per = max(1, round(self.report_hz * PERIOD))
+        """Window k's reports: each mouse's up to its first one past the window's end (its
+        own rate, phase-shifted per mouse, whatever the rate's ratio to the windows), and
+        the clock set to when the daemon would wake for that window."""
+        end = T0 + (self.k + 1) * PERIOD
+        gap = 1.0 / self.report_hz
+        first_after = []
         for i, fd in enumerate(self.writers):
-            phase = (i + 0.5) / (self.n_mice * self.report_hz)
-            os.write(fd, reports([start + phase + j / self.report_hz
-                                  for j in range(1, per + 1)], 1, -3))  # fmt: skip
-        self.now = start + PERIOD + 1.0 / self.report_hz + 0.0031  # past the silence rule
+            times = []
+            while self.last[i] <= end:
+                self.sent[i] += 1
+                self.last[i] = T0 + (i + 0.5) * gap / self.n_mice + self.sent[i] * gap
+                times.append(self.last[i])
+            if times:
+                os.write(fd, reports(times, 1, -3))
+            first_after.append(self.last[i])
+        # As the daemon wakes (its _plan): the window is final when no report still to
+        # come can join a mouse's first span past its end, half a period after it, plus
+        # the read latency (0 for a paced source such as these FIFOs), here 0.1 ms on.
+        self.now = max(first_after) + 0.5 * gap + self.daemon.sensors.max_latency() + 1e-4
         self.k += 1
 
     def phases(self):
@@ -180,9 +194,9 @@ def main() -> None:
             code = footprint(rig)
         finally:
             rig.close()
-    # Each window is closed by the next one's reports; the last (footprint's) waits for
-    # them or for the silence rule (late_report_s after its reports), which never comes.
-    if rig.daemon.poses != rig.k - 1:
+    # Each window is closed by the next one's reports or by the time past its last ones;
+    # the last (footprint's) may wait for the silence rule (late_report_s), never reached.
+    if not rig.k - 1 <= rig.daemon.poses <= rig.k:
         raise SystemExit(f"{rig.daemon.poses} poses for {rig.k} windows: the rig is off")
     print(f"{args.mice} mice x {args.report_hz:g} Hz, POSE at {1 / PERIOD:g} Hz, "
           f"{args.windows} windows, each after a {PERIOD * 1e3:g} ms sleep")  # fmt: skip

@@ -453,6 +453,23 @@ MUTANTS = [
         "the loop learns from a block before the POSE of the window that ended it",
     ),
     Mutant(
+        "several-windows-all-deferred",
+        "mousedom/fusion/tracker.py",
+        "for row in self._close_one(False).rows()]",
+        "for row in self._close_one(defer_learning).rows()]",
+        ("tests/test_scalelearn.py",),
+        "a poll of several windows defers every block end in it: the next window's rows"
+        " go into a block not yet learnt",
+    ),
+    Mutant(
+        "several-windows-take-the-array-path",
+        "mousedom/fusion/tracker.py",
+        "    _SMALL = 8\n",
+        "    _SMALL = 1\n",
+        ("tests/test_scalelearn.py",),
+        "a daemon's poll of two windows pays the array path's fixed cost (0.5 ms)",
+    ),
+    Mutant(
         "loop-never-settles",
         "mousedom/service/daemon.py",
         "        tracker.settle()  # a learners' block end: after the POSE is out"

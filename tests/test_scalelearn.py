@@ -245,6 +245,59 @@ def test_learning_after_the_pose_is_out_changes_no_window(seed, layout):
     assert_same_batches(a, b)
 
 
+@pytest.mark.parametrize(("seed", "layout"), [(3, "triangle"), (8, "pentagon")])
+def test_deferred_learning_with_several_windows_a_poll(seed, layout):
+    """A daemon's poll that closes several windows at once (a second wake, a stall, a
+    report rate that pairs windows up) takes them one by one on floats: the windows before
+    the last learn at their block ends as they go, the last defers as asked.  Polls of 1
+    to 8 windows at random, with learning to do (a CPI 3 % off, a noisier mouse): every
+    window as when the same polls learn at once, and as polls after every report but for
+    rounding (the knots of several windows' reports are rebased after, not before)."""
+    base = scenarios.rig(layout)
+    mice = list(base.mice)
+    mice[-1] = dataclasses.replace(mice[-1], cpi_x=mice[-1].cpi_x * 0.97,
+                                   cpi_y=mice[-1].cpi_y * 0.97)  # fmt: skip
+    mice[0] = dataclasses.replace(mice[0], noise=4 * mice[0].noise)
+    result = sim.simulate(dataclasses.replace(base, mice=tuple(mice)),
+                          scenarios.drive(15.0, seed), seed=seed)  # fmt: skip
+    cfg = scenarios.config(base)
+    t0 = float(result.motion.starts[0])
+    period = 1.0 / cfg.rate_hz
+    # run_tracker_live pushes the reports in time order, polling after each
+    stamps = sorted(t for r in result.reports.values() for t in r.t.tolist())
+
+    def run(defer: bool) -> tuple[PoseBatch, list[int], Tracker]:
+        rng = np.random.default_rng(seed)
+        sizes: list[int] = []
+        at, wait = [0], [-np.inf]
+
+        def poll(tracker: Tracker) -> PoseBatch:
+            now = stamps[at[0]]
+            at[0] += 1
+            if now < wait[0]:
+                return PoseBatch.empty(len(base.mice))
+            batch = tracker.poll(defer_learning=defer)
+            sizes.append(len(batch))
+            wait[0] = now + period * int(rng.integers(0, 8))
+            return batch
+
+        tracker = Tracker(cfg, t0=t0)
+        out = sim.run_tracker_live(result, tracker, poll)
+        return PoseBatch.concat(out, len(base.mice)), sizes, tracker
+
+    deferred, sizes, tracker = run(True)
+    at_once, _, _ = run(False)
+    # (the first polls close the quiet time before t0's first reports: the array path)
+    assert 6 <= max(sizes[5:]) <= Tracker._SMALL and sizes.count(1) > 20  # both kinds
+    assert sum(n > 1 for n in sizes) > 100
+    assert tracker.scales.scale[-1, 0] != 1.0  # learnt and applied meanwhile
+    assert_same_batches(at_once, deferred)
+    each = PoseBatch.concat(sim.run_tracker_live(result, Tracker(cfg, t0=t0)), len(base.mice))
+    assert np.array_equal(each.t, deferred.t) and np.array_equal(each.used, deferred.used)
+    for key in ("x", "y", "theta"):
+        assert np.allclose(getattr(each, key), getattr(deferred, key), rtol=0, atol=1e-12)
+
+
 @pytest.mark.parametrize(
     "move", [lambda t: t.fix(theta=0.25), lambda t: t.reset(0.5, -0.5, 0.25)], ids=["fix", "reset"]
 )

@@ -484,7 +484,15 @@ class Tracker:
             if m.n_knots() > self._KNOTS_SMALL:
                 small = False
         if small:
-            return self._close_one(defer_learning)
+            if k_new - k_old == 1:
+                return self._close_one(defer_learning)
+            # A few windows at once (a second wake, a report rate that pairs windows up):
+            # one by one, each learning at its block end as the array path does, the
+            # last as the caller asks.  Warm after the first, each costs a fraction of
+            # the array path's fixed cost (~0.5 ms a call).
+            rows = [row for _ in range(k_new - k_old - 1) for row in self._close_one(False).rows()]
+            rows += self._close_one(defer_learning).rows()
+            return PoseBatch.from_rows(rows)
         n = k_new - k_old
         edges = self._grid.start_time() + self.period * np.arange(k_old, k_new + 1)
         counts = np.zeros((n, self.n_mice, 2))
@@ -555,6 +563,8 @@ class Tracker:
             self.settle()
         return batch
 
-    # Up to this many windows per poll, _close_one (floats, no validation) is used; tests
-    # set it to 0 to compare it with the array path.
-    _SMALL = 1
+    # Up to this many windows per poll, _close_one (floats, no validation) is used, one
+    # window after the other; tests set it to 0 to compare it with the array path.  The
+    # array path's fixed cost is about that of 15 windows on floats (4 mice, warm; bench:
+    # docs/performance.md), and a poll of more windows is a stall's catch-up or replay.
+    _SMALL = 8
