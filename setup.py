@@ -7,7 +7,8 @@ from setuptools import Extension, setup
 # One file per idea (csrc/core.h says which); the header is listed so that a change to it
 # rebuilds, and MANIFEST.in puts it in the sdist.
 SOURCES = [
-    f"csrc/{name}.c" for name in ("core", "decode", "knots", "onewindow", "steady", "poseline")
+    f"csrc/{name}.c"
+    for name in ("core", "decode", "knots", "onewindow", "steady", "poseline", "evemu")
 ]
 HEADERS = ["csrc/core.h"]
 # -ffp-contract=off: no fused multiply-add, so every float is the one Python computes.

@@ -6,6 +6,7 @@
 static PyMethodDef methods[] = {
     ENTRY(feed_bytes), ENTRY(forward_list), ENTRY(ingest_small), ENTRY(close_knots),
     ENTRY(body_counts), ENTRY(linear), ENTRY(advance), ENTRY(steady_window), ENTRY(pose_line),
+    ENTRY(evemu_events),
     {NULL, NULL, 0, NULL},
 };
 

@@ -15,7 +15,7 @@
  * One file per idea: decode.c (input_event records -> frames), knots.c (reports -> a
  * count function's knots, and a window's counts out of them), onewindow.c (one window's
  * solve and pose on floats), steady.c (the screen's common case), poseline.c (the POSE
- * line); core.c holds the module's table.
+ * line), evemu.c (evemu event lines into columns); core.c holds the module's table.
  */
 #ifndef MOUSEDOM_CORE_H
 #define MOUSEDOM_CORE_H
@@ -39,6 +39,7 @@ CORE_FUNCTION(linear);
 CORE_FUNCTION(advance);
 CORE_FUNCTION(steady_window);
 CORE_FUNCTION(pose_line);
+CORE_FUNCTION(evemu_events);
 
 /* Sets list[i] to a new float (the list takes the reference and drops the old item's);
  * -1 on error. */

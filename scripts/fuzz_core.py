@@ -9,8 +9,9 @@ script again in a child with the ASan runtime preloaded (Python itself is not
 instrumented) and that build in place of ``mousedom._core``.  The child feeds the core
 random bytes, mouse-like event streams and extreme carried states, cut at random byte
 offsets, and checks every result against the Python reference (``FrameAssembler`` with
-the core off); and calls the window functions with random and hostile lists
-(scripts/fuzz_core_window.py).  A read or write out of bounds, undefined behaviour (a
+the core off); calls the window functions with random and hostile lists
+(scripts/fuzz_core_window.py); and scans evemu event lines, near misses and random bytes
+(against ``general_events``).  A read or write out of bounds, undefined behaviour (a
 signed overflow, a misaligned load) or a result unlike the Python's ends it with a
 non-zero exit status.
 tests/test_core_sanitized.py runs it for a bounded time in the suite; longer runs here.
@@ -147,6 +148,56 @@ def _ingest_same(sanitized, rnd: random.Random, reference) -> bool:
     return same == ref and bits == ref_bits
 
 
+_NEAR_MISSES = ("", "E:", "e: ", "E:  ", "..", "\t", "  ", "\r", "--", "+-", " x", "#", "x",
+                "\x00", "\xff", "0" * 13, "1" * 10, "f" * 5, "\n", "E: 1.5 2 3 4")  # fmt: skip
+
+
+def _evemu_line(rnd: random.Random) -> list[str]:
+    """A valid evemu event line of random widths, as its pieces."""
+
+    def run(chars: str, lo: int, hi: int) -> str:
+        return "".join(rnd.choice(chars) for _ in range(rnd.randint(lo, hi)))
+
+    hexd = "0123456789abcdefABCDEF"
+    return ["E: ", run("0123456789", 1, 12), ".", run("0123456789", 1, 9), " ",
+            run(hexd, 1, 4), " ", run(hexd, 1, 4), " ", rnd.choice(["", "-", "+"]),
+            run("0123456789", 1, 9),
+            rnd.choice(["", " ", "\t# EV_REL / REL_X 5", "  # c", " \r", "\t#"]), "\n"]  # fmt: skip
+
+
+def _evemu_block(rnd: random.Random) -> bytes:
+    """Lines of evemu events, now and then one piece a near miss, or random bytes."""
+    if rnd.random() < 0.1:
+        return rnd.randbytes(rnd.randint(0, 200))
+    lines = [_evemu_line(rnd) for _ in range(rnd.randint(0, 30))]
+    for _ in range(rnd.choice((0, 0, 1, 2))):
+        if lines:
+            line = rnd.choice(lines)
+            line[rnd.randrange(len(line))] = rnd.choice(_NEAR_MISSES)
+    return "".join("".join(line) for line in lines).encode("latin-1")
+
+
+def _evemu_same(sanitized, rnd: random.Random) -> bool:
+    """The compiled scanner against ``general_events`` on one block, cut anywhere."""
+    from mousedom.capture.evemu_lines import general_events, native_events
+
+    block = _evemu_block(rnd)
+    block = block[: rnd.randint(0, len(block))] if rnd.random() < 0.2 else block
+    want = general_events(block, 1)
+    got = native_events(sanitized, block, 1)
+    if (want is None) != (got is None):
+        return False
+    if want is not None and got is not None:
+        EVEMU["taken"] += 1
+        return all(getattr(want, k).tobytes() == getattr(got, k).tobytes()
+                   for k in ("t", "typ", "code", "value", "line"))  # fmt: skip
+    EVEMU["refused"] += 1
+    return True
+
+
+EVEMU = {"taken": 0, "refused": 0}
+
+
 def child(seconds: float, seed: int) -> int:
     sys.path.insert(0, str(REPO))
     from fuzz_core_window import TALLY, window_same  # (scripts/, this script's directory)
@@ -191,6 +242,11 @@ def child(seconds: float, seed: int) -> int:
             print(f"fuzz_core: case {cases} (seed {seed}) differs from the Python", file=sys.stderr)
             return 1
         for _ in range(4):
+            if not _evemu_same(sanitized, rnd):
+                print(f"fuzz_core: case {cases} (seed {seed}): evemu_events differs from "
+                      "general_events", file=sys.stderr)  # fmt: skip
+                return 1
+        for _ in range(4):
             differs = window_same(sanitized, rnd)
             if differs is not None:
                 print(f"fuzz_core: case {cases} (seed {seed}): {differs}", file=sys.stderr)
@@ -198,7 +254,11 @@ def child(seconds: float, seed: int) -> int:
         cases += 1
     calls = sum(TALLY.values())
     print(f"fuzz_core: {cases} cases in {seconds:g} s, seed {seed}: no fault, all as the Python; "
-          f"window calls {calls}: " + ", ".join(f"{v} {k}" for k, v in TALLY.items()))  # fmt: skip
+          f"window calls {calls}: " + ", ".join(f"{v} {k}" for k, v in TALLY.items())
+          + f"; evemu blocks {EVEMU['taken']} taken, {EVEMU['refused']} refused")  # fmt: skip
+    if EVEMU["taken"] < cases or EVEMU["refused"] < cases // 4:
+        print("fuzz_core: too few evemu blocks taken or refused to compare", file=sys.stderr)
+        return 1
     if calls and TALLY["compared"] < calls // 4:
         print("fuzz_core: the core declined most window calls: too few compared", file=sys.stderr)
         return 1

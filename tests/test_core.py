@@ -265,3 +265,96 @@ def test_forward_list_declines_other_than_floats_and_changes_nothing():
     assert core.native.forward_list(lst, 1.0, 0.0, 60.0, 1.0) is None
     assert lst == [1.0, 2, 0.5]
     assert core.native.forward_list([1.0], 1, 0.0, 60.0, 1.0) is None
+
+
+# evemu event lines (csrc/evemu.c): valid lines of any widths built from pieces, and now
+# and then one piece of one line swapped for a near miss (a width past the limit, a tab
+# for a space, a stray byte, no point, a sign alone, junk after the value), so that both
+# sides of every rule are drawn.
+_VALID_PIECES = (
+    st.just("E: "),
+    st.text("0123456789", min_size=1, max_size=12),
+    st.just("."),
+    st.text("0123456789", min_size=1, max_size=9),
+    st.just(" "), st.text("0123456789abcdefABCDEF", min_size=1, max_size=4),
+    st.just(" "), st.text("0123456789abcdefABCDEF", min_size=1, max_size=4),
+    st.just(" "),
+    st.sampled_from(["", "-", "+"]),
+    st.text("0123456789", min_size=1, max_size=9),
+    st.sampled_from(["", " ", "\t# EV_REL / REL_X 5", "  # c", " \r", " # é", "\t#"]),
+)  # fmt: skip
+_NEAR_MISS = st.one_of(
+    st.sampled_from(["", "E:", "E:\t", "e: ", "N: ", "E:  ", "..", "\t", "  ", "\r", "--",
+                     "+-", " x", "#", "x", "\x00", "é", "0" * 13, "1" * 10, "f" * 5]),
+    st.text("0123456789", min_size=10, max_size=14),
+    st.integers(-(2**33), 2**33).map(str),
+    st.text(max_size=3),
+)  # fmt: skip
+_evemu_piece_line = st.tuples(*_VALID_PIECES).map(list)
+
+
+@st.composite
+def _evemu_block(draw) -> str:
+    lines = draw(st.lists(_evemu_piece_line, min_size=0, max_size=12))
+    if lines and draw(st.booleans()):
+        line = lines[draw(st.integers(0, len(lines) - 1))]
+        line[draw(st.integers(0, len(line) - 1))] = draw(_NEAR_MISS)
+    return "".join("".join(line) + "\n" for line in lines)
+
+
+def _as_events(ev) -> tuple | None:
+    if ev is None:
+        return None
+    return tuple(getattr(ev, k).tobytes() for k in ("t", "typ", "code", "value", "line"))
+
+
+@needs_core
+@settings(max_examples=1500, deadline=None)
+@given(_evemu_block(), st.binary(max_size=3))
+def test_evemu_events_is_general_events_bit_for_bit(text, tail):
+    """The compiled scanner takes exactly the blocks general_events takes, with the same
+    columns bit for bit (times from any width of fraction), and refuses the others (the
+    line parser then names the bad line); also for a block not ending in a newline."""
+    from mousedom.capture.evemu_lines import general_events, native_events
+
+    block = text.encode("utf-8", "surrogatepass")
+    for data in (block, block + tail):
+        want = _as_events(general_events(data, 5))
+        got = _as_events(native_events(core.native, memoryview(data), 5))
+        assert got == want
+
+
+@needs_core
+@settings(max_examples=300, deadline=None)
+@given(
+    st.lists(
+        st.tuples(
+            st.integers(0, 10**12 - 1), st.integers(0, 999_999_999), st.integers(1, 9),
+            st.integers(0, 0xFFFF), st.integers(0, 0xFFFF), st.integers(-(2**31), 2**31 - 1),
+        ),
+        min_size=1, max_size=30,
+    )
+)  # fmt: skip
+def test_evemu_events_takes_every_valid_line_as_the_line_parser_reads_it(lines):
+    """Every valid line of any widths (within the parsers' limits) is taken, and its time,
+    type, code and value are the line parser's (the specification) bit for bit."""
+    from mousedom.capture.evemu_lines import native_events, slow_events
+
+    text = "".join(
+        f"E: {sec}.{frac % 10**w:0{w}d} {ty:x} {co:04X} {va:+d}\n"
+        for sec, frac, w, ty, co, va in lines
+    )
+    block = text.encode()
+    got = native_events(core.native, block, 1)
+    assert got is not None
+    assert _as_events(got) == _as_events(slow_events("x", block, 1, at_eof=False))
+
+
+@needs_core
+def test_evemu_events_refuses_outputs_too_short_with_a_python_error():
+    import numpy as np
+
+    block = b"E: 1.000001 0002 0000 5\n" * 3
+    short = np.empty(0)
+    with pytest.raises(ValueError, match="too short"):
+        core.native.evemu_events(block, short, short, short, short)

@@ -3,15 +3,20 @@
 ``fast_events`` parses a whole block of ``E:`` lines on its bytes as one numpy array:
 first as evemu writes them (``regular_events``, ``evemu_regular``: fixed offsets from
 the decimal point, one optional tab comment), else with any blanks and widths (``general_events``);
-``slow_events`` goes line by line and names the first bad line.  The reader tries the
+``slow_events`` goes line by line and names the first bad line.  Where the compiled core
+is built, ``general_events`` runs compiled (csrc/evemu.c) in place of both vectorised
+parsers, which stay as the Python core's path and its specification.  The reader tries the
 fast one first and falls back to the slow one for any block it refuses, so the fast
 paths only have to be right, never clever about errors; the tests check that all agree.
 """
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
+from mousedom import core
 from mousedom.capture.base import CaptureError
 from mousedom.capture.evemu_regular import line_bounds, regular_columns
 from mousedom.errors import located
@@ -67,9 +72,25 @@ def _digits(b: np.ndarray, begin: np.ndarray, end: np.ndarray, base: int, width:
 
 
 def fast_events(block: bytes | memoryview, first_line: int) -> Events | None:
-    """Parse a block of whole lines when every one is a plain E: line; else None."""
+    """Parse a block of whole lines when every one is a plain E: line; else None.  In the
+    compiled core where it is built (csrc/evemu.c: ``general_events`` in one pass)."""
+    native = core.native
+    if native is not None:
+        return native_events(native, block, first_line)
     ev = regular_events(block, first_line)
     return ev if ev is not None else general_events(block, first_line)
+
+
+def native_events(native: Any, block: bytes | memoryview, first_line: int) -> Events | None:
+    """``general_events`` by the compiled core: the same lines taken, the same refused."""
+    cap = len(block) // 12  # a line takes at least 12 bytes ("E: 0.0 0 0 0" and newline)
+    t = np.empty(cap)
+    typ, code, value = (np.empty(cap, dtype=np.int64) for _ in range(3))
+    n = native.evemu_events(block, t, typ, code, value)
+    if n is None:
+        return None
+    line = np.arange(first_line, first_line + n, dtype=np.int64)
+    return Events(t[:n], typ[:n], code[:n], value[:n], line)
 
 
 def regular_events(block: bytes | memoryview, first_line: int) -> Events | None:
