@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import statistics
 
 import cores
 import numpy as np
@@ -53,6 +54,25 @@ def test_chi2_survival_is_the_integral_of_the_density(dof, x):
     dens = np.exp((k - 1) * np.log(grid) - grid / 2 - k * math.log(2) - math.lgamma(k))
     integral = float(np.sum((dens[1:] + dens[:-1]) * np.diff(grid)) / 2)
     assert chi2.survival(x, dof) == pytest.approx(integral, rel=1e-5, abs=1e-12)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(300, 20000), st.sampled_from([0.5, 0.9, 0.99, 0.999, 0.9999]))
+def test_chi2_quantiles_of_pooled_sums_of_many_degrees(dof, p):
+    """Past x = 1200 (a NEES pooled over hundreds of degrees) the survival's direct sums
+    overflow; the quantiles there agree with Wilson & Hilferty's cube-root normal
+    approximation (to within 0.2 / dof relative: its error falls as 1 / dof), the
+    survival stays within [0, 1], falling, and the two ways of summing meet at the
+    switch."""
+    z = statistics.NormalDist().inv_cdf(p)
+    wilson = dof * (1 - 2 / (9 * dof) + z * math.sqrt(2 / (9 * dof))) ** 3
+    q = chi2.quantile(p, dof)
+    assert q == pytest.approx(wilson, rel=0.2 / dof)
+    assert 0.0 <= chi2.survival(1.001 * q, dof) < chi2.survival(q, dof) <= 1.0
+    assert chi2.survival(q, dof) == pytest.approx(1 - p, rel=1e-6)
+    assert chi2._survival_logs(599.9999, dof) == pytest.approx(
+        chi2.survival(1199.9998, dof), rel=1e-11, abs=1e-300
+    )
 
 
 # --------------------------------------------------------------------------- faults, 3+ mice

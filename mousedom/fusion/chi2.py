@@ -5,7 +5,9 @@ chi-square distribution for 1..2N degrees of freedom.  For whole k the survival 
 a closed form (Abramowitz & Stegun 26.4.4-26.4.5): with h = x/2,
   even k: Q = exp(-h) sum_{j<k/2} h^j / j!
   odd k:  Q = erfc(sqrt h) + exp(-h) sum_{j<(k-1)/2} h^(j+1/2) / Gamma(j + 3/2)
-and the quantile is found by bisection on it (Q falls monotonically in x).
+and the quantile is found by bisection on it (Q falls monotonically in x).  Past x = 1200
+(pooled sums of hundreds of degrees) the terms are summed in logs, where the direct sums
+would overflow.
 """
 
 from __future__ import annotations
@@ -21,6 +23,8 @@ def survival(x: float, dof: int) -> float:
     if x <= 0:
         return 1.0
     h = 0.5 * x
+    if h > _DIRECT_H:
+        return _survival_logs(h, dof)
     if dof % 2 == 0:
         term, total = 1.0, 1.0
         for j in range(1, dof // 2):
@@ -35,6 +39,20 @@ def survival(x: float, dof: int) -> float:
             term *= h / (j + 0.5)
         acc += term
     return total + math.exp(-h) * acc
+
+
+# Beyond this h the sums' terms (up to about e^h) and exp(-h) leave float64's range
+# (e^709 overflows, e^-709 is subnormal): the sum is then taken term by term in logs.
+_DIRECT_H = 600.0
+
+
+def _survival_logs(h: float, dof: int) -> float:
+    """``survival``'s sums with each term exp(log term - h), added exactly (fsum)."""
+    log_h = math.log(h)
+    if dof % 2 == 0:
+        return math.fsum(math.exp(j * log_h - math.lgamma(j + 1) - h) for j in range(dof // 2))
+    terms = (math.exp((j + 0.5) * log_h - math.lgamma(j + 1.5) - h) for j in range((dof - 1) // 2))
+    return math.erfc(math.sqrt(h)) + math.fsum(terms)
 
 
 @functools.lru_cache(maxsize=512)
