@@ -267,14 +267,16 @@ def save(
     *,
     model: str = "lsq",
     rates: dict[str, float] | None = None,
+    inputs: Sequence[str] = (),
 ) -> None:
+    """Draw the run and write it to ``path`` (none of ``inputs``: see safewrite)."""
     import matplotlib.pyplot as plt
 
     fig = figure(collector, names, model=model, rates=rates, title=title)
     kind = os.path.splitext(path)[1].lstrip(".").lower() or "png"
     try:
         # A temporary file beside the target, renamed over it: no link followed.
-        replace_file(path, lambda tmp: fig.savefig(tmp, dpi=110, format=kind))
+        replace_file(path, lambda tmp: fig.savefig(tmp, dpi=110, format=kind), inputs)
     except ValueError as e:  # a file ending matplotlib cannot write
         raise UserError(f"{path}: cannot write the plot: {e}") from None
     finally:

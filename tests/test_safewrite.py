@@ -140,3 +140,81 @@ def test_run_record_onto_the_running_config_is_refused(tmp_path):
     assert proc.returncode != 0
     assert "is the input" in proc.stderr and "Traceback" not in proc.stderr
     assert cfg.read_bytes() == before
+
+
+def _rig_with_inputs(tmp_path):
+    """A rig whose config names a calibration file, an old evemu pair (.events + .desc)
+    given on the command line, and a second capture named only by the config's replay:."""
+    for ext in ("events", "desc"):
+        (tmp_path / f"ps2.{ext}").write_bytes((external_dir() / f"{PS2[:-7]}.{ext}").read_bytes())
+    (tmp_path / "other.events").write_bytes((external_dir() / PS2).read_bytes())
+    (tmp_path / "rig.calib.yaml").write_text("mice:\n  m: {cpi: 812}\n")
+    rig = ("rate_hz: 100\nmodel: diff-drive\ncalibration: rig.calib.yaml\nmice:\n"
+           "  m: {cpi: 800, mount: {x: 0.1, y: 0.0, yaw: 0}, report_hz: 125}\n")  # fmt: skip
+    (tmp_path / "rig.yaml").write_text(rig)
+    (tmp_path / "rigr.yaml").write_text(rig.replace("125}", "125, replay: other.events}"))
+    return {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+
+
+UMBMARK = ("--umbmark", "cw", "--true-end", "0,0")
+
+
+@pytest.mark.parametrize(
+    ("command", "target"),
+    [
+        (("replay", "-c", "rig.yaml", "--capture", "m=ps2.events", "-o"), "rig.calib.yaml"),
+        (("convert", "-c", "rig.yaml", "--capture", "m=ps2.events", "-o"), "rig.calib.yaml"),
+        (("replay", "-c", "rig.yaml", "--capture", "m=ps2.events", "--plot"), "rig.calib.yaml"),
+        (("replay", "-c", "rig.yaml", "--capture", "m=ps2.events", *UMBMARK, "--umbmark-csv"),
+         "rig.calib.yaml"),
+        (("replay", "-c", "rig.yaml", "--capture", "m=ps2.events", *UMBMARK, "--umbmark-csv"),
+         "ps2.desc"),
+        (("replay", "-c", "rigr.yaml", *UMBMARK, "--umbmark-csv"), "other.events"),
+        (("replay", "-c", "rigr.yaml", "-o"), "other.events"),
+        (("replay", "-c", "rig.yaml", "--capture", "m=ps2.events", "-o", "x.csv", "--plot"),
+         "x.csv"),
+        (("replay", "-c", "rig.yaml", "--capture", "m=ps2.events", *UMBMARK, "-o", "x.csv",
+          "--umbmark-csv"), "x.csv"),
+    ],
+    ids=["replay-o-calibration", "convert-o-calibration", "plot-calibration",
+         "umbmark-csv-calibration", "umbmark-csv-desc", "umbmark-csv-config-replay",
+         "replay-o-config-replay", "two-outputs-one-file", "csv-and-umbmark-one-file"],
+)  # fmt: skip
+def test_no_output_names_an_input_or_another_output(tmp_path, command, target):
+    """Every file a run reads (the config, its calibration, a capture, an evemu pair's
+    .desc, a capture named by the config's replay:) is refused as any output's path, and
+    so is one file for two outputs: one line naming it, a non-zero exit, every file as it
+    was (found by a sweep: the calibration and these captures were overwritten)."""
+    before = _rig_with_inputs(tmp_path)
+    proc = run_mousedom(*command, target, cwd=tmp_path)
+    assert proc.returncode == 2, proc.stderr
+    _one_error_line(proc.stderr, target)
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
+
+
+def test_two_outputs_may_share_a_device(tmp_path):
+    """/dev/null takes the CSV and the UMBmark row alike (a run kept for its exit code)."""
+    _rig_with_inputs(tmp_path)
+    proc = run_mousedom("replay", "-c", "rig.yaml", "--capture", "m=ps2.events", *UMBMARK,
+                        "-o", os.devnull, "--umbmark-csv", os.devnull, cwd=tmp_path)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+
+
+@pytest.mark.parametrize("target", ["rig.calib.yaml", "other.events", "ps2.desc"])
+def test_run_record_onto_a_file_the_config_reads_is_refused(tmp_path, target):
+    """`run --record` onto the config's calibration, the capture its replay: names or that
+    capture's .desc: one line, a non-zero exit, before anything is written."""
+    _rig_with_inputs(tmp_path)
+    (tmp_path / "ps2.events").unlink()  # the .desc's pair is now other.events'
+    (tmp_path / "ps2.desc").rename(tmp_path / "other.desc")
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    target = "other.desc" if target == "ps2.desc" else target
+    proc = subprocess.run(
+        [sys.executable, "-m", "mousedom", "run", "--config", "rigr.yaml", "--record", target,
+         "--socket", str(tmp_path / "s.sock")],
+        capture_output=True, text=True, timeout=30, cwd=tmp_path,
+        env={**os.environ, "PYTHONPATH": os.getcwd()},
+    )  # fmt: skip
+    assert proc.returncode != 0
+    assert "is the input" in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before

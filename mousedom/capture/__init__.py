@@ -22,6 +22,8 @@ from mousedom.capture.assignment import (
     Assignment,
     assign,
     captures_of,
+    config_inputs,
+    input_files,
     mice_by_device,
     parse_capture_arg,
 )
@@ -53,6 +55,8 @@ __all__ = [
     "Serial",
     "assign",
     "captures_of",
+    "config_inputs",
+    "input_files",
     "mice_by_device",
     "open_capture",
     "parse_capture_arg",

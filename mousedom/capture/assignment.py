@@ -9,9 +9,11 @@ the only device of its file that moves.
 from __future__ import annotations
 
 import os
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 from mousedom.capture.base import GYRO_KIND, Capture, CaptureError, DeviceInfo
+from mousedom.capture.evemu import companion
 from mousedom.capture.sniff import open_capture
 from mousedom.config import Config, EvdevMatch, MouseConfig
 
@@ -319,6 +321,33 @@ def captures_of(assignments: list[Assignment]) -> list[Capture]:
         if all(cap is not s for s in seen):
             seen.append(cap)
     return seen
+
+
+def input_files(
+    config_path: str | None, calibration: str | None, captures: Iterable[str]
+) -> list[str]:
+    """Every file a run reads, which no output of it may name: the config, its
+    calibration, and each capture with the other half of an old evemu pair (.events and
+    .desc) - the captures given on the command line and those the config's ``replay:``
+    names alike."""
+    files = [p for p in (config_path, calibration) if p]
+    for path in captures:
+        files.append(path)
+        if path.endswith((".events", ".desc")):
+            try:
+                files += [p for p in companion(path) if p]
+            except CaptureError:
+                pass  # (a .desc without its events: the capture's own error says so)
+    return files
+
+
+def config_inputs(config: Config) -> list[str]:
+    """``input_files`` of a config: its own, its calibration and its ``replay:`` captures
+    (the mice's, the gyro's), for the writers of a live run (``run --record``, ``record``)."""
+    replays = [m.replay for m in config.mice if m.replay]
+    if config.gyro is not None and config.gyro.replay:
+        replays.append(config.gyro.replay)
+    return input_files(config.path, config.calibration, replays)
 
 
 def mice_by_device(assignments: list[Assignment], capture: Capture) -> dict[int, tuple[int, ...]]:

@@ -7,6 +7,7 @@ import os
 import struct
 import time
 import zlib
+from collections.abc import Iterable
 from typing import Any, BinaryIO, cast
 
 import numpy as np
@@ -61,7 +62,7 @@ class NativeWriter:
         chunk_reports: int = 65536,
         fsync: bool = False,
         meta: dict[str, Any] | None = None,
-        inputs: tuple[str | None, ...] = (),
+        inputs: Iterable[str | None] = (),
     ) -> None:
         if time_base not in TIME_BASES:
             raise ValueError(f"time_base must be one of {TIME_BASES}")

@@ -19,7 +19,7 @@ from typing import Any, BinaryIO, cast
 
 from mousedom import saferead
 from mousedom.allocator import keep_freed_memory
-from mousedom.capture.assignment import parse_capture_arg
+from mousedom.capture.assignment import input_files, parse_capture_arg
 from mousedom.capture.base import (
     GYRO_KIND,
     TIME_BASES,
@@ -62,17 +62,18 @@ def register(subparsers) -> None:
 def run(args) -> int:
     keep_freed_memory()  # streams whole captures: see mousedom.allocator
     config_text = None
+    calibration = None
     if args.config:
         from mousedom.config import load_config
 
-        load_config(args.config, need_sources=False)  # refuse a broken config early
+        # (refused early if broken; its calibration is an input no output may name)
+        calibration = load_config(args.config, need_sources=False).calibration
         config_text = saferead.read_text(args.config)
     inputs: list[tuple[str | None, Capture]] = []
     for arg in args.capture:
         name, path = parse_capture_arg(arg)
         inputs.append((name, open_capture(path)))
-    paths = [cap.path for _, cap in inputs] + [args.config or ""]
-    paths += [d for _, cap in inputs if (d := getattr(cap, "desc_path", None))]
+    paths = input_files(args.config, calibration, [cap.path for _, cap in inputs])
     for path in paths:
         if path and same_file(args.output, path):
             raise UserError(f"{args.output}: the output would overwrite an input ({path})")

@@ -123,6 +123,8 @@ class Recorder:
         except UserError:
             self.close_sources()
             raise
+        from mousedom.capture.assignment import config_inputs
+
         try:
             self.writer = NativeWriter(
                 output,
@@ -132,7 +134,7 @@ class Recorder:
                 time_base="monotonic",
                 fsync=fsync,
                 meta={"recorder": "mousedom record", "config_path": cfg.path},
-                inputs=(cfg.path, cfg.calibration),
+                inputs=config_inputs(cfg),
             )
         except UserError as e:  # the output refused (a link, an input) or unwritable
             self.close_sources()

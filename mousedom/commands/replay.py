@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import os
+import stat
 import sys
 import time
 from collections.abc import Callable
@@ -17,7 +18,7 @@ from typing import TYPE_CHECKING, TextIO, cast
 
 from mousedom.allocator import keep_freed_memory
 from mousedom.angles import wrap_degrees
-from mousedom.capture.assignment import assign, captures_of, parse_capture_arg
+from mousedom.capture.assignment import assign, captures_of, input_files, parse_capture_arg
 from mousedom.capture.posecsv import CsvSink
 from mousedom.capture.replay import Replay
 from mousedom.capture.summary import Summary
@@ -114,9 +115,8 @@ def run(args) -> int:
         )
     assignments = assign(config, specs)
     captures = captures_of(assignments)  # the mice's, and a gyro's file of its own
-    inputs = [args.config] + [c.path for c in captures]
-    inputs += [d for c in captures if (d := getattr(c, "desc_path", None))]
-    _refuse_overwriting_inputs(args, inputs)
+    inputs = input_files(args.config, config.calibration, [c.path for c in captures])
+    _check_outputs(args, inputs)
     replay = Replay(config, assignments, model=args.model, integrator=args.integrator)
     sinks = _Sinks.open(args, replay.config, inputs)  # (without a gyro no capture holds)
     sink: Callable[[PoseBatch], None] = sinks
@@ -141,7 +141,7 @@ def run(args) -> int:
 
     for w in summary.warnings[len(early) :]:
         print(f"mousedom: warning: {w}", file=sys.stderr)
-    _report(args, config, replay, summary, sinks, true_end)
+    _report(args, config, replay, summary, sinks, true_end, inputs)
     return check(summary)
 
 
@@ -241,6 +241,7 @@ def _report(
     summary: Summary,
     sinks: _Sinks,
     true_end: tuple[float, float] | None,
+    inputs: list[str],
 ) -> None:
     """After the replay: where the files went, the plot, the UMBmark row or the summary."""
     if args.output and args.output != "-":
@@ -252,13 +253,13 @@ def _report(
 
         rates = {m.name: m.reports_per_s for m in summary.mice}
         plot.save(sinks.collector, config.names, args.plot, title=_title(args, replay),
-                  model=args.model or config.model, rates=rates)  # fmt: skip
+                  model=args.model or config.model, rates=rates, inputs=inputs)  # fmt: skip
         _wrote("the plot", args.plot)
     if sinks.out is not None or args.umbmark:  # no summary: its warnings on their own
         for w in scale_warnings(summary, _cpis(config)):
             print(f"mousedom: warning: {w}", file=sys.stderr)
     if true_end is not None:  # --umbmark
-        _emit_umbmark(args, summary, true_end)
+        _emit_umbmark(args, summary, true_end, inputs)
     elif sinks.out is None:
         summary_out = _Output(sys.stdout, "<stdout>")
         summary_out.write(format_summary(summary, replay, args) + "\n")
@@ -270,14 +271,32 @@ def _wrote(what: str, path: str) -> None:
     print(f"replay: wrote {what} to {path}", file=sys.stderr)
 
 
-def _refuse_overwriting_inputs(args, inputs: list[str]) -> None:
-    """-o or --plot naming an input would truncate it before it is read (data lost)."""
-    for flag, out in (("-o", args.output), ("--plot", args.plot), ("--mcap", args.mcap)):
-        if not out or out == "-" or not os.path.exists(out):
-            continue
+def _check_outputs(args, inputs: list[str]) -> None:
+    """Before anything is read or written: no output names an input (-o would truncate it
+    before it is read; any would destroy it), and no two outputs name one file (the later
+    would replace the earlier, which would still be reported written).  A device such as
+    /dev/null may take several."""
+    outputs = [(flag, out) for flag, out in (
+        ("-o", args.output), ("--plot", args.plot), ("--mcap", args.mcap),
+        ("--umbmark-csv", args.umbmark_csv if args.umbmark else None),
+    ) if out and out != "-"]  # fmt: skip
+    for k, (flag, out) in enumerate(outputs):
         for path in inputs:
             if same_file(out, path):
                 raise UserError(f"{flag} {out}: that is an input ({path}); it would be overwritten")
+        if _is_device(out):
+            continue
+        for other_flag, other in outputs[:k]:
+            if same_file(out, other):
+                raise UserError(f"{flag} {out}: {other_flag} writes that file too; give each "
+                                "output its own file")  # fmt: skip
+
+
+def _is_device(path: str) -> bool:
+    try:
+        return stat.S_ISCHR(os.stat(path).st_mode)
+    except OSError:
+        return False
 
 
 class _Output:
@@ -336,7 +355,7 @@ def _true_end(args) -> tuple[float, float]:
     return x, y
 
 
-def _emit_umbmark(args, summary: Summary, true_end: tuple[float, float]) -> None:
+def _emit_umbmark(args, summary: Summary, true_end: tuple[float, float], inputs: list[str]) -> None:
     """One row of `mousedom umbmark`'s RUNS.csv for this run."""
     from mousedom.calibrate.umbmark import HEADER, umbmark_row
 
@@ -347,7 +366,6 @@ def _emit_umbmark(args, summary: Summary, true_end: tuple[float, float]) -> None
     if not args.umbmark_csv:
         print(row)
         return
-    inputs = [args.config, *(path for _, path in map(parse_capture_arg, args.capture))]
     try:
         with open_stream(args.umbmark_csv, inputs, append=True, text=True) as f:
             empty = os.fstat(f.fileno()).st_size == 0

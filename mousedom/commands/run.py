@@ -175,9 +175,10 @@ def _start_outputs(args: argparse.Namespace, config: Config, outputs: list[Outpu
 
         outputs.append(FoxgloveOutput(config.foxglove, config.names, config.mice))
     if args.record_mcap:
+        from mousedom.capture.assignment import config_inputs
         from mousedom.service.mcapout import McapRecorder, system_offset
 
-        inputs = [config.path] + [m.replay for m in config.mice if m.replay]
+        inputs = config_inputs(config)
         outputs.append(McapRecorder(args.record_mcap, config.ros2 or Ros2Config(),
                                     config.names, config.rate_hz, inputs,
                                     offset=system_offset(config.ros2)))  # fmt: skip

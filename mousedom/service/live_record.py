@@ -76,6 +76,8 @@ class Recording(Output):
             kind = source_kinds[n] if len(source_kinds) > n else GYRO_KIND
             devices.append(_gyro_device(config.gyro, kind))
             self.gyro_device = n
+        from mousedom.capture.assignment import config_inputs
+
         try:
             self.writer = NativeWriter(
                 path,
@@ -83,7 +85,7 @@ class Recording(Output):
                 config_text=text,
                 time_base="monotonic",
                 meta={"recorder": "mousedom run --record", "config_path": config.path},
-                inputs=(config.path, config.calibration),
+                inputs=config_inputs(config),
             )
         except OSError as e:
             raise UserError(f"{path}: cannot write the recording: {e.strerror}") from None
