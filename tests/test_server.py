@@ -516,3 +516,38 @@ def test_watch_on_a_socket_it_may_not_use_names_the_mode_and_group(harness, mode
     assert f"permission denied: the socket is mode {mode:04o}, owner root, group root" in out.stderr
     assert says in out.stderr and "Traceback" not in out.stderr, out.stderr
     h.close()
+
+
+def test_a_client_that_shuts_its_sending_side_keeps_reading(harness):
+    """`echo status | nc -U SOCKET` shuts its side after the line and reads on: it gets
+    its reply and the POSEs after it (a client is dropped only for not reading); the
+    server stops watching its input (EOF stays readable: no busy loop).  A paused client (rate 0) that shuts its side goes at once:
+    nothing more would reach it.  Closed later, it goes at the first send after; a client
+    that closes outright goes at its EOF (test_client_limit)."""
+    h = harness()
+    p = Peer(h.server.path)
+    p.read()
+    p.send(b'{"cmd": "status", "id": 1}\n')
+    p.sock.shutdown(socket.SHUT_WR)
+    assert p.read() == {"class": "OK", "cmd": "status", "id": 1}
+    deadline = time.monotonic() + 3
+    while h.server.clients and any(c.reading for c in h.server.clients.values()):
+        assert time.monotonic() < deadline, "the server never saw the EOF"
+        time.sleep(0.01)
+    (client,) = h.server.clients.values()
+    assert client.sock not in h.sel.get_map()  # nothing to watch: input ended, all sent
+    for k in range(5):
+        h.call(lambda k=k: h.server.broadcast_pose(k, encode({"class": "POSE", "t": k}), 0.0))
+    assert [p.read()["t"] for _ in range(5)] == [0, 1, 2, 3, 4]
+    p.close()
+    for k in range(5, 8):  # the first send after the close finds it gone
+        h.call(lambda k=k: h.server.broadcast_pose(k, encode({"class": "POSE", "t": k}), 0.0))
+    assert not h.server.clients
+
+    q = Peer(h.server.path)
+    q.read()
+    q.send(b'{"cmd": "rate", "hz": 0}\n')
+    assert q.read()["cmd"] == "rate"
+    q.sock.shutdown(socket.SHUT_WR)
+    assert q.file.readline() == b""  # closed by the server
+    assert not h.server.clients

@@ -26,6 +26,7 @@ from __future__ import annotations
 import errno
 import logging
 import os
+import select
 import selectors
 import socket
 import struct
@@ -82,6 +83,10 @@ class Client:
         self.junk = float(JUNK_BURST)  # allowance for lines that carry nothing
         self.junk_t = 0.0  # running time of the allowance's last refill
         self.want_write = False  # registered for EVENT_WRITE (a tail is waiting)
+        # False once the peer has shut its sending side (EOF): it may still be reading,
+        # as `echo status | nc -U` is (a client is dropped only for not reading).
+        self.reading = True
+        self.handler: Callable[[int], None] | None = None  # its selector callback
         self.period = 0.0  # seconds between POSEs for this client; 0: every pose
         self.paused = False  # rate 0: no POSE at all
         self.next_t: float | None = None
@@ -215,7 +220,8 @@ class Server:
                 continue
             client.junk_t = self.running
             self.clients[client.fd] = client
-            self.selector.register(sock, selectors.EVENT_READ, self._make_handler(client))
+            client.handler = self._make_handler(client)
+            self.selector.register(sock, selectors.EVENT_READ, client.handler)
             log.debug("connected %r (control=%s)", client, client.control)
             try:
                 for msg in self.on_connect(client):
@@ -253,7 +259,7 @@ class Server:
             self.drop(client, f"read error: {e}")
             return
         if not data:
-            self.drop(client, None)
+            self._end_of_input(client)
             return
         client.lines.extend(client.rx.feed(data))
         self._answer_some(client)
@@ -423,13 +429,36 @@ class Server:
                 self.dropped += 1
                 self.drop(client, f"idle: took nothing for {limit:g} s")
 
+    def _end_of_input(self, client: Client) -> None:
+        """The peer sent EOF: it closed, or only shut its sending side.  Closed (a Unix
+        socket then polls as hung up: both directions shut), or paused (rate 0: nothing
+        more would reach it), it goes; else it stays while it reads."""
+        if client.paused or _hung_up(client.sock):
+            self.drop(client, None)
+            return
+        client.reading = False  # (EOF stays readable: the socket is no longer read)
+        self._register(client)
+
     def _want_write(self, client: Client, want: bool) -> None:
         if want == client.want_write:
             return
-        events = selectors.EVENT_READ | (selectors.EVENT_WRITE if want else 0)
-        key = self.selector.get_key(client.sock)
-        self.selector.modify(client.sock, events, key.data)
         client.want_write = want
+        self._register(client)
+
+    def _register(self, client: Client) -> None:
+        """The selector watches what the client needs: its input until EOF, its socket's
+        room while a tail waits; neither (a half-closed client, all sent): not at all."""
+        events = (selectors.EVENT_READ if client.reading else 0) | (
+            selectors.EVENT_WRITE if client.want_write else 0
+        )
+        registered = client.sock in self.selector.get_map()
+        if not events:
+            if registered:
+                self.selector.unregister(client.sock)
+        elif registered:
+            self.selector.modify(client.sock, events, client.handler)
+        else:
+            self.selector.register(client.sock, events, client.handler)
 
     def alive(self, client: Client) -> bool:
         """Whether this client is still connected.  By identity, not by descriptor: a client
@@ -450,3 +479,11 @@ class Server:
         except (KeyError, ValueError):
             pass
         client.sock.close()
+
+
+def _hung_up(sock: socket.socket) -> bool:
+    """Whether the peer closed (POLLHUP), as opposed to shutting its sending side only
+    (POLLRDHUP): Linux's Unix stream sockets tell the two apart."""
+    p = select.poll()
+    p.register(sock, select.POLLOUT)
+    return any(ev & (select.POLLHUP | select.POLLERR) for _, ev in p.poll(0))
