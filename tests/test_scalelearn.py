@@ -14,6 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mousedom.fusion import scenarios, sim
+from mousedom.fusion.drives import drive
 from mousedom.fusion.posebatch import PoseBatch
 from mousedom.fusion.scalelearn import median
 from mousedom.fusion.tracker import Tracker
@@ -348,3 +349,46 @@ def test_median_is_numpys_bit_for_bit(values):
     v = np.array(values)
     with np.errstate(over="ignore"):  # two middle values past the float range: inf, both
         assert struct.pack("<d", median(v)) == struct.pack("<d", float(np.median(v)))
+
+
+def _across_rig(n: int, off: float = 0.0) -> sim.Rig:
+    """``n`` mice on a line across the robot (x = 0), the second ``off`` metres forward."""
+    rates = (125.0, 500.0, 1000.0, 250.0)
+    return sim.Rig(tuple(
+        sim.SimMouse(f"m{k}", off if k == 1 else 0.0, float(y), cpi_x=1000.0, cpi_y=1000.0,
+                     report_hz=rates[k % 4], phase=0.00131 * k, noise=0.3, stamp_delay=0.001)
+        for k, y in enumerate(np.linspace(0.15, -0.15, n))
+    ), model="lsq")  # fmt: skip
+
+
+@pytest.mark.parametrize(("n", "seed"), [(3, 132), (3, 2), (4, 132), (4, 2)])
+def test_mice_in_a_line_across_the_robot_learn_no_scale(n, seed):
+    """Scales growing along a line of mice across the robot read alike but in turns: the
+    estimate followed a late mouse's timing (1.86 and 0.14 after 2 s on healthy mice) and,
+    applied, turned the heading 133 degrees (5 m off after 30 s).  No mouse of such a rig is
+    estimated while the evidence cannot tell them apart: the pose is the one without the
+    learner's scales, on healthy mice with the fastest mouse's stamps late (3 ms,
+    long-tailed)."""
+    base = _across_rig(n)
+    mice = list(base.mice)
+    fastest = max(range(n), key=lambda k: mice[k].report_hz)
+    mice[fastest] = dataclasses.replace(mice[fastest], stamp_tail=0.003)
+    result = sim.simulate(dataclasses.replace(base, mice=tuple(mice)), drive(30.0, seed),
+                          seed=seed)  # fmt: skip
+    cfg = scenarios.config(base)
+    kept = dataclasses.replace(cfg, robust=dataclasses.replace(cfg.robust, learn_scale=False))
+    default, tracker = scenarios.run(result, cfg, ())
+    without, _ = scenarios.run(result, kept, ())
+    assert (tracker.scales.scale == 1.0).all()
+    assert np.array_equal(default.x, without.x) and np.array_equal(default.theta, without.theta)
+
+
+def test_a_mouse_near_the_line_still_learns_a_wrong_cpi():
+    """The rule takes only rigs whose geometry cannot tell the scales apart: with the middle
+    mouse 2 cm forward of the line, a CPI 3 % off is learnt and applied."""
+    base = _across_rig(3, off=0.02)
+    mice = list(base.mice)
+    mice[0] = dataclasses.replace(mice[0], cpi_x=1030.0, cpi_y=1030.0)
+    result = sim.simulate(dataclasses.replace(base, mice=tuple(mice)), drive(30.0, 5), seed=5)
+    _, tracker = scenarios.run(result, scenarios.config(base), ())
+    assert tracker.scales.scale[0, 0] == pytest.approx(1 / 1.03, abs=0.003)
