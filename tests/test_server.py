@@ -521,9 +521,10 @@ def test_watch_on_a_socket_it_may_not_use_names_the_mode_and_group(harness, mode
 def test_a_client_that_shuts_its_sending_side_keeps_reading(harness):
     """`echo status | nc -U SOCKET` shuts its side after the line and reads on: it gets
     its reply and the POSEs after it (a client is dropped only for not reading); the
-    server stops watching its input (EOF stays readable: no busy loop).  A paused client (rate 0) that shuts its side goes at once:
-    nothing more would reach it.  Closed later, it goes at the first send after; a client
-    that closes outright goes at its EOF (test_client_limit)."""
+    server stops watching its input (EOF stays readable: no busy loop).  A paused client
+    (rate 0) that shuts its side goes at once: nothing more would reach it.  Closed later,
+    it goes at the first send after; a client that closes outright goes at its EOF
+    (test_client_limit)."""
     h = harness()
     p = Peer(h.server.path)
     p.read()
