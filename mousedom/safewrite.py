@@ -50,6 +50,23 @@ def refuse_inputs(output: str, inputs: Iterable[str | None]) -> None:
             raise UserError(f"{output}: is the input {path}; not overwriting it")
 
 
+def refuse_shared_outputs(outputs: Iterable[tuple[str, str | None]]) -> None:
+    """UserError if two of one run's outputs, (option, path) each, name one file: the later
+    writer would replace the earlier, which would still be reported written.  A device
+    (/dev/null) may take several; None and "-" (stdout) are not files."""
+    named = [(flag, path) for flag, path in outputs if path and path != "-"]
+    for k, (flag, path) in enumerate(named):
+        try:
+            if stat.S_ISCHR(os.stat(path).st_mode):
+                continue
+        except OSError:
+            pass
+        for other_flag, other in named[:k]:
+            if same_file(path, other):
+                raise UserError(f"{flag} {path}: {other_flag} writes that file too; give each "
+                                "output its own file")  # fmt: skip
+
+
 def _is_special(st: os.stat_result) -> bool:
     """A pipe or a device: nothing there can be clobbered (/dev/stdout, /dev/null, a FIFO)."""
     return stat.S_ISFIFO(st.st_mode) or stat.S_ISCHR(st.st_mode)

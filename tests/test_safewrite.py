@@ -218,3 +218,18 @@ def test_run_record_onto_a_file_the_config_reads_is_refused(tmp_path, target):
     assert proc.returncode != 0
     assert "is the input" in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
+
+
+def test_run_refuses_one_file_for_its_two_recordings(tmp_path):
+    """`run --record F --record-mcap F`: each writer would overwrite the other's file (the
+    native capture lost, its closing line still logged); refused before anything opens."""
+    _rig_with_inputs(tmp_path)
+    proc = subprocess.run(
+        [sys.executable, "-m", "mousedom", "run", "--config", "rigr.yaml", "--record", "out.x",
+         "--record-mcap", "out.x", "--socket", str(tmp_path / "s.sock")],
+        capture_output=True, text=True, timeout=30, cwd=tmp_path,
+        env={**os.environ, "PYTHONPATH": os.getcwd()},
+    )  # fmt: skip
+    assert proc.returncode == 2, proc.stderr
+    assert "--record writes that file too" in proc.stderr and "Traceback" not in proc.stderr
+    assert not (tmp_path / "out.x").exists()

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import math
 import os
-import stat
 import sys
 import time
 from collections.abc import Callable
@@ -33,7 +32,7 @@ from mousedom.commands._replay_health import (
 from mousedom.config import INTEGRATORS, MODELS, Config, load_config
 from mousedom.errors import UserError
 from mousedom.fusion.tracker import PoseBatch
-from mousedom.safewrite import open_stream, same_file
+from mousedom.safewrite import open_stream, refuse_shared_outputs, same_file
 
 # The summary's health lines live in _replay_health; their names stay reachable from here.
 __all__ = ["check", "format_summary", "health_lines", "register", "run", "scale_warning",
@@ -276,27 +275,17 @@ def _check_outputs(args, inputs: list[str]) -> None:
     before it is read; any would destroy it), and no two outputs name one file (the later
     would replace the earlier, which would still be reported written).  A device such as
     /dev/null may take several."""
-    outputs = [(flag, out) for flag, out in (
+    outputs = [
         ("-o", args.output), ("--plot", args.plot), ("--mcap", args.mcap),
         ("--umbmark-csv", args.umbmark_csv if args.umbmark else None),
-    ) if out and out != "-"]  # fmt: skip
-    for k, (flag, out) in enumerate(outputs):
+    ]  # fmt: skip
+    for flag, out in outputs:
+        if not out or out == "-":
+            continue
         for path in inputs:
             if same_file(out, path):
                 raise UserError(f"{flag} {out}: that is an input ({path}); it would be overwritten")
-        if _is_device(out):
-            continue
-        for other_flag, other in outputs[:k]:
-            if same_file(out, other):
-                raise UserError(f"{flag} {out}: {other_flag} writes that file too; give each "
-                                "output its own file")  # fmt: skip
-
-
-def _is_device(path: str) -> bool:
-    try:
-        return stat.S_ISCHR(os.stat(path).st_mode)
-    except OSError:
-        return False
+    refuse_shared_outputs(outputs)
 
 
 class _Output:

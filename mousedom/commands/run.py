@@ -116,6 +116,9 @@ def run(args: argparse.Namespace) -> int:
         from mousedom.service.metrics import require
 
         require()
+    from mousedom.safewrite import refuse_shared_outputs
+
+    refuse_shared_outputs([("--record", args.record), ("--record-mcap", args.record_mcap)])
     outputs: list[Output] = []
     try:
         _start_outputs(args, config, outputs)

@@ -415,7 +415,8 @@ class Server:
     def tick(self, now: float) -> None:
         """Once per loop iteration: advance the running time (a stall of the daemon counts
         for at most MAX_TICK_S) and, a few times a second, drop clients whose output has
-        waited ``idle_timeout_s`` of it (their socket took nothing)."""
+        waited ``idle_timeout_s`` of it (their socket took nothing), and half-closed
+        clients that have since closed."""
         if self._last_tick is not None:
             self.running += min(max(now - self._last_tick, 0.0), MAX_TICK_S)
         self._last_tick = now
@@ -428,6 +429,10 @@ class Server:
             if since is not None and self.running - since > limit:
                 self.dropped += 1
                 self.drop(client, f"idle: took nothing for {limit:g} s")
+            elif not client.reading and _hung_up(client.sock):
+                # half-closed, then closed: its socket is no longer watched, and nothing
+                # may be sent to it for long (an idle daemon, a slow rate) to find out
+                self.drop(client, None)
 
     def _end_of_input(self, client: Client) -> None:
         """The peer sent EOF: it closed, or only shut its sending side.  Closed (a Unix
