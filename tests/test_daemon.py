@@ -25,7 +25,7 @@ from mousedom.errors import UserError
 from mousedom.fusion.countfunction import CountFunction
 from mousedom.service.daemon import WAKE_SLACK_S, Daemon, plan_wake
 from mousedom.service.factory import make_source
-from mousedom.sources.base import Reports, Source, SourceGone
+from mousedom.sources.base import Reports, Source, SourceGone, SourceUnavailable
 
 RECORD = struct.Struct("<ddd")  # t, dx, dy
 
@@ -390,6 +390,76 @@ def test_reload_swaps_changed_mice_and_keeps_the_pose(tmp_path):
     finally:
         d.request_stop()
         th.join(5)
+
+
+class _BadCapture(PipeSource):
+    """A source whose capture does not read (what ReplaySource raises for garbage), or,
+    while ``missing``, whose file is not there yet."""
+
+    missing = False
+
+    def _open(self) -> None:
+        from mousedom.capture.base import CaptureError
+
+        if _BadCapture.missing:
+            raise SourceUnavailable(f"{self.name}.mdcap: capture file not found")
+        raise CaptureError(f"{self.name}.mdcap: byte offset 8: unknown native capture version")
+
+
+@pytest.mark.parametrize("broken", ["added", "retried"])
+def test_a_reload_whose_new_sensor_does_not_open_keeps_the_daemon(tmp_path, caplog, broken):
+    """A SIGHUP whose config adds a mouse whose capture does not read (or a mouse retried
+    since, whose file appears unreadable) killed the daemon with exit 2, every client
+    dropped.  The daemon now goes on without that sensor, says why once and retries it,
+    as for a device that is not there.  At start the same error stops it, said once."""
+    from mousedom.config import load_config
+
+    def write(mice: str) -> None:
+        (tmp_path / "rig.yaml").write_text(f"rate_hz: 50\nmodel: lsq\nmice:\n{mice}")
+
+    def factory(mouse, clock):
+        return (_BadCapture if mouse.name == "c" else PipeSource)(mouse.name)
+
+    line = "  {n}: {{evdev: {{path: /dev/null}}, cpi: 1000, mount: {{x: {x}, y: {y}}}}}\n"
+    two = line.format(n="a", x=0.1, y=0) + line.format(n="b", x=-0.1, y=0)
+    three = two + line.format(n="c", x=0, y=0.1)
+    write(three)
+    _BadCapture.missing = False
+    with pytest.raises(UserError, match="c.mdcap: byte offset 8"):
+        Daemon(load_config(tmp_path / "rig.yaml"), str(tmp_path / "s0.sock"),
+               source_factory=factory, handle_signals=False).run()  # fmt: skip
+    write(two)
+    d = Daemon(load_config(tmp_path / "rig.yaml"), str(tmp_path / "d.sock"),
+               source_factory=factory, handle_signals=False)  # fmt: skip
+    th = threading.Thread(target=d.run)
+    th.start()
+    try:
+        wait_listening(Path(d.server.path), None, 10)
+        c = Conn(d.server.path)
+        c.until("VERSION")
+        write(three)
+        _BadCapture.missing = broken == "retried"  # not there at the reload: retried
+        old_tracker = d.tracker
+        d.request_reload()
+        deadline = time.monotonic() + 5
+        while d.tracker is old_tracker and time.monotonic() < deadline:
+            time.sleep(0.01)
+        (slot,) = [s for s in d.sensors.slots if s.name == "c"]
+        _BadCapture.missing = False  # ... and there at a retry, unreadable
+        deadline = time.monotonic() + 5
+        while "unknown native" not in (slot.source.health.error or ""):
+            assert time.monotonic() < deadline, "never opened or retried"
+            time.sleep(0.05)
+        time.sleep(0.1)
+        pose = c.until("POSE", lambda m: m["t"] > d.tracker.t0)
+        assert th.is_alive() and pose["missing"] == ["c"]
+        assert Conn(d.server.path).read()["sensors"] == ["a", "b", "c"]
+        said = [r.getMessage() for r in caplog.records if "c: not available" in r.getMessage()]
+        assert any("c.mdcap: byte offset 8" in m for m in said), said
+    finally:
+        d.request_stop()
+        th.join(5)
+    assert not th.is_alive()
 
 
 class _Cycle:

@@ -20,6 +20,7 @@ from typing import Any, NamedTuple, Protocol
 import numpy as np
 
 from mousedom.config import Config, GyroConfig, MouseConfig
+from mousedom.errors import UserError
 from mousedom.fusion.choices import GYRO
 from mousedom.fusion.robust import Health, Reason
 from mousedom.service.factory import source_key
@@ -143,6 +144,7 @@ class Sensors:
         self.plan: list[PlannedSensor] = []
         self.names_by_state: dict[tuple[int, ...], tuple[tuple[str, ...], tuple[str, ...]]] = {}
         self.reads = 0  # source reads: what the reading policy costs
+        self.started = False  # after start(): a sensor that fails to open is retried
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -152,6 +154,7 @@ class Sensors:
         self._live_changed()
         for slot in self.slots:
             self.try_open(slot, now)
+        self.started = True
 
     def max_latency(self) -> float:
         return max((s.latency for s in self.slots), default=0.0)
@@ -205,11 +208,23 @@ class Sensors:
             fd = slot.source.fileno()
             self._refuse_shared_device(slot)
         except SourceUnavailable as e:
-            if slot.retry_at == 0.0 or slot.source.health.error != slot.announced.get("error"):
-                log.warning("%s: not available: %s (retrying every %gs)", slot.name, e, RETRY_S)
-            slot.announced["error"] = slot.source.health.error
-            slot.retry_at = now + RETRY_S
-            self.running.tracker.set_live(slot.index, False, now)
+            self._unavailable(slot, now, e)
+            return
+        except Exception as e:  # noqa: BLE001 - see below
+            if not self.started:
+                raise  # at start: the config's error, said once (a capture that does not read)
+            # A reload's or a retry's: a capture that does not read (garbage, or a device it
+            # cannot tell), a source that broke.  The daemon goes on without that sensor
+            # and tries again, as for a device that is not there; it never exits for it.
+            if not isinstance(e, UserError):
+                log.exception("%s: open failed", slot.name)
+            try:
+                slot.source.close()
+            except Exception:  # noqa: BLE001 - closing what did not open
+                pass
+            slot.source.health.connected = False
+            slot.source.health.error = str(e)
+            self._unavailable(slot, now, e)
             return
         # (a gyro knows only once open whether it reads a buffer or polls: paced)
         slot.paced = slot.source.paced
@@ -224,6 +239,14 @@ class Sensors:
         self.running.tracker.set_live(slot.index, True, now)
         log.info("%s: open (%s)", slot.name, slot.source.kind)
         self.on_change(now)
+
+    def _unavailable(self, slot: Slot, now: float, why: Exception) -> None:
+        """The slot's sensor did not open: said once per distinct reason, retried."""
+        if slot.retry_at == 0.0 or slot.source.health.error != slot.announced.get("error"):
+            log.warning("%s: not available: %s (retrying every %gs)", slot.name, why, RETRY_S)
+        slot.announced["error"] = slot.source.health.error
+        slot.retry_at = now + RETRY_S
+        self.running.tracker.set_live(slot.index, False, now)
 
     def _refuse_shared_device(self, slot: Slot) -> None:
         """Two mice whose rules resolve to one device would each read a share of its
