@@ -233,3 +233,28 @@ def test_run_refuses_one_file_for_its_two_recordings(tmp_path):
     assert proc.returncode == 2, proc.stderr
     assert "--record writes that file too" in proc.stderr and "Traceback" not in proc.stderr
     assert not (tmp_path / "out.x").exists()
+
+
+@pytest.mark.parametrize("command", ["cpi", "scales"])
+def test_calibrate_write_refuses_a_calibration_file_it_reads(tmp_path, command):
+    """`calibrate ... --write` whose config names as its calibration file the capture it
+    reads (a libinput record, which loads as YAML) rewrote the capture as calibration
+    YAML, exit 0: refused before any work, with one line, the capture unchanged."""
+    import numpy as np
+
+    from mousedom.capture.libinput import format_libinput
+
+    t = np.arange(1, 400) * 0.008
+    steps = np.where((t // 1.0) % 2 == 0, 5, -5).astype(np.int64)
+    (tmp_path / "push.yml").write_text(format_libinput([("m", t, steps, 0 * steps)]))
+    (tmp_path / "rig.yaml").write_text(
+        "rate_hz: 100\nmodel: diff-drive\ncalibration: push.yml\nmice:\n"
+        "  m: {cpi: 800, mount: {x: 0.1, y: 0.0, yaw: 0}, report_hz: 125}\n"
+    )
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    extra = ["--distance", "0.2"] if command == "cpi" else []
+    proc = run_mousedom("calibrate", command, "--config", "rig.yaml", "--capture",
+                        "m=push.yml", *extra, "--write", cwd=tmp_path)  # fmt: skip
+    assert proc.returncode == 2, proc.stderr
+    _one_error_line(proc.stderr, "push.yml", "not overwriting")
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before

@@ -21,9 +21,11 @@ from mousedom.calibrate import calfile, report, scales, session
 from mousedom.calibrate.inputs import load_captures
 from mousedom.calibrate.reference import WheelGeometry, read_reference
 from mousedom.calibrate.runs import need_runs, split_runs
+from mousedom.capture.assignment import input_files, parse_capture_arg
 from mousedom.commands import _options as options
 from mousedom.config import Config, load_config
 from mousedom.errors import UserError
+from mousedom.safewrite import refuse_inputs
 
 
 def _argument(convert, ok, requirement: str, kind: str = "number"):
@@ -220,6 +222,24 @@ def register(sub: argparse._SubParsersAction) -> None:
 # --------------------------------------------------------------------------- shared steps
 
 
+def _check_write_target(args: argparse.Namespace, config: Config) -> None:
+    """Before any work: ``--write`` needs a calibration file, and it may not be a file the
+    command reads (a capture given or replayed, its evemu pair, a reference), which the
+    result would replace."""
+    if not args.write:
+        return
+    if not config.calibration:
+        raise UserError(
+            f"{args.config}: --write needs a calibration file: add a line such as "
+            "`calibration: rig.calib.yaml` to the config"
+        )
+    captures = [path for _, path in map(parse_capture_arg, args.capture or [])]
+    captures += [m.replay for m in config.mice if m.replay]
+    reads = input_files(config.path, None, captures)
+    reference = getattr(args, "reference", None)
+    refuse_inputs(config.calibration, [*reads, reference])
+
+
 def _setup(args: argparse.Namespace, names: list[str] | None = None):
     keep_freed_memory()  # streams whole captures: see mousedom.allocator
     # Only what calibration uses is checked: no model needs to be solvable (one mouse on a
@@ -229,11 +249,7 @@ def _setup(args: argparse.Namespace, names: list[str] | None = None):
         args.config, need_sources=False, need_model=False, need_mounts=not cpi_only
     )
     replaying = args.capture or any(m.replay for m in config.mice)
-    if args.write and not config.calibration:
-        raise UserError(
-            f"{args.config}: --write needs a calibration file: add a line such as "
-            "`calibration: rig.calib.yaml` to the config"
-        )
+    _check_write_target(args, config)
     wanted = names or args.mouse
     for n in wanted:
         if n not in config.names:
@@ -423,11 +439,7 @@ def run_mounts(args: argparse.Namespace) -> int:
 def run_scales(args: argparse.Namespace) -> int:
     keep_freed_memory()  # streams whole captures: see mousedom.allocator
     config = load_config(args.config, need_sources=False)
-    if args.write and not config.calibration:
-        raise UserError(
-            f"{args.config}: --write needs a calibration file: add a line such as "
-            "`calibration: rig.calib.yaml` to the config"
-        )
+    _check_write_target(args, config)
     result = scales.learn(config, args.capture)
     for w in result.warnings:
         print(f"mousedom: warning: {w}", file=sys.stderr)
