@@ -127,7 +127,7 @@ class Rig:
         box = []
         return (
             ("read", lambda: dm.sensors.read_due(self.now)),
-            ("poll", lambda: box.append(dm.tracker.poll(defer_learning=True))),
+            ("poll", lambda: box.append(dm.tracker.poll(defer_learning=True, one_by_one=True))),
             ("publish", lambda: dm.publisher.publish(box.pop())),
             ("settle", lambda: dm.tracker.settle()),
         )

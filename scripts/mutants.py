@@ -444,9 +444,9 @@ MUTANTS = [
     Mutant(
         "loop-learns-before-it-publishes",
         "mousedom/service/daemon.py",
-        "        self.publisher.publish(tracker.poll(defer_learning=True))\n"
+        "        self.publisher.publish(tracker.poll(defer_learning=True, one_by_one=True))\n"
         "        tracker.settle()",
-        "        batch = tracker.poll(defer_learning=True)\n"
+        "        batch = tracker.poll(defer_learning=True, one_by_one=True)\n"
         "        tracker.settle()\n"
         "        self.publisher.publish(batch)",
         ("tests/test_daemon.py",),

@@ -249,9 +249,9 @@ def test_the_loop_publishes_a_window_before_it_learns_from_it(inproc):
         due_at_publish.append(tracker.learning_due)
         publish(batch)
 
-    def polling(defer_learning=False):
+    def polling(defer_learning=False, one_by_one=False):
         due_at_poll.append(tracker.learning_due)
-        return poll(defer_learning)
+        return poll(defer_learning, one_by_one)
 
     publisher.publish, tracker.poll = publishing, polling  # (the loop looks them up)
     t = time.monotonic() + np.arange(1, 1201) * 0.002  # 2.4 s: blocks end every 0.5 s

@@ -277,7 +277,7 @@ def test_deferred_learning_with_several_windows_a_poll(seed, layout):
             at[0] += 1
             if now < wait[0]:
                 return PoseBatch.empty(len(base.mice))
-            batch = tracker.poll(defer_learning=defer)
+            batch = tracker.poll(defer_learning=defer, one_by_one=True)
             sizes.append(len(batch))
             wait[0] = now + period * int(rng.integers(0, 8))
             return batch
@@ -320,7 +320,7 @@ def test_setting_the_pose_after_a_deferred_block_end_learns_first(move):
         polls, due = [0], []
 
         def poll(tracker: Tracker) -> PoseBatch:
-            batch = tracker.poll(defer_learning=defer)
+            batch = tracker.poll(defer_learning=defer, one_by_one=True)
             polls[0] += 1
             if tracker.learning_due:
                 due.append(polls[0])

@@ -396,11 +396,15 @@ class Tracker:
             if i < self.n_mice
         }
 
-    def poll(self, defer_learning: bool = False) -> PoseBatch:
+    def poll(self, defer_learning: bool = False, one_by_one: bool = False) -> PoseBatch:
         """Close every window that no future report can change.  ``defer_learning``:
         where one window closes (the daemon's case), the blocks it ends (the learners',
         the screen's noise model's) are learnt at ``settle()``, not here: the daemon
-        publishes the window first.  Several windows (after a stall) learn as they go."""
+        publishes the window first.  Several windows (after a stall) learn as they go.
+        ``one_by_one``: up to ``_SMALL`` windows close one after the other on floats (the
+        daemon's few windows a poll), not as one array: the same poses but for their
+        last bits, at a fraction of the array path's fixed cost.  Replay and the other
+        batch users keep the array path, and so their output to the bit."""
         if self.t0 is None:
             return PoseBatch.empty(self.n_mice)
         # The earliest frontier of the live mice (a mouse that is not live waits for
@@ -418,7 +422,7 @@ class Tracker:
                 target = f
         if not math.isfinite(target):
             return PoseBatch.empty(self.n_mice)
-        return self._close_until(self._grid.ending_by(target), defer_learning)
+        return self._close_until(self._grid.ending_by(target), defer_learning, one_by_one)
 
     def skip_quiet(self, until: float) -> tuple[float, float] | None:
         """Close the windows up to the last edge at or before ``until`` without solving
@@ -471,13 +475,15 @@ class Tracker:
             self._ingest(m)
         return any(m.level().any() for m in self._clocks)
 
-    def _close_until(self, k_new: int, defer_learning: bool = False) -> PoseBatch:
+    def _close_until(
+        self, k_new: int, defer_learning: bool = False, one_by_one: bool = False
+    ) -> PoseBatch:
         self.settle()
         k_old = self._grid.closed
         if k_new <= k_old:
             return PoseBatch.empty(self.n_mice)
         edge = self.frontier_time
-        small = k_new - k_old <= self._SMALL and self.n_mice > 0
+        small = k_new - k_old <= (self._SMALL if one_by_one else 1) and self.n_mice > 0
         for m in self._clocks:
             if m.pending:
                 self._ingest(m, edge)
@@ -564,8 +570,9 @@ class Tracker:
             self.settle()
         return batch
 
-    # Up to this many windows per poll, _close_one (floats, no validation) is used, one
-    # window after the other; tests set it to 0 to compare it with the array path.  The
-    # array path's fixed cost is about that of 15 windows on floats (4 mice, warm; bench:
-    # docs/performance.md), and a poll of more windows is a stall's catch-up or replay.
+    # Up to this many windows per poll(one_by_one=True), _close_one (floats, no
+    # validation) is used, one window after the other (otherwise one window); tests set
+    # it to 0 to compare it with the array path.  The array path's fixed cost is about
+    # that of 15 windows on floats (4 mice, warm; docs/performance.md), and a poll of
+    # more windows is a stall's catch-up.
     _SMALL = 8

@@ -335,7 +335,7 @@ class Daemon:
             timing.start(self.publisher.poses)
         self.sensors.read_due(now)
         tracker = self.running.tracker
-        self.publisher.publish(tracker.poll(defer_learning=True))
+        self.publisher.publish(tracker.poll(defer_learning=True, one_by_one=True))
         tracker.settle()  # a learners' block end: after the POSE is out (Tracker.settle)
         self.publisher.log_scales()  # (what that learning renewed)
         if timing is not None:
