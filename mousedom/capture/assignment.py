@@ -341,13 +341,18 @@ def input_files(
     return files
 
 
-def config_inputs(config: Config) -> list[str]:
-    """``input_files`` of a config: its own, its calibration and its ``replay:`` captures
-    (the mice's, the gyro's), for the writers of a live run (``run --record``, ``record``)."""
+def config_captures(config: Config) -> list[str]:
+    """The captures a config's ``replay:`` keys name (the mice's, the gyro's)."""
     replays = [m.replay for m in config.mice if m.replay]
     if config.gyro is not None and config.gyro.replay:
         replays.append(config.gyro.replay)
-    return input_files(config.path, config.calibration, replays)
+    return replays
+
+
+def config_inputs(config: Config) -> list[str]:
+    """``input_files`` of a config: its own, its calibration and its ``replay:`` captures,
+    for the writers of a live run (``run --record``, ``record``)."""
+    return input_files(config.path, config.calibration, config_captures(config))
 
 
 def mice_by_device(assignments: list[Assignment], capture: Capture) -> dict[int, tuple[int, ...]]:

@@ -21,7 +21,7 @@ from mousedom.calibrate import calfile, report, scales, session
 from mousedom.calibrate.inputs import load_captures
 from mousedom.calibrate.reference import WheelGeometry, read_reference
 from mousedom.calibrate.runs import need_runs, split_runs
-from mousedom.capture.assignment import input_files, parse_capture_arg
+from mousedom.capture.assignment import config_captures, input_files, parse_capture_arg
 from mousedom.commands import _options as options
 from mousedom.config import Config, load_config
 from mousedom.errors import UserError
@@ -234,8 +234,7 @@ def _check_write_target(args: argparse.Namespace, config: Config) -> None:
             "`calibration: rig.calib.yaml` to the config"
         )
     captures = [path for _, path in map(parse_capture_arg, args.capture or [])]
-    captures += [m.replay for m in config.mice if m.replay]
-    reads = input_files(config.path, None, captures)
+    reads = input_files(config.path, None, captures + config_captures(config))
     reference = getattr(args, "reference", None)
     refuse_inputs(config.calibration, [*reads, reference])
 
