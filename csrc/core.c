@@ -61,3 +61,10 @@ int core_floats_of(PyObject *seq, double *v, Py_ssize_t n) {
     return 1;
 }
 
+int core_matrix3_of(PyObject *seq, double m[3][3]) {
+    if (!(PyList_CheckExact(seq) || PyTuple_CheckExact(seq)) || PySequence_Fast_GET_SIZE(seq) != 3)
+        return 0;
+    for (int i = 0; i < 3; i++)
+        if (!core_floats_of(PySequence_Fast_GET_ITEM(seq, i), m[i], 3)) return 0;
+    return 1;
+}

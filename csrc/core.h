@@ -55,6 +55,10 @@ int core_float_of(PyObject *o, double *v);
 /* A list or tuple (exactly) of n exact floats into v: 1, or 0 where it is not one. */
 int core_floats_of(PyObject *seq, double *v, Py_ssize_t n);
 
+/* A 3x3 matrix as a list or tuple of three such rows of three floats into m: 1, or 0
+ * where it is not one. */
+int core_matrix3_of(PyObject *seq, double m[3][3]);
+
 /* Whether every item of the list is exactly a float (not a subclass, not an int). */
 int core_all_floats(PyObject *list);
 

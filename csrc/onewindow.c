@@ -2,15 +2,6 @@
  * body-frame counts, the linear solve, and the pose and covariance carried on. */
 #include "core.h"
 
-/* A 3x3 matrix as three lists of three floats: 1, or 0 where it is not one. */
-static int matrix3_of(PyObject *seq, double m[3][3]) {
-    if (!(PyList_CheckExact(seq) || PyTuple_CheckExact(seq)) || PySequence_Fast_GET_SIZE(seq) != 3)
-        return 0;
-    for (int i = 0; i < 3; i++)
-        if (!core_floats_of(PySequence_Fast_GET_ITEM(seq, i), m[i], 3)) return 0;
-    return 1;
-}
-
 static PyObject *matrix3_list(double m[3][3]) {
     PyObject *rows = PyList_New(3);
     if (rows == NULL) return NULL;
@@ -304,8 +295,8 @@ PyObject *core_advance(PyObject *self, PyObject *args) {
     s.n_dsinc = PyList_CheckExact(odsinc) ? PyList_GET_SIZE(odsinc) : 0;
     if (method < 0 || s.n_sinc < 1 || s.n_sinc > 32 || s.n_dsinc < 1 || s.n_dsinc > 32 ||
         !core_floats_of(osinc, s.sinc, s.n_sinc) || !core_floats_of(odsinc, s.dsinc, s.n_dsinc) ||
-        !core_floats_of(opose, pose, 3) || !matrix3_of(ocov, cov) || !core_floats_of(oat, at, 2) ||
-        !core_floats_of(oq, q, 3) || !matrix3_of(oc3, c3))
+        !core_floats_of(opose, pose, 3) || !core_matrix3_of(ocov, cov) || !core_floats_of(oat, at, 2) ||
+        !core_floats_of(oq, q, 3) || !core_matrix3_of(oc3, c3))
         Py_RETURN_NONE;
     double ux = q[0], uy = q[1], a = q[2], turn = a + owed;
     /* math.sin and math.cos refuse infinities (ValueError): the Python says so */

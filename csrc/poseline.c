@@ -63,11 +63,9 @@ PyObject *core_pose_line(PyObject *self, PyObject *args) {
     if (!core_float_of(ot, &v[0]) || !core_floats_of(opose, v + 1, 3) ||
         !core_floats_of(otwist, v + 4, 3))
         Py_RETURN_NONE;
-    if (!(PyList_CheckExact(ocov) || PyTuple_CheckExact(ocov)) ||
-        PySequence_Fast_GET_SIZE(ocov) != 3)
-        Py_RETURN_NONE;
-    for (Py_ssize_t r = 0; r < 3; r++)
-        if (!core_floats_of(PySequence_Fast_GET_ITEM(ocov, r), v + 7 + 3 * r, 3)) Py_RETURN_NONE;
+    double cov[3][3];
+    if (!core_matrix3_of(ocov, cov)) Py_RETURN_NONE;
+    memcpy(v + 7, cov, sizeof cov);
     for (int k = 0; k < N_FLOATS; k++)
         if (!isfinite(v[k])) Py_RETURN_NONE;
     if (!PyLong_CheckExact(oused) || !PyBool_Check(oupdating) || !PyBool_Check(oconsistent))

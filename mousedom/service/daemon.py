@@ -429,9 +429,7 @@ class Daemon:
     def _shutdown(self) -> None:
         self.notifier.stopping()
         try:
-            self.sensors.read_live()
-            self.publisher.publish(self.tracker.finish())
-            self.publisher.log_scales()
+            self.reloader.finish_windows()
         except Exception:  # noqa: BLE001 - shutting down: log, do not mask the exit
             log.exception("flushing the last poses failed")
         # The outputs the daemon started (the recording, the metrics); the caller's own

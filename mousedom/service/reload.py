@@ -61,7 +61,7 @@ class Reloader:
         for w in new.warnings:  # values that look like the wrong unit
             log.warning("%s", w)
         now = self.clock()
-        self._finish_old()
+        self.finish_windows()
         # finish() may have closed a window ending after now (the one holding the last
         # report): the new grid starts after it, or POSE t would step back once.
         tracker = self.tracker_class(new, t0=max(now, self.publisher.last_pose_t))
@@ -91,8 +91,9 @@ class Reloader:
             self.notifier.notify(READY=1, STATUS=f"reload failed: {e}")
             return None
 
-    def _finish_old(self) -> None:
-        """What is already readable belongs to the old windows: read it, close them all."""
+    def finish_windows(self) -> None:
+        """What is already readable belongs to the running windows: read it, close and
+        publish them all (before a reload, and at the stop)."""
         self.sensors.read_live()
         self.publisher.publish(self.running.tracker.finish())
         self.publisher.log_scales()
