@@ -409,6 +409,22 @@ def test_distance_json_and_write(tmp_path):
 # --------------------------------------------------------------------------- mounts
 
 
+MOUNTS_TRUE = {  # x, y, yaw, CPI
+    "a": (0.1575, 0.0, 0.05, 1020),
+    "b": (-0.07875, 0.1365, 0.0, 1000),
+    "c": (-0.07875, -0.1365, 0.0, 1000),
+}
+
+
+def mounts_recording(motion) -> dict[str, Reports]:
+    """The reports of the three mice of ``mounts_session`` during ``motion``."""
+    mice = [
+        SynthMouse(n, x, y, yaw=math.degrees(yaw), cpi_x=cpi, cpi_y=cpi, phase=0.2 * i)
+        for i, (n, (x, y, yaw, cpi)) in enumerate(MOUNTS_TRUE.items())
+    ]
+    return {m.name: mouse_reports(m, motion, i) for i, m in enumerate(mice)}
+
+
 @pytest.fixture
 def mounts_session(tmp_path):
     """Three mice whose true mounts are 5 % off the nominal triangle (Kim & Lee's set-up),
@@ -417,16 +433,8 @@ def mounts_session(tmp_path):
         [(0.3, 0, 0, 2), (0, 0, 1.5, 2), (0.2, 0, 0.8, 2), (0, 0.1, -1, 2), (-0.2, 0, 0, 2)]
     )
     nominal = {"a": (0.15, 0.0), "b": (-0.075, 0.13), "c": (-0.075, -0.13)}
-    true = {
-        "a": (0.1575, 0.0, 0.05, 1020),
-        "b": (-0.07875, 0.1365, 0.0, 1000),
-        "c": (-0.07875, -0.1365, 0.0, 1000),
-    }
-    mice = [
-        SynthMouse(n, x, y, yaw=math.degrees(yaw), cpi_x=cpi, cpi_y=cpi, phase=0.2 * i)
-        for i, (n, (x, y, yaw, cpi)) in enumerate(true.items())
-    ]
-    rec = {m.name: mouse_reports(m, motion, i) for i, m in enumerate(mice)}
+    true = MOUNTS_TRUE
+    rec = mounts_recording(motion)
     cap = write_native(tmp_path / "drive.mdcap", rec)
     ref = tmp_path / "REF.csv"
     ref.write_text(twist_csv(motion, 100.0))
@@ -843,3 +851,52 @@ def test_distance_on_a_three_mouse_rig_says_which_mice_to_choose(tmp_path):
         caps += ["--capture", f"{n}={f}"]
     p = fails(calib("distance", cfg, "--angle", "90", *caps))
     assert "3 have data (a, b, c; the config has a, b, c): choose two with --mice A,B" in p.stderr
+
+
+def write_native_interleaved(path: Path, recording: dict[str, Reports], chunk: float = 0.1) -> Path:
+    """As ``write_native``, but in time order, ``chunk`` seconds of every mouse at a time, as
+    the recorder writes: a file cut anywhere holds every mouse up to about one time."""
+    devices = [DeviceInfo(name=f"sim {n}", mouse=n) for n in recording]
+    end = max(float(r.t[-1]) for r in recording.values())
+    with NativeWriter(path, devices, time_base="monotonic") as w:
+        for a in np.arange(0.0, end + chunk, chunk):
+            for i, rep in enumerate(recording.values()):
+                sel = (rep.t >= a) & (rep.t < a + chunk)
+                if sel.any():
+                    w.motion(i, rep.t[sel], rep.dx[sel].astype(int), rep.dy[sel].astype(int))
+            w.sync(min(a + chunk, end))
+    return path
+
+
+@pytest.mark.parametrize("cut", [1.7, 4.1, 7.5, 10.9, 13.0])
+def test_mounts_refuse_a_capture_truncated_mid_motion(mounts_session, cut):
+    """Regression: a capture cut short (here its bytes, in the middle of a chunk, as a full
+    disk or a killed recorder leaves it) was fitted to the whole reference with exit 0, and
+    --write stored mice at (0, 27 mm) with scale 2.23.  Refused now, with exit 2, and
+    nothing is written.  ``cut``: a time in the hold of a move, where much motion is left."""
+    tmp, cfg, caps, ref, _, motion = mounts_session
+    rec = mounts_recording(motion)
+    early = {
+        n: Reports(n, r.t[r.t < cut], r.dx[r.t < cut], r.dy[r.t < cut]) for n, r in rec.items()
+    }
+    size = write_native_interleaved(tmp / "early.mdcap", early).stat().st_size
+    cap = write_native_interleaved(tmp / "drive.mdcap", rec)
+    cap.write_bytes(cap.read_bytes()[: size + 20])  # into the next chunk's header and data
+    p = calib("mounts", cfg, *caps, "--reference", str(ref), "--write")
+    fails(p, f"{ref}: the reference moves at", "the captures end in the middle of a motion")
+    assert not (tmp / "rig.calib.yaml").exists()
+
+
+@pytest.mark.parametrize("what", ["cpi", "mounts"])
+def test_a_mouse_whose_own_capture_ends_in_a_run_is_named(mounts_session, what):
+    """One mouse's evemu capture cut in the middle of the third run, the others whole: its
+    part of that run would be taken for the whole run (a wrong CPI, wrong mounts)."""
+    tmp, cfg, caps, ref, _, motion = mounts_session
+    rec = mounts_recording(motion)
+    args = []
+    for n, rep in rec.items():
+        keep = rep.t <= (7.5 if n == "b" else np.inf)
+        part = Reports(n, rep.t[keep], rep.dx[keep], rep.dy[keep])
+        args += ["--capture", f"{n}={write_evemu(tmp / f'{n}.events', part)}"]
+    extra = ["--reference", str(ref)] if what == "mounts" else ["--distance", "0.3"]
+    fails(calib(what, cfg, *args, *extra), "mouse b: its motion ends at t = ", "inside run 3")

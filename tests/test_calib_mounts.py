@@ -247,3 +247,90 @@ def test_exact_with_a_reference_clock_20_ms_late(window, tolerance):
     for m in mice:
         fit = res.fits[m.name]
         assert math.hypot(fit.x - m.x, fit.y - m.y) < tolerance
+
+
+# --------------------------------------------------------- a capture cut in a motion
+
+
+def _cut_session(seed: int, keep: tuple[float, float], ref_noise: float = 0.0, lag: float = 0.0):
+    """A drive of two fixed moves (a push and a turn, so that the motion can give mounts)
+    and three random ones, its mice's reports kept only over ``keep`` (a capture cut short),
+    and its reference with additive noise (m/s, and rad/s over 0.1 m) ``lag`` s late."""
+    from mousedom.calibrate import session as sess
+    from mousedom.calibrate.reference import parse_reference
+    from mousedom.calibrate.synth import twist_csv
+    from mousedom.config import parse_config
+    from mousedom.sources.base import Reports
+
+    rng = np.random.default_rng(seed)
+    moves = [(0.3, 0, 0, 2), (0, 0, 1.5, 2)]
+    moves += [
+        (*rng.uniform(-0.3, 0.3, 2), rng.uniform(-1.5, 1.5), rng.uniform(1, 3)) for _ in range(3)
+    ]
+    motion = build_motion(moves)
+    mice = [
+        SynthMouse(n, x, y, phase=rng.uniform())
+        for n, x, y in (("a", 0.15, 0.0), ("b", -0.075, 0.13), ("c", -0.075, -0.13))
+    ]
+    rec = {}
+    for i, m in enumerate(mice):
+        rep = mouse_reports(m, motion, seed + i)
+        inside = (rep.t >= keep[0]) & (rep.t <= keep[1])
+        rec[m.name] = Reports(m.name, rep.t[inside], rep.dx[inside], rep.dy[inside])
+    cfg = parse_config(
+        "mice:\n"
+        + "".join(f"  {m.name}: {{cpi: 1000, mount: {{x: {m.x}, y: {m.y}}}}}\n" for m in mice),
+        "rig.yaml",
+        need_sources=False,
+    )
+    ref = parse_reference(twist_csv(motion, 100.0, t_offset=lag), "REF.csv")
+    noise = ref_noise * rng.standard_normal(ref.values.shape) * np.array([1.0, 1.0, 10.0])
+    ref = type(ref)(ref.kind, ref.t, ref.values + noise, ref.path)
+    return sess, sess.make_session(cfg, rec, split_runs(rec)), ref, motion, mice
+
+
+def _move_spans(motion) -> list[tuple[float, float]]:
+    """(start, end) of each move of a ``build_motion`` drive (its knots come in fours)."""
+    return [
+        (float(motion.t[1 + 4 * k]), float(motion.t[4 + 4 * k]))
+        for k in range((len(motion.t) - 2) // 4)
+    ]
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_mounts_refuse_a_capture_that_ends_or_begins_in_a_motion(seed):
+    """Regression: a capture that ended mid-motion was fitted to the reference's whole motion
+    with exit 0 (mounts 6-30 mm off, scales up to 2.23).  The mice are still where the
+    reference moves: refused, naming the reference and the end or beginning cut."""
+    from mousedom.errors import UserError
+
+    rng = np.random.default_rng(1000 + seed)
+    _, _, _, motion, _ = _cut_session(seed, (0, np.inf))
+    spans = _move_spans(motion)
+    k = int(rng.integers(2, len(spans)))
+    start, end = spans[k]
+    cut = rng.uniform(start + 0.3, end - 0.2)  # in the move's hold: much motion is left
+    sess, s, ref, _, _ = _cut_session(seed, (0, cut))
+    with pytest.raises(UserError, match=r"REF\.csv: .*captures end in the middle of a motion"):
+        sess.mounts(s, ref, "exact")
+    begin = rng.uniform(spans[0][0] + 0.3, spans[0][1] - 0.2)
+    sess, s, ref, _, _ = _cut_session(seed, (begin, np.inf))
+    with pytest.raises(UserError, match=r"captures begin in the middle of a motion"):
+        sess.mounts(s, ref, "exact")
+    # Cut in a pause instead: every run is whole, and the fit exact.
+    pause = rng.uniform(spans[k - 1][1] + 0.1, start - 0.1)
+    sess, s, ref, _, mice = _cut_session(seed, (0, pause))
+    res = sess.mounts(s, ref, "exact")
+    for m in mice:
+        assert math.hypot(res.fits[m.name].x - m.x, res.fits[m.name].y - m.y) < 2e-4
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_mounts_take_a_noisy_reference_a_little_late(seed):
+    """The pause check must not refuse a whole capture whose reference has additive noise
+    (5 mm/s, 0.05 rad/s a sample at 100 Hz) and a clock up to 20 ms off the mice's."""
+    lag = np.random.default_rng(seed).uniform(-0.02, 0.02)
+    sess, s, ref, _, mice = _cut_session(seed, (0, np.inf), ref_noise=0.005, lag=lag)
+    res = sess.mounts(s, ref, "exact", window=0.0)
+    for m in mice:
+        assert math.hypot(res.fits[m.name].x - m.x, res.fits[m.name].y - m.y) < 5e-3

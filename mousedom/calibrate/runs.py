@@ -167,3 +167,30 @@ def need_runs(found: int, needed: int, what: str, gap: float) -> None:
             f"{what}: found {found} run(s), need at least {needed} "
             f"(runs are separated by pauses of more than {gap:g} s; see --gap)"
         )
+
+
+def check_whole_captures(recording: Mapping[str, Reports], runs: Sequence[Run], gap: float) -> None:
+    """Raise when a mouse's motion begins or ends inside a run while the others move on
+    for longer than ``gap``: its capture was cut short (a killed recorder, a full disk, a
+    truncated file) and the run's counts for it are only a part of the run.
+
+    A mouse that is still for longer than ``gap`` inside a run (at the centre of a turn)
+    and then reports again is not cut: only its first and last motion are looked at.
+    """
+    for name, rep in recording.items():
+        t = moving(rep)
+        if not len(t):
+            continue  # no motion at all: the calibration says so, naming the mouse
+        for k, r in enumerate(runs):
+            if r.t0 <= t[-1] < r.t1 - gap:
+                raise UserError(
+                    f"mouse {name}: its motion ends at t = {t[-1]:.3f} s, inside run {k + 1} "
+                    f"({r.t0:.3f} .. {r.t1:.3f} s) where the other mice move on: its capture "
+                    "ends in the middle of a motion (cut short?); every run must be whole"
+                )
+            if r.t0 + gap < t[0] <= r.t1:
+                raise UserError(
+                    f"mouse {name}: its motion begins at t = {t[0]:.3f} s, inside run {k + 1} "
+                    f"({r.t0:.3f} .. {r.t1:.3f} s) where the other mice moved before: its "
+                    "capture begins in the middle of a motion; every run must be whole"
+                )

@@ -22,7 +22,7 @@ from mousedom.calibrate.mounts import MountError, MountFit, exact_mount, kimlee,
 from mousedom.calibrate.reference import Reference, WheelGeometry, check_coverage, window_twist
 from mousedom.calibrate.runs import Run, moving, run_counts, run_windows, runs_window_counts
 from mousedom.config import Config
-from mousedom.errors import UserError
+from mousedom.errors import UserError, located
 from mousedom.sources.base import Reports
 
 SMALL_RUN = 0.25  # a run with less motion than this fraction of the median is a bump
@@ -151,6 +151,82 @@ def spread_mounts(config: Config, names: Sequence[str], d: float) -> dict[str, t
     return {a.name: tuple(mid - u * d / 2), b.name: tuple(mid + u * d / 2)}
 
 
+PAUSE_MOTION = 0.02  # reference motion in a pause, as a fraction of a run's: a cut run
+CLOCK_SLACK = 0.03  # seconds the reference's clock may be off the mice's in that check
+PATH_STEP = 0.01  # seconds: the reference's path length is summed over steps this long
+
+
+def _scaled_steps(
+    ref: Reference, t0: float, t1: float, geo: WheelGeometry | None, size: float
+) -> np.ndarray:
+    """The reference's twist over steps of PATH_STEP across [t0, t1], turns times ``size``
+    (as in ``motion_problem``); no rows where the span is empty."""
+    if not t1 > t0:
+        return np.zeros((0, 3))
+    edges = np.linspace(t0, t1, max(2, min(100_000, math.ceil((t1 - t0) / PATH_STEP)) + 1))
+    return window_twist(ref, edges, geo) * np.array([1.0, 1.0, size])
+
+
+def _path_length(steps: np.ndarray) -> float:
+    return float(np.sum(np.linalg.norm(steps, axis=1)))
+
+
+def _excursion(steps: np.ndarray) -> float:
+    """How far the reference gets from where it was at the span's start: its noise, which
+    a path length would add up, mostly cancels."""
+    return float(np.max(np.linalg.norm(np.cumsum(steps, axis=0), axis=1), initial=0.0))
+
+
+def _reference_still_in_pauses(
+    session: Session,
+    ref: Reference,
+    edges: Sequence[np.ndarray],
+    geo: WheelGeometry | None,
+    gap: float,
+    period: float,
+    size: float,
+) -> None:
+    """Raise when the reference moves where every mouse was still: in a pause between two
+    runs, or within ``gap`` before the first run or after the last one.
+
+    Runs are cut where the mice were still for longer than ``gap``, so reference motion
+    there means the mice did not see it: most often a capture that ends (or begins) in the
+    middle of a motion, whose run would be fitted to only part of the reference's motion
+    and give wrong mounts with a small residual.  A pause begins one report ``period`` plus
+    CLOCK_SLACK after a run's last motion report (and ends as long before the next run's
+    first), so that a reference whose clock is a few milliseconds off is not refused.
+    """
+    runs = session.runs
+    paths = [_path_length(_scaled_steps(ref, e[0], e[-1], geo, size)) for e in edges]
+    margin = period + CLOCK_SLACK
+    pauses = [(max(ref.t[0], runs[0].t0 - gap), runs[0].t0 - margin, 0, "begin")]
+    pauses += [
+        (r.t1 + margin, n.t0 - margin, k, "")
+        for k, (r, n) in enumerate(zip(runs[:-1], runs[1:], strict=True))
+    ]
+    pauses += [(runs[-1].t1 + margin, min(ref.t[-1], runs[-1].t1 + gap), len(runs) - 1, "end")]
+    for a, b, k, cut in pauses:
+        nearby = [paths[j] for j in (k, k + 1) if j < len(runs) and (cut == "" or j == k)]
+        moved = _excursion(_scaled_steps(ref, a, b, geo, size))
+        if not min(nearby) > 0 or not moved > PAUSE_MOTION * min(nearby):
+            continue
+        where = {
+            "begin": f"before run 1 ({runs[0].t0:.3f} s): the captures begin",
+            "end": f"after run {k + 1} (to {runs[k].t1:.3f} s): the captures end",
+            "": f"between runs {k + 1} and {k + 2}: a mouse missed a motion, or",
+        }[cut]
+        why = "in the middle of a motion" if cut else "the clocks differ"
+        raise UserError(
+            located(
+                ref.path,
+                None,
+                f"the reference moves at t = {a:.3f} .. {b:.3f} s, where every mouse was "
+                f"still ({moved / min(nearby):.0%} of a run's motion), {where} {why}; the "
+                "mounts would be fitted to part of a motion",
+            )
+        )
+
+
 @dataclass
 class MountsResult:
     method: str
@@ -166,8 +242,10 @@ def mounts(
     method: str = "exact",
     geo: WheelGeometry | None = None,
     window: float = 0.25,
+    gap: float = 0.5,
 ) -> MountsResult:
-    """Kim & Lee or exact mount calibration against the reference motion."""
+    """Kim & Lee or exact mount calibration against the reference motion; ``gap``: the
+    pause that split the runs (``split_runs``)."""
     if not session.runs:
         raise UserError("calibrate mounts: no runs: the mice never moved")
     mice = [session.config.mouse(n) for n in session.names]
@@ -194,6 +272,8 @@ def mounts(
     for k, e in enumerate(edges):
         e[0] -= max(0.0, min(PAD, room[k] - period))
         e[-1] += max(0.0, min(PAD, after[k]))
+    size = max([0.05] + [math.hypot(m.mount.x, m.mount.y) for m in mice])
+    _reference_still_in_pauses(session, ref, edges, geo, gap, period, size)
     w = np.concatenate([window_twist(ref, e, geo) for e in edges])
     counts = np.zeros((len(w), len(mice), 2))
     for j, m in enumerate(mice):
@@ -201,7 +281,6 @@ def mounts(
         for axis, values in enumerate((rep.dx, rep.dy)):
             counts[:, j, axis] = runs_window_counts(rep.t, values, edges, 1.0 / m.report_hz)
     _no_motion(session, counts)
-    size = max([0.05] + [math.hypot(m.mount.x, m.mount.y) for m in mice])
     problem = motion_problem(w, size)
     if problem:
         raise UserError(f"calibrate mounts: {problem}")

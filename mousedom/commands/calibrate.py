@@ -20,7 +20,7 @@ from mousedom.allocator import keep_freed_memory
 from mousedom.calibrate import calfile, report, scales, session
 from mousedom.calibrate.inputs import load_captures
 from mousedom.calibrate.reference import WheelGeometry, read_reference
-from mousedom.calibrate.runs import need_runs, split_runs
+from mousedom.calibrate.runs import check_whole_captures, need_runs, split_runs
 from mousedom.capture.assignment import config_captures, input_files, parse_capture_arg
 from mousedom.commands import _options as options
 from mousedom.config import Config, load_config
@@ -263,6 +263,7 @@ def _setup(args: argparse.Namespace, names: list[str] | None = None):
                 raise UserError(f"no --capture for mouse {', '.join(missing)}")
             recording = {n: recording[n] for n in wanted}
         runs = split_runs(recording, args.gap)
+        check_whole_captures(recording, runs, args.gap)
     else:
         recording, runs = _live(config, wanted or list(config.names), args)
     return config, session.make_session(config, recording, runs)
@@ -412,7 +413,7 @@ def run_mounts(args: argparse.Namespace) -> int:
     ref = read_reference(args.reference)  # after a live session: the logger may write it
     need_runs(len(s.runs), args.min_runs or 1, "calibrate mounts", args.gap)
     geo = _wheel_geometry(args, config)
-    result = session.mounts(s, ref, args.method, geo, args.window)
+    result = session.mounts(s, ref, args.method, geo, args.window, args.gap)
     _emit(args, report.mounts_json(result), report.mounts_text(result, config), s, result.warnings)
     if args.write:
 
