@@ -39,17 +39,25 @@ def suspects(mice: list[tuple[str, float, float, float, float, float]]) -> list[
                                f"{yaw_deg:g} is read as degrees; if it is radians, that is "
                                f"{meant:.4g} degrees (yaw is in degrees)"))  # fmt: skip
         for key, v in (("cpi", cx),) if cx == cy else (("cpi.x", cx), ("cpi.y", cy)):
-            lo, hi = CPI_RANGE
-            if not lo <= v <= hi:
-                hint = ""
-                if v > hi:
-                    hint = f"; if that is counts per metre, {v * 0.0254:.0f} CPI"
-                elif v * 1000 / 25.4 >= lo and v < lo:
-                    hint = f"; if that is counts per millimetre, {v * 25.4:.0f} CPI"
-                out.append(Suspect(("mice", name, *key.split(".")),
-                                   f"{v:g} counts per inch is outside {lo:g}-{hi:g}, what "
-                                   f"mice report{hint}"))  # fmt: skip
+            problem = cpi_problem(v)
+            if problem:
+                out.append(Suspect(("mice", name, *key.split(".")), problem))
     return out
+
+
+def cpi_problem(v: float) -> str | None:
+    """Why ``v`` counts per inch is not what a mouse reports (with the unit it may be in),
+    or None.  A warning in a config (a new sensor may go beyond the range); a calibration
+    result outside it is not stored without --force (it comes from bad runs or data)."""
+    lo, hi = CPI_RANGE
+    if lo <= v <= hi:
+        return None
+    hint = ""
+    if v > hi:
+        hint = f"; if that is counts per metre, {v * 0.0254:.0f} CPI"
+    elif v * 1000 / 25.4 >= lo and v < lo:
+        hint = f"; if that is counts per millimetre, {v * 25.4:.0f} CPI"
+    return f"{v:g} counts per inch is outside {lo:g}-{hi:g}, what mice report{hint}"
 
 
 def format_all(items: list[Suspect], where: Callable[[tuple[str, ...]], str]) -> list[str]:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -763,16 +764,17 @@ def test_cpi_from_an_adns_capture(tmp_path):
 def test_write_never_leaves_a_calibration_that_does_not_load(cpi_session):
     """Regression: --write replaced the file first and checked it after, so a result the
     config refuses (here cpi 0.0 from a --distance in the wrong unit) stayed on disk and
-    broke the next daemon start or SIGHUP.  Now the old file is put back."""
+    broke the next daemon start or SIGHUP.  Now the old file is put back.  (Such a CPI is
+    refused before the store too, as no mouse's: --force passes that, to reach the store.)"""
     tmp, cfg, files = cpi_session
     base = ["calibrate", "cpi", "--config", str(cfg), "--capture", f"left={files['left']}"]
     cal = tmp / "rig.calib.yaml"
-    p = fails(run_mousedom(*base, "--distance", "1e6", "--write"), "not written")
+    p = fails(run_mousedom(*base, "--distance", "1e6", "--write", "--force"), "not written")
     assert "mice.left.cpi.y: must be a positive number" in p.stderr
     assert not cal.exists()  # there was none before
     ok(run_mousedom(*base, "--distance", "0.2", "--write"))
     before = cal.read_bytes()
-    fails(run_mousedom(*base, "--distance", "1e6", "--write"), "not written")
+    fails(run_mousedom(*base, "--distance", "1e6", "--write", "--force"), "not written")
     assert cal.read_bytes() == before
     assert sorted(p.name for p in tmp.iterdir() if p.name.startswith(".")) == []
     ok(run_mousedom("check-config", "--config", str(cfg), "--no-sources"))
@@ -900,3 +902,56 @@ def test_a_mouse_whose_own_capture_ends_in_a_run_is_named(mounts_session, what):
         args += ["--capture", f"{n}={write_evemu(tmp / f'{n}.events', part)}"]
     extra = ["--reference", str(ref)] if what == "mounts" else ["--distance", "0.3"]
     fails(calib(what, cfg, *args, *extra), "mouse b: its motion ends at t = ", "inside run 3")
+
+
+@pytest.mark.parametrize("true_cpi", [5.45e8, 40.0, 40000.0])
+def test_a_cpi_no_mouse_reports_is_not_stored_without_force(tmp_path, true_cpi):
+    """Regression: a capture whose counts are hostile (near 2^31 a report) gave a CPI of
+    545 million, stored by --write with only a warning, and check-config said nothing of
+    it.  A result outside what mice report (``plausible.CPI_RANGE``) is now a warning that
+    --write refuses (exit 2) unless --force; stored, check-config names its file and line."""
+    motion = build_motion([(0.2 * (-1) ** k, 0, 0, 1.2) for k in range(4)])
+    rep = mouse_reports(SynthMouse("m", 0, 0, cpi_x=true_cpi, cpi_y=true_cpi), motion, 0)
+    cap = write_evemu(tmp_path / "m.events", rep)
+    mice = {"m": {"cpi": 1000, "mount": {"x": 0, "y": 0.1}}, "n": {"cpi": 1000, "mount": {"x": 0}}}
+    cfg = write_config(tmp_path, mice)
+    args = ["--capture", f"m={cap}", "--mouse", "m", "--distance", "0.2"]
+    p = ok(calib("cpi", cfg, *args))
+    assert "counts per inch is outside" in p.stderr
+    fails(calib("cpi", cfg, *args, "--write"), "not written", "--force")
+    assert not (tmp_path / "rig.calib.yaml").exists()
+    ok(calib("cpi", cfg, *args, "--write", "--force"))
+    p = ok(run_mousedom("check-config", "--config", str(cfg), "--no-sources"))
+    assert re.search(r"rig\.calib\.yaml:\d+: .*counts per inch is outside", p.stderr), p.stderr
+
+
+def test_mounts_scale_to_a_cpi_no_mouse_reports_is_not_stored(mounts_session):
+    """An exact fit's scale that turns the CPI into one no mouse reports (here a capture
+    whose mouse a reports 100 times its counts) is refused by --write unless --force."""
+    tmp, cfg, caps, ref, _, motion = mounts_session
+    rec = mounts_recording(motion)
+    a = rec["a"]
+    rec["a"] = Reports("a", a.t, a.dx * 100, a.dy * 100)  # 102,000 CPI: scale 102
+    write_native(tmp / "drive.mdcap", rec)
+    args = [*caps, "--reference", str(ref), "--window", "0"]
+    fails(
+        calib("mounts", cfg, *args, "--write"),
+        "mouse a: scale 10",
+        "counts per inch is outside",
+        "not written",
+    )
+    assert not (tmp / "rig.calib.yaml").exists()
+    ok(calib("mounts", cfg, *args, "--write", "--force"))
+
+
+def test_scales_on_captures_without_motion_say_one_error(tmp_path):
+    """Regression: replay's "no motion reports in the captures: no pose to write" came
+    before scales' own error: two lines for one problem.  Now one error, exit 2."""
+    cfg, _, cpis = _scale_drive(tmp_path, 0.5)
+    cap = tmp_path / "still.mdcap"
+    devices = [DeviceInfo(name=f"sim {n}", mouse=n) for n in cpis]
+    with NativeWriter(cap, devices, time_base="monotonic") as w:
+        w.sync(5.0)
+    caps = [a for n in cpis for a in ("--capture", f"{n}={cap}")]
+    p = fails(calib("scales", cfg, *caps), "the captures hold no motion")
+    assert len(p.stderr.splitlines()) == 1, p.stderr

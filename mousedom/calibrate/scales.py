@@ -99,6 +99,11 @@ def learn(
         )
     replay = Replay(config, assign(config, specs))
     summary = replay.run(lambda batch: None, progress=progress)
+    if not summary.windows:  # one error, not replay's "no pose to write" before it
+        raise UserError(
+            "the captures hold no motion: nothing to learn the scales from (a drive recorded "
+            "with `mousedom record` or `mousedom run --record`, every mouse on the floor)"
+        )
     learner = replay.tracker.scales
     assert learner is not None  # learn_scale is on (above): the tracker has its learner
     mice = []

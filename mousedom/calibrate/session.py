@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from mousedom import plausible
 from mousedom.calibrate.counts import body_frame, mouse_frame
 from mousedom.calibrate.cpi import CpiError, CpiResult, calibrate_cpi
 from mousedom.calibrate.distance import DistanceError, DistanceResult, calibrate_distance
@@ -95,6 +96,9 @@ def cpi(session: Session, distance: float, axis: str, min_runs: int = 2) -> dict
             out[name] = calibrate_cpi(c[keep], distance, axis, across, min_runs=min_runs)
         except CpiError as e:
             raise UserError(f"mouse {name}: {e}") from None
+        problem = plausible.cpi_problem(out[name].cpi)
+        if problem:  # bad runs or hostile data: not stored without --force
+            out[name].warnings.append(f"cpi {axis}: {problem}")
         # Far from the configured CPI is most often a --distance in the wrong unit.
         before = mouse.cpi_y if axis == "y" else mouse.cpi_x
         off = out[name].cpi / before - 1
@@ -324,3 +328,18 @@ def mounts(
             f"Kim & Lee (49): {len(w)} measurements, they need at least {2 * len(mice) - 2}"
         )
     return MountsResult("kimlee", fits, len(w), res.rank, warnings)
+
+
+def implausible_mounts(result: MountsResult, config: Config) -> list[str]:
+    """Warnings for the CPIs an exact fit's scales give that no mouse reports
+    (``plausible.cpi_problem``): not stored without --force."""
+    out: list[str] = []
+    if result.method != "exact":
+        return out
+    for name, fit in result.fits.items():
+        m = config.mouse(name)
+        for axis, cpi in dict.fromkeys((("x", m.cpi_x * fit.scale), ("y", m.cpi_y * fit.scale))):
+            problem = plausible.cpi_problem(cpi)
+            if problem:
+                out.append(f"mouse {name}: scale {fit.scale:.6g} gives cpi {axis}: {problem}")
+    return out

@@ -179,6 +179,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     m.add_argument(
         "--track", type=_length, metavar="METRES", help=f"distance between the wheels, {wheels}"
     )
+    m.add_argument("--force", action="store_true", help=FORCE_HELP)
     m.set_defaults(func=run_mounts)
 
     sc = what.add_parser(
@@ -323,17 +324,22 @@ def _not_finite(doc: Any, path: str = "") -> str | None:
     return None
 
 
-FORCE_HELP = "with --write: store the result even though its runs disagree"
+FORCE_HELP = (
+    "with --write: store the result even though its runs disagree or it gives a CPI no "
+    "mouse reports"
+)
 
 
 def _refuse_doubtful(config: Config, warnings: list[str], force: bool) -> None:
-    """Runs that disagree (or mice that slipped apart) make a mean no one should trust:
-    said, and not stored unless --force.  A result merely far from the configured value
-    is stored with its warning: the configured value may be the rough guess."""
+    """Runs that disagree (or mice that slipped apart), or a CPI outside what mice report
+    (``plausible.cpi_problem``: bad runs, or hostile data), make a result no one should
+    trust: said, and not stored unless --force.  A result merely far from the configured
+    value is stored with its warning: the configured value may be the rough guess."""
     if warnings and not force:
         raise UserError(
-            f"{config.calibration}: not written: the runs disagree (warnings above); "
-            "repeat them, or pass --force to store the mean anyway"
+            f"{config.calibration}: not written: the runs disagree or the result is not "
+            "what a mouse reports (warnings above); repeat them, or pass --force to store "
+            "the result anyway"
         )
 
 
@@ -414,8 +420,11 @@ def run_mounts(args: argparse.Namespace) -> int:
     need_runs(len(s.runs), args.min_runs or 1, "calibrate mounts", args.gap)
     geo = _wheel_geometry(args, config)
     result = session.mounts(s, ref, args.method, geo, args.window, args.gap)
-    _emit(args, report.mounts_json(result), report.mounts_text(result, config), s, result.warnings)
+    doubtful = session.implausible_mounts(result, config)
+    lines = report.mounts_text(result, config)
+    _emit(args, report.mounts_json(result), lines, s, result.warnings + doubtful)
     if args.write:
+        _refuse_doubtful(config, doubtful, args.force)
 
         def update(data):
             for n, f in result.fits.items():

@@ -111,7 +111,8 @@ def parse_config(
         for s in found  # file:line: key: message
     )
     if calibration_path:
-        mice = apply_calibration(mice, Path(calibration_path))
+        mice, calibrated = apply_calibration(mice, Path(calibration_path))
+        warnings += tuple(calibrated)
 
     if need_sources:
         for m in mice:

@@ -8,7 +8,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from mousedom import safeyaml
+from mousedom import plausible, safeyaml
 from mousedom.config.rig import (
     ADNS3080_MAX_SPEED,
     ADNS3080_MIN_SQUAL,
@@ -162,13 +162,17 @@ def read_mouse(doc: YamlDoc, name: str, value: Any, base_dir: Path) -> MouseConf
     return mouse
 
 
-def apply_calibration(mice: tuple[MouseConfig, ...], path: Path) -> tuple[MouseConfig, ...]:
+def apply_calibration(
+    mice: tuple[MouseConfig, ...], path: Path
+) -> tuple[tuple[MouseConfig, ...], list[str]]:
     """``mice`` with the CPI and mounts of the calibration file at ``path`` (schema:
-    mousedom.calibrate.calfile); unchanged if the file does not exist yet."""
+    mousedom.calibrate.calfile), unchanged if the file does not exist yet; and warnings
+    (``file:line: key: message``) for a calibrated CPI no mouse reports
+    (``plausible.cpi_problem``), as the config's own CPI gets."""
     try:
         text = safeyaml.read_text(path)
     except FileNotFoundError:
-        return mice
+        return mice, []
     except OSError as e:
         raise ConfigError(
             located(str(path), None, f"cannot read calibration: {e.strerror}")
@@ -179,6 +183,7 @@ def apply_calibration(mice: tuple[MouseConfig, ...], path: Path) -> tuple[MouseC
     top = Reader(doc, doc.data, ())
     section = top.sub("mice")
     by_name = {m.name: m for m in mice}
+    warnings: list[str] = []
     for name in section.value:
         if name not in by_name:
             raise section.err(str(name), "calibration for a mouse the config does not have")
@@ -186,10 +191,15 @@ def apply_calibration(mice: tuple[MouseConfig, ...], path: Path) -> tuple[MouseC
         m = by_name[name]
         cpi_x, cpi_y = _cpi(r, "cpi", (m.cpi_x, m.cpi_y))
         by_name[name] = replace(m, cpi_x=cpi_x, cpi_y=cpi_y, mount=_mount(r, m.mount))
+        if r.has("cpi"):
+            for v in dict.fromkeys((cpi_x, cpi_y)):
+                problem = plausible.cpi_problem(v)
+                if problem:
+                    warnings.append(str(doc.error(("mice", str(name), "cpi"), problem)))
         r.raw("scale")  # informational, written by `calibrate mounts`
         r.finish()
     section.finish()
     for key in top.value:  # other sections (distance, notes) are informational
         top.used.add(key)
     doc.raise_problems()
-    return tuple(by_name[m.name] for m in mice)
+    return tuple(by_name[m.name] for m in mice), warnings
