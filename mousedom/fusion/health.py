@@ -4,8 +4,10 @@ batches, the replay CSV, SOURCE and the metrics carry."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from enum import IntEnum
+
+import numpy as np
 
 
 class Health(IntEnum):
@@ -51,3 +53,13 @@ class MouseHealth:
     state: int = TRACKING
     reason: int = NONE
     good: int = 0  # consecutive windows of agreement toward re-admission
+    # An excluded mouse's re-admission (robust.Screen._held_out): over those windows, its
+    # fit of a reading in proportion to the motion (the information-weighted residual along
+    # its predicted motion, and the information); and while it is behind (a window it
+    # disagreed in, to be paid back by the next as a late mouse's counts are), the windows
+    # behind, their residual and its covariance summed.
+    fit_r: float = 0.0
+    fit_info: float = 0.0
+    behind: int = 0
+    behind_r: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    behind_cov: np.ndarray = field(default_factory=lambda: np.zeros((2, 2)))

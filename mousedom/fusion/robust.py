@@ -100,6 +100,14 @@ _CATCH_UP_LEVERAGE = 0.75
 TAKE_BACK_WINDOWS = 3
 
 
+def _within(r: np.ndarray, cov: np.ndarray, thr2: float) -> bool:
+    """Whether the residual r (2,) of covariance ``cov`` (2, 2) passes the test of two
+    degrees of freedom whose threshold is ``thr2``."""
+    if not np.all(np.isfinite(cov)):
+        return True  # nothing predicts it: nothing to disagree with
+    return float(r @ np.linalg.solve(cov, r)) <= thr2
+
+
 class Explanation(NamedTuple):
     """A set of mice whose exclusion lets the window pass, with the test it passed."""
 
@@ -591,6 +599,9 @@ class Screen(RigidTest):
         s2 = floor + prop
         m2 = np.maximum(np.sum(d * d, axis=1), np.sum(p * p, axis=1))
         not_proportional = s2 - self.noise.lam_r * self.noise.rho2 * m2
+        held = live & ~used
+        pc = (self.prediction_cov(used, s2) if held.any() and used.any()
+              else np.zeros((self.n, 2, 2)))  # fmt: skip
         for i, h in enumerate(self.health):
             if not live[i]:
                 h.state, h.reason, h.good = MISSING, NONE, 0
@@ -598,7 +609,7 @@ class Screen(RigidTest):
             if h.state == MISSING:
                 h.state, h.reason, h.good = TRACKING, NONE, 0
             if not used[i]:
-                self._held_out(i, h, d, p, reason[i], s2[i], not_proportional[i])
+                self._held_out(i, h, d, p, reason[i], s2[i], not_proportional[i], pc[i])
                 continue
             if suspect[i]:
                 h.state, h.reason, h.good = SUSPECT, reason[i] or INCONSISTENT, 0
@@ -611,10 +622,11 @@ class Screen(RigidTest):
                     h.state, h.reason, h.good = TRACKING, NONE, 0
 
     def _held_out(self, i: int, h: MouseHealth, d: np.ndarray, p: np.ndarray, why: int,
-                  s2: float, not_proportional: float) -> None:  # fmt: skip
+                  s2: float, not_proportional: float, pred_cov: np.ndarray) -> None:  # fmt: skip
         """_update for a live mouse left out of this window's solve: held out by it
         (blamed, or gated by its sensor's evidence), or held out before (late, or
-        excluded and counting toward re-admission)."""
+        excluded and counting toward re-admission).  ``pred_cov``: the covariance (2, 2) of
+        its prediction ``p[i]`` from the mice in use (``prediction_cov``)."""
         thr2 = self._thresholds[2]
         if h.state in (EXCLUDED, LATE) and why in (SATURATED, LOW_QUALITY):
             # its sensor's word on a mouse held out already: out for that now, and what it
@@ -640,19 +652,53 @@ class Screen(RigidTest):
         if h.state == LATE:
             self._late(d, p, i, h, thr2 * 2.0 * self.ledger.owed_s2[i])
             return
+        self._waiting(i, h, d, p, s2, not_proportional, pred_cov)
+
+    def _waiting(self, i: int, h: MouseHealth, d: np.ndarray, p: np.ndarray, s2: float,
+                 not_proportional: float, pred_cov: np.ndarray) -> None:  # fmt: skip
+        """_held_out for a mouse excluded before this window, waiting to be re-admitted."""
+        thr2 = self._thresholds[2]
         # Excluded earlier: count the windows that would have shown its fault (the others
-        # moved it well beyond its error) and where it agreed.
+        # moved it well beyond its error) and where it agreed.  Each window is held to
+        # the mouse's error and its prediction's (``pred_cov``): far from mice that fix
+        # the turn poorly (a close pair and a far mouse), the prediction's error across
+        # the line to them is many times the mouse's own, and a healthy mouse held to its
+        # own alone never agrees again.  So that a fault that looser test lets by (an
+        # under-read at low speed) is still told, the run is also judged as a whole
+        # (``_run_agrees``).  A window it disagrees in leaves it behind, as a late mouse
+        # is, for up to ``lateness.limit`` windows: it agrees again once its residuals
+        # summed since are within their summed error (the counts came), and its run goes
+        # on; a mouse still behind after that starts a new run.
         r = d[i] - p[i]
-        if r @ r > thr2 * s2:
+        cov = s2 * np.eye(2) + pred_cov
+        if h.behind:
+            r, cov = r + h.behind_r, cov + h.behind_cov
+        if not _within(r, cov, thr2):
+            if h.behind < self.lateness.limit:
+                h.behind += 1
+                h.behind_r, h.behind_cov = r, cov
+                return
+            h.behind = 0
             self.ledger.end_run(i, h.good)
             h.good = 0
             h.reason = SILENT if self._silent(d, i) else INCONSISTENT
             return
+        caught_up, h.behind = h.behind > 0, 0
         shows = p[i] @ p[i] > 4.0 * thr2 * not_proportional  # moved enough to show a fault
         if h.good > 0 or shows:
             # a run starts where the mouse shows itself sound: before, a lifted mouse's
             # silence can pass where the motion's changes widen every tolerance
-            self.ledger.agree(i, r, s2)
+            self.ledger.agree(i, r, 0.5 * float(np.trace(cov)))
+        if h.good == 0:
+            h.fit_r = h.fit_info = 0.0
+        read2 = float(d[i] @ d[i])
+        if read2 > 4.0 * thr2 * not_proportional and not caught_up:
+            # along its own reading, whose direction the prediction's error does not
+            # steer (along the prediction, that error would read as an under-read)
+            u = d[i] / math.sqrt(read2)
+            var = float(u @ cov @ u)
+            h.fit_r += float(r @ u) * math.sqrt(read2) / var
+            h.fit_info += read2 / var
         if h.reason in (SATURATED, LOW_QUALITY):
             # Its own sensor said why, and says so no more: a fifth of the wait (a longer
             # one only loses a good mouse, here the one whose speed limit a fast rig
@@ -664,8 +710,27 @@ class Screen(RigidTest):
         elif shows:
             h.good += 1
             if h.good >= self.readmit:
-                self.ledger.readmit(i, h.good)
-                h.state, h.reason, h.good = TRACKING, NONE, 0
+                verdict = self._run_agrees(h)
+                if verdict is False:  # the run disagrees as a whole: a new one starts
+                    self.ledger.end_run(i, h.good)
+                    h.good = 0
+                elif verdict:
+                    self.ledger.readmit(i, h.good)
+                    h.state, h.reason, h.good = TRACKING, NONE, 0
+
+    def _run_agrees(self, h: MouseHealth) -> bool | None:
+        """Whether an excluded mouse's run of agreeing windows agrees as a whole: its
+        residual along its reading, as a fraction g of the reading, fitted over the run by
+        each window's error along it, within the test of the fit's own error (one degree
+        of freedom).  A fault in proportion to the motion (a factor f) gives
+        g = (f - 1) / f whatever each window's error (-1 for an under-read by half), and
+        the prediction's errors only noise.  None while the fit is too loose to have told
+        an under-read by half (its error above half of 1 over the test's width): the run
+        goes on."""
+        thr1 = self._thresholds[1]
+        if h.fit_info < 4.0 * thr1:
+            return None
+        return h.fit_r * h.fit_r <= thr1 * h.fit_info
 
     def _late(self, d: np.ndarray, p: np.ndarray, i: int, h: MouseHealth, tol2: float) -> None:
         """A late mouse after one more window: back once its debt is paid (what it owed is

@@ -66,6 +66,16 @@ LAYOUTS = {
         ("right", -0.01, -0.09, 500.0),
         ("tail", -0.12, 0.02, 250.0),
     ),  # fmt: skip
+    "close-pair-plus": (  # two mice 2 cm apart fix the turn poorly: a third far behind
+        ("a", 0.10, 0.01, 125.0),
+        ("b", 0.10, -0.01, 500.0),
+        ("c", -0.20, 0.0, 1000.0),
+    ),  # fmt: skip
+    "far-one": (  # one mouse far ahead of a close pair
+        ("a", 0.6, 0.0, 125.0),
+        ("b", -0.05, 0.08, 500.0),
+        ("c", -0.05, -0.08, 1000.0),
+    ),  # fmt: skip
 }
 
 FAULTS = ("none", "lift", "lift-noisy", "under-read", "jumps", "saturation")
