@@ -353,13 +353,18 @@ class CountFunction:
         if t > self.complete:
             self.complete = t
 
-    def declare_live(self, live: bool, t: float) -> None:
+    def declare_live(self, live: bool, t: float, first_end: float = -math.inf) -> None:
         """The sensor vanished (False) or came back (True) at time t; a dead span's
-        windows do not use it."""
+        windows do not use it.  ``first_end``: the end of the first window still open.
+        That window takes what lies behind its start (reports stamped before it, the
+        period a first report reaches back: ``ingest`` moves them into it), so a sensor
+        back at or before its start (a new tracker's, at a reload) would bring counts from
+        before it came back into it: its dead span lasts until that window's end, as a
+        sensor back inside that window is not used in it either."""
         if live == self.live:
             return
         if live:
-            self.dead[-1][1] = t
+            self.dead[-1][1] = max(t, first_end)
             self.complete_to(t)
         else:
             self.dead.append([t, math.inf])

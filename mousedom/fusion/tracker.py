@@ -327,9 +327,13 @@ class Tracker:
         """A sensor vanished (live=False) or came back at time t.
 
         Windows that overlap a dead span do not use that mouse; the model goes on with
-        the others while it has rank, and reports ok=False otherwise.
+        the others while it has rank, and reports ok=False otherwise.  Back at or before
+        the closed frontier (a new tracker's sensor, opened at a reload), it is not used in
+        the first window still open either (``CountFunction.declare_live``).
         """
-        self._clocks[self._index(mouse)].declare_live(live, t)
+        grid = self._grid
+        first_end = -math.inf if grid.t0 is None else grid.edge(grid.closed + 1)
+        self._clocks[self._index(mouse)].declare_live(live, t, first_end)
 
     def is_live(self, mouse: int | str) -> bool:
         return self._clocks[self._index(mouse)].live

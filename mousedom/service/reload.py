@@ -3,7 +3,9 @@
 Whatever the new config holds, the running one stays unless the new one loads completely
 (its YAML work is bounded by safeyaml); the pose carries over, sensors whose device is
 unchanged stay open, and the new window grid starts after the last published POSE so that
-its time never steps back.  ``Reloader`` is given the parts it changes; it swaps the
+its time never steps back.  A sensor the reload closes leaves the running windows, and one
+it opens joins the new ones, as a sensor that vanishes or comes back does (``Sensors.leave``
+and ``replace``).  ``Reloader`` is given the parts it changes; it swaps the
 running config and tracker (running.py) for all of them at once.
 """
 
@@ -61,6 +63,7 @@ class Reloader:
         for w in new.warnings:  # values that look like the wrong unit
             log.warning("%s", w)
         now = self.clock()
+        self.sensors.leave(sensors_of(new), now)
         self.finish_windows()
         # finish() may have closed a window ending after now (the one holding the last
         # report): the new grid starts after it, or POSE t would step back once.

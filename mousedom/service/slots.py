@@ -118,6 +118,11 @@ class Slot:
         return self.residual_rms
 
 
+def _keeps(slot: Slot, sensor: Sensor | None) -> bool:
+    """Whether a reload to ``sensor`` keeps ``slot``'s source open: the same device."""
+    return sensor is not None and source_key(slot.mouse) == source_key(sensor)
+
+
 class Sensors:
     """Opening, reading and losing the configured sensors (see the module docstring)."""
 
@@ -159,15 +164,27 @@ class Sensors:
     def max_latency(self) -> float:
         return max((s.latency for s in self.slots), default=0.0)
 
+    def leave(self, mice: Sequence[Sensor], now: float) -> None:
+        """Before a reload to ``mice`` closes the running windows: the sensors it closes
+        (``replace``) leave them at ``now``, as a sensor that vanishes does (``_gone``):
+        the window still open then, which their reports only partly cover, does not use
+        them."""
+        new = {sensor_name(m): m for m in mice}
+        tracker = self.running.tracker
+        for slot in self.slots:
+            if slot.live and not _keeps(slot, new.get(slot.name)):
+                tracker.set_live(slot.index, False, now)
+
     def replace(self, mice: Sequence[Sensor], now: float) -> None:
         """The slots of a reloaded config: a mouse whose device is unchanged keeps its open
         source (and its place in the epoll); the others are closed, or opened anew.  The
-        running tracker is already the new one."""
+        running tracker is already the new one: a sensor it did not have open is not live
+        in it until it opens, as one that comes back (``Tracker.set_live``)."""
         old = {s.name: s for s in self.slots}
         slots = []
         for i, mouse in enumerate(mice):
             prev = old.pop(sensor_name(mouse), None)
-            if prev is not None and source_key(prev.mouse) == source_key(mouse):
+            if prev is not None and _keeps(prev, mouse):
                 prev.index, prev.mouse = i, mouse
                 slots.append(prev)
             else:
@@ -183,6 +200,7 @@ class Sensors:
             if slot.live:
                 tracker.set_live(slot.index, True, now)
             else:
+                tracker.set_live(slot.index, False, now)
                 self.try_open(slot, now)
 
     def close(self) -> None:
