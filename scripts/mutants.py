@@ -264,8 +264,8 @@ MUTANTS = [
     Mutant(
         "fault-onset-kept",
         "mousedom/fusion/robust.py",
-        "            if not spread > 0.0 or float(r @ u) <= math.sqrt(s2 * spread):\n",
-        "            if True:\n",
+        "            elif not spread > 0.0 or float(r @ u) <= math.sqrt(s2 * spread):\n",
+        "            elif True:\n",
         ("tests/test_reconcile.py",),
         "the window a fault began in, within the test, keeps the fault's share for good",
     ),
@@ -486,6 +486,60 @@ MUTANTS = [
         '        others, and their correlations with each other, are kept.\n        """\n',
         ("tests/test_scalelearn.py",),
         "a fix after a deferred block end sets the pose, then the learning gives back into it",
+    ),
+    Mutant(
+        "short-mouse-accepted-by-the-common-case",
+        "mousedom/fusion/robust.py",
+        "                return False  # short of what the others moved it: decide "
+        "(``_quiet_blame``)\n",
+        "                pass\n",
+        (
+            "tests/test_robust.py::"
+            "test_the_common_case_leaves_a_mouse_short_of_its_motion_to_the_decision",
+        ),
+        "the daemon's path leaves a mouse short of its motion to the common case: replay and "
+        "the daemon decide apart",
+    ),
+    Mutant(
+        "short-mouse-never-held",
+        "mousedom/fusion/robust.py",
+        "            if used[i] and beyond > worst:\n",
+        "            if False:\n",
+        ("tests/test_robust.py::test_a_lift_is_found_where_late_stamps_widened_every_tolerance",),
+        "a lift passes where late stamps widened every tolerance",
+    ),
+    Mutant(
+        "late-mouse-back-while-short",
+        "mousedom/fusion/robust.py",
+        "        if float(owed @ owed) <= tol2 and not any(self._quiet[i]):\n",
+        "        if float(owed @ owed) <= tol2:\n",
+        ("tests/test_robust.py::test_a_lift_is_found_where_late_stamps_widened_every_tolerance",),
+        "a lifted mouse reading noise owes little for a window, is taken back as paid and "
+        "given its debt, again and again",
+    ),
+    Mutant(
+        "readmission-without-the-run-fit",
+        "mousedom/fusion/robust.py",
+        "        return h.fit_r * h.fit_r <= thr1 * h.fit_info\n",
+        "        return True\n",
+        ("tests/test_robust.py", "tests/test_reconcile.py"),
+        "an under-read at low speed agrees window by window and is re-admitted, its run given back",
+    ),
+    Mutant(
+        "readmission-held-to-its-own-error",
+        "mousedom/fusion/robust.py",
+        "        cov = s2 * np.eye(2) + pred_cov\n",
+        "        cov = s2 * np.eye(2)\n",
+        ("tests/test_timing_not_fault.py::test_a_mouse_the_others_predict_poorly_is_not_left_out",),
+        "a far mouse the others predict poorly never agrees again",
+    ),
+    Mutant(
+        "short-rows-accepted-by-replay",
+        "mousedom/fusion/screenbatch.py",
+        "        ok &= ~quiet[:, i]\n",
+        "        pass\n",
+        ("tests/test_robust.py::test_replay_leaves_a_mouse_short_of_its_motion_to_the_decision",),
+        "replay's array path accepts windows with a mouse short of its motion: lifts pass",
     ),
 ]
 

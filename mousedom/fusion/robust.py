@@ -11,6 +11,10 @@ together with the others.  Per window (docs/models.md, "Faults"):
    each scaled by what the mouse's own residuals have shown).  The s_i are taken from the
    solution with every candidate mouse and kept while mice are left out in turn, so that a
    faulty mouse cannot widen its own tolerance by moving the solution.
+1b. A mouse that reads less than SHORT of what the others move it sums its shortfall;
+   once the sum is beyond twice its floor at the test's threshold it is held out (as
+   late) though the window passes: wide tolerances learnt from late stamps would let a
+   lift pass window after window (``_quiet_blame``).
 2. T = min_q sum_i |d_i - A_i q|^2 / s_i^2 is chi-square with 2L - k degrees of freedom on
    a healthy rig of L mice and k unknowns, whatever the layout.  Above its (1 - alpha)
    quantile (``false_alarm`` alpha, 1e-4 by default) the window is inconsistent.
@@ -26,8 +30,10 @@ together with the others.  Per window (docs/models.md, "Faults"):
    excludes no more of them, it is taken, and the mice it brings back are suspect until they
    agree for ``readmit_s``.
 4. An excluded mouse is re-admitted after ``readmit_s`` of windows in which it agreed with
-   the others while they moved enough to have shown the fault; one its own sensor's
-   evidence excluded, after a fifth of that once the evidence is gone and it agrees.
+   the others (within its error and their prediction's) while they moved enough to have
+   shown the fault, and where the run's fit of a proportional fault agrees; one its own
+   sensor's evidence excluded, after a fifth of that once the evidence is gone and it
+   agrees (``_waiting``).
 5. What a held-out mouse read is settled with the pose by corrections to the window's
    twist (``Decision.correction``), so that every count counts once and a fault from its
    start only: the windows just before its exclusion in which its fault began are taken
@@ -78,7 +84,7 @@ from mousedom.fusion.health import (
 )
 from mousedom.fusion.lateness import Lateness
 from mousedom.fusion.ledger import Ledger
-from mousedom.fusion.noisemodel import NoiseModel
+from mousedom.fusion.noisemodel import NoiseModel, norm2
 from mousedom.fusion.rigidtest import RigidTest, Statistic
 
 # The health's names are the screen's vocabulary (robust.EXCLUDED, robust.REASONS, ...).
@@ -95,6 +101,10 @@ HISTORY_S = 0.05
 # paid-back lag (Screen._caught_up): (I - block)^-1 would multiply the earlier windows'
 # residuals, noise included, by more than 4 along it.
 _CATCH_UP_LEVERAGE = 0.75
+# A mouse reads short of its motion (Screen._quiet_blame) where it reads less than this
+# fraction of what the others moved it, along it: a lift reads nothing or noise, while a
+# healthy mouse beside an undetected faulty one (which bends the solution) reads most.
+SHORT = 0.25
 # How many windows before a mouse's exclusion its fault's onset is looked for in
 # (Screen._take_back): a fault starts within a window and grows past the test in a few.
 TAKE_BACK_WINDOWS = 3
@@ -167,6 +177,12 @@ class Screen(RigidTest):
         # What each held-out mouse owes the pose, settled at its re-admission (ledger).
         self.ledger = Ledger(self.n, self._thresholds[2], self.readmit_evidence)
         self.lateness = Lateness(self.n, window, settings.late_s)
+        # Each mouse's shortfall (predicted less read motion) summed over the windows it
+        # read short in since it last read in full (``_quiet_blame``); any not zero.
+        self._quiet = [[0.0, 0.0] for _ in range(self.n)]
+        self._quiet_n = [0] * self.n  # the windows in each of those sums
+        self._quiet_any = False
+        self._quiet_held: int | None = None  # the mouse this window held out for it
 
     # ----------------------------------------------------------------- basics
 
@@ -262,6 +278,16 @@ class Screen(RigidTest):
         accepted = steady.steady_window(d, q, live, rig, threshold, dof, leverage)
         if accepted is None:
             return False
+        sig2 = nm.sig2_list
+        heard = []
+        for i, (px, py) in enumerate(accepted[0]):
+            p2 = px * px + py * py
+            moved = live[i] and p2 > sig2[i]
+            if moved and d[2 * i] * px + d[2 * i + 1] * py < SHORT * p2:
+                return False  # short of what the others moved it: decide (``_quiet_blame``)
+            heard.append(moved)
+        if self._quiet_any:
+            self._heard(heard)
         self._prev, by_floor, by_prop = accepted
         nm.take(by_floor, by_prop)
         self.history.append(d)
@@ -271,6 +297,64 @@ class Screen(RigidTest):
         return True
 
     # ----------------------------------------------------------------- the exact path
+
+    def heard_rows(self, p: np.ndarray) -> None:
+        """Windows the common case accepted (``screenbatch``; none holds a mouse short of
+        its motion: those are decided), their predictions p (rows, N, 2): each mouse
+        moved beyond its sigma in one of them read in full, and its shortfall's sum
+        starts again."""
+        if self._quiet_any:
+            self._heard(np.any(norm2(np.asarray(p, dtype=float)) > self.noise.sig2, axis=0))
+
+    def _heard(self, read: Sequence[bool]) -> None:
+        """The mice that read what the others moved them in the windows just accepted
+        (their motion beyond sigma, and not short): their shortfall's sum starts again."""
+        for i, r in enumerate(read):
+            if r:
+                self._quiet[i], self._quiet_n[i] = [0.0, 0.0], 0
+        self._quiet_any = any(x or y for x, y in self._quiet)
+
+    def _quiet_blame(self, d: np.ndarray, p: np.ndarray, live: np.ndarray,
+                     used: np.ndarray) -> int | None:  # fmt: skip
+        """The window's shortfalls (module step 1b): each live mouse the others moved
+        beyond its sigma that read less than SHORT of that along it adds what it missed
+        (p - d) to its shortfall's sum; one that read more starts again.  Returns
+        the used mouse whose sum is beyond twice its expected error's floor at the test's
+        threshold (two windows' worth of counts moved by late stamps), where the rest can
+        do without it (the one furthest beyond, if several), else None.
+
+        A lifted mouse reads nothing, or noise; where late stamps and USB gaps have taught
+        the noise model wide tolerances (floors thousands of times the config's sigma^2),
+        a lift at a walking pace passes the window's test window after window and bends
+        the heading by tens of degrees.  A shortfall is either lateness (the counts come,
+        and the late mouse is settled: ``lateness``, ``ledger``) or a fault: held out as
+        late here, a mouse that never catches up is excluded after ``late_s``."""
+        floor = self.noise.f_floor
+        sig2 = self.noise.sig2_list
+        worst, blame = 1.0, None
+        for i in range(self.n):
+            px, py = float(p[i, 0]), float(p[i, 1])
+            p2 = px * px + py * py
+            if not live[i]:
+                self._quiet[i], self._quiet_n[i] = [0.0, 0.0], 0
+                continue
+            if p2 <= sig2[i]:
+                continue  # moved too little to tell
+            dx, dy = float(d[i, 0]), float(d[i, 1])
+            if dx * px + dy * py >= SHORT * p2:
+                self._quiet[i], self._quiet_n[i] = [0.0, 0.0], 0
+                continue
+            qx, qy = self._quiet[i][0] + (px - dx), self._quiet[i][1] + (py - dy)
+            self._quiet[i] = [qx, qy]
+            self._quiet_n[i] += 1
+            beyond = (qx * qx + qy * qy) / (2.0 * self._thresholds[2] * floor[i])
+            if used[i] and beyond > worst:
+                rest = used.copy()
+                rest[i] = False
+                if self._solve(d, rest) is not None:
+                    worst, blame = beyond, i
+        self._quiet_any = any(x or y for x, y in self._quiet)
+        return blame
 
     def _silent(self, d: np.ndarray, i: int) -> bool:
         """No counts in the window (a thousandth of its sigma: the split of reports
@@ -302,6 +386,8 @@ class Screen(RigidTest):
             used = live.copy()  # the healthy ones alone cannot: the excluded must serve
         q = self._solve(d, used)
         p = self.predict(q) if q is not None else np.zeros((n, 2))
+        quiet = self._quiet_blame(d, p, live, used)
+        self._quiet_held = None
         # Sensor evidence first.
         gate = np.zeros(n, dtype=int)
         gate[live & (np.maximum(np.sum(d * d, 1), np.sum(p * p, 1)) >= self.max_step2)] = SATURATED
@@ -345,16 +431,18 @@ class Screen(RigidTest):
             elif blamed is not None:
                 for j in blamed:
                     reason[j] = SILENT if self._silent(d, j) else INCONSISTENT
-                used = used.copy()
-                used[list(blamed)] = False
-                q = self._solve(d, used)
-                assert q is not None  # these mice passed their test: they have rank
-                p = self.predict(q)
+                used, p = self._without(d, used, blamed)
             else:
                 consistent = False
                 inflate = stat.t / stat.dof
                 suspect |= used
                 reason[used & (reason == NONE)] = INCONSISTENT
+        elif quiet is not None and used[quiet]:
+            # the window passes, but a mouse has read short of what the others moved it
+            # beyond its error: held out (as late, until it catches up or late_s is over)
+            reason[quiet] = SILENT if self._silent(d, quiet) else INCONSISTENT
+            used, p = self._without(d, used, [quiet])
+            self._quiet_held = quiet
         if used is not tested_used or p is not tested_p:  # a mouse blamed, swapped or gated
             gp = None if gran2 is None else self._span_p(d, used, p, spans)
             floor, prop = self.noise.parts(d, p, self.prev_p, gran2=gran2, gran_p=gp)
@@ -363,14 +451,30 @@ class Screen(RigidTest):
         self._update(d, p, live, used, suspect, reason, consistent, floor, prop)
         correction = self._settle(used, live & ~used, was_used, reason, floor + prop)
         if consistent and not caught_up and self.dof(int(used.sum())) > 0:
-            r2 = np.sum((d - p) ** 2, axis=1)
-            moving = np.maximum(np.sum(d * d, 1), np.sum(p * p, 1)) > self.noise.sig2
-            h = self.leverage(used)
-            for i in np.flatnonzero(used & moving & ~suspect).tolist():
-                self.noise.sample(i, float(r2[i]), float(floor[i]), float(prop[i]), float(h[i]))
+            self._sample_noise(d, p, used, suspect, floor, prop)
         self.accepted(p[None], d[None], used.tolist())
         self._count_window(defer_block_end)
         return Decision(used=used, inflate=inflate, consistent=consistent, correction=correction)
+
+    def _sample_noise(self, d: np.ndarray, p: np.ndarray, used: np.ndarray, suspect: np.ndarray,
+                      floor: np.ndarray, prop: np.ndarray) -> None:  # fmt: skip
+        """A consistent window's samples for the noise model: each mouse used, not suspect,
+        that moved."""
+        r2 = np.sum((d - p) ** 2, axis=1)
+        moving = np.maximum(np.sum(d * d, 1), np.sum(p * p, 1)) > self.noise.sig2
+        h = self.leverage(used)
+        for i in np.flatnonzero(used & moving & ~suspect).tolist():
+            self.noise.sample(i, float(r2[i]), float(floor[i]), float(prop[i]), float(h[i]))
+
+    def _without(self, d: np.ndarray, used: np.ndarray,
+                 mice: list[int]) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+        """The window solved without ``mice`` (the rest has rank: they passed a test, or
+        ``_quiet_blame`` checked): the mice used, and each mouse's prediction."""
+        used = used.copy()
+        used[mice] = False
+        q = self._solve(d, used)
+        assert q is not None
+        return used, self.predict(q)
 
     def _caught_up(self, d: np.ndarray, used: np.ndarray, blamed: list[int],
                    s2: np.ndarray) -> bool:  # fmt: skip
@@ -421,12 +525,14 @@ class Screen(RigidTest):
         kept: dict[int, np.ndarray] = {}
         for i in np.flatnonzero(out).tolist():
             if was_used[i] and reason[i] in (SILENT, INCONSISTENT):
-                back = self._take_back(i, float(s2[i]), kept)
+                short = self._quiet_n[i] - 1 if i == self._quiet_held else 0
+                back = self._take_back(i, float(s2[i]), kept, short)
                 if back is not None:
                     correction = back if correction is None else correction + back
         return correction
 
-    def _take_back(self, i: int, s2: float, kept: dict[int, np.ndarray]) -> np.ndarray | None:
+    def _take_back(self, i: int, s2: float, kept: dict[int, np.ndarray],
+                   short: int = 0) -> np.ndarray | None:  # fmt: skip
         """The twist to take back from the windows just before mouse i was held out, in
         which it was used while its fault began (``Decision.correction``), or None.
 
@@ -439,7 +545,13 @@ class Screen(RigidTest):
         solved again without it, with the mice that window was solved with
         (``used_history``; ``kept``: less those taken out of it already), and the
         difference taken back.  What is taken back joins what the mouse owes: a late mouse
-        that pays back is given it all again (``ledger``)."""
+        that pays back is given it all again (``ledger``).
+
+        A mouse held out for reading short of its motion (``_quiet_blame``) began its
+        fault where its shortfall's sum began: the ``short`` windows before this one, each
+        of which read less than SHORT of what the others moved it, are taken back (as far
+        as the readings are kept), however small each was against tolerances that late
+        stamps widened."""
         now = self.ledger.owed[i]
         size = math.sqrt(float(now @ now))
         if size == 0.0:
@@ -448,7 +560,7 @@ class Screen(RigidTest):
         taken_r, taken_q = np.zeros(2), np.zeros(3)
         rows = list(self.history)[::-1]
         sets = list(self.used_history)[::-1]
-        for k in range(min(TAKE_BACK_WINDOWS, len(rows), len(sets))):
+        for k in range(min(max(TAKE_BACK_WINDOWS, short), len(rows), len(sets))):
             with_i = kept.get(k, np.array(sets[k], dtype=bool))
             if not with_i[i]:
                 break  # not in that window's solve: nothing of it to take back
@@ -461,8 +573,12 @@ class Screen(RigidTest):
                 break
             # the residual under the others has the covariance s2 (I - block)^-1
             spread = float(u @ np.linalg.solve(np.eye(2) - block, u))
-            r = dk[i] - self.predict(rest)[i]
-            if not spread > 0.0 or float(r @ u) <= math.sqrt(s2 * spread):
+            pk = self.predict(rest)[i]
+            r = dk[i] - pk
+            if k < short:
+                if float(dk[i] @ pk) >= SHORT * float(pk @ pk):
+                    break  # not short there: the sum began after it
+            elif not spread > 0.0 or float(r @ u) <= math.sqrt(s2 * spread):
                 break
             taken_r += r
             taken_q += both - rest
@@ -671,19 +787,27 @@ class Screen(RigidTest):
         # on; a mouse still behind after that starts a new run.
         r = d[i] - p[i]
         cov = s2 * np.eye(2) + pred_cov
+        alone = _within(r, cov, thr2)
+        caught_up = False
         if h.behind:
-            r, cov = r + h.behind_r, cov + h.behind_cov
-        if not _within(r, cov, thr2):
+            if _within(r + h.behind_r, cov + h.behind_cov, thr2):
+                r, cov, caught_up = r + h.behind_r, cov + h.behind_cov, True  # paid back
+            elif alone:
+                # agrees now, but what it owed never came: not a lag; a run starts here
+                self._end_run(i, h)
+                h.good = 0
+            h.behind = 0 if caught_up or alone else h.behind
+        if not (alone or caught_up):
             if h.behind < self.lateness.limit:
+                h.behind_r = r + (h.behind_r if h.behind else 0.0)
+                h.behind_cov = cov + (h.behind_cov if h.behind else 0.0)
                 h.behind += 1
-                h.behind_r, h.behind_cov = r, cov
                 return
             h.behind = 0
-            self.ledger.end_run(i, h.good)
+            self._end_run(i, h)
             h.good = 0
             h.reason = SILENT if self._silent(d, i) else INCONSISTENT
             return
-        caught_up, h.behind = h.behind > 0, 0
         shows = p[i] @ p[i] > 4.0 * thr2 * not_proportional  # moved enough to show a fault
         if h.good > 0 or shows:
             # a run starts where the mouse shows itself sound: before, a lifted mouse's
@@ -712,11 +836,18 @@ class Screen(RigidTest):
             if h.good >= self.readmit:
                 verdict = self._run_agrees(h)
                 if verdict is False:  # the run disagrees as a whole: a new one starts
-                    self.ledger.end_run(i, h.good)
+                    self._end_run(i, h)
                     h.good = 0
                 elif verdict:
                     self.ledger.readmit(i, h.good)
                     h.state, h.reason, h.good = TRACKING, NONE, 0
+
+    def _end_run(self, i: int, h: MouseHealth) -> None:
+        """An excluded mouse's run of agreeing windows ends: banked to be given back at its
+        re-admission (``ledger``) only where its fit agrees, having seen enough to tell a
+        proportional fault (windows that each agreed while their reading did not: an
+        under-read at low speed, its lags merged by the windows that caught up)."""
+        self.ledger.end_run(i, h.good if self._run_agrees(h) else 0)
 
     def _run_agrees(self, h: MouseHealth) -> bool | None:
         """Whether an excluded mouse's run of agreeing windows agrees as a whole: its
@@ -737,7 +868,9 @@ class Screen(RigidTest):
         then added to the pose, ``ledger``); excluded once it has lagged beyond
         ``late_s`` or owes what no lateness explains (``lateness``)."""
         owed = self.ledger.owed[i]
-        if float(owed @ owed) <= tol2:
+        if float(owed @ owed) <= tol2 and not any(self._quiet[i]):
+            # paid back, and reading in full again (a mouse reading noise, lifted, can owe
+            # little over a window or two while its shortfall goes on)
             h.state, h.reason, h.good = TRACKING, NONE, 0
             self.ledger.readmit(i)
             return

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from mousedom.fusion.noisemodel import motion2, norm2
-from mousedom.fusion.robust import MISSING, TRACKING, Screen
+from mousedom.fusion.robust import MISSING, SHORT, TRACKING, Screen
 
 HORIZON = 16  # learning blocks of rows tested at once after the factors changed
 HORIZON_MAX = 64  # and once they stayed as they were (bounded: (rows, mice) temporaries)
@@ -90,6 +90,7 @@ def screen(
                     values = samples if sc.dof(int(mask[i].sum())) > 0 else None
                     stop = sc.noise.extend_blocks(values, i - base, stop - base) + base
                     sc.accepted(p[i:stop], d[i:stop], steady)
+                    sc.heard_rows(p[i:stop])
                     i = stop
                     continue
         sq = None if squal_scale is None else squal_scale[i]
@@ -136,8 +137,14 @@ def _fast_rows(sc: Screen, d, p, mask, lever) -> tuple[np.ndarray, tuple]:
         dofs = 2 * _row_sum(mask.astype(np.int64)) - sc.k
         ok = (dofs <= 0) | (t <= thr[np.maximum(dofs, 0)])
     saturated = mask & (m2 >= sc.max_step2)
+    # a mouse that read less than SHORT of what the others moved it beyond its sigma:
+    # decide (Screen._quiet_blame)
+    p2 = norm2(p)
+    along = d[..., 0] * p[..., 0] + d[..., 1] * p[..., 1]
+    quiet = mask & (p2 > sc.noise.sig2) & (along < SHORT * p2)
     for i in range(saturated.shape[1]):
         ok &= ~saturated[:, i]
+        ok &= ~quiet[:, i]
     samples = sc.noise.samples_for(r2, floor, prop, lever, mask & (m2 > sc.noise.sig2))
     return ok, samples
 
