@@ -55,7 +55,7 @@ def cpi_problem(v: float) -> str | None:
     hint = ""
     if v > hi:
         hint = f"; if that is counts per metre, {v * 0.0254:.0f} CPI"
-    elif v * 1000 / 25.4 >= lo and v < lo:
+    elif v * 25.4 >= lo and v < lo:
         hint = f"; if that is counts per millimetre, {v * 25.4:.0f} CPI"
     return f"{v:g} counts per inch is outside {lo:g}-{hi:g}, what mice report{hint}"
 

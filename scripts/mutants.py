@@ -503,7 +503,8 @@ MUTANTS = [
     Mutant(
         "short-mouse-never-held",
         "mousedom/fusion/robust.py",
-        "            if used[i] and beyond > worst:\n",
+        "            if used[i] and in_use and beyond > worst and self._solve(d, _but(used, i)) "
+        "is not None:\n",
         "            if False:\n",
         ("tests/test_robust.py::test_a_lift_is_found_where_late_stamps_widened_every_tolerance",),
         "a lift passes where late stamps widened every tolerance",
@@ -511,7 +512,7 @@ MUTANTS = [
     Mutant(
         "late-mouse-back-while-short",
         "mousedom/fusion/robust.py",
-        "        if float(owed @ owed) <= tol2 and not any(self._quiet[i]):\n",
+        "        if float(owed @ owed) <= tol2 and not self._short_now[i]:\n",
         "        if float(owed @ owed) <= tol2:\n",
         ("tests/test_robust.py::test_a_lift_is_found_where_late_stamps_widened_every_tolerance",),
         "a lifted mouse reading noise owes little for a window, is taken back as paid and "

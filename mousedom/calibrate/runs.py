@@ -169,28 +169,48 @@ def need_runs(found: int, needed: int, what: str, gap: float) -> None:
         )
 
 
-def check_whole_captures(recording: Mapping[str, Reports], runs: Sequence[Run], gap: float) -> None:
-    """Raise when a mouse's motion begins or ends inside a run while the others move on
-    for longer than ``gap``: its capture was cut short (a killed recorder, a full disk, a
-    truncated file) and the run's counts for it are only a part of the run.
+CUT_SHARE = 0.1  # the others' motion in a run after (or before) one mouse's: a cut capture
 
-    A mouse that is still for longer than ``gap`` inside a run (at the centre of a turn)
-    and then reports again is not cut: only its first and last motion are looked at.
+
+def _path(rep: Reports, a: float, b: float) -> float:
+    """The counts ``rep`` read in (a, b], as a path (each report's length, summed)."""
+    t = np.asarray(rep.t, dtype=float)
+    sel = (t > a) & (t <= b)
+    return float(np.sum(np.hypot(np.asarray(rep.dx, float)[sel], np.asarray(rep.dy, float)[sel])))
+
+
+def check_whole_captures(recording: Mapping[str, Reports], runs: Sequence[Run], gap: float) -> None:
+    """Raise when a mouse's motion ends (or begins) inside a run while the others read
+    more than CUT_SHARE of their motion in that run after it (before it), later than
+    ``gap``: its capture was cut short (a killed recorder, a full disk, a truncated file)
+    and that run's counts for it are only a part of the run.
+
+    The others' share, not the time alone: a mouse still for longer than ``gap`` inside a
+    run (at the centre of a turn), or the last counts of a rig that creeps as it stops
+    (read by a mouse of high CPI only), is not a cut.
     """
     for name, rep in recording.items():
         t = moving(rep)
         if not len(t):
             continue  # no motion at all: the calibration says so, naming the mouse
+        others = [r for n, r in recording.items() if n != name]
         for k, r in enumerate(runs):
-            if r.t0 <= t[-1] < r.t1 - gap:
-                raise UserError(
-                    f"mouse {name}: its motion ends at t = {t[-1]:.3f} s, inside run {k + 1} "
-                    f"({r.t0:.3f} .. {r.t1:.3f} s) where the other mice move on: its capture "
-                    "ends in the middle of a motion (cut short?); every run must be whole"
-                )
-            if r.t0 + gap < t[0] <= r.t1:
-                raise UserError(
-                    f"mouse {name}: its motion begins at t = {t[0]:.3f} s, inside run {k + 1} "
-                    f"({r.t0:.3f} .. {r.t1:.3f} s) where the other mice moved before: its "
-                    "capture begins in the middle of a motion; every run must be whole"
-                )
+            for edge, inside, part in (
+                (float(t[-1]), r.t0 <= t[-1] < r.t1 - gap, (float(t[-1]), r.t1)),
+                (float(t[0]), r.t0 + gap < t[0] <= r.t1, (r.t0 - gap, float(t[0]))),
+            ):
+                if not inside:
+                    continue
+                share = max(
+                    (_path(o, *part) / total for o in others
+                     if (total := _path(o, r.t0 - gap, r.t1)) > 0),
+                    default=0.0,
+                )  # fmt: skip
+                if share > CUT_SHARE:
+                    ends, when = ("ends", "after") if edge == t[-1] else ("begins", "before")
+                    raise UserError(
+                        f"mouse {name}: its motion {ends} at t = {edge:.3f} s, inside run "
+                        f"{k + 1} ({r.t0:.3f} .. {r.t1:.3f} s), where the other mice read "
+                        f"{share:.0%} of their motion in it {when}: its capture {ends} in the "
+                        "middle of a motion (cut short?); every run must be whole"
+                    )

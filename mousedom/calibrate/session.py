@@ -156,7 +156,7 @@ def spread_mounts(config: Config, names: Sequence[str], d: float) -> dict[str, t
 
 
 PAUSE_MOTION = 0.02  # reference motion in a pause, as a fraction of a run's: a cut run
-CLOCK_SLACK = 0.03  # seconds the reference's clock may be off the mice's in that check
+CLOCK_SLACK = 0.05  # seconds the reference's clock may be off the mice's in that check
 PATH_STEP = 0.01  # seconds: the reference's path length is summed over steps this long
 
 
@@ -203,11 +203,12 @@ def _reference_still_in_pauses(
     runs = session.runs
     paths = [_path_length(_scaled_steps(ref, e[0], e[-1], geo, size)) for e in edges]
     margin = period + CLOCK_SLACK
+    # Within ``gap`` of each run only: a noisy reference wanders over a long pause (its
+    # excursion grows as the square root of the time), and a cut shows right at the run.
     pauses = [(max(ref.t[0], runs[0].t0 - gap), runs[0].t0 - margin, 0, "begin")]
-    pauses += [
-        (r.t1 + margin, n.t0 - margin, k, "")
-        for k, (r, n) in enumerate(zip(runs[:-1], runs[1:], strict=True))
-    ]
+    for k, (r, n) in enumerate(zip(runs[:-1], runs[1:], strict=True)):
+        pauses.append((r.t1 + margin, min(r.t1 + gap, n.t0 - margin), k, ""))
+        pauses.append((max(n.t0 - gap, r.t1 + margin), n.t0 - margin, k, ""))
     pauses += [(runs[-1].t1 + margin, min(ref.t[-1], runs[-1].t1 + gap), len(runs) - 1, "end")]
     for a, b, k, cut in pauses:
         nearby = [paths[j] for j in (k, k + 1) if j < len(runs) and (cut == "" or j == k)]
@@ -338,7 +339,10 @@ def implausible_mounts(result: MountsResult, config: Config) -> list[str]:
         return out
     for name, fit in result.fits.items():
         m = config.mouse(name)
-        for axis, cpi in dict.fromkeys((("x", m.cpi_x * fit.scale), ("y", m.cpi_y * fit.scale))):
+        cpis = {"x": m.cpi_x * fit.scale, "y": m.cpi_y * fit.scale}
+        if cpis["x"] == cpis["y"]:
+            cpis = {"x and y": cpis["x"]}
+        for axis, cpi in cpis.items():
             problem = plausible.cpi_problem(cpi)
             if problem:
                 out.append(f"mouse {name}: scale {fit.scale:.6g} gives cpi {axis}: {problem}")

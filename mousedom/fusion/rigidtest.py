@@ -83,26 +83,26 @@ class RigidTest:
 
     def prediction_cov(self, used: np.ndarray, s2: np.ndarray) -> np.ndarray:
         """(N, 2, 2) the covariance of each mouse's predicted motion, from the error of the
-        twist solved on the ``used`` mice weighted by their variances per axis ``s2`` (N,):
-        A_i (sum_j A_j^T A_j / s2_j)^-1 A_i^T.  What a mouse held out is compared with is
-        itself uncertain by this much: far from mice that fix the turn poorly (two close
-        together), many times the mouse's own noise across the line to them, and about
-        the same along it.  inf without rank."""
+        twist solved on the ``used`` mice (by the config's weights, ``_solve``) whose
+        readings have the variances per axis ``s2`` (N,): A_i B diag(s2) B^T A_i^T, the
+        estimator's sandwich (the learnt variances need not be in the config's
+        proportions).  What a mouse held out is compared with is itself uncertain by this
+        much: far from mice that fix the turn poorly (two close together), many times the
+        mouse's own noise across the line to them.  inf without rank."""
+        used = np.asarray(used, dtype=bool)
+        est = models._estimator(self.positions.tobytes(), self.sigma.tobytes(),
+                                used.tobytes(), self.cols)  # fmt: skip
+        if est is None:
+            return np.full((self.n, 2, 2), math.inf)
+        b = est[1]  # (k, 2L)
+        cov_q = (b * np.repeat(np.asarray(s2, dtype=float)[used], 2)) @ b.T
         a = np.zeros((self.n, 2, 3))
         a[:, 0, 0] = 1.0
         a[:, 1, 1] = 1.0
         a[:, 0, 2] = -self.positions[:, 1]
         a[:, 1, 2] = self.positions[:, 0]
         a = a[:, :, list(self.cols)]
-        w = np.where(used, 1.0 / np.maximum(np.asarray(s2, dtype=float), 1e-300), 0.0)
-        info = np.einsum("n,nij,nik->jk", w, a, a)
-        try:
-            cov = np.linalg.inv(info)
-        except np.linalg.LinAlgError:
-            return np.full((self.n, 2, 2), math.inf)
-        if not np.all(np.isfinite(cov)):
-            return np.full((self.n, 2, 2), math.inf)
-        return np.einsum("nij,jk,nlk->nil", a, cov, a)
+        return np.einsum("nij,jk,nlk->nil", a, cov_q, a)
 
     def predict(self, q: np.ndarray) -> np.ndarray:
         """Each mouse's displacement (..., N, 2) under body twist increments q (..., 3)."""

@@ -118,6 +118,20 @@ def _within(r: np.ndarray, cov: np.ndarray, thr2: float) -> bool:
     return float(r @ np.linalg.solve(cov, r)) <= thr2
 
 
+def _but(used: np.ndarray, i: int) -> np.ndarray:
+    """``used`` without mouse i."""
+    out = used.copy()
+    out[i] = False
+    return out
+
+
+def _fresh_wait(h: MouseHealth) -> None:
+    """A mouse's re-admission starts afresh (a new account, or gone): nothing behind, no
+    fit from an earlier wait (``Screen._waiting``)."""
+    h.behind, h.fit_r, h.fit_info = 0, 0.0, 0.0
+    h.behind_r, h.behind_cov = np.zeros(2), np.zeros((2, 2))
+
+
 class Explanation(NamedTuple):
     """A set of mice whose exclusion lets the window pass, with the test it passed."""
 
@@ -181,6 +195,7 @@ class Screen(RigidTest):
         # read short in since it last read in full (``_quiet_blame``); any not zero.
         self._quiet = [[0.0, 0.0] for _ in range(self.n)]
         self._quiet_n = [0] * self.n  # the windows in each of those sums
+        self._short_now = [False] * self.n  # short in the window being decided
         self._quiet_any = False
         self._quiet_held: int | None = None  # the mouse this window held out for it
 
@@ -319,9 +334,10 @@ class Screen(RigidTest):
         """The window's shortfalls (module step 1b): each live mouse the others moved
         beyond its sigma that read less than SHORT of that along it adds what it missed
         (p - d) to its shortfall's sum; one that read more starts again.  Returns
-        the used mouse whose sum is beyond twice its expected error's floor at the test's
-        threshold (two windows' worth of counts moved by late stamps), where the rest can
-        do without it (the one furthest beyond, if several), else None.
+        the used mouse whose sum, over two windows or more, is beyond twice its expected
+        error's floor at the test's threshold (two windows' worth of counts moved by late
+        stamps), where the rest can do without it (the one furthest beyond, if several),
+        else None.
 
         A lifted mouse reads nothing, or noise; where late stamps and USB gaps have taught
         the noise model wide tolerances (floors thousands of times the config's sigma^2),
@@ -332,6 +348,7 @@ class Screen(RigidTest):
         floor = self.noise.f_floor
         sig2 = self.noise.sig2_list
         worst, blame = 1.0, None
+        self._short_now = [False] * self.n
         for i in range(self.n):
             px, py = float(p[i, 0]), float(p[i, 1])
             p2 = px * px + py * py
@@ -347,12 +364,13 @@ class Screen(RigidTest):
             qx, qy = self._quiet[i][0] + (px - dx), self._quiet[i][1] + (py - dy)
             self._quiet[i] = [qx, qy]
             self._quiet_n[i] += 1
+            self._short_now[i] = True
             beyond = (qx * qx + qy * qy) / (2.0 * self._thresholds[2] * floor[i])
-            if used[i] and beyond > worst:
-                rest = used.copy()
-                rest[i] = False
-                if self._solve(d, rest) is not None:
-                    worst, blame = beyond, i
+            # two windows at least: one silent window is how a 125 Hz mouse starts to move
+            # (its first report is still to come), or how a late report looks
+            in_use = self.health[i].state in (TRACKING, SUSPECT) and self._quiet_n[i] >= 2
+            if used[i] and in_use and beyond > worst and self._solve(d, _but(used, i)) is not None:
+                worst, blame = beyond, i
         self._quiet_any = any(x or y for x, y in self._quiet)
         return blame
 
@@ -437,7 +455,7 @@ class Screen(RigidTest):
                 inflate = stat.t / stat.dof
                 suspect |= used
                 reason[used & (reason == NONE)] = INCONSISTENT
-        elif quiet is not None and used[quiet]:
+        elif quiet is not None and used[quiet] and self._solve(d, _but(used, quiet)) is not None:
             # the window passes, but a mouse has read short of what the others moved it
             # beyond its error: held out (as late, until it catches up or late_s is over)
             reason[quiet] = SILENT if self._silent(d, quiet) else INCONSISTENT
@@ -721,6 +739,7 @@ class Screen(RigidTest):
         for i, h in enumerate(self.health):
             if not live[i]:
                 h.state, h.reason, h.good = MISSING, NONE, 0
+                _fresh_wait(h)
                 continue
             if h.state == MISSING:
                 h.state, h.reason, h.good = TRACKING, NONE, 0
@@ -748,13 +767,15 @@ class Screen(RigidTest):
             # its sensor's word on a mouse held out already: out for that now, and what it
             # owes goes on (a late mouse's debt is still to be paid back)
             self.ledger.carry(i, d[i] - p[i], s2)
-            self.ledger.end_run(i, h.good)
+            self._end_run(i, h)
+            _fresh_wait(h)
             h.state, h.reason, h.good = EXCLUDED, why, 0
             return
         if h.state not in (EXCLUDED, LATE) or why != NONE:
             # late where it is short by its last moments' motion (lateness), unless it
             # was excluded already (held out again by a re-examination)
             self.ledger.hold(i, d[i] - p[i], s2)
+            _fresh_wait(h)
             h.good = 0
             tol2 = thr2 * 2.0 * s2
             if (h.state != EXCLUDED and why in (SILENT, INCONSISTENT)
@@ -868,9 +889,11 @@ class Screen(RigidTest):
         then added to the pose, ``ledger``); excluded once it has lagged beyond
         ``late_s`` or owes what no lateness explains (``lateness``)."""
         owed = self.ledger.owed[i]
-        if float(owed @ owed) <= tol2 and not any(self._quiet[i]):
-            # paid back, and reading in full again (a mouse reading noise, lifted, can owe
-            # little over a window or two while its shortfall goes on)
+        if float(owed @ owed) <= tol2 and not self._short_now[i]:
+            # paid back, and not short in this window (a mouse reading noise, lifted, can
+            # owe little over a window or two while its shortfall goes on); its
+            # shortfall's sum is settled with its debt
+            self._quiet[i], self._quiet_n[i] = [0.0, 0.0], 0
             h.state, h.reason, h.good = TRACKING, NONE, 0
             self.ledger.readmit(i)
             return
