@@ -323,6 +323,19 @@ def test_on_a_healthy_rig_the_robust_path_gives_todays_poses(seed, layout):
     assert scenarios.end_error(result, rt)[0] <= scenarios.end_error(result, pt)[0] + 1e-3
 
 
+def _one_window_path(result: sim.SimResult, cfg, batch):
+    """The drive through the daemon's path (a live tracker, one window per poll), checked
+    against replay's ``batch``: the same decisions, and the same poses to 1e-12."""
+    from mousedom.fusion.posebatch import PoseBatch
+
+    one = PoseBatch.concat(sim.run_tracker_live(result, Tracker(cfg, t0=0.0)), 3)
+    assert len(one) == len(batch)
+    assert np.array_equal(one.state, batch.state) and np.array_equal(one.reason, batch.reason)
+    np.testing.assert_allclose(one.x, batch.x, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(one.theta, batch.theta, rtol=0, atol=1e-12)
+    return one
+
+
 @pytest.mark.parametrize("kind", ["none", "lift", "jumps"])
 def test_the_one_window_path_decides_as_the_array_path(kind):
     """The daemon's path (one window per poll, Python floats) and replay's (arrays)
@@ -332,14 +345,7 @@ def test_the_one_window_path_decides_as_the_array_path(kind):
     result = sim.simulate(scenarios.apply(base, fault), scenarios.drive(12.0, 3), seed=3)
     cfg = scenarios.config(base)
     batch, _ = scenarios.run(result, cfg)
-    out = sim.run_tracker_live(result, Tracker(cfg, t0=0.0))
-    from mousedom.fusion.posebatch import PoseBatch
-
-    one = PoseBatch.concat(out, 3)
-    assert len(one) == len(batch)
-    assert np.array_equal(one.state, batch.state) and np.array_equal(one.reason, batch.reason)
-    np.testing.assert_allclose(one.x, batch.x, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(one.theta, batch.theta, rtol=0, atol=1e-12)
+    one = _one_window_path(result, cfg, batch)
     np.testing.assert_allclose(one.cov, batch.cov, rtol=1e-9, atol=1e-18)
 
 
@@ -348,30 +354,12 @@ def test_the_one_window_path_decides_a_mouse_short_of_its_motion_as_the_array_pa
     """The shortfall's sums (Screen._quiet_blame) are kept alike by the daemon's path and
     replay's: a lift that only they find (every mouse at 125 Hz with long-tailed stamps,
     ``_lift_under_tails``'s drive) gives the same decisions and poses either way."""
-    import dataclasses
-
-    base = scenarios.rig("triangle")
-    base = dataclasses.replace(
-        base, mice=tuple(dataclasses.replace(m, report_hz=125.0) for m in base.mice)
-    )
-    fault = scenarios.fault_for(kind, base, DURATION, 5)
-    faulty = scenarios.apply(base, fault)
-    timed = dataclasses.replace(
-        faulty, mice=tuple(dataclasses.replace(m, stamp_tail=0.002) for m in faulty.mice)
-    )
-    result = sim.simulate(timed, scenarios.drive(DURATION, 5), seed=5)
+    base, fault, result = _tailed_drive("triangle", 5, 125.0, 0.002, kind)
     cfg = scenarios.config(base)
     batch, _ = scenarios.run(result, cfg)
     j = [m.name for m in base.mice].index(fault.mouse)
     assert np.any(batch.state[:, j] == robust.LATE)  # held out for its shortfall
-    out = sim.run_tracker_live(result, Tracker(cfg, t0=0.0))
-    from mousedom.fusion.posebatch import PoseBatch
-
-    one = PoseBatch.concat(out, 3)
-    assert len(one) == len(batch)
-    assert np.array_equal(one.state, batch.state) and np.array_equal(one.reason, batch.reason)
-    np.testing.assert_allclose(one.x, batch.x, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(one.theta, batch.theta, rtol=0, atol=1e-12)
+    _one_window_path(result, cfg, batch)
 
 
 @pytest.mark.parametrize("core_name", cores.names())
@@ -391,26 +379,28 @@ def test_the_common_case_leaves_a_mouse_predicted_past_its_speed_to_the_decision
                                     [0.5, 0.5]) is not None  # fmt: skip
 
 
-def _lift_under_tails(layout: str, seed: int, hz: float | None, tail: float, kind: str = "lift"):
-    """A lift (the issue's ``kind``, on the rig's first mouse) on a rig whose every mouse has stamps
-    late by an exponential tail of mean ``tail`` (every mouse at ``hz`` where given):
-    the end errors of (plain, robust, informed), and the robust run's batch."""
-    import dataclasses
-
-    traj = scenarios.drive(DURATION, seed)
+def _tailed_drive(layout: str, seed: int, hz: float | None, tail: float, kind: str):
+    """The issue's fault ``kind`` (on the rig's first mouse) in a drive of DURATION on
+    ``layout`` whose every mouse has stamps late by an exponential tail of mean ``tail``
+    (and reports at ``hz`` where given): (the rig as configured, the fault, the result)."""
     base = scenarios.rig(layout)
     if hz is not None:
         base = dataclasses.replace(
             base, mice=tuple(dataclasses.replace(m, report_hz=hz) for m in base.mice)
         )
     fault = scenarios.fault_for(kind, base, DURATION, seed)
+    faulty = scenarios.apply(base, fault)
     timed = dataclasses.replace(
-        scenarios.apply(base, fault),
-        mice=tuple(
-            dataclasses.replace(m, stamp_tail=tail) for m in scenarios.apply(base, fault).mice
-        ),
+        faulty, mice=tuple(dataclasses.replace(m, stamp_tail=tail) for m in faulty.mice)
     )
-    result = sim.simulate(timed, traj, seed=seed)
+    return base, fault, sim.simulate(timed, scenarios.drive(DURATION, seed), seed=seed)
+
+
+def _lift_under_tails(layout: str, seed: int, hz: float | None, tail: float, kind: str = "lift"):
+    """``_tailed_drive``'s drive through plain least squares, the robust engine and the
+    informed reference: (the fault, the rig, the robust batch, the three end errors)."""
+    base, fault, result = _tailed_drive(layout, seed, hz, tail, kind)
+    traj = scenarios.drive(DURATION, seed)
     _, plain = scenarios.run(result, scenarios.config(base, robust=False))
     batch, rob = scenarios.run(result, scenarios.config(base))
     dead = scenarios.informed_dead(fault, base, traj)
@@ -440,6 +430,17 @@ def test_a_lift_is_found_where_late_stamps_widened_every_tolerance(layout, seed,
     assert rob <= 1.5 * informed + 0.01, (plain, rob, informed)
 
 
+def _widened_square() -> robust.Screen:
+    """The screen of a square of four mice at 125 Hz whose floors late stamps have
+    widened to 1 mm a window (lam_f 1e4 on a sigma of 10 um)."""
+    xy = np.array([[0.1, 0.08], [0.1, -0.08], [-0.1, 0.08], [-0.1, -0.08]])
+    screen = robust.Screen("lsq", xy, np.full(4, 1e-5), np.full(4, 0.008), 0.01,
+                           RobustConfig(), None)  # fmt: skip
+    screen.noise.lam_f[:] = 1e4
+    screen.noise._sync()
+    return screen
+
+
 @pytest.mark.parametrize("core_name", cores.names())
 def test_the_common_case_leaves_a_mouse_short_of_its_motion_to_the_decision(core_name):
     """A square whose floors late stamps have widened (1 mm a window): a mouse that reads
@@ -447,12 +448,8 @@ def test_the_common_case_leaves_a_mouse_short_of_its_motion_to_the_decision(core
     must leave it to ``decide``, which sums its shortfall and holds it out once the sum is
     beyond its error: here by its third silent window (the solution it is part of takes
     its own silence in part: its shortfall against it is less than its motion)."""
-    xy = np.array([[0.1, 0.08], [0.1, -0.08], [-0.1, 0.08], [-0.1, -0.08]])
     with cores.using(core_name):
-        screen = robust.Screen("lsq", xy, np.full(4, 1e-5), np.full(4, 0.008), 0.01,
-                               RobustConfig(), None)  # fmt: skip
-        screen.noise.lam_f[:] = 1e4  # a floor of 1 mm a window
-        screen.noise._sync()
+        screen = _widened_square()
         rng = np.random.default_rng(3)
         p = screen.predict(np.array([0.004, 0.0, 0.01]))
         live = (True,) * 4
@@ -477,11 +474,7 @@ def test_replay_leaves_a_mouse_short_of_its_motion_to_the_decision():
     rows are decided, and the mouse is held out as the daemon's path holds it."""
     from mousedom.fusion import screenbatch
 
-    xy = np.array([[0.1, 0.08], [0.1, -0.08], [-0.1, 0.08], [-0.1, -0.08]])
-    screen = robust.Screen("lsq", xy, np.full(4, 1e-5), np.full(4, 0.008), 0.01,
-                           RobustConfig(), None)  # fmt: skip
-    screen.noise.lam_f[:] = 1e4
-    screen.noise._sync()
+    screen = _widened_square()
     rng = np.random.default_rng(3)
     p = screen.predict(np.array([0.004, 0.0, 0.01]))
     d = p + rng.normal(0.0, 2e-6, (8, 4, 2))
@@ -531,11 +524,7 @@ def test_a_late_mouse_paid_back_after_the_rig_stopped_comes_back():
     """Regression (review): a mouse held out for its shortfall in the last moving windows,
     whose counts came once the rig had stopped, stayed out: its shortfall's sum was only
     cleared by a moving window read in full.  Paid back and not short, it is back."""
-    xy = np.array([[0.1, 0.08], [0.1, -0.08], [-0.1, 0.08], [-0.1, -0.08]])
-    screen = robust.Screen("lsq", xy, np.full(4, 1e-5), np.full(4, 0.008), 0.01,
-                           RobustConfig(), None)  # fmt: skip
-    screen.noise.lam_f[:] = 1e4
-    screen.noise._sync()
+    screen = _widened_square()
     rng = np.random.default_rng(4)
     p = screen.predict(np.array([0.004, 0.0, 0.01]))
     live = np.ones(4, bool)

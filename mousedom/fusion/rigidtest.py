@@ -15,6 +15,7 @@ from typing import NamedTuple
 import numpy as np
 
 from mousedom.fusion import chi2, models
+from mousedom.fusion.geometry import design_matrix
 
 
 class Statistic(NamedTuple):
@@ -96,12 +97,7 @@ class RigidTest:
             return np.full((self.n, 2, 2), math.inf)
         b = est[1]  # (k, 2L)
         cov_q = (b * np.repeat(np.asarray(s2, dtype=float)[used], 2)) @ b.T
-        a = np.zeros((self.n, 2, 3))
-        a[:, 0, 0] = 1.0
-        a[:, 1, 1] = 1.0
-        a[:, 0, 2] = -self.positions[:, 1]
-        a[:, 1, 2] = self.positions[:, 0]
-        a = a[:, :, list(self.cols)]
+        a = design_matrix(self.positions).reshape(self.n, 2, 3)[:, :, list(self.cols)]
         return np.einsum("nij,jk,nlk->nil", a, cov_q, a)
 
     def predict(self, q: np.ndarray) -> np.ndarray:
