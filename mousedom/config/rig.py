@@ -91,8 +91,8 @@ class RobustConfig:
     # as after a USB host's stall) is held out as "late" before it is called excluded
     late_s: float = 0.05
     # each mouse's scale relative to the others is learnt online from the redundancy of
-    # three or more mice and reported (fusion.scalelearn); applied within +-scale_limit
-    # where learn_scale is true
+    # three or more mice and reported (fusion.scalelearn); applied where its CPI is within
+    # +-scale_limit of the configured one (ScaleLearner.bounds), where learn_scale is true
     learn_scale: bool = True
     scale_limit: float = 0.10
 

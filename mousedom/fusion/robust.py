@@ -195,6 +195,12 @@ class Screen(RigidTest):
         # read short in since it last read in full (``_quiet_blame``); any not zero.
         self._quiet = [[0.0, 0.0] for _ in range(self.n)]
         self._quiet_n = [0] * self.n  # the windows in each of those sums
+        # and what each sum may hold without a fault: the variance of its white noise (the
+        # mouse's own, the config's sigma, and its prediction's: the sandwich on it), and
+        # the prediction's error in proportion to the others' motion (their CPIs, which
+        # do not average out: summed as amplitudes), over its windows
+        self._quiet_var = [0.0] * self.n
+        self._quiet_sys = [0.0] * self.n
         self._short_now = [False] * self.n  # short in the window being decided
         self._quiet_any = False
         self._quiet_held: int | None = None  # the mouse this window held out for it
@@ -326,18 +332,33 @@ class Screen(RigidTest):
         (their motion beyond sigma, and not short): their shortfall's sum starts again."""
         for i, r in enumerate(read):
             if r:
-                self._quiet[i], self._quiet_n[i] = [0.0, 0.0], 0
+                self._quiet_reset(i)
         self._quiet_any = any(x or y for x, y in self._quiet)
+
+    def _quiet_reset(self, i: int) -> None:
+        """Mouse i read in full (or is gone): its shortfall's sum starts again."""
+        self._quiet[i], self._quiet_n[i] = [0.0, 0.0], 0
+        self._quiet_var[i] = self._quiet_sys[i] = 0.0
+
+    def _prediction_errors(self, d: np.ndarray, used: np.ndarray) -> tuple[list, list]:
+        """Per mouse, what its prediction from the ``used`` mice may be off by: the
+        variance of the white part (the config's sigma through the estimator's sandwich,
+        a trace) and the amplitude of the part in proportion to the others' motion (their
+        readings' learnt proportional error, rho^2 |d|^2, through the same)."""
+        white = np.trace(self.prediction_cov(used, self.noise.sig2), axis1=1, axis2=2)
+        rho2 = np.asarray(self.noise.f_rho2) * np.sum(d * d, axis=1)
+        prop = np.sqrt(np.trace(self.prediction_cov(used, rho2), axis1=1, axis2=2))
+        return white.tolist(), prop.tolist()
 
     def _quiet_blame(self, d: np.ndarray, p: np.ndarray, live: np.ndarray,
                      used: np.ndarray) -> int | None:  # fmt: skip
         """The window's shortfalls (module step 1b): each live mouse the others moved
-        beyond its sigma that read less than SHORT of that along it adds what it missed
-        (p - d) to its shortfall's sum; one that read more starts again.  Returns
-        the used mouse whose sum, over two windows or more, is beyond twice its expected
-        error's floor at the test's threshold (two windows' worth of counts moved by late
-        stamps), where the rest can do without it (the one furthest beyond, if several),
-        else None.
+        beyond its sigma (and its prediction's noise) that read less than SHORT of that
+        along it adds what it missed (p - d) to its shortfall's sum; one that read more
+        starts again.  Returns the used mouse whose sum, over two windows or more, is
+        beyond twice its expected error's floor (two windows' worth of counts moved by late
+        stamps) plus the sum's white noise, at the test's threshold, where the rest can do
+        without it (the one furthest beyond, if several), else None.
 
         A lifted mouse reads nothing, or noise; where late stamps and USB gaps have taught
         the noise model wide tolerances (floors thousands of times the config's sigma^2),
@@ -348,24 +369,40 @@ class Screen(RigidTest):
         floor = self.noise.f_floor
         sig2 = self.noise.sig2_list
         worst, blame = 1.0, None
+        white: list[float] | None = None  # _prediction_errors', once a mouse reads short
+        prop: list[float] = []
         self._short_now = [False] * self.n
         for i in range(self.n):
             px, py = float(p[i, 0]), float(p[i, 1])
             p2 = px * px + py * py
             if not live[i]:
-                self._quiet[i], self._quiet_n[i] = [0.0, 0.0], 0
+                self._quiet_reset(i)
                 continue
             if p2 <= sig2[i]:
                 continue  # moved too little to tell
             dx, dy = float(d[i, 0]), float(d[i, 1])
             if dx * px + dy * py >= SHORT * p2:
-                self._quiet[i], self._quiet_n[i] = [0.0, 0.0], 0
+                self._quiet_reset(i)
                 continue
+            if white is None:
+                white, prop = self._prediction_errors(d, used)
+            if p2 <= sig2[i] + white[i] + prop[i] * prop[i]:
+                continue  # the others' errors predict as much (a mouse at the pivot)
             qx, qy = self._quiet[i][0] + (px - dx), self._quiet[i][1] + (py - dy)
             self._quiet[i] = [qx, qy]
             self._quiet_n[i] += 1
+            self._quiet_var[i] += 2.0 * sig2[i] + white[i]
+            self._quiet_sys[i] += prop[i]
             self._short_now[i] = True
-            beyond = (qx * qx + qy * qy) / (2.0 * self._thresholds[2] * floor[i])
+            # beyond twice the floor (lateness: counts moved between windows, which cancel
+            # in the sum) and what the sum's errors allow, which do not cancel: a mouse at
+            # a spin's pivot reads nothing while the others' noise and CPI errors predict
+            # a little, and that sum walked past the floor in a few dozen windows (a
+            # healthy mouse held out, a line of three ending 0.18 m off)
+            sys2 = self._quiet_sys[i] * self._quiet_sys[i]
+            beyond = (qx * qx + qy * qy) / (
+                self._thresholds[2] * (2.0 * floor[i] + self._quiet_var[i] + sys2)
+            )
             # two windows at least: one silent window is how a 125 Hz mouse starts to move
             # (its first report is still to come), or how a late report looks
             in_use = self.health[i].state in (TRACKING, SUSPECT) and self._quiet_n[i] >= 2
@@ -893,7 +930,7 @@ class Screen(RigidTest):
             # paid back, and not short in this window (a mouse reading noise, lifted, can
             # owe little over a window or two while its shortfall goes on); its
             # shortfall's sum is settled with its debt
-            self._quiet[i], self._quiet_n[i] = [0.0, 0.0], 0
+            self._quiet_reset(i)
             h.state, h.reason, h.good = TRACKING, NONE, 0
             self.ledger.readmit(i)
             return

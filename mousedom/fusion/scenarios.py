@@ -76,6 +76,16 @@ LAYOUTS = {
         ("b", -0.05, 0.08, 500.0),
         ("c", -0.05, -0.08, 1000.0),
     ),  # fmt: skip
+    "line-along": (  # three in a line along the robot, the middle one at a spin's pivot
+        ("f", 0.15, 0.0, 125.0),
+        ("c", 0.0, 0.0, 500.0),
+        ("b", -0.15, 0.0, 1000.0),
+    ),  # fmt: skip
+    "offset-ring": (  # a ring of 0.1 m whose centre is 0.32 m off the rig's (a front bumper)
+        ("m0", 0.40, 0.10, 125.0),
+        ("m1", 0.25, 0.1866, 500.0),
+        ("m2", 0.25, 0.0134, 1000.0),
+    ),  # fmt: skip
 }
 
 FAULTS = ("none", "lift", "lift-noisy", "under-read", "jumps", "saturation")

@@ -84,7 +84,9 @@ class Learners:
             eligible = all(usable) and row.used == self._n  # every mouse in the solve
             noise = self.noise_rate.add_row(row.residual, eligible, moving)
         step = [row.x - start[0], row.y - start[1]]
-        scales = self.scales.add_row(counts, usable, held, q, step)
+        in_solve = row.used == self._n  # every mouse in the pose (whatever the screen said)
+        heading = row.theta - 0.5 * q[2]  # the window's middle
+        scales = self.scales.add_row(counts, usable, held, q, step, in_solve, heading)
         self._full = (noise, scales)
 
     @property
@@ -123,7 +125,10 @@ class Learners:
         xy = np.empty((len(q) + 1, 2))
         xy[0] = start
         xy[1:, 0], xy[1:, 1] = batch.x, batch.y
-        scales = self.scales.add(counts, usable, held_out, q, xy[1:] - xy[:-1])
+        in_solve = batch.used == self._n
+        heading = batch.theta - 0.5 * q[:, 2]
+        scales = self.scales.add(counts, usable, held_out, q, xy[1:] - xy[:-1], in_solve,
+                                 heading)  # fmt: skip
         return self._renewal(noise, scales)
 
     def _renewal(self, noise: bool, scales: bool) -> Renewal | None:
