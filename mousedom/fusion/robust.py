@@ -343,10 +343,11 @@ class Screen(RigidTest):
     def _prediction_errors(self, d: np.ndarray, used: np.ndarray) -> tuple[list, list]:
         """Per mouse, what its prediction from the ``used`` mice may be off by: the
         variance of the white part (the config's sigma through the estimator's sandwich,
-        a trace) and the amplitude of the part in proportion to the others' motion (their
-        readings' learnt proportional error, rho^2 |d|^2, through the same)."""
+        a trace) and the amplitude of the part in proportion to the others' motion (the
+        config's relative_noise, rho^2 |d|^2, through the same: a CPI's error, which does
+        not cancel in a sum; the learnt factor on it is mostly late stamps', which do)."""
         white = np.trace(self.prediction_cov(used, self.noise.sig2), axis1=1, axis2=2)
-        rho2 = np.asarray(self.noise.f_rho2) * np.sum(d * d, axis=1)
+        rho2 = self.noise.rho2 * np.sum(d * d, axis=1)
         prop = np.sqrt(np.trace(self.prediction_cov(used, rho2), axis1=1, axis2=2))
         return white.tolist(), prop.tolist()
 
