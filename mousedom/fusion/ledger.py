@@ -10,7 +10,9 @@ gets B_i times the sum (``settle``, by solving the sum as if it were a reading).
 
 - **Whole**: a late mouse's sum is its lateness at the end less that at the start, no
   larger than one window's error: chi-square with 2 degrees of freedom at the false-alarm
-  rate, against twice the largest expected error of a window in the exclusion.  A lifted,
+  rate, against twice the largest expected error of a window in the exclusion: the
+  mouse's own and that of the others' prediction of it, from which every residual is taken
+  (``paid``; far across the line through two close mice, many times its own).  A lifted,
   under-reading or jumping mouse owes the motion it missed or invented: far beyond.
 - **Runs**: then only the runs of windows it agreed in while it waited are given back
   (after a lift, between and after a seam's jumps), where their sum is within its expected
@@ -44,23 +46,49 @@ class Ledger:
         self.evidence = evidence
         self.owed = np.zeros((n, 2))  # the sum of residuals over the exclusion
         self.owed_s2 = np.zeros(n)  # the largest expected error of a window in it
+        # the largest covariance (2, 2) of the others' prediction of a window in it
+        # (RigidTest.prediction_cov; a solve without rank adds nothing)
+        self.owed_pc = np.zeros((n, 2, 2))
         self._run = np.zeros((n, 2))  # the run of agreeing windows going on
         self._run_s2 = np.zeros(n)
         self._banked = np.zeros((n, 2))  # the runs that counted
         self._banked_s2 = np.zeros(n)
         self.readmitted: list[int] = []  # mice back in use in this window
 
-    def hold(self, i: int, r: np.ndarray, s2: float) -> None:
-        """Mouse i held out afresh with residual r (expected error s2): a new account."""
+    def hold(self, i: int, r: np.ndarray, s2: float, pc: np.ndarray | None = None) -> None:
+        """Mouse i held out afresh with residual r (expected error s2; pc: the covariance
+        of the prediction r is taken from): a new account."""
         self.owed[i] = r
         self.owed_s2[i] = s2
+        self.owed_pc[i] = 0.0
+        self._predicted(i, pc)
         self._run[i] = self._banked[i] = 0.0
         self._run_s2[i] = self._banked_s2[i] = 0.0
 
-    def carry(self, i: int, r: np.ndarray, s2: float) -> None:
+    def carry(self, i: int, r: np.ndarray, s2: float, pc: np.ndarray | None = None) -> None:
         """One more window held out."""
         self.owed[i] += r
         self.owed_s2[i] = max(self.owed_s2[i], s2)
+        self._predicted(i, pc)
+
+    def _predicted(self, i: int, pc: np.ndarray | None) -> None:
+        if pc is not None and np.all(np.isfinite(pc)):
+            if np.linalg.eigvalsh(pc)[-1] > np.linalg.eigvalsh(self.owed_pc[i])[-1]:
+                self.owed_pc[i] = pc
+
+    def paid(self, i: int) -> bool:
+        """Whether mouse i's debt is nothing to within the test (``thr2``): held to twice
+        its largest window's error and its largest window's prediction's.  What the others
+        predict of a mouse they fix poorly (far across the line through two close ones) is
+        off by many times its own error, and every residual it owes is taken from such a
+        prediction: a debt paid back is nothing to within that (a healthy mouse late once
+        far behind a close pair was excluded on the others' error, its heading left to the
+        pair, 13 m off at the end of a drive)."""
+        r = self.owed[i]
+        if self.owed_s2[i] <= 0.0:
+            return not r.any()
+        cov = 2.0 * (self.owed_s2[i] * np.eye(2) + self.owed_pc[i])
+        return float(r @ np.linalg.solve(cov, r)) <= self.thr2
 
     def take(self, i: int, r: np.ndarray) -> None:
         """Residuals of windows taken back from the pose join the account."""
@@ -94,7 +122,7 @@ class Ledger:
         with_them = used.copy()
         for i in back:
             r, a = self.owed[i], self._banked[i]
-            if float(r @ r) <= self.thr2 * 2.0 * self.owed_s2[i]:
+            if self.paid(i):
                 owed[i] = r
                 with_them[i] = True
             elif self._banked_s2[i] > 0 and float(a @ a) <= self.thr2 * self._banked_s2[i]:

@@ -812,7 +812,7 @@ class Screen(RigidTest):
         if h.state not in (EXCLUDED, LATE) or why != NONE:
             # late where it is short by its last moments' motion (lateness), unless it
             # was excluded already (held out again by a re-examination)
-            self.ledger.hold(i, d[i] - p[i], s2)
+            self.ledger.hold(i, d[i] - p[i], s2, pred_cov)
             _fresh_wait(h)
             h.good = 0
             tol2 = thr2 * 2.0 * s2
@@ -823,7 +823,7 @@ class Screen(RigidTest):
             else:
                 h.state, h.reason = EXCLUDED, why or INCONSISTENT
             return
-        self.ledger.carry(i, d[i] - p[i], s2)
+        self.ledger.carry(i, d[i] - p[i], s2, pred_cov)
         if h.state == LATE:
             self._late(d, p, i, h, thr2 * 2.0 * self.ledger.owed_s2[i])
             return
@@ -927,7 +927,7 @@ class Screen(RigidTest):
         then added to the pose, ``ledger``); excluded once it has lagged beyond
         ``late_s`` or owes what no lateness explains (``lateness``)."""
         owed = self.ledger.owed[i]
-        if float(owed @ owed) <= tol2 and not self._short_now[i]:
+        if self.ledger.paid(i) and not self._short_now[i]:
             # paid back, and not short in this window (a mouse reading noise, lifted, can
             # owe little over a window or two while its shortfall goes on); its
             # shortfall's sum is settled with its debt
