@@ -8,8 +8,8 @@ were moved into the first window on top of that window's own motion.  Over the m
 lever arm that is a turn, up to 0.37 degrees a re-add here.  A mouse plugged back without
 a reload is not used in the window it came back in, which takes what its first report
 holds from before; a mouse a reload opens is now not used in the new tracker's first
-window (``Tracker.set_live``), and a mouse a reload closes is not used in the window still
-open when it is closed (``Sensors.leave``), as a mouse that vanishes.
+window (``Tracker.set_live``), and a mouse a reload closes is in no window the new tracker
+closes, the one still open at the reload among them.
 
 The daemon runs its own loop's steps (``_start``, ``_plan``, ``_window``, the reloader)
 on a simulated clock, its mice simulated sources with a descriptor, as evdev's.
@@ -18,7 +18,6 @@ on a simulated clock, its mice simulated sources with a descriptor, as evdev's.
 from __future__ import annotations
 
 import dataclasses
-import math
 import os
 from pathlib import Path
 
@@ -231,8 +230,9 @@ def test_a_mouse_back_at_or_before_the_frontier_misses_the_first_window():
 
 
 def test_a_mouse_a_reload_removes_is_not_used_in_the_window_still_open(tmp_path):
-    """The window holding the reload closes with what the mice reported until then: the
-    removed mouse, whose reports stop there, is not in it (as a mouse that vanishes)."""
+    """The old tracker closes the windows final at the reload, with every mouse; the new
+    one goes on from there and closes the window holding the reload without the removed
+    mouse, whose reports stop there."""
     rig = _rig("three-125")
     names = [m.name for m in rig.mice]
     result = sim.simulate(rig, sim.straight(0.6, 0.2), t_start=T_START)
@@ -265,4 +265,7 @@ def test_a_mouse_a_reload_removes_is_not_used_in_the_window_still_open(tmp_path)
         d._shutdown()
     last = [r for r in kept.rows[before:] if r.t - period < at < r.t + 1e-9]
     assert len(last) == 1 and last[0].used == len(names) - 1, last
-    assert math.isclose(d.tracker.t0, last[0].t)
+    old = [r for r in kept.rows if len(r.counts) == len(names)]  # the old tracker's
+    assert old and all(r.used == len(names) for r in old)
+    assert d.tracker.t0 == old[-1].t < at
+    assert all(r.used == len(names) - 1 for r in kept.rows[len(old) :])

@@ -348,6 +348,13 @@ class CountFunction:
         if last > self.last_t:
             self.last_t = last
 
+    def timed_as(self, fresh: CountFunction) -> CountFunction:
+        """This count function, carried into a reloaded tracker whose own is ``fresh``
+        (``Tracker.carry``): its reports, knots, liveness and counters as they are, the
+        rules for reports still to come (report period, bridge) the new config's."""
+        self.period, self.bridge, self.join = fresh.period, fresh.bridge, fresh.join
+        return self
+
     def complete_to(self, t: float) -> None:
         """Every report stamped <= t has been pushed."""
         if t > self.complete:
@@ -358,7 +365,7 @@ class CountFunction:
         windows do not use it.  ``first_end``: the end of the first window still open.
         That window takes what lies behind its start (reports stamped before it, the
         period a first report reaches back: ``ingest`` moves them into it), so a sensor
-        back at or before its start (a new tracker's, at a reload) would bring counts from
+        back at or before its start (every window up to then could close) would bring counts from
         before it came back into it: its dead span lasts until that window's end, as a
         sensor back inside that window is not used in it either."""
         if live == self.live:

@@ -22,7 +22,8 @@ once) and the daemon (a few at a time) run exactly the same code.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -328,12 +329,45 @@ class Tracker:
 
         Windows that overlap a dead span do not use that mouse; the model goes on with
         the others while it has rank, and reports ok=False otherwise.  Back at or before
-        the closed frontier (a new tracker's sensor, opened at a reload), it is not used in
-        the first window still open either (``CountFunction.declare_live``).
+        the closed frontier (every window up to then could close), it is not used in the
+        first window still open either (``CountFunction.declare_live``).
         """
         grid = self._grid
         first_end = -math.inf if grid.t0 is None else grid.edge(grid.closed + 1)
         self._clocks[self._index(mouse)].declare_live(live, t, first_end)
+
+    def carry(self, old: Tracker, kept: Sequence[tuple[int, int]]) -> None:
+        """Go on with the windows ``old`` left open (a reload; ``old`` is not used after):
+        this tracker's grid starts at ``old``'s closed frontier, and a window closes here
+        once final, as it would have there.  Closing them at the reload instead would close
+        them before the slower mice's reports for them came (a report reaches a period
+        back), and those counts would land in a later window.
+
+        ``kept``: (index here, index in ``old``) of each sensor on an unchanged device.  It
+        keeps its count function (its reports, what they owe the open windows, how far
+        they are complete, its liveness and counters), its counts closed so far and its
+        reports' evidence.  Any other was not read before: it is not live from the grid's
+        start until declared live (``set_live``), or the windows before it opens would
+        take it as standing still."""
+        t0 = old.frontier_time
+        if self.t0 != t0 or self._grid.closed:
+            raise ValueError(f"carry: the grid must start at the old frontier {t0}, not {self.t0}")
+        clocks = list(self._clocks)
+        carried = set()
+        for i, j in kept:
+            clocks[i] = old._clocks[j].timed_as(clocks[i])
+            carried.add(i)
+            if i < self.n_mice:
+                self._counts_out[i] = list(old._counts_out[j])
+                self.evidence.spans[i] = old.evidence.spans[j]
+        for i, m in enumerate(clocks):
+            if i not in carried:
+                m.declare_live(False, t0)
+        self._clocks, self._mice = clocks, clocks[: self.n_mice]
+        if self._gyro is not None:
+            self._gyro = cast("GyroClock", clocks[self.n_mice])
+        # how far any sensor's reports are complete: a time, whoever's (finish reads it)
+        self._complete_all = max(self._complete_all, old._complete_all)
 
     def is_live(self, mouse: int | str) -> bool:
         return self._clocks[self._index(mouse)].live

@@ -1,12 +1,14 @@
 """SIGHUP: reread the config and its calibration, keep the pose, keep what did not change.
 
 Whatever the new config holds, the running one stays unless the new one loads completely
-(its YAML work is bounded by safeyaml); the pose carries over, sensors whose device is
-unchanged stay open, and the new window grid starts after the last published POSE so that
-its time never steps back.  A sensor the reload closes leaves the running windows, and one
-it opens joins the new ones, as a sensor that vanishes or comes back does (``Sensors.leave``
-and ``replace``).  ``Reloader`` is given the parts it changes; it swaps the
-running config and tracker (running.py) for all of them at once.
+(its YAML work is bounded by safeyaml); the pose carries over, and sensors whose device is
+unchanged stay open.  The running tracker closes the windows that are final; the new one
+goes on from there (its grid starts at the last published POSE, whose time so never steps
+back) with what the sensors kept have reported, so that a window still waiting for a slower
+mouse's report closes when it comes, as without a reload (``Tracker.carry``).  A sensor the
+reload closes is in no window after that; one it opens joins them once open, as a sensor
+that comes back does (``Sensors.replace``).  ``Reloader`` is given the parts it changes; it
+swaps the running config and tracker (running.py) for all of them at once.
 """
 
 from __future__ import annotations
@@ -63,13 +65,15 @@ class Reloader:
         for w in new.warnings:  # values that look like the wrong unit
             log.warning("%s", w)
         now = self.clock()
-        self.sensors.leave(sensors_of(new), now)
-        self.finish_windows()
-        # finish() may have closed a window ending after now (the one holding the last
-        # report): the new grid starts after it, or POSE t would step back once.
-        tracker = self.tracker_class(new, t0=max(now, self.publisher.last_pose_t))
+        # What is final now closes as the next window would close it, with the old config
+        # (the sensors the reload closes in it); the rest waits for reports still to come.
+        self.sensors.read_due(now)
+        old = self.running.tracker
+        self.publisher.publish(old.poll())
+        self.publisher.log_scales()
+        tracker = self.tracker_class(new, t0=old.frontier_time)
         tracker.reset(**self.publisher.pose_now())
-        tracker.complete_until(now)  # what came before now went to the old tracker
+        tracker.carry(old, self.sensors.kept(sensors_of(new)))
         self._stop_recording_if_mice_changed(new)
         self.publisher.fold_window_health()  # the old slots' last windows, before they move
         self.running.replace(new, tracker)
@@ -96,7 +100,7 @@ class Reloader:
 
     def finish_windows(self) -> None:
         """What is already readable belongs to the running windows: read it, close and
-        publish them all (before a reload, and at the stop)."""
+        publish them all (at the stop)."""
         self.sensors.read_live()
         self.publisher.publish(self.running.tracker.finish())
         self.publisher.log_scales()

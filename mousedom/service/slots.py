@@ -164,22 +164,23 @@ class Sensors:
     def max_latency(self) -> float:
         return max((s.latency for s in self.slots), default=0.0)
 
-    def leave(self, mice: Sequence[Sensor], now: float) -> None:
-        """Before a reload to ``mice`` closes the running windows: the sensors it closes
-        (``replace``) leave them at ``now``, as a sensor that vanishes does (``_gone``):
-        the window still open then, which their reports only partly cover, does not use
-        them."""
-        new = {sensor_name(m): m for m in mice}
-        tracker = self.running.tracker
-        for slot in self.slots:
-            if slot.live and not _keeps(slot, new.get(slot.name)):
-                tracker.set_live(slot.index, False, now)
+    def kept(self, mice: Sequence[Sensor]) -> list[tuple[int, int]]:
+        """(index in ``mice``, index now) of each sensor a reload to ``mice`` keeps open
+        (``replace``): the tracker's indices, whose count functions go on (Tracker.carry)."""
+        old = {s.name: s for s in self.slots}
+        pairs = []
+        for i, mouse in enumerate(mice):
+            prev = old.get(sensor_name(mouse))
+            if prev is not None and _keeps(prev, mouse):
+                pairs.append((i, prev.index))
+        return pairs
 
     def replace(self, mice: Sequence[Sensor], now: float) -> None:
         """The slots of a reloaded config: a mouse whose device is unchanged keeps its open
         source (and its place in the epoll); the others are closed, or opened anew.  The
-        running tracker is already the new one: a sensor it did not have open is not live
-        in it until it opens, as one that comes back (``Tracker.set_live``)."""
+        running tracker is already the new one, carrying on with the sensors kept (``kept``):
+        a sensor it did not have open is not live in it until it opens, as one that comes
+        back (``Tracker.set_live``)."""
         old = {s.name: s for s in self.slots}
         slots = []
         for i, mouse in enumerate(mice):
