@@ -539,8 +539,10 @@ class Screen(RigidTest):
         within their tolerance (stamps late by a long tail; a report held up): a lag that
         was never flagged, paid back.  Then the readings summed from one of those windows
         through this one agree with the others (each earlier residual, shrunk by the mouse's
-        own weight in the solve it was used in, taken back to full size), within the test
-        that gives a late mouse's debt back (``ledger``); the counts are the mouse's,
+        own weight in the solve it was used in, taken back to full size), within twice its
+        own error at the test's threshold (without the allowance for the others' prediction
+        that ``Ledger.paid`` makes for a held-out mouse: not measured here, left as it was);
+        the counts are the mouse's,
         counted once, and the window is solved with it.  A jump, a lift or an under-read
         owes far more than a few windows' tolerance and is blamed as before."""
         if len(blamed) != 1 or len(self.history) < 2:
@@ -804,7 +806,7 @@ class Screen(RigidTest):
         if h.state in (EXCLUDED, LATE) and why in (SATURATED, LOW_QUALITY):
             # its sensor's word on a mouse held out already: out for that now, and what it
             # owes goes on (a late mouse's debt is still to be paid back)
-            self.ledger.carry(i, d[i] - p[i], s2)
+            self.ledger.carry(i, d[i] - p[i], s2, pred_cov)
             self._end_run(i, h)
             _fresh_wait(h)
             h.state, h.reason, h.good = EXCLUDED, why, 0

@@ -142,8 +142,8 @@ class ScaleLearner:
         self.estimate = np.ones((self.n, 2))  # the fit, unclipped
         self.spread = np.full((self.n, 2), np.inf)  # its standard deviation
         self.scale = np.ones((self.n, 2))  # applied: the fit clipped to bounds
-        # this block's (counts, usable, held_out, q, steps, in_solve): arrays from add, one
-        # window's lists from add_row
+        # this block's (counts, usable, held_out, q, steps, in_solve, heading): arrays from
+        # add, one window's lists from add_row
         self._rows: list[tuple[ArrayLike, ...]] = []
         self._held = 0  # windows in _rows
         self.version = 0  # bumped whenever the estimates are renewed
