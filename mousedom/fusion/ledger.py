@@ -11,8 +11,9 @@ gets B_i times the sum (``settle``, by solving the sum as if it were a reading).
 - **Whole**: a late mouse's sum is its lateness at the end less that at the start, no
   larger than one window's error: chi-square with 2 degrees of freedom at the false-alarm
   rate, against twice the largest expected error of a window in the exclusion: the
-  mouse's own and that of the others' prediction of it, from which every residual is taken
-  (``paid``; far across the line through two close mice, many times its own).  A lifted,
+  mouse's own, or that of the others' prediction of it where larger, from which every
+  residual is taken (``paid``; far across the line through two close mice, many times its
+  own).  A lifted,
   under-reading or jumping mouse owes the motion it missed or invented: far beyond.
 - **Runs**: then only the runs of windows it agreed in while it waited are given back
   (after a lift, between and after a seam's jumps), where their sum is within its expected
@@ -78,7 +79,8 @@ class Ledger:
 
     def paid(self, i: int) -> bool:
         """Whether mouse i's debt is nothing to within the test (``thr2``): held to twice
-        its largest window's error and its largest window's prediction's.  What the others
+        its largest window's error, or its largest window's prediction's error where that
+        is larger (direction by direction).  What the others
         predict of a mouse they fix poorly (far across the line through two close ones) is
         off by many times its own error, and every residual it owes is taken from such a
         prediction: a debt paid back is nothing to within that (a healthy mouse late once
@@ -87,7 +89,13 @@ class Ledger:
         r = self.owed[i]
         if self.owed_s2[i] <= 0.0:
             return not r.any()
-        cov = 2.0 * (self.owed_s2[i] * np.eye(2) + self.owed_pc[i])
+        # its own error, or the prediction's where larger (the part of it beyond the
+        # mouse's own, direction by direction): where the others predict it as well as it
+        # reads, a single window's residual was already within twice its own error, and
+        # adding the prediction's let a jump on a square pass as paid back
+        s2 = self.owed_s2[i]
+        w, v = np.linalg.eigh(self.owed_pc[i])
+        cov = 2.0 * (s2 * np.eye(2) + (v * np.maximum(w - s2, 0.0)) @ v.T)
         return float(r @ np.linalg.solve(cov, r)) <= self.thr2
 
     def take(self, i: int, r: np.ndarray) -> None:
