@@ -62,3 +62,18 @@ def test_nees_with_a_detected_fault_is_three():
         for seed in range(4)
     ]
     _within_band(values)
+
+
+def test_nees_of_a_mouse_noisier_than_configured_is_three():
+    """The first mouse five times noisier than its config's sigma (fusion.conditions,
+    "noisy").  Until the noise rate's first estimate (seconds of motion) the covariance
+    took its noise at sigma^2, a twenty-fifth of the truth, for good: 60 drives of 30 s
+    summed to 5.7 per drive (6.8 on the first 30).  The first estimate now restates those
+    windows' covariance with what it learnt (tracker_learn.WarmUp): 3.4."""
+    values = [
+        _nees(layout, "noisy", seed)
+        for layout in ("triangle", "square", "pentagon")
+        for seed in (*range(700, 710), *range(720, 730))
+    ]
+    assert all(math.isfinite(v) for v in values)
+    _within_band(values)

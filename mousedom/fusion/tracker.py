@@ -184,6 +184,8 @@ class Tracker:
         if renewal.to_body is not None:
             self._to_body = renewal.to_body
             self._carried.give_back(renewal.turn, renewal.walk)
+        if renewal.cov_add is not None:
+            self._carried.cov = (np.array(self._carried.cov) + renewal.cov_add).tolist()
         self._rebind()
 
     # ------------------------------------------------------------------ inputs

@@ -13,9 +13,11 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from mousedom.config import RobustConfig
-from mousedom.fusion import models, noiserate, robust, scalelearn
+from mousedom.fusion import integrate, models, noiserate, robust, scalelearn
+from mousedom.fusion.covariance import CovarianceState, propagate, world_step_noise
 from mousedom.fusion.posebatch import PoseBatch, PoseRow
 from mousedom.fusion.tracker_state import PathSetup
 
@@ -29,6 +31,109 @@ class Renewal(NamedTuple):
     to_body: np.ndarray | None  # (N, 2, 2) with the new scales; None: nothing to apply
     turn: float  # radians, with to_body only
     walk: list[float]  # metres, world axes, with to_body only
+    # added to the carried covariance where the noise is first learnt: the windows before
+    # restated with it (WarmUp.restatement); None: nothing to add
+    cov_add: np.ndarray | None = None
+
+
+class WarmUp:
+    """The covariance the windows before the noise rate's first estimate carried with the
+    config's sigma, restated with that estimate (``restatement``).
+
+    Until the noise is learnt (seconds of motion), the covariance takes each mouse's noise
+    as its config's sigma says; a mouse five times noisier was accounted at a
+    twenty-fifth of its variance for good (NEES 5.2 over 30 s drives where 3 is right,
+    from those seconds alone: the estimate itself is within 5 % of the truth).  P is linear
+    in each window's twist covariance B diag(v) B^T, and so in each mouse's variance: one
+    covariance per mouse and per kind of window (moving, at rest), propagated as the
+    pose's is and fed B_i B_i^T, is what that mouse's variance adds, and the difference of
+    the learnt variance from sigma^2 times it is what the pose's covariance lacks.
+
+    The windows are kept as they close (a list append: no per-window work in the daemon)
+    and worked through at once when the estimate comes, in the learning after the POSE;
+    while it does not come (a rig standing still learns nothing for as long as it stands),
+    ``KEEP`` of them at a time at the learning's block ends (``settle``)."""
+
+    KEEP = 500  # windows (5 s at 100 Hz): a fold's work stays a few ms
+
+    def __init__(self, setup: PathSetup) -> None:
+        self._positions = setup.positions
+        self._sigma = setup.sigma
+        self._sig2 = setup.sigma**2
+        self._cols = (0, 2) if setup.model == "diff-drive" else (0, 1, 2)
+        n = setup.n_mice
+        self._states = [CovarianceState() for _ in range(2 * n)]  # moving 0..n-1, rest n..
+        self._chunks: list[tuple] = []  # (x, y, theta, q, ok, used, moving, qcov) each
+        self._kept = 0
+        self.open = True
+
+    def add(
+        self, x: ArrayLike, y: ArrayLike, theta: ArrayLike, q: ArrayLike, ok: ArrayLike,
+        used: ArrayLike, moving: ArrayLike, qcov: ArrayLike,
+    ) -> None:  # fmt: skip
+        """Windows solved with the config's sigma: the poses after each, the twists, whether
+        solved, the mice in each solve (n, N), whether any mouse counted, and the twists'
+        covariance (its ratio to the estimator's own is the screen's inflation); arrays,
+        or one window's values in lists of one."""
+        if not self.open:
+            return
+        self._chunks.append((x, y, theta, q, ok, used, moving, qcov))
+        self._kept += len(np.asarray(x))
+
+    def settle(self) -> None:
+        """Fold the windows kept once there are ``KEEP`` of them: where the learning runs
+        (the daemon's after its POSE, ``Learners.end_block``), not in a window's way."""
+        if self._kept >= self.KEEP:
+            self._fold()
+
+    def _fold(self) -> None:
+        """Propagate the unit covariances through the windows kept, and forget them."""
+        if not self._chunks:
+            return
+        x, y, theta, q, ok, used, moving, qcov = (
+            np.concatenate([np.asarray(c[k], dtype=dt) for c in self._chunks])
+            for k, dt in enumerate((float, float, float, float, bool, bool, bool, float))
+        )
+        self._chunks, self._kept = [], 0
+        n_mice = len(self._sig2)
+        unit = np.zeros((2 * n_mice, len(x), 3, 3))
+        # per live pattern (a rig has few): each mouse's unit sandwich, and the estimator's
+        # own covariance on sigma, whose ratio to a window's is the screen's inflation
+        codes = used.astype(np.int64) @ (np.int64(1) << np.arange(n_mice, dtype=np.int64))
+        for code in np.unique(codes[ok]).tolist():
+            rows = np.flatnonzero(ok & (codes == code))
+            mask = used[rows[0]]
+            est = models._estimator(self._positions.tobytes(), self._sigma.tobytes(),
+                                    mask.tobytes(), self._cols)  # fmt: skip
+            if est is None:
+                continue
+            idx = np.flatnonzero(mask)
+            c3 = models.sandwich(est[1], self._sig2[idx], self._cols)
+            inflate = qcov[rows, 2, 2] / c3[2, 2] if c3[2, 2] > 0 else np.ones(len(rows))
+            for j, i in enumerate(idx.tolist()):
+                e = np.zeros(len(idx))
+                e[j] = 1.0
+                one = models.sandwich(est[1], e, self._cols)
+                for kind, these in ((0, moving[rows]), (n_mice, ~moving[rows])):
+                    unit[kind + i, rows[these]] = inflate[these, None, None] * one
+        theta_before = theta - q[:, 2]
+        partials = integrate.step_partials(q)
+        xy = np.stack([x, y], axis=1)
+        for m in range(2 * n_mice):
+            g = world_step_noise(theta_before, partials, unit[m])
+            _, self._states[m] = propagate(self._states[m], xy, g)
+
+    def restatement(self, noise: models.StepNoise) -> np.ndarray:
+        """What the windows so far carry too little (or too much): the sum over mice of
+        (learnt - sigma^2) times their unit covariance; the accounting closes."""
+        self._fold()
+        self.open = False
+        n_mice = len(self._sig2)
+        out = np.zeros((3, 3))
+        for i in range(n_mice):
+            out += (noise.moving[i] - self._sig2[i]) * self._states[i].cov
+            out += (noise.rest[i] - self._sig2[i]) * self._states[n_mice + i].cov
+        return 0.5 * (out + out.T)
 
 
 class Learners:
@@ -57,6 +162,10 @@ class Learners:
         self._still_counts = models.STILL * sigma_counts
         self._still_counts_list = self._still_counts.tolist()  # add_row's
         self._full = (False, False)  # (noise rate, scales): a block add_row filled
+        self._setup = setup
+        # the windows' covariance until the noise is first learnt, restated then
+        self._warm = (WarmUp(setup) if self.noise_rate is not None and self.noise_rate.active
+                      else None)  # fmt: skip
 
     @property
     def noise(self) -> models.StepNoise | None:
@@ -83,6 +192,11 @@ class Learners:
                          for c, v, e in zip(counts, live, still, strict=True) if v)  # fmt: skip
             eligible = all(usable) and row.used == self._n  # every mouse in the solve
             noise = self.noise_rate.add_row(row.residual, eligible, moving)
+            if self._warm is not None and self._warm.open:
+                used = [v and st in (robust.TRACKING, robust.SUSPECT)
+                        for v, st in zip(live, row.state, strict=True)]  # fmt: skip
+                self._warm.add([row.x], [row.y], [row.theta], [q], [row.ok], [used],
+                               [moving], [row.qcov])  # fmt: skip
         step = [row.x - start[0], row.y - start[1]]
         in_solve = row.used == self._n  # every mouse in the pose (whatever the screen said)
         heading = row.theta - 0.5 * q[2]  # the window's middle
@@ -119,6 +233,9 @@ class Learners:
             counted = (np.abs(counts) > self._still_counts[None, :, None]).any(axis=2)
             moving = np.any(counted & live, axis=1)
             eligible = usable.all(axis=1) & (batch.used == self._n)  # all in the solve
+            if self._warm is not None and self._warm.open:
+                used = live & ((state == robust.TRACKING) | (state == robust.SUSPECT))
+                self._warm.add(batch.x, batch.y, batch.theta, q, batch.ok, used, moving, batch.qcov)
             noise = self.noise_rate.add(batch.residual, eligible, moving)
         # the steps: each window's position less the one before it (np.diff's subtraction,
         # without its stack of concatenations)
@@ -132,13 +249,20 @@ class Learners:
         return self._renewal(noise, scales)
 
     def _renewal(self, noise: bool, scales: bool) -> Renewal | None:
+        cov_add = None
+        warm = self._warm
+        if warm is not None and warm.open:
+            if noise and self.noise is not None:
+                cov_add = warm.restatement(self.noise)
+            else:
+                warm.settle()
         if scales:
             # taken at every renewal, applied or not (ScaleLearner.take_turn)
             turn, walk = self.scales.take_turn(), self.scales.take_walk().tolist()
             if self._apply:
-                return Renewal(self.scales.matrices(), turn, walk)
+                return Renewal(self.scales.matrices(), turn, walk, cov_add)
         if noise or scales:
-            return Renewal(None, 0.0, [0.0, 0.0])
+            return Renewal(None, 0.0, [0.0, 0.0], cov_add)
         return None
 
     def until_block_end(self) -> int:
@@ -149,3 +273,5 @@ class Learners:
         """The pose was set from outside: the scales' give-back starts from here (it owes
         nothing for the turns and the walk before, and the jump is no step)."""
         self.scales.rebase()
+        if self._warm is not None and self._warm.open:  # the covariance so far is gone
+            self._warm = WarmUp(self._setup)
