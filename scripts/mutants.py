@@ -248,7 +248,7 @@ MUTANTS = [
     Mutant(
         "late-mouse-debt-dropped",
         "mousedom/fusion/ledger.py",
-        "            if float(r @ r) <= self.thr2 * 2.0 * self.owed_s2[i]:\n",
+        "            if self.paid(i):\n",
         "            if False:\n",
         ("tests/test_reconcile.py",),
         "a late mouse excluded by mistake is not given back the counts it owed",
@@ -512,8 +512,8 @@ MUTANTS = [
     Mutant(
         "late-mouse-back-while-short",
         "mousedom/fusion/robust.py",
-        "        if float(owed @ owed) <= tol2 and not self._short_now[i]:\n",
-        "        if float(owed @ owed) <= tol2:\n",
+        "        if self.ledger.paid(i) and not self._short_now[i]:\n",
+        "        if self.ledger.paid(i):\n",
         ("tests/test_robust.py::test_a_lift_is_found_where_late_stamps_widened_every_tolerance",),
         "a lifted mouse reading noise owes little for a window, is taken back as paid and "
         "given its debt, again and again",
@@ -541,6 +541,66 @@ MUTANTS = [
         "        pass\n",
         ("tests/test_robust.py::test_replay_leaves_a_mouse_short_of_its_motion_to_the_decision",),
         "replay's array path accepts windows with a mouse short of its motion: lifts pass",
+    ),
+    Mutant(
+        "scale-bound-on-the-scale",
+        "mousedom/fusion/scalelearn.py",
+        "        return 1.0 / (1.0 + self.limit), 1.0 / (1.0 - self.limit)\n",
+        "        return 1.0 - self.limit, 1.0 + self.limit\n",
+        (
+            "tests/test_scale_give_back.py::test_a_cpi_ten_per_cent_off_either_way_is_corrected_in_full",
+        ),
+        "a mouse reading 10 % less is corrected to 1.1 of its needed 1.111: the heading drifts",
+    ),
+    Mutant(
+        "give-back-of-consistent-windows-only",
+        "mousedom/fusion/tracker_learn.py",
+        "        in_solve = batch.used == self._n\n",
+        "        in_solve = usable.all(axis=1)\n",
+        ("tests/test_scale_give_back.py::test_the_turn_of_inconsistent_windows_is_given_back",),
+        "the turn inconsistent windows made at the old scales is kept for good",
+    ),
+    Mutant(
+        "give-back-without-the-direct-walk",
+        "mousedom/fusion/scalelearn.py",
+        "axis=3).sum(axis=0)\n",
+        "axis=3).sum(axis=0) * 0.0\n",
+        ("tests/test_scale_give_back.py::test_the_position_a_wrong_cpi_moved_is_given_back",),
+        "the position a wrong CPI moved directly (mice off the rig's centre) is kept for good",
+    ),
+    Mutant(
+        "shortfall-held-to-the-floor-alone",
+        "mousedom/fusion/robust.py",
+        "                self._thresholds[2] * (2.0 * floor[i] + self._quiet_var[i] + sys2)\n",
+        "                self._thresholds[2] * (2.0 * floor[i])\n",
+        ("tests/test_shortfall_pivot.py",),
+        "a healthy mouse at a spin's pivot is held out for the others' errors",
+    ),
+    Mutant(
+        "paid-back-within-its-own-error",
+        "mousedom/fusion/ledger.py",
+        "        cov = 2.0 * (s2 * np.eye(2) + (v * np.maximum(w - s2, 0.0)) @ v.T)\n",
+        "        cov = 2.0 * s2 * np.eye(2)\n",
+        (
+            "tests/test_lateness.py::test_a_late_mouse_far_behind_a_close_pair_pays_back_within_their_error",
+        ),
+        "a far mouse late once is excluded for the close pair's prediction error",
+    ),
+    Mutant(
+        "reload-finishes-every-window",
+        "mousedom/service/reload.py",
+        "        self.publisher.publish(old.poll())\n",
+        "        self.publisher.publish(old.finish())\n",
+        ("tests/test_reload_keeps_counts.py",),
+        "a reload closes windows before the slower mice's reports for them came",
+    ),
+    Mutant(
+        "warm-up-never-restated",
+        "mousedom/fusion/tracker_learn.py",
+        "                cov_add = warm.restatement(self.noise)\n",
+        "                cov_add = 0.0 * warm.restatement(self.noise)\n",
+        ("tests/test_nees_drives.py::test_nees_of_a_mouse_noisier_than_configured_is_three",),
+        "the covariance of the seconds before the noise is learnt stays at the config's sigma",
     ),
 ]
 
