@@ -97,12 +97,12 @@ class WarmUp:
         self._chunks, self._kept = [], 0
         n_mice = len(self._sig2)
         unit = np.zeros((2 * n_mice, len(x), 3, 3))
-        # per live pattern (a rig has few): each mouse's unit sandwich, and the estimator's
-        # own covariance on sigma, whose ratio to a window's is the screen's inflation
-        codes = used.astype(np.int64) @ (np.int64(1) << np.arange(n_mice, dtype=np.int64))
-        for code in np.unique(codes[ok]).tolist():
-            rows = np.flatnonzero(ok & (codes == code))
-            mask = used[rows[0]]
+        # per live pattern of the solved windows (a rig has few): each mouse's unit
+        # sandwich, and the estimator's own covariance on sigma, whose ratio to a window's
+        # is the screen's inflation
+        solved = np.flatnonzero(ok)
+        for mask, among in models._patterns(used[solved], len(solved), n_mice):
+            rows = solved[among]
             est = models._estimator(self._positions.tobytes(), self._sigma.tobytes(),
                                     mask.tobytes(), self._cols)  # fmt: skip
             if est is None:
