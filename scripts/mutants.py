@@ -577,6 +577,14 @@ MUTANTS = [
         "a healthy mouse at a spin's pivot is held out for the others' errors",
     ),
     Mutant(
+        "motion-before-drops-every-nothing",
+        "mousedom/fusion/robust.py",
+        "                out = _but(out, i)\n",
+        "                pass\n        out = kept & (np.abs(then).sum(axis=1) > 0)\n",
+        ("tests/test_shortfall_pivot.py",),
+        "the pivot mouse's zero left out of the motion before: a lift blames it",
+    ),
+    Mutant(
         "paid-back-within-its-own-error",
         "mousedom/fusion/ledger.py",
         "        cov = 2.0 * (s2 * np.eye(2) + (v * np.maximum(w - s2, 0.0)) @ v.T)\n",
