@@ -585,6 +585,14 @@ MUTANTS = [
         "the pivot mouse's zero left out of the motion before: a lift blames it",
     ),
     Mutant(
+        "silence-shows-a-far-mouse-sound",
+        "mousedom/fusion/robust.py",
+        "            read2 > 4.0 * thr2 * not_proportional\n            or float(",
+        "            True\n            or float(",
+        ("tests/test_reconcile.py",),
+        "a lifted far mouse's silence starts its run: the others' motion given back",
+    ),
+    Mutant(
         "paid-back-within-its-own-error",
         "mousedom/fusion/ledger.py",
         "        cov = 2.0 * (s2 * np.eye(2) + (v * np.maximum(w - s2, 0.0)) @ v.T)\n",

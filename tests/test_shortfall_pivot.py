@@ -64,9 +64,8 @@ def test_a_lift_at_the_end_of_a_line_blames_the_end_not_the_pivot(kind, seed):
     t = np.asarray(batch.t)
     during = (t > fault.start + 0.1) & (t < fault.end)
     assert np.isin(state[during, 0], (robust.EXCLUDED, robust.LATE)).mean() > 0.9
-    if kind == "lift":  # (a noisy lift's return is another matter: docs/models.md)
-        trial = scenarios.fault_trial("line-along", kind, seed, duration)
-        assert trial.default.position <= 1.5 * trial.informed.position + 0.005, trial
+    trial = scenarios.fault_trial("line-along", kind, seed, duration)
+    assert trial.default.position <= 1.5 * trial.informed.position + 0.005, trial
 
 
 def test_the_motion_before_keeps_a_still_mouse_and_drops_a_lifted_one():

@@ -888,14 +888,24 @@ class Screen(RigidTest):
             h.good = 0
             h.reason = SILENT if self._silent(d, i) else INCONSISTENT
             return
-        shows = p[i] @ p[i] > 4.0 * thr2 * not_proportional  # moved enough to show a fault
+        # moved enough to show a fault: the others moved it beyond its own error, and
+        # either it read as much or that motion is beyond the window's tolerance of a
+        # reading of nothing too, the prediction's error with it.  (A far mouse, held to
+        # the others' poor prediction of it, passed in silence while they slowed from a
+        # spin, still lifted: its run started there and gave back their motion, a
+        # heading 1 degree off at its return.)
+        read2 = float(d[i] @ d[i])
+        shows = bool(p[i] @ p[i] > 4.0 * thr2 * not_proportional) and (
+            read2 > 4.0 * thr2 * not_proportional
+            or float(p[i] @ np.linalg.solve(not_proportional * np.eye(2) + pred_cov, p[i]))
+            > 4.0 * thr2
+        )
         if h.good > 0 or shows:
             # a run starts where the mouse shows itself sound: before, a lifted mouse's
             # silence can pass where the motion's changes widen every tolerance
             self.ledger.agree(i, r, 0.5 * float(np.trace(cov)))
         if h.good == 0:
             h.fit_r = h.fit_info = 0.0
-        read2 = float(d[i] @ d[i])
         if read2 > 4.0 * thr2 * not_proportional and not caught_up:
             # along its own reading, whose direction the prediction's error does not
             # steer (along the prediction, that error would read as an under-read)
