@@ -335,6 +335,22 @@ class Screen(RigidTest):
                 self._quiet_reset(i)
         self._quiet_any = any(x or y for x, y in self._quiet)
 
+    def exclude_faulty(self, mice: Sequence[int]) -> None:
+        """Mice the scales found reading out of proportion to their motion over a block
+        (``ScaleLearner._faults``: half of it, say, where each window's test let that by):
+        excluded from the next window on, as if a window had blamed them, and back as any
+        excluded mouse (``_waiting``: its run is judged as a whole against an under-read,
+        and given back only where it agrees)."""
+        for i in mice:
+            h = self.health[i]
+            if h.state not in (TRACKING, SUSPECT):
+                continue
+            self.ledger.hold(i, np.zeros(2), 0.0)
+            _fresh_wait(h)
+            h.state, h.reason, h.good = EXCLUDED, INCONSISTENT, 0
+            self._quiet_reset(i)
+        self._steady_known = False
+
     def _quiet_reset(self, i: int) -> None:
         """Mouse i read in full (or is gone): its shortfall's sum starts again."""
         self._quiet[i], self._quiet_n[i] = [0.0, 0.0], 0

@@ -66,6 +66,11 @@ _MIN_EVIDENCE = 1e-3  # a mouse seen this little (S's diagonal against the most 
 # fusion/scenarios.py and triangles, squares, polygons and kites of 3-7 mice; 0.015-0.03
 # with a mouse 2 cm off a line across the robot; 1e-5-2e-2 with the three or four in line.
 _MIN_SEPARATION = 1e-2
+# A block's own scale this far beyond the bounds (a fraction of the bound), and this many of
+# its spreads, is a fault, not a CPI (``_faults``); from this many groups of the block.
+FAULT_MARGIN = 0.15
+FAULT_SIGMAS = 5.0
+_FAULT_GROUPS = 3
 
 
 def median(v: np.ndarray) -> float:
@@ -86,6 +91,40 @@ def joined(chunks: Sequence[ArrayLike], dtype: DTypeLike) -> np.ndarray:
     if len(chunks) == 1:
         return np.asarray(chunks[0], dtype=dtype)
     return np.concatenate([np.asarray(c, dtype=dtype) for c in chunks])
+
+
+def fit(s: np.ndarray, groups: float, n: int, cols: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """The scales g (N,) that minimise g' S g, drawn to 1 only where the evidence is
+    silent, the common mode pinned by the median mouse, and their spreads (N,) (inf: not
+    estimated), from ``groups`` groups of evidence of N mice and a rig motion of ``cols``
+    degrees of freedom; None where S gives nothing."""
+    evidence = np.diag(s).copy()
+    if not np.all(np.isfinite(s)) or evidence.max() <= 0:
+        return None
+    mu = _RIDGE * np.maximum(evidence, 1e-12 * evidence.max())
+    g = np.linalg.solve(s + np.diag(mu), mu)
+    if not np.all(np.isfinite(g)) or median(g) <= 0:
+        return None
+    g = g / median(g)
+    # the spread: the fit's residual per degree of freedom, through the inverse of S off
+    # its null direction (the common mode)
+    dof = max(1.0, groups * (2 * n - cols) - (n - 1))
+    r2 = float(g @ s @ g) / dof
+    w, v = np.linalg.eigh(s)  # ascending: the first is the common mode's (near 0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = (v[:, 1:] / w[1:]) @ v[:, 1:].T
+        spread = np.sqrt(np.maximum(np.diag(inv), 0.0) * r2)
+    spread = np.where(np.isfinite(spread), spread, np.inf)  # another null direction
+    # A second direction the rig's geometry barely separates from the common mode (mice
+    # in a line across the robot: scales growing along the line read alike but in
+    # turns): the estimate follows whatever bias the readings have (a late mouse's timing
+    # gave 1.86 and 0.14 on healthy mice, with spreads of 2 %), and pinning the common
+    # mode on the median mouse spreads that over every other mouse: none is estimated
+    # (docs/models.md, "Scales").
+    if w[1] < _MIN_SEPARATION * w[-1]:
+        spread = np.full(n, np.inf)
+    known = evidence >= _MIN_EVIDENCE * evidence.max()
+    return np.where(known, g, 1.0), np.where(known, spread, np.inf)
 
 
 class ScaleLearner:
@@ -147,6 +186,7 @@ class ScaleLearner:
         self._rows: list[tuple[ArrayLike, ...]] = []
         self._held = 0  # windows in _rows
         self.version = 0  # bumped whenever the estimates are renewed
+        self.faults: list[int] = []  # the mice the last block found faulty (_faults)
         # Per mouse and count axis, forgetting: the turn its readings gave at scale 1
         # (unit) and at the scales applied (given), over windows with every mouse in use.
         self.turn_unit = np.zeros((self.n, 2))
@@ -385,45 +425,27 @@ class ScaleLearner:
         for i in range(n):
             j[:, 2 * i : 2 * i + 2, i] = body[:, i]
         pj = np.einsum("rs,gst->grt", self.project, j)
+        block = np.einsum("grt,r,grs->ts", pj, self.weight, pj)
+        self.faults = self._faults(block, len(c))
         self.gram *= self.forget
-        self.gram += np.einsum("grt,r,grs->ts", pj, self.weight, pj)
-        self.groups = self.groups * self.forget + len(c)
+        self.groups *= self.forget
+        if not self.faults:  # (a fault is not learnt as a CPI)
+            self.gram += block
+            self.groups += len(c)
         return self._solve()
 
     def _solve(self) -> bool:
         """The scales from the accumulated S (module docstring): the ones that leave the
         least unexplained motion, drawn to 1 only where the evidence is silent, the common
         mode pinned by the median mouse."""
-        s = self.gram
-        evidence = np.diag(s).copy()
-        if self.groups < _MIN_GROUPS or not np.all(np.isfinite(s)) or evidence.max() <= 0:
+        if self.groups < _MIN_GROUPS:
             return False
-        mu = _RIDGE * np.maximum(evidence, 1e-12 * evidence.max())
-        g = np.linalg.solve(s + np.diag(mu), mu)
-        if not np.all(np.isfinite(g)) or median(g) <= 0:
+        fitted = fit(self.gram, self.groups, self.n, len(self.cols))
+        if fitted is None:
             return False
-        g = g / median(g)
-        # the spread: the fit's residual per degree of freedom, through the inverse of S
-        # off its null direction (the common mode)
-        dof = max(1.0, self.groups * (2 * self.n - len(self.cols)) - (self.n - 1))
-        r2 = float(g @ s @ g) / dof
-        w, v = np.linalg.eigh(s)  # ascending: the first is the common mode's (near 0)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            inv = (v[:, 1:] / w[1:]) @ v[:, 1:].T
-            spread = np.sqrt(np.maximum(np.diag(inv), 0.0) * r2)
-        spread = np.where(np.isfinite(spread), spread, np.inf)  # another null direction
-        # A second direction the rig's geometry barely separates from the common mode
-        # (mice in a line across the robot: scales growing along the line read alike but
-        # in turns): the estimate follows whatever bias the readings have (a late mouse's
-        # timing gave 1.86 and 0.14 on healthy mice, with spreads of 2 %), and pinning
-        # the common mode on the median mouse spreads that over every other mouse: none
-        # is estimated (docs/models.md, "Scales").
-        if w[1] < _MIN_SEPARATION * w[-1]:
-            spread = np.full(self.n, np.inf)
-        known = evidence >= _MIN_EVIDENCE * evidence.max()
-        g = np.where(known, g, 1.0)
+        g, spread = fitted
         self.estimate = np.repeat(g[:, None], 2, axis=1)
-        self.spread = np.repeat(np.where(known, spread, np.inf)[:, None], 2, axis=1)
+        self.spread = np.repeat(spread[:, None], 2, axis=1)
         # applied where plain: a scale within 3 of its standard deviations of 1 is noise,
         # and noise applied to a mouse that reads the turn is heading lost for good
         off = np.abs(self.estimate - 1.0)
@@ -433,6 +455,25 @@ class ScaleLearner:
         self.scale = np.where(plain, np.clip(self.estimate, *self.bounds), 1.0)
         self.version += 1
         return True
+
+    def _faults(self, block: np.ndarray, groups: int) -> list[int]:
+        """The mice whose scale in this block alone (its S, ``groups`` of them) is beyond
+        what any CPI within the bounds gives, by FAULT_MARGIN of it and FAULT_SIGMAS of
+        the block's spread: a mouse that reads half its motion (a dirty lens, a sensor
+        losing the floor) is no wrong CPI.  Each window's test lets such a fault by where
+        the tolerances are wide (late stamps, a far mouse, a close pair: a 125 Hz mouse
+        of a close pair, reading half in a spin, ended a drive 0.37 m off against 4 mm
+        told), and the screen's noise model then learns it as noise; summed over a
+        block's groups, the timing noise cancels and it is plain."""
+        if groups < _FAULT_GROUPS:
+            return []
+        fitted = fit(block, groups, self.n, len(self.cols))
+        if fitted is None:
+            return []
+        g, spread = fitted
+        lo, hi = self.bounds
+        beyond = np.maximum(lo * (1.0 - FAULT_MARGIN) - g, g - hi * (1.0 + FAULT_MARGIN))
+        return np.flatnonzero((beyond > 0) & (beyond > FAULT_SIGMAS * spread)).tolist()
 
     def _report_held_out(self) -> None:
         """The estimates reported for mice the screen keeps out as far off (a CPI typo):

@@ -34,6 +34,9 @@ class Renewal(NamedTuple):
     # added to the carried covariance where the noise is first learnt: the windows before
     # restated with it (WarmUp.restatement); None: nothing to add
     cov_add: np.ndarray | None = None
+    # the mice the block's scales found faulty, no wrong CPI (ScaleLearner._faults): the
+    # screen excludes them from the next window on
+    faults: tuple[int, ...] = ()
 
 
 class WarmUp:
@@ -256,13 +259,14 @@ class Learners:
                 cov_add = warm.restatement(self.noise)
             else:
                 warm.settle()
+        faults = tuple(self.scales.faults) if scales else ()
         if scales:
             # taken at every renewal, applied or not (ScaleLearner.take_turn)
             turn, walk = self.scales.take_turn(), self.scales.take_walk().tolist()
             if self._apply:
-                return Renewal(self.scales.matrices(), turn, walk, cov_add)
+                return Renewal(self.scales.matrices(), turn, walk, cov_add, faults)
         if noise or scales:
-            return Renewal(None, 0.0, [0.0, 0.0], cov_add)
+            return Renewal(None, 0.0, [0.0, 0.0], cov_add, faults)
         return None
 
     def until_block_end(self) -> int:

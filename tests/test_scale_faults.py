@@ -1,0 +1,79 @@
+"""A mouse reading out of proportion to its motion over a block is a fault, not a CPI
+(scalelearn.ScaleLearner._faults, robust.Screen.exclude_faulty).
+
+Each window's test lets an under-read by if the tolerances are wide (late stamps, a far
+mouse, a close pair), and the screen's noise model then learns it as noise: a 125 Hz mouse
+of a close pair reading half its motion in a spin ended a drive 0.37 m off (4 mm told
+which mouse).  The scales summed over a block's groups see it plainly: a scale far beyond
+any CPI within ``scale_limit`` is excluded, and is not learnt as a CPI."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mousedom.fusion import robust, scalelearn, scenarios, sim
+from mousedom.fusion.drives import drive
+
+XY = np.array([[0.12, 0.0], [-0.06, 0.10], [-0.06, -0.10], [0.02, -0.03]])
+COUNTS_PER_M = 1000 / 0.0254
+
+
+def _learner(n: int) -> scalelearn.ScaleLearner:
+    base = np.repeat(np.eye(2)[None] / COUNTS_PER_M, n, axis=0)
+    return scalelearn.ScaleLearner("lsq", base, XY[:n], np.full(n, 1e-5), 0.01, 0.1)
+
+
+def _block(learner: scalelearn.ScaleLearner, factor: np.ndarray, seed: int) -> list[int]:
+    """One block of windows of a rig turning and driving, mouse i reading factor[i] times
+    its motion (and its counts' noise); returns the block's faults."""
+    rng = np.random.default_rng(seed)
+    n, windows = learner.n, learner.block
+    q = np.stack([rng.uniform(0.5, 1.5, windows) * 1e-3, rng.uniform(-0.3, 0.3, windows) * 1e-3,
+                  rng.uniform(-1.0, 1.0, windows) * 1e-2], axis=1)  # fmt: skip
+    body = np.stack([q[:, None, 0] - q[:, None, 2] * XY[None, :n, 1],
+                     q[:, None, 1] + q[:, None, 2] * XY[None, :n, 0]], axis=2)  # fmt: skip
+    counts = body * COUNTS_PER_M * factor[None, :, None] + rng.normal(0, 0.3, body.shape)
+    assert learner.add(counts, np.ones((windows, n), dtype=bool))
+    return learner.faults
+
+
+@pytest.mark.parametrize("n", [3, 4])
+@pytest.mark.parametrize("seed", range(5))
+def test_a_mouse_reading_half_or_twice_is_a_fault_a_wrong_cpi_is_not(n, seed):
+    for which in range(n):
+        for f, faulty in [(0.5, True), (2.0, True), (0.65, True), (1 / 1.1, False), (1.1, False),
+                          (0.95, False), (1.0, False)]:  # fmt: skip
+            factor = np.ones(n)
+            factor[which] = f
+            got = _block(_learner(n), factor, seed)
+            assert got == ([which] if faulty else []), (which, f, got)
+
+
+def test_a_fault_is_not_learnt_as_a_cpi():
+    learner = _learner(3)
+    for k in range(12):
+        assert _block(learner, np.ones(3), k) == []
+    before = learner.gram.copy()
+    assert _block(learner, np.array([1.0, 0.5, 1.0]), 99) == [1]
+    np.testing.assert_array_equal(learner.gram, before * learner.forget)
+    assert np.allclose(learner.estimate[:, 0], 1.0, atol=0.01)
+
+
+@pytest.mark.parametrize("seed", [0, 2, 4])
+def test_an_under_read_of_a_close_pair_mouse_is_excluded_within_a_second(seed):
+    """close-pair-plus, the first mouse (of the close pair, 125 Hz) reading half for 5 s:
+    excluded within a second of the fault's start, and the drive ends far nearer than
+    with the fault handling off (seed 0: 0.37 m before, 0.48 m off, 4 mm told)."""
+    duration = 30.0
+    base = scenarios.rig("close-pair-plus")
+    fault = scenarios.fault_for("under-read", base, duration, seed)
+    traj = drive(duration, seed)
+    result = sim.simulate(scenarios.apply(base, fault), traj, seed=seed)
+    batch, _ = scenarios.run(result, scenarios.config(base))
+    t = np.asarray(batch.t)
+    out = np.isin(np.asarray(batch.state)[:, 0], (robust.EXCLUDED, robust.LATE))
+    assert out[(t > fault.start + 1.0) & (t < fault.end)].mean() > 0.9
+    assert not np.isin(np.asarray(batch.state)[:, 1:], (robust.EXCLUDED, robust.LATE)).any()
+    trial = scenarios.fault_trial("close-pair-plus", "under-read", seed, duration)
+    assert trial.default.position < 0.25 * trial.off.position + 0.01, trial
