@@ -11,9 +11,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from batches import assert_same_batches
 
 from mousedom.fusion import robust, scalelearn, scenarios, sim
 from mousedom.fusion.drives import drive
+from mousedom.fusion.posebatch import PoseBatch
+from mousedom.fusion.tracker import Tracker
 
 XY = np.array([[0.12, 0.0], [-0.06, 0.10], [-0.06, -0.10], [0.02, -0.03]])
 COUNTS_PER_M = 1000 / 0.0254
@@ -77,3 +80,29 @@ def test_an_under_read_of_a_close_pair_mouse_is_excluded_within_a_second(seed):
     assert not np.isin(np.asarray(batch.state)[:, 1:], (robust.EXCLUDED, robust.LATE)).any()
     trial = scenarios.fault_trial("close-pair-plus", "under-read", seed, duration)
     assert trial.default.position < 0.25 * trial.off.position + 0.01, trial
+
+
+def test_the_daemon_excludes_at_the_same_window_as_replay():
+    """The daemon learns after its POSE (``poll(defer_learning=True)``, then ``settle``):
+    the block end that finds the fault excludes the mouse from the same window on as
+    learning at once does, and as replay's arrays do."""
+    duration, seed = 30.0, 0
+    base = scenarios.rig("close-pair-plus")
+    fault = scenarios.fault_for("under-read", base, duration, seed)
+    result = sim.simulate(scenarios.apply(base, fault), drive(duration, seed), seed=seed)
+    cfg = scenarios.config(base)
+    t0 = float(result.motion.starts[0])
+
+    def deferred(tracker: Tracker) -> PoseBatch:
+        batch = tracker.poll(defer_learning=True)
+        tracker.settle()
+        return batch
+
+    n = len(base.mice)
+    live = PoseBatch.concat(sim.run_tracker_live(result, Tracker(cfg, t0=t0), deferred), n)
+    at_once = PoseBatch.concat(sim.run_tracker_live(result, Tracker(cfg, t0=t0)), n)
+    assert_same_batches(live, at_once)
+    replay, _ = scenarios.run(result, cfg)
+    first = [int(np.argmax(np.asarray(b.state)[:, 0] == robust.EXCLUDED)) for b in (live, replay)]
+    assert first[0] > 0 and np.asarray(live.t)[first[0]] == np.asarray(replay.t)[first[1]]
+    assert np.array_equal(np.asarray(live.state), np.asarray(replay.state))
