@@ -603,7 +603,7 @@ MUTANTS = [
     Mutant(
         "scale-fault-learnt-as-a-cpi",
         "mousedom/fusion/scalelearn.py",
-        "        if not self.faults:  # (a fault is not learnt as a CPI)\n",
+        "        if not flagged:  # (a fault is not learnt as a CPI, blamed or not)\n",
         "        if True:\n",
         ("tests/test_scale_faults.py",),
         "an under-read's block is learnt as the mouse's CPI",

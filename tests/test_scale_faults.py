@@ -53,6 +53,16 @@ def test_a_mouse_reading_half_or_twice_is_a_fault_a_wrong_cpi_is_not(n, seed):
             assert got == ([which] if faulty else []), (which, f, got)
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_half_the_rig_out_of_proportion_blames_nobody_and_is_not_learnt(seed):
+    """The scales are relative to the median mouse: with two of four mice reading half,
+    the block flags every mouse; nobody is excluded then, and the block is not learnt."""
+    learner = _learner(4)
+    before = learner.gram.copy()
+    assert _block(learner, np.array([0.5, 0.5, 1.0, 1.0]), seed) == []
+    np.testing.assert_array_equal(learner.gram, before * learner.forget)
+
+
 def test_a_fault_is_not_learnt_as_a_cpi():
     learner = _learner(3)
     for k in range(12):

@@ -340,11 +340,14 @@ class Screen(RigidTest):
         (``ScaleLearner._faults``: half of it, say, where each window's test let that by):
         excluded from the next window on, as if a window had blamed them, and back as any
         excluded mouse (``_waiting``: its run is judged as a whole against an under-read,
-        and given back only where it agrees)."""
-        for i in mice:
+        and given back only where it agrees).  Not where the mice left could not check
+        each other (one degree of freedom at least)."""
+        out = [i for i in mice if self.health[i].state in (TRACKING, SUSPECT)]
+        rest = sum(h.state in (TRACKING, SUSPECT) for h in self.health) - len(out)
+        if self.dof(rest) < 1:
+            return  # the rest could not check each other: the windows' test goes on
+        for i in out:
             h = self.health[i]
-            if h.state not in (TRACKING, SUSPECT):
-                continue
             self.ledger.hold(i, np.zeros(2), 0.0)
             _fresh_wait(h)
             h.state, h.reason, h.good = EXCLUDED, INCONSISTENT, 0
@@ -785,7 +788,8 @@ class Screen(RigidTest):
         middle mouse for a lift at its end (1.3 m off at the end of a drive, against 5 mm
         informed)."""
         out = kept
-        for i in np.flatnonzero(kept & (np.abs(then).sum(axis=1) == 0)).tolist():
+        nothing = norm2(then) <= 1e-6 * self.noise.sig2  # (``_silent``'s rule)
+        for i in np.flatnonzero(kept & nothing).tolist():
             q = self._solve(then, _but(kept, i))
             if (
                 q is not None

@@ -426,10 +426,11 @@ class ScaleLearner:
             j[:, 2 * i : 2 * i + 2, i] = body[:, i]
         pj = np.einsum("rs,gst->grt", self.project, j)
         block = np.einsum("grt,r,grs->ts", pj, self.weight, pj)
-        self.faults = self._faults(block, len(c))
+        flagged = self._faults(block, len(c))
+        self.faults = self._blamed(flagged)
         self.gram *= self.forget
         self.groups *= self.forget
-        if not self.faults:  # (a fault is not learnt as a CPI)
+        if not flagged:  # (a fault is not learnt as a CPI, blamed or not)
             self.gram += block
             self.groups += len(c)
         return self._solve()
@@ -474,6 +475,13 @@ class ScaleLearner:
         lo, hi = self.bounds
         beyond = np.maximum(lo * (1.0 - FAULT_MARGIN) - g, g - hi * (1.0 + FAULT_MARGIN))
         return np.flatnonzero((beyond > 0) & (beyond > FAULT_SIGMAS * spread)).tolist()
+
+    def _blamed(self, flagged: list[int]) -> list[int]:
+        """Of a block's ``flagged`` mice, those to exclude: all of them where they are
+        fewer than half the rig, else none.  The scales are relative to the median mouse:
+        with half the mice or more out of proportion the median is one of them, and the
+        healthy ones read as the faulty (four mice, two reading half: all four flagged)."""
+        return flagged if 2 * len(flagged) < self.n else []
 
     def _report_held_out(self) -> None:
         """The estimates reported for mice the screen keeps out as far off (a CPI typo):
