@@ -587,10 +587,10 @@ MUTANTS = [
     Mutant(
         "silence-shows-a-far-mouse-sound",
         "mousedom/fusion/robust.py",
-        "            read2 > 4.0 * thr2 * not_proportional\n            or float(",
-        "            True\n            or float(",
+        "            float(d[i] @ p[i]) >= (1.0 - SHORT) * p2\n            or float(",
+        "            read2 > 0.0\n            or float(",
         ("tests/test_reconcile.py",),
-        "a lifted far mouse's silence starts its run: the others' motion given back",
+        "a landing (part-read) window starts a far mouse's run: its shortfall given back",
     ),
     Mutant(
         "scale-fault-never-seen",

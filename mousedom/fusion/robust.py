@@ -909,14 +909,17 @@ class Screen(RigidTest):
             h.reason = SILENT if self._silent(d, i) else INCONSISTENT
             return
         # moved enough to show a fault: the others moved it beyond its own error, and
-        # either it read as much or that motion is beyond the window's tolerance of a
-        # reading of nothing too, the prediction's error with it.  (A far mouse, held to
-        # the others' poor prediction of it, passed in silence while they slowed from a
-        # spin, still lifted: its run started there and gave back their motion, a
-        # heading 1 degree off at its return.)
+        # either it read as much (three quarters of it along it at least: the window a
+        # lifted mouse lands in reads part of it, within a far mouse's wide tolerance,
+        # and given back turned a heading by half a degree) or that motion is beyond the
+        # window's tolerance of a reading of nothing too, the prediction's error with it.
+        # (A far mouse, held to the others' poor prediction of it, passed in silence
+        # while they slowed from a spin, still lifted: its run started there and gave
+        # back their motion, a heading 1 degree off at its return.)
+        p2 = float(p[i] @ p[i])
         read2 = float(d[i] @ d[i])
-        shows = bool(p[i] @ p[i] > 4.0 * thr2 * not_proportional) and (
-            read2 > 4.0 * thr2 * not_proportional
+        shows = p2 > 4.0 * thr2 * not_proportional and (
+            float(d[i] @ p[i]) >= (1.0 - SHORT) * p2
             or float(p[i] @ np.linalg.solve(not_proportional * np.eye(2) + pred_cov, p[i]))
             > 4.0 * thr2
         )
