@@ -205,7 +205,7 @@ def vectorised_floor(cfg: Path, specs: list[tuple[str | None, str]]) -> tuple[fl
     pos = np.array([[m.mount.x, m.mount.y] for m in config.mice])
     sigma = np.array([sigma_metres(m) for m in config.mice])
     live = np.ones(len(config.mice), dtype=bool)
-    _, b, _ = models._estimator(pos.tobytes(), sigma.tobytes(), live.tobytes(), (0, 1, 2))
+    _, b, _ = models.estimator(pos.tobytes(), sigma.tobytes(), live.tobytes(), (0, 1, 2))
     q = d.reshape(len(d), -1) @ b.T
     poses = integrate.compose(np.zeros(3), integrate.body_step(q, "exact"))
     assert np.isfinite(poses).all()

@@ -76,7 +76,7 @@ def _run(mouse: int, bend, seed: int, late_s: float = 0.05, windows: int = 40):
         total_q += q + (dec.correction if dec.correction is not None else 0.0)
         total_d += d
         states.append(screen.health[mouse].state)
-    est = models._estimator(XY.tobytes(), SIGMA.tobytes(), np.ones(4, bool).tobytes(), (0, 1, 2))
+    est = models.estimator(XY.tobytes(), SIGMA.tobytes(), np.ones(4, bool).tobytes(), (0, 1, 2))
     return total_q, est[1] @ total_d.reshape(-1), states
 
 

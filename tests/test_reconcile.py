@@ -50,7 +50,7 @@ def _informed_solve(mouse: int):
     rest_mask = every_mask.copy()
     rest_mask[mouse] = False
     every, rest = (
-        models._estimator(XY.tobytes(), SIGMA.tobytes(), m.tobytes(), (0, 1, 2))[1]
+        models.estimator(XY.tobytes(), SIGMA.tobytes(), m.tobytes(), (0, 1, 2))[1]
         for m in (every_mask, rest_mask)
     )
 
@@ -86,7 +86,7 @@ def _run(mouse: int, lag: float, resolved: bool, seed: int, readings: list | Non
         total_q += q
         total_d += d
         states.append([h.state for h in screen.health])
-    est = models._estimator(XY.tobytes(), SIGMA.tobytes(), np.ones(4, bool).tobytes(), (0, 1, 2))
+    est = models.estimator(XY.tobytes(), SIGMA.tobytes(), np.ones(4, bool).tobytes(), (0, 1, 2))
     return total_q, est[1] @ total_d.reshape(-1), states, corrected
 
 

@@ -122,7 +122,7 @@ def solve(
     else:
         used = mask.sum(axis=1).astype(int)
 
-    for live, rows in _patterns(mask, n, nm):
+    for live, rows in live_patterns(mask, n, nm):
         if not live.any():
             continue
         if model == "bonarini":
@@ -140,7 +140,7 @@ def solve(
     return Solution(q=q, cov=cov, residual=residual, used=used, ok=ok)
 
 
-def _patterns(mask: np.ndarray | None, n: int, nm: int) -> Iterator[tuple[np.ndarray, Rows]]:
+def live_patterns(mask: np.ndarray | None, n: int, nm: int) -> Iterator[tuple[np.ndarray, Rows]]:
     """(live mice, rows) for each distinct mask pattern; rows is a slice or an index array."""
     if mask is None or mask.all():
         yield np.ones(nm, dtype=bool), slice(None)
@@ -172,7 +172,7 @@ def _linear(
     """Weighted LSQ on the live mice for the windows ``rows``, restricted to q[cols]."""
     idx = np.flatnonzero(live)
     key = (positions.tobytes(), sigma.tobytes(), live.tobytes(), tuple(cols))
-    est = _estimator(*key)
+    est = estimator(*key)
     if est is None:
         return  # rank deficient: ok stays False, q and cov stay 0
     a, b, c = est
@@ -219,13 +219,13 @@ def sandwich(b: np.ndarray, variance: np.ndarray, cols: tuple[int, ...] | list[i
 def noise_covariance(
     positions: bytes, sigma: bytes, live: bytes, cols: tuple[int, ...], variance: bytes
 ) -> np.ndarray:
-    """``sandwich`` of the estimator ``_estimator(positions, sigma, live, cols)`` (which
+    """``sandwich`` of the estimator ``estimator(positions, sigma, live, cols)`` (which
     must not be None) with the live mice's ``variance`` (L,), read-only.  Cached on the
     values, not on the StepNoise: the noise rate renews its StepNoise at every block end,
     where only the moving variances change (the rest ones are the config's sigma times a
     constant), and the screen's re-solve reuses the block's noise; a key of values needs
     no invalidation when the tracker rebinds."""
-    est = _estimator(positions, sigma, live, cols)
+    est = estimator(positions, sigma, live, cols)
     assert est is not None  # the caller solved with it
     c3 = sandwich(est[1], np.frombuffer(variance), cols)
     c3.flags.writeable = False
@@ -233,7 +233,7 @@ def noise_covariance(
 
 
 @functools.lru_cache(maxsize=256)
-def _estimator(
+def estimator(
     positions: bytes, sigma: bytes, live: bytes, cols: tuple[int, ...]
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """(A, B, C) for the live mice: B = (A^T W A)^-1 A^T W, C = (A^T W A)^-1; None if the

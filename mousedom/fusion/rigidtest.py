@@ -59,7 +59,7 @@ class RigidTest:
             used = np.frombuffer(key, dtype=bool)
             est = None
             if used.any():
-                est = models._estimator(
+                est = models.estimator(
                     self.positions.tobytes(), self.sigma.tobytes(), key, self.cols
                 )
             if est is not None:
@@ -74,7 +74,7 @@ class RigidTest:
         (I - block) times its residual under the others (block deletion); None without
         rank."""
         used = np.asarray(used, dtype=bool)
-        est = models._estimator(self.positions.tobytes(), self.sigma.tobytes(),
+        est = models.estimator(self.positions.tobytes(), self.sigma.tobytes(),
                                 used.tobytes(), self.cols)  # fmt: skip
         if est is None or not used[j]:
             return None
@@ -91,7 +91,7 @@ class RigidTest:
         much: far from mice that fix the turn poorly (two close together), many times the
         mouse's own noise across the line to them.  inf without rank."""
         used = np.asarray(used, dtype=bool)
-        est = models._estimator(self.positions.tobytes(), self.sigma.tobytes(),
+        est = models.estimator(self.positions.tobytes(), self.sigma.tobytes(),
                                 used.tobytes(), self.cols)  # fmt: skip
         if est is None:
             return np.full((self.n, 2, 2), math.inf)
@@ -115,7 +115,7 @@ class RigidTest:
         """q (3,) by the configured weights on the ``used`` mice; None without rank."""
         if not used.any():
             return None
-        est = models._estimator(
+        est = models.estimator(
             self.positions.tobytes(), self.sigma.tobytes(), used.tobytes(), self.cols
         )
         if est is None:

@@ -104,9 +104,9 @@ class WarmUp:
         # sandwich, and the estimator's own covariance on sigma, whose ratio to a window's
         # is the screen's inflation
         solved = np.flatnonzero(ok)
-        for mask, among in models._patterns(used[solved], len(solved), n_mice):
+        for mask, among in models.live_patterns(used[solved], len(solved), n_mice):
             rows = solved[among]
-            est = models._estimator(self._positions.tobytes(), self._sigma.tobytes(),
+            est = models.estimator(self._positions.tobytes(), self._sigma.tobytes(),
                                     mask.tobytes(), self._cols)  # fmt: skip
             if est is None:
                 continue

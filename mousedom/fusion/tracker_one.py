@@ -102,7 +102,7 @@ class OneWindowPath:
                 np.array(live, dtype=bool).tobytes(),
                 cols,
             )
-            est = models._estimator(*key) if any(live) else None
+            est = models.estimator(*key) if any(live) else None
             c3 = np.zeros((3, 3))
             a_rows: list[list[float]] | None = None
             b_rows: list[list[float]] | None = None
