@@ -74,3 +74,59 @@ def test_bad_true_end_is_a_clear_error(tmp_path):
     )
     assert proc.returncode == 2
     assert "--true-end: expected X,Y" in proc.stderr and "Traceback" not in proc.stderr
+
+
+@pytest.mark.parametrize(
+    "existing, error",
+    [
+        ("foo,bar\n1,2\n", "header must have the columns direction,dx,dy"),
+        ("dx,direction,dy\n", "its header has the columns dx,direction,dy"),
+        ("direction,dx,dy\nsideways,0.1,0.2\n", ":2: direction: must be cw or ccw"),
+        ("direction,dx,dy\ncw,0.1\n", ":2: 2 fields"),
+        ("direction,dx,dy\n\xff\n", "not UTF-8"),
+    ],
+)
+def test_a_row_is_not_appended_to_a_file_umbmark_could_not_read(tmp_path, existing, error):
+    """Appended, the row would join another table or a file `mousedom umbmark` refuses:
+    the runs in it would be buried.  The file is left as it was."""
+    config = tmp_path / "rig.yaml"
+    config.write_text(sim.rig_yaml(sim.three_mouse_rig()))
+    runs = tmp_path / "runs.csv"
+    runs.write_bytes(existing.encode("utf-8", "surrogateescape").replace(b"\xc3\xbf", b"\xff"))
+    before = runs.read_bytes()
+    capture_args = write_run(tmp_path, True, sim.three_mouse_rig())
+    proc = run_mousedom(
+        "replay", "--config", str(config), *capture_args,
+        "--umbmark", "cw", "--umbmark-csv", str(runs),
+    )  # fmt: skip
+    assert proc.returncode == 2, proc.stderr
+    assert error in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
+    assert runs.read_bytes() == before
+
+
+@pytest.mark.parametrize("last_newline", [True, False])
+def test_rows_appended_to_runs_keep_each_run_on_its_line(tmp_path, last_newline):
+    """A RUNS.csv written by hand or by another tool may end without a newline: the row
+    starts a line of its own, and `mousedom umbmark` reads every run, the old and the new.
+    The header may follow comments and be spaced and capitalised (umbmark reads it so)."""
+    config = tmp_path / "rig.yaml"
+    config.write_text(sim.rig_yaml(sim.three_mouse_rig()))
+    runs = tmp_path / "runs.csv"
+    runs.write_text("# by hand\nDirection , dx,dy\nccw,0.01,0.02" + ("\n" if last_newline else ""))
+    for cw in (True, False):
+        capture_args = write_run(tmp_path, cw, sim.three_mouse_rig())
+        proc = run_mousedom(
+            "replay", "--config", str(config), *capture_args,
+            "--umbmark", "cw" if cw else "ccw", "--umbmark-csv", str(runs),
+        )  # fmt: skip
+        assert proc.returncode == 0, proc.stderr
+    lines = runs.read_text().splitlines()
+    assert lines[:3] == ["# by hand", "Direction , dx,dy", "ccw,0.01,0.02"]
+    assert [ln.split(",")[0] for ln in lines[3:]] == ["cw", "ccw"]
+    score = run_mousedom("umbmark", str(runs), "--json")
+    assert score.returncode == 0, score.stderr
+    # the ccw centroid is the mean of the old run and the new one
+    new_ccw = [float(v) for v in lines[4].split(",")[1:]]
+    ccw = json.loads(score.stdout)["ccw"]
+    assert ccw["x"] == pytest.approx((0.01 + new_ccw[0]) / 2, abs=1e-6)
+    assert ccw["y"] == pytest.approx((0.02 + new_ccw[1]) / 2, abs=1e-6)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import os
+import stat
 import sys
 import time
 from collections.abc import Callable
@@ -97,8 +98,9 @@ def register(subparsers) -> None:
     p.add_argument(
         "--umbmark-csv",
         metavar="RUNS.csv",
-        help="with --umbmark: append the row to this file (created with its header); "
-        "default: print the row on stdout",
+        help="with --umbmark: append the row to this file (created with its header; an "
+        "existing one must be a RUNS.csv `mousedom umbmark` reads, with the columns "
+        "direction,dx,dy in that order); default: print the row on stdout",
     )
     p.set_defaults(func=run)
 
@@ -346,7 +348,7 @@ def _true_end(args) -> tuple[float, float]:
 
 def _emit_umbmark(args, summary: Summary, true_end: tuple[float, float], inputs: list[str]) -> None:
     """One row of `mousedom umbmark`'s RUNS.csv for this run."""
-    from mousedom.calibrate.umbmark import HEADER, umbmark_row
+    from mousedom.calibrate.umbmark import umbmark_row
 
     if not summary.final:
         raise UserError("--umbmark: the captures hold no motion, so there is no end position")
@@ -357,11 +359,45 @@ def _emit_umbmark(args, summary: Summary, true_end: tuple[float, float], inputs:
         return
     try:
         with open_stream(args.umbmark_csv, inputs, append=True, text=True) as f:
-            empty = os.fstat(f.fileno()).st_size == 0
-            f.write((HEADER + "\n" if empty else "") + row + "\n")
+            f.write(_runs_lead(f.fileno(), args.umbmark_csv) + row + "\n")
     except OSError as e:
         raise UserError(f"{args.umbmark_csv}: cannot append: {e.strerror}") from None
     print(f"replay: appended {row} to {args.umbmark_csv}", file=sys.stderr)
+
+
+# A RUNS.csv holds a row per run: a few hundred bytes.  Past this it is not one.
+_MAX_RUNS_BYTES = 1 << 20
+
+
+def _runs_lead(fd: int, path: str) -> str:
+    """What goes before a row appended to the RUNS.csv open (for appending) on ``fd``: the
+    header in an empty file (or a pipe), a newline where the last line lacks one; a file
+    that `mousedom umbmark` would not read, or whose columns are not the row's, is
+    refused (UserError) before anything is written: appending would bury its runs."""
+    from mousedom.calibrate.csvtext import content_lines, header_names
+    from mousedom.calibrate.umbmark import HEADER, parse_runs
+
+    st = os.fstat(fd)
+    if not stat.S_ISREG(st.st_mode) or st.st_size == 0:
+        return HEADER + "\n"
+    if st.st_size > _MAX_RUNS_BYTES:
+        raise UserError(f"{path}: {st.st_size} bytes is no RUNS.csv; not appending to it")
+    # the file open here, read again through its descriptor: no path in between to swap
+    with open(f"/proc/self/fd/{fd}", "rb") as r:
+        raw = r.read(_MAX_RUNS_BYTES)
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise UserError(f"{path}: byte offset {e.start}: not UTF-8 text; not appending") from None
+    parse_runs(text, path)  # (its errors name the line: the file is left as it is)
+    head_no, head = content_lines(text)[0]  # (parse_runs refused a file without one)
+    names = header_names(head, path, head_no)
+    if names != HEADER.split(","):
+        raise UserError(
+            f"{path}: its header has the columns {','.join(names)}; a row of {HEADER} "
+            "cannot join it (not appending)"
+        )
+    return "" if text.endswith("\n") else "\n"
 
 
 def _counts(c) -> str:
