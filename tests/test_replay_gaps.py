@@ -8,6 +8,7 @@ end pose must be the same, and every count must land."""
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -60,6 +61,12 @@ def test_a_long_gap_is_skipped_and_the_pose_is_the_same(tmp_path, gap):
         assert m.counts_out == pytest.approx(m.counts_in) and any(m.counts_in)
     gaps = [w for w in skipped.warnings if "gap was skipped" in w]
     assert len(gaps) == 1 and "that gap was skipped" in gaps[0]
+    # It names the gap from the last report before it (the first half's reports end
+    # within 2 s) to the first after it, not from where the skip began (60 s on).
+    m = re.match(r"no mouse reported from t=(\S+) to t=(\S+) ", gaps[0])
+    assert m, gaps[0]
+    last, first = float(m[1]), float(m[2])
+    assert 0.5 < last < 2.0 and gap < first < gap + 2.0, gaps[0]
 
 
 def test_a_gap_shorter_than_the_limit_is_windowed_as_before(tmp_path):

@@ -247,10 +247,13 @@ class _Run:
         span = tracker.skip_quiet(until)
         if span is None:
             return False
+        # (its first MAX_GAP_S were windowed as any pause is: the reports before it may
+        # still have closed windows there; the rest is skipped)
         self.warnings.append(
-            f"no mouse reported from t={span[0]:.6f} to t={span[1]:.6f} "
-            f"({span[1] - span[0]:.6g} s): that gap was skipped, not windowed "
-            "(no rows for it; the pose is held across it)"
+            f"no mouse reported from t={self.pushed_t:.6f} to t={min(firsts):.6f} "
+            f"({min(firsts) - self.pushed_t:.6g} s): windowed to t={span[0]:.6f}, that "
+            f"gap was skipped from there to t={span[1]:.6f} ({span[1] - span[0]:.6g} s: no "
+            "rows for it; the pose is held across it)"
         )
         return True
 
