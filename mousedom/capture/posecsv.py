@@ -9,6 +9,7 @@ import numpy as np
 
 from mousedom.capture.fixedpoint import fixed_bytes
 from mousedom.capture.scientific import scientific_bytes
+from mousedom.config.names import column_suffix
 from mousedom.fusion.tracker import PoseBatch
 
 CSV_COLUMNS = ("t", "x", "y", "theta", "vx", "vy", "omega", "used", "ok", "consistent")
@@ -32,19 +33,14 @@ _COV_DIGITS = 6  # "%.6e": seven significant digits
 _SCALE_DIGITS = 6  # "%.6f"
 
 
-def _safe(names: tuple[str, ...]) -> list[str]:
-    """Names as CSV column suffixes (a name's commas and quotes would break the CSV)."""
-    return ["".join(c if c.isalnum() or c in "-_." else "_" for c in n) for n in names]
-
-
 def health_columns(names: tuple[str, ...]) -> list[str]:
     """The per-mouse state and reason columns."""
-    return [f"{kind}_{n}" for n in _safe(names) for kind in ("state", "reason")]
+    return [f"{kind}_{n}" for n in map(column_suffix, names) for kind in ("state", "reason")]
 
 
 def scale_columns(names: tuple[str, ...]) -> list[str]:
     """The per-mouse learnt scale columns, after the covariance."""
-    return [f"{kind}_{n}" for n in _safe(names) for kind in ("scale_x", "scale_y")]
+    return [f"{kind}_{n}" for n in map(column_suffix, names) for kind in ("scale_x", "scale_y")]
 
 
 def gyro_columns() -> list[str]:

@@ -8,6 +8,7 @@ import os
 from pathlib import Path
 
 from mousedom import plausible, safeyaml
+from mousedom.config import names
 from mousedom.config.gyro import read_gyro
 from mousedom.config.mice import apply_calibration, read_mouse
 from mousedom.config.outputs import ServerConfig, read_outputs, read_server
@@ -103,6 +104,9 @@ def parse_config(
     calibration_path = str(base_dir / calibration) if calibration else None
     doc.raise_problems()
     mice = tuple(m for m in read if m is not None)
+    clashed = names.clash([m.name for m in mice])
+    if clashed:
+        raise doc.error(("mice",), clashed)
 
     found = plausible.suspects([(m.name, m.cpi_x, m.cpi_y, m.mount.x, m.mount.y,
                                  math.degrees(m.mount.yaw)) for m in mice])  # fmt: skip

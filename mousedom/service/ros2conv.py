@@ -18,6 +18,7 @@ import math
 from typing import Any
 
 from mousedom.config import Ros2Config
+from mousedom.config.names import ros_token
 from mousedom.fusion.posebatch import PoseRow
 
 UNOBSERVED = 1e6  # variance of what a planar sensor cannot see (m^2, rad^2 and per s^2)
@@ -145,8 +146,9 @@ def transform(parent: str, child: str, st: dict[str, int], pose: Pose2) -> dict[
 
 
 def mouse_frame(name: str) -> str:
-    """The TF frame of a mouse's sensor (on /tf_static under the base frame)."""
-    return f"{name}_mouse"
+    """The TF frame of a mouse's sensor (on /tf_static under the base frame), named as
+    its counts topic is (config.names.ros_token)."""
+    return f"{ros_token(name)}_mouse"
 
 
 def mount_transform(

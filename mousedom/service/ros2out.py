@@ -28,6 +28,7 @@ from typing import Any
 from xml.sax.saxutils import quoteattr
 
 from mousedom.config import MouseConfig, Ros2Config
+from mousedom.config.names import ros_token
 from mousedom.errors import UserError
 from mousedom.fusion.posebatch import PoseRow
 from mousedom.service import ros2cdr as cdr
@@ -272,7 +273,9 @@ class Ros2Output(Output):
         self.diag = writer(cfg.diagnostics_topic, msgs.DIAGNOSTICS, 10) if cfg.diagnostics else None
         self.counts = []
         if cfg.counts:
-            self.counts = [writer(f"/mousedom/{s}/counts", msgs.COUNTS, 10) for s in sensors]
+            self.counts = [
+                writer(f"/mousedom/{ros_token(s)}/counts", msgs.COUNTS, 10) for s in sensors
+            ]
         # Each mouse's mount, once, kept for late joiners (as tf2's static broadcaster):
         # RViz draws the mice where the config puts them.
         self.tf_static = None
