@@ -158,6 +158,21 @@ def test_calibration_file_merges_and_the_config_applies_it(tmp_path):
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []  # no temp left
 
 
+def test_the_written_header_says_what_a_write_keeps_of_hand_edits(tmp_path):
+    """A value edited by hand survives a merge; a comment does not, and the header that
+    every write puts first says so (it said "edits are kept": a user's notes vanished)."""
+    cal = tmp_path / "rig.calib.yaml"
+    cal.write_text(
+        "# measured on the lab floor\nmice:\n  left: {cpi: 450, scale: 1.02}  # by hand\n"
+    )
+    data = calfile.merge_mouse(calfile.read_calibration(str(cal)), "left", cpi={"x": 451.0})
+    calfile.write_calibration(str(cal), data)
+    text = cal.read_text()
+    assert calfile.read_calibration(str(cal))["mice"]["left"]["scale"] == 1.02
+    assert "lab floor" not in text and "by hand" not in text
+    assert text.startswith(calfile.HEADER) and "comments are not" in calfile.HEADER
+
+
 def test_calibration_file_errors(tmp_path):
     bad = tmp_path / "c.yaml"
     bad.write_text("mice: [1, 2\n")

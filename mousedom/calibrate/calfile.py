@@ -27,7 +27,12 @@ from mousedom import saferead, safewrite, safeyaml
 from mousedom.config import Config, load_config
 from mousedom.errors import UserError
 
-HEADER = "# mousedom calibration: written by `mousedom calibrate ... --write`; edits are kept\n"
+# What --write keeps of a file edited by hand: every value (a result is merged into them);
+# not its comments (the file is written again from its data; notes belong in the config).
+HEADER = (
+    "# mousedom calibration: written by `mousedom calibrate ... --write`; values edited "
+    "here are kept, comments are not\n"
+)
 
 
 def read_calibration(path: str) -> dict[str, Any]:
