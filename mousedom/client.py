@@ -254,7 +254,12 @@ class Client:
         return self.command("fix", **given)
 
     def rate(self, hz: float) -> dict[str, Any]:
-        return self.command("rate", hz=hz)
+        """POSE at most ``hz`` times a second from the answer on; the POSE lines that came
+        before the answer (at the daemon's own rate) are dropped, so that iterating gives
+        poses at the rate asked for from the first."""
+        answer = self.command("rate", hz=hz)
+        self._pending = deque(m for m in self._pending if m.get("class") != "POSE")
+        return answer
 
     def status(self) -> dict[str, Any]:
         return self.command("status")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 
 import pytest
@@ -398,3 +399,42 @@ def test_watch_sensor_table_pieces():
     # a name of 15 characters still fits
     src[0]["name"] = "abcdefghijklmno"
     assert max(len(_visible(line)) for line in view.source_table(src, True, 80)) <= 80
+
+
+def test_poses_at_a_rate_start_after_its_answer(tmp_path):
+    """POSE lines the daemon sent before it answered ``rate`` came at its own rate: the
+    generator asked for 25 Hz gave a first step of 0.02 s (a 50 Hz daemon) when they were
+    yielded.  A scripted daemon sends three before the answer."""
+    import socket as _socket
+    import threading
+
+    path = str(tmp_path / "d.sock")
+    srv = _socket.socket(_socket.AF_UNIX, _socket.SOCK_STREAM)
+    srv.bind(path)
+    srv.listen(1)
+
+    def pose(t: float) -> bytes:
+        msg = {"class": "POSE", "t": t, "x": t, "y": 0.0, "theta": 0.0, "vx": 0.0, "vy": 0.0,
+               "omega": 0.0, "cov": [[0.0] * 3] * 3, "used": 1, "updating": True}  # fmt: skip
+        return (json.dumps(msg) + "\n").encode()
+
+    def talk() -> None:
+        conn, _ = srv.accept()
+        conn.sendall(b'{"class": "VERSION", "rate_hz": 50.0, "sensors": ["a"]}\n')
+        request = json.loads(conn.makefile().readline())
+        conn.sendall(pose(0.0) + pose(0.02) + pose(0.04))
+        conn.sendall(
+            json.dumps({"class": "OK", "cmd": "rate", "hz": 25.0, "id": request["id"]}).encode()
+            + b"\n"
+            + b'{"class": "SOURCE", "name": "a"}\n'
+            + pose(0.08)
+            + pose(0.12)
+        )
+        conn.close()
+
+    th = threading.Thread(target=talk)
+    th.start()
+    got = [p.t for p in poses(path, rate_hz=25)]
+    th.join(5)
+    srv.close()
+    assert got == [0.08, 0.12]
