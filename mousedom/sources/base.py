@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -200,7 +201,7 @@ class SourceHealth:
     connected: bool = False
     reports: int = 0
     last_t: float | None = None
-    reports_per_s: float = 0.0  # measured over the last ~1 s
+    reports_per_s: float = 0.0  # over the last second, when a status is made (Source.rate)
     dropped: int = 0  # frames or packets lost (SYN_DROPPED, sequence gaps, CRC errors)
     skipped: int = 0  # events that are not motion (buttons, wheels), counted not used
     error: str | None = None
@@ -222,6 +223,9 @@ class SourceHealth:
         }
 
 
+RATE_SPAN_S = 1.0  # the SOURCE status's rate_hz is over this long
+
+
 class Source(ABC):
     """A sensor the daemon can poll; backends fill in the three hooks."""
 
@@ -239,8 +243,10 @@ class Source(ABC):
     def __init__(self, name: str) -> None:
         self.name = name
         self.health = SourceHealth(name=name, kind=self.kind)
-        self._rate_t0: float | None = None
-        self._rate_n = 0
+        # The reads of the last RATE_SPAN_S, (when, reports), for ``rate``; and the first
+        # read's time (the first second's rate is over the time since it)
+        self._reads: deque[tuple[float, int]] = deque()
+        self._first_read: float | None = None
         self.stamps_restamped = 0  # reports whose stamp was far from the clock (see above)
         # Stamps are made non-decreasing at the boundary (``_forward``): the tracker and
         # the capture format rely on it.  A kernel clock does not run backwards, but a FIFO
@@ -316,17 +322,32 @@ class Source(ABC):
 
     def _count(self, n: int, last_t: float, now: float) -> None:
         """``n`` reports read at ``now``, the last stamped ``last_t``: the health's counts,
-        last stamp and report rate over a sliding ~1 s span (cheap, good enough for
-        status)."""
+        last stamp, and the read for the report rate (``rate``)."""
         health = self.health
         health.reports += n
         health.last_t = last_t
-        t0 = self._rate_t0
-        if t0 is None or now - t0 > 1.0:
-            if t0 is not None and now > t0:
-                health.reports_per_s = self._rate_n / (now - t0)
-            self._rate_t0, self._rate_n = now, 0
-        self._rate_n += n
+        reads = self._reads
+        reads.append((now, n))
+        if reads[0][0] <= now - RATE_SPAN_S:
+            self._drop_reads(now)
+        if self._first_read is None:
+            self._first_read = now
+
+    def _drop_reads(self, now: float) -> None:
+        reads = self._reads
+        while reads and reads[0][0] <= now - RATE_SPAN_S:
+            reads.popleft()
+
+    def rate(self, now: float) -> float:
+        """Reports per second read over the last RATE_SPAN_S before ``now`` (over the time
+        since the first read while that is shorter, at least a tenth of a second): 0 a
+        second after the mouse stopped or went, as its status must say, where a rate
+        updated only by reads kept the last one for good."""
+        self._drop_reads(now)
+        if self._first_read is None:
+            return 0.0
+        span = min(RATE_SPAN_S, max(now - self._first_read, 0.1))
+        return sum(n for _, n in self._reads) / span
 
     @abstractmethod
     def _open(self) -> None: ...
