@@ -617,6 +617,14 @@ MUTANTS = [
         "the fault found, the mouse kept",
     ),
     Mutant(
+        "tie-fit-one-window-only",
+        "mousedom/fusion/robust.py",
+        "        if last == self._windows - 1 and sums.keys() == now.keys():\n",
+        "        if False:\n",
+        ("tests/test_tie_sums.py",),
+        "an ambiguous fault's evidence judged window by window, never summed",
+    ),
+    Mutant(
         "paid-back-within-its-own-error",
         "mousedom/fusion/ledger.py",
         "        cov = 2.0 * (s2 * np.eye(2) + (v * np.maximum(w - s2, 0.0)) @ v.T)\n",
