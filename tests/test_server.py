@@ -380,6 +380,35 @@ def test_lines_that_carry_nothing_use_up_an_allowance(harness):
     assert fine.read()["cmd"] == "status"
 
 
+def test_refused_reset_lines_use_up_the_allowance_and_are_logged_once(harness, caplog):
+    """A client without control that floods reset lines: each was answered with an ERROR
+    and logged, and the client never dropped (24,550 in 5 s).  Refused, they carry
+    nothing: they draw on the allowance, and the journal hears of the first only."""
+    import logging
+
+    from mousedom.service.server import JUNK_BURST
+
+    h = harness()
+    h.server.may_control = lambda uid, gid: False  # (as a uid not listed: see above)
+    flooder = Peer(h.server.path)
+    assert flooder.read()["control"] is False
+    caplog.set_level(logging.WARNING, logger="mousedom")
+    flooder.send(b'{"cmd": "reset"}\n' * 4)
+    for _ in range(4):
+        assert "not allowed" in flooder.read()["message"]
+    try:
+        flooder.send(b'{"cmd": "reset", "id": 1}\n' * (2 * JUNK_BURST))
+    except OSError:
+        pass
+    deadline = time.monotonic() + 3
+    while h.server.dropped == 0 and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert h.server.dropped == 1 and not h.server.clients
+    assert [c[1] for c in h.commands] == []  # none reached the daemon
+    denied = [r for r in caplog.records if "may not reset" in r.getMessage()]
+    assert len(denied) == 1
+
+
 def test_one_client_gets_a_bounded_turn_per_wake(harness):
     """A client's lines beyond LINES_PER_TURN wait for the next wake (backlog); all are
     answered in order in the end."""
