@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import cores
 import numpy as np
 import pytest
-from capture_helpers import EXTERNAL, drain, external_dir
+from capture_helpers import EXTERNAL, drain, external_dir, one_mouse_config
+from conftest import run_mousedom
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -366,3 +368,57 @@ def test_event_lines_by_hand_both_parsers(line, want):
     if fast is not None:  # "+7" and short fractions take the careful path
         got = (float(fast.t[0]), int(fast.typ[0]), int(fast.code[0]), int(fast.value[0]))
         assert got == pytest.approx(want, abs=1e-12)
+
+
+def _cut_recording() -> str:
+    """Two frames of REL_X 7 and 1234, as evemu writes them (every line ends with \\n)."""
+    return (
+        "# EVEMU 1.3\nN: M\nI: 0003 046d c077 0111\nP: 00 00 00 00 00 00 00 00\n"
+        "B: 00 0b 00 00 00 00 00 00 00\nB: 02 03 00 00 00 00 00 00 00\n"
+        "E: 0.000000 0002 0000 7\nE: 0.000000 0000 0000 0\n"
+        "E: 0.008000 0002 0000 1234\tcomment\nE: 0.008000 0000 0000 0\n"
+    ).replace("\tcomment", "\t# EV_REL / REL_X 1234")
+
+
+@pytest.mark.parametrize("core_name", cores.names())
+def test_a_last_line_cut_anywhere_is_skipped_never_kept(tmp_path, core_name):
+    """A last line cut inside its number ("... 0000 12" of "... 0000 1234") read as an
+    event and kept the wrong count (net x 19 for 7): evemu ends every line with a newline,
+    so a last line without one is skipped with the warning naming it, at every cut, with
+    either core; only whole lines count."""
+    text = _cut_recording()
+    body = text.index("E: 0.008000 0002")
+    p = tmp_path / "cut.evemu"
+    with cores.using(core_name):
+        for cut in range(body - 3, len(text) + 1):
+            p.write_text(text[:cut])
+            cap = drain(p)
+            whole = text[:cut][: text[:cut].rfind("\n") + 1]
+            want_x = 7 + (1234 if "0000 1234" in whole else 0)
+            assert cap.stats[0].net_x == want_x, (cut, text[:cut][-20:])
+            torn = not text[:cut].endswith("\n")
+            line = whole.count("\n") + 1
+            assert any(f"cut.evemu:{line}: last line cut off" in w for w in cap.warnings) == torn
+            assert (cap.stats[0].torn_bytes > 0) == torn
+
+
+def test_a_cut_only_event_line_gives_no_first_time(tmp_path):
+    """first_time read the cut line's stamp (it anchors the window grid and the time
+    base): a line without its newline is no event there either."""
+    p = tmp_path / "one.evemu"
+    p.write_text(_cut_recording().split("E:")[0] + "E: 1700000000.5 0002 0000 3")
+    cap = open_capture(p)
+    assert cap.first_time() is None and cap.time_base == "relative"
+    cap = drain(p)
+    assert cap.stats[0].reports == 0 and any(":7: last line cut off" in w for w in cap.warnings)
+
+
+def test_replay_of_a_recording_cut_in_its_last_number_counts_whole_lines_only(tmp_path):
+    text = _cut_recording()
+    p = tmp_path / "cut.evemu"
+    p.write_text(text[: text.index("1234") + 2])
+    proc = run_mousedom("replay", "-c", str(one_mouse_config(tmp_path)), "--capture", f"m={p}")
+    assert proc.returncode == 0, proc.stderr
+    row = next(ln for ln in proc.stdout.splitlines() if ln.startswith("m "))
+    assert row.split()[3] == "7", row  # net x: the first frame's only
+    assert "cut.evemu:9: last line cut off (truncated recording); skipped" in proc.stderr

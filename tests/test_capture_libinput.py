@@ -237,3 +237,93 @@ def test_a_recording_laid_out_as_the_man_page_shows_it():
     assert dx.tolist() == [4, 1] and dy.tolist() == [-2, 0]
     assert t.tolist() == pytest.approx([0.0, 0.008])
     assert not cap.warnings
+
+
+def _two_mice_text(n=4):
+    rng = np.random.default_rng(8)
+    t1 = np.cumsum(rng.uniform(0.001, 0.01, n))
+    t2 = np.cumsum(rng.uniform(0.001, 0.01, n)) + 0.0005
+    left = (t1, rng.integers(-9, 9, n), rng.integers(-9, 9, n))
+    right = (t2, rng.integers(-9, 9, n), rng.integers(-9, 9, n))
+    return format_libinput([("left", *left), ("right", *right)]), {"left": left, "right": right}
+
+
+def _reports_of(t, dx, dy):
+    keep = (dx != 0) | (dy != 0)
+    rows = zip(t[keep], dx[keep], dy[keep], strict=True)
+    return [(round(float(a), 6), int(b), int(c)) for a, b, c in rows]
+
+
+def test_a_multi_device_recording_cut_anywhere_keeps_what_it_holds_and_says_so(tmp_path):
+    """``ndevices: 2`` cut before its second device lost it without a word; cut inside
+    the second device's header (``- node: /de``) it made a device named "/de"; cut
+    inside a row of the first device it was "invalid YAML", exit 2, where a one-device
+    file loses that row only.  At every cut from the first device's events list on: the
+    devices read are the recorded ones (never one from a cut header), each gives the
+    first of its reports exactly (the last may lack its REL_Y, as any unterminated frame),
+    a device missing is said naming the file, and a row cut short is said naming its line
+    (a whole row cut in its comment is kept)."""
+    text, truth = _two_mice_text()
+    raw = text.encode()
+    p = tmp_path / "cut.yml"
+    second = raw.index(b"- node: /dev/input/event6")
+    for cut in range(raw.index(b"  events:") + len(b"  events:\n"), len(raw) + 1):
+        p.write_bytes(raw[:cut])
+        cap = drain(p)
+        names = [d.name for d in cap.devices]
+        assert names in (["left"], ["left", "right"]), (cut, names)
+        lost = any(f"{p}: 2 devices recorded (ndevices), 1 in the file" in w
+                   for w in cap.warnings)  # fmt: skip
+        assert lost == (names == ["left"]), (cut, cap.warnings)
+        assert (names == ["left"]) == (cut < second + raw[second:].index(b"  events:") + 9)
+        for k, name in enumerate(names):
+            t, dx, dy = cap.motion.get(k, (np.array([]), np.array([]), np.array([])))
+            got = _reports_of(t, dx, dy)
+            want = _reports_of(*truth[name])
+            assert got[:-1] == want[: max(len(got) - 1, 0)], (cut, name)
+            if got:
+                last, full = got[-1], want[len(got) - 1]
+                assert last[:2] == full[:2] and last[2] in (full[2], 0), (cut, name)
+        tail = raw[raw.rfind(b"\n", 0, cut) + 1 : cut].strip()
+        if tail.startswith(b"- [") and b"]" not in tail:  # a row cut before its end
+            line = raw[:cut].count(b"\n") + 1
+            assert any(f"cut.yml:{line}: last line cut off" in w for w in cap.warnings), cut
+
+
+def test_a_cut_device_header_is_never_a_device(tmp_path):
+    text, _ = _two_mice_text()
+    at = text.index("- node: /dev/input/event6") + len("- node: /de")
+    p = tmp_path / "cut.yml"
+    p.write_text(text[:at])
+    cap = open_capture(p)
+    assert [d.name for d in cap.devices] == ["left"]
+    line = text[:at].count("\n") + 1
+    assert (
+        f"{p}:{line}: the last device's header is cut off before its events list "
+        "(truncated recording); that device is skipped" in cap.warnings
+    )
+    # a one-device file cut in its only header: an error naming the line, not a device
+    at = text.index("- node: /dev/input/event5") + len("- node: /dev/input/event5\n  evd")
+    p.write_text(text[:at])
+    with pytest.raises(UserError, match=r"cut.yml:\d+: the recording is cut off in its first"):
+        open_capture(p)
+
+
+def test_replay_of_two_devices_cut_in_a_row_loses_that_row_only(tmp_path):
+    from capture_helpers import one_mouse_config
+    from conftest import run_mousedom
+
+    text, truth = _two_mice_text(n=40)
+    first_dev_end = text.index("- node: /dev/input/event6")
+    at = text.rindex("    - [", 0, first_dev_end) + 9  # inside the first device's last row
+    p = tmp_path / "cut.yml"
+    p.write_text(text[:at])
+    cfg = one_mouse_config(tmp_path, name="left")
+    cfg.write_text(cfg.read_text() + f"    replay: {{file: {p}, device: /dev/input/event5}}\n")
+    proc = run_mousedom("replay", "-c", str(cfg), "--capture", str(p))
+    assert proc.returncode == 0, proc.stderr
+    line = text[:at].count("\n") + 1
+    assert f"cut.yml:{line}: last line cut off (truncated recording); skipped" in proc.stderr
+    assert "2 devices recorded (ndevices), 1 in the file" in proc.stderr
+    row = next(ln for ln in proc.stdout.splitlines() if ln.startswith("left "))
+    assert int(row.split()[3]) == int(truth["left"][1].sum())  # the cut row was a SYN_REPORT

@@ -12,6 +12,7 @@ from __future__ import annotations
 import bz2
 import gzip
 import lzma
+import zlib
 
 import numpy as np
 import pytest
@@ -283,3 +284,20 @@ def test_replay_device_that_is_not_in_the_file_is_an_error(tmp_path):
     ok = cfg.read_text().replace("event4", "event5")
     cfg.write_text(ok)
     assert run_mousedom("replay", "--config", str(cfg)).returncode == 0
+
+
+def test_a_gzip_recording_cut_inside_a_number_keeps_whole_lines_only(tmp_path):
+    """Decompressed, a cut-off .gz ends where the stream was cut, inside a line: that
+    line (here "... 0002 0000 12" of "... 1234") is skipped with the warning naming it,
+    never kept with a wrong count, next to the warning that the stream is cut off."""
+    t = np.array([0.0, 0.008, 0.016])
+    text = format_evemu(t, np.array([7, 1234, 5]), np.array([0, 0, 0]))
+    cut = text.index("1234") + 2
+    z = zlib.compressobj(wbits=31)  # gzip, flushed at the cut and never finished
+    path = tmp_path / "cut.evemu.gz"
+    path.write_bytes(z.compress(text[:cut].encode()) + z.flush(zlib.Z_SYNC_FLUSH))
+    cap = drain(path)
+    assert cap.stats[0].net_x == 7
+    line = text[:cut].count("\n") + 1
+    assert any("gzip stream is cut off" in w for w in cap.warnings)
+    assert any(f"cut.evemu.gz:{line}: last line cut off" in w for w in cap.warnings)

@@ -9,7 +9,7 @@ import zlib
 
 import numpy as np
 import pytest
-from capture_helpers import drain
+from capture_helpers import drain, one_mouse_config
 from conftest import run_mousedom
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -337,6 +337,63 @@ def test_first_time_in_the_header_must_be_a_time(tmp_path, bad):
         w.motion(0, [1.0], [1], [0])
     with pytest.raises(CaptureError, match="first_time"):
         open_capture(p).first_time()
+
+
+@pytest.mark.parametrize("bad", ["x", "0.1", True, False, [0.1], {"t": 0.1}])
+def test_first_time_in_the_header_that_is_no_number_is_refused(tmp_path, bad):
+    """A string was ignored (the first stamp used instead) and a bool read as 1.0 or 0.0:
+    the key was not what the file says; refused naming file, byte offset and key."""
+    p = tmp_path / "f.mdcap"
+    with NativeWriter(p, DEVICES[:1], meta={"first_time": bad}) as w:
+        w.motion(0, [1.0, 2.0], [1, 1], [0, 0])
+    with pytest.raises(CaptureError, match=r"f.mdcap: byte offset 16: header: first_time .* "
+                       "is not a number"):  # fmt: skip
+        open_capture(p).first_time()
+    with pytest.raises(CaptureError, match="first_time"):
+        drain(p)
+
+
+@pytest.mark.parametrize("first", [0.1, 0.0, -3.0, None])
+@pytest.mark.parametrize("compress", [True, False])
+def test_first_time_at_or_before_the_first_stamp_is_kept(tmp_path, first, compress):
+    p = tmp_path / "f.mdcap"
+    with NativeWriter(p, DEVICES[:1], meta={"first_time": first}, compress=compress) as w:
+        w.motion(0, [0.1, 0.2, 6.0], [1, 2, 3], [1, 1, 1])
+    assert open_capture(p).first_time() == (0.1 if first is None else first)
+    assert drain(p).stats[0].net_x == 6
+
+
+@pytest.mark.parametrize("first", [5.0, 1e9, 0.10000000001])
+def test_first_time_after_the_first_stamp_is_refused(tmp_path, first):
+    """first_time 1e9 with reports at 0.1 to 6 s replayed as one row at t = 1e9, exit 0
+    (5.0: the grid began after two reports it must hold)."""
+    p = tmp_path / "late.mdcap"
+    with NativeWriter(p, DEVICES[:1], meta={"first_time": first}) as w:
+        w.motion(0, [0.1, 0.2, 6.0], [1, 2, 3], [1, 1, 1])
+        w.sync(math.inf)
+    with pytest.raises(CaptureError, match=r"late.mdcap: byte offset 16: header: first_time "
+                       r".* is later than the first stamp \(0.1, in the chunk at byte offset "
+                       r"\d+\)"):  # fmt: skip
+        open_capture(p).first_time()
+    with pytest.raises(CaptureError, match="later than the first stamp"):
+        drain(p)  # (feeds() without first_time() first, as a tool might call them)
+
+
+def test_replay_refuses_a_late_first_time_in_one_line(tmp_path):
+    p = tmp_path / "late.mdcap"
+    with NativeWriter(p, [DeviceInfo(name="m", mouse="m", rel_xy=True)], time_base="relative",
+                      meta={"first_time": 1e9}) as w:  # fmt: skip
+        w.motion(0, [0.1, 0.2, 6.0], [1, 2, 3], [1, 1, 1])
+        w.sync(math.inf)
+    cfg = one_mouse_config(tmp_path)
+    proc = run_mousedom("replay", "-c", str(cfg), "--capture", f"m={p}", "-o", "-")
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert proc.stderr.strip().splitlines() == [
+        f"mousedom: error: {p}: byte offset 16: header: first_time 1000000000.0 is later than "
+        "the first stamp (0.1, in the chunk at byte offset "
+        + proc.stderr.split("chunk at byte offset ")[1].split(")")[0]
+        + "): it would put the window grid after reports it must hold"
+    ]
 
 
 def test_the_writer_refuses_what_the_reader_refuses(tmp_path):

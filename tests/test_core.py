@@ -351,6 +351,35 @@ def test_evemu_events_takes_every_valid_line_as_the_line_parser_reads_it(lines):
 
 
 @needs_core
+@pytest.mark.parametrize("cut", range(1, 12))
+def test_a_last_line_cut_inside_its_number_is_refused_by_both_and_skipped_by_both(tmp_path, cut):
+    """A recording whose last line was cut (no newline; "... 0000 12" of "... 1234"
+    still reads as an event): no scanner takes that block, the compiled one as the
+    Python ones, and the reader on either core skips the line with the same warning and
+    the same counts (the whole lines only)."""
+    from capture_helpers import drain
+
+    from mousedom.capture.evemu_lines import general_events, native_events, regular_events
+
+    whole = b"E: 0.000000 0002 0000 7\nE: 0.000000 0000 0000 0\n"
+    last = b"E: 0.008000 0002 0000 1234\t# EV_REL / REL_X"
+    block = whole + last[: len(last) - cut]
+    assert general_events(block, 1) is None and regular_events(block, 1) is None
+    assert native_events(core.native, block, 1) is None
+    p = tmp_path / "cut.evemu"
+    p.write_bytes(b"N: M\nB: 02 03 00 00 00 00 00 00 00\n" + block)
+    got = []
+    for name in cores.names():
+        with cores.using(name):
+            cap = drain(p)
+        got.append((cap.stats[0].as_dict(), cap.warnings))
+    assert got[0] == got[-1]
+    stats, warnings = got[0]
+    assert (stats["net_x"], stats["reports"]) == (7, 1)
+    assert warnings == [f"{p}:5: last line cut off (truncated recording); skipped"]
+
+
+@needs_core
 def test_evemu_events_refuses_outputs_too_short_with_a_python_error():
     import numpy as np
 

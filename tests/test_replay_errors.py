@@ -135,6 +135,29 @@ def test_convert_refuses_two_devices_for_one_mouse(tmp_path):
         assert not out.exists()
 
 
+def test_convert_refuses_one_file_given_twice_for_no_two_mice(tmp_path):
+    """``convert --capture a.evemu --capture a.evemu`` wrote every report twice (replay
+    refused the result only later): the same file by inode (another name, a link, the
+    other half of an evemu pair) is refused unless each time names a different mouse."""
+    ext = external_dir()
+    src = ext / PS2
+    a = tmp_path / "a.events"
+    a.write_bytes(src.read_bytes())
+    (tmp_path / "a.desc").write_bytes(src.with_suffix(".desc").read_bytes())
+    link = tmp_path / "link.events"
+    link.symlink_to(a)
+    out = tmp_path / "out.mdcap"
+    for caps in ((a, a), (a, link), (a, tmp_path / "a.desc"), (f"m={a}", a), (a, f"m={link}")):
+        args = [w for c in caps for w in ("--capture", str(c))]
+        proc = run_mousedom("convert", *args, "-o", str(out))
+        assert proc.returncode == 2, (caps, proc.stderr)
+        _one_error_line(proc.stderr, "the same file as --capture", "written twice")
+        assert not out.exists()
+    proc = run_mousedom("convert", "--capture", f"x={a}", "--capture", f"y={link}", "-o", str(out))
+    assert proc.returncode == 0, proc.stderr  # two mice from one recording, as in replay
+    assert "2 devices" in proc.stderr
+
+
 def test_identical_mice_in_one_libinput_file_are_told_apart_by_node(tmp_path):
     """Two mice of one model share their name; libinput record keeps no phys/uniq, so
     such a recording could not be replayed at all.  replay.device matches the node."""

@@ -192,11 +192,11 @@ class EvemuCapture(Capture):
             for i, raw in enumerate(f):
                 line = raw.split(b"#", 1)[0].strip()
                 if line:
+                    if not raw.endswith(b"\n"):
+                        return None  # the last line, cut off: skipped (_batches warns)
                     try:
                         return event_line(line)[0]
                     except ValueError as e:
-                        if not raw.endswith(b"\n"):
-                            return None
                         raise CaptureError(
                             located(self.path, self._body_line + i, f"{e}: {_show(line)}")
                         ) from None

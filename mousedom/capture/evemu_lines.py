@@ -174,21 +174,26 @@ def general_events(block: bytes | memoryview, first_line: int) -> Events | None:
 
 
 def slow_events(path: str, block: bytes, first_line: int, *, at_eof: bool) -> Events:
-    """Parse line by line, naming the first bad line; a torn last line at EOF is skipped."""
+    """Parse line by line, naming the first bad line; a torn last line at EOF is skipped.
+
+    evemu ends every line with a newline, so at the end of the file (``at_eof``) a last
+    line without one was cut off mid-write (crash, full disk, a truncated .gz): TornLine,
+    whatever it holds.  It may still read as an event (``E: 0.008 0002 0000 12`` cut from
+    ``... 1234``), with a wrong count: it is never kept."""
     ts, types, codes, values, lines = [], [], [], [], []
     parts = block.split(b"\n")
+    torn = at_eof and not block.endswith(b"\n")
     for i, raw in enumerate(parts):
         lineno = first_line + i
         line = raw.split(b"#", 1)[0].strip()
+        if torn and i == len(parts) - 1 and raw.strip():
+            # A recording cut off mid-line: the line is lost (a comment cut off too).
+            raise TornLine(lineno)
         if not line:
             continue
-        last = i == len(parts) - 1
         try:
             t, ty, co, va = event_line(line)
         except ValueError as e:
-            if at_eof and last and not block.endswith(b"\n"):
-                # A recording cut off mid-line (crash, full disk): the line is lost.
-                raise TornLine(lineno) from None
             if line[:1].isalpha() and line[1:2] == b":" and line[:1] != b"E":
                 msg = f"header line {_show(line)} among the events"
             else:

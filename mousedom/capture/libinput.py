@@ -34,6 +34,7 @@ import re
 import weakref
 from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import TypeGuard
 
 import numpy as np
 import yaml
@@ -122,6 +123,7 @@ class LibinputCapture(Capture):
         self.time_base = "relative"
         self._spans = self._index()
         top_text, top = self._top()
+        copy = None
         if self._other_layout(top):
             # The same YAML in another layout (see capture.libinput_layout): read through a
             # copy in the recorder's own layout, removed with this capture.
@@ -140,10 +142,31 @@ class LibinputCapture(Capture):
                 )
             )
         self.header = {k: v for k, v in top.items() if k != "devices"}
+        if self._spans and not self._spans[-1].events_line and copy is None:
+            # libinput record writes "events:" right after each device's header: a last
+            # device without it is a header cut off (a crash while the recording began),
+            # never a device (its name would be whatever the cut left, "/de").
+            cut = self._spans.pop()
+            if not self._spans:
+                raise CaptureError(
+                    located(path, cut.first_line, "the recording is cut off in its first "
+                            "device's header (truncated): no device to read")
+                )  # fmt: skip
+            self.open_warnings.append(
+                f"{path}:{cut.first_line}: the last device's header is cut off before its "
+                "events list (truncated recording); that device is skipped"
+            )
         for span in self._spans:
             self.devices.append(self._device(span))
         if not self.devices:
             raise CaptureError(located(path, None, "no devices in this libinput recording"))
+        recorded = top.get("ndevices")
+        if _int(recorded) and recorded > len(self.devices):
+            self.open_warnings.append(
+                f"{path}: {recorded} devices recorded (ndevices), {len(self.devices)} in the "
+                "file: the recording is cut off (truncated); the devices after the last one "
+                "found are lost"
+            )
         self.reset_stats()
 
     # ----------------------------------------------------------------- structure
@@ -164,12 +187,31 @@ class LibinputCapture(Capture):
         if not self._spans:
             return bool(top.get("devices"))
         n = top.get("ndevices")
-        if isinstance(n, int) and not isinstance(n, bool) and n != len(self._spans):
-            return True
+        if _int(n) and n != len(self._spans):
+            # Fewer devices than recorded, all in the recorder's own layout: a recording
+            # cut off (read as it is, with a warning), not another layout; a cut document
+            # is not YAML, and one of more than safeyaml's bound is not read as one.
+            return n < len(self._spans) or not self._own_layout()
         with _open(self.data_path) as f:
             f.seek(self._spans[0].start)
             head = f.read(1 << 16)
         return bool(_FLOW_DEVICE.search(head) or _BLOCK_ROW.search(head))
+
+    def _own_layout(self) -> bool:
+        """Whether no device is a flow mapping and no row a block list, in the whole file
+        from the first device on (only read where the device count is off)."""
+        with _open(self.data_path) as f:
+            f.seek(self._spans[0].start)
+            carry = b""
+            while True:
+                buf = f.read(self.block_bytes)
+                text = carry + buf
+                cut = len(text) if not buf else text.rfind(b"\n") + 1
+                block, carry = text[:cut], text[cut:]
+                if _FLOW_DEVICE.search(block) or _BLOCK_ROW.search(block):
+                    return False
+                if not buf:
+                    return True
 
     def _index(self) -> list[_Span]:
         spans: list[_OpenSpan] = []
@@ -255,7 +297,7 @@ class LibinputCapture(Capture):
             info.rel_xy = isinstance(rel, list) and REL_X in rel and REL_Y in rel
         info.extra["node"] = item.get("node")
         if span.events_line == 0:
-            self.warnings.append(
+            self.open_warnings.append(  # said with every read (reset_stats)
                 f"{self.path}:{span.first_line}: device {info.name!r} has no events list"
             )
         return info
@@ -321,6 +363,10 @@ class LibinputCapture(Capture):
             last_t = float(t[-1])
             yield frames.batch(t, typ, code, value)
         yield frames.last(self.warnings, f"{self.path}: device {self.devices[index].name!r}")
+
+
+def _int(v: object) -> TypeGuard[int]:
+    return isinstance(v, int) and not isinstance(v, bool)
 
 
 def _line_of(text: bytes, needle: bytes) -> int | None:

@@ -7,10 +7,12 @@ be written other ways that any YAML reader takes: re-dumped by PyYAML in block s
 sorted, so ``- evdev:`` comes before ``node:``, and each row a nested block list), a device
 as a flow mapping, ``node :`` with a space.  Such a file was skipped device by device, or
 refused.  Now, when the line scan and the document disagree (no device found where the
-document has some, a device count unlike ``ndevices``, a device as a flow mapping), the
-whole document is read as YAML (with safeyaml's bounds: such files are small, or are
-refused with the reason) and written again in the recorder's own layout into a private
-temporary copy, which the reader then reads as usual.
+document has some, more devices than ``ndevices``, or fewer where a flow-mapping device or
+a block row shows another layout, a device as a flow mapping), the whole document is read
+as YAML (with safeyaml's bounds: such files are small, or are refused with the reason) and
+written again in the recorder's own layout into a private temporary copy, which the reader
+then reads as usual.  Fewer devices than ``ndevices`` in the recorder's own layout is a
+recording cut off, which the reader reads as it is, with a warning.
 """
 
 from __future__ import annotations

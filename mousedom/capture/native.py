@@ -33,6 +33,7 @@ from mousedom.capture.native_format import (
     CHUNK_MAGIC,
     FIXED_KINDS,
     GYRO_VERSION,
+    HEADER_JSON_OFFSET,
     INFLATE_SLACK,
     MAGIC,
     MAX_CHUNK,
@@ -93,23 +94,46 @@ class NativeCapture(Capture):
         self._first: float | None = None
 
     def first_time(self) -> float | None:
+        """The header's ``first_time`` (the sources' first event, which anchors the window
+        grid: at or before the first stamp), else the first stamp; both as the window grid
+        reads them, from the chunks up to the first sync point (a writer's sync point
+        promises that every earlier stamp is in the file before it)."""
         if not self._first_known:
-            stated = self.header.get("first_time")
-            if isinstance(stated, (int, float)):
-                if not plausible_time(stated):
-                    raise CaptureError(
-                        located(self.path, None, f"header: first_time {stated!r} is not a time")
-                    )
-                self._first = float(stated)
-            else:
-                self._first = self._scan_first_time()
+            stated = self._stated_first_time()
+            scanned, offset = self._scan_first_time()
+            if stated is not None and scanned is not None and stated > scanned:
+                raise CaptureError(
+                    located(self.path, None, f"byte offset {HEADER_JSON_OFFSET}: header: "
+                            f"first_time {stated!r} is later than the first stamp "
+                            f"({scanned!r}, in the chunk at byte offset {offset}): it "
+                            "would put the window grid after reports it must hold")
+                )  # fmt: skip
+            self._first = stated if stated is not None else scanned
             self._first_known = True
         return self._first
 
-    def _scan_first_time(self) -> float | None:
-        """The earliest stamp, read from the chunks up to the first sync point that follows
-        one (for a header that does not state it)."""
+    def _stated_first_time(self) -> float | None:
+        """The header's ``first_time``: absent (or null), or a finite number of seconds
+        (not a bool, not a string); CaptureError naming it otherwise."""
+        stated = self.header.get("first_time")
+        if stated is None:
+            return None
+        if isinstance(stated, bool) or not isinstance(stated, (int, float)):
+            what = "not a number"
+        elif not plausible_time(stated):
+            what = "not a time (a finite number of seconds below 1e10)"
+        else:
+            return float(stated)
+        raise CaptureError(
+            located(self.path, None, f"byte offset {HEADER_JSON_OFFSET}: header: first_time "
+                    f"{stated!r:.40} is {what}")
+        )  # fmt: skip
+
+    def _scan_first_time(self) -> tuple[float | None, int]:
+        """The earliest stamp and the byte offset of its chunk, read from the chunks up to
+        the first sync point that follows one."""
         first = None
+        first_at = 0
         for kind, _source, count, payload, offset in self._chunks(check_tail=False, head_only=8):
             if kind in (MOTION, SERIAL, RATE, RATE_SATURATED) and count:  # f8 times first
                 if len(payload) < 8:
@@ -120,14 +144,18 @@ class NativeCapture(Capture):
                 t0 = float(np.frombuffer(payload, "<f8", 1)[0])
                 if not plausible_time(t0):
                     raise CaptureError(
-                        located(self.path, None, f"byte offset {offset}: time {t0!r} out of range")
+                        located(
+                            self.path, None, f"byte offset {offset}: time out of range ({t0!r})"
+                        )
                     )
-                first = t0 if first is None else min(first, t0)
+                if first is None or t0 < first:
+                    first, first_at = t0, offset
             elif kind == SYNC and first is not None:
                 break  # everything before the first sync point has been seen
-        return first
+        return first, first_at
 
     def feeds(self) -> list[Feed]:
+        self.first_time()  # a header's first_time that is none is refused before any report
         self.reset_stats()
         return [Feed(tuple(range(len(self.devices))), self._batches())]
 

@@ -97,6 +97,9 @@ def check_chunk_head(head: bytes) -> str | None:
     return None
 
 
+HEADER_JSON_OFFSET = 16  # magic (8), u16 major, u16 minor, u32 n: then the header's JSON
+
+
 def read_header(path: str, f: BinaryIO) -> tuple[dict[str, Any], int, int]:
     """The header's JSON, the file's major version and where the chunks start."""
     magic = f.read(len(MAGIC))

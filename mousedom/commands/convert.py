@@ -162,6 +162,7 @@ def convert(
     time_base, offset, warnings = _time_base(captures)
     devices, states = _gather(inputs, offset)
     _refuse_a_mouse_twice(devices)
+    _refuse_a_file_twice(inputs)
     written = [[0, 0, 0] for _ in devices]  # per output device: reports, net x, net y
     # The inputs' first event (not first report) anchors the replay's window grid and the
     # epoch rebasing: keep it, so that replaying the result gives the very same poses.
@@ -231,6 +232,24 @@ def _gather(
             if mine:
                 states.append(_Input(feed, mine, sub, cap))
     return devices, states
+
+
+def _refuse_a_file_twice(inputs: list[tuple[str | None, Capture]]) -> None:
+    """One file (by device and inode: a link, another name, the other half of an evemu
+    pair) given twice is written twice, every report doubled, unless each time names a
+    different mouse (``--capture a=F --capture b=F``: two mice, as in replay)."""
+    for k, (name, cap) in enumerate(inputs):
+        for other_name, other in inputs[:k]:
+            if not same_file(cap.path, other.path):
+                continue
+            if name is None or other_name is None or name == other_name:
+                given = [f"{n}={c.path}" if n is not None else c.path
+                         for n, c in ((other_name, other), (name, cap))]  # fmt: skip
+                raise CaptureError(
+                    f"--capture {given[1]}: the same file as --capture {given[0]}; every "
+                    "report would be written twice: give it once (or with a different "
+                    "mouse name each time, --capture a=FILE --capture b=FILE)"
+                )
 
 
 def _refuse_a_mouse_twice(devices: list[DeviceInfo]) -> None:
