@@ -396,6 +396,51 @@ def test_replay_refuses_a_late_first_time_in_one_line(tmp_path):
     ]
 
 
+@pytest.mark.parametrize(
+    "bad, said",
+    [("x", "is not a number"), (True, "is not a number"), (float("nan"), "is not a time"),
+     (1.11, r"is later than the first stamp \(0.1\) by more than 1.0 s")],
+)  # fmt: skip
+def test_a_grid_start_that_is_not_where_windows_can_begin_is_refused(tmp_path, bad, said):
+    p = tmp_path / "g.mdcap"
+    with NativeWriter(p, DEVICES[:1], meta={"grid_start": bad}) as w:
+        w.motion(0, [0.1, 0.2, 6.0], [1, 2, 3], [1, 1, 1])
+    with pytest.raises(CaptureError, match=r"g.mdcap: byte offset 16: header: grid_start .* "
+                       + said):  # fmt: skip
+        open_capture(p).grid_start()
+
+
+def _windows_t(tmp_path, capture, tag: str) -> tuple[np.ndarray, str]:
+    out = tmp_path / f"{tag}.csv"
+    proc = run_mousedom("replay", "-c", str(one_mouse_config(tmp_path)), "--capture",
+                        f"m={capture}", "-o", str(out))  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    text = out.read_text()
+    return np.array([float(ln.split(",")[0]) for ln in text.splitlines()[1:]]), text
+
+
+@pytest.mark.parametrize("grid_start", [0.0937, 0.1005, -2.0])
+def test_replay_windows_begin_at_the_recorders_grid_and_convert_keeps_it(tmp_path, grid_start):
+    """A daemon's recording says where its windows began (grid_start, here before, after
+    and well before the first report): replay's window ends are that plus whole periods,
+    not the first stamp plus them; a converted copy replays to the very same rows."""
+    p = tmp_path / "rec.mdcap"
+    t = 0.1 + np.cumsum(np.full(200, 0.008))
+    with NativeWriter(p, [DeviceInfo(name="m", mouse="m", rel_xy=True)], time_base="relative",
+                      meta={"grid_start": grid_start}) as w:  # fmt: skip
+        w.motion(0, t, np.full(200, 3), np.full(200, -1))
+    ends, text = _windows_t(tmp_path, p, "rec")
+    period = 0.01  # one_mouse_config's rate_hz: 100
+    k = (ends - grid_start) / period
+    np.testing.assert_allclose(k, np.round(k), atol=1e-6)
+    assert ends[0] - period <= t[0] + period
+    copy = tmp_path / "copy.mdcap"
+    proc = run_mousedom("convert", "--capture", str(p), "-o", str(copy))
+    assert proc.returncode == 0, proc.stderr
+    assert open_capture(str(copy)).grid_start() == pytest.approx(grid_start, abs=1e-12)
+    assert _windows_t(tmp_path, copy, "copy")[1] == text
+
+
 def test_the_writer_refuses_what_the_reader_refuses(tmp_path):
     w = NativeWriter(tmp_path / "w.mdcap", DEVICES)
     for call in (

@@ -317,6 +317,12 @@ class Capture(ABC):
     def first_time(self) -> float | None:
         """Time of the earliest event (None for a capture without events)."""
 
+    def grid_start(self) -> float | None:
+        """Where the recorder's window grid began, for a capture that says (a daemon's
+        ``run --record``): replay anchors its windows there, so that they are the
+        daemon's; None: anchored at the first event (``first_time``)."""
+        return None
+
     @abstractmethod
     def feeds(self) -> list[Feed]:
         """Fresh iterators over the whole capture (stats are reset)."""

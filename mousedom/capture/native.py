@@ -66,6 +66,10 @@ _chunk_crc = chunk_crc
 __all__ = ["CHUNK", "GYRO_VERSION", "MAGIC", "MOTION", "RATE", "VERSION", "ZLIB",
            "NativeCapture", "NativeWriter", "is_native", "note_counters"]  # fmt: skip
 
+# How far after the first stamp a header's grid_start may be: a live source's reports come
+# stamped from the daemon's start less its read latency (milliseconds), never a second.
+GRID_START_LEAD = 1.0
+
 
 class NativeCapture(Capture):
     format = "native"
@@ -111,6 +115,28 @@ class NativeCapture(Capture):
             self._first = stated if stated is not None else scanned
             self._first_known = True
         return self._first
+
+    def grid_start(self) -> float | None:
+        """The header's ``grid_start`` (``run --record`` writes the daemon's window grid's
+        start): absent or null, or a time at most GRID_START_LEAD after the first stamp
+        (the daemon takes reports from its start less its sources' latency: a grid begun
+        later would lump earlier reports into its first window); CaptureError otherwise."""
+        stated = self.header.get("grid_start")
+        if stated is None:
+            return None
+        if isinstance(stated, bool) or not isinstance(stated, (int, float)):
+            what = "is not a number"
+        elif not plausible_time(stated):
+            what = "is not a time (a finite number of seconds below 1e10)"
+        else:
+            first = self.first_time()
+            if first is None or stated <= first + GRID_START_LEAD:
+                return float(stated)
+            what = f"is later than the first stamp ({first!r}) by more than {GRID_START_LEAD} s"
+        raise CaptureError(
+            located(self.path, None, f"byte offset {HEADER_JSON_OFFSET}: header: grid_start "
+                    f"{stated!r:.40} {what}")
+        )  # fmt: skip
 
     def _stated_first_time(self) -> float | None:
         """The header's ``first_time``: absent (or null), or a finite number of seconds

@@ -33,7 +33,7 @@ from mousedom.capture.assignment import (
 from mousedom.capture.base import Batch, Capture, Feed, Serial, lagging_first
 from mousedom.capture.posecsv import CsvSink, csv_columns, read_csv
 from mousedom.capture.summary import GyroSummary, MouseSummary, Summary
-from mousedom.capture.timebase import time_offset
+from mousedom.capture.timebase import grid_anchor, time_offset
 from mousedom.config import Config
 from mousedom.fusion.gyro import gyro_period
 from mousedom.fusion.tracker import PoseBatch, Tracker
@@ -296,10 +296,7 @@ class Replay:
             config = dataclasses.replace(config, gyro=None)
         self.config = config
         self.warnings = list(warnings) + gyro_warnings
-        firsts = [
-            t - self._offset_of(c) for c in self.captures if (t := c.first_time()) is not None
-        ]
-        self.t0 = min(firsts) if firsts else None
+        self.t0 = grid_anchor(self.captures, self.offset)
         self.tracker = Tracker(config, t0=self.t0, model=model, integrator=integrator)
 
     def _offset_of(self, cap: Capture) -> float:

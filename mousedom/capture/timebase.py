@@ -48,3 +48,16 @@ def time_offset(captures: list[Capture]) -> tuple[float, list[str]]:
     if aligned and bases == {"relative"}:
         warnings.append(aligned)
     return (min(firsts) if firsts else 0.0), warnings
+
+
+def grid_anchor(captures: list[Capture], offset: float) -> float | None:
+    """Where replay's window grid starts, on its time base (epoch captures less
+    ``offset``): the earliest of each capture's grid start (``Capture.grid_start``: the
+    daemon that recorded it began its windows there, and replay's windows are then its
+    windows) or, for a capture that states none, its first event.  None: no events."""
+    starts = [
+        t - (offset if c.time_base == "epoch" else 0.0)
+        for c in captures
+        if (t := c.grid_start()) is not None or (t := c.first_time()) is not None
+    ]
+    return min(starts) if starts else None

@@ -31,7 +31,7 @@ from mousedom.capture.base import (
 )
 from mousedom.capture.native_writer import NativeWriter
 from mousedom.capture.sniff import open_capture
-from mousedom.capture.timebase import time_offset
+from mousedom.capture.timebase import grid_anchor, time_offset
 from mousedom.commands import _options as options
 from mousedom.errors import UserError
 from mousedom.safewrite import open_stream, replace_file, same_file
@@ -167,6 +167,9 @@ def convert(
     # The inputs' first event (not first report) anchors the replay's window grid and the
     # epoch rebasing: keep it, so that replaying the result gives the very same poses.
     meta = {"first_time": _first_time(captures, offset)}
+    if any(c.grid_start() is not None for c in captures):
+        # (a daemon's recording: replay anchors its windows where the daemon's began)
+        meta["grid_start"] = grid_anchor(captures, offset)
     with NativeWriter(
         path,
         devices,

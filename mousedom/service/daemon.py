@@ -264,7 +264,7 @@ class Daemon:
 
             # (every sensor's: the mice's, then the gyro's, whose samples it keeps too)
             kinds = [s.source.kind for s in self.sensors.slots]
-            self._recording = Recording(self.record_path, config, kinds)
+            self._recording = Recording(self.record_path, config, kinds, self.tracker.t0)
             self.outputs.add(self._recording)
             log.info("recording the sensors' reports to %s", self.record_path)
         if config.metrics is not None:

@@ -59,9 +59,14 @@ class Recording(Output):
     does: it is logged and stopped, the file keeps what reached it (all but the torn last
     chunk), and the fusion, which robots rely on, goes on."""
 
-    def __init__(self, path: str, config: Config, source_kinds: list[str]) -> None:
+    def __init__(
+        self, path: str, config: Config, source_kinds: list[str], grid_start: float | None = None
+    ) -> None:
         """``source_kinds``: each sensor's source kind, the mice's and then, for a rig
-        with a gyro, the gyro's (the daemon's slots in the tracker's order)."""
+        with a gyro, the gyro's (the daemon's slots in the tracker's order); ``grid_start``:
+        where the daemon's windows began, written in the header so that replay's windows
+        are the daemon's (replay anchored them at the first report instead: no POSE time
+        of the daemon was a row of the replay of its own recording)."""
         text = None
         if config.path:
             try:
@@ -84,7 +89,11 @@ class Recording(Output):
                 devices,
                 config_text=text,
                 time_base="monotonic",
-                meta={"recorder": "mousedom run --record", "config_path": config.path},
+                meta={
+                    "recorder": "mousedom run --record",
+                    "config_path": config.path,
+                    "grid_start": grid_start,
+                },
                 inputs=config_inputs(config),
             )
         except OSError as e:
