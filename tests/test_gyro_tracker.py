@@ -28,15 +28,49 @@ def _with_gyro(rig: sim.Rig, gyro: simgyro.SimGyro, use: str = "both"):
 
 
 def test_turns_are_rate_times_the_span_since_the_sample_before():
-    t = np.array([1.0, 1.005, 1.010, 1.05])
-    rate = np.array([2.0, 2.0, 4.0, 1.0])
-    kept, turn, spans = gyro_turns(t, rate, -math.inf, 0.02)
+    t = np.array([1.0, 1.005, 1.0105, 1.05, 1.5])
+    rate = np.array([2.0, 2.0, 4.0, 1.0, 3.0])
+    kept, turn, spans = gyro_turns(t, rate, -math.inf, 0.005, 0.15)
     assert kept.tolist() == t.tolist()
-    # the first only starts the spans; after a gap, one period (a report's rule)
-    assert turn == pytest.approx([0.0, 2.0 * 0.005, 4.0 * 0.005, 1.0 * 0.02])
-    assert spans == pytest.approx([0.0, 0.005, 0.005, 0.02])
-    kept, turn, _ = gyro_turns(t[1:], rate[1:], 1.0, 0.02)  # continued from the one before
-    assert turn == pytest.approx([2.0 * 0.005, 4.0 * 0.005, 0.02])
+    # the first only starts the spans; a span longer than the period (jitter, samples
+    # lost) counts whole up to the bridge; after a silence beyond it, one period
+    assert spans == pytest.approx([0.0, 0.005, 0.0055, 0.0395, 0.005])
+    assert turn == pytest.approx(rate * spans)
+    kept, turn, _ = gyro_turns(t[1:], rate[1:], 1.0, 0.005, 0.15)  # continued
+    assert turn == pytest.approx([2.0 * 0.005, 4.0 * 0.0055, 0.0395, 3.0 * 0.005])
+
+
+@pytest.mark.parametrize("hz, config_hz, jitter", [
+    (200.0, 200.0, 0.1), (200.0, None, 0.0), (250.0, 300.0, 0.0), (1000.0, 800.0, 0.05),
+    (100.0, None, 0.1), (400.0, 400.0, 0.2),
+])  # fmt: skip
+def test_a_gyro_off_its_configured_rate_or_jittering_keeps_its_whole_turn(hz, config_hz, jitter):
+    """A sample covers the time since the one before, whatever the config says of the rate:
+    stamps jitter, a device runs at its own rate (a rounded ODR), and sample_hz is
+    optional.  Spans clipped at the config's period lost a part of every turn (200 Hz with
+    10 % jitter: 5.2 degrees in a half turn and a quarter; a 250 Hz gyro configured at
+    300 Hz: 14 degrees), and without sample_hz a 200 Hz gyro's samples joined the span of
+    the one before as a mouse's bunched reports do (2 degrees).  Two mice, a gyro exact
+    but for its stamps: the heading ends within 0.1 degrees of where the same gyro on time
+    and configured at its rate ends it."""
+    mice = (sim.SimMouse(name="left", x=0.0, y=0.135, yaw=0.0, cpi_x=1000, cpi_y=1000,
+                         report_hz=125.0),
+            sim.SimMouse(name="right", x=0.0, y=-0.135, yaw=0.0, cpi_x=1000, cpi_y=1000,
+                         report_hz=125.0, phase=0.003))  # fmt: skip
+    gyro = dataclasses.replace(EXACT, sample_hz=hz)
+    rig, cfg = _with_gyro(sim.Rig(mice, rate_hz=100.0, model="lsq"), gyro, "gyro")
+    assert cfg.gyro is not None
+    traj = sim.sequence(sim.pause(2.0), sim.turn(math.pi, 0.8), sim.straight(0.5),
+                        sim.turn(-math.pi / 2, 0.5), sim.pause(1.0))  # fmt: skip
+    result = sim.simulate(rig, traj, seed=1)
+    on_time, _ = sim.run_tracker(result, cfg)
+    if jitter:
+        g = result.gyro
+        moved = g.t + np.random.default_rng(9).uniform(-jitter, jitter, len(g.t)) / hz
+        result.gyro = dataclasses.replace(g, t=np.maximum.accumulate(moved))
+    cfg = dataclasses.replace(cfg, gyro=dataclasses.replace(cfg.gyro, sample_hz=config_hz))
+    batch, _ = sim.run_tracker(result, cfg)
+    assert math.degrees(abs(batch.theta[-1] - on_time.theta[-1])) < 0.1
 
 
 @pytest.mark.parametrize("use", ["both", "gyro", "mice"])

@@ -36,6 +36,12 @@ class GyroClock(CountFunction):
 
     def __init__(self, period: float, late_report_s: float) -> None:
         super().__init__(period, late_report_s)
+        # A sample's stamp is when it was measured (the driver's or the buffer's), not when
+        # it reached us: samples close together were not held up on their way, so none
+        # joins the span of the one before (a mouse's bunched reports do).  With the
+        # config's rate unknown (a 50 Hz period) a 200 Hz gyro's every other sample
+        # joined, its turn moved to the sample before: 2 degrees off in a half turn.
+        self.join = 0.0
         self.first_t = math.inf  # the first sample's stamp: the turn is known from here
 
     def push(
@@ -59,7 +65,7 @@ class GyroClock(CountFunction):
             return None
         if not math.isfinite(t.sum() + rate.sum()):
             raise ValueError("push_gyro: times and rates must be finite numbers")
-        t, turn, spans = gyro_turns(t, rate, self.last_t, self.period)
+        t, turn, spans = gyro_turns(t, rate, self.last_t, self.period, self.bridge)
         held = np.zeros_like(turn) if sat is None else np.where(sat, spans, 0.0)
         self.queue(t, turn, held, float(t.max()))
         self.first_t = min(self.first_t, float(t[0]))
