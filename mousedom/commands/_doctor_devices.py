@@ -88,6 +88,10 @@ def _check_input_dir(
             lines.ok(f"no {where} on this machine (not needed: no mouse of this config is an "
                      "evdev device)")  # fmt: skip
         return
+    if result.error:
+        lines.fail(result.error, "the input directory is normally readable by everyone "
+                   "(its nodes by group input): check its permissions")  # fmt: skip
+        return
     locked = [d for d in result.devices if not d.readable]
     n = len(result.devices)
     s = "s" if result.nodes != 1 else ""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import sys
@@ -64,6 +65,8 @@ def _text(result: Scan) -> str:
             f"no input devices: {where} does not exist on this machine "
             "(in a container, pass the mice through, e.g. --device /dev/input/eventN)\n"
         )
+    if result.error:
+        return f"input devices unknown: {result.error} (run as a user who may list it)\n"
     if not result.devices:
         return f"no devices with REL_X and REL_Y among {result.nodes} input devices in {where}\n"
     lines = []
@@ -108,6 +111,8 @@ def config_matches(config_path: str, result: Scan) -> dict[str, dict[str, str | 
         if rule.path and is_stream(rule.path):
             out[m.name] = {"node": rule.path, "error": None, "note": "FIFO/pipe stream"}
             continue
+        if rule.path:  # (under --root, where that tree's links are)
+            rule = dataclasses.replace(rule, path=result.paths.rooted(rule.path))
         resolved = os.path.realpath(rule.path) if rule.path else None
         try:
             dev = match_device(rule, result.devices, resolved_path=resolved)
@@ -173,6 +178,8 @@ def run(args: argparse.Namespace) -> int:
                 {"sysfs": str(d.sysdir), "node": str(d.node), "name": d.name} for d in found
             ],  # fmt: skip
         }
+        if result.error:  # (the folder is there but could not be listed: devices unknown)
+            doc["error"] = result.error
         if matches is not None:
             doc["config"] = {"path": args.config, "mice": matches}
         sys.stdout.write(json.dumps(doc, indent=2) + "\n")
@@ -181,6 +188,6 @@ def run(args: argparse.Namespace) -> int:
         sys.stdout.write("\n" + _gyro_text(found))
         if matches is not None:
             sys.stdout.write("\n" + _config_text(args.config, matches))
-    if matches and any(r["error"] for r in matches.values()):
+    if (matches and any(r["error"] for r in matches.values())) or result.error:
         return 1
     return 0

@@ -48,6 +48,15 @@ class SystemPaths:
     sys_input: str = "/sys/class/input"
     udev_data: str = "/run/udev/data"
 
+    def rooted(self, path: str) -> str:
+        """A config's node path as found here: under ``dev_input`` where that is another
+        tree's (``--root``), so a rule naming /dev/input/by-path/... finds its link
+        there; any other path as it is."""
+        default = SystemPaths.dev_input
+        if self.dev_input != default and (path == default or path.startswith(default + "/")):
+            return self.dev_input + path[len(default) :]
+        return path
+
     @classmethod
     def under(cls, root: str) -> SystemPaths:
         r = Path(root)
@@ -123,6 +132,8 @@ class Scan:
     paths: SystemPaths
     present: bool  # the input directory exists at all
     nodes: int = 0  # event nodes seen, pointers or not
+    # why the input directory could not be listed (it is there, closed to this user)
+    error: str | None = None
     devices: list[DeviceInfo] = field(default_factory=list)
 
 
@@ -263,10 +274,16 @@ def _hex(path: Path) -> int:
 
 
 def _links(directory: Path, target: str) -> tuple[str, ...]:
-    if not directory.is_dir():
+    """The links in ``directory`` to ``target``; none where it cannot be listed (a
+    by-path folder closed to this user: the device is still described)."""
+    try:
+        if not directory.is_dir():
+            return ()
+        links = sorted(directory.iterdir())
+    except OSError:
         return ()
     out = []
-    for link in sorted(directory.iterdir()):
+    for link in links:
         try:
             if os.path.realpath(link) == target:
                 out.append(str(link))
@@ -289,7 +306,10 @@ def _node_access(node: str) -> tuple[bool, str | None]:
 
 def _describe_from_sysfs(paths: SystemPaths, event: str, node: str) -> DeviceInfo | None:
     base = Path(paths.sys_input) / event / "device"
-    if not base.is_dir():
+    try:
+        if not base.is_dir():
+            return None
+    except OSError:  # sysfs closed to this user: described by opening the node instead
         return None
     rel = parse_bitmask(_read(base / "capabilities" / "rel") or "0")
     udev = {}
@@ -363,11 +383,13 @@ def scan(paths: SystemPaths | None = None, *, pointers_only: bool = True) -> Sca
     """Describe the event nodes of ``paths.dev_input`` (pointer devices only by default)."""
     paths = paths or SystemPaths()
     dev_dir = Path(paths.dev_input)
-    if not dev_dir.is_dir():
-        return Scan(paths, present=False)
-    events = sorted(
-        (p.name for p in dev_dir.iterdir() if p.name.startswith("event")), key=_event_number
-    )
+    try:
+        if not dev_dir.is_dir():
+            return Scan(paths, present=False)
+        names = [p.name for p in dev_dir.iterdir()]
+    except OSError as e:  # a directory closed to this user: its devices are unknown
+        return Scan(paths, present=True, error=f"{dev_dir}: cannot list it: {e.strerror}")
+    events = sorted((n for n in names if n.startswith("event")), key=_event_number)
     result = Scan(paths, present=True, nodes=len(events))
     for event in events:
         node = str(dev_dir / event)
