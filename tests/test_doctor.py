@@ -244,6 +244,30 @@ def test_fake_machine_matches_each_mouse_and_names_what_is_missing(tmp_path, cap
     assert "`mousedom list`" in dev[2]["hint"]
 
 
+@pytest.mark.parametrize("gyro, status, said", [
+    ("{name: mpu6050}", "OK", "gyro -> {root}/sys/bus/iio/devices/iio:device0 (mpu6050)"),
+    ("{name: nosuchgyro}", "FAIL", "gyro: no IIO device is named 'nosuchgyro' (IIO devices: "),
+    ("{path: /sys/bus/iio/devices/iio:device7}", "FAIL", "no such IIO device"),
+    ("{replay: nothere.mdcap}", "FAIL", "capture file not found"),
+])  # fmt: skip
+def test_the_gyro_is_checked_as_the_daemon_finds_it(tmp_path, capsys, gyro, status, said):
+    """A config's gyro naming no device passed doctor without a word: its line now says
+    which IIO device it is, or why there is none."""
+    from iio_fakes import add_gyro
+
+    root = tmp_path / "m"
+    add_device(root, 3, "Left Mouse", by_path=("pci-usb-0:1-event-mouse",))
+    add_device(root, 4, "Right Mouse")
+    add_gyro(root, 0, "mpu6050")
+    rig = tmp_path / "rig.yaml"
+    rig.write_text(EVDEV_RIG + f"gyro: {gyro}\n")
+    code, doc = doctor_json(capsys, "--config", str(rig), "--root", str(root),
+                            "--socket", str(tmp_path / "no.sock"))  # fmt: skip
+    line = [c for c in lines(doc, "devices") if c["message"].startswith("gyro")]
+    assert len(line) == 1 and line[0]["status"] == status, line
+    assert said.format(root=root) in line[0]["message"], line[0]["message"]
+
+
 def test_a_user_the_node_and_the_socket_are_closed_to_is_told_the_groups(tmp_path):
     """A node 0660 root:GROUP and a socket 0600: doctor, as a user outside both, names the
     group to join and the socket's mode.  As a real process that drops to nobody (root

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 from mousedom import invocation
 from mousedom.commands._doctor_base import Check, Lines
 from mousedom.config import Config
+from mousedom.config.rig import GyroConfig
 
 if TYPE_CHECKING:
     from mousedom.sources.discovery import Scan
@@ -65,7 +66,33 @@ def check_devices(cfg: Config | None, root: str | None) -> list[Check]:
                 lines.fail(f"{m.name}: replay {m.replay}: capture file not found",
                            "record one (`mousedom record`) or fix the path (relative to the "
                            "config)")  # fmt: skip
+    if cfg.gyro is not None:
+        _check_gyro(lines, cfg.gyro, root)
     return lines
+
+
+def _check_gyro(lines: Lines, gyro: GyroConfig, root: str | None) -> None:
+    """The gyro: the IIO device its section names (as the daemon finds it), or the capture
+    or ROS 2 topic it stands in for one."""
+    from mousedom.sources.base import SourceUnavailable
+    from mousedom.sources.iio_sysfs import IioPaths, find_device
+
+    if gyro.replay is not None:
+        if os.path.isfile(gyro.replay):
+            lines.ok(f"gyro -> replay {gyro.replay}")
+        else:
+            lines.fail(f"gyro: replay {gyro.replay}: capture file not found",
+                       "record one (`mousedom record`) or fix the path")  # fmt: skip
+        return
+    if gyro.ros2 is not None:
+        lines.ok(f"gyro -> ROS 2 topic {gyro.ros2.topic}")
+        return
+    try:
+        dev = find_device(gyro, IioPaths.under(root or "/"), "gyro")
+    except SourceUnavailable as e:
+        lines.fail(str(e), "`mousedom list` shows the IIO gyros and the gyro: line for each")
+        return
+    lines.ok(f"gyro -> {dev.sysdir} ({dev.name or 'no name'})")
 
 
 def _check_input_dir(
