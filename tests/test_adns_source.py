@@ -175,3 +175,71 @@ def test_socket_url():
     src.close()
     conn.close()
     server.close()
+
+
+def test_a_reconnect_keeps_counters_and_replays_as_live(tmp_path):
+    """The USB adapter is pulled mid-frame while the firmware runs on, and plugged back
+    (a new pty behind the same link).  The counters go on from where they were, the
+    packets sent while unplugged are lost by sequence, each loss counts once, and the
+    bytes handed to on_raw (what ``mousedom record`` stores, with its reopen marker)
+    replay to the very reports the source gave."""
+    link = str(tmp_path / "ttyADNS")
+    fds: list[int] = []
+
+    def plug() -> int:
+        master, slave = os.openpty()
+        tty.setraw(master)
+        tty.setraw(slave)
+        fds.extend((master, slave))
+        if os.path.lexists(link):
+            os.unlink(link)
+        os.symlink(os.ttyname(slave), link)
+        return master
+
+    def frame(seq: int) -> bytes:
+        return P.encode_packet(P.Motion(seq, 300_000 + 8750 * seq, 10, 0, 7, 80, 0))
+
+    raw: list = []
+    src = AdnsSource(mouse(link), on_raw=lambda t, b: raw.append((t, bytes(b))))
+    got: list = []
+
+    def send(master: int, seqs, reports: int) -> None:
+        for seq in seqs:
+            f = frame(seq)
+            if seq == 5:
+                f = f[:4] + bytes([f[4] ^ 1]) + f[5:]  # damaged on the line
+            os.write(master, f)
+        got.extend(pump(src, timeout=1.0, until=lambda r: sum(map(len, r)) >= reports))
+
+    try:
+        master = plug()
+        src.open()
+        send(master, range(20), 19)  # 0..19, 5 damaged
+        os.write(master, frame(20)[:10])  # pulled while sending 20
+        got.extend(pump(src, timeout=0.1))
+        assert src.health.dropped == 1 and src.health.extra["crc_errors"] == 1
+        for fd in fds:
+            os.close(fd)
+        fds.clear()
+        with pytest.raises(SourceGone):
+            for _ in range(50):
+                got.extend(src.read(time.monotonic()))
+                time.sleep(0.01)
+        master = plug()  # 21..29 were sent while unplugged
+        src.open()
+        send(master, range(30, 40), 10)
+        h = src.health
+        assert sum(map(len, got)) == 29 and h.reports == 29
+        assert h.extra["motion_packets"] == 29  # not back to 0 at the reconnect
+        assert h.extra["crc_errors"] == 1 and h.extra["reopens"] == 1
+        assert h.extra["lost_seq"] == 11 and h.dropped == 11  # 5, 20, 21..29: once each
+        # replay of what on_raw saw, reopen marker included, equals live
+        assert sum(1 for _, b in raw if not b) == 1  # the reopen marker
+        t = np.concatenate([r.t for r in got])
+        replayed, dec = packets_to_reports(raw, name="floor")
+        np.testing.assert_array_equal(replayed.t, t)
+        assert dec.parser.stats.as_dict() == src.decoder.parser.stats.as_dict()
+    finally:
+        src.close()
+        for fd in fds:
+            os.close(fd)

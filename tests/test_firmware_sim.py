@@ -206,6 +206,24 @@ def test_counts_in_equal_counts_out(build):
     np.testing.assert_array_equal(replay.t, run.t)
 
 
+def test_boot_begins_with_a_delimiter(build):
+    """The firmware's first byte after a reset is a lone 0x00: a host that still holds
+    part of a frame from before the reset (the device reset while sending it) ends that
+    frame there, and the boot's first packet (seq 0: VERSION, the answer to the host's
+    GET_VERSION) is read whole.  Without the 0x00 the stale bytes and packet 0 make one
+    frame, refused (a lost packet)."""
+    run = run_sim(build, "--duration", "0.6")
+    data = b"".join(b for _, b in run.raw)
+    assert data[:1] == b"\0"
+    stale = P.encode_packet(P.Motion(700, 9_000_000, 1, 1, 12, 80, P.FLAG_RES1600))
+    parser = P.Parser()
+    parser.feed(stale, 1.0)  # the last packet of the boot before
+    got = parser.feed(stale[:9] + data, 2.0)  # the reset cut the next one short
+    assert got[0].seq == 0
+    assert parser.stats.reboots == 1 and parser.stats.lost_seq == 0
+    assert parser.stats.bad_frames + parser.stats.crc_errors == 1  # the stale half only
+
+
 def test_set_k_and_400_cpi(build):
     """K=5 and 400 CPI from the config: the firmware acknowledges, clears
     Configuration_bits bit 4 (read-modify-write keeps the other bits) and sends a packet

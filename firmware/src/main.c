@@ -314,6 +314,11 @@ int main(void)
 {
     adns_spi_init();
     uart_init();
+    /* A lone 0x00 first: it ends whatever partial frame the host's receiver holds from
+     * before this reset, so that the first packet of the boot arrives whole (without it,
+     * STATUS seq 0 would be read as the tail of that frame and refused with it). */
+    const uint8_t delimiter = 0;
+    uart_write(&delimiter, 1);
     timer_init();
     cobs_dec_init(&rx);
     accum_clear(&acc);

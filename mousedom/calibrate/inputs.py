@@ -58,12 +58,16 @@ def read_motion(cap: Capture, wanted: Sequence[tuple[int, MouseConfig]]) -> dict
                         dys.append(rep.dy)
     for index, m in wanted:
         decoder = decoders.get(m.name)
-        if decoder is not None and decoder.lost:
-            st = decoder.parser.stats
+        if decoder is None:
+            continue
+        st = decoder.parser.stats
+        if decoder.lost or st.crc_errors or st.bad_frames:
+            # A refused frame is a lost packet, counted once by sequence; one refused at
+            # the very end has no later packet to show the gap, so it is named too.
             raise UserError(
                 f"{cap.path}: device {cap.devices[index].name!r} (mouse {m.name}): "
-                f"{decoder.lost} serial packet(s) lost or refused ({st.lost_seq} sequence "
-                f"gaps, {st.crc_errors} CRC errors, {st.bad_frames} bad frames): their counts "
+                f"{decoder.lost} serial packet(s) lost (missing by sequence number; "
+                f"{st.crc_errors} CRC errors, {st.bad_frames} bad frames): their counts "
                 "are missing, so a calibration from it would be wrong"
             )
     return {name: in_time_order(name, *lists) for name, lists in parts.items()}

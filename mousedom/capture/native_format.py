@@ -11,7 +11,8 @@ Layout (all integers little-endian; full description in docs/captures.md)::
                                                      and the payload as stored)
 
 Chunk kinds: MOTION (count reports as columns: f8 t[count], i4 dx[count], i4 dy[count]),
-SERIAL (count pieces of raw serial bytes: f8 t[count], u4 len[count], then the bytes),
+SERIAL (count pieces of raw serial bytes: f8 t[count], u4 len[count], then the bytes; an
+empty piece marks a reopen of the port, where the decoder drops a partial frame),
 NOTE (JSON counters of what a converted source skipped or dropped), SYNC (one f8: every
 report of every source stamped at or before it is in the file by now; readers use it to
 close windows while streaming), RATE (count samples of a gyro, an "iio" device, as

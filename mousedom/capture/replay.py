@@ -270,7 +270,7 @@ class _Run:
         self.emit(self.tracker.finish())
         for st in self.states:
             for dev, dec in st.decoders.items():
-                st.capture.stats[dev].dropped_frames += dec.lost  # packets refused or missing
+                st.capture.stats[dev].dropped_frames += dec.lost  # packets missing, each once
 
 
 class Replay:

@@ -6,11 +6,17 @@ and K from the config and asks for a status.  Whenever a STATUS packet shows set
 other than the config's (the firmware restarted, or a command was lost) it sends them
 again.  Decoding, clock mapping and the axis convention live in ``adns_decode``; this
 module only moves bytes.
+
+One decoder serves every open of the port, so that its counters add up over reconnects
+and the packets sent while the port was closed count as lost.  A reopen drops the
+partial frame the decoder held (``AdnsDecoder.reopen``) and hands ``on_raw`` an empty
+chunk, which marks the reopen in a capture so that replay drops it at the same place.
 """
 
 from __future__ import annotations
 
 import os
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -34,8 +40,9 @@ class AdnsSource(Source):
         serial_for_url: Callable[..., Any] = serial.serial_for_url,
         on_raw: Callable[[float, bytes], None] | None = None,
     ) -> None:
-        """``on_raw(host_t, chunk)`` sees every chunk read, before decoding: the native
-        capture writer records these, and ``adns_decode.packets_to_reports`` replays them."""
+        """``on_raw(host_t, chunk)`` sees every chunk read, before decoding, and an empty
+        chunk at each reopen of the port: the native capture writer records these, and
+        ``adns_decode.packets_to_reports`` replays them."""
         if mouse.serial is None:
             raise ValueError(f"mouse {mouse.name} has no serial section")
         super().__init__(mouse.name)
@@ -44,6 +51,7 @@ class AdnsSource(Source):
         self._port: Any = None
         self.decoder = AdnsDecoder(name=mouse.name)
         self._resent_for: int | None = None
+        self._opened = False  # opened before: the next open is a reopen
         self.on_raw = on_raw
 
     # ------------------------------------------------------------------ hooks
@@ -54,7 +62,12 @@ class AdnsSource(Source):
             self._port = self._serial_for_url(s.port, baudrate=s.baud, timeout=0)
         except (serial.SerialException, OSError, ValueError) as e:
             raise SourceUnavailable(f"{s.port}: {e}") from None
-        self.decoder = AdnsDecoder(name=self.name)
+        if self._opened:
+            # Same decoder: its counters and sequence carry on; the frame it held is gone.
+            self.decoder.reopen()
+            if self.on_raw is not None:
+                self.on_raw(time.monotonic(), b"")  # the reopen marker (a capture's too)
+        self._opened = True
         self._resent_for = None
         # A lone 0x00 first ends whatever noise the device's receiver holds.
         try:

@@ -57,7 +57,9 @@ class AdnsHealth:
     firmware_rx_errors: int = 0
     naks: int = 0
     last_nak: str | None = None
-    reboots: int = 0
+    # Times the firmware clock's mapping began again, at each restart of the device that
+    # the parser recognised (its ``reboots``): named apart so that neither hides the other.
+    clock_resets: int = 0
 
     def as_dict(self) -> dict[str, Any]:
         return dict(self.__dict__)
@@ -76,14 +78,14 @@ class AdnsDecoder:
     last_version: P.Version | None = None
 
     def feed(self, data: bytes, host_t: float) -> tuple[Reports, list[P.Packet]]:
-        packets = self.parser.feed(data, host_t)
+        packets, restarts = self.parser.feed_marked(data, host_t)
         t: list[float] = []
         dx: list[int] = []
         dy: list[int] = []
         squal: list[int | None] = []
         overflow: list[bool] = []
-        for p in packets:
-            if self.clock.is_backwards(p.t_us):
+        for p, restarted in zip(packets, restarts, strict=True):
+            if restarted:
                 self._restarted()
             mapped = self.sync.update(self.clock.unwrap(p.t_us), host_t)
             if isinstance(p, P.Motion):
@@ -110,8 +112,15 @@ class AdnsDecoder:
 
     def feed_many(self, ts: Iterable[float], pieces: Iterable[bytes]) -> Reports:
         """Feed recorded pieces (a capture's serial batch: host times and raw bytes) and
-        return all their motion reports at once."""
-        parts = [self.feed(bytes(d), float(t))[0] for t, d in zip(ts, pieces, strict=True)]
+        return all their motion reports at once.  An empty piece marks where the port was
+        opened again (``AdnsSource`` records one at each reopen): ``reopen`` there, as
+        the live source did."""
+        parts = []
+        for t, d in zip(ts, pieces, strict=True):
+            if len(d):
+                parts.append(self.feed(bytes(d), float(t))[0])
+            else:
+                self.reopen()
         parts = [r for r in parts if len(r)]
         if not parts:
             return Reports(self.name, np.zeros(0), np.zeros(0), np.zeros(0))
@@ -130,12 +139,18 @@ class AdnsDecoder:
         )
         return out
 
+    def reopen(self) -> None:
+        """The port was opened again: drop a partial frame, keep every counter, the
+        sequence and the clock mapping (the firmware may have run on; if it restarted,
+        its next packet says so)."""
+        self.parser.reopen()
+
     def _restarted(self) -> None:
-        # The firmware's clock went backwards: it rebooted.  Its new clock has nothing
-        # to do with the old one.
+        # The firmware rebooted (the parser saw its clock or sequence begin again).  Its
+        # new clock has nothing to do with the old one.
         self.clock.reset()
         self.sync.reset()
-        self.health.reboots += 1
+        self.health.clock_resets += 1
 
     def _motion(self, p: P.Motion) -> None:
         h = self.health
@@ -166,14 +181,15 @@ class AdnsDecoder:
         h.firmware_rx_errors = p.rx_errors
 
     def stats(self) -> dict[str, Any]:
-        """Everything for ``SourceHealth.extra``: sensor health and line counters."""
+        """Everything for ``SourceHealth.extra``: sensor health and line counters (no
+        name in both: one would hide the other)."""
         return {**self.health.as_dict(), **self.parser.stats.as_dict()}
 
     @property
     def lost(self) -> int:
-        """Packets known lost: sequence gaps plus frames refused by CRC or framing."""
-        s = self.parser.stats
-        return s.lost_seq + s.crc_errors + s.bad_frames
+        """Packets known lost, each once: those missing by sequence number.  Frames
+        refused by CRC or framing (``crc_errors``, ``bad_frames``) are why, not more."""
+        return self.parser.stats.lost_seq
 
 
 def packets_to_reports(

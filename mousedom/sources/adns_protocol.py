@@ -271,32 +271,71 @@ class ParserStats:
     bad_frames: int = 0  # malformed COBS, wrong length, unknown type, impossible values
     resyncs: int = 0  # times bytes were thrown away to find the next frame boundary
     discarded_bytes: int = 0
-    lost_seq: int = 0  # sequence numbers that never arrived
-    reboots: int = 0  # the device restarted (its sequence began again at 0)
+    # Packets the device sent that never arrived, by sequence number: each lost packet
+    # once, whatever lost it (a refused frame, an overrun, an unplugged adapter).  The
+    # counters above are the reasons, not more losses.
+    lost_seq: int = 0
+    reboots: int = 0  # the device restarted (its clock and its sequence began again)
+    duplicates: int = 0  # the last packet received again, field for field: dropped
+    reopens: int = 0  # the port was opened again (``Parser.reopen``)
 
     def as_dict(self) -> dict[str, int]:
         return dict(self.__dict__)
 
 
+# How a restart of the device is told from a sequence gap or a clock wrap (``Parser``).
+FW_WRAP = 1 << 32  # the firmware's 32-bit microsecond clock
+MIN_PACKET_US = 500  # the device sends at most one packet per 0.5 ms (115200 baud: ~1.1 ms)
+MIN_JUMP = 256  # smaller sequence gaps are losses whatever the clock says
+CLOCK_SLACK_S = 10.0  # the firmware clock may run ahead of the host's by this much, and
+MAX_DRIFT = 1e-3  # by this fraction of the host's elapsed time (crystals, clocksync)
+
+
 @dataclass
 class Parser:
-    """Incremental frame parser; one per serial port.  Never raises on any input."""
+    """Incremental frame parser; one per serial port.  Never raises on any input.
+
+    Sequence accounting (``stats.lost_seq``) counts every packet that never arrived once,
+    from the sequence numbers alone.  A restart of the device (its ``seq`` and ``t_us``
+    both begin again from 0) is recognised from the packet that first arrives after it:
+
+    * its firmware clock is earlier than the last packet's (and not a 32-bit wrap);
+    * or its clock is further ahead than the host's own clock went (plus 10 s): a
+      "wrap" that the host saw take seconds is a new clock;
+    * or its sequence number jumped by ``MIN_JUMP`` or more (a jump back is one of nearly
+      the whole range) sooner than the device could have sent that many packets (a loss
+      across the wrap, 65535 then 1, is a gap of one);
+    * or it is the first MOTION of a boot (BOOT flag) with a lower sequence number than
+      expected.
+
+    After a restart the packets of the new boot before it (``seq`` of them) are lost;
+    what the old boot sent after the last packet that arrived cannot be known.  A packet
+    that repeats the last one (every field the same) is dropped and counted in
+    ``duplicates``.  ``reopen()`` drops a partial frame but keeps the sequence."""
 
     stats: ParserStats = field(default_factory=ParserStats)
     _buf: bytearray = field(default_factory=bytearray)
     _skipping: bool = False  # inside an overlong run: drop until the next 0x00
-    _expect_seq: int | None = None
+    _last: Packet | None = None  # the last packet taken
 
     def feed(self, data: bytes, host_t: float | None = None) -> list[Packet]:
         """Parse ``data``; return the packets it completed, stamped with ``host_t``."""
+        return self.feed_marked(data, host_t)[0]
+
+    def feed_marked(
+        self, data: bytes, host_t: float | None = None
+    ) -> tuple[list[Packet], list[bool]]:
+        """As ``feed``, and for each packet whether it is the first seen after a restart
+        of the device (its clock began again: the decoder's clock mapping must too)."""
         out: list[Packet] = []
+        restarts: list[bool] = []
         self.stats.bytes += len(data)
         start = 0
         while True:
             end = data.find(b"\0", start)
             if end < 0:
                 self._append(data[start:])
-                return out
+                return out, restarts
             self._append(data[start:end])
             start = end + 1
             if self._skipping:
@@ -306,8 +345,26 @@ class Parser:
             if not chunk:
                 continue  # 0x00 0x00: an empty frame is just idle line
             packet = self._frame(chunk, host_t)
-            if packet is not None:
-                out.append(packet)
+            if packet is None:
+                continue
+            restarted = self._sequence(packet, host_t)
+            if restarted is None:
+                continue  # a duplicate
+            self.stats.packets += 1
+            out.append(packet)
+            restarts.append(restarted)
+
+    def reopen(self) -> None:
+        """The port was closed and opened again (live, or a capture's reopen marker).
+
+        The bytes of a frame begun before are dropped: they cannot be the start of the
+        frame that comes next.  The sequence carries on, so that the packets sent while
+        the port was closed count as lost (unless the device restarted meanwhile)."""
+        if self._buf:
+            self.stats.discarded_bytes += len(self._buf)
+        self._buf = bytearray()
+        self._skipping = False
+        self.stats.reopens += 1
 
     def _append(self, part: bytes) -> None:
         if self._skipping:
@@ -328,21 +385,50 @@ class Parser:
         except ValueError:
             self.stats.bad_frames += 1
         else:
-            self._sequence(packet.seq)
-            self.stats.packets += 1
             return packet
         self.stats.resyncs += 1
         self.stats.discarded_bytes += len(chunk) + 1
         return None
 
-    def _sequence(self, seq: int) -> None:
-        expect = self._expect_seq
-        if expect is not None and seq != expect:
-            if seq == 0:
-                self.stats.reboots += 1  # the firmware numbers from 0 after a reset
-            else:
-                self.stats.lost_seq += (seq - expect) % SEQ_MOD
-        self._expect_seq = (seq + 1) % SEQ_MOD
+    def _sequence(self, p: Packet, host_t: float | None) -> bool | None:
+        """Count what the sequence says was lost; True when ``p`` is the first packet seen
+        after a restart of the device, None when it repeats the last one."""
+        last = self._last
+        if last is not None and p.seq == last.seq and _same(p, last):
+            self.stats.duplicates += 1
+            return None
+        self._last = p
+        if last is None:
+            return False
+        expect = (last.seq + 1) % SEQ_MOD
+        gap = (p.seq - expect) % SEQ_MOD
+        if self._restarted(p, last.t_us, last.host_t, host_t, expect, gap):
+            self.stats.reboots += 1
+            self.stats.lost_seq += p.seq  # the new boot's packets before this one
+            return True
+        self.stats.lost_seq += gap
+        return False
+
+    @staticmethod
+    def _restarted(
+        p: Packet, t0: int, host0: float | None, host_t: float | None, expect: int, gap: int
+    ) -> bool:
+        if 0 < t0 - p.t_us <= FW_WRAP // 2:
+            return True  # the clock went back
+        ahead = (p.t_us - t0) % FW_WRAP  # microseconds, a wrap taken as such
+        if host0 is not None and host_t is not None:
+            host = max(host_t - host0, 0.0)
+            if ahead * 1e-6 > host * (1 + MAX_DRIFT) + CLOCK_SLACK_S:
+                return True  # a "wrap" the host saw take far less time: a new clock
+        if gap >= MIN_JUMP and ahead < gap * MIN_PACKET_US:
+            return True  # the sequence jumped further than the clock let it (went back)
+        boot = isinstance(p, Motion) and bool(p.flags & FLAG_BOOT)
+        return boot and p.seq < expect
+
+
+def _same(a: Packet, b: Packet) -> bool:
+    """The same packet, but for the host time of its arrival."""
+    return type(a) is type(b) and {**a.__dict__, "host_t": None} == {**b.__dict__, "host_t": None}
 
 
 def parse_commands(data: bytes) -> list[tuple[int, int | None]]:
