@@ -178,6 +178,7 @@ class Client:
         self._pending: deque[dict[str, Any]] = deque()
         self._ids = itertools.count(1)
         self.sources: dict[str, dict[str, Any]] = {}
+        self.version: dict[str, Any] = {}  # the latest VERSION (_read keeps it)
         try:
             self.version = self._read()
         except (EOFError, OSError, ValueError) as e:
@@ -204,8 +205,14 @@ class Client:
         if not line:
             raise EOFError("the daemon closed the connection")
         msg = json.loads(line)
-        if msg.get("class") == "SOURCE":
+        cls = msg.get("class")
+        if cls == "SOURCE":
             self.sources[msg.get("name")] = msg
+        elif cls == "VERSION":
+            # Again after a reload that changed what it says (docs/protocol.md): the
+            # sensors' SOURCE lines follow it, and a sensor it no longer names is gone.
+            self.version = msg
+            self.sources.clear()
         return msg
 
     def messages(self) -> Iterator[dict[str, Any]]:

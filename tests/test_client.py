@@ -438,3 +438,51 @@ def test_poses_at_a_rate_start_after_its_answer(tmp_path):
     th.join(5)
     srv.close()
     assert got == [0.08, 0.12]
+
+
+def test_a_version_after_a_reload_replaces_the_clients_and_its_sources(tmp_path):
+    """A reload that changes the sensors sends a fresh VERSION, then each sensor's SOURCE
+    (docs/protocol.md): the client's ``version`` is the latest, and a sensor the new one
+    no longer names leaves ``sources``.  A scripted daemon."""
+    import socket as _socket
+    import threading
+
+    path = str(tmp_path / "d.sock")
+    srv = _socket.socket(_socket.AF_UNIX, _socket.SOCK_STREAM)
+    srv.bind(path)
+    srv.listen(1)
+
+    def line(msg: dict) -> bytes:
+        return (json.dumps(msg) + "\n").encode()
+
+    def pose(t: float, used: int) -> bytes:
+        return line({"class": "POSE", "t": t, "x": t, "y": 0.0, "theta": 0.0, "vx": 0.0,
+                     "vy": 0.0, "omega": 0.0, "cov": [[0.0] * 3] * 3, "used": used,
+                     "updating": True, "missing": []})  # fmt: skip
+
+    def talk() -> None:
+        conn, _ = srv.accept()
+        conn.sendall(
+            line({"class": "VERSION", "rate_hz": 50.0, "sensors": ["a", "b"]})
+            + line({"class": "SOURCE", "name": "a"})
+            + line({"class": "SOURCE", "name": "b"})
+            + pose(0.02, 2)
+            + line({"class": "VERSION", "rate_hz": 25.0, "sensors": ["a"]})
+            + line({"class": "SOURCE", "name": "a"})
+            + pose(0.06, 1)
+        )
+        conn.close()
+
+    th = threading.Thread(target=talk)
+    th.start()
+    with Client(path, timeout=5) as c:
+        got = []
+        for p in c:
+            got.append(p.used)
+            if len(got) == 1:
+                assert c.version["sensors"] == ["a", "b"] and set(c.sources) == {"a", "b"}
+        assert got == [2, 1]
+        assert c.version["sensors"] == ["a"] and c.version["rate_hz"] == 25.0
+        assert set(c.sources) == {"a"}
+    th.join(5)
+    srv.close()

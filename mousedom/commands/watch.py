@@ -95,10 +95,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         client.rate(args.rate)
         v = client.version
-        header = (
-            f"mousedom {v.get('release')} at {client.path}: model {v.get('model')}, "
-            f"{v.get('rate_hz')} Hz, sensors {', '.join(v.get('sensors', []))}"
-        )
+        header = _header(v, client.path)
         screen = Screen(out, out.isatty() and not args.json)
         if args.json:
             print(json.dumps(v), file=out, flush=True)
@@ -107,10 +104,13 @@ def run(args: argparse.Namespace) -> int:
         n = 0
         for msg in client.messages():
             cls = msg.get("class")
+            if cls == "VERSION":  # a reload changed the sensors, the rate or the model
+                header = _header(msg, client.path)
             if args.json:
                 print(json.dumps(msg), file=out, flush=True)
-            elif cls == "SOURCE" and not screen.tty:
-                print("source " + view.source_line(msg), file=out, flush=True)
+            elif cls in ("VERSION", "SOURCE") and not screen.tty:
+                text = header if cls == "VERSION" else "source " + view.source_line(msg)
+                print(text, file=out, flush=True)
             elif cls == "POSE" or (cls == "SOURCE" and screen.tty):
                 screen.show(header, msg if cls == "POSE" else None, client.sources)
             if cls == "POSE":
@@ -125,3 +125,12 @@ def run(args: argparse.Namespace) -> int:
         if screen is not None:
             screen.close()
         client.close()
+
+
+def _header(version: dict, path: str) -> str:
+    """The line that says which daemon is watched (from its VERSION)."""
+    v = version
+    return (
+        f"mousedom {v.get('release')} at {path}: model {v.get('model')}, "
+        f"{v.get('rate_hz')} Hz, sensors {', '.join(v.get('sensors', []))}"
+    )

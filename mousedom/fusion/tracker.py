@@ -347,6 +347,10 @@ class Tracker:
         them before the slower mice's reports for them came (a report reaches a period
         back), and those counts would land in a later window.
 
+        The pose goes on as it was, with its covariance (and the point that covariance is
+        taken at): a reload changes how the rig is read from now on, not what is known of
+        where it is (a ``reset`` to the same pose would zero the uncertainty).
+
         ``kept``: (index here, index in ``old``) of each sensor on an unchanged device.  It
         keeps its count function (its reports, what they owe the open windows, how far
         they are complete, its liveness and counters), its counts closed so far and its
@@ -356,6 +360,8 @@ class Tracker:
         t0 = old.frontier_time
         if self.t0 != t0 or self._grid.closed:
             raise ValueError(f"carry: the grid must start at the old frontier {t0}, not {self.t0}")
+        old.settle()  # (the pose with what the old windows' learning gave back)
+        self._carried.take(old._carried)
         clocks = list(self._clocks)
         carried = set()
         for i, j in kept:

@@ -75,6 +75,14 @@ class Carried:
         self.cov = cov.tolist()
         self.at = self.pose[:2]
 
+    def take(self, other: Carried) -> None:
+        """``other``'s state as it is (a reload's new tracker goes on from the old one's
+        pose and covariance, ``Tracker.carry``): copies, so that the two never share a
+        list."""
+        self.pose = [float(v) for v in other.pose]
+        self.cov = [[float(v) for v in row] for row in other.cov]
+        self.at = [float(v) for v in other.at]
+
     def give_back(self, turn: float, walk: list[float]) -> None:
         """Turn and move the pose by what renewed scales would have given meanwhile
         (``ScaleLearner.take_turn``); the covariance is carried with the position."""

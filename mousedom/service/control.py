@@ -73,9 +73,14 @@ class ClientCommands:
         self.loop = loop
 
     def on_connect(self, client: Client) -> list[dict[str, Any]]:
-        config = self.running.config
-        banner = version_message(config.rate_hz, config.names, client.control, config.model)
+        banner = client.version = self.version(client)
         return [banner, *self.publisher.source_messages(self.clock())]
+
+    def version(self, client: Client) -> dict[str, Any]:
+        """The VERSION ``client`` is told, as the running config says it now (sent on
+        connect, and again after a reload that changes it: reload.py)."""
+        config = self.running.config
+        return version_message(config.rate_hz, config.names, client.control, config.model)
 
     def on_command(self, client: Client, cmd: Command) -> list[dict[str, Any]]:
         a = cmd.args

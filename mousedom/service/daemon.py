@@ -45,6 +45,7 @@ from mousedom.service.running import Running
 from mousedom.service.sdnotify import Notifier, watchdog_interval
 from mousedom.service.server import Client, Command, Server
 from mousedom.service.slots import Sensors, Slot
+from mousedom.service.socketfile import default_socket_path
 from mousedom.service.wake import WAKE_SLACK_S, plan_wake
 from mousedom.sources.base import Source
 
@@ -142,6 +143,7 @@ class Daemon:
             self.server,
             Tracker,
             self._restart_only,
+            self.commands.version,
         )
         self.started = clock()
         self.wakes = 0  # loop iterations: what the reading policy costs (see _plan)
@@ -413,10 +415,15 @@ class Daemon:
     def _status_line(self) -> str:
         return self.sensors.status_line(len(self.server.clients))
 
-    def _restart_only(self, new: Config) -> list[str]:
-        """What of a reloaded config takes effect only at a restart, where it changed."""
+    def _restart_only(self, old: Config, new: Config) -> list[str]:
+        """What of a reloaded config takes effect only at a restart, where it changed from
+        the config it replaces (``old``)."""
         changed = []
-        if new.server.socket and new.server.socket != self.server.path:
+        # The config's own value against its previous one: the path in use may be
+        # `run --socket`'s, which no config names.  A change to the path in use (written
+        # into the config now, say) changes nothing at a restart either.
+        socket = new.server.socket
+        if socket != old.server.socket and (socket or default_socket_path()) != self.server.path:
             changed.append("server.socket")
         # (not warned when the file has none: `run --metrics` may have turned it on)
         running = self.metrics.cfg if self.metrics is not None else None

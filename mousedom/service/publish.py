@@ -23,7 +23,7 @@ from mousedom.service.protocol import encode, encode_pose, source_message
 from mousedom.service.running import Running
 from mousedom.service.scales import ScaleLog, scale_fields
 from mousedom.service.server import Server
-from mousedom.service.slots import Slot
+from mousedom.service.slots import Slot, WindowNames
 
 log = logging.getLogger(__name__)
 
@@ -34,11 +34,11 @@ class SensorView(Protocol):
     """What the publisher reads of the sensors (slots.Sensors)."""
 
     slots: list[Slot]
-    missing_names: tuple[str, ...]
-    # (excluded, suspect) names per pattern of states met so far: names_for fills it
-    names_by_state: dict[tuple[int, ...], tuple[tuple[str, ...], tuple[str, ...]]]
+    # (missing, excluded, suspect) names per pattern of states met so far: names_for
+    # fills it
+    names_by_state: dict[tuple[int, ...], WindowNames]
 
-    def names_for(self, state: Sequence[int]) -> tuple[tuple[str, ...], tuple[str, ...]]: ...
+    def names_for(self, state: Sequence[int]) -> WindowNames: ...
 
 
 class Outputs:
@@ -137,9 +137,9 @@ class SocketOutput(Output):
             row.cov,
             row.used,
             row.ok,
-            sensors.missing_names,
             names[0],
             names[1],
+            names[2],
             row.consistent,
             row.gyro,
         )

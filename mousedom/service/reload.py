@@ -9,21 +9,29 @@ mouse's report closes when it comes, as without a reload (``Tracker.carry``).  A
 reload closes is in no window after that; one it opens joins them once open, as a sensor
 that comes back does (``Sensors.replace``).  ``Reloader`` is given the parts it changes; it
 swaps the running config and tracker (running.py) for all of them at once.
+
+The pose carries over with its covariance (``Tracker.carry``): a reload changes how the
+rig is read from now on, not what is known of where it is.  A connected client whose
+VERSION no longer says what the daemon does (the sensors, the rate, the model, whether it
+may control) gets a fresh VERSION, and then each sensor's SOURCE, after the POSE lines of
+the old config's windows and before any of the new one's (docs/protocol.md): the POSE
+lines' ``used``, ``missing`` and ``excluded`` count from the sensors it names.
 """
 
 from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from mousedom.config import Config, load_config
 from mousedom.errors import UserError
 from mousedom.service.live_record import Recording
+from mousedom.service.protocol import encode
 from mousedom.service.publish import Publisher
 from mousedom.service.running import Running
 from mousedom.service.sdnotify import Notifier
-from mousedom.service.server import Server
+from mousedom.service.server import Client, Server
 from mousedom.service.slots import Sensors, sensors_of
 
 if TYPE_CHECKING:
@@ -44,7 +52,8 @@ class Reloader:
         publisher: Publisher,
         server: Server,
         tracker_class: type[Tracker],
-        restart_only: Callable[[Config], list[str]],
+        restart_only: Callable[[Config, Config], list[str]],
+        version: Callable[[Client], dict[str, Any]],
     ) -> None:
         self.running = running
         self.clock = clock
@@ -53,8 +62,12 @@ class Reloader:
         self.publisher = publisher
         self.server = server
         self.tracker_class = tracker_class
-        # What of a new config takes effect only at a restart (the daemon knows)
+        # What of a new config takes effect only at a restart (the daemon knows), given
+        # the config it replaces and the new one
         self.restart_only = restart_only
+        # The VERSION a client is sent on connect, as the running config says it now
+        # (control.ClientCommands.version)
+        self.version = version
 
     def reload(self) -> None:
         path = self.running.config.path
@@ -72,18 +85,35 @@ class Reloader:
         self.publisher.publish(old.poll())
         self.publisher.log_scales()
         tracker = self.tracker_class(new, t0=old.frontier_time)
-        tracker.reset(**self.publisher.pose_now())
-        tracker.carry(old, self.sensors.kept(sensors_of(new)))
+        tracker.carry(old, self.sensors.kept(sensors_of(new)))  # the pose, its covariance
         self._stop_recording_if_mice_changed(new)
         self.publisher.fold_window_health()  # the old slots' last windows, before they move
+        previous = self.running.config
         self.running.replace(new, tracker)
+        self.server.apply_settings(new.server)  # (a client's control, for its VERSION)
+        # Before the slots change: a sensor the reload opens sends its SOURCE at once.
+        told = self._announce_version()
         self.sensors.replace(sensors_of(new), now)
-        for what in self.restart_only(new):
+        if told:  # as on connect: the VERSION, then each sensor's SOURCE
+            self.publisher.socket.sources(self.publisher.source_messages(now), now)
+        for what in self.restart_only(previous, new):
             log.warning("%s changed: takes effect at the next restart", what)
-        self.server.apply_settings(new.server)
         log.info("reloaded %s: %d mice, model %s", path, len(new.mice), new.model)
         status = self.sensors.status_line(len(self.server.clients))
         self.notifier.notify(READY=1, STATUS=status)
+
+    def _announce_version(self) -> bool:
+        """A fresh VERSION to each client whose last one no longer says what the daemon
+        does (its sensors, rate, model, or the client's control changed), queued after
+        the POSE lines already made for it; whether any client was told."""
+        told = False
+        for client in list(self.server.clients.values()):
+            banner = self.version(client)
+            if banner != client.version:
+                client.version = banner
+                self.server.send(client, encode(banner))
+                told = True
+        return told
 
     def _load(self, path: str | None) -> Config | None:
         """The new config, or None (logged, told to systemd) if it does not load whole."""

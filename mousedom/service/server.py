@@ -92,6 +92,9 @@ class Client:
         self.paused = False  # rate 0: no POSE at all
         self.next_t: float | None = None
         self.lines_out = 0
+        # The last VERSION it was sent (set by the daemon's on_connect): a reload that
+        # changes what it says sends a fresh one (reload.py)
+        self.version: dict[str, Any] | None = None
 
     def __repr__(self) -> str:
         return f"client fd={self.fd} pid={self.pid} uid={self.uid}"
@@ -141,6 +144,7 @@ class Server:
         self.on_connect = on_connect
         self.clients: dict[int, Client] = {}
         self.listener: socket.socket | None = None
+        self.access: socketfile.Access | None = None  # the socket file's mode and group
         self.dropped = 0  # clients dropped for not reading (owed lines overflowing, idle)
         self.refused = 0  # clients refused for the client limit
         # The daemon's running time: wall time with its own stalls cut to MAX_TICK_S, so a
@@ -153,7 +157,7 @@ class Server:
     # ------------------------------------------------------------------ lifecycle
 
     def open(self) -> None:
-        sock = socketfile.listen(self.path, self.settings)
+        sock, self.access = socketfile.listen(self.path, self.settings)
         self.listener = sock
         self.selector.register(sock, selectors.EVENT_READ, self._accept)
 
@@ -175,13 +179,11 @@ class Server:
                 pass
 
     def apply_settings(self, settings: ServerConfig) -> None:
-        """New limits after a reload; the socket path and existing clients stay."""
+        """New limits after a reload, and the socket file's group and mode as at start
+        (``socketfile.reapply``); the socket path and existing clients stay."""
         self.settings = settings
-        if self.listener is not None:
-            try:
-                os.chmod(self.path, settings.mode)
-            except OSError as e:
-                log.warning("cannot set mode of %s: %s", self.path, e)
+        if self.listener is not None and self.access is not None:
+            self.access = socketfile.reapply(self.access, settings)
         for c in self.clients.values():
             c.queue_limit = settings.queue_lines
             c.rx.max_line = settings.max_line

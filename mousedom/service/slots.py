@@ -68,6 +68,8 @@ class PlannedSensor(NamedTuple):
 
 
 Sensor = MouseConfig | GyroConfig  # what a slot reads: a mouse, or the rig's gyro
+# A window's (missing, excluded, suspect) sensor names, as its POSE line says them
+WindowNames = tuple[tuple[str, ...], tuple[str, ...], tuple[str, ...]]
 
 
 @dataclass
@@ -147,7 +149,7 @@ class Sensors:
         self.by_fd: dict[int, Slot] = {}
         self.missing_names: tuple[str, ...] = ()  # see _live_changed
         self.plan: list[PlannedSensor] = []
-        self.names_by_state: dict[tuple[int, ...], tuple[tuple[str, ...], tuple[str, ...]]] = {}
+        self.names_by_state: dict[tuple[int, ...], WindowNames] = {}
         self.reads = 0  # source reads: what the reading policy costs
         self.started = False  # after start(): a sensor that fails to open is retried
 
@@ -393,17 +395,27 @@ class Sensors:
             if s.live
         ]
 
-    def names_for(self, state: Sequence[int]) -> tuple[tuple[str, ...], tuple[str, ...]]:
-        """(excluded, suspect) sensor names for a window's per-mouse states (cached per
-        pattern: a rig has few, and this runs for every window)."""
+    def names_for(self, state: Sequence[int]) -> WindowNames:
+        """(missing, excluded, suspect) sensor names for a window's per-mouse states
+        (cached per pattern: a rig has few, and this runs for every window).
+
+        Missing: the mice that were not live over the window (those gone, and one not
+        yet used in the window it came back or was opened in by a reload), and a sensor
+        beyond the mice (the gyro) that is not live now; so the mice the window used are
+        the config's less the missing and the excluded (docs/protocol.md).  A mouse lost
+        after the window's end, before its POSE was sent, was used in it: it is missing
+        from the next window on."""
         key = tuple(state)  # rows from arrays hold lists
         names = self.names_by_state.get(key)
         if names is None:
+            n = len(key)
+            mi = tuple(s.name for i, s in enumerate(self.slots)
+                       if (key[i] == Health.MISSING if i < n else not s.live))  # fmt: skip
             ex = tuple(s.name for s, v in zip(self.slots, key, strict=False)
                        if v == Health.EXCLUDED)  # fmt: skip
             su = tuple(s.name for s, v in zip(self.slots, key, strict=False)
                        if v == Health.SUSPECT)  # fmt: skip
-            names = self.names_by_state[key] = (ex, su)
+            names = self.names_by_state[key] = (mi, ex, su)
         return names
 
     def status_line(self, clients: int) -> str:

@@ -3,7 +3,7 @@
 The directory must belong to this user or root (nobody else could swap the socket), the
 file gets ``server.group`` and ``server.mode`` before anyone can connect, a socket left by
 a crash is removed and one with a live daemon behind it refused (before any sensor is
-opened and grabbed).
+opened and grabbed).  A reload sets the group and mode again, the same way (``reapply``).
 """
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ import logging
 import os
 import socket
 import stat
+from dataclasses import dataclass, replace
 
 from mousedom.config import ServerConfig
 from mousedom.errors import UserError
@@ -54,9 +55,28 @@ def check_path(path: str) -> None:
         )
 
 
-def listen(path: str, settings: ServerConfig) -> socket.socket:
+@dataclass(frozen=True)
+class Access:
+    """The socket file a daemon listens at and who may reach it: the file's identity
+    (device, inode), the group it was made with (what it has without ``server.group``),
+    and the mode and group set on it."""
+
+    path: str
+    identity: tuple[int, int]
+    made_gid: int
+    mode: int
+    gid: int
+
+
+def _group_id(group: str | None) -> int | None:
+    """``server.group``'s id (None: none named); KeyError if there is no such group."""
+    return None if not group else grp.getgrnam(group).gr_gid
+
+
+def listen(path: str, settings: ServerConfig) -> tuple[socket.socket, Access]:
     """The listening socket at ``path``, made with the owner, group and mode the settings
-    say (nobody gets in before they apply); a stale socket left by a crash is removed."""
+    say (nobody gets in before they apply), and what was set on it; a stale socket left
+    by a crash is removed."""
     check_path(path)
     directory = os.path.dirname(path) or "."
     try:
@@ -70,12 +90,10 @@ def listen(path: str, settings: ServerConfig) -> socket.socket:
             f"{directory}: belongs to uid {owner}, not to this user or root; "
             "not putting the socket there (give --socket)"
         )
-    gid = None
-    if settings.group:
-        try:
-            gid = grp.getgrnam(settings.group).gr_gid
-        except KeyError:
-            raise UserError(f"{path}: server.group: no group named {settings.group!r}") from None
+    try:
+        gid = _group_id(settings.group)
+    except KeyError:
+        raise UserError(f"{path}: server.group: no group named {settings.group!r}") from None
     remove_stale(path)
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM | socket.SOCK_CLOEXEC)
     old_umask = os.umask(0o177)  # nobody gets in before chmod below says who may
@@ -87,6 +105,7 @@ def listen(path: str, settings: ServerConfig) -> socket.socket:
     finally:
         os.umask(old_umask)
     try:
+        made = os.lstat(path)
         if gid is not None:
             os.chown(path, -1, gid)
         os.chmod(path, settings.mode)
@@ -96,7 +115,61 @@ def listen(path: str, settings: ServerConfig) -> socket.socket:
         raise UserError(f"{path}: cannot set owner or mode: {e.strerror}") from None
     sock.listen(16)
     sock.setblocking(False)
-    return sock
+    access = Access(path, (made.st_dev, made.st_ino), made.st_gid, settings.mode,
+                    made.st_gid if gid is None else gid)  # fmt: skip
+    return sock, access
+
+
+def reapply(access: Access, settings: ServerConfig) -> Access:
+    """A reload's ``server.group`` and ``server.mode`` on the socket in use, as ``listen``
+    sets them (no group named: the group it was made with); what is set now.
+
+    Both or neither: a group that does not exist or cannot be given (not root, and not a
+    member of it) keeps the mode as it is too, with one logged line, for a new mode on
+    the old group could open the socket to the wrong people.  While the group changes, the
+    file has only the permissions both the old and the new mode give to owner and others,
+    and none to a group, so nobody can connect in between who could not before and after.
+    Clients already connected stay (a Unix socket's permissions are checked at connect).
+    """
+    path = access.path
+    try:
+        gid = _group_id(settings.group)
+    except KeyError:
+        log.error(
+            "server.group: no group named %r: the socket %s keeps mode %04o and group %d",
+            settings.group, path, access.mode, access.gid,
+        )  # fmt: skip
+        return access
+    if gid is None:
+        gid = access.made_gid
+    try:
+        st = os.lstat(path)
+    except OSError as e:
+        log.warning("%s: %s; its mode and group are not changed", path, e.strerror)
+        return access
+    if not stat.S_ISSOCK(st.st_mode) or (st.st_dev, st.st_ino) != access.identity:
+        log.warning("%s: not the socket this daemon made any more; not touching it", path)
+        return access
+    if gid != st.st_gid:
+        try:
+            os.chmod(path, access.mode & settings.mode & 0o707)
+            os.chown(path, -1, gid)
+        except OSError as e:
+            log.error(
+                "%s: cannot give it to group %s: %s; it keeps mode %04o and group %d",
+                path, settings.group or gid, e.strerror, access.mode, st.st_gid,
+            )  # fmt: skip
+            try:
+                os.chmod(path, access.mode)
+            except OSError:
+                pass
+            return replace(access, gid=st.st_gid)
+    try:
+        os.chmod(path, settings.mode)
+    except OSError as e:
+        log.warning("cannot set mode of %s: %s", path, e.strerror)
+        return replace(access, gid=gid)
+    return replace(access, mode=settings.mode, gid=gid)
 
 
 def refuse_if_taken(path: str) -> None:
