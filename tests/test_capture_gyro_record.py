@@ -93,8 +93,12 @@ def test_run_record_keeps_the_gyro_samples_that_were_fused(tmp_path):
     sat = np.zeros(40, bool)
     sat[[3, 4, 30]] = True  # read at the converter's limit
     try:
-        while d.recording is None or not os.path.exists(d.server.path):
+        started = time.monotonic() + 30  # (a daemon that fails to start: no hang)
+        while (d.recording is None or not os.path.exists(d.server.path)) and (
+            th.is_alive() and time.monotonic() < started
+        ):
             time.sleep(0.01)
+        assert d.recording is not None and os.path.exists(d.server.path)
         gyro.write(t, rate, sat)
         mice["a"].write([now + 0.01], [5.0], [-7.0])
         deadline = time.monotonic() + 5

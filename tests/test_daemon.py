@@ -544,8 +544,12 @@ def test_reload_that_removes_a_mouse_closes_it_and_stops_the_recording(tmp_path)
     th = threading.Thread(target=d.run)
     th.start()
     try:
-        while d.recording is None or not os.path.exists(d.server.path):
+        started = time.monotonic() + 30  # (a daemon that fails to start: no hang)
+        while (d.recording is None or not os.path.exists(d.server.path)) and (
+            th.is_alive() and time.monotonic() < started
+        ):
             time.sleep(0.01)
+        assert d.recording is not None and os.path.exists(d.server.path)
         now = time.monotonic()
         made["b"].write([now], [5.0], [-7.0])
         deadline = time.monotonic() + 5
