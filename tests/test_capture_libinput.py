@@ -327,3 +327,34 @@ def test_replay_of_two_devices_cut_in_a_row_loses_that_row_only(tmp_path):
     assert "2 devices recorded (ndevices), 1 in the file" in proc.stderr
     row = next(ln for ln in proc.stdout.splitlines() if ln.startswith("left "))
     assert int(row.split()[3]) == int(truth["left"][1].sum())  # the cut row was a SYN_REPORT
+
+
+@pytest.mark.parametrize("first", ["evdev", "udev", "events", "node"])
+def test_a_device_written_as_a_flow_mapping_is_read_whatever_key_comes_first(tmp_path, first):
+    """A dumper that sorts keys writes '- {evdev: ..., node: ...}': the second device of
+    two, so written, was taken for a recording cut before it (the flow-mapping test knew
+    only 'node' first) and dropped (tests/regress/libinput-flow-device)."""
+    import yaml
+
+    header = "version: 1\nndevices: 2\nlibinput: {version: 1.25.0}\nsystem: {kernel: 6.8.0}\n"
+    block = (
+        "devices:\n- node: /dev/input/event5\n  evdev:\n    name: a\n"
+        "    id: [3, 1133, 49271, 273]\n"
+        "    codes: {0: [0], 2: [0, 1]}\n  events:\n"
+        "  - evdev:\n    - [  0, 100000,   2,   0,     1]\n    - [  0, 100000,   0,   0,     0]\n"
+    )
+    device = {
+        "node": "/dev/input/event6",
+        "evdev": {"name": "b", "id": [3, 1133, 49272, 273], "codes": {0: [0], 2: [0, 1]}},
+        "udev": {"properties": ["ID_INPUT_MOUSE=1"]},
+        "events": [{"evdev": [[0, 150000, 2, 0, 5], [0, 150000, 0, 0, 0]]}],
+    }
+    ordered = {first: device[first], **{k: v for k, v in device.items() if k != first}}
+    lines = yaml.safe_dump(ordered, default_flow_style=True, sort_keys=False, width=80)
+    flow = "- " + lines.replace("\n", "\n  ").rstrip() + "\n"  # one list item, a flow mapping
+    p = tmp_path / "two.yml"
+    p.write_text(header + block + flow)
+    cap = open_capture(str(p))
+    assert [d.name for d in cap.devices] == ["a", "b"]
+    assert not [w for w in cap.open_warnings if "cut off" in w]
+    assert drain(p).stats[1].net_x == 5

@@ -62,7 +62,9 @@ BLOCK_BYTES = 4 << 20
 _DEVICE = re.compile(rb"(?m)^[ \t]*- node[ \t]*:")
 # What the line scan cannot read (capture.libinput_layout re-lays such files out): a
 # device written as a flow mapping, an event row as a block list ("- - 0").
-_FLOW_DEVICE = re.compile(rb"(?m)^[ \t]*- \{[ \t]*[\"']?node[\"']?[ \t]*:")
+_FLOW_DEVICE = re.compile(
+    rb"(?m)^[ \t]*- \{[ \t]*[\"']?(?:node|evdev|udev|events|hid|quirks)[\"']?[ \t]*:"
+)
 _BLOCK_ROW = re.compile(rb"(?m)^[ \t]*- - ")
 _EVENTS = re.compile(rb"(?m)^[ \t]+events:[ \t]*(?:#.*)?$")
 # A top-level key after the devices began: a second recording appended (``cat a.yml b.yml``).
