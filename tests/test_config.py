@@ -189,3 +189,16 @@ def test_a_key_given_twice_is_an_error():
         parse_config(text, "rig.yaml")
     with pytest.raises(ConfigError, match=r"rig.yaml:4: rate_hz: given twice \(first on line 1\)"):
         parse_config(GOOD.replace("mice:", "rate_hz: 50\nmice:"), "rig.yaml")
+
+
+@pytest.mark.parametrize("wheels", [
+    "{radius: -0.05, track: 0.3, ticks_per_rev: 360}",
+    "{radius: 0, radius_left: 0.05, radius_right: 0.05, track: 0.3, ticks_per_rev: 360}",
+])  # fmt: skip
+def test_a_wheel_radius_that_is_no_radius_names_the_key_written(wheels):
+    """wheels.radius -0.05 was refused as 'wheels.radius_left' (a key nobody wrote), and
+    accepted without a word where both wheels' own radii stood beside it."""
+    text = GOOD.replace("integrator: exact\n", f"integrator: exact\nwheels: {wheels}\n")
+    with pytest.raises(ConfigError) as err:
+        parse_config(text, "rig.yaml", need_sources=False)
+    assert str(err.value).startswith("rig.yaml:4: wheels.radius: must be a positive number")

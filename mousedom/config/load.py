@@ -43,7 +43,8 @@ def _robust(r: Reader) -> RobustConfig:
 
 def _wheels(r: Reader) -> WheelsConfig:
     w = r.sub("wheels", ("radius", "radius_left", "radius_right", "track", "ticks_per_rev"))
-    radius = w.number("radius") if w.has("radius") else None  # both wheels', unless said
+    # both wheels', unless said; checked where written (a bad one was named radius_left)
+    radius = w.number("radius", positive=True) if w.has("radius") else None
     wheels = WheelsConfig(
         radius_left=w.number("radius_left", radius, positive=True),
         radius_right=w.number("radius_right", radius, positive=True),
