@@ -121,38 +121,36 @@ class NativeCapture(Capture):
         start): absent or null, or a time at most GRID_START_LEAD after the first stamp
         (the daemon takes reports from its start less its sources' latency: a grid begun
         later would lump earlier reports into its first window); CaptureError otherwise."""
-        stated = self.header.get("grid_start")
-        if stated is None:
-            return None
-        if isinstance(stated, bool) or not isinstance(stated, (int, float)):
-            what = "is not a number"
-        elif not plausible_time(stated):
-            what = "is not a time (a finite number of seconds below 1e10)"
-        else:
-            first = self.first_time()
-            if first is None or stated <= first + GRID_START_LEAD:
-                return float(stated)
-            what = f"is later than the first stamp ({first!r}) by more than {GRID_START_LEAD} s"
-        raise CaptureError(
-            located(self.path, None, f"byte offset {HEADER_JSON_OFFSET}: header: grid_start "
-                    f"{stated!r:.40} {what}")
-        )  # fmt: skip
+        stated = self._header_time("grid_start")
+        first = self.first_time() if stated is not None else None
+        if stated is None or first is None or stated <= first + GRID_START_LEAD:
+            return stated
+        raise self._header_error("grid_start", stated, f"is later than the first stamp "
+                                 f"({first!r}) by more than {GRID_START_LEAD} s")  # fmt: skip
 
     def _stated_first_time(self) -> float | None:
         """The header's ``first_time``: absent (or null), or a finite number of seconds
         (not a bool, not a string); CaptureError naming it otherwise."""
-        stated = self.header.get("first_time")
+        return self._header_time("first_time")
+
+    def _header_time(self, key: str) -> float | None:
+        """A header time (``first_time``, ``grid_start``): absent (or null), or a finite
+        number of seconds (not a bool, not a string); CaptureError naming it otherwise."""
+        stated = self.header.get(key)
         if stated is None:
             return None
         if isinstance(stated, bool) or not isinstance(stated, (int, float)):
-            what = "not a number"
-        elif not plausible_time(stated):
-            what = "not a time (a finite number of seconds below 1e10)"
-        else:
-            return float(stated)
-        raise CaptureError(
-            located(self.path, None, f"byte offset {HEADER_JSON_OFFSET}: header: first_time "
-                    f"{stated!r:.40} is {what}")
+            raise self._header_error(key, stated, "is not a number")
+        if not plausible_time(stated):
+            raise self._header_error(
+                key, stated, "is not a time (a finite number of seconds below 1e10)"
+            )
+        return float(stated)
+
+    def _header_error(self, key: str, stated: object, what: str) -> CaptureError:
+        return CaptureError(
+            located(self.path, None, f"byte offset {HEADER_JSON_OFFSET}: header: {key} "
+                    f"{stated!r:.40} {what}")
         )  # fmt: skip
 
     def _scan_first_time(self) -> tuple[float | None, int]:
