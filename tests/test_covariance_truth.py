@@ -82,3 +82,34 @@ def test_end_pose_nees_averages_three(path, lifted):
     assert abs(nees.mean() - 3.0) < band, (nees.mean(), band)
     # and its spread is a chi-square's, not a covariance right only on average
     assert np.var(nees) == pytest.approx(6.0, rel=0.4)
+
+
+def test_a_mouse_with_unequal_axis_cpis_is_not_overconfident():
+    """Two mice of 400 by 1600 CPI (one turned 90 degrees), the config's sigma their true
+    noise: the covariance comes from the config (two mice).  sigma in metres was taken at
+    the mean CPI, 51 um on both axes where REL_X errs by 127: the end pose's NEES was 11.2.
+    One isotropic sigma per mouse cannot be right along both axes; the root mean square of
+    the two (units.sigma_metres) keeps their summed variance: 3.4 here (the direction of
+    each error is not modelled: the bound allows for it)."""
+    rate, sigma, runs = 10.0, 2.0, 200
+    mice = (sim.SimMouse("a", 0.0, 0.12, cpi_x=400.0, cpi_y=1600.0, report_hz=rate,
+                         noise=sigma, quantize=False),
+            sim.SimMouse("b", 0.05, -0.12, yaw=90.0, cpi_x=400.0, cpi_y=1600.0,
+                         report_hz=rate, noise=sigma, quantize=False))  # fmt: skip
+    rig = sim.Rig(mice, rate_hz=rate)
+    text = sim.rig_yaml(rig).replace("    flip: false", f"    flip: false\n    sigma: {sigma}")
+    config = parse_config(text, "<anisotropic>", need_sources=False)
+    trajectory = sim.sequence(sim.arc(1.0, 1.5, 0.3), sim.turn(-3.0, 3.0),
+                              sim.arc(1.0, 0.5, 0.2))  # fmt: skip
+    values = []
+    for seed in range(runs):
+        result = sim.simulate(rig, trajectory, seed=seed)
+        tracker = Tracker(config, t0=0.0)
+        for name, r in result.reports.items():
+            tracker.push(name, r.t, r.dx, r.dy)
+        last = tracker.finish()
+        e = np.asarray(tracker.pose) - result.truth(np.array([float(last.t[-1])]))[0]
+        e[2] = (e[2] + math.pi) % (2 * math.pi) - math.pi
+        values.append(float(e @ np.linalg.solve(np.asarray(tracker.pose_cov), e)))
+    mean = float(np.mean(values))
+    assert 1.5 < mean < 4.0, mean
