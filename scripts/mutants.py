@@ -192,7 +192,7 @@ MUTANTS = [
     Mutant(
         "protocol-id-unchecked",
         "mousedom/service/protocol.py",
-        '    cmd_id = _valid_id(obj["id"]) if "id" in obj else None\n',
+        '    cmd_id = _valid_id(obj.get("id"))\n',
         '    cmd_id = obj.get("id")\n',
         ("tests/test_server_protocol.py",),
         "an id that cannot be echoed as JSON (1e999) reaches the reply",

@@ -15,7 +15,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from mousedom.service.output import Pose2
-from mousedom.service.protocol import error_message, ok_message, version_message, with_id
+from mousedom.service.protocol import error_message, ok_message, version_message
 from mousedom.service.running import Running
 from mousedom.service.server import Client, Command
 
@@ -124,5 +124,6 @@ class ClientCommands:
             "counts_in": np.asarray(tracker.counts_in).tolist(),
             "counts_out": np.asarray(tracker.counts_out).tolist(),
         }
-        with_id(status, cmd_id)
+        if cmd_id is not None:
+            status["id"] = cmd_id
         return status

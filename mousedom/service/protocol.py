@@ -42,24 +42,6 @@ MAX_DEPTH = 8
 MAX_ID_CHARS = 128
 
 
-class _NullId:
-    """A command's ``"id": null``: an id, repeated as null in its answers (None is a
-    command without one, whose answers carry none)."""
-
-    def __repr__(self) -> str:
-        return "NULL_ID"
-
-
-NULL_ID: Any = _NullId()
-
-
-def with_id(msg: dict[str, Any], id: Any) -> dict[str, Any]:
-    """``msg`` with the command's id repeated, where it had one (``NULL_ID``: null)."""
-    if id is not None:
-        msg["id"] = None if id is NULL_ID else id
-    return msg
-
-
 class ProtocolError(ValueError):
     """A client line that is not a valid command; the message goes back in an ERROR.
 
@@ -158,7 +140,7 @@ def parse_command(line: bytes) -> Command:
         raise ProtocolError(f"invalid JSON: {str(e)[:80]}") from None
     if not isinstance(obj, dict):
         raise ProtocolError('a command is a JSON object such as {"cmd": "status"}')
-    cmd_id = _valid_id(obj["id"]) if "id" in obj else None
+    cmd_id = _valid_id(obj.get("id"))
     try:
         return _command(obj, cmd_id)
     except ProtocolError as e:
@@ -195,9 +177,7 @@ def _nesting_beyond(text: str, limit: int) -> int | None:
 def _valid_id(value: Any) -> Any:
     """The command's id if it can be echoed back as it came (a short string, a finite
     number, true/false or null); anything else is refused without echoing it."""
-    if value is None:
-        return NULL_ID
-    if isinstance(value, bool):
+    if value is None or isinstance(value, bool):
         return value
     if isinstance(value, str) and len(value) <= MAX_ID_CHARS:
         return value
@@ -402,8 +382,14 @@ def source_message(health: dict[str, Any], **extra: Any) -> dict[str, Any]:
 
 
 def error_message(text: str, id: Any = None) -> dict[str, Any]:
-    return with_id({"class": "ERROR", "message": text}, id)
+    msg: dict[str, Any] = {"class": "ERROR", "message": text}
+    if id is not None:
+        msg["id"] = id
+    return msg
 
 
 def ok_message(cmd: str, id: Any = None, **extra: Any) -> dict[str, Any]:
-    return with_id({"class": "OK", "cmd": cmd, **extra}, id)
+    msg: dict[str, Any] = {"class": "OK", "cmd": cmd, **extra}
+    if id is not None:
+        msg["id"] = id
+    return msg
