@@ -8,6 +8,7 @@ import numpy as np
 from conftest import external_dir, run_mousedom
 
 from mousedom.capture import open_capture
+from mousedom.capture.evemu import format_evemu
 
 GOLDEN = Path(__file__).resolve().parent / "golden"
 
@@ -63,3 +64,14 @@ def replay_ps2(cfg: Path, *extra: str, **kw):
     return run_mousedom(
         "replay", "--config", str(cfg), "--capture", f"m={external_dir() / PS2}", *extra, **kw
     )
+
+
+def evemu_captures(folder: Path, result, prefix: str = "") -> list[str]:
+    """Each mouse of a simulated run (``sim.simulate``'s result) as an evemu file in
+    ``folder`` (``<prefix><mouse>.evemu``); the ``--capture NAME=FILE`` arguments."""
+    args = []
+    for name, r in result.reports.items():
+        path = folder / f"{prefix}{name}.evemu"
+        path.write_text(format_evemu(r.t, r.dx, r.dy, name=name))
+        args += ["--capture", f"{name}={path}"]
+    return args

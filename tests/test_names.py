@@ -12,11 +12,11 @@ import dataclasses
 import re
 
 import pytest
+from capture_helpers import evemu_captures
 from conftest import run_mousedom
 from hypothesis import given
 from hypothesis import strategies as st
 
-from mousedom.capture.evemu import format_evemu
 from mousedom.config import ConfigError, parse_config
 from mousedom.config.names import column_suffix, ros_token
 from mousedom.fusion import sim
@@ -82,11 +82,7 @@ def test_replay_names_topics_and_frames_by_the_tokens(tmp_path):
     config.write_text(sim.rig_yaml(rig).replace("front-left:", "'front-left':")
                       .replace("2nd:", "'2nd':"))  # fmt: skip
     res = sim.simulate(rig, sim.umbmark_square(cw=True, side=0.3, speed=0.3, turn_rate=1.0))
-    args = []
-    for name, r in res.reports.items():
-        path = tmp_path / f"{name}.evemu"
-        path.write_text(format_evemu(r.t, r.dx, r.dy, name=name))
-        args += ["--capture", f"{name}={path}"]
+    args = evemu_captures(tmp_path, res)
     out = tmp_path / "run.mcap"
     csv = tmp_path / "run.csv"
     proc = run_mousedom("replay", "--config", str(config), *args, "-o", str(csv),

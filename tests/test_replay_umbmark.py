@@ -6,20 +6,15 @@ import json
 import math
 
 import pytest
+from capture_helpers import evemu_captures
 from conftest import run_mousedom
 
-from mousedom.capture.evemu import format_evemu
 from mousedom.fusion import sim
 
 
 def write_run(tmp_path, cw: bool, rig: sim.Rig) -> list[str]:
     res = sim.simulate(rig, sim.umbmark_square(cw=cw, side=1.0, speed=0.5, turn_rate=1.0))
-    args = []
-    for name, r in res.reports.items():
-        path = tmp_path / f"{'cw' if cw else 'ccw'}-{name}.evemu"
-        path.write_text(format_evemu(r.t, r.dx, r.dy, name=name))
-        args += ["--capture", f"{name}={path}"]
-    return args
+    return evemu_captures(tmp_path, res, f"{'cw' if cw else 'ccw'}-")
 
 
 def _score(tmp_path, rig: sim.Rig, config_text: str, tag: str) -> tuple[dict, list[str]]:
