@@ -180,11 +180,11 @@ class Client:
         self.sources: dict[str, dict[str, Any]] = {}
         self.version: dict[str, Any] = {}  # the latest VERSION (_read keeps it)
         try:
-            self.version = self._read()
+            first = self._read()
         except (EOFError, OSError, ValueError) as e:
             self.close()
             raise NotADaemon(f"{self.path}: no VERSION banner ({e})") from None
-        if self.version.get("class") != "VERSION":
+        if first.get("class") != "VERSION":
             self.close()
             raise NotADaemon(f"{self.path}: not a mousedom socket (no VERSION banner)")
 

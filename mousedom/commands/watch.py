@@ -127,9 +127,8 @@ def run(args: argparse.Namespace) -> int:
         client.close()
 
 
-def _header(version: dict, path: str) -> str:
+def _header(v: dict, path: str) -> str:
     """The line that says which daemon is watched (from its VERSION)."""
-    v = version
     return (
         f"mousedom {v.get('release')} at {path}: model {v.get('model')}, "
         f"{v.get('rate_hz')} Hz, sensors {', '.join(v.get('sensors', []))}"

@@ -400,7 +400,7 @@ class Daemon:
     def _sources_changed(self, now: float) -> None:
         """A sensor came or went: the clients hear of it now, and systemd's status."""
         if self.server.clients:
-            self.publisher.socket.sources(self.publisher.source_messages(now), now)
+            self.publisher.send_sources(now)
         self._update_status()
 
     def _update_status(self) -> None:

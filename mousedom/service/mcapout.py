@@ -14,7 +14,6 @@ from collections.abc import Sequence
 from typing import Any
 
 from mousedom.config import Ros2Config
-from mousedom.config.names import ros_token
 from mousedom.errors import UserError
 from mousedom.fusion.posebatch import PoseBatch, PoseRow
 from mousedom.safewrite import open_stream
@@ -74,7 +73,7 @@ class McapRecorder(Output):
         self.odom_ch = channel(cfg.odom_topic, msgs.ODOMETRY)
         self.tf_ch = channel(cfg.tf_topic, msgs.TF)
         self.diag_ch = channel(cfg.diagnostics_topic, msgs.DIAGNOSTICS)
-        self.count_ch = [channel(f"/mousedom/{ros_token(s)}/counts", msgs.COUNTS) for s in sensors]
+        self.count_ch = [channel(conv.counts_topic(s), msgs.COUNTS) for s in sensors]
         self.odom_cdr = cdr.OdometryCdr(cfg.odom_frame, cfg.base_frame)
         self.tf_cdr = {
             False: cdr.TfCdr([(cfg.odom_frame, cfg.base_frame)]),

@@ -231,6 +231,10 @@ class Publisher:
                 slot.health_state, slot.health_reason = Health(st), Reason(why)
             self._last_health = None
 
+    def send_sources(self, now: float) -> None:
+        """Every sensor's SOURCE to the clients now (a sensor came or went, a reload)."""
+        self.socket.sources(self.source_messages(now), now)
+
     def source_messages(self, now: float) -> list[dict[str, Any]]:
         self.fold_window_health()
         config = self.running.config

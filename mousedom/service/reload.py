@@ -95,7 +95,7 @@ class Reloader:
         told = self._announce_version()
         self.sensors.replace(sensors_of(new), now)
         if told:  # as on connect: the VERSION, then each sensor's SOURCE
-            self.publisher.socket.sources(self.publisher.source_messages(now), now)
+            self.publisher.send_sources(now)
         for what in self.restart_only(previous, new):
             log.warning("%s changed: takes effect at the next restart", what)
         log.info("reloaded %s: %d mice, model %s", path, len(new.mice), new.model)

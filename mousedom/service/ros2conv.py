@@ -145,6 +145,11 @@ def transform(parent: str, child: str, st: dict[str, int], pose: Pose2) -> dict[
     }
 
 
+def counts_topic(name: str) -> str:
+    """A mouse's counts topic, named by its ROS 2 token (config.names.ros_token)."""
+    return f"/mousedom/{ros_token(name)}/counts"
+
+
 def mouse_frame(name: str) -> str:
     """The TF frame of a mouse's sensor (on /tf_static under the base frame), named as
     its counts topic is (config.names.ros_token)."""

@@ -28,7 +28,6 @@ from typing import Any
 from xml.sax.saxutils import quoteattr
 
 from mousedom.config import MouseConfig, Ros2Config
-from mousedom.config.names import ros_token
 from mousedom.errors import UserError
 from mousedom.fusion.posebatch import PoseRow
 from mousedom.service import ros2cdr as cdr
@@ -273,9 +272,7 @@ class Ros2Output(Output):
         self.diag = writer(cfg.diagnostics_topic, msgs.DIAGNOSTICS, 10) if cfg.diagnostics else None
         self.counts = []
         if cfg.counts:
-            self.counts = [
-                writer(f"/mousedom/{ros_token(s)}/counts", msgs.COUNTS, 10) for s in sensors
-            ]
+            self.counts = [writer(conv.counts_topic(s), msgs.COUNTS, 10) for s in sensors]
         # Each mouse's mount, once, kept for late joiners (as tf2's static broadcaster):
         # RViz draws the mice where the config puts them.
         self.tf_static = None

@@ -82,7 +82,7 @@ class Client:
         self.waiting_since: float | None = None  # running time since output has waited
         self.junk = float(JUNK_BURST)  # allowance for lines that carry nothing
         self.junk_t = 0.0  # running time of the allowance's last refill
-        self.denied = 0  # reset/fix lines refused for want of control (logged once)
+        self.denied_logged = False  # a reset/fix refused for want of control was logged
         self.want_write = False  # registered for EVENT_WRITE (a tail is waiting)
         # False once the peer has shut its sending side (EOF): it may still be reading,
         # as `echo status | nc -U` is (a client is dropped only for not reading).
@@ -182,7 +182,7 @@ class Server:
         """New limits after a reload, and the socket file's group and mode as at start
         (``socketfile.reapply``); the socket path and existing clients stay."""
         self.settings = settings
-        if self.listener is not None and self.access is not None:
+        if self.access is not None:  # (open: the socket file is there)
             self.access = socketfile.reapply(self.access, settings)
         for c in self.clients.values():
             c.queue_limit = settings.queue_lines
@@ -317,8 +317,8 @@ class Server:
             # A refused line carries nothing either: it draws on the allowance, and a
             # client that floods them is dropped (24,550 in 5 s were each answered and
             # logged); the journal hears of the first only.
-            client.denied += 1
-            if client.denied == 1:
+            if not client.denied_logged:
+                client.denied_logged = True
                 log.warning("%r may not %s the pose (server.control_uids/gids); further "
                             "refusals to it are not logged", client, cmd.name)  # fmt: skip
             self._junk(client)

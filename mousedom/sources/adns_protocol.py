@@ -18,6 +18,8 @@ import binascii
 import struct
 from dataclasses import dataclass, field, fields
 
+from mousedom.sources.clocksync import WRAP, went_back
+
 PROTO_VERSION = 1
 
 PKT_MOTION = 0x01
@@ -284,7 +286,6 @@ class ParserStats:
 
 
 # How a restart of the device is told from a sequence gap or a clock wrap (``Parser``).
-FW_WRAP = 1 << 32  # the firmware's 32-bit microsecond clock
 MIN_PACKET_US = 500  # the device sends at most one packet per 0.5 ms (115200 baud: ~1.1 ms)
 MIN_JUMP = 256  # smaller sequence gaps are losses whatever the clock says
 CLOCK_SLACK_S = 10.0  # the firmware clock may run ahead of the host's by this much, and
@@ -413,9 +414,9 @@ class Parser:
     def _restarted(
         p: Packet, t0: int, host0: float | None, host_t: float | None, expect: int, gap: int
     ) -> bool:
-        if 0 < t0 - p.t_us <= FW_WRAP // 2:
+        if went_back(t0, p.t_us):
             return True  # the clock went back
-        ahead = (p.t_us - t0) % FW_WRAP  # microseconds, a wrap taken as such
+        ahead = (p.t_us - t0) % WRAP  # microseconds, a wrap taken as such
         if host0 is not None and host_t is not None:
             host = max(host_t - host0, 0.0)
             if ahead * 1e-6 > host * (1 + MAX_DRIFT) + CLOCK_SLACK_S:

@@ -22,6 +22,12 @@ from dataclasses import dataclass
 WRAP = 1 << 32  # the firmware's 32-bit microsecond counter
 
 
+def went_back(last_us: int, t_us: int) -> bool:
+    """``t_us`` is earlier than ``last_us`` on the firmware clock, and not by a wrap (a
+    wrap moves it back by more than half the counter): the firmware restarted."""
+    return 0 < last_us - t_us <= WRAP // 2
+
+
 @dataclass
 class FirmwareClock:
     """Unwraps the firmware's 32-bit microsecond stamps into seconds since its boot."""
@@ -39,7 +45,7 @@ class FirmwareClock:
 
     def is_backwards(self, t_us: int) -> bool:
         """True when ``t_us`` is earlier than the last stamp (and not a wrap): a reboot."""
-        return self._last_raw is not None and 0 < self._last_raw - t_us <= WRAP // 2
+        return self._last_raw is not None and went_back(self._last_raw, t_us)
 
     def reset(self) -> None:
         self._last_raw, self._epoch = None, 0
