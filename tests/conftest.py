@@ -17,9 +17,15 @@ from hypothesis import HealthCheck, settings
 
 # In CI the property tests run derandomized: the same (large) set of examples every run, so a
 # red CI always means a change broke something, never that a new random example was drawn.
-# On developer machines they keep exploring new examples.
+# On developer machines they keep exploring new examples.  No deadline in CI: the suite's
+# workers share the machine's cores (README), and an example's time is the bench's business,
+# not a test's (a slow example is no wrong one).
 settings.register_profile(
-    "ci", derandomize=True, database=None, suppress_health_check=[HealthCheck.too_slow]
+    "ci",
+    derandomize=True,
+    database=None,
+    deadline=None,
+    suppress_health_check=[HealthCheck.too_slow],
 )
 if os.environ.get("CI"):
     settings.load_profile("ci")
@@ -68,6 +74,22 @@ def mousedom_env(**extra: str) -> dict[str, str]:
     env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
     env.update(extra)
     return env
+
+
+def dds_domain(low: int = 100, high: int = 230) -> int:
+    """A DDS domain in [low, high) for a test whose participants share the host's loopback:
+    random (what an earlier run left behind on its domain cannot reach this one), and one
+    that no other worker draws where pytest-xdist runs the suite's workers side by side
+    (README's test command), so that two tests' daemons never hear each other.  Tests in a
+    network namespace of their own (test_ros2_interop) need none of this."""
+    import random
+
+    count = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    worker = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw"))
+    mine = [d for d in range(low, high) if d % count == worker % count]
+    if not mine:
+        raise LookupError(f"no DDS domain in [{low}, {high}) for worker {worker} of {count}")
+    return random.Random().choice(mine)
 
 
 def a_group() -> str:

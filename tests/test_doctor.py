@@ -16,7 +16,7 @@ import tempfile
 from pathlib import Path
 
 import pytest
-from conftest import a_group, mousedom_env
+from conftest import a_group, dds_domain, mousedom_env
 from daemon_fixtures import DaemonProcess
 from test_evdev_fakes import add_device
 
@@ -120,7 +120,7 @@ def demo_daemon(tmp_path_factory):
     its own) where cyclonedds is installed."""
     run = tmp_path_factory.mktemp("doctor") / "run"
     ros2 = importlib.util.find_spec("cyclonedds") is not None
-    domain = str(150 + os.getpid() % 80)
+    domain = str(dds_domain())
     env = {"ROS_DOMAIN_ID": domain}
     args = ("--demo", "--ros2") if ros2 else ("--demo",)
     d = DaemonProcess(Path("unused"), run / "mousedom.sock", *args, env=env, config_args=False)

@@ -12,7 +12,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import random
 import subprocess
 import sys
 import threading
@@ -21,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import run_mousedom
+from conftest import dds_domain, run_mousedom
 from daemon_fixtures import REPO, Conn, DaemonProcess, Feeder, FifoMouse, write_rig_config
 from ros2_checks import match_odometry
 from rosbags.typesys import Stores, get_typestore
@@ -188,7 +187,7 @@ def dds_env(tmp_path):
     env["CYCLONEDDS_URI"] = LOOPBACK
     env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
     env.pop("ROS_DOMAIN_ID", None)
-    return env, random.Random().randrange(100, 230)
+    return env, dds_domain()
 
 
 @pytest.mark.parametrize("distro", ["humble", "jazzy"])

@@ -32,7 +32,11 @@ from ros2_checks import match_odometry
 
 ROS_PY = os.environ.get("MOUSEDOM_ROS2_PYTHON") or str(REPO / ".ros-venv" / "bin" / "python")
 INSTALL = "bash scripts/ros2_venv.sh"
-MICE = ("front", "left", "right")  # the demo rig's
+# The names a user may give the demo rig's mice (front, left, right), and the ROS 2 token
+# each one's topic and frame must carry (docs/ros2.md): written out here, not computed with
+# the function under test, so that a real node subscribing by them is the check.
+RENAMED = {"front": "front", "left": "left-rear", "right": "2nd"}
+TOKENS = {"front": "front", "left-rear": "left_rear", "2nd": "m_2nd"}
 NETNS = "ip link set lo up; ip link set lo multicast on; ip route add 224.0.0.0/4 dev lo; "
 
 
@@ -74,9 +78,18 @@ def _tf2_env(ros_py: str) -> str:
             f"AMENT_PREFIX_PATH={prefix}:{venv}")  # fmt: skip
 
 
-def _config(tmp: Path, domain: int, extra: str = "") -> Path:
+def _config(tmp: Path, domain: int, extra: str = "", names: dict | None = None) -> Path:
+    """The demo rig's config on the given domain; ``names``: each demo mouse's new name
+    (its device in the capture stays the demo's)."""
     demo = (REPO / "mousedom" / "data" / "demo-rig.yaml").read_text()
-    demo = demo.replace("demo-rig.mdcap", str(REPO / "mousedom" / "data" / "demo-rig.mdcap"))
+    capture = REPO / "mousedom" / "data" / "demo-rig.mdcap"
+    demo = demo.replace("demo-rig.mdcap", str(capture))
+    for old, new in (names or {}).items():
+        block = demo.index(f"  {old}:\n")
+        end = demo.index(f"replay: {capture}", block)
+        demo = (demo[:block] + f"  {new}:\n" + demo[block + len(old) + 4 : end]
+                + f"replay: {{file: {capture}, device: simulated mouse {old}}}"
+                + demo[end + len(f"replay: {capture}") :])  # fmt: skip
     cfg = tmp / "rig.yaml"
     cfg.write_text(demo + f"outputs:\n  ros2: {{domain_id: {domain}, stamps: monotonic{extra}}}\n")
     return cfg
@@ -87,12 +100,19 @@ def _yaw(q: dict) -> float:
 
 
 def _run_pair(
-    ros2: str, tmp_path: Path, discovery: str, extra_cfg: str = "", env_extra: dict | None = None
+    ros2: str,
+    tmp_path: Path,
+    discovery: str,
+    extra_cfg: str = "",
+    env_extra: dict | None = None,
+    counts: tuple[str, ...] = (),
 ) -> tuple[list[dict], list[dict], str]:
     """The daemon and the rclpy node in one loopback-only namespace for a few seconds;
-    (the POSE lines read from the socket, the node's lines, its stderr)."""
+    (the POSE lines read from the socket, the node's lines, its stderr).  ``counts``: the
+    mice (by ROS 2 token) whose counts topics the node subscribes to, named as the demo's
+    mice are renamed (RENAMED) where it is given."""
     domain = random.Random().randrange(1, 100)
-    cfg = _config(tmp_path, domain, extra_cfg)
+    cfg = _config(tmp_path, domain, extra_cfg, RENAMED if counts else None)
     sock = tmp_path / "run" / "mousedom.sock"
     out = tmp_path / "rclpy.jsonl"
     env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
@@ -112,7 +132,7 @@ def _run_pair(
         f"{REPO / 'tests' / 'ros2_rclpy_subscriber.py'} {seconds} {out} "
         "/odom=nav_msgs/msg/Odometry /diagnostics=diagnostic_msgs/msg/DiagnosticArray "
         "/tf=tf2_msgs/msg/TFMessage "
-        + " ".join(f"/mousedom/{m}/counts=geometry_msgs/msg/Vector3Stamped" for m in MICE)
+        + " ".join(f"/mousedom/{m}/counts=geometry_msgs/msg/Vector3Stamped" for m in counts)
         + "; "
         "kill -TERM $daemon; wait $daemon"
     )
@@ -150,7 +170,8 @@ def _run_pair(
 
 @pytest.mark.parametrize("discovery", ["default", "LOCALHOST", "ROS_LOCALHOST_ONLY"])
 def test_an_rclpy_node_on_fast_dds_receives_odom_and_diagnostics(ros2, tmp_path, discovery):
-    poses, lines, stderr = _run_pair(ros2, tmp_path, discovery, ", counts: true")
+    poses, lines, stderr = _run_pair(ros2, tmp_path, discovery, ", counts: true",
+                                     counts=tuple(TOKENS.values()))  # fmt: skip
     nodes = [tuple(n) for n in lines[-1]["nodes"]]
     publishers = lines[-1]["publishers"]
     odoms = [x["msg"] for x in lines[:-1] if x["topic"] == "/odom"]
@@ -181,9 +202,12 @@ def test_an_rclpy_node_on_fast_dds_receives_odom_and_diagnostics(ros2, tmp_path,
         assert (tr["translation"]["x"], tr["translation"]["y"]) == pytest.approx(
             (p["x"], p["y"]), abs=1e-9)  # fmt: skip
         assert _yaw(tr["rotation"]) == pytest.approx(p["theta"], abs=1e-9)
-    # each mouse's counts, window by window, stamped as the windows
+    # each mouse's counts, window by window, stamped as the windows, on the topic its name's
+    # ROS 2 token names (a name with a dash or a leading digit is no ROS 2 name as it is)
     stamps = {round(p["t"], 6) for p in poses}
-    for m in MICE:
+    assert sorted(t for t, _ in publishers["/mousedom"] if t.endswith("/counts")) == sorted(
+        f"/mousedom/{m}/counts" for m in TOKENS.values())  # fmt: skip
+    for m in TOKENS.values():
         counts = [x["msg"] for x in lines[:-1] if x["topic"] == f"/mousedom/{m}/counts"]
         assert len(counts) > 100, (m, len(counts))
         assert all(c["header"]["frame_id"] == f"{m}_mouse" for c in counts), counts[0]
@@ -192,7 +216,7 @@ def test_an_rclpy_node_on_fast_dds_receives_odom_and_diagnostics(ros2, tmp_path,
         assert len(stamps.intersection(at)) > 100
         assert sum(abs(c["vector"]["y"]) for c in counts) > 100  # the demo rig drives
     names = {s["name"] for s in diags[-1]["status"]}
-    assert names == {"mousedom: front", "mousedom: left", "mousedom: right"}
+    assert names == {f"mousedom: {m}" for m in TOKENS}  # the names as the user wrote them
     assert all(s["level"] == 0 for s in diags[-1]["status"])
 
 
