@@ -301,3 +301,48 @@ def test_the_notes_say_what_the_engine_sees(model, mounts, seen):
     hides = any("lifted mouse reads as a pivot" in n for n in notes)
     assert hides == (not seen)
     assert flagged > 0.9 if seen else flagged < 0.1, flagged
+
+
+_TWO_MICE = (
+    "mice:\n"
+    "  a: {cpi: 800, mount: {x: 0.1, y: 0}, replay: {capture}}\n"
+    "  b: {cpi: 800, mount: {x: -0.1, y: 0}, replay: {capture}}\n"
+)
+
+
+@pytest.mark.parametrize("gyro, said", [
+    ("{name: mpu6050, path: /nonexistent/iio:device0, axis: x, sign: -1, sample_hz: 200}",
+     "gyro: IIO device (path '/nonexistent/iio:device0', name 'mpu6050'), axis -x along "
+     "body z, 200 Hz, noise 8.72665e-05 rad/s/sqrt(Hz), heading from the gyro and the mice"),
+    ("{name: bmi160, use: gyro, noise: 1e-4}",
+     "gyro: IIO device (name 'bmi160'), axis +z along body z, the device's own rate, noise "
+     "0.0001 rad/s/sqrt(Hz), heading from the gyro"),
+    ("{ros2: {topic: /imu/data, domain_id: 7}, use: mice}",
+     "gyro: ROS 2 topic /imu/data (domain 7, stamps system), axis +z along body z"),
+    ("{replay: {gyro_capture}}", "gyro: replay {gyro_capture}, axis +z"),
+])  # fmt: skip
+def test_the_gyro_is_said_with_its_source_axis_rate_and_use(tmp_path, gyro, said):
+    """check-config said nothing of a rig's gyro: where its rate comes from, its axis and
+    sign, its rate and noise and what the heading is taken from are a line of their own;
+    an IIO path absent here is a note, and an absent device with --require-devices, or a
+    gyro capture that is not there, an error."""
+    capture, gyro_capture = tmp_path / "run.mdcap", tmp_path / "gyro.mdcap"
+    for f in (capture, gyro_capture):
+        f.write_bytes(b"")  # (check-config only looks for the file)
+    cfg = tmp_path / "rig.yaml"
+    gyro_text = gyro.replace("{gyro_capture}", str(gyro_capture))
+    cfg.write_text(_TWO_MICE.replace("{capture}", str(capture)) + f"gyro: {gyro_text}\n")
+    p = run_mousedom("check-config", "--config", str(cfg))
+    assert p.returncode == 0, p.stderr
+    gyro_lines = [ln for ln in p.stdout.splitlines() if ln.startswith("  gyro: ")]
+    assert len(gyro_lines) == 1, p.stdout
+    assert said.replace("{gyro_capture}", str(gyro_capture)) in gyro_lines[0]
+    absent = "/nonexistent" in gyro
+    assert ("note: gyro: /nonexistent/iio:device0 does not exist" in p.stdout) == absent
+    p = run_mousedom("check-config", "--config", str(cfg), "--require-devices")
+    assert p.returncode == (1 if absent else 0), p.stderr
+    if "replay" in gyro:
+        gyro_capture.unlink()
+        p = run_mousedom("check-config", "--config", str(cfg))
+        assert p.returncode != 0
+        assert f"gyro.replay: {gyro_capture}: capture file not found" in p.stderr

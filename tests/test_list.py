@@ -6,6 +6,7 @@ import json
 import os
 from pathlib import Path
 
+import pytest
 from conftest import a_group, mousedom_env, run_mousedom
 from test_evdev_fakes import add_device
 
@@ -167,3 +168,38 @@ def test_list_names_the_iio_gyros_and_the_section_that_names_one(tmp_path):
     j = json.loads(run_mousedom("list", "--json", "--root", str(tmp_path)).stdout)
     assert [g["name"] for g in j["gyros"]] == ["mpu6050"]
     assert j["gyros"][0]["node"] == str(tmp_path / "dev" / "iio:device0")
+
+
+@pytest.mark.parametrize("gyro, code, said", [
+    ("{name: mpu6050}", 0, "gyro -> {root}/sys/bus/iio/devices/iio:device0 ({root}/dev/iio:"),
+    ("{path: /sys/bus/iio/devices/iio:device0}", 0, "gyro -> {root}/sys/bus/iio/devices/iio:"),
+    ("{name: nosuchgyro}", 1, "gyro: no IIO device is named 'nosuchgyro' (IIO devices: "),
+    ("{path: /sys/bus/iio/devices/iio:device7}", 1, "no such IIO device"),
+    ("{ros2: {topic: /imu/data}}", 0, "gyro: ROS 2 topic /imu/data"),
+])  # fmt: skip
+def test_list_with_config_says_which_iio_device_the_gyro_is(tmp_path, gyro, code, said):
+    """``list --config`` said which device each mouse is and nothing of the gyro: it now
+    says the IIO device the gyro's rule matches as the daemon finds it (under --root), or
+    why none (exit 1, as for a mouse); the JSON has it under config.gyro."""
+    from iio_fakes import add_gyro
+
+    root = tmp_path / "m"
+    add_device(root, 3, "Mouse", fifo=False)
+    add_gyro(root, 0, "mpu6050")
+    cfg = tmp_path / "rig.yaml"
+    mice = ("model: diff-drive\n"
+            "mice:\n  a: {cpi: 800, mount: {x: 0.1, y: 0}, evdev: {name: Mouse}}\n")  # fmt: skip
+    cfg.write_text(mice + f"gyro: {gyro}\n")
+    p = run_mousedom("list", "--root", str(root), "--config", str(cfg))
+    assert p.returncode == code, p.stdout + p.stderr
+    assert said.format(root=root) in p.stdout.split(f"{cfg}:")[1], p.stdout
+    j = json.loads(run_mousedom("list", "--json", "--root", str(root), "--config", str(cfg)).stdout)
+    g = j["config"]["gyro"]
+    assert (g["error"] is not None) == (code == 1)
+    if code == 0 and "ros2" not in gyro:
+        assert g["sysfs"] == f"{root}/sys/bus/iio/devices/iio:device0"
+        assert g["node"] == f"{root}/dev/iio:device0"
+    # no gyro: null, and no line
+    cfg.write_text(mice)
+    p = run_mousedom("list", "--json", "--root", str(root), "--config", str(cfg))
+    assert p.returncode == 0 and json.loads(p.stdout)["config"]["gyro"] is None

@@ -8,7 +8,7 @@ import os
 import sys
 
 from mousedom.commands import _options as options
-from mousedom.config import ConfigError, MouseConfig, load_config
+from mousedom.config import Config, ConfigError, GyroConfig, MouseConfig, load_config
 from mousedom.errors import UserError
 from mousedom.observability import blind_spots
 
@@ -19,7 +19,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="validate a rig config and print what it holds",
         description="Load a rig config and its calibration file, check every key (each "
         "mistake is reported with file, line and key), and print the rig: model, rate, "
-        "and each mouse's CPI, mount and source. Exit 0 when it would run.",
+        "each mouse's CPI, mount and source, and the gyro's. Exit 0 when it would run.",
     )
     options.add_default_config(p)
     p.add_argument(
@@ -57,6 +57,22 @@ def _device(m: MouseConfig) -> str | None:
     return None
 
 
+def _captures(cfg: Config) -> list[tuple[str, str]]:
+    """(key, file) of each capture the rig replays: the mice's and the gyro's."""
+    out = [(f"mice.{m.name}.replay", m.replay) for m in cfg.mice if m.replay]
+    if cfg.gyro is not None and cfg.gyro.replay:
+        out.append(("gyro.replay", cfg.gyro.replay))
+    return out
+
+
+def _devices(cfg: Config) -> list[tuple[str, str]]:
+    """(key, path) of each device node or port the rig names by path: mice and gyro."""
+    out = [(f"mice.{m.name}", dev) for m in cfg.mice if (dev := _device(m))]
+    if cfg.gyro is not None and cfg.gyro.path:
+        out.append(("gyro", cfg.gyro.path))
+    return out
+
+
 def _shared_paths(mice) -> list[tuple[str, list[str]]]:
     """Device paths that two or more mice name (after following links)."""
     by_path: dict[str, list[str]] = {}
@@ -65,6 +81,26 @@ def _shared_paths(mice) -> list[tuple[str, list[str]]]:
         if dev:
             by_path.setdefault(os.path.realpath(dev), []).append(m.name)
     return [(p, names) for p, names in by_path.items() if len(names) > 1]
+
+
+def _gyro(g: GyroConfig) -> str:
+    """The gyro's line: where its rate comes from, how it is mounted, what it is used for."""
+    if g.replay is not None:
+        source = f"replay {g.replay}" + (f" device {g.replay_device!r}" if g.replay_device else "")
+    elif g.ros2 is not None:
+        r = g.ros2
+        domain = r.domain_id if r.domain_id is not None else "$ROS_DOMAIN_ID"
+        source = f"ROS 2 topic {r.topic} (domain {domain}, stamps {r.stamps})"
+    else:
+        match = ", ".join(f"{k} {v!r}" for k, v in (("path", g.path), ("name", g.name)) if v)
+        source = f"IIO device ({match})"
+    rate = f"{g.sample_hz:g} Hz" if g.sample_hz is not None else "the device's own rate"
+    sign = "-" if g.sign < 0 else "+"
+    heading = {"both": "the gyro and the mice", "gyro": "the gyro", "mice": "the mice"}[g.use]
+    return (
+        f"  gyro: {source}, axis {sign}{g.axis} along body z, {rate}, noise "
+        f"{g.noise:g} rad/s/sqrt(Hz), heading from {heading}"
+    )
 
 
 def _limits(m) -> str:
@@ -76,27 +112,17 @@ def _limits(m) -> str:
     return "; " + ", ".join(parts) if parts else ""
 
 
-def run(args: argparse.Namespace) -> int:
-    try:
-        cfg = load_config(args.config, need_sources=not args.no_sources)
-    except ConfigError as e:
-        if args.no_sources:
-            raise
-        # The only problem may be mice without a source: say how to check such a rig.
-        try:
-            load_config(args.config, need_sources=False)
-        except UserError:
-            raise e from None
-        raise UserError(f"{e} (a rig for captures only: add --no-sources)") from None
-    for w in cfg.warnings:  # values that look like the wrong unit (mousedom.plausible)
-        print(f"mousedom: warning: {w}", file=sys.stderr)
-    print(f"{cfg.path}: {cfg.model} model, {cfg.integrator} integrator, {cfg.rate_hz:g} Hz")
+def _print_rig(cfg: Config) -> None:
+    """What the rig holds, a line a part: the mice, the gyro, fault tolerance (with what
+    the layout hides from it), the ROS 2 output."""
     for m in cfg.mice:
         print(
             f"  {m.name}: cpi {m.cpi_x:g}/{m.cpi_y:g}, mount ({m.mount.x:g}, {m.mount.y:g}) m, "
             f"yaw {math.degrees(m.mount.yaw):g} deg{', flipped' if m.flip else ''}, "
             f"{m.report_hz:g} Hz, source {_source(m)}{_limits(m)}"
         )
+    if cfg.gyro is not None:
+        print(_gyro(cfg.gyro))
     r = cfg.robust
     print(
         "  fault tolerance: "
@@ -121,6 +147,24 @@ def run(args: argparse.Namespace) -> int:
             f"domain {domain}, stamps {o.stamps}"
             + (f", tf {topic(o, o.tf_topic)}" if o.publish_tf or o.publish_map_tf else "")
         )
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        cfg = load_config(args.config, need_sources=not args.no_sources)
+    except ConfigError as e:
+        if args.no_sources:
+            raise
+        # The only problem may be mice without a source: say how to check such a rig.
+        try:
+            load_config(args.config, need_sources=False)
+        except UserError:
+            raise e from None
+        raise UserError(f"{e} (a rig for captures only: add --no-sources)") from None
+    for w in cfg.warnings:  # values that look like the wrong unit (mousedom.plausible)
+        print(f"mousedom: warning: {w}", file=sys.stderr)
+    print(f"{cfg.path}: {cfg.model} model, {cfg.integrator} integrator, {cfg.rate_hz:g} Hz")
+    _print_rig(cfg)
     shared = _shared_paths(cfg.mice)
     if shared:
         path, names = shared[0]
@@ -128,16 +172,15 @@ def run(args: argparse.Namespace) -> int:
             f"{cfg.path}: mice {' and '.join(names)} name one device, {path}: one device "
             "cannot be two mice (the daemon would keep the second out)"
         )
-    missing = [m for m in cfg.mice if m.replay and not os.path.isfile(m.replay)]
-    if missing:  # `mousedom run` would stop on it: not a valid rig yet
-        m = missing[0]
-        raise UserError(f"{cfg.path}: mice.{m.name}.replay: {m.replay}: capture file not found")
+    for key, capture in _captures(cfg):
+        if not os.path.isfile(capture):  # `mousedom run` would stop on it: not valid yet
+            raise UserError(f"{cfg.path}: {key}: {capture}: capture file not found")
     if cfg.calibration:
         state = "applied" if os.path.exists(cfg.calibration) else "not written yet"
         print(f"  calibration: {cfg.calibration} ({state})")
-    absent = [(m, dev) for m in cfg.mice if (dev := _device(m)) and not os.path.exists(dev)]
-    for m, dev in absent:
-        print(f"  note: mice.{m.name}: {dev} does not exist on this machine")
+    absent = [(key, dev) for key, dev in _devices(cfg) if not os.path.exists(dev)]
+    for key, dev in absent:
+        print(f"  note: {key}: {dev} does not exist on this machine")
     if absent and args.require_devices:
         raise UserError(f"{cfg.path}: {len(absent)} device(s) absent (--require-devices)", 1)
     return 0

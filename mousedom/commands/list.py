@@ -38,8 +38,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "-c",
         "--config",
         metavar="RIG.yaml",
-        help="also say which device each evdev mouse of this config matches; exit 1 if a "
-        "rule matches none or several",
+        help="also say which device each evdev mouse and the gyro of this config match; "
+        "exit 1 if a rule matches none or several",
     )
     options.add_root(p)
     p.set_defaults(func=run)
@@ -134,7 +134,36 @@ def config_matches(config_path: str, result: Scan) -> dict[str, dict[str, str | 
     return out
 
 
-def _config_text(config_path: str, matches: dict[str, dict[str, str | None]]) -> str:
+def config_gyro(config_path: str, root: str | None) -> dict[str, str | None] | None:
+    """The config's gyro: the IIO device its rule matches as the daemon finds it (its sysfs
+    folder and node), or why none; a capture or ROS 2 topic it stands in for one (a note,
+    no device); None where the rig has no gyro."""
+    from mousedom.sources.base import SourceUnavailable
+    from mousedom.sources.iio_sysfs import find_device
+
+    g = load_config(config_path).gyro
+    if g is None:
+        return None
+    out: dict[str, str | None] = {"sysfs": None, "node": None, "error": None, "note": None}
+    if g.replay is not None:
+        out["note"] = f"replay {g.replay}"
+    elif g.ros2 is not None:
+        out["note"] = f"ROS 2 topic {g.ros2.topic}"
+    else:
+        try:
+            dev = find_device(g, IioPaths.under(root or "/"), "gyro")
+        except SourceUnavailable as e:
+            out["error"] = str(e)
+        else:
+            out["sysfs"], out["node"] = str(dev.sysdir), str(dev.node)
+    return out
+
+
+def _config_text(
+    config_path: str,
+    matches: dict[str, dict[str, str | None]],
+    gyro: dict[str, str | None] | None,
+) -> str:
     lines = [f"{config_path}:"]
     if not matches:
         lines.append("  no evdev mice in this config")
@@ -144,6 +173,13 @@ def _config_text(config_path: str, matches: dict[str, dict[str, str | None]]) ->
         else:
             note = f" ({r['note']})" if r["note"] else ""
             lines.append(f"  {name} -> {r['node']}{note}")
+    if gyro is not None:
+        if gyro["error"]:
+            lines.append(f"  {gyro['error']}")
+        elif gyro["note"]:
+            lines.append(f"  gyro: {gyro['note']}")
+        else:
+            lines.append(f"  gyro -> {gyro['sysfs']} ({gyro['node']})")
     return "\n".join(lines) + "\n"
 
 
@@ -168,6 +204,7 @@ def run(args: argparse.Namespace) -> int:
     result = scan(paths)
     found = gyros(args.root)
     matches = config_matches(args.config, result) if args.config else None
+    gyro = config_gyro(args.config, args.root) if args.config else None
     if args.json:
         doc = {
             "input_dir": paths.dev_input,
@@ -181,13 +218,17 @@ def run(args: argparse.Namespace) -> int:
         if result.error:  # (the folder is there but could not be listed: devices unknown)
             doc["error"] = result.error
         if matches is not None:
-            doc["config"] = {"path": args.config, "mice": matches}
+            doc["config"] = {"path": args.config, "mice": matches, "gyro": gyro}
         sys.stdout.write(json.dumps(doc, indent=2) + "\n")
     else:
         sys.stdout.write(_text(result))
         sys.stdout.write("\n" + _gyro_text(found))
         if matches is not None:
-            sys.stdout.write("\n" + _config_text(args.config, matches))
-    if (matches and any(r["error"] for r in matches.values())) or result.error:
+            sys.stdout.write("\n" + _config_text(args.config, matches, gyro))
+    if (
+        (matches and any(r["error"] for r in matches.values()))
+        or (gyro is not None and gyro["error"])
+        or result.error
+    ):
         return 1
     return 0
