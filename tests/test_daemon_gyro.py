@@ -126,3 +126,87 @@ def test_the_daemon_fuses_a_real_iio_gyro_and_replays_to_the_same_pose(tmp_path)
     # late and count in the next, as a mouse's report may)
     assert [float(last[k]) for k in ("x", "y", "theta")] == pytest.approx(final, abs=3e-3)
     assert float(last["theta"]) == pytest.approx(truth[2], abs=0.01)
+
+
+def test_a_buffered_gyro_unplugged_without_a_word_from_its_poll_is_gone_and_comes_back(
+    tmp_path,
+):
+    """Since Linux 4.x an IIO buffer's poll returns no event once its device is
+    unregistered; only a read says ENODEV.  The FIFO's writer stays open here, so that the
+    node goes as silent as the kernel's (no data, no hang-up), while the device's sysfs
+    folder goes.  The daemon, which read the gyro only when its descriptor was readable,
+    kept it live for good and fused its silence as "no turn".  Now it is gone within its
+    silence bound (SOURCE says so, POSE names it missing), and once the device is back the
+    daemon's retry reattaches it and its samples count again."""
+    import shutil
+
+    from mousedom.sources.iio import SILENT_S
+
+    root = tmp_path / "iio"
+    sysdir = add_gyro(root)
+    node = root / "dev" / "iio:device0"
+    rig = dataclasses.replace(sim.three_mouse_rig(cpi=800.0), gyro=simgyro.SimGyro())
+    config_path = tmp_path / "rig.yaml"
+    config_path.write_text(_config_text(rig))
+    config = load_config(str(config_path))
+    mice = {m.name: PipeSource(m.name) for m in config.mice}
+
+    def factory(sensor, clock):
+        if isinstance(sensor, GyroConfig):
+            return GyroSource(sensor, IioPaths.under(str(root)), clock=clock)
+        return mice[sensor.name]
+
+    d = Daemon(config, str(tmp_path / "d.sock"), source_factory=factory, handle_signals=False)
+    th = threading.Thread(target=d.run)
+    th.start()
+    writer: Writer | None = None
+    feeding = threading.Event()
+    stop = threading.Event()
+
+    def feed() -> None:  # 200 Hz records stamped now, while ``feeding`` is set
+        while not stop.is_set():
+            if feeding.is_set() and writer is not None:
+                try:
+                    writer.write(gyro_records([100], [round(time.monotonic() * 1e9)]))
+                except BrokenPipeError:  # (no reader between the close and the reopen)
+                    pass
+            time.sleep(0.005)
+
+    feeder = threading.Thread(target=feed)
+    try:
+        deadline = time.monotonic() + 10
+        while not os.path.exists(d.server.path):
+            assert time.monotonic() < deadline, "the daemon did not start"
+            time.sleep(0.01)
+        wait_listening(Path(d.server.path), None, 10)
+        c = Conn(d.server.path)
+        writer = Writer(node)  # (the daemon holds the node open for reading by now)
+        feeder.start()
+        feeding.set()
+        c.until("SOURCE", lambda m: m["name"] == "gyro" and m["reports"] > 20)
+        # unplugged: the device's folder goes and the node says nothing more
+        feeding.clear()
+        shutil.rmtree(sysdir)
+        gone_at = time.monotonic()
+        gone = c.until("SOURCE", lambda m: m["name"] == "gyro" and not m["connected"])
+        took = time.monotonic() - gone_at
+        assert took < SILENT_S + 2.0, took
+        assert "went" in gone["error"], gone
+        assert "gyro" in c.until("POSE", lambda m: "gyro" in m["missing"])["missing"]
+        # back: the same rule finds it again at the daemon's next retry
+        add_gyro(root, node=False)
+        feeding.set()
+        back = c.until("SOURCE", lambda m: m["name"] == "gyro" and m["connected"]
+                       and m["live"] and m["reports"] > 0)  # fmt: skip
+        assert back["error"] is None, back
+        pose = c.until("POSE", lambda m: "gyro" not in m["missing"])
+        assert pose["missing"] == []
+    finally:
+        stop.set()
+        d.request_stop()
+        th.join(10)
+        if feeder.is_alive():
+            feeder.join(5)
+        if writer is not None:
+            writer.close()
+    assert not th.is_alive()

@@ -236,6 +236,10 @@ class Source(ABC):
     # Read on the daemon's own schedule (a replay hands over each report once due), not
     # when a descriptor is readable; nothing stamped before the read can still come.
     paced = False
+    # Read at every wake of the daemon even when its descriptor is not readable: a device
+    # whose removal its descriptor does not report (an IIO buffer's poll says nothing once
+    # the device is unregistered; only a read says ENODEV), so that a read finds out.
+    probe = False
     # A backend that bounds its stamps itself (before a rule of its own that needs them
     # bounded, as evdev's forward clamp) says so; read() then does not do it again.
     bounds_own_stamps = False

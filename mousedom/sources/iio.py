@@ -43,10 +43,16 @@ schedule.  What it costs: a stamp is late by the sensor's output period plus the
 transfer (a few ms on I2C, unknown to us), samples come no faster than the daemon's loop,
 and the rate between two reads is not seen at all (docs/gyro.md).
 
-Hotplug: the kernel wakes a reader of a removed device with ENODEV (or EOF), and a polled
-attribute that vanishes reads ENOENT: both raise ``SourceGone``; ``open()`` later finds the
-device again by the same rule.  Test hook: the character device may be a FIFO (the tests'
-records, packed as the kernel documents); a FIFO whose writer closed is an unplug.
+Hotplug: a read of a removed device's node gives ENODEV, and a polled attribute that
+vanishes reads ENOENT: both raise ``SourceGone``; ``open()`` later finds the device again
+by the same rule.  The buffer's poll does not report the removal (since Linux 4.x it
+returns no event once the device is unregistered), so the buffered source is read at
+every wake of the daemon (``probe``), and one that delivers nothing for ``silent_s``
+(SILENT_S, or ten sample periods where ``sample_hz`` is slower) is gone too: unplugged,
+its driver unbound, or its buffer disabled by another program.  Its windows then take
+the mice's heading, not a gyro that saw no turn.  Test hook: the character device may be
+a FIFO (the tests' records, packed as the kernel documents); a FIFO whose writer closed is
+an unplug.
 """
 
 from __future__ import annotations
@@ -104,6 +110,9 @@ READ_RECORDS = 1024  # records per os.read: a second of a 1 kHz gyro
 MAX_READS = 16  # per read() call, so that one busy source cannot starve the others
 BUFFER_SCANS = 256  # buffer/length at least this: ~1 s at 256 Hz before the kernel drops
 POLL_HZ = 100.0  # the polled fallback's rate when the config gives no sample_hz
+# A buffered gyro that delivers nothing for this long (or ten sample periods, where
+# sample_hz is slower) is gone: its poll does not say so (see the module).
+SILENT_S = 0.5
 CLOCK = "monotonic"  # the name current_timestamp_clock gives CLOCK_MONOTONIC
 
 
@@ -164,6 +173,7 @@ class GyroSource(Source):
         self._stream = False  # the node is a FIFO (tests): EOF with POLLHUP is the unplug
         self._rest = b""
         self._gone: str | None = None
+        self._heard_at: float | None = None  # when a read last gave records (None: not yet)
         self.sysfs = Attributes(name)  # what open wrote, and what close puts back
         self._due = -np.inf  # the polled fallback's next sample
         self.truncated_bytes = 0
@@ -233,6 +243,8 @@ class GyroSource(Source):
         self.raw_range = self.layout.field(self.channel).element.type.raw_range
         self.mode, self.polled_because = GyroMode.BUFFERED, None
         self.paced = False
+        self.probe = True  # its poll does not report an unplug: read it at every wake
+        self._heard_at = None  # silence is counted from the first read on
 
     def _open_node(self, dev: IioDevice) -> None:
         try:
@@ -301,6 +313,7 @@ class GyroSource(Source):
         self._set_rate(dev)
         self.mode, self.polled_because = GyroMode.POLLED, why
         self.paced = True  # no descriptor: read on the daemon's schedule
+        self.probe = False
         log.warning("%s: polling %s: %s (docs/gyro.md)", self.name, raw, why)
 
     def _polled_range(self, dev: IioDevice) -> tuple[int, int] | None:
@@ -374,11 +387,36 @@ class GyroSource(Source):
             self._update_health()
             if gone is not None:
                 raise SourceGone(gone)
+            self._check_silence(now)
             return None
+        self._heard_at = now
         raw = decoded.columns[self.channel]
         stamps = decoded.columns[TIMESTAMP].astype(np.float64) / 1e9
         rate = self.config.sign * (raw.astype(np.float64) + self.offset) * self.scale
         return self._stamped(stamps, rate, now, self._at_limit(raw))
+
+    @property
+    def silent_s(self) -> float:
+        """How long the buffer may deliver nothing before the device is taken to be gone."""
+        hz = self.config.sample_hz
+        return max(SILENT_S, 10.0 / hz) if hz else SILENT_S
+
+    def _check_silence(self, now: float) -> None:
+        """SourceGone where the buffer has delivered nothing for ``silent_s``: its poll
+        does not report an unplug (see the module), and a gyro that is live but silent
+        would be fused as one that saw no turn."""
+        if self._heard_at is None:
+            self._heard_at = now
+            return
+        if now - self._heard_at <= self.silent_s:
+            return
+        node = self.device.node if self.device else "device"
+        if self.device is not None and not self.device.sysdir.exists():
+            why = f"device gone ({self.device.sysdir} went)"
+        else:
+            why = (f"no sample for {self.silent_s:g} s (unplugged, its driver unbound, or "
+                   "its buffer disabled by another program?)")  # fmt: skip
+        raise SourceGone(f"{self.name}: {node}: {why}")
 
     def _read_bytes(self, chunk: int) -> tuple[bytes | None, str | None]:
         """What the node holds (with the last read's partial record in front), and why
