@@ -128,11 +128,17 @@ def pack_value(kind: str, value: int, junk: bool = False) -> bytes:
 
 
 def pack_records(
-    channels: Sequence[tuple[int, str]], rows: Sequence[Sequence[int]], junk: bool = False
+    channels: Sequence[tuple[int, str]],
+    rows: Sequence[Sequence[int]],
+    junk: bool = False,
+    timestamp: int | None = None,
 ) -> bytes:
     """Records of ``channels`` ((scan index, type) each, in any order; one value per
-    repeat) holding ``rows`` (per record, the values in the order of ``channels``)."""
-    order = sorted(range(len(channels)), key=lambda i: channels[i][0])
+    repeat) holding ``rows`` (per record, the values in the order of ``channels``).
+    ``timestamp``: the position in ``channels`` of the timestamp, which the kernel packs
+    after every other channel whatever its scan index (iio_push_to_buffers_with_timestamp
+    fills the record's last 8 bytes)."""
+    order = sorted(range(len(channels)), key=lambda i: (i == timestamp, channels[i][0]))
     out = bytearray()
     for row in rows:
         record = bytearray()
@@ -160,7 +166,7 @@ def gyro_records(raw: Sequence[int], t_ns: Sequence[int], kind: str = GYRO_TYPE,
                  axis: str = "z", junk: bool = False) -> bytes:  # fmt: skip
     """Records of one gyro axis and the timestamp, as the source enables them."""
     channels = [(INDEX[f"in_anglvel_{axis}"], kind), (INDEX["in_timestamp"], TIMESTAMP_TYPE)]
-    return pack_records(channels, list(zip(raw, t_ns, strict=True)), junk)
+    return pack_records(channels, list(zip(raw, t_ns, strict=True)), junk, timestamp=1)
 
 
 def stamps_ns(t0: float, n: int, hz: float = 200.0) -> np.ndarray:

@@ -97,6 +97,24 @@ def test_layout_follows_scan_index_not_the_order_given():
     assert layout.field("in_timestamp").offset == 8 and layout.size == 16
 
 
+def test_the_timestamp_is_last_whatever_its_scan_index():
+    """A driver that registers its soft timestamp at scan index 0 (IIO_CHAN_SOFT_TIMESTAMP(0),
+    as some do) still gets it in the record's last 8 bytes: the kernel writes it there
+    (iio_push_to_buffers_with_timestamp), after the channels in scan-index order."""
+    ts = Element("in_timestamp", 0, parse_scan_type("le:s64/64>>0"))
+    z = Element("in_anglvel_z", 3, parse_scan_type("be:s16/16>>0"))
+    x = Element("in_anglvel_x", 1, parse_scan_type("be:s16/16>>0"))
+    layout = record_layout([ts, z, x])
+    assert layout.names() == ("in_anglvel_x", "in_anglvel_z", "in_timestamp")
+    assert layout.field("in_timestamp").offset == 8 and layout.size == 16
+    data = pack_records([(0, "le:s64/64>>0"), (3, "be:s16/16>>0"), (1, "be:s16/16>>0")],
+                        [(5_000_000_000_000, 1234, -7)], timestamp=0)  # fmt: skip
+    d = decode_records(data, layout)
+    assert d.columns["in_timestamp"].tolist() == [5_000_000_000_000]
+    assert d.columns["in_anglvel_z"].tolist() == [1234]
+    assert d.columns["in_anglvel_x"].tolist() == [-7]
+
+
 def test_layout_refuses_what_no_kernel_publishes():
     with pytest.raises(LayoutError, match="no scan element is enabled"):
         record_layout([])
@@ -170,7 +188,15 @@ def _values(kind: str):
 @settings(max_examples=150, deadline=None)
 @given(st.lists(KIND, min_size=1, max_size=6), st.data(), st.booleans())
 def test_any_layout_round_trips(kinds, data, junk):
+    """Any channels at any scan indices, and a timestamp at any of them or none (the
+    kernel packs it last whatever its index: a driver may register it at 0)."""
+    stamped = data.draw(st.booleans())
+    if stamped:
+        kinds = [*kinds, "le:s64/64>>0"]
     indices = data.draw(st.permutations(range(0, 2 * len(kinds), 2)))
+    names = [f"c{i}" for i in indices]
+    if stamped:
+        names[-1] = "in_timestamp"
     n = data.draw(st.integers(0, 5))
     rows = []
     for _ in range(n):
@@ -178,18 +204,20 @@ def test_any_layout_round_trips(kinds, data, junk):
         for k in kinds:
             row += data.draw(_values(k))
         rows.append(row)
-    packed = pack_records(list(zip(indices, kinds, strict=True)), rows, junk)
-    layout = record_layout(
-        [Element(f"c{i}", i, parse_scan_type(k)) for i, k in zip(indices, kinds, strict=True)]
-    )
+    packed = pack_records(list(zip(indices, kinds, strict=True)), rows, junk,
+                          timestamp=len(kinds) - 1 if stamped else None)  # fmt: skip
+    layout = record_layout([Element(name, i, parse_scan_type(k))
+                            for name, i, k in zip(names, indices, kinds, strict=True)])  # fmt: skip
+    if stamped:
+        assert layout.fields[-1].element.name == "in_timestamp"
     assert len(packed) == n * layout.size
     tail = data.draw(st.binary(max_size=layout.size - 1))
     d = decode_records(packed + tail, layout)
     assert d.records == n and d.rest == tail
     k = 0
-    for i, kind in zip(indices, kinds, strict=True):
+    for name, kind in zip(names, kinds, strict=True):
         rep = parse_scan_type(kind).repeat
-        got = d.columns[f"c{i}"]
+        got = d.columns[name]
         want = [r[k : k + rep] for r in rows]
         assert (got.tolist() if rep > 1 else [[v] for v in got.tolist()]) == want
         k += rep

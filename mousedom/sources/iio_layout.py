@@ -12,7 +12,9 @@ per trigger.  What a record holds is published in sysfs, per channel, under
   0 or 1), and the right shift to apply before masking the valid bits.
 
 The kernel places the enabled channels in scan-index order, each at the next offset that is a
-multiple of its own storage size (storagebits / 8 times repeat), and pads the record to a
+multiple of its own storage size (storagebits / 8 times repeat), the timestamp last whatever
+its index (``iio_push_to_buffers_with_timestamp`` writes it into the record's last 8-byte
+slot; a driver may give it any scan index), and pads the record to a
 multiple of the largest of those sizes (industrialio-buffer.c, ``iio_compute_scan_bytes``;
 the padding of the whole record came with the fix of 2019 so that consecutive records stay
 aligned).  So ``le:s16/16>>0`` followed by a ``le:s64/64>>0`` timestamp is 16 bytes: the
@@ -145,16 +147,21 @@ def parse_scan_type(text: str, where: str = "scan type") -> ScanType:
     return ScanType(order == "be", sign == "s", realbits, storagebits, shift, repeat)
 
 
+# The timestamp's scan element: the kernel puts it after every other channel.
+TIMESTAMP = "in_timestamp"
+
+
 def record_layout(elements: Sequence[Element]) -> RecordLayout:
     """The offsets of the enabled channels in a record and its size, as the kernel lays
-    them out: scan-index order, each aligned to its storage bytes, the record padded to
-    the largest alignment."""
+    them out: scan-index order, the timestamp last, each aligned to its storage bytes,
+    the record padded to the largest alignment."""
     if not elements:
         raise LayoutError("no scan element is enabled: a record would be empty")
-    ordered = sorted(elements, key=lambda e: e.scan_index)
-    for a, b in zip(ordered, ordered[1:], strict=False):
+    by_index = sorted(elements, key=lambda e: e.scan_index)
+    for a, b in zip(by_index, by_index[1:], strict=False):
         if a.scan_index == b.scan_index:
             raise LayoutError(f"{a.name} and {b.name} have the same scan index {a.scan_index}")
+    ordered = sorted(by_index, key=lambda e: e.name == TIMESTAMP)  # (stable: index order)
     offset, largest, placed = 0, 1, []
     for e in ordered:
         n = e.type.storage_bytes

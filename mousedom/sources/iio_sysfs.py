@@ -18,8 +18,8 @@ from pathlib import Path
 from mousedom import saferead
 from mousedom.config import GyroConfig
 from mousedom.sources.base import SourceUnavailable
+from mousedom.sources.iio_layout import TIMESTAMP
 
-TIMESTAMP = "in_timestamp"  # the timestamp channel's scan element
 MAX_ATTR = 4096  # a sysfs attribute is one page at most
 UDEV_HINT = "install the udev rule (udev/99-mousedom.rules, docs/gyro.md)"
 
