@@ -459,7 +459,10 @@ def test_a_reload_whose_new_sensor_does_not_open_keeps_the_daemon(tmp_path, capl
             assert time.monotonic() < deadline, "never opened or retried"
             time.sleep(0.05)
         time.sleep(0.1)
-        pose = c.until("POSE", lambda m: m["t"] > d.tracker.t0)
+        # the reload's VERSION, then a window of the new config (not "t > the new grid's
+        # start": the old config's last window ends there, and its t is rounded up to it)
+        c.until("VERSION", lambda m: m["sensors"] == ["a", "b", "c"])
+        pose = c.until("POSE")
         assert th.is_alive() and pose["missing"] == ["c"]
         assert Conn(d.server.path).read()["sensors"] == ["a", "b", "c"]
         said = [r.getMessage() for r in caplog.records if "c: not available" in r.getMessage()]
