@@ -68,6 +68,7 @@ def read_until(src: GyroSource, now: float, gone_ok: bool = False):
 def test_open_writes_clock_elements_and_buffer_then_close_puts_them_back(tmp_path):
     sysdir = add_gyro(tmp_path)
     (sysdir / "scan_elements" / "in_accel_x_en").write_text("1\n")  # someone's earlier choice
+    (sysdir / "buffer" / "watermark").write_text("64\n")  # (iio_generic_buffer -w 64)
     src = source(tmp_path, sample_hz=200)
     src.open()
     assert src.mode is GyroMode.BUFFERED and src.fileno() >= 0 and not src.paced
@@ -75,6 +76,7 @@ def test_open_writes_clock_elements_and_buffer_then_close_puts_them_back(tmp_pat
     assert enabled(sysdir) == {"in_anglvel_z", "in_timestamp"}
     assert attr(sysdir, "buffer/enable") == "1"
     assert int(attr(sysdir, "buffer/length")) >= BUFFER_SCANS
+    assert attr(sysdir, "buffer/watermark") == "1"  # each record wanted as it comes
     assert attr(sysdir, "sampling_frequency") == "200"
     assert src.layout is not None and src.layout.size == 16  # be:s16 + s64: padded to 16
     assert src.scale == SCALE and src.offset == 0.0
@@ -87,6 +89,7 @@ def test_open_writes_clock_elements_and_buffer_then_close_puts_them_back(tmp_pat
     assert enabled(sysdir) == {"in_accel_x"}
     assert attr(sysdir, "current_timestamp_clock") == "realtime"
     assert attr(sysdir, "buffer/length") == "1" and attr(sysdir, "sampling_frequency") == "50"
+    assert attr(sysdir, "buffer/watermark") == "64"
     assert src.fileno() == -1
     src.close()  # twice is fine
 

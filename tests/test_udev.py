@@ -95,3 +95,35 @@ def test_udevadm_verify_where_available():
         pytest.skip("this udevadm has no 'verify' (systemd < 254)")
     out = subprocess.run([tool, "verify", str(RULES)], capture_output=True, text=True)
     assert out.returncode == 0, out.stdout + out.stderr
+
+
+def test_every_attribute_the_gyro_source_writes_is_given_to_the_group(tmp_path):
+    """The daemon runs as its own user: an attribute it writes at a gyro's open that the
+    rule leaves root's is a refusal on the robot (here, as root, nothing would say so).
+    A device whose every attribute needs a write (clock, rate, buffer length and
+    watermark, an element someone else enabled): each one written is in the rule's list."""
+    import fnmatch
+
+    from iio_fakes import add_gyro
+
+    from mousedom.config import GyroConfig
+    from mousedom.sources.iio import GyroSource
+    from mousedom.sources.iio_sysfs import IioPaths
+
+    sysdir = add_gyro(tmp_path)
+    (sysdir / "scan_elements" / "in_accel_x_en").write_text("1\n")
+    (sysdir / "buffer" / "watermark").write_text("64\n")
+    runs = [v for rule in parse_rules(RULES.read_text()) for k, _, _, v in rule if k == "RUN"]
+    listed = next(r for r in runs if "current_timestamp_clock" in r)
+    names = re.search(r"for f in (.*?); do", listed)
+    assert names, listed
+    patterns = names.group(1).split()
+    src = GyroSource(GyroConfig(name="mpu6050", sample_hz=200), IioPaths.under(str(tmp_path)))
+    src.open()
+    try:
+        written = [str(path.relative_to(sysdir)) for path, _ in src.sysfs.undo]
+    finally:
+        src.close()
+    assert "buffer/watermark" in written and "buffer/enable" in written, written
+    for w in written:
+        assert any(fnmatch.fnmatch(w, p) for p in patterns), (w, patterns)

@@ -238,6 +238,17 @@ class GyroSource(Source):
         length = buffer / "length"
         if length.exists() and int_or(self.sysfs.text(length), 0) < BUFFER_SCANS:
             self.sysfs.set(length, str(BUFFER_SCANS))
+        # A watermark another program left high would hold samples back from the poll
+        # until that many had come (the ABI's buffer/watermark): every record is wanted
+        # as soon as it is there, for the window it belongs to.
+        # (Not needed to read them: the daemon reads a buffered gyro at every wake, and a
+        # non-blocking read returns what is there; so a rule that predates it is a warning.)
+        watermark = buffer / "watermark"
+        if watermark.exists() and int_or(self.sysfs.text(watermark), 1) != 1:
+            try:
+                self.sysfs.set(watermark, "1")
+            except SourceUnavailable as e:
+                log.warning("%s (samples may reach the daemon in bursts)", e)
         self.sysfs.set(buffer / "enable", "1")
         self.layout = self._layout(scan)
         self.raw_range = self.layout.field(self.channel).element.type.raw_range
