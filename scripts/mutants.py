@@ -264,15 +264,15 @@ MUTANTS = [
     Mutant(
         "fault-onset-kept",
         "mousedom/fusion/robust.py",
-        "            elif not spread > 0.0 or float(r @ u) <= math.sqrt(s2 * spread):\n",
-        "            elif True:\n",
+        "            score += float(r @ u) / math.sqrt(s2 * spread) - 1.0\n",
+        "            score += -1.0\n",
         ("tests/test_reconcile.py",),
         "the window a fault began in, within the test, keeps the fault's share for good",
     ),
     Mutant(
         "take-back-past-readmission",
         "mousedom/fusion/robust.py",
-        "        sets = list(self.used_history)[::-1]\n",
+        "        sets = list(self.onset_used)[::-1]\n",
         "        sets = [(True,) * self.n] * len(rows)\n",
         ("tests/test_reconcile.py",),
         "windows a mouse was not used in are taken back from the pose as if it had been",

@@ -105,9 +105,17 @@ _CATCH_UP_LEVERAGE = 0.75
 # fraction of what the others moved it, along it: a lift reads nothing or noise, while a
 # healthy mouse beside an undetected faulty one (which bends the solution) reads most.
 SHORT = 0.25
-# How many windows before a mouse's exclusion its fault's onset is looked for in
-# (Screen._take_back): a fault starts within a window and grows past the test in a few.
+# How many windows before a mouse's exclusion a mouse short of its motion is taken back
+# over at least (Screen._take_back): a fault starts within a window and grows past the test
+# in a few.
 TAKE_BACK_WINDOWS = 3
+# How far back a fault's onset is looked for (Screen._take_back): a fault that grows slowly
+# (a mouse that saturates as a turn speeds up, a surface that turns glossy) passes the test
+# window after window for most of a second before it is caught.
+TAKE_BACK_S = 1.0
+# Where the onset's sum has fallen this far (in sigmas) below its peak, the walk back stops:
+# noise alone takes about one a window from it and does not climb back so far.
+_ONSET_GIVE_UP = 6.0
 
 
 def _within(r: np.ndarray, cov: np.ndarray, thr2: float) -> bool:
@@ -186,8 +194,13 @@ class Screen(RigidTest):
         # already have bent (_tie_break).
         self.history_len = max(2, round(HISTORY_S / window))
         self.history: deque[Any] = deque(maxlen=self.history_len)
-        # the mice each of those windows was solved with (_take_back, _caught_up)
+        # the mice each of those windows was solved with (_caught_up, used_run)
         self.used_history: deque[tuple[bool, ...]] = deque(maxlen=self.history_len)
+        # The readings and mice of the windows of the last TAKE_BACK_S, where a fault's
+        # onset is looked for when its mouse is held out (_take_back).
+        self.onset_len = max(self.history_len, round(TAKE_BACK_S / window))
+        self.onset_rows: deque[Any] = deque(maxlen=self.onset_len)
+        self.onset_used: deque[tuple[bool, ...]] = deque(maxlen=self.onset_len)
         self._windows = 0  # windows solved so far (_used_for): which ties are consecutive
         # The tie breaks of the latest windows, per set of mice tested: the window, and the
         # explanations' statistics summed over the windows in a row with the same ones
@@ -243,6 +256,7 @@ class Screen(RigidTest):
         with the mice ``used``."""
         self._prev = np.asarray(p[-1], dtype=float).tolist()
         self.history.extend(d[-self.history_len :])
+        self.onset_rows.extend(d[-self.onset_len :])
         self.lateness.remember_rows(p)
         self._used_for(used, len(p))
 
@@ -251,6 +265,7 @@ class Screen(RigidTest):
         readings were its own part of the solve, and with whom: _caught_up, _take_back)."""
         row = used if type(used) is tuple else tuple(bool(u) for u in used)  # (fast_one's)
         self.used_history.extend([row] * min(rows, self.history_len))
+        self.onset_used.extend([row] * min(rows, self.onset_len))
         self._windows += rows
 
     def used_run(self, i: int) -> int:
@@ -318,6 +333,7 @@ class Screen(RigidTest):
         self._prev, by_floor, by_prop = accepted
         nm.take(by_floor, by_prop)
         self.history.append(d)
+        self.onset_rows.append(d)
         self.lateness.remember(self._prev)
         self._used_for(live, 1)
         self._count_window(defer_block_end)
@@ -620,15 +636,18 @@ class Screen(RigidTest):
         which it was used while its fault began (``Decision.correction``), or None.
 
         A fault starts within a window and often passes the test in the first one or two
-        (its share of the window, a mouse of high leverage): those windows keep its error
-        for good, where a user who knew would have left the mouse out from the fault's
-        start.  Going back from the last window, each that used it and in which its
-        residual under the others lies along its residual now by more than its expected
-        error now (the fault's direction; the walk stops at the first that does not) is
-        solved again without it, with the mice that window was solved with
-        (``used_history``; ``kept``: less those taken out of it already), and the
-        difference taken back.  What is taken back joins what the mouse owes: a late mouse
-        that pays back is given it all again (``ledger``).
+        (its share of the window, a mouse of high leverage), and one that grows slowly
+        (a mouse saturating as a turn speeds up) passes it for most of a second: those
+        windows keep its error for good, where a user who knew would have left the mouse
+        out from the fault's start.  Going back from the last window (up to TAKE_BACK_S,
+        each with the mice it was solved with: ``onset_used``; ``kept``: less those taken
+        out of it already), each window's residual of the mouse under the others, along
+        its residual now, is measured in its expected error now (z); the onset is where
+        the sum of z - 1 over the windows after it is largest (a CUSUM's change point: a
+        window of the fault adds its excess over one sigma, one of noise takes about one
+        away, so the sum peaks where the fault began).  Those windows are solved again
+        without it and the difference is taken back.  What is taken back joins what the
+        mouse owes: a late mouse that pays back is given it all again (``ledger``).
 
         A mouse held out for reading short of its motion (``_quiet_blame``) began its
         fault where its shortfall's sum began: the ``short`` windows before this one, each
@@ -640,10 +659,12 @@ class Screen(RigidTest):
         if size == 0.0:
             return None
         u = now / size
-        taken_r, taken_q = np.zeros(2), np.zeros(3)
-        rows = list(self.history)[::-1]
-        sets = list(self.used_history)[::-1]
-        for k in range(min(max(TAKE_BACK_WINDOWS, short), len(rows), len(sets))):
+        rows = list(self.onset_rows)[::-1]
+        sets = list(self.onset_used)[::-1]
+        steps: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        take = score = best = 0.0
+        take_n = 0
+        for k in range(min(len(rows), len(sets))):
             with_i = kept.get(k, np.array(sets[k], dtype=bool))
             if not with_i[i]:
                 break  # not in that window's solve: nothing of it to take back
@@ -654,17 +675,30 @@ class Screen(RigidTest):
             block = self.hat_block(with_i, i)
             if rest is None or both is None or block is None:
                 break
-            # the residual under the others has the covariance s2 (I - block)^-1
-            spread = float(u @ np.linalg.solve(np.eye(2) - block, u))
             pk = self.predict(rest)[i]
             r = dk[i] - pk
+            steps.append((r, both - rest, rest_k))
             if k < short:
                 if float(dk[i] @ pk) >= SHORT * float(pk @ pk):
                     break  # not short there: the sum began after it
-            elif not spread > 0.0 or float(r @ u) <= math.sqrt(s2 * spread):
+                take_n = k + 1
+                continue
+            # the residual under the others has the covariance s2 (I - block)^-1
+            spread = float(u @ np.linalg.solve(np.eye(2) - block, u))
+            if not spread > 0.0:
                 break
+            score += float(r @ u) / math.sqrt(s2 * spread) - 1.0
+            if score > best:
+                best, take = score, float(k + 1)
+            elif score < best - _ONSET_GIVE_UP:
+                break  # far below its peak: noise from here on
+        take_n = max(take_n, int(take))
+        if take_n == 0:
+            return None
+        taken_r, taken_q = np.zeros(2), np.zeros(3)
+        for k, (r, dq, rest_k) in enumerate(steps[:take_n]):
             taken_r += r
-            taken_q += both - rest
+            taken_q += dq
             kept[k] = rest_k
         if not taken_r.any():
             return None
