@@ -24,7 +24,7 @@ PROTO_MAJOR = 1
 # 2: SOURCE scale, scale_spread, scale_applied and scale_warning (the learnt scale)
 # 3: POSE gyro (bias, bias_sigma, agree, scale) and a SOURCE named gyro, on rigs with a gyro
 # 4: SOURCE state "late" (held out while its counts come late; in neither POSE list)
-PROTO_MINOR = 4
+PROTO_MINOR = 5
 
 # Which keys each command takes; anything else is a mistake worth telling the client about.
 COMMANDS: dict[str, tuple[str, ...]] = {

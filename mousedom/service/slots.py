@@ -72,6 +72,28 @@ Sensor = MouseConfig | GyroConfig  # what a slot reads: a mouse, or the rig's gy
 WindowNames = tuple[tuple[str, ...], tuple[str, ...], tuple[str, ...]]
 
 
+def window_names(names: Sequence[str], live: Sequence[bool], state: Sequence[int]) -> WindowNames:
+    """(missing, excluded, suspect) sensor names of a window, from each mouse's state
+    after it (``state``, the first ``len(state)`` sensors) and, for a sensor beyond the
+    mice (the gyro), whether it is ``live`` now.
+
+    Missing: the mice not live over the window (gone, or not yet used in the window they
+    came back in or were opened in by a reload), and a sensor beyond the mice that is not
+    live.  Excluded: the mice the fault-tolerant fusion left out of the window, for their
+    readings or their sensor's word, or held out as late (their counts come later and are
+    given back when they do).  So the sensors the window was solved with are the config's
+    less the missing and the excluded (docs/protocol.md), but in the window a late mouse's
+    counts are given back in: it is tracking again after it, its counts are in the pose,
+    and it was not in that window's solve."""
+    n = len(state)
+    mi = tuple(name for i, name in enumerate(names)
+               if (state[i] == Health.MISSING if i < n else not live[i]))  # fmt: skip
+    ex = tuple(name for name, v in zip(names, state, strict=False)
+               if v == Health.EXCLUDED or v == Health.LATE)  # fmt: skip
+    su = tuple(name for name, v in zip(names, state, strict=False) if v == Health.SUSPECT)
+    return mi, ex, su
+
+
 @dataclass
 class Slot:
     """One configured sensor as the loop sees it, and the figures its SOURCE says.  The
@@ -399,25 +421,15 @@ class Sensors:
 
     def names_for(self, state: Sequence[int]) -> WindowNames:
         """(missing, excluded, suspect) sensor names for a window's per-mouse states
-        (cached per pattern: a rig has few, and this runs for every window).
-
-        Missing: the mice that were not live over the window (those gone, and one not
-        yet used in the window it came back or was opened in by a reload), and a sensor
-        beyond the mice (the gyro) that is not live now; so the mice the window used are
-        the config's less the missing and the excluded (docs/protocol.md).  A mouse lost
-        after the window's end, before its POSE was sent, was used in it: it is missing
-        from the next window on."""
+        (``window_names``; cached per pattern: a rig has few, and this runs for every
+        window).  A mouse lost after the window's end, before its POSE was sent, was used
+        in it: it is missing from the next window on."""
         key = tuple(state)  # rows from arrays hold lists
         names = self.names_by_state.get(key)
         if names is None:
-            n = len(key)
-            mi = tuple(s.name for i, s in enumerate(self.slots)
-                       if (key[i] == Health.MISSING if i < n else not s.live))  # fmt: skip
-            ex = tuple(s.name for s, v in zip(self.slots, key, strict=False)
-                       if v == Health.EXCLUDED)  # fmt: skip
-            su = tuple(s.name for s, v in zip(self.slots, key, strict=False)
-                       if v == Health.SUSPECT)  # fmt: skip
-            names = self.names_by_state[key] = (mi, ex, su)
+            names = self.names_by_state[key] = window_names(
+                [s.name for s in self.slots], [s.live for s in self.slots], key
+            )
         return names
 
     def status_line(self, clients: int) -> str:
