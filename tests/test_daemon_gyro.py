@@ -65,12 +65,11 @@ def _feed(result: sim.SimResult, base: float, mice: dict, node) -> dict[str, int
     return {name: len(r.t) for name, r in result.reports.items()}
 
 
-def test_the_daemon_fuses_a_real_iio_gyro_and_replays_to_the_same_pose(tmp_path):
-    root = tmp_path / "iio"
-    add_gyro(root)
-    node = root / "dev" / "iio:device0"
-    rig = dataclasses.replace(sim.three_mouse_rig(cpi=800.0),
-                              gyro=simgyro.SimGyro(bias=math.radians(0.5)))  # fmt: skip
+def _gyro_rig(tmp_path: Path, root: Path, gyro: simgyro.SimGyro):
+    """A three-mouse rig with ``gyro``, its config written and loaded, and the factory
+    that gives the daemon pipes for the mice and the real IIO source under ``root`` for
+    the gyro: (rig, config path, config, factory, the mice's pipes)."""
+    rig = dataclasses.replace(sim.three_mouse_rig(cpi=800.0), gyro=gyro)
     config_path = tmp_path / "rig.yaml"
     config_path.write_text(_config_text(rig))
     config = load_config(str(config_path))
@@ -81,6 +80,16 @@ def test_the_daemon_fuses_a_real_iio_gyro_and_replays_to_the_same_pose(tmp_path)
             return GyroSource(sensor, IioPaths.under(str(root)), clock=clock)
         return mice[sensor.name]
 
+    return rig, config_path, config, factory, mice
+
+
+def test_the_daemon_fuses_a_real_iio_gyro_and_replays_to_the_same_pose(tmp_path):
+    root = tmp_path / "iio"
+    add_gyro(root)
+    node = root / "dev" / "iio:device0"
+    rig, config_path, config, factory, mice = _gyro_rig(
+        tmp_path, root, simgyro.SimGyro(bias=math.radians(0.5))
+    )
     record = tmp_path / "run.mdcap"
     d = Daemon(config, str(tmp_path / "d.sock"), source_factory=factory,
                handle_signals=False, record=str(record))  # fmt: skip
@@ -145,17 +154,7 @@ def test_a_buffered_gyro_unplugged_without_a_word_from_its_poll_is_gone_and_come
     root = tmp_path / "iio"
     sysdir = add_gyro(root)
     node = root / "dev" / "iio:device0"
-    rig = dataclasses.replace(sim.three_mouse_rig(cpi=800.0), gyro=simgyro.SimGyro())
-    config_path = tmp_path / "rig.yaml"
-    config_path.write_text(_config_text(rig))
-    config = load_config(str(config_path))
-    mice = {m.name: PipeSource(m.name) for m in config.mice}
-
-    def factory(sensor, clock):
-        if isinstance(sensor, GyroConfig):
-            return GyroSource(sensor, IioPaths.under(str(root)), clock=clock)
-        return mice[sensor.name]
-
+    _, _, config, factory, _ = _gyro_rig(tmp_path, root, simgyro.SimGyro())
     d = Daemon(config, str(tmp_path / "d.sock"), source_factory=factory, handle_signals=False)
     th = threading.Thread(target=d.run)
     th.start()

@@ -88,26 +88,18 @@ def test_record_layout_aligns_as_the_kernel(types, offsets, size):
     assert layout.size == size
 
 
-def test_layout_follows_scan_index_not_the_order_given():
+@pytest.mark.parametrize("ts_index", [7, 5, 0])
+def test_layout_follows_scan_index_with_the_timestamp_last(ts_index):
+    """Channels in scan-index order, not the order given; the timestamp last whatever its
+    index: a driver may register its soft timestamp at 0 (IIO_CHAN_SOFT_TIMESTAMP(0)), and
+    the kernel writes it into the record's last 8 bytes (iio_push_to_buffers_with_timestamp)."""
     z = Element("in_anglvel_z", 6, parse_scan_type("be:s16/16>>0"))
-    ts = Element("in_timestamp", 7, parse_scan_type("le:s64/64>>0"))
+    ts = Element("in_timestamp", ts_index, parse_scan_type("le:s64/64>>0"))
     x = Element("in_anglvel_x", 4, parse_scan_type("be:s16/16>>0"))
     layout = record_layout([ts, z, x])
     assert layout.names() == ("in_anglvel_x", "in_anglvel_z", "in_timestamp")
     assert layout.field("in_timestamp").offset == 8 and layout.size == 16
-
-
-def test_the_timestamp_is_last_whatever_its_scan_index():
-    """A driver that registers its soft timestamp at scan index 0 (IIO_CHAN_SOFT_TIMESTAMP(0),
-    as some do) still gets it in the record's last 8 bytes: the kernel writes it there
-    (iio_push_to_buffers_with_timestamp), after the channels in scan-index order."""
-    ts = Element("in_timestamp", 0, parse_scan_type("le:s64/64>>0"))
-    z = Element("in_anglvel_z", 3, parse_scan_type("be:s16/16>>0"))
-    x = Element("in_anglvel_x", 1, parse_scan_type("be:s16/16>>0"))
-    layout = record_layout([ts, z, x])
-    assert layout.names() == ("in_anglvel_x", "in_anglvel_z", "in_timestamp")
-    assert layout.field("in_timestamp").offset == 8 and layout.size == 16
-    data = pack_records([(0, "le:s64/64>>0"), (3, "be:s16/16>>0"), (1, "be:s16/16>>0")],
+    data = pack_records([(ts_index, "le:s64/64>>0"), (6, "be:s16/16>>0"), (4, "be:s16/16>>0")],
                         [(5_000_000_000_000, 1234, -7)], timestamp=0)  # fmt: skip
     d = decode_records(data, layout)
     assert d.columns["in_timestamp"].tolist() == [5_000_000_000_000]
