@@ -312,6 +312,33 @@ def test_cpi_warns_when_runs_disagree(tmp_path):
     assert "m:" in (tmp_path / "rig.calib.yaml").read_text()
 
 
+def test_runs_are_numbered_as_in_the_session_after_a_bump_is_left_out(tmp_path):
+    """Run 2 is a bump (left out, said) and run 5 a push 10 % long: the warning, the list
+    per run and an error all number the runs as the session does (the note about the bump
+    does), not within the runs kept, which named run 4 for the push that was run 5."""
+    long = 0.2 * 1.1
+    moves = [(0.2, 0, 0, 1.2), (-0.01, 0, 0, 0.5), (0.2, 0, 0, 1.2), (-0.2, 0, 0, 1.2),
+             (long, 0, 0, 1.2), (-0.2, 0, 0, 1.2)]  # fmt: skip
+    f = write_evemu(tmp_path / "m.events",
+                    mouse_reports(SynthMouse("m", 0, 0), build_motion(moves)))  # fmt: skip
+    cfg = write_config(
+        tmp_path, {"m": {"cpi": 1000, "mount": {}}, "n": {"cpi": 1000, "mount": {"x": 0.1}}}
+    )
+    p = ok(calib("cpi", cfg, "--capture", f"m={f}", "--distance", "0.2"))
+    assert "left out run 2" in p.stderr
+    said = r"runs disagree by more than 2% \(mean [0-9.]+; run 5: 1100"
+    assert re.search(said, p.stderr), p.stderr
+    assert re.search(r"per run: run 1: 1000\.0, run 3: 1000\.0, run 4: 1000\.0, run 5: 110\d\.\d, "
+                     r"run 6: 1000\.0", p.stdout), p.stdout  # fmt: skip
+    # the same session with run 5 pushed 25 degrees askew: the error names run 5
+    skew = math.radians(25)
+    moves[4] = (0.2 * math.cos(skew), 0.2 * math.sin(skew), 0, 1.2)
+    f = write_evemu(tmp_path / "m.events",
+                    mouse_reports(SynthMouse("m", 0, 0), build_motion(moves)))  # fmt: skip
+    fails(calib("cpi", cfg, "--capture", f"m={f}", "--distance", "0.2"),
+          "mouse m: run 5: the push was 25 deg off")  # fmt: skip
+
+
 def test_cpi_on_a_real_recording(external_captures, tmp_path):
     """The PS/2 recording was no calibration session, but it must load and split into
     runs at its pauses exactly as an independent count of its gaps says."""

@@ -186,3 +186,17 @@ def test_cpi_on_the_core_simulator_with_noise():
     # The target alone is 7 standard errors wide here: hold the estimate to its own
     # standard error too, so that a bias of a few counts per push cannot hide in it.
     assert 0 < out.stderr < 0.5 and abs(out.cpi - 455) < 4 * out.stderr
+
+
+def test_distance_names_runs_by_the_numbers_it_is_given():
+    """The session passes each kept run's own number (runs before it may have been left out
+    as bumps): a disagreeing turn and a turn one mouse missed are named by it."""
+    eta = math.pi / 2
+    d1 = np.array([[0.0, 0.1], [0.0, 0.1], [0.0, 0.11]]) * eta
+    d2 = -d1
+    res = calibrate_distance(d1, d2, eta, numbers=[1, 3, 4])
+    assert res.numbers == [1, 3, 4] and "run 4: 220.0 mm" in res.warnings[-1]
+    d1[1] = 0.0
+    with pytest.raises(DistanceError, match="run 3: mouse 1 did not move"):
+        calibrate_distance(d1, d2, eta, numbers=[1, 3, 4])
+    assert calibrate_distance(-d2, d2, eta).numbers == [1, 2, 3]  # none given: 1, 2, ...

@@ -12,11 +12,12 @@ than ``tolerance`` (2 %).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from mousedom.calibrate.runs import run_spread
+from mousedom.calibrate.runs import run_number, run_spread
 from mousedom.fusion.units import INCH
 
 AXES = ("x", "y")
@@ -33,6 +34,7 @@ class CpiResult:
     skew_deg: np.ndarray  # angle between each push and the mouse's axis
     warnings: list[str] = field(default_factory=list)  # the runs disagree: not stored
     hints: list[str] = field(default_factory=list)  # far from the config: said, stored
+    numbers: list[int] = field(default_factory=list)  # each run's number in the session
 
     def as_json(self) -> dict:
         return {
@@ -48,19 +50,25 @@ class CpiError(ValueError):
 
 
 def cpi_per_run(
-    along: np.ndarray, across: np.ndarray, distance: float, cpi_across: float
+    along: np.ndarray,
+    across: np.ndarray,
+    distance: float,
+    cpi_across: float,
+    numbers: Sequence[int] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(cpi, skew) per run from counts along and across the axis, for pushes of ``distance`` m.
 
     Returns arrays of the CPI along the axis and the skew angle (radians) of each push.
+    ``numbers``: each run's number in the user's session (errors name it); 1, 2, ...
     """
     along = np.abs(np.asarray(along, dtype=float))
     across_in = np.abs(np.asarray(across, dtype=float)) / cpi_across
     length_in = distance / INCH
     if np.any(across_in >= length_in):
-        k = int(np.argmax(across_in >= length_in)) + 1
+        k = int(np.argmax(across_in >= length_in))
         raise CpiError(
-            f"run {k}: the mouse moved {across_in[k - 1] * INCH * 1000:.1f} mm across its axis, "
+            f"run {run_number(numbers, k)}: the mouse moved {across_in[k] * INCH * 1000:.1f} mm "
+            "across its axis, "
             f"more than the push length {distance * 1000:.1f} mm: wrong --axis or --distance?"
         )
     along_in = np.sqrt(length_in**2 - across_in**2)
@@ -74,10 +82,13 @@ def calibrate_cpi(
     cpi_across: float = 1000.0,
     tolerance: float = 0.02,
     min_runs: int = 2,
+    numbers: Sequence[int] | None = None,
 ) -> CpiResult:
     """CPI along ``axis`` from ``counts`` (n_runs, 2) = per-run (REL_X, REL_Y) sums.
 
     ``cpi_across`` is the configured CPI of the other axis (for the skew correction).
+    ``numbers``: each run's number in the user's session, which errors and warnings name
+    (runs left out before, as bumps, keep theirs); 1, 2, ... where not given.
     """
     if axis not in AXES:
         raise ValueError(f"axis must be x or y, got {axis!r}")
@@ -92,22 +103,25 @@ def calibrate_cpi(
     still = np.flatnonzero(along == 0)
     if len(still):
         raise CpiError(
-            f"run {still[0] + 1}: no counts along {axis} (the mouse did not move, lost the "
+            f"run {run_number(numbers, still[0])}: no counts along {axis} (the mouse did not "
+            "move, lost the "
             f"floor, or was pushed along the other axis)"
         )
-    per_run, skew = cpi_per_run(along, across, distance, cpi_across)
+    per_run, skew = cpi_per_run(along, across, distance, cpi_across, numbers)
     if np.any(skew > MAX_SKEW):
         k = int(np.argmax(skew > MAX_SKEW))
         raise CpiError(
-            f"run {k + 1}: the push was {np.degrees(skew[k]):.0f} deg off the mouse's {axis} "
+            f"run {run_number(numbers, k)}: the push was {np.degrees(skew[k]):.0f} deg off the "
+            f"mouse's {axis} "
             "axis (more than 15): wrong --axis, or the mouse sits askew on the track"
         )
     mean, stderr, off = run_spread(per_run, tolerance)
     warnings = []
     if len(off):
-        bad = ", ".join(f"run {k + 1}: {per_run[k]:.1f}" for k in off)
+        bad = ", ".join(f"run {run_number(numbers, k)}: {per_run[k]:.1f}" for k in off)
         warnings.append(
             f"runs disagree by more than {tolerance:.0%} (mean {mean:.1f}; {bad}): "
             "check the track length and that the mouse stays on the floor"
         )
-    return CpiResult(axis, mean, stderr, len(per_run), per_run, np.degrees(skew), warnings)
+    return CpiResult(axis, mean, stderr, len(per_run), per_run, np.degrees(skew), warnings,
+                     numbers=[run_number(numbers, k) for k in range(len(per_run))])  # fmt: skip

@@ -15,11 +15,12 @@ is reported as a rigidity check.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from mousedom.calibrate.runs import run_spread
+from mousedom.calibrate.runs import run_number, run_spread
 
 
 @dataclass(frozen=True)
@@ -31,6 +32,7 @@ class DistanceResult:
     along: np.ndarray  # per-run |component of d1 - d2 along the joining line| / |d1 - d2|
     warnings: list[str] = field(default_factory=list)  # the runs disagree: not stored
     hints: list[str] = field(default_factory=list)  # far from the config: said, stored
+    numbers: list[int] = field(default_factory=list)  # each run's number in the session
 
     def as_json(self) -> dict:
         return {
@@ -56,11 +58,14 @@ def calibrate_distance(
     line: np.ndarray | None = None,
     tolerance: float = 0.02,
     min_runs: int = 2,
+    numbers: Sequence[int] | None = None,
 ) -> DistanceResult:
     """Distance from per-run body-frame displacements d1, d2 (n_runs, 2) in metres.
 
     ``angle`` is the known turn of each run (radians, sign ignored); ``line`` is the
-    configured direction from mouse 1 to mouse 2, for the rigidity check.
+    configured direction from mouse 1 to mouse 2, for the rigidity check.  ``numbers``:
+    each run's number in the user's session, which errors and warnings name (runs left
+    out before, as bumps, keep theirs); 1, 2, ... where not given.
     """
     d1 = np.asarray(d1, dtype=float).reshape(-1, 2)
     d2 = np.asarray(d2, dtype=float).reshape(-1, 2)
@@ -74,10 +79,12 @@ def calibrate_distance(
     for k in range(len(d1)):
         for j, d in ((1, d1), (2, d2)):
             if not np.any(d[k]):
-                raise DistanceError(f"run {k + 1}: mouse {j} did not move")
+                raise DistanceError(f"run {run_number(numbers, k)}: mouse {j} did not move")
     if np.any(norm == 0):
-        k = int(np.argmax(norm == 0)) + 1
-        raise DistanceError(f"run {k}: both mice moved alike: that was no turn")
+        k = int(np.argmax(norm == 0))
+        raise DistanceError(
+            f"run {run_number(numbers, k)}: both mice moved alike: that was no turn"
+        )
     per_run = norm / abs(angle)
     mean, stderr, off = run_spread(per_run, tolerance)
     warnings = []
@@ -92,9 +99,10 @@ def calibrate_distance(
             "the turn: a mouse slipped or lost the floor, or the mount yaws are wrong"
         )
     if len(off):
-        bad = ", ".join(f"run {k + 1}: {per_run[k] * 1000:.1f} mm" for k in off)
+        bad = ", ".join(f"run {run_number(numbers, k)}: {per_run[k] * 1000:.1f} mm" for k in off)
         warnings.append(
             f"runs disagree by more than {tolerance:.0%} (mean {mean * 1000:.1f} mm; {bad}): "
             "check the angle of each turn"
         )
-    return DistanceResult(mean, stderr, len(d1), per_run, along, warnings)
+    return DistanceResult(mean, stderr, len(d1), per_run, along, warnings,
+                          numbers=[run_number(numbers, k) for k in range(len(d1))])  # fmt: skip

@@ -13,6 +13,14 @@ from mousedom.calibrate.umbmark import UmbResult
 from mousedom.config import Config
 
 
+def _per_run(values: list[str], numbers: list[int]) -> str:
+    """Each run's figure; with its number in the session where runs were left out (a
+    bump), so that the list and the warnings number the runs alike."""
+    if not numbers or numbers == list(range(1, len(values) + 1)):
+        return ", ".join(values)
+    return ", ".join(f"run {k}: {v}" for k, v in zip(numbers, values, strict=True))
+
+
 def cpi_text(results: dict[str, CpiResult], config: Config, distance: float) -> list[str]:
     lines = []
     for name, r in results.items():
@@ -22,7 +30,7 @@ def cpi_text(results: dict[str, CpiResult], config: Config, distance: float) -> 
             f"{name}: cpi {r.axis} = {r.cpi:.2f} +- {r.stderr:.2f} from {r.runs} pushes of "
             f"{distance * 1000:g} mm (configured {before:g}, {r.cpi / before - 1:+.2%})"
         )
-        per = ", ".join(f"{c:.1f}" for c in r.per_run)
+        per = _per_run([f"{c:.1f}" for c in r.per_run], r.numbers)
         lines.append(f"  per run: {per}")
         if np.max(r.skew_deg) >= 1.0:
             lines.append(
@@ -33,7 +41,7 @@ def cpi_text(results: dict[str, CpiResult], config: Config, distance: float) -> 
 
 
 def distance_text(r: DistanceResult, names: list[str], angle_deg: float) -> list[str]:
-    per = ", ".join(f"{d * 1000:.2f}" for d in r.per_run)
+    per = _per_run([f"{d * 1000:.2f}" for d in r.per_run], r.numbers)
     return [
         f"distance {names[0]} - {names[1]}: {r.distance * 1000:.2f} +- {r.stderr * 1000:.2f} mm "
         f"from {r.runs} turns of {angle_deg:g} deg",

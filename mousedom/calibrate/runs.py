@@ -150,6 +150,13 @@ def run_windows(runs: Sequence[Run], window: float, margin: float) -> list[np.nd
     return out
 
 
+def run_number(numbers: Sequence[int] | None, k: int) -> int:
+    """The user's number of the k-th run a calibration was given (0-based ``k``): its
+    number in the session (``numbers``), where runs before it were left out as bumps;
+    k + 1 where all were kept."""
+    return int(numbers[k]) if numbers is not None else k + 1
+
+
 def run_spread(per_run: np.ndarray, tolerance: float) -> tuple[float, float, np.ndarray]:
     """Mean, standard error of the mean, and the indices of the runs whose value is off
     the mean by more than ``tolerance`` (relative): what CPI and distance report."""

@@ -93,7 +93,8 @@ def cpi(session: Session, distance: float, axis: str, min_runs: int = 2) -> dict
         keep = _keep_real_runs(session, np.hypot(c[:, 0], c[:, 1]), f"mouse {name}")
         across = mouse.cpi_y if axis == "x" else mouse.cpi_x
         try:
-            out[name] = calibrate_cpi(c[keep], distance, axis, across, min_runs=min_runs)
+            out[name] = calibrate_cpi(c[keep], distance, axis, across, min_runs=min_runs,
+                                      numbers=(np.flatnonzero(keep) + 1).tolist())  # fmt: skip
         except CpiError as e:
             raise UserError(f"mouse {name}: {e}") from None
         problem = plausible.cpi_problem(out[name].cpi)
@@ -127,7 +128,8 @@ def distance(session: Session, angle: float, min_runs: int = 2) -> DistanceResul
     keep = _keep_real_runs(session, np.hypot(*(d1 - d2).T), "distance")
     line = np.array([b.mount.x - a.mount.x, b.mount.y - a.mount.y])
     try:
-        result = calibrate_distance(d1[keep], d2[keep], angle, line, min_runs=min_runs)
+        result = calibrate_distance(d1[keep], d2[keep], angle, line, min_runs=min_runs,
+                                    numbers=(np.flatnonzero(keep) + 1).tolist())  # fmt: skip
     except DistanceError as e:
         raise UserError(f"calibrate distance ({a.name}, {b.name}): {e}") from None
     # A distance far from the drawing's is most often a wrong --angle (radians given for
