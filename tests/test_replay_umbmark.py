@@ -71,6 +71,30 @@ def test_bad_true_end_is_a_clear_error(tmp_path):
     assert "--true-end: expected X,Y" in proc.stderr and "Traceback" not in proc.stderr
 
 
+@pytest.mark.parametrize("true_end", ["20000,0", "0,-1e5", "1e300,1"])
+def test_a_row_umbmark_would_refuse_is_not_written(tmp_path, true_end):
+    """A true end in millimetres (or any end error past umbmark's bound, 1e4 m) made a row
+    that `mousedom umbmark`, and every later `--umbmark-csv` append, then refused: the
+    runs already in the file could no longer be scored.  No row is written, exit 2."""
+    config = tmp_path / "rig.yaml"
+    config.write_text(sim.rig_yaml(sim.three_mouse_rig()))
+    runs = tmp_path / "runs.csv"
+    runs.write_text("direction,dx,dy\nccw,0.01,0.02\n")
+    capture_args = write_run(tmp_path, True, sim.three_mouse_rig())
+    proc = run_mousedom(
+        "replay", "--config", str(config), *capture_args, "--umbmark", "cw",
+        "--true-end", true_end, "--umbmark-csv", str(runs),
+    )  # fmt: skip
+    assert proc.returncode == 2, proc.stderr
+    assert "beyond 10000 m" in proc.stderr and "no row written" in proc.stderr, proc.stderr
+    assert runs.read_text() == "direction,dx,dy\nccw,0.01,0.02\n"
+    proc = run_mousedom(
+        "replay", "--config", str(config), *capture_args, "--umbmark", "cw",
+        "--true-end", true_end,
+    )  # fmt: skip
+    assert proc.returncode == 2 and not proc.stdout.startswith("cw,"), proc.stdout
+
+
 @pytest.mark.parametrize(
     "existing, error",
     [

@@ -79,16 +79,25 @@ def umbmark(directions: Sequence[str], errors: np.ndarray) -> UmbResult:
     return UmbResult(centres["cw"], centres["ccw"], warnings)
 
 
+# The largest end error a RUNS.csv row may hold (metres): beyond it a file is not one of
+# metres (parse_runs refuses it), and replay writes no such row (umbmark_row).
+MAX_END_ERROR_M = 1e4
+
+
 def umbmark_row(direction: str, final_pose: Sequence[float], true_pose: Sequence[float]) -> str:
     """One RUNS.csv line (no newline): odometry end position minus true end position."""
     if direction not in DIRECTIONS:
         raise ValueError(f"direction must be cw or ccw, got {direction!r}")
     dx = float(final_pose[0]) - float(true_pose[0])
     dy = float(final_pose[1]) - float(true_pose[1])
+    if not (abs(dx) <= MAX_END_ERROR_M and abs(dy) <= MAX_END_ERROR_M):
+        # parse_runs refuses such a row: written, it would spoil the file for every later
+        # run and for the score
+        raise UserError(
+            f"the end error ({dx:g}, {dy:g}) m is beyond {MAX_END_ERROR_M:g} m, which no "
+            "UMBmark run has (is the true end in metres?): no row written"
+        )
     return f"{direction},{dx:.6f},{dy:.6f}"
-
-
-MAX_END_ERROR_M = 1e4
 
 
 def parse_runs(text: str, path: str | None = None) -> tuple[list[str], np.ndarray]:
