@@ -211,6 +211,24 @@ def test_bonarini_covariance_linearises_to_lsq_for_small_noise():
     np.testing.assert_allclose(bon.cov, lsq.cov, rtol=1e-4, atol=1e-16)
 
 
+@pytest.mark.parametrize("pos", GEOMETRIES, ids=range(len(GEOMETRIES)))
+def test_bonarini_covariance_stays_finite_where_eq_8_turns_sign(pos):
+    """Straight windows with noise: the two forward readings cross, and eq. (8)'s turn jumps
+    sign there.  The linearisation is taken on the window's own side of the jump: no window
+    is far above the lsq heading variance, and a drive's summed variance is the lsq one
+    (central differences across the jump had given up to 2.4e7 times it in one window)."""
+    rng = np.random.default_rng(5)
+    sigma = 0.0254 / 450  # one count at 450 CPI
+    n = 20000
+    d = rigid(np.tile([0.003, 0.0, 0.0], (n, 1)), pos) + rng.normal(0, sigma, (n, 2, 2))
+    bon = models.solve("bonarini", d, pos, sigma)
+    lsq = models.solve("lsq", d, pos, sigma)
+    ratio = bon.cov[:, 2, 2] / lsq.cov[:, 2, 2]
+    assert ratio.max() < 10, ratio.max()
+    assert bon.cov[:, 2, 2].sum() / lsq.cov[:, 2, 2].sum() == pytest.approx(1.0, rel=0.1)
+    assert np.all(np.linalg.eigvalsh(bon.cov) > -1e-18)
+
+
 @settings(max_examples=300, deadline=None)
 @example(p=(0.25, 0.0, 0.0, 0.0), q=(0.027007315427299533, 0.0, 1.401298464324817e-45))
 @example(p=(5e-324, 0.0625, 0.0, 0.0), q=(0.0, 0.046875, 0.0))

@@ -348,6 +348,14 @@ def _bonarini(
     The covariance linearises the whole map numerically (central differences over the four
     readings, all windows at once) and propagates diag(sigma^2).  The step h = 1e-3 sigma is
     small against the noise, so the linearisation is local, and large against rounding.
+
+    Eq. (8) turns with the sign of y_r - y_l: where the two forward readings are nearly
+    equal (a straight window with noise) the turn jumps from +|e|/D to -|e|/D as they
+    cross.  A central difference whose two points straddle that jump is no slope (it gave
+    a heading variance up to 2.4e7 times the least squares' in one window of a straight
+    drive in 1,700): there the difference is taken on the side of the window's own
+    readings.  (Near straight driving the turn's spread is then about twice what this
+    linearisation says, from the jump itself: docs/models.md.)
     """
     left, right, origin, rot, dist = bonarini_frame(positions)
     proj_l = d[:, left] @ rot  # body -> their frame: (x . ex, x . ey)
@@ -360,7 +368,19 @@ def _bonarini(
         pert[1 + 2 * j, :, j] += h[j]
         pert[2 + 2 * j, :, j] -= h[j]
     qs = _bonarini_q(pert, origin, rot, dist)  # (9, m, 3)
-    jac = np.stack([(qs[1 + 2 * j] - qs[2 + 2 * j]) / (2 * h[j]) for j in range(4)], axis=-1)
+    side = np.sign(pert[..., 3] - pert[..., 1])  # (9, m): which side of eq. (8)'s jump
+    cols = []
+    for j in range(4):
+        plus, minus = 1 + 2 * j, 2 + 2 * j
+        slope = (qs[plus] - qs[minus]) / (2 * h[j])
+        straddle = side[plus] != side[minus]
+        if straddle.any():
+            ahead = (straddle & (side[plus] == side[0]))[:, None]
+            behind = (straddle & (side[plus] != side[0]))[:, None]
+            slope = np.where(ahead, (qs[plus] - qs[0]) / h[j], slope)
+            slope = np.where(behind, (qs[0] - qs[minus]) / h[j], slope)
+        cols.append(slope)
+    jac = np.stack(cols, axis=-1)
     cov = (jac * s4**2) @ jac.transpose(0, 2, 1)
     return qs[0], cov
 
