@@ -272,7 +272,7 @@ MUTANTS = [
     Mutant(
         "take-back-past-readmission",
         "mousedom/fusion/robust.py",
-        "        sets = list(self.onset_used)[::-1]\n",
+        "        sets = list(self.used_history)[::-1]\n",
         "        sets = [(True,) * self.n] * len(rows)\n",
         ("tests/test_reconcile.py",),
         "windows a mouse was not used in are taken back from the pose as if it had been",

@@ -189,18 +189,15 @@ class Screen(RigidTest):
         self._max2 = self.max_step2.tolist()
         self._prev = [[0.0, 0.0] for _ in range(self.n)]  # the previous window's predictions
         self._leverage_lists: dict[tuple[bool, ...], list[float]] = {}
-        # The readings of the last windows (each (N, 2), or flattened floats): the tie
-        # break's continuity looks this far back, past windows a creeping fault may
-        # already have bent (_tie_break).
+        # The readings of the windows of the last TAKE_BACK_S (each (N, 2), or flattened
+        # floats), where a fault's onset is looked for when its mouse is held out
+        # (_take_back), and the mice each was solved with.  The tie break's continuity
+        # and a paid-back lag look at the last ``history_len`` of them (HISTORY_S), past
+        # windows a creeping fault may already have bent (_tie_break, _caught_up).
         self.history_len = max(2, round(HISTORY_S / window))
-        self.history: deque[Any] = deque(maxlen=self.history_len)
-        # the mice each of those windows was solved with (_caught_up, used_run)
-        self.used_history: deque[tuple[bool, ...]] = deque(maxlen=self.history_len)
-        # The readings and mice of the windows of the last TAKE_BACK_S, where a fault's
-        # onset is looked for when its mouse is held out (_take_back).
         self.onset_len = max(self.history_len, round(TAKE_BACK_S / window))
-        self.onset_rows: deque[Any] = deque(maxlen=self.onset_len)
-        self.onset_used: deque[tuple[bool, ...]] = deque(maxlen=self.onset_len)
+        self.history: deque[Any] = deque(maxlen=self.onset_len)
+        self.used_history: deque[tuple[bool, ...]] = deque(maxlen=self.onset_len)
         self._windows = 0  # windows solved so far (_used_for): which ties are consecutive
         # The tie breaks of the latest windows, per set of mice tested: the window, and the
         # explanations' statistics summed over the windows in a row with the same ones
@@ -255,8 +252,7 @@ class Screen(RigidTest):
         (the continuity of motion and lateness look back over them), every row solved
         with the mice ``used``."""
         self._prev = np.asarray(p[-1], dtype=float).tolist()
-        self.history.extend(d[-self.history_len :])
-        self.onset_rows.extend(d[-self.onset_len :])
+        self.history.extend(d[-self.onset_len :])
         self.lateness.remember_rows(p)
         self._used_for(used, len(p))
 
@@ -264,15 +260,14 @@ class Screen(RigidTest):
         """``rows`` more windows solved with the mice ``used`` (how far back a mouse's
         readings were its own part of the solve, and with whom: _caught_up, _take_back)."""
         row = used if type(used) is tuple else tuple(bool(u) for u in used)  # (fast_one's)
-        self.used_history.extend([row] * min(rows, self.history_len))
-        self.onset_used.extend([row] * min(rows, self.onset_len))
+        self.used_history.extend([row] * min(rows, self.onset_len))
         self._windows += rows
 
     def used_run(self, i: int) -> int:
         """The latest windows in a row mouse i was used in (up to ``history_len``)."""
         run = 0
         for used in reversed(self.used_history):
-            if not used[i]:
+            if run == self.history_len or not used[i]:
                 break
             run += 1
         return run
@@ -333,7 +328,6 @@ class Screen(RigidTest):
         self._prev, by_floor, by_prop = accepted
         nm.take(by_floor, by_prop)
         self.history.append(d)
-        self.onset_rows.append(d)
         self.lateness.remember(self._prev)
         self._used_for(live, 1)
         self._count_window(defer_block_end)
@@ -604,7 +598,8 @@ class Screen(RigidTest):
             return False
         full = np.linalg.inv(np.eye(2) - block)  # a residual in use -> under the others
         tol2 = self._thresholds[2] * 2.0 * float(s2[j])
-        past_d, past_p = list(self.history), list(self.lateness.recent)
+        past_d = list(self.history)[-self.history_len :]
+        past_p = list(self.lateness.recent)
         for k in range(1, min(len(past_d), len(past_p), self.used_run(j)) + 1):
             dk = np.asarray(past_d[-k], dtype=float).reshape(self.n, 2)[j]
             pk = np.asarray(past_p[-k], dtype=float).reshape(self.n, 2)[j]
@@ -640,7 +635,7 @@ class Screen(RigidTest):
         (a mouse saturating as a turn speeds up) passes it for most of a second: those
         windows keep its error for good, where a user who knew would have left the mouse
         out from the fault's start.  Going back from the last window (up to TAKE_BACK_S,
-        each with the mice it was solved with: ``onset_used``; ``kept``: less those taken
+        each with the mice it was solved with: ``used_history``; ``kept``: less those taken
         out of it already), each window's residual of the mouse under the others, along
         its residual now, is measured in its expected error now (z); the onset is where
         the sum of z - 1 over the windows after it is largest (a CUSUM's change point: a
@@ -659,8 +654,8 @@ class Screen(RigidTest):
         if size == 0.0:
             return None
         u = now / size
-        rows = list(self.onset_rows)[::-1]
-        sets = list(self.onset_used)[::-1]
+        rows = list(self.history)[::-1]
+        sets = list(self.used_history)[::-1]
         steps: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         take = score = best = 0.0
         take_n = 0
@@ -867,7 +862,7 @@ class Screen(RigidTest):
         h = self.history
         if len(h) < self.history_len:
             return None
-        return np.asarray(h[0], dtype=float).reshape(self.n, 2)
+        return np.asarray(h[-self.history_len], dtype=float).reshape(self.n, 2)
 
     def _update(self, d, p, live, used, suspect, reason, consistent, floor, prop) -> None:
         """Health after the window: exclusions, suspicion, re-admission (module step 4)."""
