@@ -324,15 +324,13 @@ class Sensors:
     def read_due(self, now: float) -> None:
         """Read what the sensors hold for the windows due at ``now``, and tell the tracker
         how far each live sensor's reports are complete."""
-        fired = set()
         for fd, _ in self.poll.poll(0):
             slot = self.by_fd.get(fd)
-            if slot is not None:
+            if slot is not None and not slot.source.probe:  # (a probed one: read below)
                 self.read(slot, now)
-                fired.add(fd)
         completes = []
         for slot in self.slots:
-            if slot.live and (slot.paced or (slot.source.probe and slot.fd not in fired)):
+            if slot.live and (slot.paced or slot.source.probe):  # read at every wake
                 self.read(slot, now)
             if slot.live:  # (a paced read may have lost it)
                 completes.append((slot.index, now - slot.latency))
