@@ -10,7 +10,6 @@ from typing import TYPE_CHECKING
 from mousedom import invocation
 from mousedom.commands._doctor_base import Check, Lines
 from mousedom.config import Config
-from mousedom.config.rig import GyroConfig
 
 if TYPE_CHECKING:
     from mousedom.sources.discovery import Scan
@@ -33,7 +32,7 @@ def _join(group: str) -> str:
 
 def check_devices(cfg: Config | None, root: str | None) -> list[Check]:
     """The input directory, then each mouse: the device it is, or why there is none."""
-    from mousedom.commands.list import config_matches
+    from mousedom.commands.list import config_gyro, config_matches
     from mousedom.sources.discovery import is_stream, paths_for_root, scan
 
     lines = Lines("devices")
@@ -46,9 +45,8 @@ def check_devices(cfg: Config | None, root: str | None) -> list[Check]:
     if cfg is None:
         return lines
     matches: dict[str, dict[str, str | None]] = {}
-    # (A config doctor checks was loaded from its file: it has a path.)
-    if result.present and evdev and cfg.path is not None:
-        matches = config_matches(cfg.path, result)
+    if result.present and evdev:
+        matches = config_matches(cfg, result)
     ports: dict[str, str] = {}
     for m in mice:
         if m.evdev is not None and m.name in streams:
@@ -66,33 +64,23 @@ def check_devices(cfg: Config | None, root: str | None) -> list[Check]:
                 lines.fail(f"{m.name}: replay {m.replay}: capture file not found",
                            "record one (`mousedom record`) or fix the path (relative to the "
                            "config)")  # fmt: skip
-    if cfg.gyro is not None:
-        _check_gyro(lines, cfg.gyro, root)
+    gyro = config_gyro(cfg.gyro, root)
+    if gyro is not None:
+        _check_gyro(lines, gyro)
     return lines
 
 
-def _check_gyro(lines: Lines, gyro: GyroConfig, root: str | None) -> None:
-    """The gyro: the IIO device its section names (as the daemon finds it), or the capture
-    or ROS 2 topic it stands in for one."""
-    from mousedom.sources.base import SourceUnavailable
-    from mousedom.sources.iio_sysfs import IioPaths, find_device
-
-    if gyro.replay is not None:
-        if os.path.isfile(gyro.replay):
-            lines.ok(f"gyro -> replay {gyro.replay}")
-        else:
-            lines.fail(f"gyro: replay {gyro.replay}: capture file not found",
-                       "record one (`mousedom record`) or fix the path")  # fmt: skip
-        return
-    if gyro.ros2 is not None:
-        lines.ok(f"gyro -> ROS 2 topic {gyro.ros2.topic}")
-        return
-    try:
-        dev = find_device(gyro, IioPaths.under(root or "/"), "gyro")
-    except SourceUnavailable as e:
-        lines.fail(str(e), "`mousedom list` shows the IIO gyros and the gyro: line for each")
-        return
-    lines.ok(f"gyro -> {dev.sysdir} ({dev.name or 'no name'})")
+def _check_gyro(lines: Lines, gyro: dict[str, str | None]) -> None:
+    """The gyro (``gyro``, from ``list.config_gyro``): the IIO device its section names as
+    the daemon finds it, or the capture or ROS 2 topic it stands in for one."""
+    if gyro["error"]:
+        hint = ("record one (`mousedom record`) or fix the path" if gyro["note"]
+                else "`mousedom list` shows the IIO gyros and the gyro: line for each")  # fmt: skip
+        lines.fail(gyro["error"], hint)
+    elif gyro["note"]:
+        lines.ok(f"gyro -> {gyro['note']}")
+    else:
+        lines.ok(f"gyro -> {gyro['sysfs']} ({gyro['name'] or 'no name'})")
 
 
 def _check_input_dir(

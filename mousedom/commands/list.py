@@ -9,7 +9,7 @@ import os
 import sys
 
 from mousedom.commands import _options as options
-from mousedom.config import load_config
+from mousedom.config import Config, GyroConfig, load_config
 from mousedom.errors import UserError
 from mousedom.sources.discovery import (
     DeviceInfo,
@@ -100,9 +100,8 @@ def _text(result: Scan) -> str:
     return "\n".join(lines) + "\n"
 
 
-def config_matches(config_path: str, result: Scan) -> dict[str, dict[str, str | None]]:
+def config_matches(cfg: Config, result: Scan) -> dict[str, dict[str, str | None]]:
     """For each evdev mouse of the config: the node its rule matches, or why none."""
-    cfg = load_config(config_path)
     out: dict[str, dict[str, str | None]] = {}
     for m in cfg.mice:
         if m.evdev is None:
@@ -134,19 +133,22 @@ def config_matches(config_path: str, result: Scan) -> dict[str, dict[str, str | 
     return out
 
 
-def config_gyro(config_path: str, root: str | None) -> dict[str, str | None] | None:
-    """The config's gyro: the IIO device its rule matches as the daemon finds it (its sysfs
-    folder and node), or why none; a capture or ROS 2 topic it stands in for one (a note,
-    no device); None where the rig has no gyro."""
+def config_gyro(g: GyroConfig | None, root: str | None) -> dict[str, str | None] | None:
+    """A config's gyro section: the IIO device its rule matches as the daemon finds it (its
+    sysfs folder, node and name), or why none; the capture (which must be a file) or ROS 2
+    topic it stands in for one (a note); None where the rig has no gyro.  (doctor says
+    the same: one rule.)"""
     from mousedom.sources.base import SourceUnavailable
     from mousedom.sources.iio_sysfs import find_device
 
-    g = load_config(config_path).gyro
     if g is None:
         return None
-    out: dict[str, str | None] = {"sysfs": None, "node": None, "error": None, "note": None}
+    out: dict[str, str | None] = {"sysfs": None, "node": None, "name": None, "error": None,
+                                  "note": None}  # fmt: skip
     if g.replay is not None:
         out["note"] = f"replay {g.replay}"
+        if not os.path.isfile(g.replay):
+            out["error"] = f"gyro: replay {g.replay}: capture file not found"
     elif g.ros2 is not None:
         out["note"] = f"ROS 2 topic {g.ros2.topic}"
     else:
@@ -155,7 +157,7 @@ def config_gyro(config_path: str, root: str | None) -> dict[str, str | None] | N
         except SourceUnavailable as e:
             out["error"] = str(e)
         else:
-            out["sysfs"], out["node"] = str(dev.sysdir), str(dev.node)
+            out["sysfs"], out["node"], out["name"] = str(dev.sysdir), str(dev.node), dev.name
     return out
 
 
@@ -203,8 +205,9 @@ def run(args: argparse.Namespace) -> int:
     paths = paths_for_root(args.root)
     result = scan(paths)
     found = gyros(args.root)
-    matches = config_matches(args.config, result) if args.config else None
-    gyro = config_gyro(args.config, args.root) if args.config else None
+    cfg = load_config(args.config) if args.config else None
+    matches = config_matches(cfg, result) if cfg is not None else None
+    gyro = config_gyro(cfg.gyro, args.root) if cfg is not None else None
     if args.json:
         doc = {
             "input_dir": paths.dev_input,
