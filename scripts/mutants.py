@@ -603,10 +603,19 @@ MUTANTS = [
     Mutant(
         "scale-fault-learnt-as-a-cpi",
         "mousedom/fusion/scalelearn.py",
-        "        if not flagged:  # (a fault is not learnt as a CPI, blamed or not)\n",
-        "        if True:\n",
+        "        if not flagged and len(c):  # (a fault is not learnt as a CPI, blamed or not)\n",
+        "        if len(c):\n",
         ("tests/test_scale_faults.py",),
         "an under-read's block is learnt as the mouse's CPI",
+    ),
+    Mutant(
+        "scale-judged-by-its-residual-alone",
+        "mousedom/fusion/scalelearn.py",
+        "            spread = np.maximum(spread, jackknife(self.gram, self._segments)"
+        " * (t / _PLAIN))",
+        "            pass",
+        ("tests/test_scalelearn.py",),
+        "a scale from a few blocks of hard driving is applied on the residual's white spread",
     ),
     Mutant(
         "scale-fault-not-excluded",
