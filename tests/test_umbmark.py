@@ -102,6 +102,28 @@ def test_cli_bad_inputs(tmp_path):
     assert p.returncode == 2 and "--write needs --config" in p.stderr
 
 
+@pytest.mark.parametrize("scale, warned", [(1.0, False), (1000.0, True)])
+def test_a_file_in_millimetres_is_warned_of(tmp_path, scale, warned):
+    """RUNS.csv is in metres.  The same runs written in millimetres (errors of 20-300, under
+    parse_runs' 1e4 bound) were scored 1,000 times too high without a word: now a warning
+    names how many runs end beyond the square's side and how far, exit 0 (a broken
+    odometry's runs may end that far off)."""
+    rng = np.random.default_rng(7)
+    rows = [
+        f"{d},{dx * scale:.6f},{dy * scale:.6f}"
+        for d in ("cw", "ccw")
+        for dx, dy in rng.uniform(-0.3, 0.3, (5, 2)) + [0.02, 0.02]
+    ]
+    runs = tmp_path / "runs.csv"
+    runs.write_text("direction,dx,dy\n" + "\n".join(rows) + "\n")
+    p = run_mousedom("umbmark", str(runs))
+    assert p.returncode == 0, p.stderr
+    said = "is it in millimetres?" in p.stderr
+    assert said == warned, p.stderr
+    if warned:
+        assert "10 run(s) end more than 4 m" in p.stderr
+
+
 def test_umbmark_on_simulated_squares_sees_a_cpi_error():
     """4 m squares on the core simulator and tracker: with the true CPI the systematic
     error is tiny; with a 2 % CPI error on one mouse of two it is large."""

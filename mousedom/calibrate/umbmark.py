@@ -24,6 +24,12 @@ from mousedom.errors import UserError, located
 DIRECTIONS = ("cw", "ccw")
 HEADER = "direction,dx,dy"
 RECOMMENDED_RUNS = 5  # per direction, as Borenstein & Feng do
+# Borenstein & Feng's square is 4 m a side.  An end error beyond a side is no odometry's
+# on it (it lost the square), and a file whose errors are tens to hundreds "of metres" is
+# one in millimetres: 50 mm read as 50 m scores 1,000 times too high (a run of errors
+# under 1e4 passed parse_runs' bound without a word).  Warned of, not refused: a broken
+# odometry's first runs may really end that far off.
+SIDE_M = 4.0
 
 
 @dataclass(frozen=True)
@@ -76,6 +82,12 @@ def umbmark(directions: Sequence[str], errors: np.ndarray) -> UmbResult:
                 f"{RECOMMENDED_RUNS} per direction"
             )
         centres[d] = Centre(float(sel[:, 0].mean()), float(sel[:, 1].mean()), len(sel))
+    far = np.hypot(errors[:, 0], errors[:, 1])
+    if far.size and far.max() > SIDE_M:
+        warnings.append(
+            f"{int(np.sum(far > SIDE_M))} run(s) end more than {SIDE_M:g} m (the square's "
+            f"side) off, up to {far.max():g} m: RUNS.csv is in metres; is it in millimetres?"
+        )
     return UmbResult(centres["cw"], centres["ccw"], warnings)
 
 
