@@ -11,7 +11,9 @@ that comes back does (``Sensors.replace``).  ``Reloader`` is given the parts it 
 swaps the running config and tracker (running.py) for all of them at once.
 
 The pose carries over with its covariance (``Tracker.carry``): a reload changes how the
-rig is read from now on, not what is known of where it is.  A connected client whose
+rig is read from now on, not what is known of where it is.  A reload whose config builds
+the same tracker (the fusion's terms unchanged, every sensor kept) goes on with the running
+one and what it learnt: its scales, noise and health (``Tracker.go_on``).  A connected client whose
 VERSION no longer says what the daemon does (the sensors, the rate, the model, whether it
 may control) gets a fresh VERSION, and then each sensor's SOURCE, after the POSE lines of
 the old config's windows and before any of the new one's (docs/protocol.md): the POSE
@@ -84,8 +86,11 @@ class Reloader:
         old = self.running.tracker
         self.publisher.publish(old.poll())
         self.publisher.log_scales()
-        tracker = self.tracker_class(new, t0=old.frontier_time)
-        tracker.carry(old, self.sensors.kept(sensors_of(new)))  # the pose, its covariance
+        kept = self.sensors.kept(sensors_of(new))
+        tracker = old
+        if not old.go_on(new, kept):  # (the fusion's terms changed: learnt afresh)
+            tracker = self.tracker_class(new, t0=old.frontier_time)
+            tracker.carry(old, kept)  # the pose, its covariance
         self._stop_recording_if_mice_changed(new)
         self.publisher.fold_window_health()  # the old slots' last windows, before they move
         previous = self.running.config
