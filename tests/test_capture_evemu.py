@@ -422,3 +422,17 @@ def test_replay_of_a_recording_cut_in_its_last_number_counts_whole_lines_only(tm
     row = next(ln for ln in proc.stdout.splitlines() if ln.startswith("m "))
     assert row.split()[3] == "7", row  # net x: the first frame's only
     assert "cut.evemu:9: last line cut off (truncated recording); skipped" in proc.stderr
+
+
+@pytest.mark.parametrize("value", ["1_000", "1_0", "-1_0", "٣"])
+def test_a_value_with_a_digit_separator_or_non_ascii_digit_is_refused(tmp_path, value):
+    """Python's int() reads "1_000" as 1000: such a value (no evemu writes one) was taken
+    silently; it is refused naming the line, as the fast scanners refuse it."""
+    text = format_evemu(np.arange(1, 6) * 0.01, np.ones(5, int), np.ones(5, int))
+    lines = text.splitlines(keepends=True)
+    k = next(i for i, ln in enumerate(lines) if ln.startswith("E: 0.030000 0002 0000"))
+    lines[k] = f"E: 0.030000 0002 0000 {value}\n"
+    p = tmp_path / "u.evemu"
+    p.write_text("".join(lines))
+    with pytest.raises(CaptureError, match=rf"u.evemu:{k + 1}: value must be a decimal integer"):
+        drain(p)

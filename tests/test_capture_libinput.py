@@ -358,3 +358,48 @@ def test_a_device_written_as_a_flow_mapping_is_read_whatever_key_comes_first(tmp
     assert [d.name for d in cap.devices] == ["a", "b"]
     assert not [w for w in cap.open_warnings if "cut off" in w]
     assert drain(p).stats[1].net_x == 5
+
+
+def test_a_row_with_a_digit_separator_is_named_by_its_line(tmp_path):
+    """int() reads "1_0" as 10: the quick checks refused such a row, and the search for
+    the bad line took it, so the error named the block's first line, "malformed events"."""
+    p, _, _ = _two_mice(tmp_path, n=20)
+    lines = p.read_text().splitlines()
+    k = next(i for i, ln in enumerate(lines) if ln.startswith("    - [") and i > 40)
+    lines[k] = lines[k].rsplit(",", 1)[0] + ", 1_0]"
+    p.write_text("\n".join(lines) + "\n")
+    with pytest.raises(UserError, match=rf"rec.yml:{k + 1}: an evdev event must be"):
+        drain(p)
+
+
+def test_a_recording_re_dumped_as_json_is_read(tmp_path):
+    """docs/captures.md: a document as JSON is read.  JSON's keys are strings ("2" for
+    EV_REL's codes), and the mouse was refused as "no REL_X/REL_Y motion"."""
+    import json
+
+    import yaml
+
+    t = np.arange(1, 51) * 0.01
+    text = format_libinput([("m", t, np.ones(50, int), -np.ones(50, int))])
+    p = tmp_path / "rec.json"
+    p.write_text(json.dumps(yaml.safe_load(text)))
+    cap = drain(p)
+    assert [d.rel_xy for d in cap.devices] == [True]
+    t_read, dx, dy = cap.motion[0]
+    assert len(t_read) == 50 and dx.sum() == 50 and dy.sum() == -50
+
+
+def test_a_device_with_events_as_an_empty_list_is_no_truncation(tmp_path):
+    """``events: []`` (what a re-dump by yq writes for a device without events) was taken
+    for a device header cut off: an error with one device, false truncation warnings
+    after another."""
+    t = np.arange(1, 51) * 0.01
+    e = np.zeros(0)
+    text = format_libinput([("m", t, np.ones(50, int), np.zeros(50, int)),
+                            ("k", e, e.astype(int), e.astype(int))])  # fmt: skip
+    p = tmp_path / "rec.yml"
+    p.write_text(text.rstrip("\n") + " []\n")
+    cap = drain(p)
+    assert [d.name for d in cap.devices] == ["m", "k"]
+    assert len(cap.motion[0][0]) == 50
+    assert not any("cut off" in w or "recorded" in w for w in cap.warnings), cap.warnings

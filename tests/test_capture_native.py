@@ -453,3 +453,78 @@ def test_the_writer_refuses_what_the_reader_refuses(tmp_path):
     w.sync(float("inf"))  # the end of a recording is a valid sync
     w.close()
     drain(tmp_path / "w.mdcap")
+
+
+def _serial_file(path, times):
+    """A capture of one serial device whose reads are stamped ``times``, each chunk as a
+    writer without the order check would write it (the bytes: one ADNS motion packet)."""
+    from mousedom.capture.native_format import SERIAL
+    from mousedom.sources import adns_protocol as P
+
+    dev = DeviceInfo(name="adns", kind="serial", mouse="floor")
+    motion = [P.Motion(seq=k, t_us=10_000 * k, dx=5, dy=7, frames=10, squal_min=50, flags=0)
+              for k in range(len(times))]  # fmt: skip
+    wire = [P.encode_packet(m) for m in motion]
+    with NativeWriter(path, [dev], time_base="monotonic") as w:
+        for t, piece in zip(times, wire, strict=True):
+            head = np.asarray([t], "<f8").tobytes() + np.asarray([len(piece)], "<u4").tobytes()
+            w._chunk(SERIAL, 0, 1, head + piece)
+
+
+def test_serial_reads_back_in_time_are_refused_naming_the_offset(tmp_path):
+    """A serial read stamped 50 s back was read without a word, and the decoder held every
+    ADNS report after it at one instant (100.09 s, where they were 10 ms apart): the
+    reader now refuses it as it refuses motion and gyro chunks that go back."""
+    p = tmp_path / "back.mdcap"
+    times = [100.0 + 0.01 * k for k in range(20)]
+    times[10] = 50.0
+    _serial_file(p, times)
+    with pytest.raises(
+        CaptureError, match=r"byte offset \d+: time goes backwards for device 'adns'"
+    ):
+        for f in open_capture(str(p)).feeds():
+            for _ in f.batches:
+                pass
+    ok = tmp_path / "ok.mdcap"
+    _serial_file(ok, sorted(times))
+    for f in open_capture(str(ok)).feeds():
+        for _ in f.batches:
+            pass
+
+
+def test_the_writer_refuses_serial_reads_back_in_time_or_for_another_kind(tmp_path):
+    """Never write what the reader refuses: serial reads out of time order (within a call
+    or across calls), serial bytes for an evdev device."""
+    devs = [DeviceInfo(name="m", mouse="m", rel_xy=True),
+            DeviceInfo(name="adns", kind="serial", mouse="floor")]  # fmt: skip
+    with NativeWriter(tmp_path / "a.mdcap", devs) as w:
+        w.serial_many(1, [1.0, 2.0], [b"\x01", b"\x02"])
+        with pytest.raises(CaptureError, match="after one at 2.0"):
+            w.serial_many(1, [1.5], [b"\x03"])
+        with pytest.raises(CaptureError, match="after one at 2.5"):
+            w.serial_many(1, [2.5, 2.4], [b"\x03", b"\x04"])
+        with pytest.raises(ValueError, match="of kind 'evdev': no serial bytes"):
+            w.serial_many(0, [3.0], [b"\x05"])
+
+
+def test_chunks_of_another_kind_than_their_device_are_refused(tmp_path):
+    """Serial bytes for an evdev device were decoded as ADNS-3080 packets, motion reports
+    for a serial device taken as its reports: each kind of chunk is its kind of device's."""
+    from mousedom.capture.native_format import MOTION, SERIAL
+
+    devs = [DeviceInfo(name="m", mouse="m", rel_xy=True),
+            DeviceInfo(name="adns", kind="serial", mouse="floor")]  # fmt: skip
+    for kind, device, what in ((SERIAL, 0, "serial bytes"), (MOTION, 1, "motion reports")):
+        p = tmp_path / f"{kind}-{device}.mdcap"
+        with NativeWriter(p, devs) as w:
+            if kind == SERIAL:
+                head = np.asarray([1.0], "<f8").tobytes() + np.asarray([1], "<u4").tobytes()
+                w._chunk(SERIAL, device, 1, head + b"\x01")
+            else:
+                body = (np.asarray([1.0], "<f8").tobytes() + np.asarray([1], "<i4").tobytes()
+                        + np.asarray([2], "<i4").tobytes())  # fmt: skip
+                w._chunk(MOTION, device, 1, body)
+        with pytest.raises(CaptureError, match=rf"byte offset \d+: {what} for device"):
+            for f in open_capture(str(p)).feeds():
+                for _ in f.batches:
+                    pass

@@ -240,10 +240,12 @@ def event_line(line: bytes) -> tuple[float, int, int, int]:
         raise ValueError("type and code must be hexadecimal") from None
     if not (0 <= ty <= 0xFFFF and 0 <= co <= 0xFFFF) or b"_" in fields[2] + fields[3]:
         raise ValueError("type or code out of range")
-    try:
-        va = int(fields[4], 10)
-    except ValueError:
-        raise ValueError("value must be a decimal integer") from None
+    value = fields[4]
+    # A sign and ASCII digits, as the fast scanners take them: int() also reads "1_000"
+    # (a digit separator no evemu writes) as 1000.
+    if not (value[1:] if value[:1] in (b"-", b"+") else value).isdigit():
+        raise ValueError("value must be a decimal integer")
+    va = int(value, 10)
     if not -(2**31) <= va < 2**31:
         raise ValueError("value out of range")
     return t, ty, co, va

@@ -66,7 +66,8 @@ _FLOW_DEVICE = re.compile(
     rb"(?m)^[ \t]*- \{[ \t]*[\"']?(?:node|evdev|udev|events|hid|quirks)[\"']?[ \t]*:"
 )
 _BLOCK_ROW = re.compile(rb"(?m)^[ \t]*- - ")
-_EVENTS = re.compile(rb"(?m)^[ \t]+events:[ \t]*(?:#.*)?$")
+# (``events: []``: a device without events, as a re-dump by yq writes it)
+_EVENTS = re.compile(rb"(?m)^[ \t]+events:[ \t]*(?:\[[ \t]*\][ \t]*)?(?:#.*)?$")
 # A top-level key after the devices began: a second recording appended (``cat a.yml b.yml``).
 _TOP = re.compile(rb"(?m)^(?:version|ndevices|libinput|system|devices):")
 
@@ -295,7 +296,8 @@ class LibinputCapture(Capture):
             info.bus, info.vendor, info.product, info.version = ident
         codes = evdev.get("codes")
         if isinstance(codes, dict):
-            rel = codes.get(EV_REL) or []
+            # (a document re-dumped as JSON has its keys as strings: "2")
+            rel = codes.get(EV_REL, codes.get(str(EV_REL))) or []
             info.rel_xy = isinstance(rel, list) and REL_X in rel and REL_Y in rel
         info.extra["node"] = item.get("node")
         if span.events_line == 0:

@@ -166,13 +166,13 @@ def _every_field_has_a_digit(joined: bytes) -> bool:
 
 
 def _row_ok(row: bytes) -> bool:
-    fields = row.split(b",")
+    fields = [x.strip() for x in row.split(b",")]
     if len(fields) != 5:
         return False
-    try:
-        vals = [int(x) for x in fields]
-    except ValueError:
+    # A sign and ASCII digits only: int() also reads "1_0" (a digit separator) as 10.
+    if not all((x[1:] if x[:1] in (b"-", b"+") else x).isdigit() for x in fields):
         return False
+    vals = [int(x) for x in fields]
     return (
         min(vals[:4]) >= 0
         and vals[0] < MAX_SECONDS

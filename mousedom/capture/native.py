@@ -213,6 +213,9 @@ class NativeCapture(Capture):
                 pending += count
             elif kind == SERIAL:
                 t, pieces = serial_pieces(self.path, payload, count, offset)
+                # (host times of the reads: the decoder maps the firmware's clock onto
+                # them, and one read stamped back held every later report at one instant)
+                self._in_order(t, last, source, offset)
                 st.serial_bytes += sum(map(len, pieces))
                 out.serial.append(Serial(source, t, pieces))
                 pending += count
@@ -234,13 +237,16 @@ class NativeCapture(Capture):
         yield out
 
     def _check_kind(self, kind: int, source: int, offset: int) -> None:
-        """A gyro's chunks are RATE (or RATE_SATURATED) and such a chunk is a gyro's (a
-        file of version 2 or later, which the header's devices have been checked for)."""
-        if kind not in (MOTION, RATE, RATE_SATURATED):
+        """A device's data chunks are of its kind: a gyro's are RATE (or RATE_SATURATED)
+        and such a chunk is a gyro's (a file of version 2 or later, which the header's
+        devices have been checked for); SERIAL bytes are a serial device's (an evdev
+        device's were decoded as ADNS-3080 packets) and it has no motion reports."""
+        if kind not in (MOTION, RATE, RATE_SATURATED, SERIAL):
             return
-        gyro = self.devices[source].kind == GYRO_KIND
-        if gyro != (kind != MOTION):
-            what = "gyro samples" if kind != MOTION else "motion reports"
+        device_kind = self.devices[source].kind
+        wanted = {MOTION: "evdev", RATE: GYRO_KIND, RATE_SATURATED: GYRO_KIND, SERIAL: "serial"}
+        if device_kind != wanted[kind]:
+            what = {MOTION: "motion reports", SERIAL: "serial bytes"}.get(kind, "gyro samples")
             raise CaptureError(
                 located(self.path, None, f"byte offset {offset}: {what} for device "
                         f"{self.devices[source].name!r}, which is of kind "

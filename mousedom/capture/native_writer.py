@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 import struct
 import time
@@ -80,6 +81,7 @@ class NativeWriter:
         # Per source, its columns (t, dx, dy) or, for a gyro, (t, rate, saturated), as given
         self._buf: list[list[tuple[np.ndarray, ...]]] = [[] for _ in devices]
         self._buffered = [0] * len(devices)
+        self._serial_t = [-math.inf] * len(devices)  # each serial device's last read
         self.reports_written = 0
         self.samples_written = 0  # a gyro's
         version = version_for([d.kind for d in devices])
@@ -173,14 +175,25 @@ class NativeWriter:
         self.serial_many(device, [t], [data])
 
     def serial_many(self, device: int, ts: list[float], pieces: list[bytes]) -> None:
+        dev = self.devices[device]
+        if dev.kind != "serial":  # the reader refuses them: never write them
+            raise ValueError(f"device {dev.name!r} is of kind {dev.kind!r}: no serial bytes")
         if not pieces:
             return
+        last = self._serial_t[device]
         for t in ts:
             if not plausible_time(t):
                 raise CaptureError(
-                    f"device {self.devices[device].name!r}: serial read at time {t!r}: "
+                    f"device {dev.name!r}: serial read at time {t!r}: "
                     f"the native format holds finite times below {MAX_TIME_S:g} s only"
                 )
+            if t < last:
+                raise CaptureError(
+                    f"device {dev.name!r}: serial read at time {t!r} after one at {last!r}: "
+                    "the native format holds a device's reads in time order"
+                )
+            last = t
+        self._serial_t[device] = last
         head = np.asarray(ts, dtype="<f8").tobytes()
         head += np.asarray([len(p) for p in pieces], dtype="<u4").tobytes()
         self._chunk(SERIAL, device, len(pieces), head + b"".join(pieces))
