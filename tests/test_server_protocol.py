@@ -94,6 +94,12 @@ def test_valid_commands():
         (b'{"cmd": "rate", "hz": -1}', "between 0 and"),
         (b'{"cmd": "status", "verbose": 1}', "takes no arguments"),
         (b'{"cmd": "status"}\xff', "byte offset 17: not UTF-8"),
+        # json.loads keeps a key's last value: a "status" that was a reset, answered OK
+        (b'{"cmd": "status", "cmd": "reset"}', "key 'cmd' given twice"),
+        (b'{"cmd": "reset", "x": 1, "x": 2}', "key 'x' given twice"),
+        (b'{"cmd": "status", "id": {"a": 1, "a": 2}}', "key 'a' given twice"),
+        # valid JSON text, but no character: echoed, the reply was a line strict parsers refuse
+        (b'{"cmd": "status", "id": "\\ud800"}', "no lone surrogate"),
     ],
 )
 def test_bad_commands_say_what_is_wrong(line, words):

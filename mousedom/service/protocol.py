@@ -133,7 +133,9 @@ def parse_command(line: bytes) -> Command:
         raise ProtocolError(f"column {too_deep}: nested deeper than {MAX_DEPTH} levels")
     try:
         # Python's json accepts NaN/Infinity; the protocol is strict JSON.
-        obj = json.loads(text, parse_constant=_reject_constant)
+        obj = json.loads(text, parse_constant=_reject_constant, object_pairs_hook=_unique_keys)
+    except _KeyTwice as e:
+        raise ProtocolError(f"key {e.args[0]!r} given twice") from None
     except json.JSONDecodeError as e:
         raise ProtocolError(f"invalid JSON at column {e.colno}: {e.msg}") from None
     except (RecursionError, ValueError) as e:  # e.g. an integer of more than 4300 digits
@@ -179,16 +181,26 @@ def _valid_id(value: Any) -> Any:
     number, true/false or null); anything else is refused without echoing it."""
     if value is None or isinstance(value, bool):
         return value
-    if isinstance(value, str) and len(value) <= MAX_ID_CHARS:
+    # (a lone surrogate, "\ud800", is valid JSON text but no character: echoed, the reply
+    # is a line strict parsers refuse)
+    if isinstance(value, str) and len(value) <= MAX_ID_CHARS and _encodable(value):
         return value
     if isinstance(value, int) and abs(value) < 2**63:
         return value
     if isinstance(value, float) and math.isfinite(value):
         return value
     raise ProtocolError(
-        f"id must be a string of at most {MAX_ID_CHARS} characters, a finite number (an "
-        "integer below 2**63 in magnitude), true, false or null"
+        f"id must be a string of at most {MAX_ID_CHARS} characters (no lone surrogate), a "
+        "finite number (an integer below 2**63 in magnitude), true, false or null"
     )
+
+
+def _encodable(text: str) -> bool:
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
 
 
 def _command(obj: dict[str, Any], cmd_id: Any = None) -> Command:
@@ -218,6 +230,22 @@ def _command(obj: dict[str, Any], cmd_id: Any = None) -> Command:
         if not 0 <= args["hz"] <= MAX_CLIENT_HZ:
             raise ProtocolError(f"rate: hz must be between 0 and {MAX_CLIENT_HZ:g}")
     return Command(name=name, args=args, id=cmd_id)
+
+
+class _KeyTwice(Exception):
+    """A JSON object with a key given twice (json.loads would keep the last silently)."""
+
+
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """The object, where each key comes once: ``{"cmd": "status", "cmd": "reset"}`` was a
+    reset answered "OK reset" (json.loads keeps the last), ``{"x": 1, "x": 2}`` took 2.
+    Refused as the config refuses a key given twice."""
+    out: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in out:
+            raise _KeyTwice(key)
+        out[key] = value
+    return out
 
 
 def _reject_constant(name: str) -> Any:
