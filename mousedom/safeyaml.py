@@ -44,6 +44,7 @@ class Loader(yaml.SafeLoader):
     """SafeLoader whose integers are bounded in length (what the limit check cannot see)."""
 
     def construct_yaml_int(self, node: yaml.ScalarNode) -> int:
+        _refuse_yaml11_number(node)
         if _OCTAL_LOOKING.match(str(node.value)):
             # YAML 1.1 (PyYAML's) reads 0450 as octal 296; YAML 1.2 and every person as 450.
             raise LimitError(
@@ -61,8 +62,27 @@ class Loader(yaml.SafeLoader):
             )
         return super().construct_yaml_int(node)
 
+    def construct_yaml_float(self, node: yaml.ScalarNode) -> float:
+        _refuse_yaml11_number(node)
+        return super().construct_yaml_float(node)
+
+
+def _refuse_yaml11_number(node: yaml.ScalarNode) -> None:
+    """YAML 1.1 (PyYAML's) reads ``1:30`` as 90 (base 60: ``yaw: 1:30`` was a yaw of 90
+    degrees) and ``1_00`` as 100; YAML 1.2 reads both as text.  Ambiguous, as the octal
+    forms: refused with what each reading gives."""
+    text = str(node.value)
+    if ":" in text or "_" in text:
+        form = "base-60 number" if ":" in text else "number with digit separators"
+        raise LimitError(
+            problem=f"{text}: a {form} is ambiguous (YAML 1.1 reads it as a number, YAML 1.2 "
+            "as text); write the number plainly, or quote it where text is meant",
+            problem_mark=node.start_mark,
+        )
+
 
 Loader.add_constructor("tag:yaml.org,2002:int", Loader.construct_yaml_int)
+Loader.add_constructor("tag:yaml.org,2002:float", Loader.construct_yaml_float)
 # YAML 1.1 (PyYAML's) reads 1e-4 as a string: its floats need a dot.  YAML 1.2 and every
 # person read a number (a gyro's noise density is written so).
 Loader.add_implicit_resolver(

@@ -80,6 +80,9 @@ def explain_yaml_error(text: str, e: yaml.MarkedYAMLError) -> tuple[int | None, 
     return line, why
 
 
+_MERGE = "tag:yaml.org,2002:merge"
+
+
 class YamlDoc:
     """Parsed YAML plus the line number (1-based) of every key path."""
 
@@ -91,6 +94,10 @@ class YamlDoc:
         try:
             node, loader = safeyaml.compose(text)
             try:
+                # Indexed as written, before construction folds each merge key's (<<) pairs
+                # into its mapping, where a key that overrides a merged one looked given twice.
+                if node is not None:
+                    self._index(node, ())
                 self.data = loader.construct_document(node) if node is not None else None
             finally:
                 loader.dispose()
@@ -99,14 +106,16 @@ class YamlDoc:
             raise ConfigError(located(path, line, f"invalid YAML: {why}")) from None
         except yaml.YAMLError as e:
             raise ConfigError(located(path, None, f"invalid YAML: {e}")) from None
-        if node is not None:
-            self._index(node, ())
 
     def _index(self, node: yaml.Node, prefix: tuple[str, ...]) -> None:
         self.lines.setdefault(prefix, node.start_mark.line + 1)
         if isinstance(node, yaml.MappingNode):
             seen: set[str] = set()
+            merged: list[yaml.Node] = []
             for key_node, value_node in node.value:
+                if key_node.tag == _MERGE:
+                    merged.append(value_node)
+                    continue
                 key = str(key_node.value)
                 line = key_node.start_mark.line + 1
                 if key in seen:
@@ -120,9 +129,27 @@ class YamlDoc:
                 seen.add(key)
                 self.lines[prefix + (key,)] = line
                 self._index(value_node, prefix + (key,))
+            for value_node in merged:
+                self._index_merged(value_node, prefix, seen)
         elif isinstance(node, yaml.SequenceNode):
             for i, item in enumerate(node.value):
                 self._index(item, prefix + (str(i),))
+
+    def _index_merged(self, node: yaml.Node, prefix: tuple[str, ...], seen: set[str]) -> None:
+        """A merge key's mapping (or list of them, the first winning): its keys where the
+        mapping does not give them itself, at the lines they are written on."""
+        for mapping in node.value if isinstance(node, yaml.SequenceNode) else [node]:
+            if not isinstance(mapping, yaml.MappingNode):
+                continue  # (construction refuses it, with its line)
+            for key_node, value_node in mapping.value:
+                if key_node.tag == _MERGE:
+                    self._index_merged(value_node, prefix, seen)
+                    continue
+                key = str(key_node.value)
+                if key not in seen:
+                    seen.add(key)
+                    self.lines[prefix + (key,)] = key_node.start_mark.line + 1
+                    self._index(value_node, prefix + (key,))
 
     def error(self, keys: tuple[str, ...], message: str) -> ConfigError:
         line = None

@@ -49,6 +49,8 @@ def test_good_config_loads(tmp_path):
         ("yaw: 90}", "yaw: 90, z: 1}", 11, "mice.right.mount.z", "unknown key"),
         ("    replay: left.events\n", "", 5, "mice.left", "nowhere"),
         ("integrator: exact", "integrator: rk4", 3, "integrator", "exact, taylor"),
+        # `mount:` left empty was read as (0, 0, 0), where leaving it out is an error
+        ("mount: {x: 0.0, y: 0.135, yaw: 0.0}", "mount:", 7, "mice.left.mount", "is empty"),
     ],
 )
 def test_mistakes_name_file_line_and_key(tmp_path, old, new, line, key, words):
@@ -202,3 +204,23 @@ def test_a_wheel_radius_that_is_no_radius_names_the_key_written(wheels):
     with pytest.raises(ConfigError) as err:
         parse_config(text, "rig.yaml", need_sources=False)
     assert str(err.value).startswith("rig.yaml:4: wheels.radius: must be a positive number")
+
+
+def test_a_merge_key_may_be_overridden_as_yaml_says():
+    """``b: {<<: *m, cpi: 900}``: b takes m's keys but its own cpi.  The keys were indexed
+    after PyYAML had folded the merged ones in, and cpi looked given twice."""
+    text = (
+        "rate_hz: 100\nmice:\n"
+        "  a: &m {cpi: 800, mount: {x: 0.1, y: 0.0, yaw: 0}, replay: a.events}\n"
+        "  b: {<<: *m, cpi: 900, mount: {x: -0.1, y: 0.1, yaw: 0}}\n"
+        "  c:\n    <<: *m\n    mount: {x: -0.1, y: -0.1, yaw: 0}\n"
+    )
+    cfg = parse_config(text, "rig.yaml")
+    assert [(m.name, m.cpi_x, m.mount.x) for m in cfg.mice] == [
+        ("a", 800, 0.1),
+        ("b", 900, -0.1),
+        ("c", 800, -0.1),
+    ]
+    # a key given twice among a mapping's own keys is still an error, with its line
+    with pytest.raises(ConfigError, match=r"rig.yaml:4: mice.b.cpi: given twice"):
+        parse_config(text.replace("cpi: 900,", "cpi: 900, cpi: 901,"), "rig.yaml")

@@ -24,6 +24,12 @@ def _bomb(levels: int) -> str:
         ("x: " + "[" * 40 + "]" * 40 + "\n", "nested deeper than 32", 1),
         ("a: 1\nb: " + "7" * 500 + "\n", "an integer of 500 characters", 2),
         ("a: 1\nb: \x05\n", "not allowed in YAML", 2),
+        # YAML 1.1 reads these as numbers (90, 100, 5400.5), YAML 1.2 as text: a yaw of
+        # 1:30 was taken as 90 degrees without a word
+        ("a: 1\nyaw: 1:30\n", "a base-60 number is ambiguous", 2),
+        ("rate: 1_00\n", "digit separators is ambiguous", 1),
+        ("x:\n  y: 1:30:00.5\n", "a base-60 number", 2),
+        ("x: 1_0.5\n", "digit separators", 1),
     ],
 )
 def test_what_is_refused_names_its_line(text, words, line):
@@ -51,3 +57,12 @@ def test_size_limit(tmp_path):
     big.write_bytes(b"# " + b"x" * (safeyaml.MAX_BYTES + 10) + b"\n")
     with pytest.raises(OSError, match="too large"):
         safeyaml.read_text(big)
+
+
+def test_text_that_looks_like_those_numbers_is_still_text():
+    assert safeyaml.load('a: "1:30"\nb: 1_x\nc: "1_00"\nd: 12:30x\n') == {
+        "a": "1:30",
+        "b": "1_x",
+        "c": "1_00",
+        "d": "12:30x",
+    }

@@ -42,9 +42,13 @@ def _cpi(r: Reader, key: str, default: tuple[float, float] | None) -> tuple[floa
 
 
 def _mount(r: Reader, default: Mount | None) -> Mount:
-    if not r.has("mount"):
+    # `mount:` with nothing after it is no mount given (a line left to fill in): it was
+    # read as (0, 0, 0), where leaving the key out is an error.  `mount: {}` says each of
+    # x, y and yaw is its default, 0, as `{x: 0.1}` says y and yaw are.
+    if not r.has("mount") or r.raw("mount") is None:
         if default is None:
-            raise r.err("mount", "is required ({x: metres, y: metres, yaw: degrees})")
+            what = "is empty" if r.has("mount") else "is required"
+            raise r.err("mount", f"{what} ({{x: metres, y: metres, yaw: degrees}})")
         return default
     m = r.sub("mount", ("x", "y", "yaw"))
     base = default or Mount()
