@@ -437,6 +437,11 @@ class Daemon:
         self.notifier.stopping()
         try:
             self.reloader.finish_windows()
+            # The outputs' last checkpoint (the recording's sync): every window published is
+            # in it, the idle ones after the last report too, which the last second's
+            # checkpoint had not reached (replay of the recording lacked them).
+            if self.outputs:
+                self.outputs.checkpoint(self.running.tracker.frontier_time)
         except Exception:  # noqa: BLE001 - shutting down: log, do not mask the exit
             log.exception("flushing the last poses failed")
         # The outputs the daemon started (the recording, the metrics); the caller's own
