@@ -12,8 +12,26 @@ def write(tmp_path, text: str):
     return path
 
 
+def capture(path, devices: dict[str, str | None], gyro: bool = False):
+    """A small native capture: a device named ``name`` for each mouse ``mouse`` (None: no
+    mouse of its own) with two reports, and an IIO gyro with two samples."""
+    import numpy as np
+
+    from mousedom.capture import DeviceInfo, NativeWriter
+
+    devs = [DeviceInfo(name=name, mouse=mouse) for name, mouse in devices.items()]
+    if gyro:
+        devs.append(DeviceInfo(name="mpu6050", kind="iio", rel_xy=False))
+    with NativeWriter(path, devs) as w:
+        for i in range(len(devices)):
+            w.motion(i, np.array([1.0, 2.0]), np.array([1, 1]), np.array([0, 0]))
+        if gyro:
+            w.gyro(len(devices), np.array([1.0, 2.0]), np.array([0.0, 0.1]))
+    return path
+
+
 def test_prints_each_mouse_and_its_source(tmp_path):
-    (tmp_path / "drive.mdcap").write_bytes(b"")  # only its existence is checked here
+    capture(tmp_path / "drive.mdcap", {"sim a": None, "sim b": None})
     path = write(
         tmp_path,
         "model: diff-drive\n"
@@ -58,7 +76,33 @@ def test_a_missing_replay_file_is_an_error(tmp_path):
     )
     p = run_mousedom("check-config", "--config", str(path))
     assert p.returncode == 2 and "Traceback" not in p.stderr
-    assert f"mice.a.replay: {tmp_path / 'gone.events'}: capture file not found" in p.stderr
+    gone = tmp_path / "gone.events"
+    assert f"rig.yaml:2: mice.a.replay: {gone}: capture file not found" in p.stderr
+
+
+@pytest.mark.parametrize("device, words", [
+    ("abc", "rig.yaml:4: mice.a.replay.device: no device 'abc' in"),
+    (None, "rig.yaml:4: mice.a.replay: 0 devices of"),
+])  # fmt: skip
+def test_a_replay_device_not_in_its_capture_is_an_error_naming_the_config_line(
+    tmp_path, device, words
+):
+    """check-config passed a replay.device its capture does not hold (exit 0, "it would
+    run"), and replay then refused it naming the capture, not the config's line."""
+    capture(tmp_path / "cap.mdcap", {"sim x": None, "sim y": None})
+    ref = "{file: cap.mdcap}" if device is None else f"{{file: cap.mdcap, device: {device}}}"
+    path = write(
+        tmp_path,
+        "rate_hz: 100\nmice:\n  a:\n"
+        f"    replay: {ref}\n"
+        "    cpi: 400\n    mount: {x: 0.1}\n"
+        "  b: {cpi: 400, mount: {x: -0.1, y: 0.1}, replay: {file: cap.mdcap, device: sim y}}\n"
+        "  c: {cpi: 400, mount: {x: -0.1, y: -0.1}, replay: {file: cap.mdcap, device: sim x}}\n",
+    )
+    for command in (("check-config",), ("replay", "-o", str(tmp_path / "o.csv"))):
+        p = run_mousedom(*command, "--config", str(path))
+        assert p.returncode == 2 and "Traceback" not in p.stderr, p.stderr
+        assert words in p.stderr, p.stderr
 
 
 def test_mice_without_a_source_suggest_no_sources(tmp_path):
@@ -326,12 +370,11 @@ def test_the_gyro_is_said_with_its_source_axis_rate_and_use(tmp_path, gyro, said
     sign, its rate and noise and what the heading is taken from are a line of their own;
     an IIO path absent here is a note, and an absent device with --require-devices, or a
     gyro capture that is not there, an error."""
-    capture, gyro_capture = tmp_path / "run.mdcap", tmp_path / "gyro.mdcap"
-    for f in (capture, gyro_capture):
-        f.write_bytes(b"")  # (check-config only looks for the file)
+    mice = capture(tmp_path / "run.mdcap", {"sim a": "a", "sim b": "b"})
+    gyro_capture = capture(tmp_path / "gyro.mdcap", {}, gyro=True)
     cfg = tmp_path / "rig.yaml"
     gyro_text = gyro.replace("{gyro_capture}", str(gyro_capture))
-    cfg.write_text(_TWO_MICE.replace("{capture}", str(capture)) + f"gyro: {gyro_text}\n")
+    cfg.write_text(_TWO_MICE.replace("{capture}", str(mice)) + f"gyro: {gyro_text}\n")
     p = run_mousedom("check-config", "--config", str(cfg))
     assert p.returncode == 0, p.stderr
     gyro_lines = [ln for ln in p.stdout.splitlines() if ln.startswith("  gyro: ")]

@@ -135,14 +135,28 @@ def _check_config(rig: Path) -> subprocess.CompletedProcess:
 
 
 def _placeholders(doc: dict, where: Path) -> None:
-    """The captures a config's replay sources name, as empty files: check-config checks that
-    they exist (`mousedom run` would stop on a missing one), not what they hold."""
-    for mouse in (doc.get("mice") or {}).values():
+    """The captures a config's replay sources name, as small native captures holding a
+    device for each mouse that names the file (its replay.device as the device's name and
+    recorded node): check-config opens them and maps their devices onto the mice, as
+    `mousedom run` would."""
+    import numpy as np
+
+    from mousedom.capture import DeviceInfo, NativeWriter
+
+    files: dict[str, list[DeviceInfo]] = {}
+    for name, mouse in (doc.get("mice") or {}).items():
         replay = mouse.get("replay") if isinstance(mouse, dict) else None
-        name = replay.get("file") if isinstance(replay, dict) else replay
-        if isinstance(name, str) and not Path(name).is_absolute():
-            (where / name).parent.mkdir(parents=True, exist_ok=True)
-            (where / name).touch()
+        file = replay.get("file") if isinstance(replay, dict) else replay
+        device = replay.get("device") if isinstance(replay, dict) else None
+        if isinstance(file, str) and not Path(file).is_absolute():
+            info = DeviceInfo(name=str(device or f"sim {name}"), mouse=str(name),
+                              extra={"node": device} if device else {})  # fmt: skip
+            files.setdefault(file, []).append(info)
+    for file, devices in files.items():
+        (where / file).parent.mkdir(parents=True, exist_ok=True)
+        with NativeWriter(where / file, devices) as w:
+            for i in range(len(devices)):
+                w.motion(i, np.array([1.0, 2.0]), np.array([1, 1]), np.array([0, 0]))
 
 
 @pytest.mark.parametrize("file, line, kind, code, before", YAML, ids=_ids(YAML))

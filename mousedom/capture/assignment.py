@@ -197,13 +197,13 @@ class _Assigner:
         hits = _matching(m, cap, cands)
         if not hits and m.replay_device is not None:
             raise CaptureError(
-                f"{replay}: mice.{m.name}.replay.device: no device {m.replay_device!r} in "
-                f"this file (it holds {_describe(cap, cands)})"
+                f"{self.config.where(('mice', m.name, 'replay', 'device'))}: no device "
+                f"{m.replay_device!r} in {replay} (it holds {_describe(cap, cands)})"
             )
         if len(hits) != 1:
             raise CaptureError(
-                f"{replay}: mice.{m.name}.replay: {len(hits)} devices match "
-                f"(the file holds {_describe(cap, cands)}); set replay.device"
+                f"{self.config.where(('mice', m.name, 'replay'))}: {len(hits)} devices of "
+                f"{replay} match (it holds {_describe(cap, cands)}); set replay.device"
             )
         self.put(k, cap, hits[0], "from the config")
 

@@ -57,11 +57,11 @@ def _device(m: MouseConfig) -> str | None:
     return None
 
 
-def _captures(cfg: Config) -> list[tuple[str, str]]:
+def _captures(cfg: Config) -> list[tuple[tuple[str, ...], str]]:
     """(key, file) of each capture the rig replays: the mice's and the gyro's."""
-    out = [(f"mice.{m.name}.replay", m.replay) for m in cfg.mice if m.replay]
+    out = [(("mice", m.name, "replay"), m.replay) for m in cfg.mice if m.replay]
     if cfg.gyro is not None and cfg.gyro.replay:
-        out.append(("gyro.replay", cfg.gyro.replay))
+        out.append((("gyro", "replay"), cfg.gyro.replay))
     return out
 
 
@@ -174,7 +174,13 @@ def run(args: argparse.Namespace) -> int:
         )
     for key, capture in _captures(cfg):
         if not os.path.isfile(capture):  # `mousedom run` would stop on it: not valid yet
-            raise UserError(f"{cfg.path}: {key}: {capture}: capture file not found")
+            raise UserError(f"{cfg.where(key)}: {capture}: capture file not found")
+    if _captures(cfg):
+        # The devices in them, as replay and run map them onto the mice: a replay.device
+        # that is not in its file passed here and stopped `replay` and `run`.
+        from mousedom.capture import assign
+
+        assign(cfg, [], require_all=False)
     if cfg.calibration:
         state = "applied" if os.path.exists(cfg.calibration) else "not written yet"
         print(f"  calibration: {cfg.calibration} ({state})")

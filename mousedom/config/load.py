@@ -142,6 +142,7 @@ def parse_config(
         wheels=wheels,
         calibration=calibration_path,
         path=path,
+        lines=dict(doc.lines),
         robust=robust,
         late_report_s=late,
         ros2=ros2,

@@ -167,6 +167,17 @@ class Config:
     gyro: GyroConfig | None = None  # gyro: None means the heading comes from the mice alone
     # values that look like the wrong unit (mousedom.plausible): said, not refused
     warnings: tuple[str, ...] = ()
+    # the line of each key path as written (YamlDoc.lines): where checks made after the
+    # load (a capture file, a device in it) point the user; no part of what the config is
+    lines: dict[tuple[str, ...], int] = field(default_factory=dict, compare=False, repr=False)
+
+    def where(self, keys: tuple[str, ...]) -> str:
+        """``path:line: a.b.c`` for a key path (its nearest written parent's line), as
+        the load's errors name a key."""
+        line = next((self.lines[keys[:n]] for n in range(len(keys), 0, -1)
+                     if keys[:n] in self.lines), None)  # fmt: skip
+        place = ":".join(str(p) for p in (self.path, line) if p is not None)
+        return f"{place}: {'.'.join(keys)}" if place else ".".join(keys)
 
     @property
     def names(self) -> tuple[str, ...]:
