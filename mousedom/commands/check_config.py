@@ -59,7 +59,9 @@ def _device(m: MouseConfig) -> str | None:
 
 def _captures(cfg: Config) -> list[tuple[tuple[str, ...], str]]:
     """(key, file) of each capture the rig replays: the mice's and the gyro's."""
-    out = [(("mice", m.name, "replay"), m.replay) for m in cfg.mice if m.replay]
+    out: list[tuple[tuple[str, ...], str]] = [
+        (("mice", m.name, "replay"), m.replay) for m in cfg.mice if m.replay
+    ]
     if cfg.gyro is not None and cfg.gyro.replay:
         out.append((("gyro", "replay"), cfg.gyro.replay))
     return out
@@ -172,9 +174,9 @@ def run(args: argparse.Namespace) -> int:
             f"{cfg.path}: mice {' and '.join(names)} name one device, {path}: one device "
             "cannot be two mice (the daemon would keep the second out)"
         )
-    for key, capture in _captures(cfg):
+    for keys, capture in _captures(cfg):
         if not os.path.isfile(capture):  # `mousedom run` would stop on it: not valid yet
-            raise UserError(f"{cfg.where(key)}: {capture}: capture file not found")
+            raise UserError(f"{cfg.where(keys)}: {capture}: capture file not found")
     if _captures(cfg):
         # The devices in them, as replay and run map them onto the mice: a replay.device
         # that is not in its file passed here and stopped `replay` and `run`.
