@@ -33,7 +33,11 @@ def suspects(mice: list[tuple[str, float, float, float, float, float]]) -> list[
                 out.append(Suspect(("mice", name, "mount", key),
                                    f"{v:g} m from the body origin: if that is millimetres, "
                                    f"{v / 1000:g} m (mounts are in metres)"))  # fmt: skip
-        if 0 < abs(yaw_deg) <= 2 * math.pi and yaw_deg != round(yaw_deg):
+        if abs(yaw_deg) > 360.0:  # (1e30 was taken without a word)
+            out.append(Suspect(("mice", name, "mount", "yaw"),
+                               f"{yaw_deg:g} degrees is more than a turn (yaw is in "
+                               "degrees, -180 to 180)"))  # fmt: skip
+        elif 0 < abs(yaw_deg) <= 2 * math.pi and yaw_deg != round(yaw_deg):
             meant = math.degrees(yaw_deg)
             out.append(Suspect(("mice", name, "mount", "yaw"),
                                f"{yaw_deg:g} is read as degrees; if it is radians, that is "

@@ -224,3 +224,27 @@ def test_a_merge_key_may_be_overridden_as_yaml_says():
     # a key given twice among a mapping's own keys is still an error, with its line
     with pytest.raises(ConfigError, match=r"rig.yaml:4: mice.b.cpi: given twice"):
         parse_config(text.replace("cpi: 900,", "cpi: 900, cpi: 901,"), "rig.yaml")
+
+
+@pytest.mark.parametrize("key, words", [
+    ("true", "mice.true: a mouse's name must be text, got True: quote it"),
+    ("null", "mice.null: a mouse's name must be text, got None: quote it"),
+    ("7", "mice.7: a mouse's name must be text, got 7: quote it"),
+    ('""', "a mouse's name is empty"),
+])  # fmt: skip
+def test_a_mouse_name_yaml_reads_as_no_text_is_refused(key, words):
+    """A key YAML reads as a boolean, null or number was the mouse "True", "None", "7";
+    an empty one, a mouse with no name in any column or topic."""
+    text = GOOD.replace("  right:", f"  {key}:")
+    with pytest.raises(ConfigError) as err:
+        parse_config(text, "rig.yaml")
+    assert words in str(err.value) and "rig.yaml:9:" in str(err.value), str(err.value)
+
+
+def test_an_empty_socket_path_is_refused_and_a_yaw_beyond_a_turn_is_warned_of():
+    with pytest.raises(ConfigError, match=r"rig.yaml:\d+: server.socket: is empty"):
+        parse_config(GOOD + 'server: {socket: ""}\n', "rig.yaml")
+    cfg = parse_config(GOOD.replace("yaw: 90}", "yaw: 1e30}"), "rig.yaml")
+    assert any("mice.right.mount.yaw: 1e+30 degrees is more than a turn" in w
+               for w in cfg.warnings), cfg.warnings  # fmt: skip
+    assert not parse_config(GOOD, "rig.yaml").warnings

@@ -55,6 +55,16 @@ def _wheels(r: Reader) -> WheelsConfig:
     return wheels
 
 
+def _written(doc: YamlDoc, prefix: tuple[str, ...], key: object) -> tuple[str, ...]:
+    """The key path of a key YAML read as no text (``true``, ``null``, ``7``) as written,
+    where the doc's lines know it (they hold keys as written)."""
+    for path in doc.lines:
+        if len(path) == len(prefix) + 1 and path[:-1] == prefix:
+            if path[-1] == str(key) or safeyaml.load(path[-1]) == key:
+                return path
+    return (*prefix, str(key))
+
+
 def parse_config(
     text: str,
     path: str | None = None,
@@ -91,8 +101,18 @@ def parse_config(
     if not isinstance(mice_raw, dict) or not mice_raw:
         doc.keep(doc.error(("mice",), "needs at least one mouse (a mapping of name: settings)"))
         mice_raw = {}
+    for name in mice_raw:
+        # A key YAML reads as no text (`true:`, `null:`, `1:`) was the mouse "True",
+        # "None" or "1"; an empty one, a mouse with no name in any column or topic.
+        if not isinstance(name, str):
+            doc.keep(doc.error(_written(doc, ("mice",), name),
+                               f"a mouse's name must be text, got {name!r}: quote it"))  # fmt: skip
+        elif not name.strip():
+            doc.keep(doc.error(("mice", name), "a mouse's name is empty"))
     read = [
-        doc.attempt(read_mouse, doc, str(name), value, base_dir) for name, value in mice_raw.items()
+        doc.attempt(read_mouse, doc, str(name), value, base_dir)
+        for name, value in mice_raw.items()
+        if isinstance(name, str) and name.strip()
     ]
     server = (doc.attempt(read_server, top) if top.has("server") else None) or ServerConfig()
     wheels = doc.attempt(_wheels, top) if top.has("wheels") else None

@@ -95,8 +95,11 @@ def read_server(r: Reader) -> ServerConfig:
             raise s.err(key, f"must be a list of numeric ids, got {shown(v)}")
         return tuple(v)
 
+    socket = s.string("socket")
+    if socket is not None and not socket.strip():  # ("" fell back to the default path)
+        raise s.err("socket", "is empty: a path, or leave the key out for the default")
     server = ServerConfig(
-        socket=s.string("socket"),
+        socket=socket,
         mode=mode,
         group=s.string("group"),
         control_uids=ids("control_uids", d.control_uids),
