@@ -144,8 +144,8 @@ MUTANTS = [
     Mutant(
         "evemu-abs-value",
         "mousedom/capture/evemu_lines.py",
-        "va = int(fields[4], 10)",
-        "va = abs(int(fields[4], 10))",
+        "va = int(value, 10)",
+        "va = abs(int(value, 10))",
         ("tests/test_capture_evemu.py",),
         "the careful evemu line parser drops the value's sign",
     ),

@@ -308,3 +308,32 @@ def test_every_lost_packet_is_counted_once(seed):
     motion_dx = sum(p.dx for p in got if isinstance(p, P.Motion))
     assert reports.dx.sum() == motion_dx
     assert np.all(np.diff(reports.t) >= 0)
+
+
+@pytest.mark.parametrize("kept_s, dropped", [(45.0, 1000), (5.0, 40), (0.5, 300)])
+def test_a_loss_read_after_a_stall_is_a_loss_not_a_restart(kept_s, dropped):
+    """A daemon stalled (SIGSTOP, a VM paused) while the device sent on: the port kept the
+    oldest ``kept_s`` of packets and the kernel dropped the next ``dropped``; read after the
+    stall, the packets on either side of the hole arrive milliseconds apart though they
+    were sent seconds apart.  That was taken for a restart (the clock "further ahead than
+    the host went"): 44,000 packets counted lost for 1,000, the clock mapping begun again.
+    When the last packet was sent is its firmware time on the clock's earliest arrival."""
+    dec = AdnsDecoder()
+    k_us, live = 15000, 2000
+    for s in range(live):  # read live, as sent
+        dec.feed(motion(s, 300_000 + k_us * s), 100.0 + s * 0.015)
+    kept = int(kept_s / 0.015)
+    t = 100.0 + live * 0.015 + kept_s + dropped * 0.015 + 5.0  # read 5 s after the last sent
+    backlog = b"".join(motion(s, 300_000 + k_us * s) for s in range(live, live + kept))
+    for i in range(0, len(backlog), 4095):
+        dec.feed(backlog[i : i + 4095], t)
+        t += 0.001
+    first = live + kept + dropped
+    for s in range(first, first + 20):
+        dec.feed(motion(s, 300_000 + k_us * s), t)
+        t += 0.015
+    stats = dec.parser.stats
+    assert (stats.lost_seq, stats.reboots, dec.health.clock_resets) == (dropped, 0, 0)
+    # a restart read the same way is still one (its clock begins again)
+    dec.feed(status(0, 300_000) + motion(1, 315_000, flags=P.FLAG_BOOT), t + 1.0)
+    assert dec.parser.stats.reboots == 1

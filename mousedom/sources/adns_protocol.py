@@ -301,8 +301,14 @@ class Parser:
     both begin again from 0) is recognised from the packet that first arrives after it:
 
     * its firmware clock is earlier than the last packet's (and not a 32-bit wrap);
-    * or its clock is further ahead than the host's own clock went (plus 10 s): a
-      "wrap" that the host saw take seconds is a new clock;
+    * or its clock is further ahead than the host's own clock went (plus 10 s) since
+      the last packet was sent: a "wrap" that the host saw take seconds is a new clock.
+      When the last packet was sent is its firmware time on the clock's earliest arrival
+      (the least read time less firmware time so far, allowed to rise at ``MAX_DRIFT``):
+      packets that waited in the port's buffer are read milliseconds apart however far
+      apart they were sent, and after a stall in which the kernel dropped bytes, a
+      normal gap (seq and clock both carrying on) read so was taken for a restart
+      (44,000 packets counted lost, for 1,000);
     * or its sequence number jumped by ``MIN_JUMP`` or more (a jump back is one of nearly
       the whole range) sooner than the device could have sent that many packets (a loss
       across the wrap, 65535 then 1, is a gap of one);
@@ -318,6 +324,10 @@ class Parser:
     _buf: bytearray = field(default_factory=bytearray)
     _skipping: bool = False  # inside an overlong run: drop until the next 0x00
     _last: Packet | None = None  # the last packet taken
+    # This boot's clock: its firmware seconds since the boot's first packet taken
+    # (unwrapped), and the least of read time less that so far (None: no host times)
+    _fw_s: float = 0.0
+    _offset: float | None = None
 
     def feed(self, data: bytes, host_t: float | None = None) -> list[Packet]:
         """Parse ``data``; return the packets it completed, stamped with ``host_t``."""
@@ -400,15 +410,31 @@ class Parser:
             return None
         self._last = p
         if last is None:
+            self._clock(host_t)
             return False
         expect = (last.seq + 1) % SEQ_MOD
         gap = (p.seq - expect) % SEQ_MOD
-        if self._restarted(p, last.t_us, last.host_t, host_t, expect, gap):
+        sent = last.host_t
+        if sent is not None and self._offset is not None:
+            sent = min(sent, self._fw_s + self._offset)  # when the last was sent, at most
+        if self._restarted(p, last.t_us, sent, host_t, expect, gap):
             self.stats.reboots += 1
             self.stats.lost_seq += p.seq  # the new boot's packets before this one
+            self._clock(host_t)
             return True
         self.stats.lost_seq += gap
+        step = ((p.t_us - last.t_us) % WRAP) * 1e-6
+        self._fw_s += step
+        if host_t is not None:
+            arrived = host_t - self._fw_s
+            self._offset = (
+                arrived if self._offset is None else min(self._offset + MAX_DRIFT * step, arrived)
+            )
         return False
+
+    def _clock(self, host_t: float | None) -> None:
+        """A boot's first packet taken: its clock begins (``_restarted``)."""
+        self._fw_s, self._offset = 0.0, host_t
 
     @staticmethod
     def _restarted(
