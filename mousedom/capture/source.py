@@ -47,6 +47,13 @@ from mousedom.sources.iio import GyroSamples
 
 # (file, clock) -> (clock time, data time) at which the first replay of that file started.
 _ANCHORS: dict[tuple[str, int], tuple[float, float]] = {}
+# A source opened on an anchor from before (a reload that changed its file and back, a
+# retry after it was lost) goes on where the anchor says, as a device plugged back in
+# would: the reports due while it was closed are not delivered.  All at once they were
+# re-stamped on arrival, 2,990 reports of 294 s in one window (a jump).  Those due in
+# the last second are delivered: the mice of one file opened one after the other at the
+# start, milliseconds apart, keep every report.
+REOPEN_SKIP_S = 1.0
 
 
 class ReplaySource(Source):
@@ -81,6 +88,7 @@ class ReplaySource(Source):
         self._dev = 0
         self._it: Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
         self._buf_t = np.empty(0)
+        self._skip_before = -math.inf  # (set at open: REOPEN_SKIP_S)
         self._buf_dx = np.empty(0)
         self._buf_dy = np.empty(0)
         self._c0 = 0.0
@@ -104,6 +112,7 @@ class ReplaySource(Source):
             _ANCHORS[key] = (self.clock(), first if first is not None else math.nan)
         self._c0, t_first = _ANCHORS[key]
         self._t_first = None if math.isnan(t_first) else t_first
+        self._skip_before = self.clock() - REOPEN_SKIP_S
         self._shift = 0.0
         self._span = self._overall_span(cap) if self.loop else 0.0
         self.finished = False
@@ -182,6 +191,12 @@ class ReplaySource(Source):
             if not len(self._buf_t) and not self._fill():
                 break
             due = self._due(self._buf_t)
+            gone = int(np.searchsorted(due, self._skip_before, side="left"))
+            if gone:  # due while the source was closed (REOPEN_SKIP_S)
+                self._buf_t, self._buf_dx, self._buf_dy = (
+                    a[gone:] for a in (self._buf_t, self._buf_dx, self._buf_dy)
+                )
+                continue
             k = int(np.searchsorted(due, now, side="right"))
             if k:
                 parts_t.append(due[:k])
