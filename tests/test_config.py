@@ -231,6 +231,8 @@ def test_a_merge_key_may_be_overridden_as_yaml_says():
     ("null", "mice.null: a mouse's name must be text, got None: quote it"),
     ("7", "mice.7: a mouse's name must be text, got 7: quote it"),
     ('""', "a mouse's name is empty"),
+    ('"ri\\nght"', "a mouse's name may not hold control characters"),
+    ('"ri\\tght"', "a mouse's name may not hold control characters"),
 ])  # fmt: skip
 def test_a_mouse_name_yaml_reads_as_no_text_is_refused(key, words):
     """A key YAML reads as a boolean, null or number was the mouse "True", "None", "7";

@@ -109,10 +109,13 @@ def parse_config(
                                f"a mouse's name must be text, got {name!r}: quote it"))  # fmt: skip
         elif not name.strip():
             doc.keep(doc.error(("mice", name), "a mouse's name is empty"))
+        elif not name.isprintable():  # (a newline split every log line naming it in two)
+            doc.keep(doc.error(("mice", name), "a mouse's name may not hold control "
+                                               "characters (a newline, a tab...)"))  # fmt: skip
     read = [
         doc.attempt(read_mouse, doc, str(name), value, base_dir)
         for name, value in mice_raw.items()
-        if isinstance(name, str) and name.strip()
+        if isinstance(name, str) and name.strip() and name.isprintable()
     ]
     server = (doc.attempt(read_server, top) if top.has("server") else None) or ServerConfig()
     wheels = doc.attempt(_wheels, top) if top.has("wheels") else None
