@@ -169,8 +169,10 @@ def _row_ok(row: bytes) -> bool:
     fields = [x.strip() for x in row.split(b",")]
     if len(fields) != 5:
         return False
-    # A sign and ASCII digits only: int() also reads "1_0" (a digit separator) as 10.
-    if not all((x[1:] if x[:1] in (b"-", b"+") else x).isdigit() for x in fields):
+    # A sign and ASCII digits only: int() also reads "1_0" (a digit separator) as 10; and
+    # no more digits than a 32-bit value's with leading zeros (int() refuses 4,300).
+    if not all((x[1:] if x[:1] in (b"-", b"+") else x).isdigit() and len(x) <= 32
+               for x in fields):  # fmt: skip
         return False
     vals = [int(x) for x in fields]
     return (
