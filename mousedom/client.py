@@ -13,15 +13,22 @@ protocol 1.2 its learnt ``scale``, ``scale_spread``, ``scale_applied``, ``scale_
 Commands wait for their OK (or raise ``CommandError`` on ERROR); poses that arrive meanwhile
 are kept for the iterator, none is lost.
 
-Errors: ``DaemonNotRunning`` (no daemon at the socket) and ``NotADaemon`` (something else
-there) are ``ConnectionError``s, so ``except OSError`` catches them; ``CommandError`` is a
-``RuntimeError``; all three are ``ClientError``s.
+Errors: ``DaemonNotRunning`` (no daemon at the socket), ``DaemonRefused`` (the daemon
+answered with ERROR instead of VERSION: too many clients), ``NotADaemon`` (something else
+there, or a line that is no protocol message) and ``ConnectionLost`` (the daemon went away
+while a command waited for its answer) are ``ConnectionError``s, so ``except OSError``
+catches them; ``CommandError`` is a ``RuntimeError``; all are ``ClientError``s.  The
+iterator ends when the daemon closes the connection, a last line cut off included.  A
+``timeout`` (seconds, None: wait for ever) bounds every wait for a line; once one runs
+out the connection is left in no state to read again (its line may be half read): the
+client is to be closed.
 """
 
 from __future__ import annotations
 
 import itertools
 import json
+import math
 import os
 import socket
 from collections import deque
@@ -48,6 +55,15 @@ class DaemonNotRunning(ClientError, ConnectionError):
 
 class NotADaemon(ClientError, ConnectionError):
     """Something answered at the socket, but not with mousedom's VERSION banner."""
+
+
+class DaemonRefused(ClientError, ConnectionError):
+    """The daemon answered the connection with ERROR (its message, e.g. "too many
+    clients; try again later"), not with its VERSION banner."""
+
+
+class ConnectionLost(ClientError, ConnectionError):
+    """The daemon closed the connection (or it broke) while a command waited."""
 
 
 class CommandError(ClientError, RuntimeError):
@@ -82,7 +98,12 @@ class Pose:
         nan = float("nan")
 
         def num(v: Any) -> float:
-            return nan if v is None else float(v)
+            if v is None:
+                return nan
+            try:
+                return float(v)
+            except OverflowError:  # an integer beyond any float (JSON allows it)
+                return math.inf if v > 0 else -math.inf
 
         return cls(
             t=num(m["t"]),
@@ -184,6 +205,9 @@ class Client:
         except (EOFError, OSError, ValueError) as e:
             self.close()
             raise NotADaemon(f"{self.path}: no VERSION banner ({e})") from None
+        if first.get("class") == "ERROR" and isinstance(first.get("message"), str):
+            self.close()  # the daemon's own word: too many clients
+            raise DaemonRefused(f"{self.path}: the daemon refused: {first['message']}")
         if first.get("class") != "VERSION":
             self.close()
             raise NotADaemon(f"{self.path}: not a mousedom socket (no VERSION banner)")
@@ -202,9 +226,15 @@ class Client:
 
     def _read(self) -> dict[str, Any]:
         line = self._file.readline()
-        if not line:
+        if not line.endswith(b"\n"):  # (a line cut off: the daemon went away within it)
             raise EOFError("the daemon closed the connection")
-        msg = json.loads(line)
+        try:
+            obj: Any = json.loads(line)
+        except ValueError:
+            obj = None
+        if not isinstance(obj, dict):
+            raise NotADaemon(f"{self.path}: a line that is no protocol message: {line[:80]!r}")
+        msg: Any = obj
         cls = msg.get("class")
         if cls == "SOURCE":
             self.sources[msg.get("name")] = msg
@@ -237,13 +267,23 @@ class Client:
         """Send one command and return its answer (OK or STATUS); ERROR raises."""
         ident = next(self._ids)
         line = json.dumps({"cmd": cmd, "id": ident, **args}) + "\n"
-        self.sock.sendall(line.encode())
+        try:
+            self.sock.sendall(line.encode())
+        except (BrokenPipeError, ConnectionResetError) as e:
+            raise ConnectionLost(f"{self.path}: the daemon went away ({e.strerror})") from None
         while True:
-            msg = self._read()
+            try:
+                msg = self._read()
+            except EOFError:
+                raise ConnectionLost(
+                    f"{self.path}: the daemon closed the connection before answering {cmd}"
+                ) from None
             cls = msg.get("class")
             # Commands are answered in order; an ERROR without an id (a line the daemon
-            # could not even read as an object) can only be ours.
-            if (msg.get("id") == ident and cls in ("OK", "STATUS", "ERROR")) or (
+            # could not even read as an object) can only be ours.  (An id of true is no
+            # 1: True == 1 in Python.)
+            answer = type(msg.get("id")) is int and msg.get("id") == ident
+            if (answer and cls in ("OK", "STATUS", "ERROR")) or (
                 cls == "ERROR" and "id" not in msg
             ):
                 if cls == "ERROR":

@@ -143,6 +143,12 @@ def test_watch_prints_poses_and_stops_after_count(rig_run):
     )
     assert raw.returncode == 0
     assert raw.stdout.count('"class": "POSE"') == 2
+    # a rate the daemon refuses, or no number: one line, no traceback
+    for rate, said in (("20000", "the daemon refused it: rate: hz must be between"),
+                       ("nan", "--rate must be a number of at least 0")):  # fmt: skip
+        bad = run_mousedom("watch", "--socket", str(run.daemon.socket_path), "--rate", rate,
+                           timeout=20)  # fmt: skip
+        assert bad.returncode == 2 and said in bad.stderr and "Traceback" not in bad.stderr
 
 
 def test_watch_without_daemon_says_so(tmp_path):
@@ -486,3 +492,101 @@ def test_a_version_after_a_reload_replaces_the_clients_and_its_sources(tmp_path)
         assert set(c.sources) == {"a"}
     th.join(5)
     srv.close()
+
+
+def _scripted(tmp_path, script):
+    """A scripted daemon on a real Unix socket: ``script(conn)`` talks to one client."""
+    import socket as _socket
+    import threading
+
+    path = str(tmp_path / "s.sock")
+    srv = _socket.socket(_socket.AF_UNIX, _socket.SOCK_STREAM)
+    srv.bind(path)
+    srv.listen(1)
+
+    def serve() -> None:
+        conn, _ = srv.accept()
+        try:
+            script(conn)
+        finally:
+            conn.close()
+            srv.close()
+
+    th = threading.Thread(target=serve, daemon=True)
+    th.start()
+    return path, th
+
+
+_VERSION = b'{"class": "VERSION", "rate_hz": 50.0, "sensors": ["a"]}\n'
+_POSE = (
+    b'{"class": "POSE", "t": 1.0, "x": 0.0, "y": 0.0, "theta": 0.0, "vx": 0.0, "vy": 0.0,'
+    b' "omega": 0.0, "cov": [[0,0,0],[0,0,0],[0,0,0]], "used": 1, "updating": true}\n'
+)
+
+
+@pytest.mark.parametrize("first", [b"[]\n", b"42\n", b'"VERSION"\n', b"null\n", b"{bad\n"])
+def test_a_first_line_that_is_no_message_is_not_a_daemon(tmp_path, first):
+    """A JSON line that is no object raised AttributeError (a traceback in watch and
+    doctor)."""
+    path, th = _scripted(tmp_path, lambda conn: conn.sendall(first))
+    with pytest.raises(NotADaemon):
+        Client(path, timeout=5)
+    th.join(5)
+
+
+def test_a_full_daemon_says_so_and_is_not_called_no_daemon(tmp_path):
+    """A daemon at its client limit answers ERROR "too many clients" and closes: the client
+    said "not a mousedom socket", and doctor hinted at the wrong socket."""
+    from mousedom.client import DaemonRefused
+
+    refusal = b'{"class": "ERROR", "message": "too many clients; try again later"}\n'
+    path, th = _scripted(tmp_path, lambda conn: conn.sendall(refusal))
+    with pytest.raises(DaemonRefused, match="the daemon refused: too many clients"):
+        Client(path, timeout=5)
+    th.join(5)
+
+
+def test_a_last_line_cut_off_ends_the_iterator(tmp_path):
+    """The daemon gone within a line: the iterator ends, as protocol.md says (it raised
+    json's JSONDecodeError: a traceback in watch)."""
+    path, th = _scripted(tmp_path, lambda conn: conn.sendall(_VERSION + _POSE + _POSE[:30]))
+    with Client(path, timeout=5) as c:
+        assert [p.t for p in c] == [1.0]
+    th.join(5)
+
+
+def test_the_daemon_gone_during_a_command_is_connection_lost(tmp_path):
+    """EOFError escaped the client's error table (doctor and watch printed tracebacks)."""
+    from mousedom.client import ConnectionLost
+
+    def script(conn) -> None:
+        conn.sendall(_VERSION)
+        conn.makefile().readline()  # the command, then gone
+
+    path, th = _scripted(tmp_path, script)
+    with Client(path, timeout=5) as c:
+        with pytest.raises(ConnectionLost, match="before answering status") as e:
+            c.status()
+        assert isinstance(e.value, ClientError) and isinstance(e.value, OSError)
+    th.join(5)
+
+
+def test_an_answer_with_id_true_is_no_answer_to_command_one(tmp_path):
+    """True == 1 in Python: an OK with "id": true was taken for command 1's answer."""
+
+    def script(conn) -> None:
+        conn.sendall(_VERSION)
+        request = json.loads(conn.makefile().readline())
+        conn.sendall(b'{"class": "OK", "cmd": "status", "id": true}\n')
+        conn.sendall(json.dumps({"class": "STATUS", "id": request["id"]}).encode() + b"\n")
+
+    path, th = _scripted(tmp_path, script)
+    with Client(path, timeout=5) as c:
+        assert c.status()["class"] == "STATUS"
+    th.join(5)
+
+
+def test_a_pose_number_beyond_any_float_is_infinite_not_an_error():
+    m = json.loads(_POSE)
+    m["x"] = 10**400
+    assert Pose.from_message(m).x == math.inf

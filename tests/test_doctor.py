@@ -316,3 +316,43 @@ def test_a_user_the_node_and_the_socket_are_closed_to_is_told_the_groups(tmp_pat
     finally:
         listener.close()
         shutil.rmtree(root)
+
+
+@pytest.mark.parametrize("kind", ["file", "directory", "fifo"])
+def test_something_at_the_socket_path_that_is_no_socket_is_named(tmp_path, kind):
+    """A regular file, a directory or a FIFO at --socket was "a socket, but no daemon
+    listens (it stopped without removing it?)"."""
+    path = tmp_path / "d.sock"
+    {"file": path.touch, "directory": path.mkdir, "fifo": lambda: os.mkfifo(path)}[kind]()
+    got = doctor.read_live(str(path), 0.5)
+    said = {"file": "a regular file", "directory": "a directory", "fifo": "a FIFO"}[kind]
+    assert got.error is not None and got.error.status == "FAIL"
+    assert got.error.message == f"{path}: not a socket ({said})"
+
+
+def test_a_daemon_that_closes_the_connection_is_said_to_have_closed_it(tmp_path):
+    """A daemon that closed the connection after its VERSION was "connected, but no POSE
+    in 0.0 s ... stuck or overloaded"; one gone during the status command, a traceback."""
+    import threading
+
+    for after in ("version", "command"):
+        path = str(tmp_path / f"{after}.sock")
+        srv = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        srv.bind(path)
+        srv.listen(1)
+
+        def talk(srv=srv, after=after) -> None:
+            conn, _ = srv.accept()
+            conn.sendall(b'{"class": "VERSION", "rate_hz": 50.0, "sensors": ["a"]}\n')
+            if after == "command":
+                conn.makefile().readline()
+            conn.close()
+            srv.close()
+
+        th = threading.Thread(target=talk, daemon=True)
+        th.start()
+        got = doctor.read_live(path, 2.0)
+        th.join(5)
+        assert got.closed, after
+        (fail,) = [c for c in doctor.check_daemon(got, None, 2.0) if c.status == "FAIL"][:1]
+        assert fail.message.startswith("the daemon closed the connection after"), fail.message

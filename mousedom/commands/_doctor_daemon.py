@@ -8,6 +8,7 @@ import importlib.util
 import math
 import os
 import re
+import stat
 import time
 import urllib.request
 from dataclasses import dataclass, field
@@ -32,6 +33,7 @@ class Live:
     sources: dict[str, dict[str, Any]] = field(default_factory=dict)  # the latest of each
     poses: list[dict[str, Any]] = field(default_factory=list)
     seconds: float = 0.0
+    closed: bool = False  # the daemon closed the connection within the read
 
 
 def socket_path(cfg: Config | None, given: str | None) -> str:
@@ -47,7 +49,7 @@ def socket_path(cfg: Config | None, given: str | None) -> str:
 
 def read_live(path: str, timeout: float, config: str | None = None) -> Live:
     """Connect, ask for the STATUS, and read POSE and SOURCE lines for ``timeout`` s."""
-    from mousedom.client import Client, ClientError, access_hint
+    from mousedom.client import Client, ClientError, ConnectionLost, access_hint
 
     live = Live(path)
     command = invocation.command("run", "--config", config or "RIG.yaml")
@@ -55,6 +57,10 @@ def read_live(path: str, timeout: float, config: str | None = None) -> Live:
     if not os.path.exists(path):
         live.error = Check("daemon", WARN, f"no daemon: nothing at {path}",
                            f"{start}, or give --socket PATH")  # fmt: skip
+        return live
+    if not stat.S_ISSOCK(os.stat(path).st_mode):  # (a refused connect read "a socket, but")
+        live.error = Check("daemon", FAIL, f"{path}: not a socket ({_kind(path)})",
+                           "give the daemon's socket (--socket)")  # fmt: skip
         return live
     try:
         client = Client(path, timeout=timeout + 1.0)
@@ -78,16 +84,20 @@ def read_live(path: str, timeout: float, config: str | None = None) -> Live:
     try:
         try:
             live.status = client.command("status")
+        except ConnectionLost:
+            live.closed = True
         except ClientError:
             live.status = {}
         end = t0 + timeout
-        for msg in client.messages():
+        for msg in client.messages() if not live.closed else ():
             if msg.get("class") == "POSE":
                 live.poses.append(msg)
             left = end - time.monotonic()
             if left <= 0:
                 break
             client.sock.settimeout(left)
+        else:
+            live.closed = True  # (the messages ended: the daemon closed the connection)
     except (OSError, ValueError):  # no next line in time (a stuck daemon), or it went away
         pass
     finally:
@@ -95,6 +105,16 @@ def read_live(path: str, timeout: float, config: str | None = None) -> Live:
         live.sources = dict(client.sources)
         client.close()
     return live
+
+
+def _kind(path: str) -> str:
+    mode = os.stat(path).st_mode
+    kinds = ((stat.S_ISREG, "a regular file"), (stat.S_ISDIR, "a directory"),
+             (stat.S_ISFIFO, "a FIFO"), (stat.S_ISCHR, "a character device"))  # fmt: skip
+    for test, name in kinds:
+        if test(mode):
+            return name
+    return "not a socket"
 
 
 def pose_rate(poses: list[dict[str, Any]]) -> float | None:
@@ -134,7 +154,11 @@ def check_daemon(live: Live, cfg: Config | None, timeout: float) -> list[Check]:
             expected = cfg.rate_hz
     rate = pose_rate(live.poses)
     n = len(live.poses)
-    if not n:
+    if live.closed:
+        lines.fail(f"the daemon closed the connection after {live.seconds:.1f} s ({n} POSE)",
+                   "it stopped or dropped this client: `journalctl -u mousedom` says "
+                   "why")  # fmt: skip
+    elif not n:
         lines.fail(f"connected, but no POSE in {live.seconds:.1f} s", "the daemon is stuck or "
                    "overloaded: `journalctl -u mousedom`, or run it in the foreground "
                    "with -v")  # fmt: skip

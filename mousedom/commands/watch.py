@@ -82,10 +82,7 @@ class Screen:
 def run(args: argparse.Namespace) -> int:
     from mousedom.client import Client, ClientError
 
-    if args.rate < 0:
-        raise UserError(f"--rate must be at least 0, got {args.rate}")
-    if args.count is not None and args.count < 1:
-        raise UserError(f"--count must be at least 1, got {args.count}")
+    _check(args)
     try:
         client = Client(args.socket)
     except ClientError as e:  # no daemon there: one line, the client's own message
@@ -93,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
     out = sys.stdout
     screen: Screen | None = None
     try:
-        client.rate(args.rate)
+        _ask_rate(client, args.rate)
         v = client.version
         header = _header(v, client.path)
         screen = Screen(out, out.isatty() and not args.json)
@@ -121,10 +118,29 @@ def run(args: argparse.Namespace) -> int:
         return 1
     except KeyboardInterrupt:
         return 0
+    except ClientError as e:  # the daemon went away mid-command, or sent no protocol line
+        raise UserError(str(e)) from None
     finally:
         if screen is not None:
             screen.close()
         client.close()
+
+
+def _check(args: argparse.Namespace) -> None:
+    if not args.rate >= 0 or args.rate == float("inf"):  # (NaN too)
+        raise UserError(f"--rate must be a number of at least 0, got {args.rate}")
+    if args.count is not None and args.count < 1:
+        raise UserError(f"--count must be at least 1, got {args.count}")
+
+
+def _ask_rate(client: Any, hz: float) -> None:
+    """``rate`` for this client, the daemon's refusal (0 to 10000, finite) one line."""
+    from mousedom.client import CommandError
+
+    try:
+        client.rate(hz)
+    except CommandError as e:
+        raise UserError(f"--rate {hz:g}: the daemon refused it: {e}") from None
 
 
 def _header(v: dict, path: str) -> str:
