@@ -48,14 +48,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def suggested_rule(dev: DeviceInfo) -> str:
     """A config rule for this device: by-path is stable per port, even for twin mice."""
     if dev.by_path:
-        return f"evdev: {{path: {dev.by_path[0]}}}"
+        return f"evdev: {{path: {_quoted(dev.by_path[0])}}}"
     if dev.phys:
-        return f"evdev: {{name: {json.dumps(dev.name)}, phys: {json.dumps(dev.phys)}}}"
+        return f"evdev: {{name: {_quoted(dev.name)}, phys: {_quoted(dev.phys)}}}"
     if dev.uniq:
-        return (
-            f"evdev: {{vendor: {dev.vendor:#06x}, product: {dev.product:#06x}, uniq: {dev.uniq}}}"
-        )
-    return f"evdev: {{path: {dev.node}}}"
+        return (f"evdev: {{vendor: {dev.vendor:#06x}, product: {dev.product:#06x}, "
+                f"uniq: {_quoted(dev.uniq)}}}")  # fmt: skip
+    return f"evdev: {{path: {_quoted(dev.node)}}}"
+
+
+def _quoted(text: str) -> str:
+    """``text`` as a YAML double-quoted scalar that reads back as this very text: JSON's
+    escapes are YAML's, written with the characters themselves (JSON's ASCII escapes of an
+    emoji, a surrogate pair, are no YAML; a uniq 0123 written plain read as a number)."""
+    return json.dumps(text, ensure_ascii=False)
 
 
 def _text(result: Scan) -> str:

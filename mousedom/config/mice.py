@@ -71,7 +71,11 @@ def _evdev(r: Reader) -> EvdevMatch:
         grab=e.boolean("grab", default(EvdevMatch, "grab", bool)),
     )
     e.finish()
-    if not (match.path or match.name or match.phys or match.vendor is not None or match.uniq):
+    for key, value in (("vendor", match.vendor), ("product", match.product)):
+        if value is not None and not 0 <= value <= 0xFFFF:  # (never matches a device)
+            raise e.err(key, f"must be a USB id of 16 bits (0 to 0xffff), got {value:#x}")
+    if not (match.path or match.name or match.phys or match.uniq
+            or match.vendor is not None or match.product is not None):  # fmt: skip
         raise r.err("evdev", "needs at least one of path, name, phys, vendor/product, uniq")
     return match
 
