@@ -122,3 +122,22 @@ def test_the_network_drop_ins_parse_and_open_only_the_network(tmp_path, name):
         k.startswith(("PrivateNetwork", "RestrictAddressFamilies", "IPAddress")) for k in changed
     ), changed
     assert after["PrivateNetwork="] == "✗"  # the network is open now
+
+
+def test_the_iio_drop_in_opens_the_gyros_node_and_sysfs_and_nothing_else(tmp_path):
+    """The shipped unit closed what the udev rule grants a buffered IIO gyro: its node
+    (DevicePolicy=closed, no char-iio) and its sysfs attributes, which the daemon writes at
+    open (ProtectKernelTunables=yes: /sys read-only).  The drop-in parses with the unit
+    and changes those two lines of the security report only."""
+    tool = _analyze()
+    unit = _unit_with_drop_in(tmp_path, "iio.conf")
+    out = subprocess.run([tool, "verify", str(unit)], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert "mousedom.service" not in out.stderr, out.stderr
+    text = (DROP_INS / "iio.conf").read_text()
+    settings = [ln for ln in text.splitlines() if ln and not ln.startswith(("#", "["))]
+    assert settings == ["DeviceAllow=char-iio r", "ProtectKernelTunables=no"]
+    # what the daemon writes at open is what the drop-in opens /sys for
+    from mousedom.sources import iio_sysfs
+
+    assert "current_timestamp_clock" in Path(iio_sysfs.__file__).read_text()
