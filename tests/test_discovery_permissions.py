@@ -101,7 +101,7 @@ def test_a_by_path_rule_is_looked_up_under_root(shared):
                         "--config", str(config)], capture_output=True, text=True,
                        timeout=120, env=mousedom_env())  # fmt: skip
     assert p.returncode == 0, p.stdout + p.stderr
-    assert f"config   evdev: {{path: {shared}/dev/input/by-path/pci-usb-0:1-event-mouse}}" in (
+    assert f'config   evdev: {{path: "{shared}/dev/input/by-path/pci-usb-0:1-event-mouse"}}' in (
         p.stdout
     )
     assert "no input device matches" not in p.stdout

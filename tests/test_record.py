@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 from conftest import mousedom_env, run_mousedom
 from test_evdev_fakes import motion_bytes
 
@@ -571,3 +572,34 @@ def test_record_then_replay_keeps_every_count_with_dropped_frames(tmp_path):
         for i, dev in enumerate(cap.devices):
             st = cap.stats[i]
             assert [st.net_x, st.net_y, st.lost_x, st.lost_y] == sent[dev.mouse], (seed, dev)
+
+
+@pytest.mark.parametrize("relative", [False, True])
+def test_record_and_list_find_a_path_rule_alike_under_a_root(tmp_path, relative):
+    """``list --root`` looked a rule's /dev/input path up in the root's tree, ``record
+    --root`` on this machine (exit 1, "no input device matches"); and a udev link such as
+    /dev/input/mousedom-left matched no device under a relative (or linked) root.  One
+    rule for both now (discovery.locate)."""
+    from test_evdev_fakes import add_device
+
+    root = tmp_path / "machine"
+    add_device(root, 0, "Left", phys="usb-1/input0",
+               by_path=("pci-0000:00:14.0-usb-0:1:1.0-event-mouse",))  # fmt: skip
+    add_device(root, 1, "Right", phys="usb-2/input0")
+    os.symlink("event1", root / "dev" / "input" / "mousedom-right")
+    cfg = tmp_path / "rig.yaml"
+    cfg.write_text(
+        "mice:\n"
+        "  a: {cpi: 800, mount: {x: 0, y: 0.1},\n"
+        "      evdev: {path: /dev/input/by-path/pci-0000:00:14.0-usb-0:1:1.0-event-mouse}}\n"
+        "  b: {cpi: 800, mount: {x: 0, y: -0.1}, evdev: {path: /dev/input/mousedom-right}}\n"
+    )
+    where = "machine" if relative else str(root)
+    r = run_mousedom("list", "--root", where, "--config", str(cfg), cwd=str(tmp_path))
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "a -> " in r.stdout and "b -> " in r.stdout
+    out = tmp_path / "z.mdcap"
+    r = run_mousedom("record", "--root", where, "--config", str(cfg), "-o", str(out),
+                     "--duration", "0.2", cwd=str(tmp_path))  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert "event0" in r.stderr and "event1" in r.stderr

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import os
 import sys
@@ -16,7 +15,7 @@ from mousedom.sources.discovery import (
     Scan,
     is_stream,
     join_group_hint,
-    match_device,
+    locate,
     parse_mouse_dpi,
     paths_for_root,
     scan,
@@ -116,11 +115,8 @@ def config_matches(cfg: Config, result: Scan) -> dict[str, dict[str, str | None]
         if rule.path and is_stream(rule.path):
             out[m.name] = {"node": rule.path, "error": None, "note": "FIFO/pipe stream"}
             continue
-        if rule.path:  # (under --root, where that tree's links are)
-            rule = dataclasses.replace(rule, path=result.paths.rooted(rule.path))
-        resolved = os.path.realpath(rule.path) if rule.path else None
         try:
-            dev = match_device(rule, result.devices, resolved_path=resolved)
+            dev = locate(rule, result.devices, result.paths)
             out[m.name] = {"node": dev.node, "error": None, "note": None}
         except UserError as e:
             out[m.name] = {"node": None, "error": str(e), "note": None}

@@ -19,7 +19,7 @@ from __future__ import annotations
 import grp
 import os
 import stat
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -204,7 +204,10 @@ def matches(rule: EvdevMatch, dev: DeviceInfo, resolved_path: str | None = None)
     """
     if rule.path is not None:
         names = {dev.node, *dev.by_id, *dev.by_path}
-        if rule.path not in names and resolved_path not in names:
+        # (the node as its real path too: under a relative or linked --root the rule's
+        # resolved path is absolute and real, the scanned node is neither)
+        if (rule.path not in names and resolved_path not in names
+                and resolved_path != os.path.realpath(dev.node)):  # fmt: skip
             return False
     if rule.name is not None and rule.name != dev.name:
         return False
@@ -244,6 +247,19 @@ def match_device(
         f"{who}{len(found)} devices match {rule_text(rule)}: {listing}. "
         "Add a by-path link, phys or uniq to the rule (see `mousedom list`)"
     )
+
+
+def locate(
+    rule: EvdevMatch, devices: list[DeviceInfo], paths: SystemPaths, who: str = ""
+) -> DeviceInfo:
+    """``match_device`` on the machine ``paths`` describe: a rule's /dev/input path is that
+    tree's (``--root``), followed through its links.  One rule for ``list --config`` and
+    the sources (``record --root`` looked for the path on this machine, where ``list``
+    found it under the root)."""
+    if rule.path:
+        rule = replace(rule, path=paths.rooted(rule.path))
+    resolved = os.path.realpath(rule.path) if rule.path else None
+    return match_device(rule, devices, resolved_path=resolved, who=who)
 
 
 def join_group_hint(dev: DeviceInfo) -> str:

@@ -48,7 +48,7 @@ from mousedom.sources.discovery import (
     SystemPaths,
     is_stream,
     join_group_hint,
-    match_device,
+    locate,
     scan,
 )
 from mousedom.sources.events import EVENT_SIZE, FrameAssembler, MotionFrames, decode_input_events
@@ -131,11 +131,8 @@ class EvdevSource(Source):
         )
 
     def _find(self) -> DeviceInfo:
-        resolved = os.path.realpath(self.rule.path) if self.rule.path else None
         try:
-            return match_device(
-                self.rule, scan(self.paths).devices, resolved_path=resolved, who=self.name
-            )
+            return locate(self.rule, scan(self.paths).devices, self.paths, who=self.name)
         except AmbiguousDevice as e:
             # Several devices fit the rule (twin mice, or a look-alike plugged in later).
             # Sources speak base.py's terms only: "not available now, retry later", with
