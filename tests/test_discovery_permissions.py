@@ -105,3 +105,32 @@ def test_a_by_path_rule_is_looked_up_under_root(shared):
         p.stdout
     )
     assert "no input device matches" not in p.stdout
+
+
+def test_a_scan_resolves_each_link_once(tmp_path, monkeypatch):
+    """The scan resolved every by-id and by-path link for every node: 0.7 s for 100 nodes,
+    73 s for 1,000, paid again at each retry of a missing mouse (every second).  Each link
+    is resolved once a scan now, and each node's links are still its own."""
+    from test_evdev_fakes import add_device
+
+    from mousedom.sources import discovery
+
+    n = 60
+    for i in range(n):
+        add_device(tmp_path, i, f"M{i}", phys=f"usb-{i}/input0", by_path=(f"p{i}-event-mouse",),
+                   by_id=(f"id{i}-event-mouse",), fifo=False)  # fmt: skip
+    calls = 0
+    real = os.path.realpath
+
+    def counted(path, *a, **kw):
+        nonlocal calls
+        calls += 1
+        return real(path, *a, **kw)
+
+    monkeypatch.setattr(discovery.os.path, "realpath", counted)
+    found = discovery.scan(discovery.SystemPaths.under(str(tmp_path))).devices
+    assert len(found) == n and calls <= 4 * n, calls
+    for d in found:
+        k = d.name[1:]
+        assert [os.path.basename(p) for p in d.by_path] == [f"p{k}-event-mouse"]
+        assert [os.path.basename(p) for p in d.by_id] == [f"id{k}-event-mouse"]
