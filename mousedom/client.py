@@ -211,6 +211,7 @@ class Client:
         if first.get("class") != "VERSION":
             self.close()
             raise NotADaemon(f"{self.path}: not a mousedom socket (no VERSION banner)")
+        self._take(first)
 
     def __enter__(self) -> Client:
         return self
@@ -234,10 +235,16 @@ class Client:
             obj = None
         if not isinstance(obj, dict):
             raise NotADaemon(f"{self.path}: a line that is no protocol message: {line[:80]!r}")
-        msg: Any = obj
+        return obj
+
+    def _take(self, msg: dict[str, Any]) -> dict[str, Any]:
+        """A message handed to the caller: ``version`` and ``sources`` as of it.  Kept at
+        hand-over, not when read: a VERSION read while a command waited (a reload) was
+        credited to the poses of the old config still queued before it."""
         cls = msg.get("class")
         if cls == "SOURCE":
-            self.sources[msg.get("name")] = msg
+            name: Any = msg.get("name")
+            self.sources[name] = msg
         elif cls == "VERSION":
             # Again after a reload that changed what it says (docs/protocol.md): the
             # sensors' SOURCE lines follow it, and a sensor it no longer names is gone.
@@ -249,12 +256,13 @@ class Client:
         """Every message as a dict, until the daemon closes the connection."""
         while True:
             if self._pending:
-                yield self._pending.popleft()
+                yield self._take(self._pending.popleft())
                 continue
             try:
-                yield self._read()
+                msg = self._read()
             except EOFError:
                 return
+            yield self._take(msg)
 
     def __iter__(self) -> Iterator[Pose]:
         for msg in self.messages():

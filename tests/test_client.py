@@ -590,3 +590,27 @@ def test_a_pose_number_beyond_any_float_is_infinite_not_an_error():
     m = json.loads(_POSE)
     m["x"] = 10**400
     assert Pose.from_message(m).x == math.inf
+
+
+def test_a_version_read_while_a_command_waits_is_the_clients_when_it_comes_up(tmp_path):
+    """A reload's VERSION read while ``status()`` waited was kept at once: the old config's
+    POSE queued before it was then yielded with ``version`` and ``sources`` of the new."""
+
+    def script(conn) -> None:
+        conn.sendall(b'{"class": "VERSION", "rate_hz": 50.0, "sensors": ["a", "b"]}\n'
+                     b'{"class": "SOURCE", "name": "b"}\n')  # fmt: skip
+        request = json.loads(conn.makefile().readline())
+        conn.sendall(_POSE + b'{"class": "VERSION", "rate_hz": 50.0, "sensors": ["a"]}\n'
+                     + _POSE.replace(b'"t": 1.0', b'"t": 2.0'))  # fmt: skip
+        conn.sendall(json.dumps({"class": "STATUS", "id": request["id"]}).encode() + b"\n")
+
+    path, th = _scripted(tmp_path, script)
+    with Client(path, timeout=5) as c:
+        c.status()
+        seen = []
+        for pose in c:
+            seen.append((pose.t, tuple(c.version["sensors"]), set(c.sources)))
+            if len(seen) == 2:
+                break
+    th.join(5)
+    assert seen == [(1.0, ("a", "b"), {"b"}), (2.0, ("a",), set())]
