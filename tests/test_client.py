@@ -73,7 +73,6 @@ def test_client_errors_are_the_standard_ones_python_users_catch(tmp_path):
     """No daemon: a ConnectionError (an OSError) with the OS's errno, and the client's own
     base class; something else at the socket: the same; an ERROR answer: a RuntimeError."""
     import errno
-    import socket as _socket
 
     with pytest.raises(ConnectionError, match="cannot connect.*is the daemon running") as info:
         Client(str(tmp_path / "none.sock"))
@@ -82,23 +81,10 @@ def test_client_errors_are_the_standard_ones_python_users_catch(tmp_path):
     with pytest.raises(OSError):
         Client(str(tmp_path / "none.sock"))
     # a socket whose server says something else
-    path = str(tmp_path / "other.sock")
-    srv = _socket.socket(_socket.AF_UNIX, _socket.SOCK_STREAM)
-    srv.bind(path)
-    srv.listen(1)
-    import threading
-
-    def talk() -> None:
-        conn, _ = srv.accept()
-        conn.sendall(b'{"class": "HELLO"}\n')
-        conn.close()
-
-    th = threading.Thread(target=talk)
-    th.start()
+    path, th = _scripted(tmp_path, lambda conn: conn.sendall(b'{"class": "HELLO"}\n'))
     with pytest.raises(NotADaemon, match="not a mousedom socket"):
         Client(path, timeout=5)
     th.join(5)
-    srv.close()
     assert issubclass(NotADaemon, ConnectionError) and issubclass(CommandError, RuntimeError)
 
 
