@@ -199,3 +199,14 @@ def test_a_fifo_or_device_in_a_fake_sysfs_tree_never_blocks_the_scan(tmp_path):
     assert not t.is_alive(), "the scan blocked"
     names = sorted(d.name for d in result["s"].devices)
     assert "Fine Mouse" in names
+
+
+def test_list_escapes_control_characters_of_a_devices_strings(tmp_path):
+    """A device name with a newline broke the listing's layout, one with ESC sent the
+    terminal an escape sequence: shown escaped, each device's lines its own."""
+    from mousedom.commands.list import _text
+
+    add_device(tmp_path, 3, "Evil\nMouse\x1b[31m", phys="usb-1\t/input0")
+    text = _text(scan(paths(tmp_path)))
+    assert "\x1b" not in text and "\t" not in text
+    assert "Evil\\nMouse\\x1b[31m" in text and "phys     usb-1\\t/input0" in text
