@@ -1,4 +1,4 @@
-"""udev/99-mousedom.rules: well-formed, and it gives what the example config expects.
+"""udev/72-mousedom.rules: well-formed, and it gives what the example config expects.
 
 udev itself is not in this container (no /dev/input, no udevd), so the rules are parsed
 here with the syntax of udev(7); where ``udevadm verify`` exists (systemd >= 254) it
@@ -17,7 +17,7 @@ import pytest
 from mousedom.config import load_config
 
 ROOT = Path(__file__).resolve().parent.parent
-RULES = ROOT / "udev" / "99-mousedom.rules"
+RULES = ROOT / "udev" / "72-mousedom.rules"
 EXAMPLE = ROOT / "config" / "mousedom.yaml"
 
 # udev(7): KEY[{attr}] OP "value"; match keys take == and !=, the rest assign.
@@ -127,3 +127,14 @@ def test_every_attribute_the_gyro_source_writes_is_given_to_the_group(tmp_path):
     assert "buffer/watermark" in written and "buffer/enable" in written, written
     for w in written:
         assert any(fnmatch.fnmatch(w, p) for p in patterns), (w, patterns)
+
+
+def test_the_rules_sort_where_taking_the_uaccess_tag_off_still_counts():
+    """systemd's 70-uaccess.rules and 71-seat.rules add the uaccess and seat tags; its
+    73-seat-late.rules queues the ACL for a device tagged uaccess then.  As 99-mousedom.rules
+    the TAG-="uaccess" came after that, and the logged-in user kept an ACL on a mouse an
+    earlier rule had tagged.  The file sorts between them."""
+    udev = Path(__file__).resolve().parent.parent / "udev"
+    (name,) = [p.name for p in udev.glob("*.rules")]
+    assert "70-uaccess.rules" < "71-seat.rules" < name < "73-seat-late.rules", name
+    assert 'TAG-="uaccess"' in (udev / name).read_text()

@@ -117,7 +117,7 @@ def _check_input_dir(
         if configured:  # each evdev mouse's line says whether it is one of those
             lines.ok(msg)
         else:
-            lines.warn(msg, f"{_join(groups[0])}, or install udev/99-mousedom.rules")
+            lines.warn(msg, f"{_join(groups[0])}, or install udev/72-mousedom.rules")
     elif n == 0 and (not configured or evdev):
         lines.warn(msg + ": no mouse plugged in", "plug the mice in (`mousedom list`)")
     else:

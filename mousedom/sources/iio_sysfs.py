@@ -21,7 +21,7 @@ from mousedom.sources.base import SourceUnavailable
 from mousedom.sources.iio_layout import TIMESTAMP
 
 MAX_ATTR = 4096  # a sysfs attribute is one page at most
-UDEV_HINT = "install the udev rule (udev/99-mousedom.rules, docs/gyro.md)"
+UDEV_HINT = "install the udev rule (udev/72-mousedom.rules, docs/gyro.md)"
 
 
 @dataclass(frozen=True)
