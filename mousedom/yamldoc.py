@@ -83,6 +83,14 @@ def explain_yaml_error(text: str, e: yaml.MarkedYAMLError) -> tuple[int | None, 
 _MERGE = "tag:yaml.org,2002:merge"
 
 
+def key_line(lines: dict[tuple[str, ...], int], keys: tuple[str, ...]) -> int | None:
+    """The line of a key path, or of its nearest parent written (``YamlDoc.lines``)."""
+    for n in range(len(keys), -1, -1):
+        if keys[:n] in lines:
+            return lines[keys[:n]]
+    return None
+
+
 class YamlDoc:
     """Parsed YAML plus the line number (1-based) of every key path."""
 
@@ -152,11 +160,7 @@ class YamlDoc:
                     self._index(value_node, prefix + (key,))
 
     def error(self, keys: tuple[str, ...], message: str) -> ConfigError:
-        line = None
-        for n in range(len(keys), -1, -1):
-            if keys[:n] in self.lines:
-                line = self.lines[keys[:n]]
-                break
+        line = key_line(self.lines, keys)
         if line is None and not keys[:1]:
             line = 1  # an empty file: its first line
         where = ".".join(k if k.isprintable() else repr(k) for k in keys)

@@ -196,15 +196,16 @@ class _Assigner:
         cands = _candidates(cap)
         hits = _matching(m, cap, cands)
         if not hits and m.replay_device is not None:
-            raise CaptureError(
-                f"{self.config.where(('mice', m.name, 'replay', 'device'))}: no device "
-                f"{m.replay_device!r} in {replay} (it holds {_describe(cap, cands)})"
-            )
+            raise CaptureError(self.config.locate(
+                ("mice", m.name, "replay", "device"),
+                f"no device {m.replay_device!r} in {replay} (it holds {_describe(cap, cands)})",
+            ))  # fmt: skip
         if len(hits) != 1:
-            raise CaptureError(
-                f"{self.config.where(('mice', m.name, 'replay'))}: {len(hits)} devices of "
-                f"{replay} match (it holds {_describe(cap, cands)}); set replay.device"
-            )
+            raise CaptureError(self.config.locate(
+                ("mice", m.name, "replay"),
+                f"{len(hits)} devices of {replay} match (it holds {_describe(cap, cands)}); "
+                "set replay.device",
+            ))  # fmt: skip
         self.put(k, cap, hits[0], "from the config")
 
     def check_all(self) -> None:

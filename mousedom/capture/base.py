@@ -331,3 +331,10 @@ class Capture(ABC):
         self.stats = [DeviceStats() for _ in self.devices]
         self.warnings = list(self.open_warnings)
         self.bytes_done = 0
+
+
+def decimal_field(text: bytes) -> bool:
+    """A text capture's integer field as the fast scanners take it: an optional sign and
+    ASCII digits.  int() also reads "1_000" (a digit separator no recorder writes) as 1000,
+    and Unicode digits in str."""
+    return (text[1:] if text[:1] in (b"-", b"+") else text).isdigit()

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from mousedom import core
-from mousedom.capture.base import CaptureError
+from mousedom.capture.base import CaptureError, decimal_field
 from mousedom.capture.evemu_regular import line_bounds, regular_columns
 from mousedom.errors import located
 
@@ -241,9 +241,7 @@ def event_line(line: bytes) -> tuple[float, int, int, int]:
     if not (0 <= ty <= 0xFFFF and 0 <= co <= 0xFFFF) or b"_" in fields[2] + fields[3]:
         raise ValueError("type or code out of range")
     value = fields[4]
-    # A sign and ASCII digits, as the fast scanners take them: int() also reads "1_000"
-    # (a digit separator no evemu writes) as 1000.
-    if not (value[1:] if value[:1] in (b"-", b"+") else value).isdigit():
+    if not decimal_field(value):
         raise ValueError("value must be a decimal integer")
     va = int(value, 10)
     if not -(2**31) <= va < 2**31:

@@ -14,7 +14,7 @@ from typing import NoReturn
 
 import numpy as np
 
-from mousedom.capture.base import CaptureError, DeviceStats
+from mousedom.capture.base import CaptureError, DeviceStats, decimal_field
 from mousedom.errors import located
 
 # Seconds since the start of a recording: a century is far past any real one, and keeps
@@ -169,10 +169,8 @@ def _row_ok(row: bytes) -> bool:
     fields = [x.strip() for x in row.split(b",")]
     if len(fields) != 5:
         return False
-    # A sign and ASCII digits only: int() also reads "1_0" (a digit separator) as 10; and
-    # no more digits than a 32-bit value's with leading zeros (int() refuses 4,300).
-    if not all((x[1:] if x[:1] in (b"-", b"+") else x).isdigit() and len(x) <= 32
-               for x in fields):  # fmt: skip
+    # (and no more digits than a 32-bit value's with leading zeros: int() refuses 4,300)
+    if not all(decimal_field(x) and len(x) <= 32 for x in fields):
         return False
     vals = [int(x) for x in fields]
     return (

@@ -176,7 +176,7 @@ def run(args: argparse.Namespace) -> int:
         )
     for keys, capture in _captures(cfg):
         if not os.path.isfile(capture):  # `mousedom run` would stop on it: not valid yet
-            raise UserError(f"{cfg.where(keys)}: {capture}: capture file not found")
+            raise UserError(cfg.locate(keys, f"{capture}: capture file not found"))
     if _captures(cfg):
         # The devices in them, as replay and run map them onto the mice: a replay.device
         # that is not in its file passed here and stopped `replay` and `run`.

@@ -10,6 +10,7 @@ from dataclasses import MISSING, dataclass, field, fields
 from typing import Any, TypeVar
 
 from mousedom.config.outputs import FoxgloveConfig, MetricsConfig, Ros2Config, ServerConfig
+from mousedom.errors import located
 
 T = TypeVar("T")
 
@@ -171,13 +172,12 @@ class Config:
     # load (a capture file, a device in it) point the user; no part of what the config is
     lines: dict[tuple[str, ...], int] = field(default_factory=dict, compare=False, repr=False)
 
-    def where(self, keys: tuple[str, ...]) -> str:
-        """``path:line: a.b.c`` for a key path (its nearest written parent's line), as
-        the load's errors name a key."""
-        line = next((self.lines[keys[:n]] for n in range(len(keys), 0, -1)
-                     if keys[:n] in self.lines), None)  # fmt: skip
-        place = ":".join(str(p) for p in (self.path, line) if p is not None)
-        return f"{place}: {'.'.join(keys)}" if place else ".".join(keys)
+    def locate(self, keys: tuple[str, ...], message: str) -> str:
+        """``path:line: a.b.c: message`` for a key path (its nearest written parent's
+        line), as the load's errors name a key (``YamlDoc.error``)."""
+        from mousedom.yamldoc import key_line  # (late: the config's types need no YAML)
+
+        return located(self.path, key_line(self.lines, keys), message, ".".join(keys))
 
     @property
     def names(self) -> tuple[str, ...]:

@@ -417,13 +417,14 @@ class Parser:
         sent = last.host_t
         if sent is not None and self._offset is not None:
             sent = min(sent, self._fw_s + self._offset)  # when the last was sent, at most
-        if self._restarted(p, last.t_us, sent, host_t, expect, gap):
+        ahead = (p.t_us - last.t_us) % WRAP  # microseconds, a wrap taken as such
+        if self._restarted(p, last.t_us, ahead, sent, host_t, expect, gap):
             self.stats.reboots += 1
             self.stats.lost_seq += p.seq  # the new boot's packets before this one
             self._clock(host_t)
             return True
         self.stats.lost_seq += gap
-        step = ((p.t_us - last.t_us) % WRAP) * 1e-6
+        step = ahead * 1e-6
         self._fw_s += step
         if host_t is not None:
             arrived = host_t - self._fw_s
@@ -438,11 +439,11 @@ class Parser:
 
     @staticmethod
     def _restarted(
-        p: Packet, t0: int, host0: float | None, host_t: float | None, expect: int, gap: int
-    ) -> bool:
+        p: Packet, t0: int, ahead: int, host0: float | None, host_t: float | None,
+        expect: int, gap: int,
+    ) -> bool:  # fmt: skip
         if went_back(t0, p.t_us):
             return True  # the clock went back
-        ahead = (p.t_us - t0) % WRAP  # microseconds, a wrap taken as such
         if host0 is not None and host_t is not None:
             host = max(host_t - host0, 0.0)
             if ahead * 1e-6 > host * (1 + MAX_DRIFT) + CLOCK_SLACK_S:
