@@ -103,6 +103,56 @@ def test_covariances_land_in_rosses_six_by_six():
     np.testing.assert_allclose(t[np.ix_([0, 1, 5], [0, 1, 5])], np.array(row.qcov) * 100.0)
 
 
+@pytest.mark.parametrize("seed", range(20))
+def test_the_six_by_six_is_symmetric_and_nan_is_no_correlation(seed):
+    """The estimator's inverse and the map -> odom turn leave a 3x3 a rounding from
+    symmetric (4.6e-23 against 0 was seen); ROS gets one symmetric matrix, the mean of the
+    two cells, and an unknown (NaN) correlation as 0, not as UNOBSERVED (which made the
+    6x6 indefinite), an unknown variance as UNOBSERVED."""
+    rng = np.random.default_rng(seed)
+    a = rng.normal(size=(3, 3))
+    c = a @ a.T
+    c[0, 2] += 1e-17 * rng.normal()  # a rounding's asymmetry
+    if seed % 3 == 0:
+        c[1, 2] = c[2, 1] = np.nan
+    if seed % 4 == 0:
+        c[2, 2] = np.nan
+    six = np.array(ros2conv.covariance6(c.tolist(), float(rng.uniform(-3, 3)))).reshape(6, 6)
+    assert (six == six.T).all()
+    assert np.isfinite(six).all()
+    if seed % 3 == 0 and seed % 4 != 0:
+        assert six[1, 5] == 0.0 and six[5, 1] == 0.0
+        assert np.linalg.eigvalsh(six).min() > -1e-9
+    if seed % 4 == 0:
+        assert six[5, 5] == ros2conv.UNOBSERVED
+
+
+def test_mouse_frames_take_the_base_frames_prefix():
+    """Two robots sharing /tf (docs/ros2.md, "Several robots"): the mice's frames carry
+    the base frame's prefix, as the mounts' transforms and the counts' headers say."""
+    st = ros2conv.stamp(1.0, 0.0)
+    for base, want in (("base_link", "front_l_mouse"), ("robot1/base_link", "robot1/front_l_mouse"),
+                       ("a/b/base", "a/b/front_l_mouse")):  # fmt: skip
+        assert ros2conv.mouse_frame("front-l", base) == want
+        tr = ros2conv.mount_transform(base, "front-l", 0.1, 0.0, 0.0, False, st)
+        assert tr["header"]["frame_id"] == base and tr["child_frame_id"] == want
+        assert ros2conv.counts(st, "front-l", 1, 2, base)["header"]["frame_id"] == want
+
+
+def test_a_ros2_gyro_is_on_the_outputs_domain_and_namespace_unless_told():
+    """docs/gyro.md: a gyro read from ROS 2 takes the output's domain unless it names its
+    own, and its reader's node the output's namespace."""
+    base = ("mice:\n  a: {cpi: 400, mount: {x: 0, y: 0}}\n  b: {cpi: 400, mount: {x: 1, y: 0}}\n"
+            "gyro: {ros2: %s}\n")  # fmt: skip
+    out = "outputs: {ros2: {domain_id: 23, namespace: /robot1}}\n"
+    g = parse_config(base % "/imu/data" + out, need_sources=False).gyro.ros2
+    assert (g.domain_id, g.namespace) == (23, "/robot1")
+    g = parse_config(base % "{topic: /imu/data, domain_id: 4}" + out, need_sources=False).gyro.ros2
+    assert (g.domain_id, g.namespace) == (4, "/robot1")
+    g = parse_config(base % "/imu/data", need_sources=False).gyro.ros2
+    assert (g.domain_id, g.namespace) == (None, "")
+
+
 def test_rep105_odom_never_jumps_and_map_odom_takes_the_fix():
     rep = ros2conv.Rep105()
     p = (1.0, 0.5, 0.4)
@@ -136,7 +186,19 @@ def test_outputs_ros2_config():
         ("{namespace: /robot~1}", "namespace: must be /name or /a/b"),
         ("{node_name: 2mice}", "node_name: must be a ROS 2 node name"),
         ("{node_name: mouse-dom}", "node_name: must be a ROS 2 node name"),
-        ("{odom_topic: 'od om'}", "odom_topic: must be a ROS topic name"),
+        ("{odom_topic: 'od om'}", "odom_topic: must be a ROS 2 topic name"),
+        # what rcl would expand (~, {}) or refuse, and names beyond rmw's lengths
+        ("{odom_topic: '~/odom'}", "odom_topic: must be a ROS 2 topic name"),
+        ("{odom_topic: /odom/}", "odom_topic: must be a ROS 2 topic name"),
+        ("{odom_topic: /odom/2d}", "odom_topic: must be a ROS 2 topic name"),
+        ("{tf_topic: /tföö}", "tf_topic: must be a ROS 2 topic name"),
+        ("{diagnostics_topic: '/{node}/d'}", "diagnostics_topic: must be a ROS 2 topic name"),
+        ("{odom_topic: /" + "o" * 247 + "}", "over ROS 2's 247"),
+        ("{namespace: /" + "n" * 245 + "}", "namespace: must be at most 245 characters"),
+        # tf2 refuses a frame id with a leading /
+        ("{odom_frame: /odom}", "odom_frame: must be a frame id"),
+        ("{base_frame: /robot1/base_link}", "tf2 refuses a leading /"),
+        ("{map_frame: 'map/'}", "map_frame: must be a frame id"),
         ("{stamps: wall}", "stamps: must be one of system, monotonic"),
         ("{odom_frme: x}", "unknown key (did you mean odom_frame?"),
     ):

@@ -294,3 +294,84 @@ def test_an_imu_driver_on_fast_dds_is_the_daemons_gyro(ros2, tmp_path):
     stamped = np.array([by_rate[r] for r in rates.tolist()])
     np.testing.assert_allclose(t, stamped, rtol=0, atol=0.01)  # (the lead, read apart)
     assert "reading /imu/data (sensor_msgs/Imu) on ROS 2 domain" in log
+
+
+_JUDGE_NAMES = """
+import json, sys
+from rclpy.exceptions import NameValidationException
+from rclpy.validate_full_topic_name import validate_full_topic_name
+from rclpy.validate_namespace import validate_namespace
+
+def ok(check, name):
+    try:
+        return bool(check(name))
+    except NameValidationException:
+        return False
+
+out = []
+for ns, name in json.load(sys.stdin):
+    full = (ns or "") + (name if name.startswith("/") else "/" + name)  # (ros2conv.topic)
+    out.append((not ns or ok(validate_namespace, ns)) and ok(validate_full_topic_name, full))
+print(json.dumps(out))
+"""
+
+
+def _generated_names(rng: random.Random, n: int) -> list[tuple[str, str]]:
+    """(namespace, topic) pairs drawn from an alphabet of what ROS 2 takes and what it does
+    not (Unicode letters and digits, ~, {}, -, ., space, repeated and trailing /), some
+    long enough to cross rmw's limits."""
+    good = "abcXYZ_019"
+    bad = ["ö", "²", "٣", "~", "{", "}", "-", ".", " ", "//"]
+    pairs = []
+    for _ in range(n):
+
+        def name(parts: int, long: bool) -> str:
+            toks = []
+            for _ in range(parts):
+                k = rng.randint(1, 120 if long else 8)
+                tok = "".join(rng.choice(good) for _ in range(k))
+                if rng.random() < 0.15:
+                    at = rng.randrange(len(tok) + 1)
+                    tok = tok[:at] + rng.choice(bad) + tok[at:]
+                toks.append(tok)
+            return "/".join(toks)
+
+        long = rng.random() < 0.2
+        ns = "/" + name(rng.randint(1, 3), long) if rng.random() < 0.5 else ""
+        topic = name(rng.randint(1, 3), long)
+        topic = ("/" if rng.random() < 0.6 else "") + topic + ("/" if rng.random() < 0.05 else "")
+        pairs.append((ns, topic))
+    return pairs
+
+
+def test_the_configs_ros2_names_are_those_rclpy_accepts(ros2, tmp_path):
+    """check-config's rule for a topic under a namespace is ROS 2's: rclpy's validators
+    (rmw's C rules) judge 400 generated pairs, and the config takes a pair exactly where
+    rclpy takes its namespace and the full topic name.  (A name rclpy refuses, taken by
+    the config, crashed the daemon at start or published a topic no node can read.)"""
+    from mousedom.config import load_config
+    from mousedom.yamldoc import ConfigError
+
+    pairs = _generated_names(random.Random(2026_1206), 400)
+    judged = subprocess.run(
+        ["env", *_tf2_env(ros2).split(), ros2, "-c", _JUDGE_NAMES],
+        input=json.dumps(pairs), capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert judged.returncode == 0, judged.stderr[-2000:]
+    verdicts = json.loads(judged.stdout)
+    assert 50 < sum(verdicts) < 350  # both kinds drawn
+    wrong = []
+    for k, ((ns, topic), want) in enumerate(zip(pairs, verdicts, strict=True)):
+        p = tmp_path / f"{k}.yaml"
+        ros = {"odom_topic": topic, **({"namespace": ns} if ns else {})}
+        mice = {m: {"cpi": 800, "mount": {"x": 0.0, "y": y}} for m, y in (("a", 0.1), ("b", -0.1))}
+        p.write_text(json.dumps({"mice": mice, "outputs": {"ros2": ros}}))
+        try:
+            load_config(p, need_sources=False)
+            took = True
+        except ConfigError as e:
+            assert "outputs.ros2" in str(e), e  # refused for its names, nothing else
+            took = False
+        if took != want:
+            wrong.append((ns, topic, "rclpy takes it" if want else "rclpy refuses it"))
+    assert not wrong, wrong[:5]

@@ -20,7 +20,7 @@ import os
 from pathlib import Path
 
 from mousedom.config.mice import read_replay
-from mousedom.config.outputs import ROS_NAMESPACE
+from mousedom.config.outputs import ROS_TOPIC, ROS_TOPIC_MAX
 from mousedom.config.rig import GyroConfig, GyroRos2, default
 from mousedom.fusion.choices import GYRO_USES
 from mousedom.yamldoc import Reader
@@ -46,7 +46,8 @@ def read_ros2(g: Reader) -> GyroRos2:
     else:
         topic, domain, stamps, where, key = g.string("ros2"), None, "system", g, "ros2"
     # an absolute topic name: /imu or /robot1/imu/data (ROS 2's name rules)
-    if not topic or not ROS_NAMESPACE.fullmatch(topic) or topic.endswith("/"):
+    if (not topic or not topic.startswith("/") or not ROS_TOPIC.fullmatch(topic)
+            or len(topic) > ROS_TOPIC_MAX):  # fmt: skip
         raise where.err(key, "must be an absolute ROS 2 topic name of a sensor_msgs/Imu "
                              f"(e.g. /imu/data), got {topic!r}")  # fmt: skip
     return GyroRos2(topic=topic, domain_id=domain, stamps=stamps)

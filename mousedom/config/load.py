@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import os
+from dataclasses import replace
 from pathlib import Path
 
 from mousedom import plausible, safeyaml
@@ -124,6 +125,13 @@ def parse_config(
     ros2, foxglove, metrics = outputs or (None, None, None)
     gyro = (doc.attempt(read_gyro, top, need_sources=need_sources, base_dir=base_dir)
             if top.has("gyro") else None)  # fmt: skip
+    if gyro is not None and gyro.ros2 is not None and ros2 is not None:
+        # One robot, one ROS 2 graph: a gyro read from ROS 2 is on the output's domain
+        # unless it names its own, and its reader's node in the output's namespace (two
+        # robots on one domain would otherwise both announce /mousedom_gyro).
+        domain = ros2.domain_id if gyro.ros2.domain_id is None else gyro.ros2.domain_id
+        gyro = replace(gyro, ros2=replace(gyro.ros2, domain_id=domain,
+                                          namespace=ros2.namespace))  # fmt: skip
     calibration = doc.attempt(top.string, "calibration")
     calibration_path = str(base_dir / calibration) if calibration else None
     doc.raise_problems()

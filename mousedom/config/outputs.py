@@ -66,10 +66,23 @@ class MetricsConfig:
 
 
 STAMPS = ("system", "monotonic")
-# ROS 2's names, as rcl accepts them: a node name of letters, digits and _ not starting
-# with a digit; a namespace of such names, each after a "/" (ros2graph announces these).
+# ROS 2's names, as rcl accepts them (rmw's validate_node_name, validate_namespace and
+# validate_full_topic_name): ASCII letters, digits and _, no name starting with a digit; a
+# node name one such name; a namespace and a topic such names, each after a "/" (a topic
+# name relative to the namespace: the first without).  No "~" or "{}": rcl expands them
+# (private names, substitutions) where this daemon, speaking DDS itself, would send them
+# as they are, names no ROS 2 node can subscribe to.
+_ROS_TOKEN = r"[A-Za-z_][A-Za-z0-9_]*"
 ROS_NODE_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]{0,254}")
-ROS_NAMESPACE = re.compile(r"(/[A-Za-z_][A-Za-z0-9_]*)+/?")
+ROS_NAMESPACE = re.compile(rf"(/{_ROS_TOKEN})+/?")
+ROS_TOPIC = re.compile(rf"/?{_ROS_TOKEN}(/{_ROS_TOKEN})*")
+# A full topic name (namespace and all) is at most 247 characters (RMW_TOPIC_MAX_NAME_LENGTH:
+# 255 less 8 kept for DDS's prefixes), a namespace 2 fewer (RMW_NAMESPACE_MAX_LENGTH).
+ROS_TOPIC_MAX = 247
+ROS_NAMESPACE_MAX = ROS_TOPIC_MAX - 2
+# A tf2 frame id: no leading "/" (tf2 refuses such ids at every lookup); the rest as this
+# daemon has always written them, letters, digits and _ between single "/".
+ROS_FRAME = re.compile(r"[A-Za-z0-9_]+(/[A-Za-z0-9_]+)*")
 ROS2_KEYS = tuple(f for f in Ros2Config.__dataclass_fields__)
 SERVER_KEYS = ("socket", "mode", "group", "control_uids", "control_gids", "max_clients",
                "queue_lines", "max_line", "idle_timeout_s")  # fmt: skip
@@ -187,34 +200,49 @@ def _ros2(r: Reader) -> Ros2Config | None:
     s = r.sub("ros2", ("enabled", *ROS2_KEYS))
     d = Ros2Config()
 
-    def name(key: str, default: str, topic: bool) -> str:
-        v = _text(s, key, default)
-        ok = all(c.isalnum() or c in "_/~" for c in v) if topic else all(
-            c.isalnum() or c in "_/" for c in v)  # fmt: skip
-        if not v or not ok or "//" in v:
-            what = "a ROS topic name" if topic else "a frame id"
-            raise s.err(key, f"must be {what} (letters, digits, _ and /), got {shown(v)}")
-        return v
-
     namespace = _text(s, "namespace", d.namespace)
     if namespace and not ROS_NAMESPACE.fullmatch(namespace):
         raise s.err(
             "namespace",
-            "must be /name or /a/b, each name of letters, digits and _ not starting with a "
-            f"digit (e.g. /robot1), got {shown(namespace)}",
+            "must be /name or /a/b, each name of ASCII letters, digits and _ not starting "
+            f"with a digit (e.g. /robot1), got {shown(namespace)}",
         )
+    if len(namespace.rstrip("/")) > ROS_NAMESPACE_MAX:
+        raise s.err("namespace", f"must be at most {ROS_NAMESPACE_MAX} characters (ROS 2's "
+                                 f"limit), got {len(namespace.rstrip('/'))}")  # fmt: skip
+
+    def topic(key: str, default: str) -> str:
+        v = _text(s, key, default)
+        if not ROS_TOPIC.fullmatch(v):
+            raise s.err(key, "must be a ROS 2 topic name: names of ASCII letters, digits "
+                             "and _ not starting with a digit, joined by single / (no "
+                             f"trailing /, ~ or {{}}), got {shown(v)}")  # fmt: skip
+        full = namespace.rstrip("/") + "/" + v.lstrip("/")  # (ros2conv.topic; one / at most)
+        if len(full) > ROS_TOPIC_MAX:
+            raise s.err(key, f"its full name {shown(full[:40] + '...')} is {len(full)} "
+                             f"characters, over ROS 2's {ROS_TOPIC_MAX}")  # fmt: skip
+        return v
+
+    def frame(key: str, default: str) -> str:
+        v = _text(s, key, default)
+        if not ROS_FRAME.fullmatch(v):
+            lead = " (tf2 refuses a leading /)" if v.startswith("/") else ""
+            raise s.err(key, "must be a frame id of ASCII letters, digits and _, parts "
+                             f"joined by single /{lead}, got {shown(v)}")  # fmt: skip
+        return v
+
     domain = s.integer("domain_id", minimum=0) if s.has("domain_id") else d.domain_id
     if domain is not None and domain > 232:
         raise s.err("domain_id", f"must be between 0 and 232 (ROS 2's range), got {domain}")
     cfg = Ros2Config(
         domain_id=domain,
         namespace=namespace.rstrip("/"),
-        odom_topic=name("odom_topic", d.odom_topic, True),
-        tf_topic=name("tf_topic", d.tf_topic, True),
-        diagnostics_topic=name("diagnostics_topic", d.diagnostics_topic, True),
-        odom_frame=name("odom_frame", d.odom_frame, False),
-        base_frame=name("base_frame", d.base_frame, False),
-        map_frame=name("map_frame", d.map_frame, False),
+        odom_topic=topic("odom_topic", d.odom_topic),
+        tf_topic=topic("tf_topic", d.tf_topic),
+        diagnostics_topic=topic("diagnostics_topic", d.diagnostics_topic),
+        odom_frame=frame("odom_frame", d.odom_frame),
+        base_frame=frame("base_frame", d.base_frame),
+        map_frame=frame("map_frame", d.map_frame),
         publish_tf=s.boolean("publish_tf", d.publish_tf),
         publish_map_tf=s.boolean("publish_map_tf", d.publish_map_tf),
         diagnostics=s.boolean("diagnostics", d.diagnostics),

@@ -120,10 +120,13 @@ class GyroRos2:
     the angular velocity of an IMU whose driver publishes in ROS 2."""
 
     topic: str  # absolute, e.g. /imu/data
-    domain_id: int | None = None  # None: $ROS_DOMAIN_ID, else 0 (as ROS 2 does)
+    # None: the ROS 2 output's (outputs.ros2.domain_id, where given), else $ROS_DOMAIN_ID,
+    # else 0 (as ROS 2 does); config.load fills in the output's
+    domain_id: int | None = None
     # what the headers' stamps are on: system (ROS time, what drivers stamp with) or
     # monotonic (a driver stamping with the steady clock)
     stamps: str = "system"
+    namespace: str = ""  # the reader's node's (the output's namespace: one robot, one tree)
 
 
 @dataclass(frozen=True)

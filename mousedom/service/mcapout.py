@@ -79,7 +79,9 @@ class McapRecorder(Output):
             False: cdr.TfCdr([(cfg.odom_frame, cfg.base_frame)]),
             True: cdr.TfCdr([(cfg.odom_frame, cfg.base_frame), (cfg.map_frame, cfg.odom_frame)]),
         }
-        self.counts_cdr = [cdr.Vector3StampedCdr(conv.mouse_frame(s)) for s in sensors]
+        self.counts_cdr = [
+            cdr.Vector3StampedCdr(conv.mouse_frame(s, cfg.base_frame)) for s in sensors
+        ]
         self.rep = conv.Rep105()
         self.written = 0
 
@@ -100,7 +102,7 @@ class McapRecorder(Output):
         self._write(self.tf_ch, self.tf_cdr[both].encode(st, tfs), ns)
         for ch, enc, name, (cx, cy) in zip(self.count_ch, self.counts_cdr, self.sensors,
                                            row.counts, strict=False):  # fmt: skip
-            self._write(ch, enc.encode(st, conv.counts(st, name, cx, cy)), ns)
+            self._write(ch, enc.encode(st, conv.counts(st, name, cx, cy, cfg.base_frame)), ns)
         self.written += 1
 
     def batch(self, b: PoseBatch) -> None:

@@ -72,8 +72,15 @@ def covariance6(cov3: Any, rotate: float = 0.0) -> list[float]:
         out[7 * k] = UNOBSERVED
     for a, i in enumerate(PLANAR):
         for b, j in enumerate(PLANAR):
-            v = c[a][b]
-            out[6 * i + j] = v if v == v else UNOBSERVED  # NaN: unknown
+            # A covariance is symmetric: the mean of the two cells, where the maths left
+            # them a rounding apart (the estimator's inverse, the turn above), so that a
+            # consumer that checks (or factors one triangle) gets one matrix.  NaN is
+            # unknown: a variance unobserved, a correlation none (UNOBSERVED off the
+            # diagonal would make the matrix indefinite).
+            v, w = c[a][b], c[b][a]
+            if v != w:
+                v = 0.5 * v + 0.5 * w
+            out[6 * i + j] = v if v == v else (UNOBSERVED if a == b else 0.0)
     return out
 
 
@@ -150,10 +157,13 @@ def counts_topic(name: str) -> str:
     return f"/mousedom/{ros_token(name)}/counts"
 
 
-def mouse_frame(name: str) -> str:
+def mouse_frame(name: str, base_frame: str = "") -> str:
     """The TF frame of a mouse's sensor (on /tf_static under the base frame), named as
-    its counts topic is (config.names.ros_token)."""
-    return f"{ros_token(name)}_mouse"
+    its counts topic is (config.names.ros_token), after the base frame's prefix: with
+    ``robot1/base_link`` it is ``robot1/front_mouse``, so that robots sharing /tf (docs/
+    ros2.md, "Several robots") keep their mice apart as they keep their bases."""
+    prefix = base_frame.rpartition("/")[0]
+    return f"{prefix}/{ros_token(name)}_mouse" if prefix else f"{ros_token(name)}_mouse"
 
 
 def mount_transform(
@@ -168,7 +178,7 @@ def mount_transform(
         rot = quaternion(yaw)
     return {
         "header": header(base, st),
-        "child_frame_id": mouse_frame(name),
+        "child_frame_id": mouse_frame(name, base),
         "transform": {"translation": {"x": x, "y": y, "z": 0.0}, "rotation": rot},
     }
 
@@ -224,8 +234,10 @@ def _number(v: Any, fmt: str) -> str:
     return "" if v is None else format(float(v), fmt)
 
 
-def counts(st: dict[str, int], mouse: str, cx: float, cy: float) -> dict[str, Any]:
+def counts(
+    st: dict[str, int], mouse: str, cx: float, cy: float, base_frame: str = ""
+) -> dict[str, Any]:
     """geometry_msgs/msg/Vector3Stamped: one mouse's counts (REL_X, REL_Y) in a window,
-    ``frame_id`` its frame (``<mouse>_mouse``, which /tf_static places on the robot)."""
-    return {"header": header(mouse_frame(mouse), st),
+    ``frame_id`` its frame (``mouse_frame``, which /tf_static places on the robot)."""
+    return {"header": header(mouse_frame(mouse, base_frame), st),
             "vector": {"x": float(cx), "y": float(cy), "z": 0.0}}  # fmt: skip

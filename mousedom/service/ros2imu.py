@@ -21,8 +21,9 @@ angular velocity (REP-145) and one whose rate is not finite, or no gyro's (``MAX
 is dropped and counted: neither is a turn.  Saturation is not marked: the message has no
 word for it (the fusion's judgement of the gyro against three or more mice still stands).
 
-In the ROS 2 graph the reader is node ``mousedom_gyro``'s (``GYRO_NODE``): ``ros2 node
-list`` shows it, ``ros2 topic info /imu/data`` counts it among the subscribers.
+In the ROS 2 graph the reader is node ``mousedom_gyro``'s (``GYRO_NODE``), in the ROS 2
+output's namespace (config.load gives it, with the output's domain): ``ros2 node list``
+shows it, ``ros2 topic info /imu/data`` counts it among the subscribers.
 
 No descriptor to wait on (cyclonedds' Python API has none): the source is ``paced``, read
 on each turn of the daemon's loop.  A driver that stops publishing sends nothing to say so
@@ -113,7 +114,7 @@ class Ros2ImuSource(Source):
             self._participant = part
             from mousedom.service.ros2graph import NodeAnnouncer
 
-            self._graph = NodeAnnouncer(part, GYRO_NODE, "/")
+            self._graph = NodeAnnouncer(part, GYRO_NODE, self.ros2.namespace or "/")
             self._graph.announce([self.reader], [])
         except UserError as e:  # no cyclonedds, no participant: said as the source's error
             raise SourceUnavailable(f"{self.name}: {self.ros2.topic} ({e})") from None

@@ -323,7 +323,9 @@ class Ros2Output(Output):
         if cfg.publish_map_tf:
             pairs.append((cfg.map_frame, cfg.odom_frame))
         self.tf_cdr = cdr.TfCdr(pairs)
-        self.counts_cdr = [cdr.Vector3StampedCdr(conv.mouse_frame(s)) for s in sensors]
+        self.counts_cdr = [
+            cdr.Vector3StampedCdr(conv.mouse_frame(s, cfg.base_frame)) for s in sensors
+        ]
         log.info("ROS 2 output on domain %d: %s (%s -> %s)", self.domain,
                  conv.topic(cfg, cfg.odom_topic), cfg.odom_frame, cfg.base_frame)  # fmt: skip
 
@@ -348,7 +350,7 @@ class Ros2Output(Output):
             self.tf.write(self.tf_cdr.encode(st, tfs))
         for w, enc, name, (cx, cy) in zip(self.counts, self.counts_cdr, self.sensors,
                                           row.counts, strict=False):  # fmt: skip
-            w.write(enc.encode(st, conv.counts(st, name, cx, cy)))
+            w.write(enc.encode(st, conv.counts(st, name, cx, cy, cfg.base_frame)))
         self.sent += 1
 
     def fixes(self) -> list[conv.Pose2]:
