@@ -15,6 +15,7 @@ is reported as a rigidity check.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -29,7 +30,8 @@ class DistanceResult:
     stderr: float
     runs: int
     per_run: np.ndarray
-    along: np.ndarray  # per-run |component of d1 - d2 along the joining line| / |d1 - d2|
+    # per run: |component of d1 - d2 along the joining line the runs measure| / |d1 - d2|
+    along: np.ndarray
     warnings: list[str] = field(default_factory=list)  # the runs disagree: not stored
     hints: list[str] = field(default_factory=list)  # far from the config: said, stored
     numbers: list[int] = field(default_factory=list)  # each run's number in the session
@@ -40,6 +42,11 @@ class DistanceResult:
             "stderr": round(self.stderr, 6),
             "runs": self.runs,
         }
+
+
+# Mice whose motions in a run differ by less than this fraction of it moved alike: no turn
+# (a turn about a point more than 1/ALIKE times their distance away is no calibration turn).
+ALIKE = 0.01
 
 
 class DistanceError(ValueError):
@@ -80,29 +87,53 @@ def calibrate_distance(
         for j, d in ((1, d1), (2, d2)):
             if not np.any(d[k]):
                 raise DistanceError(f"run {run_number(numbers, k)}: mouse {j} did not move")
-    if np.any(norm == 0):
-        k = int(np.argmax(norm == 0))
+    # In a turn about a point near the mice their motions differ by D times the turn; a
+    # push (or an arc about a point far from both) moves them nearly alike, and the
+    # difference left is noise, not the distance: a straight push read as 0.2 mm.
+    moved = np.maximum(np.hypot(d1[:, 0], d1[:, 1]), np.hypot(d2[:, 0], d2[:, 1]))
+    alike = norm < ALIKE * moved
+    if np.any(alike):
+        k = int(np.argmax(alike))
         raise DistanceError(
-            f"run {run_number(numbers, k)}: both mice moved alike: that was no turn"
+            f"run {run_number(numbers, k)}: both mice moved alike (their difference "
+            f"{norm[k] / moved[k]:.2%} of their motion): that was no turn, or a turn about a "
+            f"point more than {1 / ALIKE:.0f} times their distance away; turn the robot on "
+            "the spot, about a point near the mice"
         )
     per_run = norm / abs(angle)
     mean, stderr, off = run_spread(per_run, tolerance)
-    warnings = []
+    warnings, hints = [], []
+    # The joining line as the runs measure it: each run's d1 - d2 is the turn times the
+    # line turned by 90 degrees, whatever the mounts say.  The runs must agree on it (a
+    # rigid rig: a mouse that slipped or lost the floor in a run turns that run's); the
+    # configured mounts are only compared with it, as a hint: a few mm off on a short
+    # pair is what this calibration is run to put right, not a reason to refuse it.
+    across = diff / norm[:, None]
+    across *= np.where(across @ across[0] < 0, -1.0, 1.0)[:, None]  # turns either way
+    mean_across = across.sum(axis=0)
+    u_measured = np.array([-mean_across[1], mean_across[0]]) / np.hypot(*mean_across)
+    along = np.abs(diff @ u_measured) / norm
+    if np.max(along) > tolerance:
+        warnings.append(
+            f"the runs disagree on the mice's joining line by up to {np.max(along):.1%} of "
+            "the turn: a mouse slipped or lost the floor in a run"
+        )
     if line is not None and np.hypot(*line) > 0:
         u = np.asarray(line, dtype=float) / np.hypot(*line)
-        along = np.abs(diff @ u) / norm
-    else:
-        along = np.full(len(d1), np.nan)
-    if np.nanmax(along, initial=0.0) > tolerance:
-        warnings.append(
-            f"the mice moved apart along their joining line by up to {np.nanmax(along):.1%} of "
-            "the turn: a mouse slipped or lost the floor, or the mount yaws are wrong"
+        off_line = math.degrees(
+            math.asin(min(1.0, abs(float(u[0] * u_measured[1] - u[1] * u_measured[0]))))
         )
+        if off_line > math.degrees(math.asin(tolerance)):
+            hints.append(
+                f"the mice's joining line as measured is {off_line:.1f} degrees from the "
+                "configured mounts' (or their yaws are off): check the mounts (calibrate "
+                "mounts finds positions and yaws)"
+            )
     if len(off):
         bad = ", ".join(f"run {run_number(numbers, k)}: {per_run[k] * 1000:.1f} mm" for k in off)
         warnings.append(
             f"runs disagree by more than {tolerance:.0%} (mean {mean * 1000:.1f} mm; {bad}): "
             "check the angle of each turn"
         )
-    return DistanceResult(mean, stderr, len(d1), per_run, along, warnings,
+    return DistanceResult(mean, stderr, len(d1), per_run, along, warnings, hints,
                           numbers=[run_number(numbers, k) for k in range(len(d1))])  # fmt: skip
