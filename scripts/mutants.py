@@ -369,6 +369,14 @@ MUTANTS = [
         "a gyro clipped unseen, learnt again from trusted mice, takes the clip as its scale",
     ),
     Mutant(
+        "gyro-span-timing-its-mean",
+        "mousedom/fusion/gyrobias.py",
+        "        edges = self._timing_first + self._timing_last\n",
+        "        edges = 2.0 * (self._timing_first + self._timing_last) / (self._n + 1)\n",
+        ("tests/test_gyro_sudden_starts.py",),
+        "a span's timing taken as its mean, not its edges': a sudden start teaches the scale",
+    ),
+    Mutant(
         "wake-at-first-report",
         "mousedom/service/wake.py",
         "            wake = max(wake, first + min(period, 0.5 * period + latency))",

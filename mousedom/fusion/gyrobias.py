@@ -15,10 +15,14 @@ from the span's summed innovation
     E = sum_k (g_k - (1 + s_hat) a_k - b_hat T) = -H dx + sum_k (n_gyro,k - (1 + s_hat) n_mice,k)
 
 with H = [n T, sum_k a_k], dx the estimate's error, and variance S = H P H^T + R, R the
-mice's white errors summed, twice the span's mean timing variance (its two edges) and the
-gyro's white noise, each mouse term times (1 + s_hat)^2.  E^2 / S is chi-square (1 dof)
-when both tell the truth: a span that fails it teaches nothing, unless the mice it holds
-are trusted (three or more that agree, or a standstill): then the gyro's bias moved, and
+mice's white errors summed, the timing variances of the span's first and last windows (its
+two edges) and the gyro's white noise, each mouse term times (1 + s_hat)^2.  The edges'
+own, not twice the span's mean: a span of still windows but for a sudden start at its end
+has a mean a span's length smaller than that edge's variance, and one such span taught the
+scale 0.03 off (and the bias, reset by the spans that then failed, took the rest).
+E^2 / S is chi-square (1 dof) when both tell the truth: a span that fails it teaches
+nothing, unless the mice it holds are trusted (three or more that agree, or a standstill):
+then the gyro's bias moved, and
 b is learnt again from that span (its variance reset; the scale's kept, and not taught by
 the span: a clip in a fast turn would read as a new scale).
 
@@ -88,7 +92,11 @@ class BiasLearner:
         self._e = 0.0
         self._turn = 0.0  # the mice's turn, summed: H's second element
         self._white_sum = 0.0  # the mice's white variance, summed
-        self._timing = 0.0  # their timing variance, summed (its mean counts twice)
+        # the timing variances of the span's first and last windows: counts a report
+        # stamped late moves between windows inside the span stay in its sum; only those
+        # moved across its two edges remain (see the module docstring)
+        self._timing_first = 0.0
+        self._timing_last = 0.0
         self._ncov = 0.0  # the heading's noise with E's (see the module)
         self._used = [0.0, 0.0]  # sum of kappa / (1 + s_hat) H_k: how the heading used them
         self._trusted = True  # every window's mice trusted (three that agree, or still)
@@ -163,7 +171,9 @@ class BiasLearner:
         self._e += e
         self._turn += a
         self._white_sum += k1 * k1 * white
-        self._timing += k1 * k1 * timing
+        if self._n == 1:
+            self._timing_first = k1 * k1 * timing
+        self._timing_last = k1 * k1 * timing
         self._ncov += kappa * self._white / k1 - (1.0 - kappa) * k1 * (white + timing)
         self._used[0] += kappa / k1 * self._period
         self._used[1] += kappa / k1 * a
@@ -179,7 +189,8 @@ class BiasLearner:
 
     def _rest(self) -> float:
         mice_scale = (MICE_TURN_SCALE * self._turn) ** 2
-        return self._white_sum + 2.0 * self._timing / self._n + self._n * self._white + mice_scale
+        edges = self._timing_first + self._timing_last
+        return self._white_sum + edges + self._n * self._white + mice_scale
 
     def _agrees(self) -> bool:
         """Whether the span so far passes the test (see the module docstring)."""
