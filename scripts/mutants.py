@@ -377,6 +377,14 @@ MUTANTS = [
         "a span's timing taken as its mean, not its edges': a sudden start teaches the scale",
     ),
     Mutant(
+        "gyro-jump-blamed-on-still-mice",
+        "mousedom/fusion/gyro.py",
+        "        jumped = still and not slow and n_used >= 2\n",
+        "        jumped = False\n",
+        ("tests/test_gyro_faults.py",),
+        "two still mice blamed for a gyro whose bias jumped: the heading turns for good",
+    ),
+    Mutant(
         "wake-at-first-report",
         "mousedom/service/wake.py",
         "            wake = max(wake, first + min(period, 0.5 * period + latency))",

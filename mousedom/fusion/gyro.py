@@ -233,6 +233,26 @@ class GyroFusion:
         st = self.state
         return GyroWindow(turn, st.bias, st.sigma, stat, st.scale, used)
 
+    def _verdict(
+        self, q: Sequence[float], c: Matrix3, a: float, var_a: float, mice: MiceView,
+        still: bool, slow: bool,
+    ) -> Verdict:  # fmt: skip
+        """A failed agreement's verdict (``judged``), the gyro's corrected turn ``a``."""
+        judge = self.judge
+        assert judge is not None  # (judged asks first)
+        n_used = sum(1 for u in mice.used if u)
+        if n_used >= 3 and (still or mice.consistent):
+            # three mice that agree, or stand still (they do not all lose the floor at
+            # once): the gyro is wrong (saturated, a bias that moved)
+            return Verdict(list(q), c, (), False, True, False)
+        if slow:
+            # a slow turn seen only by the gyro: the robot starting to turn (the gyro sees
+            # it before the mice count) or its bias moving: the heading takes the gyro's
+            return judge.gyro_heading(c, a, var_a)
+        if still:
+            return judge.silent_mice_blamed(c, a, var_a, mice)
+        return judge.leave_one_out(q, c, a, var_a, mice)
+
     def judged(
         self, q: Sequence[float], c: Matrix3, turn: float | None, ok: bool, mice: MiceView
     ) -> Judged:
@@ -291,7 +311,17 @@ class GyroFusion:
             judge.last_blamed = None
             return Judged(*self.window(q, c, turn, ok, still, extra, trusted), (), True)
         slow = still and abs(e) <= STILL_TURN * t
-        self._disagree = self._disagree + 1 if trusted or still and n_used >= 3 or slow else 0
+        # Still mice against a gyro that turns faster than a bias moves: the robot turned
+        # unseen (every mouse off the floor) or the gyro's bias jumped.  Two mice or more
+        # (at two points: every turn moves one of them) would all have lost the floor at
+        # once: the gyro is wrong, and its bias is learnt again from the standstill
+        # (blamed on the mice instead, a 5 deg/s jump on a pair turned the heading 53
+        # degrees in 12 s of standstill, its sigma 0.4).  One mouse cannot tell: a robot
+        # starting to turn while its mouse is off the floor looks the same (taken as a
+        # jump, such lifts ended 54 and 153 degrees off where the gyro's turn kept 1).
+        jumped = still and not slow and n_used >= 2
+        self._disagree = (self._disagree + 1 if trusted or still and n_used >= 3 or slow
+                          or jumped else 0)  # fmt: skip
         if self._disagree * t >= RELEARN_S:
             # Disagreeing this long, window after window, with mice the gyro cannot beat
             # (three that agree or stand still; or a turn too slow to be the robot's): its
@@ -302,18 +332,12 @@ class GyroFusion:
         st.predict()  # nothing learnt from a window judged
         a = st.corrected(turn)
         var_a = (self._white_var + st.hph(a)) / (k1 * k1)
-        if n_used >= 3 and (still or mice.consistent):
-            # three mice that agree, or stand still (they do not all lose the floor at
-            # once): the gyro is wrong (saturated, a bias that moved)
-            verdict = Verdict(list(q), c, (), False, True, False)
-        elif slow:
-            # a slow turn seen only by the gyro: the robot starting to turn (the gyro sees
-            # it before the mice count) or its bias moving: the heading takes the gyro's
-            verdict = judge.gyro_heading(c, a, var_a)
-        elif still:
-            verdict = judge.silent_mice_blamed(c, a, var_a, mice)
+        if jumped:
+            # (above): the mice's standstill kept, the window inconsistent (nobody blamed:
+            # which of the two is not certain)
+            verdict = Verdict(list(q), c, (), False, False, False)
         else:
-            verdict = judge.leave_one_out(q, c, a, var_a, mice)
+            verdict = self._verdict(q, c, a, var_a, mice, still, slow)
         judge.last_blamed = verdict.blamed[0] if len(verdict.blamed) == 1 else None
         c2 = verdict.c
         if verdict.gyro_used:  # the heading's error takes (bias, scale)'s (see window)
