@@ -149,3 +149,34 @@ def test_rows_appended_to_runs_keep_each_run_on_its_line(tmp_path, last_newline)
     ccw = json.loads(score.stdout)["ccw"]
     assert ccw["x"] == pytest.approx((0.01 + new_ccw[0]) / 2, abs=1e-6)
     assert ccw["y"] == pytest.approx((0.02 + new_ccw[1]) / 2, abs=1e-6)
+
+
+@pytest.mark.parametrize("cw", [True, False])
+def test_a_run_under_the_other_directions_label_is_refused(tmp_path, cw):
+    """The replay's heading says which way the square went (-360 or +360 degrees): a row
+    labelled the other way would land in the wrong centre of gravity without a word (2 of
+    2 mislabelled runs were taken).  Exit 2, nothing appended; the right label writes."""
+    config = tmp_path / "rig.yaml"
+    config.write_text(sim.rig_yaml(sim.three_mouse_rig()))
+    capture_args = write_run(tmp_path, cw, sim.three_mouse_rig())
+    runs = tmp_path / "runs.csv"
+    wrong, right = ("ccw", "cw") if cw else ("cw", "ccw")
+    proc = run_mousedom("replay", "--config", str(config), *capture_args,
+                        "--umbmark", wrong, "--umbmark-csv", str(runs))  # fmt: skip
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert f"it is a {right} run" in proc.stderr and not runs.exists()
+    proc = run_mousedom("replay", "--config", str(config), *capture_args,
+                        "--umbmark", right, "--umbmark-csv", str(runs))  # fmt: skip
+    assert proc.returncode == 0 and "UMBmark square turns" not in proc.stderr, proc.stderr
+    assert runs.read_text().splitlines()[1].startswith(f"{right},")
+
+
+def test_a_run_that_is_no_square_is_said_and_written(tmp_path):
+    rig = sim.three_mouse_rig()
+    res = sim.simulate(rig, sim.sequence(sim.pause(0.3), sim.straight(0.5, 0.3), sim.pause(0.3)))
+    capture_args = evemu_captures(tmp_path, res, "line-")
+    config = tmp_path / "rig.yaml"
+    config.write_text(sim.rig_yaml(rig))
+    proc = run_mousedom("replay", "--config", str(config), *capture_args, "--umbmark", "cw")
+    assert proc.returncode == 0 and proc.stdout.startswith("cw,")
+    assert "turned +0 degrees in all" in proc.stderr, proc.stderr

@@ -353,6 +353,7 @@ def _emit_umbmark(args, summary: Summary, true_end: tuple[float, float], inputs:
     if not summary.final:
         raise UserError("--umbmark: the captures hold no motion, so there is no end position")
     final = (summary.final["x"], summary.final["y"])
+    _check_direction(args.umbmark, summary.final["theta"])
     row = umbmark_row(args.umbmark, final, true_end)
     if not args.umbmark_csv:
         print(row)
@@ -363,6 +364,26 @@ def _emit_umbmark(args, summary: Summary, true_end: tuple[float, float], inputs:
     except OSError as e:
         raise UserError(f"{args.umbmark_csv}: cannot append: {e.strerror}") from None
     print(f"replay: appended {row} to {args.umbmark_csv}", file=sys.stderr)
+
+
+def _check_direction(direction: str, turned: float) -> None:
+    """A UMBmark square turns a full turn, clockwise (-360 degrees) or not: the replay's
+    heading (from 0, unwrapped) says which, and a row under the other direction's label
+    would score it in the wrong centre of gravity without a word.  Refused; a run that
+    turned less than half a turn either way is no square: said, and written."""
+    deg = math.degrees(turned)
+    said = {"cw": -1.0, "ccw": 1.0}[direction]
+    if abs(deg) >= 180.0 and math.copysign(1.0, deg) != said:
+        other = "ccw" if direction == "cw" else "cw"
+        raise UserError(
+            f"--umbmark {direction}: the run turned {deg:+.0f} degrees, "
+            f"{'counter-clockwise' if deg > 0 else 'clockwise'}: it is a {other} run "
+            "(no row written)"
+        )
+    if abs(deg) < 180.0:
+        print(f"replay: warning: --umbmark {direction}: the run turned {deg:+.0f} degrees in "
+              "all, where a UMBmark square turns 360: is it a whole square?",
+              file=sys.stderr)  # fmt: skip
 
 
 # A RUNS.csv holds a row per run: a few hundred bytes.  Past this it is not one.
