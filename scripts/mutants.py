@@ -385,6 +385,14 @@ MUTANTS = [
         "two still mice blamed for a gyro whose bias jumped: the heading turns for good",
     ),
     Mutant(
+        "odom-covariance-collapses-at-reset",
+        "mousedom/service/ros2conv.py",
+        "        if self.carried is not None:\n",
+        "        if False:\n",
+        ("tests/test_ros2.py::test_the_odom_covariance_goes_on_through_a_reset",),
+        "/odom's covariance falls with the daemon's at a reset: a filter over-trusts it",
+    ),
+    Mutant(
         "wake-at-first-report",
         "mousedom/service/wake.py",
         "            wake = max(wake, first + min(period, 0.5 * period + latency))",

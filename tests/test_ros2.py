@@ -70,8 +70,8 @@ def test_our_cdr_is_what_rosbags_reads():
     """Serialised by cyclonedds from our types, deserialised by rosbags from ROS 2's."""
     ts = get_typestore(Stores.ROS2_JAZZY)
     row = _row()
-    msg = ros2conv.odometry(Ros2Config(), ros2conv.stamp(12.5, 0.0), (1.0, 2.0, 0.3), 0.0,
-                            row, 50.0)  # fmt: skip
+    msg = ros2conv.odometry(Ros2Config(), ros2conv.stamp(12.5, 0.0), (1.0, 2.0, 0.3),
+                            row.cov, row, 50.0)  # fmt: skip
     data = ros2msgs.build(ros2msgs.ODOMETRY, msg).serialize()
     back = ts.deserialize_cdr(data, "nav_msgs/msg/Odometry")
     assert back.header.stamp.sec == 12 and back.header.stamp.nanosec == 500_000_000
@@ -93,8 +93,8 @@ def test_covariances_land_in_rosses_six_by_six():
     """(x, y, yaw) at rows and columns 0, 1, 5 of the row-major 6x6; z, roll and pitch
     unobserved; the twist's is q's times rate squared."""
     row = _row()
-    msg = ros2conv.odometry(Ros2Config(), ros2conv.stamp(0.0, 0.0), (0.0, 0.0, 0.0), 0.0,
-                            row, 10.0)  # fmt: skip
+    msg = ros2conv.odometry(Ros2Config(), ros2conv.stamp(0.0, 0.0), (0.0, 0.0, 0.0),
+                            row.cov, row, 10.0)  # fmt: skip
     c = np.array(msg["pose"]["covariance"]).reshape(6, 6)
     assert c[np.ix_([0, 1, 5], [0, 1, 5])].tolist() == row.cov
     assert [c[2, 2], c[3, 3], c[4, 4]] == [ros2conv.UNOBSERVED] * 3
@@ -477,7 +477,8 @@ def test_packed_cdr_is_byte_for_byte_cyclonedds():
     st = ros2conv.stamp(1234.000000123, 0.0)
     for frame, child in (("odom", "base_link"), ("o", "b"), ("robot1/odom", "robot1/base_lnk")):
         cfg = Ros2Config(odom_frame=frame, base_frame=child)
-        msg = ros2conv.odometry(cfg, st, (0.1, -0.2, 2.9), 0.4, _row(), 100.0)
+        msg = ros2conv.odometry(cfg, st, (0.1, -0.2, 2.9), ros2conv.turned(_row().cov, 0.4),
+                               _row(), 100.0)  # fmt: skip
         want = ros2msgs.build(ros2msgs.ODOMETRY, msg).serialize()
         assert ros2cdr.OdometryCdr(frame, child).encode(st, msg) == want
         pairs = [(frame, child), ("map", frame)]
@@ -550,13 +551,13 @@ def test_diagnostics_carry_the_learnt_scale_and_warn_of_a_wrong_cpi():
 
 def test_an_unsolved_window_and_diff_drive_sideways_are_not_claimed_certain():
     row = _row()._replace(ok=False, vx=0.0, vy=0.0, omega=0.0)
-    msg = ros2conv.odometry(Ros2Config(), ros2conv.stamp(0.0, 0.0), (0.0, 0.0, 0.0), 0.0,
-                            row, 10.0)  # fmt: skip
+    msg = ros2conv.odometry(Ros2Config(), ros2conv.stamp(0.0, 0.0), (0.0, 0.0, 0.0),
+                            row.cov, row, 10.0)  # fmt: skip
     t = np.array(msg["twist"]["covariance"]).reshape(6, 6)
     assert [t[0, 0], t[1, 1], t[5, 5]] == [ros2conv.UNOBSERVED] * 3
     diff = _row()._replace(qcov=[[0.1, 0.0, 0.3], [0.0, 0.0, 0.0], [0.3, 0.0, 0.9]])
-    msg = ros2conv.odometry(Ros2Config(), ros2conv.stamp(0.0, 0.0), (0.0, 0.0, 0.0), 0.0,
-                            diff, 10.0)  # fmt: skip
+    msg = ros2conv.odometry(Ros2Config(), ros2conv.stamp(0.0, 0.0), (0.0, 0.0, 0.0),
+                            diff.cov, diff, 10.0)  # fmt: skip
     t = np.array(msg["twist"]["covariance"]).reshape(6, 6)
     assert t[1, 1] == t[0, 0] == pytest.approx(10.0) and t[0, 1] == 0.0
 
@@ -622,3 +623,54 @@ def test_a_mounts_static_transform_turns_the_mouse_axes_as_configured(yaw, flip)
     np.testing.assert_allclose(rot @ [1, 0, 0], fwd, atol=1e-12)
     np.testing.assert_allclose(rot @ [0, 1, 0], -left if flip else left, atol=1e-12)
     assert tr["child_frame_id"] == "front_mouse" and tr["header"]["frame_id"] == "base_link"
+
+
+def _odom_covs(result, reset_at: float | None, to: tuple[float, float, float]):
+    """The odom covariances Rep105 gives for a live run of ``result`` (one window at a
+    time, as the daemon), the pose reset to ``to`` once the frontier passes ``reset_at``."""
+    from mousedom.fusion.tracker import Tracker
+
+    tracker = Tracker(sim.rig_config(result.rig), t0=float(result.motion.starts[0]))
+    rep = ros2conv.Rep105()
+    out: dict[float, np.ndarray] = {}
+
+    def publish(batch) -> None:
+        for row in batch.rows():
+            odom = rep.odom_pose((row.x, row.y, row.theta))
+            out[round(row.t, 6)] = np.array(rep.odom_cov(row.cov, odom))
+
+    def poll(tr):
+        nonlocal reset_at
+        publish(tr.poll(one_by_one=True))
+        if reset_at is not None and tr.frontier_time >= reset_at:
+            before = tr.pose
+            tr.reset(*to)
+            rep.moved(before, tr.pose)
+            reset_at = None
+        return None
+
+    for b in sim.run_tracker_live(result, tracker, poll)[-1:]:
+        publish(b)
+    return out
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_odom_covariance_goes_on_through_a_reset(seed):
+    """REP-105: /odom is the same estimate before and after a reset or fix (only map ->
+    odom moves), so its covariance must not collapse with the daemon's (it fell from
+    1.9e-7 to 6.7e-10 m^2: a filter fusing /odom would trust it without limit).  The odom
+    covariance of a run reset half way equals that of the same run never reset, to
+    rounding, on random drives and random reset poses."""
+    rng = np.random.default_rng(seed)
+    rig = sim.three_mouse_rig()
+    from mousedom.fusion.drives import drive
+
+    result = sim.simulate(rig, sim.sequence(sim.pause(0.3), drive(4.0, seed=seed)), seed=seed)
+    to = (float(rng.uniform(-5, 5)), float(rng.uniform(-5, 5)), float(rng.uniform(-3, 3)))
+    plain = _odom_covs(result, None, to)
+    reset = _odom_covs(result, 2.0, to)
+    later = [t for t in plain if t > 2.2]
+    assert later and set(later) <= set(reset)
+    for t in later:
+        np.testing.assert_allclose(reset[t], plain[t], rtol=1e-6, atol=1e-18)
+    assert np.trace(reset[later[-1]][:2, :2]) > 1e-9  # (it grew: the test holds something)

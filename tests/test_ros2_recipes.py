@@ -32,7 +32,7 @@ def _odometry(ok: bool = True, vy_var: float = 4e-6) -> dict:
     cov = [[1e-6, 0, 0], [0, 2e-6, 0], [0, 0, 3e-6]]
     qcov = [[1e-8, 0, 0], [0, vy_var * 1e-4, 0], [0, 0, 2e-8]]
     row = PoseRow(1.0, 0.5, 0.2, 0.1, 0.3, 0.0, 0.05, cov, 3, ok, [], [], [], [], True, qcov)
-    return ros2conv.odometry(Ros2Config(), ros2conv.stamp(1.0, 0), (0.5, 0.2, 0.1), 0.0, row,
+    return ros2conv.odometry(Ros2Config(), ros2conv.stamp(1.0, 0), (0.5, 0.2, 0.1), cov, row,
                              100.0)  # fmt: skip
 
 

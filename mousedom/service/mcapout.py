@@ -93,7 +93,7 @@ class McapRecorder(Output):
         ns = conv.stamp_ns(row.t, self.offset)
         st = {"sec": ns // 1_000_000_000, "nanosec": ns % 1_000_000_000}
         odom = self.rep.odom_pose((row.x, row.y, row.theta))
-        msg = conv.odometry(cfg, st, odom, -self.rep.map_odom[2], row, self.rate)
+        msg = conv.odometry(cfg, st, odom, self.rep.odom_cov(row.cov, odom), row, self.rate)
         self._write(self.odom_ch, self.odom_cdr.encode(st, msg), ns)
         tfs = [conv.transform(cfg.odom_frame, cfg.base_frame, st, odom)]
         both = self.rep.map_odom != (0.0, 0.0, 0.0) or cfg.publish_map_tf

@@ -25,6 +25,7 @@ UNOBSERVED = 1e6  # variance of what a planar sensor cannot see (m^2, rad^2 and 
 PLANAR = (0, 1, 5)  # x, y, yaw in ROS's 6x6 (x, y, z, rot x, rot y, rot z)
 
 Pose2 = tuple[float, float, float]
+Matrix3 = list[list[float]]
 
 
 def compose(a: Pose2, b: Pose2) -> Pose2:
@@ -41,16 +42,43 @@ def inverse(a: Pose2) -> Pose2:
 class Rep105:
     """The map -> odom correction M with P = M * O: P is the daemon's pose (which ``reset``
     and ``fix`` move), O the odometry frame's pose of the robot (which never jumps).  Both
-    take the same body-frame steps, so M changes only when the daemon's pose is moved."""
+    take the same body-frame steps, so M changes only when the daemon's pose is moved.
+
+    O's covariance never collapses either: a reset or fix takes the daemon's uncertainty
+    away (its coordinates are given), but O is the same estimate as before, and a filter
+    fusing /odom would trust it without limit just after.  What O's covariance was at the
+    move is carried along O's path since (J C J^T: J the Jacobian of a pose composed with
+    the steps since, ``odom_cov``) and added to the daemon's grown since, turned into the
+    odom frame.  After a fix of some coordinates only, what the daemon kept of the others
+    counts twice: on the safe side."""
 
     def __init__(self) -> None:
         self.map_odom: Pose2 = (0.0, 0.0, 0.0)
+        self.carried: Matrix3 | None = None  # O's covariance at the last move (odom frame)
+        self.carried_at = (0.0, 0.0)  # and O's position then
+        self._last: Matrix3 | None = None  # O's covariance as last given (odom_cov)
 
     def odom_pose(self, pose: Pose2) -> Pose2:
         return compose(inverse(self.map_odom), pose)
 
+    def odom_cov(self, cov3: Any, odom: Pose2) -> Matrix3:
+        """O's covariance (odom frame) at ``odom``, the daemon's being ``cov3``."""
+        c = turned([[float(v) for v in row] for row in cov3], -self.map_odom[2])
+        if self.carried is not None:
+            dx, dy = odom[0] - self.carried_at[0], odom[1] - self.carried_at[1]
+            j = [[1.0, 0.0, -dy], [0.0, 1.0, dx], [0.0, 0.0, 1.0]]
+            k = self.carried
+            jk = [[sum(j[a][m] * k[m][b] for m in range(3)) for b in range(3)] for a in range(3)]
+            c = [[c[a][b] + sum(jk[a][m] * j[b][m] for m in range(3)) for b in range(3)]
+                 for a in range(3)]  # fmt: skip
+        self._last = c
+        return c
+
     def moved(self, before: Pose2, after: Pose2) -> None:
         """The daemon's pose was set from ``before`` to ``after`` (reset or fix)."""
+        if self._last is not None:
+            odom = self.odom_pose(before)
+            self.carried, self.carried_at = self._last, (odom[0], odom[1])
         self.map_odom = compose(compose(after, inverse(before)), self.map_odom)
 
 
@@ -58,15 +86,20 @@ def quaternion(yaw: float) -> dict[str, float]:
     return {"x": 0.0, "y": 0.0, "z": math.sin(0.5 * yaw), "w": math.cos(0.5 * yaw)}
 
 
+def turned(c: Matrix3, rotate: float) -> Matrix3:
+    """A 3x3 covariance over (x, y, yaw) with its x, y block turned by ``rotate``."""
+    if not rotate:
+        return c
+    cr, sr = math.cos(rotate), math.sin(rotate)
+    r = [[cr, -sr, 0.0], [sr, cr, 0.0], [0.0, 0.0, 1.0]]
+    rc = [[sum(r[i][k] * c[k][j] for k in range(3)) for j in range(3)] for i in range(3)]
+    return [[sum(rc[i][k] * r[j][k] for k in range(3)) for j in range(3)] for i in range(3)]
+
+
 def covariance6(cov3: Any, rotate: float = 0.0) -> list[float]:
     """A 3x3 covariance over (x, y, yaw) as ROS's row-major 6x6; ``rotate`` turns its
     x, y block by that angle (the odom frame is the daemon's turned by map -> odom)."""
-    c = [[float(v) for v in row] for row in cov3]
-    if rotate:
-        cr, sr = math.cos(rotate), math.sin(rotate)
-        r = [[cr, -sr, 0.0], [sr, cr, 0.0], [0.0, 0.0, 1.0]]
-        rc = [[sum(r[i][k] * c[k][j] for k in range(3)) for j in range(3)] for i in range(3)]
-        c = [[sum(rc[i][k] * r[j][k] for k in range(3)) for j in range(3)] for i in range(3)]
+    c = turned([[float(v) for v in row] for row in cov3], rotate)
     out = [0.0] * 36
     for k in (2, 3, 4):
         out[7 * k] = UNOBSERVED
@@ -106,11 +139,12 @@ def topic(cfg: Ros2Config, name: str) -> str:
 
 
 def odometry(
-    cfg: Ros2Config, st: dict[str, int], odom: Pose2, rotate: float, row: PoseRow, rate: float
+    cfg: Ros2Config, st: dict[str, int], odom: Pose2, pose_cov: Any, row: PoseRow, rate: float
 ) -> dict[str, Any]:
-    """nav_msgs/msg/Odometry of one window: ``odom`` its pose in the odom frame, ``rotate``
-    the odom frame's turn from the daemon's (for the pose covariance), ``row`` the window
-    (a PoseRow), ``rate`` windows per second (the twist covariance is q's times rate^2)."""
+    """nav_msgs/msg/Odometry of one window: ``odom`` its pose in the odom frame,
+    ``pose_cov`` that pose's 3x3 covariance (odom frame: Rep105.odom_cov), ``row`` the
+    window (a PoseRow), ``rate`` windows per second (the twist covariance is q's times
+    rate^2)."""
     r2 = rate * rate
     qcov = [[float(v) * r2 for v in line] for line in row.qcov]
     if not row.ok:
@@ -128,7 +162,7 @@ def odometry(
                 "position": {"x": odom[0], "y": odom[1], "z": 0.0},
                 "orientation": quaternion(odom[2]),
             },
-            "covariance": covariance6(row.cov, rotate),
+            "covariance": covariance6(pose_cov),
         },
         "twist": {
             "twist": {

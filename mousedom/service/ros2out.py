@@ -338,8 +338,7 @@ class Ros2Output(Output):
         cfg = self.cfg
         st = conv.stamp(row.t, self._offset())
         odom = self.rep.odom_pose((row.x, row.y, row.theta))
-        rotate = -self.rep.map_odom[2]
-        msg = conv.odometry(cfg, st, odom, rotate, row, self.rate)
+        msg = conv.odometry(cfg, st, odom, self.rep.odom_cov(row.cov, odom), row, self.rate)
         self.odom.write(self.odom_cdr.encode(st, msg))
         if self.tf is not None:
             tfs = []
