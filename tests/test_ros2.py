@@ -139,6 +139,18 @@ def test_mouse_frames_take_the_base_frames_prefix():
         assert ros2conv.counts(st, "front-l", 1, 2, base)["header"]["frame_id"] == want
 
 
+def test_a_mouse_whose_counts_topic_is_too_long_for_ros2_is_named():
+    """outputs.ros2.counts: each mouse's topic <namespace>/mousedom/<token>/counts within
+    ROS 2's 247 characters, the mouse named at its line; without counts no limit."""
+    name = "m" * 240
+    text = (f"mice:\n  {name}: {{cpi: 400, mount: {{x: 0, y: 0}}}}\n"
+            "  b: {cpi: 400, mount: {x: 1, y: 0}}\noutputs: {ros2: {counts: %s}}\n")  # fmt: skip
+    assert parse_config(text % "false", need_sources=False).ros2.counts is False
+    with pytest.raises(ConfigError) as e:
+        parse_config(text % "true", "<t>", need_sources=False)
+    assert f"mice.{name}" in str(e.value) and "over ROS 2's 247" in str(e.value)
+
+
 def test_a_ros2_gyro_is_on_the_outputs_domain_and_namespace_unless_told():
     """docs/gyro.md: a gyro read from ROS 2 takes the output's domain unless it names its
     own, and its reader's node the output's namespace."""

@@ -12,8 +12,21 @@ from mousedom import plausible, safeyaml
 from mousedom.config import names
 from mousedom.config.gyro import read_gyro
 from mousedom.config.mice import apply_calibration, read_mouse
-from mousedom.config.outputs import ServerConfig, read_outputs, read_server
-from mousedom.config.rig import Config, RobustConfig, WheelsConfig, default
+from mousedom.config.outputs import (
+    ROS_TOPIC_MAX,
+    Ros2Config,
+    ServerConfig,
+    read_outputs,
+    read_server,
+)
+from mousedom.config.rig import (
+    Config,
+    GyroConfig,
+    MouseConfig,
+    RobustConfig,
+    WheelsConfig,
+    default,
+)
 from mousedom.fusion.choices import INTEGRATORS, MODELS
 from mousedom.yamldoc import ConfigError, Reader, YamlDoc
 
@@ -64,6 +77,32 @@ def _written(doc: YamlDoc, prefix: tuple[str, ...], key: object) -> tuple[str, .
             if path[-1] == str(key) or safeyaml.load(path[-1]) == key:
                 return path
     return (*prefix, str(key))
+
+
+def _ros2_across(
+    doc: YamlDoc, ros2: Ros2Config | None, gyro: GyroConfig | None, mice: tuple[MouseConfig, ...]
+) -> GyroConfig | None:
+    """The ROS 2 output's rules across sections: the gyro as the output makes it (returned),
+    the mice's counts topics within ROS 2's length."""
+    if ros2 is None:
+        return gyro
+    if gyro is not None and gyro.ros2 is not None:
+        # One robot, one ROS 2 graph: a gyro read from ROS 2 is on the output's domain
+        # unless it names its own, and its reader's node in the output's namespace (two
+        # robots on one domain would otherwise both announce /mousedom_gyro).
+        domain = ros2.domain_id if gyro.ros2.domain_id is None else gyro.ros2.domain_id
+        gyro = replace(gyro, ros2=replace(gyro.ros2, domain_id=domain,
+                                          namespace=ros2.namespace))  # fmt: skip
+    if ros2.counts:
+        # each mouse's counts topic (ros2conv.counts_topic under the namespace) within
+        # ROS 2's length, as the output's own topics are (config.outputs)
+        for m in mice:
+            full = f"{ros2.namespace}/mousedom/{names.ros_token(m.name)}/counts"
+            if len(full) > ROS_TOPIC_MAX:
+                raise doc.error(("mice", m.name), f"its ROS 2 counts topic is {len(full)} "
+                                f"characters, over ROS 2's {ROS_TOPIC_MAX} (outputs.ros2."
+                                "counts: a shorter name)")  # fmt: skip
+    return gyro
 
 
 def parse_config(
@@ -125,13 +164,6 @@ def parse_config(
     ros2, foxglove, metrics = outputs or (None, None, None)
     gyro = (doc.attempt(read_gyro, top, need_sources=need_sources, base_dir=base_dir)
             if top.has("gyro") else None)  # fmt: skip
-    if gyro is not None and gyro.ros2 is not None and ros2 is not None:
-        # One robot, one ROS 2 graph: a gyro read from ROS 2 is on the output's domain
-        # unless it names its own, and its reader's node in the output's namespace (two
-        # robots on one domain would otherwise both announce /mousedom_gyro).
-        domain = ros2.domain_id if gyro.ros2.domain_id is None else gyro.ros2.domain_id
-        gyro = replace(gyro, ros2=replace(gyro.ros2, domain_id=domain,
-                                          namespace=ros2.namespace))  # fmt: skip
     calibration = doc.attempt(top.string, "calibration")
     calibration_path = str(base_dir / calibration) if calibration else None
     doc.raise_problems()
@@ -139,6 +171,7 @@ def parse_config(
     clashed = names.clash([m.name for m in mice])
     if clashed:
         raise doc.error(("mice",), clashed)
+    gyro = _ros2_across(doc, ros2, gyro, mice)
 
     found = plausible.suspects([(m.name, m.cpi_x, m.cpi_y, m.mount.x, m.mount.y,
                                  math.degrees(m.mount.yaw)) for m in mice])  # fmt: skip
