@@ -393,6 +393,14 @@ MUTANTS = [
         "/odom's covariance falls with the daemon's at a reset: a filter over-trusts it",
     ),
     Mutant(
+        "gyro-silence-read-as-no-turn",
+        "mousedom/fusion/tracker_gyro.py",
+        "        if start < self.first_t or seen <= (end - start) - UNSEEN_S:\n",
+        "        if start < self.first_t:\n",
+        ("tests/test_gyro_silence.py",),
+        "windows a silent gyro missed fused as no turn (a mouse's rule, not a gyro's)",
+    ),
+    Mutant(
         "wake-at-first-report",
         "mousedom/service/wake.py",
         "            wake = max(wake, first + min(period, 0.5 * period + latency))",

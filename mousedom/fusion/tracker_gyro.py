@@ -6,11 +6,14 @@ rises over that span as a mouse's counts do.  So the gyro's turn is a ``CountFun
 (its REL_X column) and a window's turn is its difference at the window's edges: split in
 proportion to time, telescoping, nothing lost.
 
-A sample read at the limit of its converter (saturated: the robot turned at least that
-fast) says nothing exact of the turn.  Its span goes to the REL_Y column, so a window's
-REL_Y is the time within it that the gyro was saturated, split at the edges by the same
-rule: a window holding any of it has no gyro turn (None, NaN), and its heading is the mice's
-alone, on any rig, exactly as in a window the gyro missed.
+The REL_Y column is the time the samples cover and say something of, split at the edges by
+the same rule, so a window's REL_Y is how much of it the gyro saw.  A window the gyro did
+not see throughout has no gyro turn (None, NaN), and its heading is the mice's alone, on
+any rig: one the samples left uncovered (a silence longer than a sample may bridge, the
+late-report time: its turn is unknown, not none, where a mouse that does not report did
+not move: a 0.19 s silence read as no turn took 2.4 degrees from a pivot), and one holding
+a sample read at the limit of its converter (saturated: the robot turned at least that
+fast, nothing exact), whose span counts as unseen.
 """
 
 from __future__ import annotations
@@ -25,9 +28,9 @@ from mousedom.fusion.countfunction import CountFunction
 from mousedom.fusion.gyro import GyroFusion, gyro_noise, gyro_period, gyro_turns
 from mousedom.fusion.gyrojudge import GyroJudge
 
-# A window holding less saturated time than this holds none: what the split at an edge
-# leaves of a saturated sample outside it is at most rounding (a sample spans milliseconds)
-SATURATED_S = 1e-9
+# A window seen for all but this long was seen throughout: what the split at an edge leaves
+# of a sample's span is at most rounding (a sample spans milliseconds)
+UNSEEN_S = 1e-9
 
 
 class GyroClock(CountFunction):
@@ -66,8 +69,8 @@ class GyroClock(CountFunction):
         if not math.isfinite(t.sum() + rate.sum()):
             raise ValueError("push_gyro: times and rates must be finite numbers")
         t, turn, spans = gyro_turns(t, rate, self.last_t, self.period, self.bridge)
-        held = np.zeros_like(turn) if sat is None else np.where(sat, spans, 0.0)
-        self.queue(t, turn, held, float(t.max()))
+        seen = spans if sat is None else np.where(sat, 0.0, spans)
+        self.queue(t, turn, seen, float(t.max()))
         self.first_t = min(self.first_t, float(t[0]))
         return float(t[0])
 
@@ -80,14 +83,14 @@ class GyroClock(CountFunction):
         live = np.ones(n, dtype=bool)
         self.close_live(edges, out=live)
         live &= edges[:-1] >= self.first_t
-        live &= closed[:, 1] < SATURATED_S
+        live &= closed[:, 1] > np.diff(edges) - UNSEEN_S
         return np.where(live, closed[:, 0], np.nan)
 
     def turn_one(self, start: float, end: float) -> float | None:
         """The next window's turn (the one-window path's), None if the gyro was not live
-        throughout or saturated within it."""
-        turn, held = self.close_one(end)
-        if start < self.first_t or held >= SATURATED_S:
+        throughout, or did not see all of it (uncovered or saturated)."""
+        turn, seen = self.close_one(end)
+        if start < self.first_t or seen <= (end - start) - UNSEEN_S:
             return None
         return turn if not self.dead or self.live_in(start, end) else None
 
