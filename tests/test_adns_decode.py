@@ -102,3 +102,44 @@ def test_replay_decoder_hook_for_capture_batches():
     r2 = dec.feed_many(np.array([1.2]), [wire[half:]])
     assert r1.mouse == "floor" and len(r1) + len(r2) == 10
     assert r1.dx.sum() + r2.dx.sum() == 10 and r1.dy.sum() + r2.dy.sum() == -20
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_packets_lost_on_the_line_mark_the_next_report_for_the_span_they_held(seed):
+    """Packets that never arrived held counts nobody knows: not none, as a mouse that
+    does not report did not move.  The first motion report after a loss says counts were
+    lost since the last packet that arrived (its quality's lost_from), and the screen's
+    evidence gates the mouse in every window from then to it; reports without a loss
+    before them say nothing."""
+    from mousedom.fusion.evidence import SensorEvidence
+
+    rng = np.random.default_rng(seed)
+    n = 200
+    dropped = set(rng.choice(np.arange(1, n), size=int(rng.integers(1, 12)), replace=False))
+    for k in list(dropped):  # runs of losses, some
+        if rng.random() < 0.3:
+            dropped.update(range(k, min(n - 1, k + int(rng.integers(1, 20)))))
+    wire = [(i, motion(i, 1_000_000 + i * 15000, 1, 1)) for i in range(n)]
+    dec = AdnsDecoder()
+    t, overflow, lost_from = [], [], []
+    for i, w in wire:  # each read as it arrives, 2 ms after it was sent
+        if i not in dropped:
+            r, _ = dec.feed(w, host_t=20.0 + i * 0.015 + 0.002)
+            t += r.quality[0]
+            overflow += r.quality[2]
+            lost_from += r.quality[3]
+    assert len(t) == n - len(dropped) and dec.lost == len(dropped)
+    kept = [i for i in range(n) if i not in dropped]
+    for k, i in enumerate(kept):
+        after_loss = k > 0 and i - kept[k - 1] > 1
+        assert overflow[k] == after_loss and (lost_from[k] is not None) == after_loss
+        if after_loss:
+            assert lost_from[k] == t[k - 1]
+    ev = SensorEvidence([0.015], [None])
+    ev.push(0, t, [None] * len(t), overflow, lost_from)
+    edges = np.arange(t[0], t[-1], 0.01)
+    _, low = ev.windows(edges)
+    for k in range(len(kept)):
+        if lost_from[k] is not None:  # every window inside the lost span is gated
+            inside = (edges[:-1] >= lost_from[k]) & (edges[1:] <= t[k])
+            assert low[inside, 0].all()

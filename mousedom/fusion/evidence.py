@@ -28,13 +28,22 @@ class SensorEvidence:
     def __bool__(self) -> bool:
         return any(self.spans)
 
-    def push(self, mouse: int, t: list, squal: list, overflow: list) -> None:
+    def push(
+        self, mouse: int, t: list, squal: list, overflow: list, lost_from: list | None = None
+    ) -> None:
+        """Reports' stamps, SQUAL (None: unknown), whether counts were lost, and where
+        they were lost on the way before a report (packets that never arrived), the time
+        since which (None: none): that report's span reaches back to it."""
         period = self.periods[mouse]
         keep = self.spans[mouse]
-        for ti, sq, ov in zip(t, squal, overflow, strict=True):
+        since = lost_from if lost_from is not None else [None] * len(t)
+        for ti, sq, ov, lf in zip(t, squal, overflow, since, strict=True):
             if ov or (sq is not None and sq < SQUAL_FULL):
                 q = math.inf if sq is None else float(sq)
-                keep.append((float(ti) - period, float(ti), q, bool(ov)))
+                start = float(ti) - period
+                if lf is not None:
+                    start = min(start, float(lf))
+                keep.append((start, float(ti), q, bool(ov)))
 
     def _judge(self, mouse: int, squal: float, overflow: bool) -> tuple[float, bool]:
         low = overflow or squal < self.min_squal[mouse]

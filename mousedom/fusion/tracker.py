@@ -262,11 +262,14 @@ class Tracker:
         self._start(t[0])
         m.queue(t, dx, dy, float(t.max()))
 
-    def push_quality(self, mouse: int | str, t: list, squal: list, overflow: list) -> None:
+    def push_quality(
+        self, mouse: int | str, t: list, squal: list, overflow: list, lost_from: list | None = None
+    ) -> None:
         """The sensor's own word on reports pushed (or about to be): SQUAL (None where
-        unknown) and whether counts were lost to an overflow (``fusion.evidence``)."""
+        unknown), whether counts were lost (an overflow, or packets that never arrived),
+        and for the latter the time since which (``fusion.evidence``)."""
         if self.screen is not None:
-            self.evidence.push(self._index(mouse), t, squal, overflow)
+            self.evidence.push(self._index(mouse), t, squal, overflow, lost_from)
 
     def push_gyro(
         self,

@@ -76,24 +76,37 @@ class AdnsDecoder:
     health: AdnsHealth = field(default_factory=AdnsHealth)
     last_status: P.Status | None = None
     last_version: P.Version | None = None
+    _last_t: float | None = None  # the last packet's mapped time
+    _lost_from: float | None = None  # packets lost since then: the next motion report's
 
     def feed(self, data: bytes, host_t: float) -> tuple[Reports, list[P.Packet]]:
-        packets, restarts = self.parser.feed_marked(data, host_t)
+        packets, restarts, losses = self.parser.feed_marked(data, host_t)
         t: list[float] = []
         dx: list[int] = []
         dy: list[int] = []
         squal: list[int | None] = []
         overflow: list[bool] = []
-        for p, restarted in zip(packets, restarts, strict=True):
+        lost_from: list[float | None] = []
+        for p, restarted, lost in zip(packets, restarts, losses, strict=True):
             if restarted:
                 self._restarted()
             mapped = self.sync.update(self.clock.unwrap(p.t_us), host_t)
+            if lost and self._lost_from is None:
+                # Packets never arrived since the last one that did: the counts they held
+                # are unknown (not none, as a mouse that does not report did not move).
+                # The next motion report says so for the span back to that packet
+                # (fusion.evidence: the mouse is gated in the windows it touches).
+                self._lost_from = self._last_t if self._last_t is not None else mapped
+            self._last_t = mapped
             if isinstance(p, P.Motion):
                 t.append(mapped)
                 dx.append(p.dx)
                 dy.append(-p.dy)
                 squal.append(p.squal_min if p.squal_min != 0xFF else None)
-                overflow.append(bool(p.flags & P.FLAG_OVERFLOW))  # counts lost in the sensor
+                # counts lost in the sensor, or on the line before this packet
+                overflow.append(bool(p.flags & P.FLAG_OVERFLOW) or self._lost_from is not None)
+                lost_from.append(self._lost_from)
+                self._lost_from = None
                 self._motion(p)
             elif isinstance(p, P.Status):
                 self._status(p)
@@ -107,7 +120,7 @@ class AdnsDecoder:
                 self.health.last_nak = f"command 0x{p.cmd:02x}: {name}"
         reports = Reports(self.name, np.array(t), np.array(dx), np.array(dy))
         if t:
-            reports.quality = (t, squal, overflow)
+            reports.quality = (t, squal, overflow, lost_from)
         return reports, packets
 
     def feed_many(self, ts: Iterable[float], pieces: Iterable[bytes]) -> Reports:
@@ -136,6 +149,7 @@ class AdnsDecoder:
             [v for q in quality for v in q[0]],
             [v for q in quality for v in q[1]],
             [v for q in quality for v in q[2]],
+            [v for q in quality for v in q[3]],
         )
         return out
 

@@ -335,18 +335,21 @@ class Parser:
 
     def feed_marked(
         self, data: bytes, host_t: float | None = None
-    ) -> tuple[list[Packet], list[bool]]:
+    ) -> tuple[list[Packet], list[bool], list[int]]:
         """As ``feed``, and for each packet whether it is the first seen after a restart
-        of the device (its clock began again: the decoder's clock mapping must too)."""
+        of the device (its clock began again: the decoder's clock mapping must too), and
+        how many packets were lost just before it (``stats.lost_seq``'s share: what they
+        held, counts included, is unknown)."""
         out: list[Packet] = []
         restarts: list[bool] = []
+        losses: list[int] = []
         self.stats.bytes += len(data)
         start = 0
         while True:
             end = data.find(b"\0", start)
             if end < 0:
                 self._append(data[start:])
-                return out, restarts
+                return out, restarts, losses
             self._append(data[start:end])
             start = end + 1
             if self._skipping:
@@ -358,12 +361,14 @@ class Parser:
             packet = self._frame(chunk, host_t)
             if packet is None:
                 continue
+            lost = self.stats.lost_seq
             restarted = self._sequence(packet, host_t)
             if restarted is None:
                 continue  # a duplicate
             self.stats.packets += 1
             out.append(packet)
             restarts.append(restarted)
+            losses.append(self.stats.lost_seq - lost)
 
     def reopen(self) -> None:
         """The port was closed and opened again (live, or a capture's reopen marker).

@@ -136,7 +136,10 @@ class Reports:
         self.mouse = mouse
         # The sensor's own word on each report, where it has one (the ADNS-3080):
         # (t, SQUAL or None, overflow) lists, for ``Tracker.push_quality``.
-        self.quality: tuple[list[float], list[Any], list[bool]] | None = None
+        # the sensor's word on these reports (an ADNS-3080's, fusion.evidence): stamps,
+        # SQUAL, counts lost, and where counts were lost on the line before a report, the
+        # time since which (else None)
+        self.quality: tuple[list[float], list[Any], list[bool], list[Any]] | None = None
         # The arrays, or (from_lists) None until asked for: made from _lists then.
         self._t: np.ndarray | None = np.asarray(t, dtype=np.float64)
         self._dx: np.ndarray | None = np.asarray(dx, dtype=np.float64)
