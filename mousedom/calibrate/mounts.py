@@ -28,11 +28,26 @@ z = (k cos yaw, k sin yaw, p_x, p_y): one small least squares per mouse gives po
 yaw and scale together, with no linearisation.  The motion must separate the unknowns:
 it needs rotation (else positions are invisible), and more than a rotation about one
 fixed point (else scale cannot be told from distance to that point).
+
+A mouse's two count axes need not share one scale (the config has ``cpi: {x, y}``, and a
+sensor's error on the floor differs between its axes).  One k for both, where the axes
+differ, is wrong on both, and the mismatch leaks into the position: CPIs 1 % off either
+way put a mouse 2.4 mm off with a stated standard error of 0.1 mm.  So ``exact_mount``
+also fits G = R(yaw) diag(k_f, k_l) (forward: REL_Y's CPI, left: REL_X's), by Gauss-Newton
+from the one-scale fit (only the yaw enters non-linearly), and keeps it where the two
+scales differ by more than AXES_SIGMAS standard errors of their difference (and by
+AXES_MIN); where they agree within that, the one-scale fit stands (one unknown fewer).
+Some motions cannot tell the axes apart: without sideways motion (a differential drive
+never slides) the body moves in two ways only, forward and turning, so a mouse's
+readings give a 2 x 2 matrix, four numbers for five unknowns.  There (no per-axis fit,
+or its difference known less well than AXES_UNSEEN) the one-scale fit stands, assuming
+the configured ratio, and ``axes_seen`` is False, for the caller to say so.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -117,23 +132,65 @@ def kimlee(v_s: np.ndarray, v_m: np.ndarray, nominal: np.ndarray) -> KimLeeResul
 # --------------------------------------------------------------------------- exact
 
 
+# The two count axes' scales are fitted apart where they differ by more than this many
+# standard errors of their difference; within it they agree, and one scale is fitted.
+AXES_SIGMAS = 3.0
+AXES_MIN = 2e-4  # ... and by more than this (0.02 %: below any CPI worth writing)
+# Where that difference is known less well than this, the motion cannot tell the axes
+# apart: one scale, in the configured ratio, and the caller says so.  Its standard error
+# is that of a linearisation, and where the motion barely tells the axes apart it is
+# too small: on random rigs with 1 % noise a report, a mouse whose axes agree was told
+# 13 +- 4 % apart (3.1 standard errors) and put 22 mm off; 8.4 +- 1.5 % was real.
+AXES_UNSEEN = 0.02
+
+
 @dataclass(frozen=True)
 class MountFit:
     x: float
     y: float
     yaw: float  # radians: from body x to the mouse's forward direction
-    scale: float  # true CPI / configured CPI
+    scale: float  # true CPI / configured CPI: both axes' (per axis: their geometric mean)
     stderr: tuple[float, float, float, float]  # of x, y (m), yaw (rad), scale
     rms: float  # residual per window and axis, metres
     rank: int
+    # per count axis (REL_X, REL_Y) where fitted apart (``AXES_SIGMAS``), with their
+    # standard errors; None: one scale for both
+    scales: tuple[float, float] | None = None
+    scales_stderr: tuple[float, float] | None = None
+    # the per-axis fit's scale x - scale y and its standard error (inf: the motion cannot
+    # tell the axes apart; NaN: not fitted, kimlee)
+    axes_diff: float = math.nan
+    axes_diff_stderr: float = math.nan
+
+    @property
+    def per_axis(self) -> bool:
+        return self.scales is not None
+
+    @property
+    def scale_x(self) -> float:
+        return self.scales[0] if self.scales is not None else self.scale
+
+    @property
+    def scale_y(self) -> float:
+        return self.scales[1] if self.scales is not None else self.scale
+
+    @property
+    def axes_seen(self) -> bool:
+        """Whether the motion told the two axes' scales apart (their difference known to
+        ``AXES_UNSEEN``); False also where not fitted (kimlee)."""
+        return bool(self.axes_diff_stderr <= AXES_UNSEEN)
 
     def as_json(self) -> dict:
-        return {
+        doc = {
             "x": round(self.x, 6),
             "y": round(self.y, 6),
             "yaw": round(float(np.degrees(self.yaw)), 4),
-            "scale": round(self.scale, 6),
         }
+        if not self.per_axis:
+            doc["scale"] = round(self.scale, 6)
+        doc["scale_x"] = round(self.scale_x, 6)
+        doc["scale_y"] = round(self.scale_y, 6)
+        return doc
 
 
 class MountError(ValueError):
@@ -186,7 +243,22 @@ def motion_problem(w: np.ndarray, length: float = 0.1) -> str | None:
 
 
 def exact_mount(m: np.ndarray, w: np.ndarray) -> MountFit:
-    """Position, yaw and scale of one mouse; raises MountError if they are not separable."""
+    """Position, yaw and scale of one mouse; raises MountError if they are not separable.
+    The scale is one for both axes unless the two differ plainly (module docstring)."""
+    one = _one_scale(m, w)
+    axes = _axes_fit(m, w, one)
+    if axes is None:
+        return replace(one, axes_diff=math.nan, axes_diff_stderr=math.inf)
+    diff, diff_se = axes.axes_diff, axes.axes_diff_stderr
+    if diff_se <= AXES_UNSEEN and abs(diff) > max(AXES_SIGMAS * diff_se, AXES_MIN):
+        return axes
+    if not diff_se <= AXES_UNSEEN:
+        diff_se = math.inf
+    return replace(one, axes_diff=diff, axes_diff_stderr=diff_se)
+
+
+def _one_scale(m: np.ndarray, w: np.ndarray) -> MountFit:
+    """The fit with one scale for both axes: linear in z (``exact_system``)."""
     a, rhs = exact_system(m, w)
     if len(rhs) < 4:
         raise MountError(f"{len(rhs) // 2} window(s) of motion, need at least 2")
@@ -216,3 +288,66 @@ def exact_mount(m: np.ndarray, w: np.ndarray) -> MountFit:
     stderr = (float(np.sqrt(cov[2, 2])), float(np.sqrt(cov[3, 3])), se_yaw, se_k / k**2)
     rms = float(np.sqrt(np.mean(res**2)))
     return MountFit(float(px), float(py), yaw, 1.0 / k, stderr, rms, rank)
+
+
+def _axes_residual(theta: np.ndarray, m: np.ndarray, w: np.ndarray):
+    """The per-axis model's residual (2n,) and Jacobian (2n, 5) at theta = (yaw, k_f,
+    k_l, p_x, p_y): R(yaw) diag(k_f, k_l) m - (U_x - Θ p_y, U_y + Θ p_x)."""
+    yaw, kf, kl, px, py = theta
+    c, s = math.cos(yaw), math.sin(yaw)
+    mf, ml, turn = m[:, 0], m[:, 1], w[:, 2]
+    res = np.empty(2 * len(m))
+    res[0::2] = c * kf * mf - s * kl * ml + turn * py - w[:, 0]
+    res[1::2] = s * kf * mf + c * kl * ml - turn * px - w[:, 1]
+    jac = np.zeros((2 * len(m), 5))
+    jac[0::2, 0], jac[1::2, 0] = -s * kf * mf - c * kl * ml, c * kf * mf - s * kl * ml
+    jac[0::2, 1], jac[1::2, 1] = c * mf, s * mf
+    jac[0::2, 2], jac[1::2, 2] = -s * ml, c * ml
+    jac[1::2, 3] = -turn
+    jac[0::2, 4] = turn
+    return res, jac
+
+
+def _axes_fit(m: np.ndarray, w: np.ndarray, one: MountFit) -> MountFit | None:
+    """The fit with a scale per count axis, by Gauss-Newton from the one-scale fit ``one``;
+    None where the motion cannot separate the five unknowns."""
+    m = np.asarray(m, dtype=float).reshape(-1, 2)
+    w = np.asarray(w, dtype=float).reshape(-1, 3)
+    if len(m) < 3:  # 2n equations, 5 unknowns and a residual
+        return None
+    theta = np.array([one.yaw, 1.0 / one.scale, 1.0 / one.scale, one.x, one.y])
+    for _ in range(50):
+        res, jac = _axes_residual(theta, m, w)
+        norms = np.linalg.norm(jac, axis=0)
+        if np.any(norms == 0) or not np.all(np.isfinite(jac)):
+            return None
+        step, *_ = np.linalg.lstsq(jac / norms, -res, rcond=None)
+        theta = theta + step / norms
+        if np.all(np.abs(step) <= 1e-12 * (1.0 + np.abs(theta * norms))):
+            break
+    res, jac = _axes_residual(theta, m, w)
+    norms = np.linalg.norm(jac, axis=0)
+    sv = np.linalg.svd(jac / norms, compute_uv=False)
+    if not np.all(np.isfinite(sv)) or sv[-1] <= 1e-9 * sv[0]:
+        return None
+    dof = len(res) - 5
+    sigma2 = float(res @ res) / dof
+    cov = sigma2 * np.linalg.inv(jac.T @ jac)
+    yaw, kf, kl, px, py = (float(v) for v in theta)
+    if not (kf > 0 and kl > 0):  # a reading against its axis: no scale (the yaw is wrong)
+        return None
+    sy, sx = 1.0 / kf, 1.0 / kl
+    grad = {  # of scale y, scale x, their difference and geometric mean, in (k_f, k_l)
+        "y": np.array([0, -1 / kf**2, 0, 0, 0]),
+        "x": np.array([0, 0, -1 / kl**2, 0, 0]),
+    }
+    grad["d"] = grad["x"] - grad["y"]
+    gm = 1.0 / math.sqrt(kf * kl)
+    grad["g"] = np.array([0, -0.5 * gm / kf, -0.5 * gm / kl, 0, 0])
+    se = {k: float(np.sqrt(max(g @ cov @ g, 0.0))) for k, g in grad.items()}
+    stderr = (float(np.sqrt(cov[3, 3])), float(np.sqrt(cov[4, 4])),
+              float(np.sqrt(cov[0, 0])), se["g"])  # fmt: skip
+    yaw = math.remainder(yaw, 2 * math.pi)
+    rms = float(np.sqrt(np.mean(res**2)))
+    return MountFit(px, py, yaw, gm, stderr, rms, 5, (sx, sy), (se["x"], se["y"]),
+                    sx - sy, se["d"])  # fmt: skip

@@ -8,6 +8,7 @@ import numpy as np
 
 from mousedom.calibrate.cpi import CpiResult
 from mousedom.calibrate.distance import DistanceResult
+from mousedom.calibrate.mounts import MountFit
 from mousedom.calibrate.session import MountsResult
 from mousedom.calibrate.umbmark import UmbResult
 from mousedom.config import Config
@@ -62,21 +63,36 @@ def mounts_text(r: MountsResult, config: Config) -> list[str]:
     for name, f in r.fits.items():
         m = config.mouse(name).mount
         moved = math.hypot(f.x - m.x, f.y - m.y)
+        scale = (f"scale x {f.scale_x:.4f}, y {f.scale_y:.4f}" if f.per_axis
+                 else f"scale {f.scale:.4f}")  # fmt: skip
         text = (
             f"  {name}: x {f.x * 1000:.2f} mm, y {f.y * 1000:.2f} mm, yaw "
-            f"{math.degrees(f.yaw):.2f} deg, scale {f.scale:.4f}  (configured x "
+            f"{math.degrees(f.yaw):.2f} deg, {scale}  (configured x "
             f"{m.x * 1000:.2f}, y {m.y * 1000:.2f}, yaw {math.degrees(m.yaw):.2f}; moved "
             f"{moved * 1000:.2f} mm)"
         )
         lines.append(text)
         if r.method == "exact":
             sx, sy, syaw, ss = f.stderr
+            if f.scales_stderr is not None:
+                scale = f"scale x {f.scales_stderr[0]:.4f}, y {f.scales_stderr[1]:.4f}"
+            else:
+                scale = f"scale {ss:.4f}"
             lines.append(
                 f"    stderr: x {sx * 1000:.2f} mm, y {sy * 1000:.2f} mm, yaw "
-                f"{math.degrees(syaw):.3f} deg, scale {ss:.4f}; residual "
+                f"{math.degrees(syaw):.3f} deg, {scale}; residual "
                 f"{f.rms * 1000:.3f} mm rms"
             )
+            lines.append(f"    {_axes_said(f)}")
     return lines
+
+
+def _axes_said(f: MountFit) -> str:
+    """How the fit's two count axes compare (mounts.AXES_SIGMAS)."""
+    if not f.axes_seen:
+        return "scale x - y: not told apart by this motion: one scale for both axes"
+    diff = f"scale x - y {f.axes_diff:+.4f} +- {f.axes_diff_stderr:.4f}"
+    return f"{diff}: fitted per axis" if f.per_axis else f"{diff}: one scale for both axes"
 
 
 def umbmark_text(r: UmbResult) -> list[str]:

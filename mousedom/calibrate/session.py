@@ -299,6 +299,8 @@ def mounts(
                 fits[m.name] = exact_mount(reading, w)
             except MountError as e:
                 raise UserError(f"mouse {m.name}: {e}") from None
+            if not fits[m.name].axes_seen:
+                session.notes.append(_axes_unseen(m.name, ref.kind == "wheels"))
         return MountsResult("exact", fits, len(w))
     if method != "kimlee":
         raise ValueError(f"unknown method {method!r}")
@@ -333,6 +335,21 @@ def mounts(
     return MountsResult("kimlee", fits, len(w), res.rank, warnings)
 
 
+def _axes_unseen(name: str, wheels: bool) -> str:
+    """What to say of a mouse whose two axes' scales the motion cannot tell apart."""
+    how = (
+        "a differential drive never slides: measure one axis with `calibrate cpi`"
+        if wheels
+        else "add sideways motion, or measure one axis with `calibrate cpi`"
+    )
+    return (
+        f"mouse {name}: the motion cannot tell its x scale from its y scale (without "
+        "sideways motion they, its yaw and its position are one unknown too many): one "
+        f"scale is fitted for both, and the CPIs and the position assume their configured "
+        f"ratio ({how})"
+    )
+
+
 def implausible_mounts(result: MountsResult, config: Config) -> list[str]:
     """Warnings for the CPIs an exact fit's scales give that no mouse reports
     (``plausible.cpi_problem``): not stored without --force."""
@@ -341,11 +358,11 @@ def implausible_mounts(result: MountsResult, config: Config) -> list[str]:
         return out
     for name, fit in result.fits.items():
         m = config.mouse(name)
-        cpis = {"x": m.cpi_x * fit.scale, "y": m.cpi_y * fit.scale}
-        if cpis["x"] == cpis["y"]:
-            cpis = {"x and y": cpis["x"]}
-        for axis, cpi in cpis.items():
+        per = {"x": (fit.scale_x, m.cpi_x * fit.scale_x), "y": (fit.scale_y, m.cpi_y * fit.scale_y)}
+        if per["x"] == per["y"]:
+            per = {"x and y": per["x"]}
+        for axis, (scale, cpi) in per.items():
             problem = plausible.cpi_problem(cpi)
             if problem:
-                out.append(f"mouse {name}: scale {fit.scale:.6g} gives cpi {axis}: {problem}")
+                out.append(f"mouse {name}: scale {scale:.6g} gives cpi {axis}: {problem}")
     return out

@@ -433,10 +433,14 @@ def run_mounts(args: argparse.Namespace) -> int:
                 if result.method == "exact":
                     m = config.mouse(n)
                     mount["yaw"] = round(math.degrees(f.yaw), 4)
-                    values["scale"] = round(f.scale, 6)
+                    values["scale"] = (
+                        {"x": round(f.scale_x, 6), "y": round(f.scale_y, 6)}
+                        if f.per_axis
+                        else round(f.scale, 6)
+                    )
                     values["cpi"] = {
-                        "x": round(m.cpi_x * f.scale, 3),
-                        "y": round(m.cpi_y * f.scale, 3),
+                        "x": round(m.cpi_x * f.scale_x, 3),
+                        "y": round(m.cpi_y * f.scale_y, 3),
                     }
                 data = calfile.merge_mouse(data, n, **values)
             return data
@@ -449,7 +453,7 @@ def run_scales(args: argparse.Namespace) -> int:
     keep_freed_memory()  # streams whole captures: see mousedom.allocator
     config = load_config(args.config, need_sources=False)
     _check_write_target(args, config)
-    result = scales.learn(config, args.capture)
+    result = scales.learn(config, args.capture, max_spread=args.max_spread / 100.0)
     for w in result.warnings:
         print(f"mousedom: warning: {w}", file=sys.stderr)
     scales.check(result, args.max_spread / 100.0)
@@ -468,14 +472,19 @@ def run_scales(args: argparse.Namespace) -> int:
 
     def update(data):
         for m in changed:
-            cx, cy = m.implied
-            data = calfile.merge_mouse(data, m.name, cpi={"x": round(cx, 3), "y": round(cy, 3)})
+            cx, cy = m.written  # per axis: the implied CPI where that axis changes
+            data = calfile.merge_mouse(data, m.name, cpi={"x": cx, "y": cy})
         # informational: what was learnt, against which CPI
-        learnt = {
-            m.name: {"scale": round(m.scale, 6), "spread": round(m.spread, 6),
-                     "cpi_before": {"x": m.cpi[0], "y": m.cpi[1]}}
-            for m in result.mice
-        }  # fmt: skip
+        learnt = {}
+        for m in result.mice:
+            entry: dict[str, Any] = {"scale": round(m.scale, 6), "spread": round(m.spread, 6)}
+            if m.per_axis:
+                axes = zip("xy", m.scales, m.spreads, strict=True)
+                entry["per_axis"] = {
+                    a: {"scale": round(g, 6), "spread": round(sd, 6)} for a, g, sd in axes
+                }
+            entry["cpi_before"] = {"x": m.cpi[0], "y": m.cpi[1]}
+            learnt[m.name] = entry
         return calfile.merge_section(data, "scales", learnt)
 
     calfile.store(config, update)

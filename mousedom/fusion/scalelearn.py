@@ -17,8 +17,14 @@ is not observable: docs/calibration.md).  So g is the solution of (S + mu) g = m
 millionth of S's diagonal (the data decide everything but the common mode, which stays
 near 1), divided by its median mouse (with one mouse wrong, a right one).  Its spread:
 the residual g' S g per degree of freedom through the inverse of S off the null
-direction.  One scale per mouse, both axes: a CPI is wrong for a sensor as a whole, and
-per axis the sideways one (which reads the turn) is too weakly observable to trust.
+direction.  One scale per mouse, both axes, for the fusion: a CPI is most often wrong for
+a sensor as a whole, and per axis the sideways one (which reads the turn) is often too
+weakly observable to trust within the seconds the fusion has.  Where asked (``axes``:
+`calibrate scales`, over a whole drive), the same evidence is also kept per count axis,
+J's column per mouse split in two (S is then 2N x 2N), and ``fit_axes`` gives a scale per
+axis with the spread of each and of their difference, infinite where the drive does not
+tell an axis apart from the others: a mouse whose CPI is off on one axis only reads, in
+one scale, as about half as far off on both.
 
 The learnt scale is applied where plain (more than ``_PLAIN`` of its standard deviations
 and ``_MIN_APPLIED`` from 1, after ``_MIN_GROUPS`` groups of evidence (the first second's
@@ -165,6 +171,92 @@ def fit(s: np.ndarray, groups: float, n: int, cols: int) -> tuple[np.ndarray, np
     return np.where(known, g, 1.0), np.where(known, spread, np.inf)
 
 
+def fit_axes(
+    s: np.ndarray,
+    segments: Sequence[np.ndarray],
+    groups: float,
+    n: int,
+    cols: int,
+    split: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """A scale per count axis from the per-axis evidence S (2N x 2N, rows mouse-major:
+    mouse i's x then y) and its ``segments``: (g (N, 2), spread (N, 2), g_x - g_y (N,),
+    its spread (N,)), as ``fit`` and ``ScaleLearner._solve`` give one per mouse (the
+    scales drawn to 1 only where the evidence is silent, the common mode pinned by the
+    median, the spread the larger of the residual's and the jackknife's over the
+    segments).  ``split`` (N,): the mice given a scale per axis (default all); the others
+    one scale for both (their difference 0, its spread NaN): once a mouse off on one
+    axis is known, the others' one scale is no longer bent by it (a healthy mouse beside
+    one 2-4 % off on one axis was given 0.5-0.8 % by one scale per mouse).  An axis the
+    evidence does not separate from the others (its variance through the inverse of S,
+    the common mode pinned, beyond 1 / _MIN_SEPARATION of S's largest eigenvalue's
+    inverse: e.g. the sideways axes of a drive that never slides) has an infinite spread,
+    and so has its mouse's difference.  None where S gives nothing (too little
+    evidence)."""
+    m = 2 * n
+    if groups < _MIN_GROUPS or s.shape != (m, m) or not np.all(np.isfinite(s)):
+        return None
+    if np.diag(s).max() <= 0 or len(segments) < 2:
+        return None
+    split = np.ones(n, bool) if split is None else np.asarray(split, bool)
+    # T: the unknowns (an axis of each split mouse, one scale of each other) -> the axes
+    owner = np.repeat(np.arange(n), np.where(split, 2, 1))
+    t_map = np.zeros((m, len(owner)))
+    col = 0
+    for i in range(n):
+        if split[i]:
+            t_map[2 * i, col], t_map[2 * i + 1, col + 1] = 1.0, 1.0
+        else:
+            t_map[2 * i : 2 * i + 2, col] = 1.0
+        col += 2 if split[i] else 1
+    k = len(owner)
+    s = t_map.T @ s @ t_map
+    segments = [t_map.T @ seg @ t_map for seg in segments]
+    evidence = np.diag(s)
+    g = scales(s)
+    if not np.all(np.isfinite(g)):
+        return None
+    dof = max(1.0, groups * (2 * n - cols) - (k - 1))
+    r2 = float(g @ s @ g) / dof
+    # The inverse of S with the common mode pinned (S + l c c', c the unit common mode):
+    # other directions S leaves (nearly) free show as large variances.  A drive that never
+    # slides leaves one such on a rig whose mice sit at two distances along x only (a
+    # triangle, a square): every sideways axis against every forward one, which a
+    # sideways drift of the rig proportional to its turn reads alike.
+    top = float(np.linalg.eigvalsh(s)[-1])
+    common = np.full(k, 1.0 / math.sqrt(k))
+    try:
+        inv = np.linalg.inv(s + top * np.outer(common, common))
+    except np.linalg.LinAlgError:
+        return None
+    # a split mouse's two unknowns are neighbours: x at ``first``, y next
+    first = np.flatnonzero(np.r_[True, owner[1:] != owner[:-1]])[split]
+    var = np.diag(inv)
+    var_d = var[first] + var[first + 1] - 2 * inv[first, first + 1]
+    # (u' inv u against |u|^2 = 2 for the difference u = e_x - e_y)
+    free = 1.0 / _MIN_SEPARATION / top
+    weak = ~(var < free) | (evidence < _MIN_EVIDENCE * evidence.max())
+    weak_d = ~(var_d < 2 * free) | weak[first] | weak[first + 1]
+    spread = np.sqrt(np.maximum(var, 0.0) * r2)
+    spread_d = np.sqrt(np.maximum(var_d, 0.0) * r2)
+    b = len(segments)
+    loo = scales(s[None] - np.stack(segments))  # (B, K)
+    t = student.quantile(_PLAIN_P, b - 1) / _PLAIN
+    with np.errstate(invalid="ignore", over="ignore"):
+        jack = np.sqrt((b - 1) / b * np.sum((loo - loo.mean(axis=0)) ** 2, axis=0))
+        loo_d = loo[:, first] - loo[:, first + 1]
+        jack_d = np.sqrt((b - 1) / b * np.sum((loo_d - loo_d.mean(axis=0)) ** 2, axis=0))
+    spread = np.maximum(spread, jack * t)
+    spread_d = np.maximum(spread_d, jack_d * t)
+    spread = np.where(np.isfinite(spread) & ~weak, spread, np.inf)
+    g = np.where(weak, 1.0, g)
+    d_all, spread_d_all = np.zeros(n), np.full(n, np.nan)
+    d_all[split] = g[first] - g[first + 1]
+    spread_d_all[split] = np.where(np.isfinite(spread_d) & ~weak_d, spread_d, np.inf)
+    axis_of = np.argmax(t_map, axis=1)  # each axis's unknown
+    return g[axis_of].reshape(n, 2), spread[axis_of].reshape(n, 2), d_all, spread_d_all
+
+
 class ScaleLearner:
     """Each mouse's scale, learnt from the others (module docstring); kept per count axis
     (both the same) for the reports, which have a column per axis."""
@@ -214,6 +306,11 @@ class ScaleLearner:
         self._base_inv = np.linalg.inv(self.base)
         self.gram = np.zeros((self.n, self.n))  # S, forgetting
         self._segments: list[np.ndarray] = []  # S in blocks (``jackknife``), forgetting
+        # per count axis (``fit_axes``), kept only where asked (`calibrate scales`): S with
+        # a column per mouse and axis, 2N x 2N, and its blocks, forgetting as S does
+        self.axes = False
+        self.axis_gram = np.zeros((2 * self.n, 2 * self.n))
+        self.axis_segments: list[np.ndarray] = []
         # per mouse, from the groups it was left out of: sum X.X, X.Y, Y.Y, groups
         self.held = np.zeros((4, self.n))
         self.groups = 0.0  # groups of evidence in S, forgetting
@@ -477,7 +574,29 @@ class ScaleLearner:
             if len(segments) > _SEGMENTS:
                 segments[:2] = [segments[0] + segments[1]]
         self._segments = segments
+        if self.axes:
+            self._learn_axes(c, not flagged and len(c) > 0)
         return self._solve()
+
+    def _learn_axes(self, c: np.ndarray, learnt: bool) -> None:
+        """The block's evidence per count axis (``fit_axes``), where ``_learn`` learnt
+        from its groups' counts ``c`` (groups, N, 2): J's column per mouse and count axis,
+        mouse i's axis a moving it base[i, :, a] * c[i, a] in body axes."""
+        n = self.n
+        self.axis_gram *= self.forget
+        segments = [segment * self.forget for segment in self.axis_segments]
+        if learnt:
+            j = np.zeros((len(c), 2 * n, 2 * n))
+            for i in range(n):
+                for a in range(2):
+                    j[:, 2 * i : 2 * i + 2, 2 * i + a] = self.base[i][None, :, a] * c[:, i, a, None]
+            pj = np.einsum("rs,gst->grt", self.project, j)
+            block = np.einsum("grt,r,grs->ts", pj, self.weight, pj)
+            self.axis_gram += block
+            segments.append(block)
+            if len(segments) > _SEGMENTS:
+                segments[:2] = [segments[0] + segments[1]]
+        self.axis_segments = segments
 
     def _solve(self) -> bool:
         """The scales from the accumulated S (module docstring): the ones that leave the
