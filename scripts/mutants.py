@@ -401,6 +401,14 @@ MUTANTS = [
         "windows a silent gyro missed fused as no turn (a mouse's rule, not a gyro's)",
     ),
     Mutant(
+        "gyro-judge-told-late-mice-array",
+        "mousedom/fusion/tracker_batch.py",
+        "self._with_gyro(setup.gyro, q, sol, d, in_solve, turn,",
+        "self._with_gyro(setup.gyro, q, sol, d, mask & (health != robust.EXCLUDED), turn,",
+        ("tests/test_gyro_live_is_replay.py",),
+        "replay's gyro judge counts a late mouse as in the solve: replay is not the daemon",
+    ),
+    Mutant(
         "wake-at-first-report",
         "mousedom/service/wake.py",
         "            wake = max(wake, first + min(period, 0.5 * period + latency))",

@@ -74,13 +74,13 @@ class ArrayPath:
             for i in range(2):
                 np.add(cx * m[n, i, 0], cy * m[n, i, 1], out=d[:, n, i])
         sol = models.solve(setup.model, d, setup.positions, setup.sigma, mask, self._noise)
-        sol, health, reason, consistent = self._screened(d, mask, sol, evidence, spans)
+        sol, health, reason, consistent, in_solve = self._screened(d, mask, sol, evidence, spans)
         q = np.where(sol.ok[:, None], sol.q, 0.0)
         qcov, gyro = sol.cov, None
         used = sol.used
         turned = q  # what the pose turns by: q, and the heading the gyro's renewals give back
         if setup.gyro is not None and turn is not None:  # the gyro's reading of the turns
-            q, qcov, gyro, used, owed = self._with_gyro(setup.gyro, q, sol, d, mask, turn,
+            q, qcov, gyro, used, owed = self._with_gyro(setup.gyro, q, sol, d, in_solve, turn,
                                                         health, reason, consistent)  # fmt: skip
             turned = q.copy()
             turned[:, 2] += owed
@@ -124,15 +124,17 @@ class ArrayPath:
         q: np.ndarray,
         sol: models.Solution,
         d: np.ndarray,
-        mask: np.ndarray,
+        in_solve: np.ndarray,
         turn: np.ndarray,
         health: np.ndarray,
         reason: np.ndarray,
         consistent: np.ndarray,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The gyro's turn in each window, judged where it disagrees (GyroFusion.judged),
-        in window order (the bias is sequential); the mice it blames excluded in
-        ``health`` and ``reason`` and ``consistent`` cleared where nobody could be, in
+        in window order (the bias is sequential), ``in_solve`` (n, N) the mice each
+        window's solve used (the screen's: not only the excluded are out of it, a late
+        mouse is too, as the one-window path's MiceView says); the mice it blames excluded
+        in ``health`` and ``reason`` and ``consistent`` cleared where nobody could be, in
         place.  Returns (q, q's covariance, the gyro's columns, mice used, the heading
         its renewals give back in each window: gyrobias.BiasLearner.renew)."""
         from mousedom.fusion.gyrojudge import MiceView
@@ -142,7 +144,6 @@ class ArrayPath:
         gyro = np.empty((n, GYRO_FIELDS))
         used = sol.used.copy()
         owed = np.zeros(n)
-        in_solve = mask & (health != robust.EXCLUDED)
         for k in range(n):
             tk = float(turn[k])
             mice = MiceView(d[k].tolist(), in_solve[k].tolist(), bool(consistent[k]))
@@ -164,16 +165,16 @@ class ArrayPath:
         sol: models.Solution,
         evidence: Evidence | None,
         spans: np.ndarray | None = None,
-    ) -> tuple[models.Solution, np.ndarray, np.ndarray, np.ndarray]:
+    ) -> tuple[models.Solution, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The fault-tolerant screen over an array of windows (mousedom.fusion.robust):
         the solution re-solved without the mice it excluded, with the covariance of
         unattributed inconsistent windows inflated, and each mouse's health per window:
-        (solution, state, reason, consistent)."""
+        (solution, state, reason, consistent, the mice in each window's solve)."""
         n = len(mask)
         setup = self._setup
         if setup.screen is None:
             state = np.where(mask, robust.TRACKING, robust.MISSING).astype(np.int8)
-            return sol, state, np.zeros_like(state), np.ones(n, dtype=bool)
+            return sol, state, np.zeros_like(state), np.ones(n, dtype=bool), mask
         q = np.where(sol.ok[:, None], sol.q, 0.0)
         scale, low = evidence if evidence is not None else (None, None)
         used, inflate, consistent, state, reason, correction = screenbatch.screen(
@@ -193,4 +194,4 @@ class ArrayPath:
             if correction is not None:
                 q += correction
             sol = models.Solution(q=q, cov=cov, residual=res, used=n_used, ok=ok)
-        return sol, state, reason, consistent
+        return sol, state, reason, consistent, used
