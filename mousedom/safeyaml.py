@@ -83,12 +83,13 @@ def _refuse_yaml11_number(node: yaml.ScalarNode) -> None:
 
 Loader.add_constructor("tag:yaml.org,2002:int", Loader.construct_yaml_int)
 Loader.add_constructor("tag:yaml.org,2002:float", Loader.construct_yaml_float)
-# YAML 1.1 (PyYAML's) reads 1e-4 as a string: its floats need a dot.  YAML 1.2 and every
-# person read a number (a gyro's noise density is written so).
+# YAML 1.1 (PyYAML's) reads 1e-4 and 1.6e3 as strings: its floats need a dot, and a sign
+# after the e.  YAML 1.2 and every person read numbers (a gyro's noise density is written
+# so; `cpi: 1.6e3` was "must be a number").
 Loader.add_implicit_resolver(
     "tag:yaml.org,2002:float",
-    re.compile(r"^[-+]?[0-9][0-9_]*[eE][-+]?[0-9]+$"),
-    list("-+0123456789"),
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+    list("-+0123456789."),
 )
 
 

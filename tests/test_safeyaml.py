@@ -66,3 +66,15 @@ def test_text_that_looks_like_those_numbers_is_still_text():
         "c": "1_00",
         "d": "12:30x",
     }
+
+
+@pytest.mark.parametrize("mantissa", ["1", "16", "1.6", "1.", ".16", "0.0016"])
+@pytest.mark.parametrize("exponent", ["3", "+3", "-3", "03"])
+@pytest.mark.parametrize("e", ["e", "E"])
+@pytest.mark.parametrize("sign", ["", "-", "+"])
+def test_every_exponent_form_is_the_number_python_reads(mantissa, exponent, e, sign):
+    """YAML 1.1 (PyYAML's) needs a dot and a sign after the e (1.6e3 was the text
+    "1.6e3", and `cpi: 1.6e3` was refused as not a number); YAML 1.2, Python and people
+    read every such form as one number."""
+    text = f"{sign}{mantissa}{e}{exponent}"
+    assert safeyaml.load(f"x: {text}\n") == {"x": float(text)}
