@@ -379,7 +379,7 @@ MUTANTS = [
     Mutant(
         "gyro-jump-blamed-on-still-mice",
         "mousedom/fusion/gyro.py",
-        "        jumped = still and not slow and n_used >= 2\n",
+        "        jumped = still and not slow and n_used == 2\n",
         "        jumped = False\n",
         ("tests/test_gyro_faults.py",),
         "two still mice blamed for a gyro whose bias jumped: the heading turns for good",

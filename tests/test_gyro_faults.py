@@ -174,3 +174,37 @@ def test_healthy_mice_are_not_blamed_by_the_gyro(layout, model):
         blamed += int((batch.reason == Reason.GYRO).any(axis=1).sum())
         windows += len(batch)
     assert blamed < 0.002 * windows
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 4])
+def test_still_mice_against_a_jumped_gyro_by_their_number(n):
+    """An 8 deg/s jump of the bias at a standstill, straight into the judge: three or more
+    still mice win outright (the windows consistent, as before: docs/models.md); two say
+    the window is inconsistent until the bias is learnt again, half a second; one cannot
+    tell a jump from a turn it did not see (its loss of the floor): never learnt again."""
+    from mousedom.fusion import models
+    from mousedom.fusion.gyro import DEFAULT_BIAS_SIGMA, DEFAULT_BIAS_WALK, GyroFusion, GyroNoise
+    from mousedom.fusion.gyrojudge import GyroJudge, MiceView
+
+    period = 0.01
+    pos = np.array([[0.1 * math.cos(2 * math.pi * k / n), 0.1 * math.sin(2 * math.pi * k / n)]
+                    for k in range(n)])  # fmt: skip
+    sigma = np.full(n, 1e-5)
+    judge = GyroJudge(pos, sigma, (0, 1, 2), 1e-4, (models.STILL * sigma).tolist(), 0.0, period)
+    fusion = GyroFusion(GyroNoise(1e-4, DEFAULT_BIAS_WALK, DEFAULT_BIAS_SIGMA), period, "both",
+                        judge)  # fmt: skip
+    c = [[1e-10, 0.0, 0.0], [0.0, 1e-10, 0.0], [0.0, 0.0, 1e-8]]
+    mice = MiceView([[0.0, 0.0]] * n, [True] * n, True)
+    judged = []
+    for k in range(300):
+        turn = 0.0 if k < 100 else math.radians(8.0) * period
+        j = fusion.judged([0.0, 0.0, 0.0], c, turn, True, mice)
+        if k >= 100:
+            judged.append(j.consistent)
+    inconsistent = judged.count(False)
+    if n >= 3:
+        assert inconsistent == 0
+    elif n == 2:
+        assert 0 < inconsistent < 100 and all(judged[-50:])
+    else:
+        assert inconsistent == 200

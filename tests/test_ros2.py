@@ -158,11 +158,31 @@ def test_a_ros2_gyro_is_on_the_outputs_domain_and_namespace_unless_told():
             "gyro: {ros2: %s}\n")  # fmt: skip
     out = "outputs: {ros2: {domain_id: 23, namespace: /robot1}}\n"
     g = parse_config(base % "/imu/data" + out, need_sources=False).gyro.ros2
-    assert (g.domain_id, g.namespace) == (23, "/robot1")
+    assert (g.domain(), g.namespace) == (23, "/robot1")
     g = parse_config(base % "{topic: /imu/data, domain_id: 4}" + out, need_sources=False).gyro.ros2
-    assert (g.domain_id, g.namespace) == (4, "/robot1")
+    assert (g.domain(), g.namespace) == (4, "/robot1")
     g = parse_config(base % "/imu/data", need_sources=False).gyro.ros2
-    assert (g.domain_id, g.namespace) == (None, "")
+    assert (g.domain(), g.namespace) == (None, "")
+
+
+def test_a_reload_that_edits_only_the_ros2_output_keeps_a_ros2_gyro_and_the_learning():
+    """The output keeps its domain and namespace until a restart: a SIGHUP that edits only
+    them must neither reopen the gyro (it would read on another domain than the output
+    publishes on) nor begin the fusion's learning again."""
+    from mousedom.fusion.tracker import fusion_terms
+    from mousedom.service.factory import source_key
+
+    base = ("mice:\n  a: {cpi: 400, mount: {x: 0, y: 0}}\n  b: {cpi: 400, mount: {x: 1, y: 0}}\n"
+            "gyro: {ros2: /imu/data}\n"
+            "outputs: {ros2: {domain_id: %d, namespace: %s}}\n")  # fmt: skip
+    one = parse_config(base % (23, "/robot1"), need_sources=False)
+    two = parse_config(base % (24, "/robot2"), need_sources=False)
+    assert one.gyro.ros2.domain() == 23 and two.gyro.ros2.domain() == 24
+    assert source_key(one.gyro) == source_key(two.gyro)
+    assert fusion_terms(one) == fusion_terms(two)
+    own = parse_config((base % (23, "/robot1")).replace("{ros2: /imu/data}",
+                       "{ros2: {topic: /imu/data, domain_id: 5}}"), need_sources=False)  # fmt: skip
+    assert source_key(own.gyro) != source_key(one.gyro)  # the gyro's own domain: reopened
 
 
 def test_rep105_odom_never_jumps_and_map_odom_takes_the_fix():

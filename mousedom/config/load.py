@@ -90,8 +90,7 @@ def _ros2_across(
         # One robot, one ROS 2 graph: a gyro read from ROS 2 is on the output's domain
         # unless it names its own, and its reader's node in the output's namespace (two
         # robots on one domain would otherwise both announce /mousedom_gyro).
-        domain = ros2.domain_id if gyro.ros2.domain_id is None else gyro.ros2.domain_id
-        gyro = replace(gyro, ros2=replace(gyro.ros2, domain_id=domain,
+        gyro = replace(gyro, ros2=replace(gyro.ros2, output_domain=ros2.domain_id,
                                           namespace=ros2.namespace))  # fmt: skip
     if ros2.counts:
         # each mouse's counts topic (ros2conv.counts_topic under the namespace) within

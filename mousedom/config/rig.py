@@ -6,7 +6,7 @@ Each default is stated once, on its field; the parsers read it from there (``def
 from __future__ import annotations
 
 import math
-from dataclasses import MISSING, dataclass, field, fields
+from dataclasses import MISSING, dataclass, field, fields, replace
 from typing import Any, TypeVar
 
 from mousedom.config.outputs import FoxgloveConfig, MetricsConfig, Ros2Config, ServerConfig
@@ -120,13 +120,22 @@ class GyroRos2:
     the angular velocity of an IMU whose driver publishes in ROS 2."""
 
     topic: str  # absolute, e.g. /imu/data
-    # None: the ROS 2 output's (outputs.ros2.domain_id, where given), else $ROS_DOMAIN_ID,
-    # else 0 (as ROS 2 does); config.load fills in the output's
+    # None: the ROS 2 output's (``output_domain``), else $ROS_DOMAIN_ID, else 0 (as ROS 2
+    # does)
     domain_id: int | None = None
     # what the headers' stamps are on: system (ROS time, what drivers stamp with) or
     # monotonic (a driver stamping with the steady clock)
     stamps: str = "system"
-    namespace: str = ""  # the reader's node's (the output's namespace: one robot, one tree)
+    # From the ROS 2 output's section (config.load): its domain, the default for this
+    # one, and its namespace, the reader's node's (one robot, one graph).  Not the gyro's
+    # identity (``inherited``): the output keeps its own until a restart, and a reload
+    # that edits only them must not reopen the gyro on another domain than the output's.
+    output_domain: int | None = None
+    namespace: str = ""
+
+    def domain(self) -> int | None:
+        """The domain to read on: the gyro's own, else the output's (None: as ROS 2 says)."""
+        return self.domain_id if self.domain_id is not None else self.output_domain
 
 
 @dataclass(frozen=True)
@@ -143,6 +152,14 @@ class GyroConfig:
     replay: str | None = None  # a capture's gyro instead of a device (absolute path)
     replay_device: str | None = None  # its name or node, where the capture holds several
     ros2: GyroRos2 | None = None  # an IMU's sensor_msgs/Imu topic instead of a device
+
+    def own(self) -> GyroConfig:
+        """This gyro's section alone, without what it takes from the ROS 2 output's
+        (GyroRos2.output_domain, namespace): what identifies it across a reload (the
+        source reopened, the fusion's learning kept or begun again)."""
+        if self.ros2 is None:
+            return self
+        return replace(self, ros2=replace(self.ros2, output_domain=None, namespace=""))
 
 
 # Keyword-only: the top-level defaults (rate_hz, model, integrator) stand before the

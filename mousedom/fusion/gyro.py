@@ -312,14 +312,15 @@ class GyroFusion:
             return Judged(*self.window(q, c, turn, ok, still, extra, trusted), (), True)
         slow = still and abs(e) <= STILL_TURN * t
         # Still mice against a gyro that turns faster than a bias moves: the robot turned
-        # unseen (every mouse off the floor) or the gyro's bias jumped.  Two mice or more
-        # (at two points: every turn moves one of them) would all have lost the floor at
-        # once: the gyro is wrong, and its bias is learnt again from the standstill
-        # (blamed on the mice instead, a 5 deg/s jump on a pair turned the heading 53
-        # degrees in 12 s of standstill, its sigma 0.4).  One mouse cannot tell: a robot
-        # starting to turn while its mouse is off the floor looks the same (taken as a
-        # jump, such lifts ended 54 and 153 degrees off where the gyro's turn kept 1).
-        jumped = still and not slow and n_used >= 2
+        # unseen (every mouse off the floor) or the gyro's bias jumped.  Two mice (at two
+        # points: every turn moves one of them) would both have lost the floor at once:
+        # the gyro is wrong, and its bias is learnt again from the standstill (blamed on
+        # the mice instead, a 5 deg/s jump on a pair turned the heading 53 degrees in 12 s
+        # of standstill, its sigma 0.4); the window is inconsistent, as two mice cannot
+        # say which.  Three or more win outright (below, consistent).  One mouse cannot
+        # tell: a robot starting to turn while its mouse is off the floor looks the same
+        # (taken as a jump, such lifts ended 54 and 153 degrees off where the gyro kept 1).
+        jumped = still and not slow and n_used == 2
         self._disagree = (self._disagree + 1 if trusted or still and n_used >= 3 or slow
                           or jumped else 0)  # fmt: skip
         if self._disagree * t >= RELEARN_S:

@@ -7,9 +7,9 @@ window that fails it is judged, not fused:
 - every mouse in the solve was silent, yet the gyro turned beyond its bias: the robot
   moved and the mice did not see it (lifted, or a dead one on a one-mouse rig).  They are
   blamed; the heading is the gyro's and the translation unknown (not counted, and the
-  window is marked inconsistent).  Unless two or more mice stand still (at two points,
-  every turn moves one: all would have lost the floor at once): then the gyro's bias
-  jumped (fusion/gyro.py, ``judged``).
+  window is marked inconsistent).  Unless two mice stand still (at two points, every
+  turn moves one: both would have lost the floor at once): then the gyro's bias jumped
+  (fusion/gyro.py, ``judged``); three or more win as below.
 - three or more mice that agree among themselves (their own screen passed): the gyro is
   wrong (saturated, a bias jump).  It is left out of the window and its bias is not
   learnt from it; after ``RELEARN_S`` of such windows in a row its bias's uncertainty is

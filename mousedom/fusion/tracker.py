@@ -63,8 +63,9 @@ def fusion_terms(config: Config) -> tuple:
         dataclasses.replace(m, evdev=None, serial=None, replay=None, replay_device=None)
         for m in config.mice
     )
+    gyro = None if config.gyro is None else config.gyro.own()
     return (config.model, config.integrator, config.rate_hz, config.late_report_s, mice,
-            config.robust, config.gyro)  # fmt: skip
+            config.robust, gyro)  # fmt: skip
 
 
 class Tracker:

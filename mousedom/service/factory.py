@@ -58,5 +58,5 @@ def source_key(mouse: MouseConfig | GyroConfig) -> tuple[Any, ...]:
     """What identifies a sensor's device: when it changes on reload, the source is reopened
     (a gyro's whole section: its axis, sign and rate are set when it opens)."""
     if isinstance(mouse, GyroConfig):
-        return ("gyro", mouse)
+        return ("gyro", mouse.own())
     return (mouse.evdev, mouse.serial, mouse.replay, mouse.replay_device)

@@ -46,7 +46,7 @@ def _gyro_device(gyro: GyroConfig, source_kind: str) -> DeviceInfo:
         extra["sample_hz"] = gyro.sample_hz
     topic = gyro.ros2.topic if gyro.ros2 is not None else None
     if gyro.ros2 is not None:  # as `mousedom record` names one (its domain as configured)
-        extra.update(topic=gyro.ros2.topic, domain_id=gyro.ros2.domain_id,
+        extra.update(topic=gyro.ros2.topic, domain_id=gyro.ros2.domain(),
                      stamps=gyro.ros2.stamps)  # fmt: skip
     return DeviceInfo(name=gyro.name or gyro.path or topic or GYRO, kind=GYRO_KIND,
                       rel_xy=False, extra=extra)  # fmt: skip

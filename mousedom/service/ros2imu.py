@@ -102,7 +102,7 @@ class Ros2ImuSource(Source):
             from cyclonedds.topic import Topic
 
             # its own domain, else as the output's rule says ($ROS_DOMAIN_ID, else 0)
-            self.domain = domain_id(Ros2Config(domain_id=self.ros2.domain_id))
+            self.domain = domain_id(Ros2Config(domain_id=self.ros2.domain()))
             part = participant(self.domain, "the gyro's ROS 2 topic")
             qos = Qos(
                 Policy.Reliability.BestEffort,
