@@ -303,3 +303,19 @@ def test_calibrate_scales_writes_the_axis_that_is_off(tmp_path):
     assert doc["m1"]["per_axis"] is True and doc["m1"]["change"] is True
     assert set(written["scales"]["m1"]["per_axis"]) == {"x", "y"}
     assert set(written["mice"]) == {"m1"}
+
+
+def test_a_mouse_fitted_per_axis_is_held_to_max_spread_on_each_axis():
+    """`calibrate scales --write` refuses scales the motion told too loosely: a mouse
+    written per axis by each axis's spread, not its one scale's (which could be tight while
+    an axis is not)."""
+    from mousedom.calibrate.scales import MouseScale, ScaleResult, check
+    from mousedom.errors import UserError
+
+    tight = MouseScale("a", 1.0, 0.001, (800.0, 800.0))
+    loose_axis = MouseScale("b", 1.01, 0.001, (800.0, 800.0), axes=(1.02, 1.0),
+                            axes_spread=(0.004, 0.05), axes_diff=0.02,
+                            axes_diff_spread=0.005)  # fmt: skip
+    check(ScaleResult([tight], 10.0, 1000, 10.0), max_spread=0.01)
+    with pytest.raises(UserError, match=r"b to \+- 5\.00 %"):
+        check(ScaleResult([tight, loose_axis], 10.0, 1000, 10.0), max_spread=0.01)

@@ -227,6 +227,9 @@ def test_outputs_ros2_config():
         ("{diagnostics_topic: '/{node}/d'}", "diagnostics_topic: must be a ROS 2 topic name"),
         ("{odom_topic: /" + "o" * 247 + "}", "over ROS 2's 247"),
         ("{namespace: /" + "n" * 245 + "}", "namespace: must be at most 245 characters"),
+        # the topics it puts under any namespace: /tf_static, /initialpose
+        ("{namespace: /" + "n" * 237 + "}", "/tf_static under it would be over"),
+        ("{namespace: /" + "n" * 235 + "}", "/initialpose under it would be over"),
         # tf2 refuses a frame id with a leading /
         ("{odom_frame: /odom}", "odom_frame: must be a frame id"),
         ("{base_frame: /robot1/base_link}", "tf2 refuses a leading /"),

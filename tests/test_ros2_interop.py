@@ -311,7 +311,10 @@ def ok(check, name):
 out = []
 for ns, name in json.load(sys.stdin):
     full = (ns or "") + (name if name.startswith("/") else "/" + name)  # (ros2conv.topic)
-    out.append((not ns or ok(validate_namespace, ns)) and ok(validate_full_topic_name, full))
+    fixed = all(ok(validate_full_topic_name, (ns or "") + f) for f in ("/tf_static",
+                                                                   "/initialpose"))
+    out.append((not ns or ok(validate_namespace, ns)) and ok(validate_full_topic_name, full)
+               and fixed)
 print(json.dumps(out))
 """
 
@@ -347,7 +350,8 @@ def _generated_names(rng: random.Random, n: int) -> list[tuple[str, str]]:
 def test_the_configs_ros2_names_are_those_rclpy_accepts(ros2, tmp_path):
     """check-config's rule for a topic under a namespace is ROS 2's: rclpy's validators
     (rmw's C rules) judge 400 generated pairs, and the config takes a pair exactly where
-    rclpy takes its namespace and the full topic name.  (A name rclpy refuses, taken by
+    rclpy takes its namespace, the full topic name and the full names of the topics the
+    output puts under any namespace (/tf_static, /initialpose).  (A name rclpy refuses, taken by
     the config, crashed the daemon at start or published a topic no node can read.)"""
     from mousedom.config import load_config
     from mousedom.yamldoc import ConfigError

@@ -80,6 +80,8 @@ ROS_TOPIC = re.compile(rf"/?{_ROS_TOKEN}(/{_ROS_TOKEN})*")
 # 255 less 8 kept for DDS's prefixes), a namespace 2 fewer (RMW_NAMESPACE_MAX_LENGTH).
 ROS_TOPIC_MAX = 247
 ROS_NAMESPACE_MAX = ROS_TOPIC_MAX - 2
+# Topics the output puts under the namespace whatever the config names (ros2out)
+FIXED_TOPICS = ("/tf_static", "/initialpose")
 # A tf2 frame id: no leading "/" (tf2 refuses such ids at every lookup); the rest as this
 # daemon has always written them, letters, digits and _ between single "/".
 ROS_FRAME = re.compile(r"[A-Za-z0-9_]+(/[A-Za-z0-9_]+)*")
@@ -210,6 +212,10 @@ def _ros2(r: Reader) -> Ros2Config | None:
     if len(namespace.rstrip("/")) > ROS_NAMESPACE_MAX:
         raise s.err("namespace", f"must be at most {ROS_NAMESPACE_MAX} characters (ROS 2's "
                                  f"limit), got {len(namespace.rstrip('/'))}")  # fmt: skip
+    for fixed in FIXED_TOPICS:  # the topics put under it that the config does not name
+        if len(namespace.rstrip("/") + fixed) > ROS_TOPIC_MAX:
+            raise s.err("namespace", f"{fixed} under it would be over ROS 2's {ROS_TOPIC_MAX} "
+                                     "characters: a shorter namespace")  # fmt: skip
 
     def topic(key: str, default: str) -> str:
         v = _text(s, key, default)

@@ -324,6 +324,13 @@ class Source(ABC):
                     self._far_stamps(n_far, worst)
                     if b.quality is not None:  # the sensor's word on the same reports
                         bound_stamps(b.quality[0], now)
+                if b.quality is not None and any(v is not None for v in b.quality[3]):
+                    # where counts were lost since: a stamp too, held to the same bounds
+                    # (a span reaching back a day would gate the mouse to its frontier)
+                    since = [v for v in b.quality[3] if v is not None]
+                    bound_stamps(since, now)
+                    it = iter(since)
+                    b.quality[3][:] = [None if v is None else next(it) for v in b.quality[3]]
             self._count(n, float(t[-1]), now)
         return batches
 
