@@ -353,24 +353,27 @@ def _emit_umbmark(args, summary: Summary, true_end: tuple[float, float], inputs:
     if not summary.final:
         raise UserError("--umbmark: the captures hold no motion, so there is no end position")
     final = (summary.final["x"], summary.final["y"])
-    _check_direction(args.umbmark, summary.final["theta"])
+    doubt = _check_direction(args.umbmark, summary.final["theta"])
     row = umbmark_row(args.umbmark, final, true_end)
     if not args.umbmark_csv:
         print(row)
-        return
-    try:
-        with open_stream(args.umbmark_csv, inputs, append=True, text=True) as f:
-            f.write(_runs_lead(f.fileno(), args.umbmark_csv) + row + "\n")
-    except OSError as e:
-        raise UserError(f"{args.umbmark_csv}: cannot append: {e.strerror}") from None
-    print(f"replay: appended {row} to {args.umbmark_csv}", file=sys.stderr)
+    else:
+        try:
+            with open_stream(args.umbmark_csv, inputs, append=True, text=True) as f:
+                f.write(_runs_lead(f.fileno(), args.umbmark_csv) + row + "\n")
+        except OSError as e:
+            raise UserError(f"{args.umbmark_csv}: cannot append: {e.strerror}") from None
+        print(f"replay: appended {row} to {args.umbmark_csv}", file=sys.stderr)
+    if doubt:  # (said of a row written: a refusal is the one line an error is)
+        print(f"replay: warning: {doubt}", file=sys.stderr)
 
 
-def _check_direction(direction: str, turned: float) -> None:
+def _check_direction(direction: str, turned: float) -> str | None:
     """A UMBmark square turns a full turn, clockwise (-360 degrees) or not: the replay's
     heading (from 0, unwrapped) says which, and a row under the other direction's label
     would score it in the wrong centre of gravity without a word.  Refused; a run that
-    turned less than half a turn either way is no square: said, and written."""
+    turned less than half a turn either way is no square: the doubt returned, to be said
+    once the row is written."""
     deg = math.degrees(turned)
     said = {"cw": -1.0, "ccw": 1.0}[direction]
     if abs(deg) >= 180.0 and math.copysign(1.0, deg) != said:
@@ -381,9 +384,9 @@ def _check_direction(direction: str, turned: float) -> None:
             "(no row written)"
         )
     if abs(deg) < 180.0:
-        print(f"replay: warning: --umbmark {direction}: the run turned {deg:+.0f} degrees in "
-              "all, where a UMBmark square turns 360: is it a whole square?",
-              file=sys.stderr)  # fmt: skip
+        return (f"--umbmark {direction}: the run turned {deg:+.0f} degrees in all, where a "
+                "UMBmark square turns 360: is it a whole square?")  # fmt: skip
+    return None
 
 
 # A RUNS.csv holds a row per run: a few hundred bytes.  Past this it is not one.
