@@ -282,7 +282,7 @@ class Client:
         while True:
             try:
                 msg = self._read()
-            except EOFError:
+            except (EOFError, ConnectionResetError):  # (a reset: it closed with ours unread)
                 raise ConnectionLost(
                     f"{self.path}: the daemon closed the connection before answering {cmd}"
                 ) from None

@@ -356,3 +356,41 @@ def test_a_daemon_that_closes_the_connection_is_said_to_have_closed_it(tmp_path)
         assert got.closed, after
         (fail,) = [c for c in doctor.check_daemon(got, None, 2.0) if c.status == "FAIL"][:1]
         assert fail.message.startswith("the daemon closed the connection after"), fail.message
+
+
+def test_a_daemon_gone_before_the_command_is_sent_is_said_to_have_closed_it(tmp_path, monkeypatch):
+    """The race the test above can lose under load: the daemon closed after its VERSION
+    with doctor's status command unread, and the read of the answer fails with ECONNRESET
+    (taken for a stuck daemon: "connected, but no POSE in 0.0 s").  Made certain here: the
+    read waits for the close."""
+    import select
+    import threading
+
+    from mousedom.client import Client
+
+    path = str(tmp_path / "d.sock")
+    srv = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    srv.bind(path)
+    srv.listen(1)
+
+    def talk() -> None:
+        conn, _ = srv.accept()
+        conn.sendall(b'{"class": "VERSION", "rate_hz": 50.0, "sensors": ["a"]}\n')
+        select.select([conn], [], [], 5.0)  # the command has come: closed unread (a reset)
+        conn.close()
+        srv.close()
+
+    th = threading.Thread(target=talk, daemon=True)
+    th.start()
+    read = Client._read
+    reads = []
+
+    def after_the_close(self, *a, **kw):
+        reads.append(1)
+        if len(reads) > 1:  # (the first is the VERSION banner's, before the command)
+            th.join(5)
+        return read(self, *a, **kw)
+
+    monkeypatch.setattr(Client, "_read", after_the_close)
+    got = doctor.read_live(path, 2.0)
+    assert got.closed and got.seconds < 1.0

@@ -84,7 +84,9 @@ def read_live(path: str, timeout: float, config: str | None = None) -> Live:
     try:
         try:
             live.status = client.command("status")
-        except ConnectionLost:
+        except (ConnectionLost, BrokenPipeError, ConnectionResetError):
+            # (the command's send fails where the daemon closed before it: a race with
+            # its close, so said as the close it is)
             live.closed = True
         except ClientError:
             live.status = {}
@@ -98,7 +100,9 @@ def read_live(path: str, timeout: float, config: str | None = None) -> Live:
             client.sock.settimeout(left)
         else:
             live.closed = True  # (the messages ended: the daemon closed the connection)
-    except (OSError, ValueError):  # no next line in time (a stuck daemon), or it went away
+    except (BrokenPipeError, ConnectionResetError):
+        live.closed = True  # it went away while read
+    except (OSError, ValueError):  # no next line in time (a stuck daemon)
         pass
     finally:
         live.seconds = time.monotonic() - t0
