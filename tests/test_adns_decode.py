@@ -127,7 +127,7 @@ def test_packets_lost_on_the_line_mark_the_next_report_for_the_span_they_held(se
             r, _ = dec.feed(w, host_t=20.0 + i * 0.015 + 0.002)
             t += r.quality[0]
             overflow += r.quality[2]
-            lost_from += r.quality[3]
+            lost_from += r.lost_from
     assert len(t) == n - len(dropped) and dec.lost == len(dropped)
     kept = [i for i in range(n) if i not in dropped]
     for k, i in enumerate(kept):

@@ -709,3 +709,14 @@ def test_the_odom_covariance_goes_on_through_a_reset(seed):
     for t in later:
         np.testing.assert_allclose(reset[t], plain[t], rtol=1e-6, atol=1e-18)
     assert np.trace(reset[later[-1]][:2, :2]) > 1e-9  # (it grew: the test holds something)
+
+
+def test_odometry_takes_an_angle_for_the_rows_covariance_turned_as_before():
+    """odometry's fourth argument: the odom frame's covariance (Rep105.odom_cov), or, as
+    it was before the odom covariance was carried, the angle that turns the row's."""
+    row, st = _row(), ros2conv.stamp(3.0, 0.0)
+    for angle in (0.0, 0.4, -2.9):
+        by_angle = ros2conv.odometry(Ros2Config(), st, (0.1, 0.2, 0.3), angle, row, 50.0)
+        by_cov = ros2conv.odometry(Ros2Config(), st, (0.1, 0.2, 0.3),
+                                   ros2conv.turned(row.cov, angle), row, 50.0)  # fmt: skip
+        assert by_angle == by_cov

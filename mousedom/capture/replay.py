@@ -168,7 +168,7 @@ class _Run:
             for mouse in mice:
                 self.queue(mouse, t, dx, dy)
                 if r.quality is not None:
-                    self.tracker.push_quality(mouse, *r.quality)
+                    self.tracker.push_quality(mouse, *r.quality, lost_from=r.lost_from)
             st.capture.stats[chunk.device].add_motion(t, dx, dy)
 
     def _advance(self, st: _FeedState, watermark: float) -> None:

@@ -142,9 +142,12 @@ def odometry(
     cfg: Ros2Config, st: dict[str, int], odom: Pose2, pose_cov: Any, row: PoseRow, rate: float
 ) -> dict[str, Any]:
     """nav_msgs/msg/Odometry of one window: ``odom`` its pose in the odom frame,
-    ``pose_cov`` that pose's 3x3 covariance (odom frame: Rep105.odom_cov), ``row`` the
-    window (a PoseRow), ``rate`` windows per second (the twist covariance is q's times
-    rate^2)."""
+    ``pose_cov`` that pose's 3x3 covariance (odom frame: Rep105.odom_cov), or an angle:
+    the row's own turned by it (the odom frame's turn from the daemon's, as before the
+    odom covariance was carried), ``row`` the window (a PoseRow), ``rate`` windows per
+    second (the twist covariance is q's times rate^2)."""
+    if isinstance(pose_cov, (int, float)):
+        pose_cov = turned([[float(v) for v in r] for r in row.cov], float(pose_cov))
     r2 = rate * rate
     qcov = [[float(v) * r2 for v in line] for line in row.qcov]
     if not row.ok:

@@ -378,7 +378,7 @@ class Sensors:
                 # As the source holds them: a live read's lists go on without numpy.
                 tracker.push(slot.index, t, dx, dy)
                 if batch.quality is not None:
-                    tracker.push_quality(slot.index, *batch.quality)
+                    tracker.push_quality(slot.index, *batch.quality, lost_from=batch.lost_from)
                 if self.sink.wants_reports:
                     self.sink.reports(slot.index, batch.t, batch.dx, batch.dy)
 

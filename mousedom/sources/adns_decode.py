@@ -80,7 +80,7 @@ class AdnsDecoder:
     _lost_from: float | None = None  # packets lost since then: the next motion report's
 
     def feed(self, data: bytes, host_t: float) -> tuple[Reports, list[P.Packet]]:
-        packets, restarts, losses = self.parser.feed_marked(data, host_t)
+        packets, restarts, losses = self.parser.feed_accounted(data, host_t)
         t: list[float] = []
         dx: list[int] = []
         dy: list[int] = []
@@ -120,7 +120,8 @@ class AdnsDecoder:
                 self.health.last_nak = f"command 0x{p.cmd:02x}: {name}"
         reports = Reports(self.name, np.array(t), np.array(dx), np.array(dy))
         if t:
-            reports.quality = (t, squal, overflow, lost_from)
+            reports.quality = (t, squal, overflow)
+            reports.lost_from = lost_from
         return reports, packets
 
     def feed_many(self, ts: Iterable[float], pieces: Iterable[bytes]) -> Reports:
@@ -149,8 +150,8 @@ class AdnsDecoder:
             [v for q in quality for v in q[0]],
             [v for q in quality for v in q[1]],
             [v for q in quality for v in q[2]],
-            [v for q in quality for v in q[3]],
         )
+        out.lost_from = [v for r in parts if r.lost_from is not None for v in r.lost_from]
         return out
 
     def reopen(self) -> None:

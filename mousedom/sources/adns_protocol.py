@@ -335,11 +335,17 @@ class Parser:
 
     def feed_marked(
         self, data: bytes, host_t: float | None = None
-    ) -> tuple[list[Packet], list[bool], list[int]]:
+    ) -> tuple[list[Packet], list[bool]]:
         """As ``feed``, and for each packet whether it is the first seen after a restart
-        of the device (its clock began again: the decoder's clock mapping must too), and
-        how many packets were lost just before it (``stats.lost_seq``'s share: what they
-        held, counts included, is unknown)."""
+        of the device (its clock began again: the decoder's clock mapping must too)."""
+        packets, restarts, _ = self.feed_accounted(data, host_t)
+        return packets, restarts
+
+    def feed_accounted(
+        self, data: bytes, host_t: float | None = None
+    ) -> tuple[list[Packet], list[bool], list[int]]:
+        """As ``feed_marked``, and for each packet how many were lost just before it
+        (``stats.lost_seq``'s share: what they held, counts included, is unknown)."""
         out: list[Packet] = []
         restarts: list[bool] = []
         losses: list[int] = []

@@ -130,16 +130,16 @@ class Reports:
     queues lists without numpy), and the arrays are only made if someone asks for them.
     """
 
-    __slots__ = ("mouse", "_t", "_dx", "_dy", "_lists", "quality")
+    __slots__ = ("mouse", "_t", "_dx", "_dy", "_lists", "quality", "lost_from")
 
     def __init__(self, mouse: str, t: ArrayLike, dx: ArrayLike, dy: ArrayLike) -> None:
         self.mouse = mouse
         # The sensor's own word on each report, where it has one (the ADNS-3080):
-        # (t, SQUAL or None, overflow) lists, for ``Tracker.push_quality``.
-        # the sensor's word on these reports (an ADNS-3080's, fusion.evidence): stamps,
-        # SQUAL, counts lost, and where counts were lost on the line before a report, the
-        # time since which (else None)
-        self.quality: tuple[list[float], list[Any], list[bool], list[Any]] | None = None
+        # (t, SQUAL or None, overflow) lists, for ``Tracker.push_quality``; and, beside
+        # them, where counts were lost on the line before a report (packets that never
+        # arrived), the time since which (None: none), or None for no such losses.
+        self.quality: tuple[list[float], list[Any], list[bool]] | None = None
+        self.lost_from: list[float | None] | None = None
         # The arrays, or (from_lists) None until asked for: made from _lists then.
         self._t: np.ndarray | None = np.asarray(t, dtype=np.float64)
         self._dx: np.ndarray | None = np.asarray(dx, dtype=np.float64)
@@ -153,6 +153,7 @@ class Reports:
         r = cls.__new__(cls)
         r.mouse = mouse
         r.quality = None
+        r.lost_from = None
         r._t = r._dx = r._dy = None
         r._lists = (t, dx, dy)
         return r
@@ -324,13 +325,13 @@ class Source(ABC):
                     self._far_stamps(n_far, worst)
                     if b.quality is not None:  # the sensor's word on the same reports
                         bound_stamps(b.quality[0], now)
-                if b.quality is not None and any(v is not None for v in b.quality[3]):
+                if b.lost_from is not None and any(v is not None for v in b.lost_from):
                     # where counts were lost since: a stamp too, held to the same bounds
                     # (a span reaching back a day would gate the mouse to its frontier)
-                    since = [v for v in b.quality[3] if v is not None]
+                    since = [v for v in b.lost_from if v is not None]
                     bound_stamps(since, now)
                     it = iter(since)
-                    b.quality[3][:] = [None if v is None else next(it) for v in b.quality[3]]
+                    b.lost_from[:] = [None if v is None else next(it) for v in b.lost_from]
             self._count(n, float(t[-1]), now)
         return batches
 
