@@ -364,24 +364,16 @@ def test_a_daemon_gone_before_the_command_is_sent_is_said_to_have_closed_it(tmp_
     (taken for a stuck daemon: "connected, but no POSE in 0.0 s").  Made certain here: the
     read waits for the close."""
     import select
-    import threading
+
+    from test_client import _VERSION, _scripted
 
     from mousedom.client import Client
 
-    path = str(tmp_path / "d.sock")
-    srv = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    srv.bind(path)
-    srv.listen(1)
-
-    def talk() -> None:
-        conn, _ = srv.accept()
-        conn.sendall(b'{"class": "VERSION", "rate_hz": 50.0, "sensors": ["a"]}\n')
+    def talk(conn) -> None:
+        conn.sendall(_VERSION)
         select.select([conn], [], [], 5.0)  # the command has come: closed unread (a reset)
-        conn.close()
-        srv.close()
 
-    th = threading.Thread(target=talk, daemon=True)
-    th.start()
+    path, th = _scripted(tmp_path, talk)
     read = Client._read
     reads = []
 
