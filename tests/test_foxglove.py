@@ -166,3 +166,58 @@ def test_a_port_in_use_is_one_line(tmp_path):
     lines = [ln for ln in p.stderr.splitlines() if not ln.startswith("INFO")]
     assert p.returncode == 2 and len(lines) == 1, p.stderr
     assert f"cannot listen on 127.0.0.1:{port}" in lines[0] and "Traceback" not in p.stderr
+
+
+def _row(t: float, x: float, names: int = 2):
+    from mousedom.fusion.posebatch import PoseRow
+
+    cov = [[0.0] * 3 for _ in range(3)]
+    return PoseRow(t, x, 0.0, 0.0, 0.0, 0.0, 0.0, cov, names, True, [[0, 0]] * names,
+                   [[1, 2]] * names, (0,) * names, (0,) * names, True, cov)  # fmt: skip
+
+
+def test_the_path_holds_motion_not_a_standstill_and_the_sdk_log_stays_out():
+    """A pose every 0.1 s of motion: none while the robot stands (6 minutes still had
+    filled the path with 3,000 copies of one pose and pushed the drive out), each step of
+    0.1 s taken at 0.1 s (50 Hz windows gave 0.1 or 0.12); and the SDK's own log lines
+    stay out of the daemon's log (a stalled viewer's disconnect logged up to 639 ERRORs)."""
+    import logging
+
+    from mousedom.config import FoxgloveConfig
+    from mousedom.service.foxgloveout import PATH_STEP_S, FoxgloveOutput
+
+    out = FoxgloveOutput(FoxgloveConfig(port=0), ("a", "b"))
+    try:
+        assert logging.getLogger("foxglove.websocket.server").getEffectiveLevel() > logging.ERROR
+        for k in range(100):  # 2 s of motion at 50 Hz: 20 path poses
+            out.publish(_row(1.0 + 0.02 * k, 0.01 * k))
+        moving = len(out.path)
+        for k in range(3000):  # a minute standing still
+            out.publish(_row(3.0 + 0.02 * k, 0.99))
+        # (the first still pose is where the motion ended: one more, then none)
+        assert moving == round(2.0 / PATH_STEP_S) and len(out.path) == moving + 1
+        out.publish(_row(63.0, 1.5))  # and moving again
+        assert len(out.path) == moving + 2
+    finally:
+        out.close()
+
+
+def test_a_reload_that_changes_the_view_says_it_waits_for_a_restart(tmp_path):
+    """The view is made at start, as the metrics endpoint is: a SIGHUP that changes
+    outputs.foxglove was ignored without a word; it is said now, and the view goes on."""
+    import signal
+
+    from test_metrics import _start
+
+    d = _start(tmp_path, "outputs:\n  foxglove: {port: 0}\n")
+    try:
+        cfg = tmp_path / "rig.yaml"
+        cfg.write_text(cfg.read_text().replace("{port: 0}", "{port: 1}"))
+        d.signal(signal.SIGHUP)
+        deadline = time.monotonic() + 10
+        while "reloaded" not in d.log():
+            assert time.monotonic() < deadline, d.log()
+            time.sleep(0.05)
+        assert "outputs.foxglove changed: takes effect at the next restart" in d.log()
+    finally:
+        assert d.stop() == 0

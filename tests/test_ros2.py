@@ -720,3 +720,31 @@ def test_odometry_takes_an_angle_for_the_rows_covariance_turned_as_before():
         by_cov = ros2conv.odometry(Ros2Config(), st, (0.1, 0.2, 0.3),
                                    ros2conv.turned(row.cov, angle), row, 50.0)  # fmt: skip
         assert by_angle == by_cov
+
+
+def test_per_mouse_channels_pause_while_the_mice_are_not_the_start_ups(tmp_path):
+    """A reload that adds, removes or reorders mice: a row's counts follow the new mice,
+    an output's counts channels were made for the start-up ones.  Filled anyway, the
+    counts went out under another mouse's name (a reorder) or a removed mouse read 0 with
+    no state (Foxglove's schema refused it); they pause now until the mice are those again
+    (the pose goes on), said once in the log.  MCAP's channels, read back by mcap."""
+    from mcap.reader import make_reader
+
+    from mousedom.service.mcapout import McapRecorder
+
+    path = tmp_path / "o.mcap"
+    out = McapRecorder(str(path), Ros2Config(), ("a", "b"), 100.0)
+    row = _row()._replace(counts=[[1, 2], [3, 4]])
+    out.publish(row._replace(t=1.0))
+    out.mice_changed(("b", "a"))  # reordered: b's counts would go out as a's
+    out.publish(row._replace(t=2.0))
+    out.mice_changed(("a",))
+    out.publish(row._replace(t=3.0, counts=[[1, 2]]))
+    out.mice_changed(("a", "b"))  # the start-up mice again
+    out.publish(row._replace(t=4.0))
+    out.close()
+    with open(path, "rb") as f:
+        msgs = [(ch.topic, m.log_time) for _, ch, m in make_reader(f).iter_messages()]
+    counts = sorted({t // 1_000_000_000 for topic, t in msgs if topic.endswith("/counts")})
+    odom = sorted({t // 1_000_000_000 for topic, t in msgs if topic == "/odom"})
+    assert counts == [1, 4] and odom == [1, 2, 3, 4]

@@ -429,6 +429,12 @@ class Daemon:
         running = self.metrics.cfg if self.metrics is not None else None
         if new.metrics is not None and new.metrics != running:
             changed.append("outputs.metrics")
+        # the ROS 2 output and the Foxglove view are made at start, as the metrics are
+        # (`run --ros2` / `--foxglove` may have turned them on: compared where the file
+        # has them, against the file's before)
+        for key in ("ros2", "foxglove"):
+            if getattr(new, key) is not None and getattr(new, key) != getattr(old, key):
+                changed.append(f"outputs.{key}")
         return changed
 
     # ------------------------------------------------------------------ the end

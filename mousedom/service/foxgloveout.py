@@ -31,7 +31,7 @@ from mousedom.config import FoxgloveConfig, MouseConfig
 from mousedom.errors import UserError
 from mousedom.fusion import robust
 from mousedom.fusion.posebatch import PoseRow
-from mousedom.service.output import Output
+from mousedom.service.output import Output, PerMouse
 
 log = logging.getLogger(__name__)
 
@@ -41,6 +41,10 @@ INSTALL_HINT = (
 )
 PATH_POSES = 3000
 PATH_STEP_S = 0.1
+# a pose this close to the path's last is no motion (a tenth of a millimetre, a
+# twentieth of a degree: below what the view can draw)
+PATH_STILL_M = 1e-4
+PATH_STILL_RAD = 1e-3
 
 MICE_SCHEMA = {
     "type": "object",
@@ -83,7 +87,7 @@ def _quat(yaw: float) -> Any:
     return Quaternion(x=0.0, y=0.0, z=math.sin(0.5 * yaw), w=math.cos(0.5 * yaw))
 
 
-class FoxgloveOutput(Output):
+class FoxgloveOutput(PerMouse, Output):
     """A Foxglove WebSocket server and its channels; ``publish`` per window."""
 
     def __init__(
@@ -98,6 +102,13 @@ class FoxgloveOutput(Output):
         )
 
         self.cfg, self.sensors, self.mice = cfg, sensors, mice
+        # The SDK's own log lines (its server's, through Python logging) stay out of the
+        # daemon's log unless it runs with --verbose: a connection is two INFO lines, and a
+        # viewer that stalled and then went logged one ERROR per message queued for it (up
+        # to 639 lines for one disconnect).
+        sdk = logging.getLogger("foxglove")
+        if not sdk.isEnabledFor(logging.DEBUG):
+            sdk.setLevel(logging.CRITICAL)
         self.ctx = foxglove.Context()
         self.closed = False
         try:
@@ -107,7 +118,7 @@ class FoxgloveOutput(Output):
         except Exception as e:  # noqa: BLE001 - the SDK's errors carry the OS's reason
             raise UserError(
                 f"Foxglove live view: cannot listen on {cfg.host}:{cfg.port}: {e} "
-                "(outputs.foxglove.port)"
+                "(outputs.foxglove.host, port)"
             ) from None
         ctx = self.ctx
         self.pose_ch = PoseInFrameChannel("/mousedom/pose", context=ctx)
@@ -122,7 +133,8 @@ class FoxgloveOutput(Output):
         self._path_sent = -math.inf
         self._mounts_sent = -math.inf
         self.port = self.server.port
-        log.info("Foxglove live view on ws://%s:%d", cfg.host, self.port)
+        host = f"[{cfg.host}]" if ":" in cfg.host else cfg.host  # (an IPv6 address)
+        log.info("Foxglove live view on ws://%s:%d", host, self.port)
 
     def _pose(self, x: float, y: float, yaw: float) -> Any:
         from foxglove.messages import Pose, Vector3
@@ -143,7 +155,7 @@ class FoxgloveOutput(Output):
                                      child_frame_id="base_link",
                                      translation=Vector3(x=x, y=y, z=0.0),
                                      rotation=_quat(yaw))]  # fmt: skip
-        if t - self._mounts_sent >= 1.0:
+        if self.per_mouse and t - self._mounts_sent >= 1.0:  # (output.PerMouse)
             self._mounts_sent = t
             for m in self.mice:
                 transforms.append(FrameTransform(
@@ -152,6 +164,26 @@ class FoxgloveOutput(Output):
                     translation=Vector3(x=m.mount.x, y=m.mount.y, z=0.0),
                     rotation=_quat(m.mount.yaw)))  # fmt: skip
         self.tf_ch.log(FrameTransforms(transforms=transforms))
+        if self.per_mouse:
+            self._mice(t, row)
+        # a pose every PATH_STEP_S of motion: none while the robot stands (3,000 copies of
+        # one pose had pushed the drive before them out), and the step allowed its last
+        # bit (50 Hz windows gave steps of 0.1 or 0.12 s by float rounding)
+        if t - self._path_t >= PATH_STEP_S - 1e-9 and self._moved(x, y, yaw):
+            self._path_t = t
+            self.path.append((x, y, yaw))
+        if t - self._path_sent >= 0.5:
+            self._path_sent = t
+            self._send_path(stamp)
+
+    def _moved(self, x: float, y: float, yaw: float) -> bool:
+        """Whether the pose moved from the path's last by more than PATH_STILL."""
+        if not self.path:
+            return True
+        px, py, pyaw = self.path[-1]
+        return math.hypot(x - px, y - py) > PATH_STILL_M or abs(yaw - pyaw) > PATH_STILL_RAD
+
+    def _mice(self, t: float, row: PoseRow) -> None:
         states = list(row.state) if row.state is not None else []
         counts = list(row.counts) if row.counts is not None else []
         mice = []
@@ -160,12 +192,6 @@ class FoxgloveOutput(Output):
             state = robust.STATES[int(states[k])] if k < len(states) else None
             mice.append({"name": name, "dx": float(cx), "dy": float(cy), "state": state})
         self.mice_ch.log({"t": t, "mice": mice})
-        if t - self._path_t >= PATH_STEP_S:
-            self._path_t = t
-            self.path.append((x, y, yaw))
-        if t - self._path_sent >= 0.5:
-            self._path_sent = t
-            self._send_path(stamp)
 
     def _send_path(self, stamp: Any) -> None:
         from foxglove.messages import PosesInFrame

@@ -20,7 +20,7 @@ from mousedom.safewrite import open_stream
 from mousedom.service import ros2cdr as cdr
 from mousedom.service import ros2conv as conv
 from mousedom.service import ros2msgs as msgs
-from mousedom.service.output import Output
+from mousedom.service.output import Output, PerMouse
 
 INSTALL_HINT = "MCAP output needs mcap, which is not installed: pip install 'mousedom[ros2]'"
 
@@ -41,7 +41,7 @@ def require() -> None:
         raise UserError(INSTALL_HINT) from None
 
 
-class McapRecorder(Output):
+class McapRecorder(PerMouse, Output):
     def __init__(
         self,
         path: str,
@@ -100,9 +100,11 @@ class McapRecorder(Output):
         if both:
             tfs.append(conv.transform(cfg.map_frame, cfg.odom_frame, st, self.rep.map_odom))
         self._write(self.tf_ch, self.tf_cdr[both].encode(st, tfs), ns)
-        for ch, enc, name, (cx, cy) in zip(self.count_ch, self.counts_cdr, self.sensors,
-                                           row.counts, strict=False):  # fmt: skip
-            self._write(ch, enc.encode(st, conv.counts(st, name, cx, cy, cfg.base_frame)), ns)
+        if self.per_mouse:  # (unless the mice changed: output.PerMouse)
+            for ch, enc, name, (cx, cy) in zip(self.count_ch, self.counts_cdr, self.sensors,
+                                               row.counts, strict=False):  # fmt: skip
+                self._write(ch, enc.encode(st, conv.counts(st, name, cx, cy, cfg.base_frame)),
+                            ns)  # fmt: skip
         self.written += 1
 
     def batch(self, b: PoseBatch) -> None:

@@ -10,6 +10,7 @@ is not optional).  Only ``publish`` must be written: the other hooks default to 
 
 from __future__ import annotations
 
+import logging
 from abc import ABC, abstractmethod
 from typing import Any
 
@@ -18,6 +19,8 @@ import numpy as np
 from mousedom.fusion.posebatch import PoseRow
 
 Pose2 = tuple[float, float, float]  # (x, y, theta): metres, metres, radians
+
+log = logging.getLogger(__name__)
 
 
 class Output(ABC):
@@ -49,6 +52,10 @@ class Output(ABC):
         """Poses this output was told from outside (ROS 2's /initialpose), to apply."""
         return []
 
+    def mice_changed(self, names: tuple[str, ...]) -> None:  # noqa: B027
+        """A reload changed the mice: ``names`` in the new config's order (the rows'
+        per-mouse columns follow it from the next window on)."""
+
     def close(self) -> None:  # noqa: B027
         """Stop; called once more after a failure is harmless."""
 
@@ -60,3 +67,24 @@ class Output(ABC):
         """Whether ``reports`` or ``gyro`` does anything (they are called per read:
         skipped if not)."""
         return type(self).reports is not Output.reports or type(self).gyro is not Output.gyro
+
+
+class PerMouse:
+    """For an output whose per-mouse channels (counts topics, a mouse list, mount frames)
+    are made for the mice it started with (``sensors``): after a reload that changes the
+    mice (adds, removes or reorders them) a row's per-mouse columns no longer line up with
+    those channels, and filling them would give one mouse's counts under another's name.
+    They are left unfilled (``per_mouse`` False, said once in the log) until the mice are
+    those again; the pose goes on.  The outputs are made at start (a SIGHUP does not
+    change them: docs/daemon.md), so a restart takes the new mice."""
+
+    sensors: tuple[str, ...]
+    per_mouse = True
+
+    def mice_changed(self, names: tuple[str, ...]) -> None:
+        same = tuple(names) == tuple(self.sensors)
+        if self.per_mouse and not same:
+            log.warning("%s: the mice changed (now %s): its per-mouse channels stay those of "
+                        "%s and are not filled until a restart", self, ", ".join(names),
+                        ", ".join(self.sensors))  # fmt: skip
+        self.per_mouse = same

@@ -146,3 +146,5 @@ class Reloader:
             if isinstance(out, Recording) and new.names != out.names:
                 log.warning("the mice changed: recording %s stops here", out.path)
                 outputs.remove(out)
+            elif new.names != self.running.config.names:
+                out.mice_changed(tuple(new.names))  # (the per-mouse channels: PerMouse)

@@ -33,7 +33,7 @@ from mousedom.fusion.posebatch import PoseRow
 from mousedom.service import ros2cdr as cdr
 from mousedom.service import ros2conv as conv
 from mousedom.service import ros2msgs as msgs
-from mousedom.service.output import Output
+from mousedom.service.output import Output, PerMouse
 
 log = logging.getLogger(__name__)
 
@@ -232,7 +232,7 @@ class _RawWriter:
         self.writer.write(sample)
 
 
-class Ros2Output(Output):
+class Ros2Output(PerMouse, Output):
     """One DDS participant and its writers; ``publish`` per window (see the module)."""
 
     def __init__(
@@ -347,6 +347,9 @@ class Ros2Output(Output):
             if cfg.publish_map_tf:
                 tfs.append(conv.transform(cfg.map_frame, cfg.odom_frame, st, self.rep.map_odom))
             self.tf.write(self.tf_cdr.encode(st, tfs))
+        if not self.per_mouse:  # (the mice changed: output.PerMouse)
+            self.sent += 1
+            return
         for w, enc, name, (cx, cy) in zip(self.counts, self.counts_cdr, self.sensors,
                                           row.counts, strict=False):  # fmt: skip
             w.write(enc.encode(st, conv.counts(st, name, cx, cy, cfg.base_frame)))
