@@ -310,19 +310,25 @@ def test_missing_library_names_the_extra(tmp_path):
     assert "open (replay)" not in r.stderr  # said before any sensor was opened
 
 
+def reload_with(d: DaemonProcess, cfg: Path, old: str, new: str) -> str:
+    """Edit the running daemon's config (``old`` -> ``new``), SIGHUP it and wait for the
+    reload: its log."""
+    cfg.write_text(cfg.read_text().replace(old, new))
+    d.signal(signal.SIGHUP)
+    deadline = time.monotonic() + 10
+    while "reloaded" not in d.log():
+        assert time.monotonic() < deadline, d.log()
+        time.sleep(0.05)
+    return d.log()
+
+
 def test_reload_keeps_the_endpoint_and_says_a_change_waits_for_a_restart(tmp_path):
     d = _start(tmp_path, "outputs:\n  metrics: {port: 0}\n")
     try:
         _, port = _endpoint(d)
         before = _value(_scrape(port), "mousedom_windows", "mousedom_windows_total")
-        cfg = tmp_path / "rig.yaml"
-        cfg.write_text(cfg.read_text().replace("{port: 0}", "{port: 1}"))
-        d.signal(signal.SIGHUP)
-        deadline = time.monotonic() + 10
-        while "reloaded" not in d.log():
-            assert time.monotonic() < deadline, d.log()
-            time.sleep(0.05)
-        assert "outputs.metrics changed: takes effect at the next restart" in d.log()
+        log = reload_with(d, tmp_path / "rig.yaml", "{port: 0}", "{port: 1}")
+        assert "outputs.metrics changed: takes effect at the next restart" in log
         time.sleep(0.3)
         after = _value(_scrape(port), "mousedom_windows", "mousedom_windows_total")
         assert after > before  # the same endpoint, the same counter, going on
