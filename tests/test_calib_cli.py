@@ -984,3 +984,32 @@ def test_scales_on_captures_without_motion_say_one_error(tmp_path):
     caps = [a for n in cpis for a in ("--capture", f"{n}={cap}")]
     p = fails(calib("scales", cfg, *caps), "the captures hold no motion")
     assert len(p.stderr.splitlines()) == 1, p.stderr
+
+
+def test_a_reference_in_other_units_is_hinted_at_in_the_mounts_error():
+    """REF.csv is in s, m/s and rad/s.  omega in degrees per second fitted a mouse 150 mm
+    ahead at 2.6 mm with a residual of 7 um and exit 0 (or read as "all the motion is a
+    rotation about one point"), t in milliseconds as "no motion at all": refused now,
+    saying which column looks off."""
+    import numpy as np
+
+    from mousedom.calibrate.reference import Reference
+    from mousedom.calibrate.session import _units_hint, make_session
+    from mousedom.config import parse_config
+    from mousedom.sources.base import Reports
+
+    cfg = parse_config("mice:\n  a: {cpi: 800, mount: {x: 0.1, y: 0}}\nmodel: diff-drive\n",
+                       need_sources=False)  # fmt: skip
+    t = np.arange(0.0, 20.0, 0.01)
+    session = make_session(cfg, {"a": Reports("a", t, np.ones_like(t), np.ones_like(t))}, [])
+    twist = np.zeros((len(t), 3))
+    twist[:, 2] = 1.5
+    assert _units_hint(Reference("twist", t, twist, "r.csv"), session) == ""
+    degs = twist * 57.3
+    assert "omega reaches 85.95 rad/s: degrees per second?" in _units_hint(
+        Reference("twist", t, degs, "r.csv"), session)  # fmt: skip
+    assert "t spans 19990 s where the capture spans 20 s: milliseconds?" in _units_hint(
+        Reference("twist", t * 1000, twist, "r.csv"), session)  # fmt: skip
+    assert "m/s: millimetres per second?" in _units_hint(
+        Reference("twist", t, np.array([[300.0, 0.0, 0.0]] * len(t)), "r.csv"), session
+    )

@@ -143,6 +143,38 @@ def distance(session: Session, angle: float, min_runs: int = 2) -> DistanceResul
     return result
 
 
+def _refuse_unfit(ref: Reference, session: Session, w: np.ndarray, size: float) -> None:
+    """A UserError where the reference is in other units, or its motion ``w`` cannot give
+    mounts (``motion_problem``)."""
+    problem = _units_hint(ref, session) or motion_problem(w, size)
+    if problem:
+        raise UserError(f"calibrate mounts: {problem}")
+
+
+def _units_hint(ref: Reference, session: Session) -> str:
+    """Where a reference's numbers look like other units than REF.csv's (s, m/s, rad/s),
+    what says so ("" where none): refused before any fit.  omega in degrees per second
+    fitted every mount 57 times too close to the turns' centre with a residual of 7 um
+    and exit 0 (a mouse 150 mm ahead at 2.6 mm), or read as turns about one point; t in
+    milliseconds as no motion at all.  No calibration drive turns at 20 rad/s (three
+    turns a second) nor moves at 10 m/s, and a reference longer than a hundred times the
+    capture is no reference of it."""
+    said = []
+    if ref.kind == "twist" and len(ref.values):
+        top = np.abs(ref.values).max(axis=0)
+        if top[2] > 20.0:
+            said.append(f"its omega reaches {top[2]:g} rad/s: degrees per second?")
+        if max(top[0], top[1]) > 10.0:
+            said.append(f"its vx, vy reach {max(top[0], top[1]):g} m/s: millimetres per second?")
+    spans = [float(r.t[-1] - r.t[0]) for r in session.recording.values() if len(r.t) > 1]
+    if len(ref.t) > 1 and spans and float(ref.t[-1] - ref.t[0]) > 100.0 * max(spans):
+        said.append(f"its t spans {float(ref.t[-1] - ref.t[0]):g} s where the capture spans "
+                    f"{max(spans):.3g} s: milliseconds?")  # fmt: skip
+    if not said:
+        return ""
+    return f"the reference {ref.path or ''}: {'; '.join(said)} (REF.csv is in s, m/s, rad/s)"
+
+
 def spread_mounts(config: Config, names: Sequence[str], d: float) -> dict[str, tuple[float, float]]:
     """New positions of the two mice: same midpoint and direction, distance ``d`` apart."""
     a, b = (config.mouse(n) for n in names)
@@ -288,9 +320,7 @@ def mounts(
         for axis, values in enumerate((rep.dx, rep.dy)):
             counts[:, j, axis] = runs_window_counts(rep.t, values, edges, 1.0 / m.report_hz)
     _no_motion(session, counts)
-    problem = motion_problem(w, size)
-    if problem:
-        raise UserError(f"calibrate mounts: {problem}")
+    _refuse_unfit(ref, session, w, size)
     if method == "exact":
         fits = {}
         for j, m in enumerate(mice):
