@@ -235,12 +235,12 @@ class GyroFusion:
 
     def _verdict(
         self, q: Sequence[float], c: Matrix3, a: float, var_a: float, mice: MiceView,
-        still: bool, slow: bool,
+        n_used: int, still: bool, slow: bool,
     ) -> Verdict:  # fmt: skip
-        """A failed agreement's verdict (``judged``), the gyro's corrected turn ``a``."""
+        """A failed agreement's verdict (``judged``), the gyro's corrected turn ``a``,
+        ``n_used`` of the mice in the solve."""
         judge = self.judge
         assert judge is not None  # (judged asks first)
-        n_used = sum(1 for u in mice.used if u)
         if n_used >= 3 and (still or mice.consistent):
             # three mice that agree, or stand still (they do not all lose the floor at
             # once): the gyro is wrong (saturated, a bias that moved)
@@ -338,7 +338,7 @@ class GyroFusion:
             # which of the two is not certain)
             verdict = Verdict(list(q), c, (), False, False, False)
         else:
-            verdict = self._verdict(q, c, a, var_a, mice, still, slow)
+            verdict = self._verdict(q, c, a, var_a, mice, n_used, still, slow)
         judge.last_blamed = verdict.blamed[0] if len(verdict.blamed) == 1 else None
         c2 = verdict.c
         if verdict.gyro_used:  # the heading's error takes (bias, scale)'s (see window)
