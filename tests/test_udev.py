@@ -7,6 +7,7 @@ checks them too.
 
 from __future__ import annotations
 
+import os
 import re
 import shutil
 import subprocess
@@ -84,17 +85,69 @@ def test_mice_get_names_groups_and_the_desktop_ignores_them():
     assert ports == {"/dev/mousedom-adns"}
 
 
-def test_udevadm_verify_where_available():
-    """``udevadm verify`` (systemd >= 254) when this machine has it; the rules are parsed
-    by the tests above everywhere.  Where it is missing the skip says so (pytest -rs)."""
-    tool = shutil.which("udevadm")
-    if tool is None:
-        pytest.skip("udevadm is not installed (the rules are still parsed by the tests above)")
-    help_text = subprocess.run([tool, "--help"], capture_output=True, text=True).stdout
+def _udevadm() -> str:
+    """A udevadm with ``verify``: MOUSEDOM_UDEVADM (CI unpacks one from Debian's backports,
+    scripts/udevadm_tool.sh), else the machine's.  In CI a missing one is a failure."""
+    tool = os.environ.get("MOUSEDOM_UDEVADM") or shutil.which("udevadm")
+    required = bool(os.environ.get("CI") or os.environ.get("MOUSEDOM_REQUIRE_SYSTEMD"))
+    help_text = (
+        ""
+        if tool is None
+        else subprocess.run([tool, "--help"], capture_output=True, text=True).stdout
+    )
     if "verify" not in help_text:
-        pytest.skip("this udevadm has no 'verify' (systemd < 254)")
-    out = subprocess.run([tool, "verify", str(RULES)], capture_output=True, text=True)
+        why = (
+            "udevadm is not installed"
+            if tool is None
+            else f"{tool} has no 'verify' (systemd < 254)"
+        )
+        if required:
+            pytest.fail(f"{why}: CI runs bash scripts/udevadm_tool.sh for one")
+        pytest.skip(f"{why} (the rules are still parsed by the tests above)")
+    assert tool is not None
+    return tool
+
+
+def test_udevadm_verify():
+    """``udevadm verify`` (systemd >= 254), style included.  Group names are not resolved:
+    the groups are the robot's, not this machine's (the next test ties them to the unit)."""
+    out = subprocess.run(
+        [_udevadm(), "verify", "--resolve-names=never", str(RULES)], capture_output=True, text=True
+    )
     assert out.returncode == 0, out.stdout + out.stderr
+    assert "Success: 1" in out.stdout, out.stdout
+
+
+def test_udevadm_verify_fails_on_a_broken_rule(tmp_path):
+    """The verify above can fail: a rule with a typo'd key and one with an unknown operator."""
+    for bad in ('SUBSYTEM=="input", GOTO="x"\nLABEL="x"\n', 'KERNEL=~"event*"\n'):
+        rules = tmp_path / "99-bad.rules"
+        rules.write_text(RULES.read_text() + bad)
+        out = subprocess.run(
+            [_udevadm(), "verify", "--resolve-names=never", str(rules)],
+            capture_output=True,
+            text=True,
+        )
+        assert out.returncode != 0, (bad, out.stdout + out.stderr)
+
+
+def test_every_group_the_rules_give_devices_to_is_the_daemons():
+    """A device given to a group the daemon's unit is not in is a refusal at open on the
+    robot (as root here, nothing would say so): each GROUP is the unit's Group= or one of
+    its SupplementaryGroups=, and the unit's own group is made by the sysusers snippet."""
+    unit = (ROOT / "config" / "systemd" / "mousedom.service").read_text()
+    keys: dict[str, str] = {}
+    for line in unit.splitlines():
+        if "=" in line and not line.lstrip().startswith("#"):
+            k, v = line.split("=", 1)
+            keys[k.strip()] = v.strip()
+    joined = {keys["Group"], *keys.get("SupplementaryGroups", "").split()}
+    groups = {v for rule in parse_rules(RULES.read_text()) for k, _, _, v in rule if k == "GROUP"}
+    assert groups and groups <= joined, (groups, joined)
+    sysusers = (ROOT / "config" / "systemd" / "mousedom.sysusers").read_text().split()
+    assert sysusers[sysusers.index("u") + 1] == keys["Group"] == keys["User"]
+    chgrp = set(re.findall(r"chgrp (\w+)", RULES.read_text()))
+    assert chgrp and chgrp <= joined, chgrp
 
 
 def test_every_attribute_the_gyro_source_writes_is_given_to_the_group(tmp_path):
