@@ -59,8 +59,10 @@ class ReportSink(Protocol):
 
 class PlannedSensor(NamedTuple):
     """What the wake planning reads of a live sensor: its report period, how late its
-    reports may come, and the health whose ``last_t`` is its last report (None for a
-    paced source, which hands over every report due)."""
+    reports may come (0 for a paced source, which hands over every report due), and the
+    health whose ``last_t`` is its last report: a paced source's too, whose silence the
+    window waits out as any mouse's (without it the plan gave up a period after the end
+    and the loop spun until the silence rule closed the window)."""
 
     period: float
     latency: float
@@ -412,9 +414,7 @@ class Sensors:
         self.missing_names = tuple(s.name for s in self.slots if not s.live)
         self.names_by_state = {}
         self.plan = [
-            PlannedSensor(s.period, s.latency, None if s.paced else s.source.health)
-            for s in self.slots
-            if s.live
+            PlannedSensor(s.period, s.latency, s.source.health) for s in self.slots if s.live
         ]
 
     def names_for(self, state: Sequence[int]) -> WindowNames:
