@@ -26,6 +26,7 @@ from __future__ import annotations
 import errno
 import logging
 import os
+import resource
 import select
 import selectors
 import socket
@@ -62,6 +63,9 @@ JUNK_PER_S = 8.0
 # A gap between two loop iterations longer than this is the daemon's own stall (SIGSTOP, a
 # VM pause, swapping): only this much of it counts as running time.
 MAX_TICK_S = 1.5  # the loop wakes at least once a second (SOURCE), whatever the rate
+# Out of descriptors: the listener rests this long (or until a client leaves).
+ACCEPT_PAUSE_S = 0.5
+_OUT_OF_RESOURCES = (errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.ENOMEM)
 
 
 class Client:
@@ -153,6 +157,9 @@ class Server:
         self._last_tick: float | None = None
         self._next_check = 0.0
         self.backlog: set[Client] = set()  # clients with read lines still to answer
+        # Accepting paused for want of descriptors: (running time to resume, clients then)
+        self._accept_resume: tuple[float, int] | None = None
+        self._accept_failed: OSError | None = None  # the episode's error (said once)
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -160,6 +167,22 @@ class Server:
         sock, self.access = socketfile.listen(self.path, self.settings)
         self.listener = sock
         self.selector.register(sock, selectors.EVENT_READ, self._accept)
+        self._check_room()
+
+    def _check_room(self) -> None:
+        """Say at the start (and at a reload) where ``max_clients`` is more connections than
+        this process may open descriptors for: the rest would wait (``_pause_accepting``)."""
+        soft, _ = resource.getrlimit(resource.RLIMIT_NOFILE)
+        try:
+            in_use = len(os.listdir("/proc/self/fd"))
+        except OSError:
+            return
+        room = soft - in_use
+        if soft != resource.RLIM_INFINITY and self.settings.max_clients > room:
+            log.warning("server.max_clients is %d, but this process may open %d more files "
+                        "(limit %d): clients beyond about %d wait; raise LimitNOFILE= in the "
+                        "unit or lower max_clients", self.settings.max_clients, room, soft,
+                        room)  # fmt: skip
 
     def refuse_if_taken(self) -> None:
         """UserError if another daemon listens at the path already (socketfile.py)."""
@@ -170,7 +193,8 @@ class Server:
             self._flush(client)
             self.drop(client, None)
         if self.listener is not None:
-            self.selector.unregister(self.listener)
+            if self._accept_resume is None:
+                self.selector.unregister(self.listener)
             self.listener.close()
             self.listener = None
             try:
@@ -184,6 +208,7 @@ class Server:
         self.settings = settings
         if self.access is not None:  # (open: the socket file is there)
             self.access = socketfile.reapply(self.access, settings)
+            self._check_room()
         for c in self.clients.values():
             c.queue_limit = settings.queue_lines
             c.rx.max_line = settings.max_line
@@ -202,9 +227,13 @@ class Server:
                 sock, _ = self.listener.accept()
             except (BlockingIOError, InterruptedError):
                 return
-            except OSError as e:  # EMFILE and friends: log and try again on the next event
-                log.warning("accept failed: %s", e)
+            except OSError as e:
+                if e.errno in _OUT_OF_RESOURCES:
+                    self._pause_accepting(e)
+                elif e.errno not in (errno.ECONNABORTED, errno.EPROTO):  # (the peer's doing)
+                    log.warning("accept failed: %s", e)
                 return
+            self._accept_failed = None  # (a pause's episode is over)
             sock.setblocking(False)
             try:
                 sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SNDBUF)
@@ -231,6 +260,31 @@ class Server:
                     self.send(client, encode(msg))
             except Exception as e:  # noqa: BLE001 - as in handle(): only this client goes
                 self._fail(client, e)
+
+    def _pause_accepting(self, error: OSError) -> None:
+        """Out of descriptors (or memory): the listener stays readable, and accepting at
+        every wake spun the loop at a full core and logged 65,000 lines a second.  The
+        listener is not watched for ``ACCEPT_PAUSE_S`` of running time (or until a client
+        leaves); new connections wait in the kernel's backlog.  Said once an episode."""
+        assert self.listener is not None
+        self.selector.unregister(self.listener)
+        self._accept_resume = (self.running + ACCEPT_PAUSE_S, len(self.clients))
+        if self._accept_failed is None:
+            soft, _ = resource.getrlimit(resource.RLIMIT_NOFILE)
+            log.warning("cannot accept connections: %s (%d clients; this process may open %d "
+                        "files): new ones wait until a client leaves (server.max_clients %d; "
+                        "LimitNOFILE= in the unit)", error.strerror, len(self.clients), soft,
+                        self.settings.max_clients)  # fmt: skip
+        self._accept_failed = error
+
+    def _resume_accepting(self) -> None:
+        resume = self._accept_resume
+        if resume is None or self.listener is None:
+            return
+        until, clients = resume
+        if self.running >= until or len(self.clients) < clients:
+            self._accept_resume = None
+            self.selector.register(self.listener, selectors.EVENT_READ, self._accept)
 
     def _make_handler(self, client: Client) -> Callable[[int], None]:
         def handle(events: int) -> None:
@@ -430,6 +484,8 @@ class Server:
         if self._last_tick is not None:
             self.running += min(max(now - self._last_tick, 0.0), MAX_TICK_S)
         self._last_tick = now
+        if self._accept_resume is not None:
+            self._resume_accepting()
         if self.running < self._next_check:
             return
         self._next_check = self.running + 0.1
