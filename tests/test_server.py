@@ -16,6 +16,7 @@ import time
 from dataclasses import replace
 
 import pytest
+from conftest import mousedom_env
 
 from mousedom.config import ServerConfig
 from mousedom.errors import UserError
@@ -603,3 +604,69 @@ def test_a_client_that_shuts_its_sending_side_keeps_reading(harness):
     q.sock.shutdown(socket.SHUT_WR)
     assert q.file.readline() == b""  # closed by the server
     assert not h.server.clients
+
+
+def test_a_listener_with_a_full_backlog_is_live_not_stale(tmp_path):
+    """A busy or stopped daemon's backlog fills: the probe's connect would wait (a second
+    daemon hung at its start) or fail with EAGAIN, which is a live listener, not a stale
+    file: the second daemon refuses, and the socket file stays."""
+    from mousedom.service.socketfile import refuse_if_taken, remove_stale
+
+    path = tmp_path / "m.sock"
+    listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    listener.bind(str(path))
+    listener.listen(0)  # never accepts: a stopped daemon
+    held = []
+    try:
+        while True:
+            s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            s.setblocking(False)
+            try:
+                s.connect(str(path))
+            except BlockingIOError:
+                s.close()
+                break
+            held.append(s)
+        for probe in (refuse_if_taken, remove_stale):
+            t = time.monotonic()
+            with pytest.raises(UserError, match="another mousedom daemon is listening"):
+                probe(str(path))
+            assert time.monotonic() - t < 1.0
+        assert path.is_socket()
+    finally:
+        for s in held:
+            s.close()
+        listener.close()
+
+
+@pytest.mark.skipif(os.getuid() != 0, reason="needs root to probe as another uid")
+def test_a_socket_the_probe_may_not_connect_to_is_not_taken_for_stale():
+    """A daemon whose socket mode denies this user (server.mode "0060", the same user):
+    the probe's EACCES was taken for a stale socket, which was unlinked, and the second
+    daemon started while the first ran on, unreachable.  Only a refused connection is
+    stale; this says it cannot tell and leaves the file."""
+    shared = tempfile.mkdtemp(prefix="mousedom-test-")  # tmp_path's parents are 0700
+    os.chmod(shared, 0o755)
+    path = os.path.join(shared, "m.sock")
+    listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    listener.bind(path)
+    listener.listen(4)
+    os.chmod(path, 0o600)  # root's only
+    script = (
+        "import os\n"
+        "from mousedom.errors import UserError\n"
+        "from mousedom.service.socketfile import remove_stale\n"
+        f"os.setgid({NOBODY}); os.setuid({NOBODY})\n"
+        "try:\n    remove_stale(os.environ['SOCK'])\nexcept UserError as e:\n    print(e)\n"
+    )
+    try:
+        out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                             timeout=30, env={**mousedom_env(), "SOCK": path})  # fmt: skip
+        assert "cannot tell whether a daemon listens there (Permission denied)" in out.stdout, (
+            out.stdout + out.stderr
+        )
+        assert os.path.exists(path)
+    finally:
+        listener.close()
+        os.unlink(path)
+        os.rmdir(shared)

@@ -313,7 +313,9 @@ class Server:
         except (BlockingIOError, InterruptedError):
             return
         except OSError as e:
-            self.drop(client, f"read error: {e}")
+            # A reset is a peer that closed with lines unread (a probe, a client that quit
+            # mid-stream): a disconnect, as on the write side, not a warning for each.
+            self.drop(client, None if e.errno == errno.ECONNRESET else f"read error: {e}")
             return
         if not data:
             self._end_of_input(client)

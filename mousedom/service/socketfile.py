@@ -181,14 +181,32 @@ def refuse_if_taken(path: str) -> None:
             return  # open() says what is wrong with it
     except OSError:
         return
+    if _listening(path):
+        raise UserError(f"{path}: another mousedom daemon is listening there")
+
+
+def _listening(path: str) -> bool:
+    """Whether a live process listens at the socket ``path``.  Only a refused connection
+    says stale: a full listen backlog (a busy or stopped daemon) is a live one, and a
+    connection we may not make (the socket's mode) says nothing either way: a UserError,
+    where removing the file would cut a running daemon off from its clients.  The probe
+    never waits (non-blocking connect)."""
     probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    probe.setblocking(False)
     try:
         probe.connect(path)
-    except OSError:
-        return  # stale: open() removes it
+    except (ConnectionRefusedError, FileNotFoundError):
+        return False
+    except BlockingIOError:
+        return True  # EAGAIN: its backlog is full
+    except OSError as e:
+        raise UserError(
+            f"{path}: cannot tell whether a daemon listens there ({e.strerror}); not "
+            "touching it: remove it by hand if no daemon runs"
+        ) from e
     finally:
         probe.close()
-    raise UserError(f"{path}: another mousedom daemon is listening there")
+    return True
 
 
 def remove_stale(path: str) -> None:
@@ -199,13 +217,10 @@ def remove_stale(path: str) -> None:
         return
     if not stat.S_ISSOCK(st.st_mode):
         raise UserError(f"{path}: exists and is not a socket; not touching it")
-    probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    if _listening(path):
+        raise UserError(f"{path}: another mousedom daemon is listening there")
     try:
-        probe.connect(path)
-    except OSError:
         os.unlink(path)
-        log.info("removed stale socket %s", path)
+    except FileNotFoundError:
         return
-    finally:
-        probe.close()
-    raise UserError(f"{path}: another mousedom daemon is listening there")
+    log.info("removed stale socket %s", path)
