@@ -13,24 +13,29 @@ protocol 1.2 its learnt ``scale``, ``scale_spread``, ``scale_applied``, ``scale_
 Commands wait for their OK (or raise ``CommandError`` on ERROR); poses that arrive meanwhile
 are kept for the iterator, none is lost.
 
-Errors: ``DaemonNotRunning`` (no daemon at the socket), ``DaemonRefused`` (the daemon
-answered with ERROR instead of VERSION: too many clients), ``NotADaemon`` (something else
-there, or a line that is no protocol message) and ``ConnectionLost`` (the daemon went away
-while a command waited for its answer) are ``ConnectionError``s, so ``except OSError``
-catches them; ``CommandError`` is a ``RuntimeError``; all are ``ClientError``s.  The
-iterator ends when the daemon closes the connection, a last line cut off included.  A
-``timeout`` (seconds, None: wait for ever) bounds every wait for a line; once one runs
-out the connection is left in no state to read again (its line may be half read): the
-client is to be closed.
+Errors: ``DaemonNotRunning`` (no daemon at the socket), ``DaemonNotAnswering`` (the
+socket is held, but nothing answers in time: a stopped or hung daemon), ``DaemonRefused``
+(the daemon answered with ERROR instead of VERSION: too many clients), ``NotADaemon``
+(something else there, or a line that is no protocol message or not of its class's shape:
+``service.message_shapes``) and ``ConnectionLost`` (the daemon went away while a command
+waited for its answer) are ``ConnectionError``s, so ``except OSError`` catches them;
+``CommandError`` is a ``RuntimeError``; all are ``ClientError``s.  The iterator ends when
+the daemon closes the connection, a last line cut off included.  A ``timeout`` (seconds,
+None: wait for ever) bounds every wait for a line, and a command's wait for its answer as a
+whole (``TimeoutError``); the connect and the VERSION banner take at most
+``CONNECT_TIMEOUT_S`` without one.  Once a timeout runs out the connection is left in no
+state to read again (its line may be half read): the client is to be closed.
 """
 
 from __future__ import annotations
 
+import errno
 import itertools
 import json
 import math
 import os
 import socket
+import time
 from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -38,7 +43,11 @@ from typing import Any
 
 from mousedom import invocation
 from mousedom.angles import wrap_degrees
+from mousedom.service import message_shapes
 from mousedom.service.socketfile import SOCKET_NAME, default_socket_path
+
+# Without a timeout, how long the connect and the VERSION banner may take.
+CONNECT_TIMEOUT_S = 5.0
 
 
 class ClientError(Exception):
@@ -51,6 +60,15 @@ class DaemonNotRunning(ClientError, ConnectionError):
 
     def __str__(self) -> str:
         return self.strerror or super().__str__()  # the message, without "[Errno 2]"
+
+
+class DaemonNotAnswering(ClientError, ConnectionError):
+    """Something holds the socket (the connection waits in its backlog, or was taken) but
+    says nothing in time: a daemon stopped (SIGSTOP), hung or overloaded.  ``errno`` is
+    ETIMEDOUT."""
+
+    def __str__(self) -> str:
+        return self.strerror or super().__str__()
 
 
 class NotADaemon(ClientError, ConnectionError):
@@ -182,8 +200,19 @@ class Client:
     def __init__(self, path: str | None = None, timeout: float | None = None) -> None:
         self.path = path or find_socket()
         self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM | socket.SOCK_CLOEXEC)
+        # The connect and the banner are bounded even without a timeout: a stopped daemon's
+        # full backlog made connect() wait for ever (watch, doctor, a second `run`).
+        wait = CONNECT_TIMEOUT_S if timeout is None else timeout
+        self.sock.settimeout(wait)
         try:
-            self.sock.connect(self.path)
+            self._connect(time.monotonic() + wait)
+        except TimeoutError:
+            self.sock.close()
+            raise DaemonNotAnswering(
+                errno.ETIMEDOUT,
+                f"{self.path}: the daemon takes no connection (waited {wait:g} s): it is "
+                "stopped, hung or overloaded (`systemctl status mousedom`)",
+            ) from None
         except PermissionError as e:
             self.sock.close()
             raise DaemonNotRunning(e.errno, f"{self.path}: {access_hint(self.path)}") from None
@@ -194,7 +223,6 @@ class Client:
                 f"{self.path}: cannot connect: {e.strerror} (is the daemon running? start it "
                 f"with `{invocation.command('run')}`, or give the socket's path)",
             ) from None
-        self.sock.settimeout(timeout)
         self._file = self.sock.makefile("rb")
         self._pending: deque[dict[str, Any]] = deque()
         self._ids = itertools.count(1)
@@ -202,9 +230,17 @@ class Client:
         self.version: dict[str, Any] = {}  # the latest VERSION (_read keeps it)
         try:
             first = self._read()
+        except TimeoutError:
+            self.close()
+            raise DaemonNotAnswering(
+                errno.ETIMEDOUT,
+                f"{self.path}: the daemon took the connection but said nothing in {wait:g} s: "
+                "it is stopped, hung or overloaded (`systemctl status mousedom`)",
+            ) from None
         except (EOFError, OSError, ValueError) as e:
             self.close()
             raise NotADaemon(f"{self.path}: no VERSION banner ({e})") from None
+        self.sock.settimeout(timeout)
         if first.get("class") == "ERROR" and isinstance(first.get("message"), str):
             self.close()  # the daemon's own word: too many clients
             raise DaemonRefused(f"{self.path}: the daemon refused: {first['message']}")
@@ -212,6 +248,18 @@ class Client:
             self.close()
             raise NotADaemon(f"{self.path}: not a mousedom socket (no VERSION banner)")
         self._take(first)
+
+    def _connect(self, deadline: float) -> None:
+        """connect(), again while the listen backlog is full (a Unix socket with a timeout
+        says EAGAIN at once rather than wait) until ``deadline``: TimeoutError then."""
+        while True:
+            try:
+                self.sock.connect(self.path)
+                return
+            except BlockingIOError:
+                if time.monotonic() >= deadline:
+                    raise TimeoutError from None
+                time.sleep(0.05)
 
     def __enter__(self) -> Client:
         return self
@@ -235,6 +283,10 @@ class Client:
             obj = None
         if not isinstance(obj, dict):
             raise NotADaemon(f"{self.path}: a line that is no protocol message: {line[:80]!r}")
+        wrong = message_shapes.problem(obj)
+        if wrong is not None:
+            raise NotADaemon(f"{self.path}: a line that does not follow the protocol ({wrong}): "
+                             f"{line[:80]!r}")  # fmt: skip
         return obj
 
     def _take(self, msg: dict[str, Any]) -> dict[str, Any]:
@@ -275,11 +327,17 @@ class Client:
         """Send one command and return its answer (OK or STATUS); ERROR raises."""
         ident = next(self._ids)
         line = json.dumps({"cmd": cmd, "id": ident, **args}) + "\n"
+        # The timeout bounds the wait for the answer as a whole: each POSE that comes
+        # meanwhile is in time, and a daemon that never answers kept it waiting for ever.
+        timeout = self.sock.gettimeout()
+        deadline = None if timeout is None else time.monotonic() + timeout
         try:
             self.sock.sendall(line.encode())
         except (BrokenPipeError, ConnectionResetError) as e:
             raise ConnectionLost(f"{self.path}: the daemon went away ({e.strerror})") from None
         while True:
+            if deadline is not None and time.monotonic() > deadline:
+                raise TimeoutError(f"{self.path}: no answer to {cmd} in {timeout:g} s")
             try:
                 msg = self._read()
             except (EOFError, ConnectionResetError):  # (a reset: it closed with ours unread)

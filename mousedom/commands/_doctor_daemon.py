@@ -71,6 +71,10 @@ def read_live(path: str, timeout: float, config: str | None = None) -> Live:
             what, _, todo = access_hint(path).partition("; ")
             live.error = Check("daemon", FAIL, f"{path}: the daemon runs, but {what}",
                                todo or None, {"socket": path})  # fmt: skip
+        elif code == errno.ETIMEDOUT:  # (DaemonNotAnswering: a stopped or hung daemon)
+            live.error = Check("daemon", FAIL, str(e), "`systemctl status mousedom` (a process "
+                               "stopped by a signal shows state T: `kill -CONT PID`); "
+                               "`journalctl -u mousedom` says what it did last")  # fmt: skip
         elif code == errno.ECONNREFUSED:
             live.error = Check("daemon", FAIL, f"{path}: a socket, but no daemon listens (it "
                                "stopped without removing it?)", f"{start}; `journalctl -u "

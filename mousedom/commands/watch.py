@@ -79,12 +79,17 @@ class Screen:
             self.out.flush()
 
 
+# The daemon sends every client each sensor's SOURCE once a second, whatever its POSE
+# rate: this long without a line is a daemon that stopped, not a quiet one.
+SILENCE_S = 10.0
+
+
 def run(args: argparse.Namespace) -> int:
     from mousedom.client import Client, ClientError
 
     _check(args)
     try:
-        client = Client(args.socket)
+        client = Client(args.socket, timeout=SILENCE_S)
     except ClientError as e:  # no daemon there: one line, the client's own message
         raise UserError(str(e)) from None
     out = sys.stdout
@@ -120,6 +125,10 @@ def run(args: argparse.Namespace) -> int:
         return 0
     except ClientError as e:  # the daemon went away mid-command, or sent no protocol line
         raise UserError(str(e)) from None
+    except TimeoutError:
+        raise UserError(f"{client.path}: the daemon sent nothing for {SILENCE_S:g} s (it sends "
+                        "each sensor's SOURCE every second): it is stopped, hung or "
+                        "overloaded (`systemctl status mousedom`)") from None  # fmt: skip
     finally:
         if screen is not None:
             screen.close()
