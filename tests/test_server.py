@@ -58,6 +58,8 @@ class Harness:
             for key, mask in events:
                 key.data(mask)
             self.server.serve_backlog()
+            if self.server.backlog_ready():  # (as the daemon's loop: no sleep before a turn)
+                os.write(self.wake_w, b"x")
             while not self.jobs.empty():
                 self.jobs.get()()
 
@@ -670,3 +672,98 @@ def test_a_socket_the_probe_may_not_connect_to_is_not_taken_for_stale():
         listener.close()
         os.unlink(path)
         os.rmdir(shared)
+
+
+def _read_all(
+    sock: socket.socket, want: int, seconds: float, pace: float = 0.0
+) -> tuple[int, bool]:
+    """Read OK lines until ``want`` of them or EOF (or ``seconds``): (OKs, closed)."""
+    sock.settimeout(seconds)
+    got, buf, end = 0, b"", time.monotonic() + seconds
+    while got < want and time.monotonic() < end:
+        try:
+            data = sock.recv(4096)
+        except TimeoutError:
+            break
+        if not data:
+            return got, True
+        buf += data
+        *lines, buf = buf.split(b"\n")
+        got += sum(1 for line in lines if b'"class": "OK"' in line or b'"class":"OK"' in line)
+        if pace:
+            time.sleep(pace)
+    return got, False
+
+
+@pytest.mark.parametrize("n", [300, 1000, 3000])
+def test_a_client_that_sends_thousands_of_commands_and_reads_slowly_is_answered(harness, n):
+    """Back-pressure: the server stops answering a client whose owed queue is half full
+    (its socket is not read meanwhile, so its sends block) rather than drop it as "not
+    reading" when the answers overflow, as it did to a client that read flat out but had
+    sent thousands of commands in one write."""
+    h = harness(queue_lines=64)
+    p = Peer(h.server.path)
+    p.read()
+    writer = threading.Thread(target=p.sock.sendall, args=(b'{"cmd": "status"}\n' * n,))
+    writer.start()
+    got, closed = _read_all(p.sock, n, 30.0, pace=0.001)
+    writer.join(10)
+    assert (got, closed) == (n, False)
+    assert h.server.dropped == 0
+    p.close()
+
+
+@pytest.mark.parametrize("n", [1, 17, 2000])
+def test_a_half_closed_client_at_rate_zero_gets_every_answer_it_is_owed(harness, n):
+    """``printf '{"cmd":"rate","hz":0}\\n' + N status | nc -U``: the client shuts its sending
+    side and reads.  At rate 0 it was dropped at its EOF, and the replies not yet sent were
+    lost (12 of 100); now it goes once they are out."""
+    h = harness()
+    p = Peer(h.server.path)
+    p.read()
+    p.send(b'{"cmd": "rate", "hz": 0}\n' + b'{"cmd": "status"}\n' * n)
+    p.sock.shutdown(socket.SHUT_WR)
+    got, closed = _read_all(p.sock, n + 2, 10.0)  # (+ the rate's OK; then its EOF)
+    assert (got, closed) == (n + 1, True)
+    p.close()
+
+
+def test_the_answers_of_a_turn_stop_when_the_wakes_budget_is_spent(harness):
+    """Client work per wake is bounded (docs/protocol.md, 4 ms): the budget is looked at
+    before each line, and what is left waits in the backlog, in turn.  It was looked at
+    only between clients, after the backlog: sixteen clients of sixteen status lines took
+    up to 34 ms of one wake."""
+    h = harness()
+    peers = [Peer(h.server.path) for _ in range(3)]
+    for p in peers:
+        p.read()
+    answered = []
+
+    def turn(lines: int) -> None:
+        """One wake's serve_backlog with a budget of ``lines`` answers."""
+        before = len(h.commands)
+        h.server.over_budget = lambda: len(h.commands) - before >= lines
+        try:
+            h.server.serve_backlog()
+        finally:
+            h.server.over_budget = lambda: True
+        answered.append(len(h.commands) - before)
+
+    # lines wait in the backlog: let the server read them with no budget at all
+    h.call(lambda: setattr(h.server, "over_budget", lambda: True))
+    for p in peers:
+        p.send(b'{"cmd": "status"}\n' * 10)
+    deadline = time.monotonic() + 5
+    while sum(len(c.lines) for c in list(h.server.clients.values())) < 30:
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    for _ in range(4):
+        h.call(lambda: turn(4))
+    counts: list[int] = []
+    h.call(lambda: counts.extend(10 - len(c.lines) for c in h.server.clients.values()))
+    h.call(lambda: setattr(h.server, "over_budget", lambda: False))
+    assert answered == [4, 4, 4, 4]
+    # in turn: each wake's budget went to the next client (the first again at the 4th)
+    assert sorted(counts) == [4, 4, 8], counts
+    for p in peers:
+        p.close()

@@ -43,7 +43,7 @@ from mousedom.service.publish import Outputs, Publisher, SocketOutput
 from mousedom.service.reload import Reloader
 from mousedom.service.running import Running
 from mousedom.service.sdnotify import Notifier, watchdog_interval
-from mousedom.service.server import Client, Command, Server
+from mousedom.service.server import Client, Command, Server, no_budget
 from mousedom.service.slots import Sensors, Slot
 from mousedom.service.socketfile import default_socket_path
 from mousedom.service.wake import WAKE_SLACK_S, plan_wake
@@ -301,6 +301,8 @@ class Daemon:
             # a sensor to look for again, or none (inf)
             retry = sensors.next_retry() if sensors.missing_names else math.inf
             deadline = min(give_up if watching else wake_at, next_status, next_watchdog, retry)
+            if server.backlog and server.backlog_ready():
+                deadline = now  # lines read and not yet answered: their turn comes now
             events = self._select(deadline)
             self.wakes += 1
             server.tick(self.clock())
@@ -349,15 +351,23 @@ class Daemon:
         the next window nor always be served before another.  What is left is still ready
         (epoll is level-triggered) and comes back at the next wake."""
         end = self.clock() + CLIENT_BUDGET_S
-        # Lines read earlier and not yet answered first: their sockets may not wake us again.
-        self.server.serve_backlog()
-        n = len(events)
-        start = self.wakes % n if n else 0
-        for k in range(n):
-            key, mask = events[(start + k) % n]
-            key.data(mask)
-            if self.clock() > end:
-                return
+        clock, server = self.clock, self.server
+        # (checked before each line a client's turn answers: the answers to one client's
+        # 16 status lines took 5 ms, sixteen such clients 90 ms in one wake)
+        server.over_budget = lambda: clock() > end
+        try:
+            # Lines read earlier and not yet answered first: their sockets may not wake us
+            # again.
+            server.serve_backlog()
+            n = len(events)
+            start = self.wakes % n if n else 0
+            for k in range(n):
+                if clock() > end:
+                    return
+                key, mask = events[(start + k) % n]
+                key.data(mask)
+        finally:
+            server.over_budget = no_budget
 
     def _select(self, deadline: float) -> list[tuple[selectors.SelectorKey, int]]:
         """Wait for events until ``deadline``, to within tens of microseconds.

@@ -91,6 +91,8 @@ class Client:
         # False once the peer has shut its sending side (EOF): it may still be reading,
         # as `echo status | nc -U` is (a client is dropped only for not reading).
         self.reading = True
+        self.closing = False  # half-closed at rate 0: it goes once its owed lines are out
+        self.held = False  # lines read wait for their answers: its input is not watched
         self.handler: Callable[[int], None] | None = None  # its selector callback
         self.period = 0.0  # seconds between POSEs for this client; 0: every pose
         self.paused = False  # rate 0: no POSE at all
@@ -156,7 +158,11 @@ class Server:
         self.running = 0.0
         self._last_tick: float | None = None
         self._next_check = 0.0
-        self.backlog: set[Client] = set()  # clients with read lines still to answer
+        # Clients with read lines still to answer, in turn (a dict: ordered, and a client
+        # served goes to the end)
+        self.backlog: dict[Client, None] = {}
+        # Set by the daemon around a wake's client work: whether its time is spent
+        self.over_budget: Callable[[], bool] = no_budget
         # Accepting paused for want of descriptors: (running time to resume, clients then)
         self._accept_resume: tuple[float, int] | None = None
         self._accept_failed: OSError | None = None  # the episode's error (said once)
@@ -324,28 +330,51 @@ class Server:
         self._answer_some(client)
 
     def _answer_some(self, client: Client) -> None:
-        """Answer up to LINES_PER_TURN of a client's lines; the rest wait in ``backlog``."""
+        """Answer up to LINES_PER_TURN of a client's lines while the wake's budget lasts
+        and the client takes its answers; the rest wait in ``backlog``.
+
+        Back-pressure: while half its owed queue is full the client's lines wait (and,
+        once they are all answered, its socket is not read: the kernel's buffers fill and
+        its sends block).  Answering regardless dropped a client that read as fast as it
+        could but had sent thousands of commands at once ("queue full").  A client that
+        does not read at all is dropped by ``idle_timeout_s``."""
         lines = client.lines
         for _ in range(min(len(lines), LINES_PER_TURN)):
             if not self.alive(client):
                 return
+            if len(client.queue) >= client.queue_limit // 2 or self.over_budget():
+                break
             for msg in self._answer(client, lines.popleft()):
                 self.send(client, encode(msg))
-        if lines and self.alive(client):
-            self.backlog.add(client)
-        else:
-            self.backlog.discard(client)
+        self.backlog.pop(client, None)
+        if not self.alive(client):
+            return
+        held = bool(lines)
+        if held:
+            self.backlog[client] = None  # (at the end: the others' turn first)
+        if held != client.held:  # its socket is not read while lines wait (no spin)
+            client.held = held
+            self._register(client)
+
+    def backlog_ready(self) -> bool:
+        """Whether a client has lines waiting that it could be answered now (not held back
+        by its own full queue): the loop then does not sleep before its next turn."""
+        return any(len(c.queue) < c.queue_limit // 2 for c in self.backlog)
 
     def serve_backlog(self) -> None:
-        """One turn for each client with lines read but not yet answered (the daemon calls
-        this once per loop iteration: such a client's socket may not wake it again)."""
+        """A turn for each client with lines read but not yet answered, in order, while the
+        wake's budget lasts (the daemon calls this once per loop iteration: such a client's
+        socket may not wake it again)."""
         for client in list(self.backlog):
-            self.backlog.discard(client)
-            if self.alive(client):
-                try:
-                    self._answer_some(client)
-                except Exception as e:  # noqa: BLE001 - as in handle(): only this client goes
-                    self._fail(client, e)
+            if self.over_budget():
+                return
+            if not self.alive(client):
+                self.backlog.pop(client, None)
+                continue
+            try:
+                self._answer_some(client)
+            except Exception as e:  # noqa: BLE001 - as in handle(): only this client goes
+                self._fail(client, e)
 
     def _junk(self, client: Client) -> None:
         """A line that carried nothing: it draws on the client's allowance."""
@@ -473,7 +502,10 @@ class Server:
                 return
             client.partial = client.partial[n:]
             client.waiting_since = None  # it takes what it is sent
-        waiting = bool(client.partial or client.queue or client.pose is not None or client.states)
+        waiting = _waiting(client)
+        if not waiting and client.closing:
+            self.drop(client, None)  # (all it was owed is out)
+            return
         if waiting and client.waiting_since is None:
             client.waiting_since = self.running
         self._want_write(client, waiting)
@@ -504,12 +536,18 @@ class Server:
 
     def _end_of_input(self, client: Client) -> None:
         """The peer sent EOF: it closed, or only shut its sending side.  Closed (a Unix
-        socket then polls as hung up: both directions shut), or paused (rate 0: nothing
-        more would reach it), it goes; else it stays while it reads."""
-        if client.paused or _hung_up(client.sock):
+        socket then polls as hung up: both directions shut), it goes.  Paused (rate 0: no
+        POSE would reach it), it goes once it has what it is owed (dropped at once, it lost
+        the replies its own commands had not yet been sent); else it stays while it reads."""
+        if _hung_up(client.sock):
             self.drop(client, None)
             return
         client.reading = False  # (EOF stays readable: the socket is no longer read)
+        if client.paused:
+            client.closing = True
+            if not _waiting(client):
+                self.drop(client, None)
+                return
         self._register(client)
 
     def _want_write(self, client: Client, want: bool) -> None:
@@ -521,7 +559,7 @@ class Server:
     def _register(self, client: Client) -> None:
         """The selector watches what the client needs: its input until EOF, its socket's
         room while a tail waits; neither (a half-closed client, all sent): not at all."""
-        events = (selectors.EVENT_READ if client.reading else 0) | (
+        events = (selectors.EVENT_READ if client.reading and not client.held else 0) | (
             selectors.EVENT_WRITE if client.want_write else 0
         )
         registered = client.sock in self.selector.get_map()
@@ -542,7 +580,7 @@ class Server:
         if not self.alive(client):
             return
         del self.clients[client.fd]
-        self.backlog.discard(client)
+        self.backlog.pop(client, None)
         if reason:
             log.warning("dropping %r: %s", client, reason)
         else:
@@ -552,6 +590,15 @@ class Server:
         except (KeyError, ValueError):
             pass
         client.sock.close()
+
+
+def _waiting(client: Client) -> bool:
+    """Whether anything waits to be sent to the client."""
+    return bool(client.partial or client.queue or client.pose is not None or client.states)
+
+
+def no_budget() -> bool:
+    return False
 
 
 def _hung_up(sock: socket.socket) -> bool:
