@@ -767,3 +767,19 @@ def test_the_answers_of_a_turn_stop_when_the_wakes_budget_is_spent(harness):
     assert sorted(counts) == [4, 4, 8], counts
     for p in peers:
         p.close()
+
+
+def test_a_folder_anyone_may_write_without_the_sticky_bit_is_refused(tmp_path):
+    """Owned by root (or us) but mode 0777: anyone could remove the socket and put their
+    own in its place, which the owner check was there to prevent.  /tmp's 1777 is fine."""
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    shared.chmod(0o777)
+    server = Server(str(shared / "m.sock"), ServerConfig(), selectors.DefaultSelector(),
+                    lambda c, m: [], lambda c: [])  # fmt: skip
+    with pytest.raises(UserError, match="anyone may write there .mode 0777, no sticky bit"):
+        server.open()
+    shared.chmod(0o1777)
+    server.open()
+    assert (shared / "m.sock").is_socket()
+    server.close()

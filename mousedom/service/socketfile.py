@@ -81,9 +81,16 @@ def listen(path: str, settings: ServerConfig) -> tuple[socket.socket, Access]:
     directory = os.path.dirname(path) or "."
     try:
         os.makedirs(directory, mode=0o755, exist_ok=True)
-        owner = os.stat(directory).st_uid
+        dir_stat = os.stat(directory)
     except OSError as e:
         raise UserError(f"{path}: cannot create the socket directory: {e.strerror}") from None
+    owner = dir_stat.st_uid
+    if dir_stat.st_mode & stat.S_IWOTH and not dir_stat.st_mode & stat.S_ISVTX:
+        # (as /tmp, a shared folder needs the sticky bit: else anyone may swap the socket)
+        raise UserError(
+            f"{directory}: anyone may write there (mode {stat.S_IMODE(dir_stat.st_mode):04o}, "
+            "no sticky bit) and so replace the socket; not putting it there (give --socket)"
+        )
     if owner not in (os.getuid(), 0):
         # e.g. /tmp/mousedom-UID made by someone else, who could swap the socket
         raise UserError(
