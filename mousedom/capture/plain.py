@@ -79,7 +79,10 @@ def _decompress(src: BinaryIO, kind: str) -> Iterator[bytes]:
                 out = d.decompress(b"", BLOCK)
         yield out
         if d.eof:
-            rest = d.unused_data + buf
+            # What follows the stream's end: unused_data holds it all (zlib's
+            # unconsumed_tail then holds the same bytes again: both, the next gzip member
+            # was read twice, a report counted twice, once a member inflated past BLOCK).
+            rest = d.unused_data
             if not rest.strip(b"\0"):  # trailing zero padding (tape, dd) is not a stream
                 buf = src.read(BLOCK)
                 if not buf.strip(b"\0"):
