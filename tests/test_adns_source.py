@@ -243,3 +243,109 @@ def test_a_reconnect_keeps_counters_and_replays_as_live(tmp_path):
         src.close()
         for fd in fds:
             os.close(fd)
+
+
+@pytest.mark.parametrize("line", ["silent", "noise", "echo"])
+def test_a_port_that_is_no_downsampler_is_gone_not_a_still_mouse(pty, line):
+    """A port with another device on it, a wrong baud rate, or an adapter with nothing
+    behind it: no packet ever decodes.  The source stayed connected with no error, the
+    mouse live and "tracking", and the robot read as standing still for good (doctor: all
+    OK).  It is read at every wake (``probe``) until a first packet, and gone (SourceGone,
+    the daemon's retry) after ANSWER_S without one."""
+    import random
+
+    from mousedom.sources.adns import ANSWER_S
+
+    master, path = pty
+    src = AdnsSource(mouse(path))
+    src.open()
+    assert src.probe
+    rng = random.Random(7)
+    start = time.monotonic()
+    with pytest.raises(SourceGone, match="no ADNS-3080 downsampler answers") as gone:
+        while time.monotonic() < start + 3 * ANSWER_S:
+            if line == "noise":
+                os.write(master, bytes(rng.randrange(256) for _ in range(64)))
+            elif line == "echo":  # a loop-back plug: the host's commands come back
+                r, _, _ = select.select([master], [], [], 0)
+                if r:
+                    os.write(master, os.read(master, 4096))
+            assert src.read(time.monotonic()) == []  # (as the daemon: every wake)
+            time.sleep(0.01)
+    assert ANSWER_S <= time.monotonic() - start < ANSWER_S + 1.0
+    assert ("bytes that are no packet" in str(gone.value)) == (line != "silent"), gone.value
+    assert not src.health.connected
+
+
+def test_a_downsampler_answering_is_read_on_its_readiness(pty):
+    """The first packet ends the probing: the port's readiness wakes the daemon as before,
+    and a later silence is not taken for a foreign port."""
+    from mousedom.sources.adns import ANSWER_S
+
+    master, path = pty
+    src = AdnsSource(mouse(path))
+    src.open()
+    os.write(master, P.encode_packet(
+        P.Status(0, 100, P.STATE_OK, P.REASON_ACK, 0x17, 0x09, 7, 400, 1250, 0, 0, 0)))  # fmt: skip
+    pump(src, until=lambda out: not src.probe)
+    assert not src.probe
+    t = time.monotonic() + 2 * ANSWER_S
+    assert src.read(t) == []  # long silent since: no verdict on a downsampler's silence
+    src.close()
+
+
+def test_a_daemon_does_not_fuse_a_port_that_is_no_downsampler(tmp_path):
+    """End to end: a rig's one serial mouse on a port that sends noise.  Its POSEs were
+    "updating" with the mouse used, the robot standing still; now the mouse is missing
+    (not fused before its first packet, gone after ANSWER_S, reopened, and so on) and the
+    pose is held, not updated."""
+    import json
+    import random
+    import subprocess
+    import sys
+
+    from conftest import mousedom_env
+
+    master, slave = os.openpty()
+    tty.setraw(master)
+    link = tmp_path / "ttyADNS"
+    link.symlink_to(os.ttyname(slave))
+    rig = tmp_path / "rig.yaml"
+    rig.write_text("rate_hz: 20\nmodel: diff-drive\nmice:\n  floor:\n    cpi: 1600\n"
+                   "    mount: {x: 0.1, y: 0.0, yaw: 0}\n"
+                   f"    serial: {{port: {link}, k: 12, sensor_cpi: 1600}}\n")  # fmt: skip
+    sock = tmp_path / "d.sock"
+    proc = subprocess.Popen([sys.executable, "-m", "mousedom", "run", "--config", str(rig),
+                             "--socket", str(sock)], stderr=subprocess.DEVNULL,
+                            env=mousedom_env())  # fmt: skip
+    rng = random.Random(3)
+    try:
+        end = time.monotonic() + 15
+        while not sock.exists():
+            assert time.monotonic() < end and proc.poll() is None
+            time.sleep(0.05)
+        time.sleep(0.2)
+        c = socket.socket(socket.AF_UNIX)
+        c.connect(str(sock))
+        c.settimeout(0.01)
+        buf, poses, end = b"", [], time.monotonic() + 5
+        while time.monotonic() < end:
+            os.write(master, bytes(rng.randrange(256) for _ in range(32)))
+            try:
+                buf += c.recv(65536)
+            except TimeoutError:
+                pass
+        msgs = [json.loads(line) for line in buf.split(b"\n") if line]
+        poses = [m for m in msgs if m["class"] == "POSE"]
+        assert len(poses) > 40
+        assert all(p["missing"] == ["floor"] and p["used"] == 0 for p in poses), poses[:3]
+        assert not any(p["updating"] for p in poses)
+        sources = [m for m in msgs if m["class"] == "SOURCE"]
+        assert sources and all(not s["live"] for s in sources)
+        assert any(s["error"] and "downsampler" in s["error"] for s in sources), sources[-1]
+        c.close()
+    finally:
+        proc.terminate()
+        proc.wait(10)
+        for fd in (master, slave):
+            os.close(fd)

@@ -248,11 +248,11 @@ class Publisher:
             out.append(
                 source_message(
                     h.as_dict(),
-                    live=slot.live,
+                    live=slot.fused,
                     age=None if h.last_t is None else round(now - h.last_t, 6),
                     residual=slot.take_rms(),
-                    excluded=not slot.live or slot.health_state == Health.EXCLUDED,
-                    state="gone" if not slot.live else robust.STATES[slot.health_state],
+                    excluded=not slot.fused or slot.health_state == Health.EXCLUDED,
+                    state="gone" if not slot.fused else robust.STATES[slot.health_state],
                     reason=robust.REASONS[slot.health_reason] or None,
                     **extra,
                 )

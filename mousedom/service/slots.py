@@ -106,6 +106,9 @@ class Slot:
     mouse: Sensor
     source: Source
     live: bool = False
+    # Live to the tracker: open and answered (``Source.answered``; a serial port that has
+    # not yet sent a packet is read, but not fused as a mouse standing still)
+    fused: bool = False
     fd: int | None = None
     retry_at: float = 0.0
     latency: float = Source.latency
@@ -224,10 +227,8 @@ class Sensors:
         self._live_changed()
         tracker = self.running.tracker
         for slot in slots:
-            if slot.live:
-                tracker.set_live(slot.index, True, now)
-            else:
-                tracker.set_live(slot.index, False, now)
+            tracker.set_live(slot.index, slot.fused, now)
+            if not slot.live:
                 self.try_open(slot, now)
 
     def close(self) -> None:
@@ -279,9 +280,10 @@ class Sensors:
             self.poll.register(slot.fd, select.EPOLLIN)
             self.by_fd[slot.fd] = slot
         slot.live = True
+        slot.fused = slot.source.answered
         self._live_changed()
         slot.announced.pop("error", None)
-        self.running.tracker.set_live(slot.index, True, now)
+        self.running.tracker.set_live(slot.index, slot.fused, now)
         log.info("%s: open (%s)", slot.name, slot.source.kind)
         self.on_change(now)
 
@@ -314,7 +316,8 @@ class Sensors:
         """When a missing sensor is next looked for (inf: none is missing)."""
         if not self.missing_names:
             return math.inf
-        return min(s.retry_at for s in self.slots if not s.live)
+        # (missing may name an open port that has not answered yet: no retry for it)
+        return min((s.retry_at for s in self.slots if not s.live), default=math.inf)
 
     def retry(self, now: float) -> None:
         for slot in self.slots:
@@ -334,7 +337,7 @@ class Sensors:
         for slot in self.slots:
             if slot.live and (slot.paced or slot.source.probe):  # read at every wake
                 self.read(slot, now)
-            if slot.live:  # (a paced read may have lost it)
+            if slot.fused:  # (a paced read may have lost it)
                 completes.append((slot.index, now - slot.latency))
         tracker = self.running.tracker
         if completes:
@@ -365,6 +368,10 @@ class Sensors:
             self._gone(slot, now, f"read failed: {e}")
             return
         tracker = self.running.tracker
+        if not slot.fused and slot.source.answered:
+            slot.fused = True  # its first answer: fused from now
+            self._live_changed()
+            tracker.set_live(slot.index, True, now)
         if isinstance(slot.mouse, GyroConfig):
             from mousedom.sources.iio import GyroSamples  # (late: a rig without one loads none)
 
@@ -401,7 +408,7 @@ class Sensors:
             except (OSError, ValueError):
                 pass  # not registered, or the epoll is closed already
             slot.fd = None
-        slot.live = False
+        slot.live = slot.fused = False
         self._live_changed()
         slot.source.close()
 
@@ -411,10 +418,10 @@ class Sensors:
         """What the POSE lines say of the sensors, kept here rather than made per window:
         the names of those not live, the health names per pattern of states (a new set
         of slots may name them differently) and what the wake planning reads."""
-        self.missing_names = tuple(s.name for s in self.slots if not s.live)
+        self.missing_names = tuple(s.name for s in self.slots if not s.fused)
         self.names_by_state = {}
         self.plan = [
-            PlannedSensor(s.period, s.latency, s.source.health) for s in self.slots if s.live
+            PlannedSensor(s.period, s.latency, s.source.health) for s in self.slots if s.fused
         ]
 
     def names_for(self, state: Sequence[int]) -> WindowNames:
@@ -426,14 +433,14 @@ class Sensors:
         names = self.names_by_state.get(key)
         if names is None:
             names = self.names_by_state[key] = window_names(
-                [s.name for s in self.slots], [s.live for s in self.slots], key
+                [s.name for s in self.slots], [s.fused for s in self.slots], key
             )
         return names
 
     def status_line(self, clients: int) -> str:
         """systemd's STATUS= text."""
-        live = [s.name for s in self.slots if s.live]
-        gone = [s.name for s in self.slots if not s.live]
+        live = [s.name for s in self.slots if s.fused]
+        gone = [s.name for s in self.slots if not s.fused]
         text = f"{len(live)}/{len(self.slots)} sensors live"
         if gone:
             text += "; missing: " + ", ".join(gone)

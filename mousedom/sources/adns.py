@@ -27,6 +27,11 @@ from mousedom.sources import adns_protocol as P
 from mousedom.sources.adns_decode import AdnsDecoder
 from mousedom.sources.base import Reports, Source, SourceGone, SourceUnavailable
 
+# A downsampler answers the open's GET_VERSION and GET_STATUS within milliseconds, and sends
+# MOTION every K polls (at most 0.32 s at K = 255): a port without a packet this long after
+# its open is something else (docs/adns-protocol.md).
+ANSWER_S = 2.0
+
 
 class AdnsSource(Source):
     """One downsampler; yields ``Reports`` on host monotonic time in evdev convention."""
@@ -52,6 +57,7 @@ class AdnsSource(Source):
         self.decoder = AdnsDecoder(name=mouse.name)
         self._resent_for: int | None = None
         self._opened = False  # opened before: the next open is a reopen
+        self._answer_by: float | None = None  # no packet yet: gone if none by then
         self.on_raw = on_raw
 
     # ------------------------------------------------------------------ hooks
@@ -69,6 +75,12 @@ class AdnsSource(Source):
                 self.on_raw(time.monotonic(), b"")  # the reopen marker (a capture's too)
         self._opened = True
         self._resent_for = None
+        # Until a first packet decodes, the port may be no downsampler at all (another
+        # device, a wrong baud rate, nothing plugged into the adapter): it is read at
+        # every wake, and after ANSWER_S without one it is gone (``_read``).
+        self._answer_by = None
+        self.probe = True
+        self.answered = False
         # A lone 0x00 first ends whatever noise the device's receiver holds.
         try:
             self._send(b"\0" + P.encode_command(P.CMD_GET_VERSION) + self._settings_frames())
@@ -97,15 +109,43 @@ class AdnsSource(Source):
         except (serial.SerialException, OSError) as e:
             raise SourceGone(f"{self.settings.port}: {e}") from None
         if not data:
+            if self.probe:
+                self._check_answered(now)
             return []
         if self.on_raw is not None:
             self.on_raw(now, data)
         reports, packets = self.decoder.feed(data, now)
+        if self.probe:
+            if packets:
+                self.probe = False  # a downsampler: its port's readiness wakes the daemon
+                self.answered = True  # (and its reports are fused from now on)
+                self._answer_by = None
+                if self.health.error and self.health.error.startswith("no packet"):
+                    self.health.error = None
+                    self._update_health()
+            else:
+                self._check_answered(now)
         for p in packets:
             if isinstance(p, P.Status):
                 self._check_settings(p)
         self._update_health()
         return [reports] if len(reports) else []
+
+    def _check_answered(self, now: float) -> None:
+        """SourceGone where no packet has decoded within ANSWER_S of the open: a port that
+        is not a downsampler was a connected, tracking, motionless mouse for good (the
+        robot read as standing still, doctor said all was well)."""
+        if self._answer_by is None:
+            self._answer_by = now + ANSWER_S
+            self.health.error = "no packet from the downsampler yet (not fused until one)"
+        elif now > self._answer_by:
+            noise = self.decoder.stats().get("discarded_bytes", 0)
+            heard = f"{noise} bytes that are no packet" if noise else "nothing"
+            raise SourceGone(
+                f"{self.settings.port}: no ADNS-3080 downsampler answers ({heard} in "
+                f"{ANSWER_S:g} s since the port opened): another device, or a baud rate "
+                f"other than the firmware's ({self.settings.baud})?"
+            )
 
     def close(self) -> None:
         if self._port is not None:

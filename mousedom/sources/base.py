@@ -244,6 +244,9 @@ class Source(ABC):
     # whose removal its descriptor does not report (an IIO buffer's poll says nothing once
     # the device is unregistered; only a read says ENODEV), so that a read finds out.
     probe = False
+    # Whether what is open has shown itself to be the sensor (a serial port may hold
+    # another device): until then the daemon reads it but does not fuse it (slots.py).
+    answered = True
     # A backend that bounds its stamps itself (before a rule of its own that needs them
     # bounded, as evdev's forward clamp) says so; read() then does not do it again.
     bounds_own_stamps = False
