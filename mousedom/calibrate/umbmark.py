@@ -21,6 +21,10 @@ import numpy as np
 from mousedom.calibrate.csvtext import content_lines, fields, finite, header_names
 from mousedom.errors import UserError, located
 
+# A RUNS.csv holds a row per run, about a hundred bytes: past this it is not one (read by
+# ``mousedom umbmark`` and appended to by ``replay --umbmark-csv``; 10,000 runs fit).
+MAX_RUNS_BYTES = 1 << 20
+
 DIRECTIONS = ("cw", "ccw")
 HEADER = "direction,dx,dy"
 RECOMMENDED_RUNS = 5  # per direction, as Borenstein & Feng do

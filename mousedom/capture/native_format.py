@@ -132,6 +132,9 @@ def read_header(path: str, f: BinaryIO) -> tuple[dict[str, Any], int, int]:
         header = json.loads(body)
         if not isinstance(header, dict) or not isinstance(header.get("devices"), list):
             raise ValueError("no device list")
+    except RecursionError:  # (json's decoder recurses: a header nested 100,000 deep)
+        raise CaptureError(located(path, None, "byte offset 16: bad header: nested too "
+                                   "deep")) from None  # fmt: skip
     except ValueError as e:
         raise CaptureError(located(path, None, f"byte offset 16: bad header: {e}")) from None
     return header, major, len(MAGIC) + 8 + n + 4

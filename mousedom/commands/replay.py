@@ -44,6 +44,11 @@ if TYPE_CHECKING:
     from mousedom.service.mcapout import McapRecorder
 
 
+# --speed: a second of capture takes 1000 s at the slowest (below, the waits overflowed
+# the clock: a traceback at 2e-12) and a microsecond at the fastest.
+MIN_SPEED, MAX_SPEED = 1e-3, 1e6
+
+
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "replay",
@@ -153,8 +158,8 @@ def _check_args(args) -> tuple[float, float] | None:
     if args.umbmark and args.output == "-" and not args.umbmark_csv:
         # Both would go to stdout: the RUNS.csv row would become the pose CSV's last row.
         raise UserError("--umbmark with -o -: give --umbmark-csv RUNS.csv (stdout holds the poses)")
-    if args.speed is not None and not (args.speed > 0 and math.isfinite(args.speed)):
-        raise UserError(f"--speed: must be a positive number, got {args.speed}")
+    if args.speed is not None and not (MIN_SPEED <= args.speed <= MAX_SPEED):  # (NaN too)
+        raise UserError(f"--speed: must be from {MIN_SPEED:g} to {MAX_SPEED:g}, got {args.speed}")
     if args.plot:
         from mousedom import plot
 
@@ -389,26 +394,22 @@ def _check_direction(direction: str, turned: float) -> str | None:
     return None
 
 
-# A RUNS.csv holds a row per run: a few hundred bytes.  Past this it is not one.
-_MAX_RUNS_BYTES = 1 << 20
-
-
 def _runs_lead(fd: int, path: str) -> str:
     """What goes before a row appended to the RUNS.csv open (for appending) on ``fd``: the
     header in an empty file (or a pipe), a newline where the last line lacks one; a file
     that `mousedom umbmark` would not read, or whose columns are not the row's, is
     refused (UserError) before anything is written: appending would bury its runs."""
     from mousedom.calibrate.csvtext import content_lines, header_names
-    from mousedom.calibrate.umbmark import HEADER, parse_runs
+    from mousedom.calibrate.umbmark import HEADER, MAX_RUNS_BYTES, parse_runs
 
     st = os.fstat(fd)
     if not stat.S_ISREG(st.st_mode) or st.st_size == 0:
         return HEADER + "\n"
-    if st.st_size > _MAX_RUNS_BYTES:
+    if st.st_size > MAX_RUNS_BYTES:
         raise UserError(f"{path}: {st.st_size} bytes is no RUNS.csv; not appending to it")
     # the file open here, read again through its descriptor: no path in between to swap
     with open(f"/proc/self/fd/{fd}", "rb") as r:
-        raw = r.read(_MAX_RUNS_BYTES)
+        raw = r.read(MAX_RUNS_BYTES)
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as e:

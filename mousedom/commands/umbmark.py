@@ -9,7 +9,7 @@ import sys
 from mousedom import saferead
 from mousedom.allocator import keep_freed_memory
 from mousedom.calibrate import calfile, report
-from mousedom.calibrate.umbmark import HEADER, parse_runs, umbmark
+from mousedom.calibrate.umbmark import HEADER, MAX_RUNS_BYTES, parse_runs, umbmark
 from mousedom.commands import _options as options
 from mousedom.config import load_config
 from mousedom.errors import UserError
@@ -37,7 +37,14 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _read(path: str) -> str:
     try:
         # Bytes, decoded here: binary garbage is one clear line whatever the locale.
-        raw = sys.stdin.buffer.read() if path == "-" else saferead.read_bytes(path)
+        raw = (
+            sys.stdin.buffer.read(MAX_RUNS_BYTES + 1)
+            if path == "-"
+            else saferead.read_bytes(path, MAX_RUNS_BYTES)
+        )
+        if len(raw) > MAX_RUNS_BYTES:  # (/dev/zero on stdin: a MemoryError traceback)
+            name = "<stdin>" if path == "-" else path
+            raise UserError(f"{name}: more than {MAX_RUNS_BYTES} bytes is no RUNS.csv")
         return raw.decode("utf-8")
     except FileNotFoundError:
         raise UserError(f"{path}: file not found") from None
