@@ -85,8 +85,9 @@ def _text(result: Scan) -> str:
     lines = []
     locked = [d for d in result.devices if not d.readable]
     for d in result.devices:
-        lines.append(f"{d.node}  {_shown(d.name) or '(unknown: cannot open)'}")
-        if d.name:
+        unnamed = "(no name)" if d.readable else "(unknown: cannot open)"
+        lines.append(f"{d.node}  {_shown(d.name) or unnamed}")
+        if d.name or d.readable:
             lines.append(f"  id       {d.bus} {d.vendor:04x}:{d.product:04x}")
             lines.append(f"  phys     {_shown(d.phys) or '-'}")
             lines.append(f"  uniq     {_shown(d.uniq) or '-'}")

@@ -317,9 +317,14 @@ def _links(paths: SystemPaths) -> Links:
     return _link_index(base / "by-id"), _link_index(base / "by-path")
 
 
-def _node_access(node: str) -> tuple[bool, str | None]:
+def _node_access(node: str) -> tuple[bool, str | None] | None:
+    """(readable by this user, the node's group), or None where the node is gone (unplugged
+    between the listing and now, or a link to nothing): it was said to be closed to this
+    user, with advice to join a group, even to root."""
     try:
         st = os.stat(node)
+    except FileNotFoundError:
+        return None
     except OSError:
         return False, None
     try:
@@ -338,12 +343,18 @@ def _describe_from_sysfs(
             return None
     except OSError:  # sysfs closed to this user: described by opening the node instead
         return None
-    rel = parse_bitmask(_read(base / "capabilities" / "rel") or "0")
+    try:
+        rel = parse_bitmask(_read(base / "capabilities" / "rel") or "0")
+    except ValueError:  # (the kernel writes hex; a tree given with --root may not)
+        rel = 0
     udev = {}
     major_minor = _read(Path(paths.sys_input) / event / "dev")  # "13:67"
     if major_minor:
         udev = parse_udev_db(_read(Path(paths.udev_data) / f"c{major_minor}"))
-    readable, group = _node_access(node)
+    access = _node_access(node)
+    if access is None:
+        return None  # gone: nothing to describe
+    readable, group = access
     real = os.path.realpath(node)
     return DeviceInfo(
         node=node,
@@ -368,7 +379,10 @@ def _describe_with_evdev(paths: SystemPaths, node: str, links: Links) -> DeviceI
     """Fallback without sysfs: open the node with python-evdev (needs permission)."""
     import evdev  # late: only this fallback and the live source need the C extension
 
-    readable, group = _node_access(node)
+    access = _node_access(node)
+    if access is None:
+        return None  # gone
+    readable, group = access
     real = os.path.realpath(node)
     by_id, by_path = links[0].get(real, ()), links[1].get(real, ())
     try:
