@@ -337,3 +337,38 @@ def test_a_loss_read_after_a_stall_is_a_loss_not_a_restart(kept_s, dropped):
     # a restart read the same way is still one (its clock begins again)
     dec.feed(status(0, 300_000) + motion(1, 315_000, flags=P.FLAG_BOOT), t + 1.0)
     assert dec.parser.stats.reboots == 1
+
+
+def _boot(dec: AdnsDecoder, first_seq: int, n: int, t: float, boot: bool) -> tuple[float, list]:
+    """``n`` motion packets of 50 counts, K = 12 (15 ms apart), from ``first_seq``."""
+    marks = []
+    for k in range(n):
+        seq = first_seq + k
+        flags = P.FLAG_RES1600 | (P.FLAG_BOOT if boot and k == 0 else 0)
+        data = (b"\0" if boot and k == 0 else b"") + P.encode_packet(
+            P.Motion(seq, 15000 * (seq + 1), 50, 0, 12, 90, flags)
+        )
+        r, _ = dec.feed(data, t)
+        marks += list(zip(r.quality[2], r.lost_from, strict=True)) if len(r) else []
+        t += 0.015
+    return t, marks
+
+
+@pytest.mark.parametrize("lost_on_the_line", [0, 1, 3])
+@pytest.mark.parametrize("gap_s", [0.05, 0.2, 2.0])
+def test_a_firmware_restart_marks_the_counts_it_lost(lost_on_the_line, gap_s):
+    """A board reset (a brown-out) loses what the firmware had summed and not sent, and the
+    old boot's last packets if they never arrived.  The first motion report after it was
+    not marked (overflow False, lost_from None) where the same packets lost without a
+    restart were: the fusion read the gap as the mouse standing still (11 of 11 resets of
+    the real firmware while moving, 4 to 396 counts).  Now it says the counts since the
+    old boot's last packet that arrived are unknown."""
+    dec = AdnsDecoder(name="a")
+    t, marks = _boot(dec, 0, 10, 100.0, boot=True)
+    assert not any(overflow for overflow, _ in marks)
+    last = dec._last_t
+    t += 0.015 * lost_on_the_line + gap_s
+    _, marks = _boot(dec, 0, 3, t, boot=True)
+    assert dec.parser.stats.reboots == 1
+    assert marks[0] == (True, last), marks
+    assert not any(overflow for overflow, _ in marks[1:])

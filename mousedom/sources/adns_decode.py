@@ -91,7 +91,9 @@ class AdnsDecoder:
             if restarted:
                 self._restarted()
             mapped = self.sync.update(self.clock.unwrap(p.t_us), host_t)
-            if lost and self._lost_from is None:
+            # (a restart after packets of an earlier boot: what that boot had summed and
+            # not sent, and its last packets if they never arrived, are gone with it)
+            if (lost or (restarted and self._last_t is not None)) and self._lost_from is None:
                 # Packets never arrived since the last one that did: the counts they held
                 # are unknown (not none, as a mouse that does not report did not move).
                 # The next motion report says so for the span back to that packet
