@@ -528,3 +528,30 @@ def test_chunks_of_another_kind_than_their_device_are_refused(tmp_path):
             for f in open_capture(str(p)).feeds():
                 for _ in f.batches:
                     pass
+
+
+def test_convert_keeps_what_a_native_capture_says_of_how_it_was_made(tmp_path):
+    """``convert`` of one native capture (to recompress it, or to a file from a pipe)
+    dropped the rig's config snapshot and the recorder's name and config path: a recorded
+    file's ``config`` came out null.  Kept now, unless -c gives another config."""
+    from mousedom.capture import DeviceInfo, NativeWriter, open_capture
+
+    src = tmp_path / "rec.mdcap"
+    config = "rate_hz: 50\nmice:\n  a: {cpi: 800, evdev: {path: /dev/input/event3}}\n"
+    meta = {"recorder": "mousedom record", "config_path": "/etc/mousedom/rig.yaml"}
+    with NativeWriter(str(src), [DeviceInfo(name="dev a", mouse="a")], config_text=config,
+                      meta=meta) as w:  # fmt: skip
+        w.motion(0, np.arange(5) * 0.008, np.ones(5, int), np.zeros(5, int))
+    out = tmp_path / "out.mdcap"
+    p = run_mousedom("convert", "--capture", str(src), "-o", str(out))
+    assert p.returncode == 0, p.stderr
+    got = open_capture(str(out))
+    assert got.config_text == config
+    assert {k: got.header.get(k) for k in meta} == meta
+    other = tmp_path / "other.yaml"
+    other.write_text("rate_hz: 20\nmodel: diff-drive\nmice:\n"
+                     "  a: {cpi: 400, mount: {x: 0.1, y: 0}, evdev: {path: /dev/x}}\n")  # fmt: skip
+    out2 = tmp_path / "out2.mdcap"
+    p = run_mousedom("convert", "--capture", str(src), "-o", str(out2), "-c", str(other))
+    assert p.returncode == 0, p.stderr
+    assert open_capture(str(out2)).config_text == other.read_text()

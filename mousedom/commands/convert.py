@@ -167,6 +167,13 @@ def convert(
     # The inputs' first event (not first report) anchors the replay's window grid and the
     # epoch rebasing: keep it, so that replaying the result gives the very same poses.
     meta = {"first_time": _first_time(captures, offset)}
+    if len(captures) == 1:
+        # One native capture converted (recompressed, or to a file): what it says of how it
+        # was made goes with it, the rig's config snapshot unless -c gives another
+        (one,) = captures
+        if config_text is None:
+            config_text = getattr(one, "config_text", None)
+        meta.update({k: one.header[k] for k in ("recorder", "config_path") if k in one.header})
     if any(c.grid_start() is not None for c in captures):
         # (a daemon's recording: replay anchors its windows where the daemon's began)
         meta["grid_start"] = grid_anchor(captures, offset)
