@@ -603,3 +603,31 @@ def test_record_and_list_find_a_path_rule_alike_under_a_root(tmp_path, relative)
                      "--duration", "0.2", cwd=str(tmp_path))  # fmt: skip
     assert r.returncode == 0, r.stderr
     assert "event0" in r.stderr and "event1" in r.stderr
+
+
+@pytest.mark.parametrize("cut", [1, 2])
+def test_record_stopped_mid_frame_keeps_the_open_frames_counts(tmp_path, cut):
+    """Stopped with Ctrl-C while a frame's events had come but not its SYN_REPORT: the
+    counts were neither written nor counted as unterminated (an unplug kept them)."""
+    f = fifos(tmp_path, "a", "b")
+    cfg = rig(tmp_path, f)
+    out = tmp_path / "run.mdcap"
+    p = start("record", "--config", str(cfg), "-o", str(out), "--status-interval", "0")
+    try:
+        ws = {n: os.open(path, os.O_WRONLY) for n, path in f.items()}
+        whole = motion_bytes(time.monotonic(), [3, -4, 5], [7, 8, -9])
+        os.write(ws["a"], whole)
+        os.write(ws["b"], whole)
+        # then a frame's REL_X (and REL_Y) without its SYN_REPORT: 24-byte events
+        os.write(ws["a"], motion_bytes(time.monotonic(), [53], [-11])[: 24 * cut])
+        time.sleep(0.4)
+        err = stop(p, signal.SIGINT)
+        for w in ws.values():
+            os.close(w)
+    finally:
+        p.kill()
+    assert p.returncode == 0, err
+    cap, _, _ = read_capture(out)
+    net = {dev.mouse: (cap.stats[i].net_x, cap.stats[i].net_y) for i, dev in enumerate(cap.devices)}
+    assert net["b"] == (4, 6)
+    assert net["a"] == (4 + 53, 6 + (-11 if cut == 2 else 0)), net

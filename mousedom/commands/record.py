@@ -307,6 +307,12 @@ class Recorder:
         for s in self.sensors:  # one last drain: what arrived before the stop is kept
             if s.connected:
                 self._read(s, now)
+        for slot in self.slots:  # and a frame still open (Ctrl-C mid-frame): its counts
+            if not slot.serial and slot.connected:
+                for batch in slot.evdev.end_frame(now):
+                    with self._writing():
+                        self.writer.motion(slot.index, batch.t, batch.dx, batch.dy)
+                    slot.reports += len(batch)
         self._flush()
         from mousedom.capture.base import DeviceStats
 

@@ -260,6 +260,17 @@ class EvdevSource(Source):
             self._update_health()
         return [Reports(self.name, t, frames.dx.astype(np.float64), frames.dy)]
 
+    def end_frame(self, now: float) -> list[Reports]:
+        """At the end of a recording (``record`` stopped): the frame being assembled
+        will get no SYN_REPORT here; its counts happened, so they are handed over as one
+        report, as at an unplug (``FrameAssembler.flush``: counted incomplete)."""
+        frames = self.assembler.flush()
+        self._update_health()
+        if not len(frames):
+            return []
+        t = self._forward(frames.t, now)
+        return [Reports(self.name, t, frames.dx.astype(np.float64), frames.dy)]
+
     def _small(self, buf: bytes, now: float) -> list[Reports]:
         """A live read of a few frames: the same results as the bulk path below (the
         property tests compare them), on Python lists without a numpy call; the lists go
