@@ -82,7 +82,7 @@ def is_native(prefix: bytes) -> bool:
     return prefix.startswith(MAGIC)
 
 
-def chunk_crc(head: bytes, payload: bytes) -> int:
+def chunk_crc(head: bytes, payload: bytes | memoryview) -> int:
     """CRC-32 over the first 16 bytes of the chunk header and the payload as stored."""
     return zlib.crc32(payload, zlib.crc32(head[:16]))
 
