@@ -315,9 +315,10 @@ def test_a_daemon_does_not_fuse_a_port_that_is_no_downsampler(tmp_path):
                    "    mount: {x: 0.1, y: 0.0, yaw: 0}\n"
                    f"    serial: {{port: {link}, k: 12, sensor_cpi: 1600}}\n")  # fmt: skip
     sock = tmp_path / "d.sock"
-    proc = subprocess.Popen([sys.executable, "-m", "mousedom", "run", "--config", str(rig),
-                             "--socket", str(sock)], stderr=subprocess.DEVNULL,
-                            env=mousedom_env())  # fmt: skip
+    log = tmp_path / "daemon.log"
+    command = [sys.executable, "-m", "mousedom", "run", "--config", str(rig), "--socket", str(sock)]
+    with open(log, "w") as err:
+        proc = subprocess.Popen(command, stderr=err, env=mousedom_env())
     rng = random.Random(3)
     try:
         end = time.monotonic() + 15
@@ -328,7 +329,7 @@ def test_a_daemon_does_not_fuse_a_port_that_is_no_downsampler(tmp_path):
         c = socket.socket(socket.AF_UNIX)
         c.connect(str(sock))
         c.settimeout(0.01)
-        buf, poses, end = b"", [], time.monotonic() + 5
+        buf, poses, end = b"", [], time.monotonic() + 6.5  # (two rounds of open, gone)
         while time.monotonic() < end:
             os.write(master, bytes(rng.randrange(256) for _ in range(32)))
             try:
@@ -344,6 +345,10 @@ def test_a_daemon_does_not_fuse_a_port_that_is_no_downsampler(tmp_path):
         assert sources and all(not s["live"] for s in sources)
         assert any(s["error"] and "downsampler" in s["error"] for s in sources), sources[-1]
         c.close()
+        # gone, retried, gone again: said once (a WARNING every 3 s for as long as it stays)
+        said = [line for line in log.read_text().splitlines()
+                if "WARNING" in line and "no ADNS-3080 downsampler answers" in line]  # fmt: skip
+        assert len(said) == 1, said
     finally:
         proc.terminate()
         proc.wait(10)

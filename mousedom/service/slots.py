@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import math
+import re
 import select
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -281,6 +282,8 @@ class Sensors:
             self.by_fd[slot.fd] = slot
         slot.live = True
         slot.fused = slot.source.answered
+        if slot.fused:
+            slot.announced.pop("gone", None)
         self._live_changed()
         slot.announced.pop("error", None)
         self.running.tracker.set_live(slot.index, slot.fused, now)
@@ -370,6 +373,7 @@ class Sensors:
         tracker = self.running.tracker
         if not slot.fused and slot.source.answered:
             slot.fused = True  # its first answer: fused from now
+            slot.announced.pop("gone", None)
             self._live_changed()
             tracker.set_live(slot.index, True, now)
         if isinstance(slot.mouse, GyroConfig):
@@ -392,9 +396,15 @@ class Sensors:
                     self.sink.reports(slot.index, batch.t, batch.dx, batch.dy)
 
     def _gone(self, slot: Slot, now: float, why: str) -> None:
-        log.warning(
+        # Said once until the sensor is fused again: a port that is no downsampler opens,
+        # fails its answer and is retried, for as long as it stays plugged in
+        # (its figures apart: "N bytes that are no packet" differ each time)
+        kind = re.sub(r"\d+", "N", why)
+        said = slot.announced.get("gone") == kind
+        (log.debug if said else log.warning)(
             "%s: lost (%s); going on without it, retrying every %gs", slot.name, why, RETRY_S
         )
+        slot.announced["gone"] = kind
         self._close_slot(slot)
         slot.retry_at = now + RETRY_S
         self.running.tracker.set_live(slot.index, False, now)
