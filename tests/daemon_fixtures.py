@@ -7,6 +7,7 @@ CLOCK_MONOTONIC as the kernel would.  The daemon runs as a real process on a rea
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -15,6 +16,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -275,3 +277,28 @@ def rig_runner(tmp_path):
     for ctx in started:
         ctx.feeder.stop()
         ctx.daemon.stop()
+
+
+@contextlib.contextmanager
+def stopped_listener(path: str) -> Iterator[None]:
+    """A Unix socket at ``path`` whose listener never accepts and whose backlog is full:
+    what a daemon stopped by SIGSTOP (or hung) looks like to a client or a probe."""
+    listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    listener.bind(path)
+    listener.listen(0)
+    held = []
+    try:
+        while True:
+            s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            s.setblocking(False)
+            try:
+                s.connect(path)
+            except BlockingIOError:
+                s.close()
+                break
+            held.append(s)
+        yield
+    finally:
+        for s in held:
+            s.close()
+        listener.close()

@@ -13,6 +13,7 @@ import time
 from typing import Any
 
 import pytest
+from daemon_fixtures import stopped_listener
 
 from mousedom import cli
 from mousedom.client import Client, DaemonNotAnswering, NotADaemon
@@ -166,28 +167,11 @@ def test_a_stopped_daemon_is_said_to_be_stopped_not_waited_for(tmp_path):
     for ever in ``watch``, ``doctor`` and a second ``run``.  The client's connect and banner
     are bounded, and say what it is."""
     path = str(tmp_path / "s.sock")
-    srv = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    srv.bind(path)
-    srv.listen(0)  # never accepts
-    held = []
-    try:
-        while True:
-            s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-            s.setblocking(False)
-            try:
-                s.connect(path)
-            except BlockingIOError:
-                s.close()
-                break
-            held.append(s)
+    with stopped_listener(path):
         t = time.monotonic()
         with pytest.raises(DaemonNotAnswering, match="stopped, hung or overloaded"):
             Client(path, timeout=0.5)
         assert time.monotonic() - t < 2.0
-    finally:
-        for s in held:
-            s.close()
-        srv.close()
 
 
 def test_a_daemon_that_takes_the_connection_and_says_nothing(tmp_path, capsys):

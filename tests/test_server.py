@@ -17,6 +17,7 @@ from dataclasses import replace
 
 import pytest
 from conftest import mousedom_env
+from daemon_fixtures import stopped_listener
 
 from mousedom.config import ServerConfig
 from mousedom.errors import UserError
@@ -615,30 +616,13 @@ def test_a_listener_with_a_full_backlog_is_live_not_stale(tmp_path):
     from mousedom.service.socketfile import refuse_if_taken, remove_stale
 
     path = tmp_path / "m.sock"
-    listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    listener.bind(str(path))
-    listener.listen(0)  # never accepts: a stopped daemon
-    held = []
-    try:
-        while True:
-            s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-            s.setblocking(False)
-            try:
-                s.connect(str(path))
-            except BlockingIOError:
-                s.close()
-                break
-            held.append(s)
+    with stopped_listener(str(path)):
         for probe in (refuse_if_taken, remove_stale):
             t = time.monotonic()
             with pytest.raises(UserError, match="another mousedom daemon is listening"):
                 probe(str(path))
             assert time.monotonic() - t < 1.0
         assert path.is_socket()
-    finally:
-        for s in held:
-            s.close()
-        listener.close()
 
 
 @pytest.mark.skipif(os.getuid() != 0, reason="needs root to probe as another uid")
