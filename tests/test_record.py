@@ -631,3 +631,35 @@ def test_record_stopped_mid_frame_keeps_the_open_frames_counts(tmp_path, cut):
     net = {dev.mouse: (cap.stats[i].net_x, cap.stats[i].net_y) for i, dev in enumerate(cap.devices)}
     assert net["b"] == (4, 6)
     assert net["a"] == (4 + 53, 6 + (-11 if cut == 2 else 0)), net
+
+
+def test_a_frame_beyond_32_bits_stops_the_recording_with_what_came_before_it(tmp_path):
+    """A frame whose REL_X events sum past 2**31 (no mouse sends one; a FIFO may): the
+    whole read was refused by the writer, the file held no report, and the message named
+    "(input_event stream)" with exit 2.  Now the reports before it are kept, the line names
+    the mouse and its device, and the exit is record's 1 for a recording that stopped."""
+    from mousedom.sources.events import encode_input_events
+
+    f = fifos(tmp_path, "a", "b")
+    cfg = rig(tmp_path, f)
+    out = tmp_path / "run.mdcap"
+    p = start("record", "--config", str(cfg), "-o", str(out), "--status-interval", "0")
+    try:
+        ws = {n: os.open(path, os.O_WRONLY) for n, path in f.items()}
+        t0 = time.monotonic()
+        big = 2**31 - 1
+        frame = encode_input_events(np.full(3, t0 + 0.1), np.array([2, 2, 0]),
+                                    np.array([0, 0, 0]), np.array([big, big, 0]))  # fmt: skip
+        os.write(ws["a"], motion_bytes(t0, [3, 4], [5, 6]) + frame  # one frame: 2 REL_X
+                 + motion_bytes(t0 + 0.2, [7], [8]))  # fmt: skip
+        err = p.communicate(timeout=20)[1]
+        for w in ws.values():
+            os.close(w)
+    finally:
+        p.kill()
+    assert p.returncode == 1, err
+    assert "Traceback" not in err
+    assert "record: a (" in err and "beyond the native format's signed 32 bits" in err, err
+    cap, _, _ = read_capture(out)
+    a = next(i for i, d in enumerate(cap.devices) if d.mouse == "a")
+    assert (cap.stats[a].net_x, cap.stats[a].net_y) == (7, 11)

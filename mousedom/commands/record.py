@@ -26,6 +26,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 from mousedom import saferead
 from mousedom.commands import _options as options
 from mousedom.commands._recordslots import (
@@ -170,13 +172,32 @@ class Recorder:
                 return
             for batch in s.source.read(now):  # a serial source's bytes went to on_raw
                 if not s.serial:
-                    with self._writing():
-                        self.writer.motion(s.index, batch.t, batch.dx, batch.dy)
+                    self._write_motion(s, batch.t, batch.dx, batch.dy)
                 s.reports += len(batch)
         except SourceGone as e:
             self._unregister(s)
             s.connected, s.next_retry = False, now + RETRY_S
             self.say(f"record: {_without_name(s, e)}; waiting for it to come back")
+
+    def _write_motion(self, s: Slot, t, dx, dy) -> None:
+        """A mouse's reports into the file.  One whose summed frame is beyond the native
+        format's 32 bits (no mouse sends one; a FIFO may) stops the recording with a line
+        naming the mouse and its device, the reports before it written (the whole read was
+        refused, and the file could hold nothing of it)."""
+        big = (np.abs(np.asarray(dx, dtype=np.int64)) >= 2**31) | (
+            np.abs(np.asarray(dy, dtype=np.int64)) >= 2**31
+        )
+        k = int(np.argmax(big)) if big.any() else len(big)
+        if k:
+            with self._writing():
+                self.writer.motion(s.index, t[:k], dx[:k], dy[:k])
+        if k < len(big):
+            raise UserError(
+                f"record: {s.name} ({node_of(s)}): a frame at t={float(t[k]):.6f} sums "
+                f"({int(dx[k])}, {int(dy[k])}) counts, beyond the native format's signed 32 "
+                f"bits; the recording stops here ({self.output} holds everything before it)",
+                exit_code=1,
+            )
 
     def _retry(self, s: Sensor, now: float) -> None:
         s.next_retry = now + RETRY_S
@@ -310,8 +331,7 @@ class Recorder:
         for slot in self.slots:  # and a frame still open (Ctrl-C mid-frame): its counts
             if not slot.serial and slot.connected:
                 for batch in slot.evdev.end_frame(now):
-                    with self._writing():
-                        self.writer.motion(slot.index, batch.t, batch.dx, batch.dy)
+                    self._write_motion(slot, batch.t, batch.dx, batch.dy)
                     slot.reports += len(batch)
         self._flush()
         from mousedom.capture.base import DeviceStats
