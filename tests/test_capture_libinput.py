@@ -403,3 +403,29 @@ def test_a_device_with_events_as_an_empty_list_is_no_truncation(tmp_path):
     assert [d.name for d in cap.devices] == ["m", "k"]
     assert len(cap.motion[0][0]) == 50
     assert not any("cut off" in w or "recorded" in w for w in cap.warnings), cap.warnings
+
+
+def test_one_over_long_field_is_refused_in_bounded_memory(tmp_path):
+    """A row of a few hundred bytes at most is valid: one 60 MB digit field went through
+    the array checks at about 21 times its size (a numpy MemoryError traceback under a
+    memory limit).  It is the line's error now, before any array is made."""
+    import resource
+    import subprocess
+    import sys
+
+    from conftest import mousedom_env
+
+    p, _, _ = _two_mice(tmp_path, n=20)
+    lines = p.read_text().splitlines()
+    k = next(i for i, ln in enumerate(lines) if ln.startswith("    - [") and i > 40)
+    lines[k] = f"    - [  0,  1000,   2,   0, {'7' * (60 << 20)}]"
+    p.write_text("\n".join(lines) + "\n")
+
+    def limit() -> None:
+        resource.setrlimit(resource.RLIMIT_AS, (1 << 30, 1 << 30))
+
+    out = subprocess.run([sys.executable, "-m", "mousedom", "convert", "--capture", str(p),
+                          "-o", str(tmp_path / "out.mdcap")], capture_output=True, text=True,
+                         timeout=120, env=mousedom_env(), preexec_fn=limit)  # fmt: skip
+    assert out.returncode != 0 and "Traceback" not in out.stderr, out.stderr[-2000:]
+    assert f"rec.yml:{k + 1}: an evdev event must be" in out.stderr, out.stderr[-500:]
