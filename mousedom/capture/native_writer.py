@@ -42,6 +42,15 @@ from mousedom.safewrite import open_stream
 from mousedom.sources.base import MAX_RATE
 
 
+def beyond_i4(dx, dy) -> int | None:
+    """Index of the first report whose counts do not fit the native format's signed 32-bit
+    columns, or None where all fit (the one rule: the writer refuses them, ``record`` stops
+    at them)."""
+    dx, dy = np.asarray(dx), np.asarray(dy)
+    big = (dx < -(2**31)) | (dx >= 2**31) | (dy < -(2**31)) | (dy >= 2**31)
+    return int(np.argmax(big)) if big.any() else None
+
+
 class NativeWriter:
     """Append-only writer.  Call ``sync(t)`` whenever every source is complete up to t.
 
@@ -106,10 +115,9 @@ class NativeWriter:
             return
         self._check_times(device, t, "report")
         dx, dy = np.asarray(dx), np.asarray(dy)
-        for d in (dx, dy):
-            # A frame's summed counts may exceed the i4 columns: refuse rather than wrap.
-            if d.dtype.itemsize > 4 and len(d) and (d.min() < -(2**31) or d.max() >= 2**31):
-                self._too_big(device, t, dx, dy)
+        # A frame's summed counts may exceed the i4 columns: refuse rather than wrap.
+        if (dx.dtype.itemsize > 4 or dy.dtype.itemsize > 4) and beyond_i4(dx, dy) is not None:
+            self._too_big(device, t, dx, dy)
         self._buffer(device, (t, dx.astype("<i4"), dy.astype("<i4")))
 
     def gyro(self, device: int, t, rate, saturated=None) -> None:
@@ -161,8 +169,7 @@ class NativeWriter:
             self._flush_motion(device)
 
     def _too_big(self, device: int, t: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> None:
-        big = (dx < -(2**31)) | (dx >= 2**31) | (dy < -(2**31)) | (dy >= 2**31)
-        k = int(np.argmax(big))
+        k = beyond_i4(dx, dy) or 0
         dev = self.devices[device]
         src = dev.extra.get("converted_from")
         raise CaptureError(

@@ -26,8 +26,6 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import TYPE_CHECKING
 
-import numpy as np
-
 from mousedom import saferead
 from mousedom.commands import _options as options
 from mousedom.commands._recordslots import (
@@ -184,20 +182,26 @@ class Recorder:
         format's 32 bits (no mouse sends one; a FIFO may) stops the recording with a line
         naming the mouse and its device, the reports before it written (the whole read was
         refused, and the file could hold nothing of it)."""
-        big = (np.abs(np.asarray(dx, dtype=np.int64)) >= 2**31) | (
-            np.abs(np.asarray(dy, dtype=np.int64)) >= 2**31
-        )
-        k = int(np.argmax(big)) if big.any() else len(big)
+        from mousedom.capture.base import CaptureError
+        from mousedom.capture.native_writer import beyond_i4
+
+        try:
+            with self._writing():
+                self.writer.motion(s.index, t, dx, dy)
+            return
+        except CaptureError:  # (checked once, by the writer; which report, only here)
+            k = beyond_i4(dx, dy)
+            if k is None:
+                raise
         if k:
             with self._writing():
                 self.writer.motion(s.index, t[:k], dx[:k], dy[:k])
-        if k < len(big):
-            raise UserError(
-                f"record: {s.name} ({node_of(s)}): a frame at t={float(t[k]):.6f} sums "
-                f"({int(dx[k])}, {int(dy[k])}) counts, beyond the native format's signed 32 "
-                f"bits; the recording stops here ({self.output} holds everything before it)",
-                exit_code=1,
-            )
+        raise UserError(
+            f"record: {s.name} ({node_of(s)}): a frame at t={float(t[k]):.6f} sums "
+            f"({int(dx[k])}, {int(dy[k])}) counts, beyond the native format's signed 32 "
+            f"bits; the recording stops here ({self.output} holds everything before it)",
+            exit_code=1,
+        )
 
     def _retry(self, s: Sensor, now: float) -> None:
         s.next_retry = now + RETRY_S
