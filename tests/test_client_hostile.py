@@ -213,23 +213,17 @@ def test_watch_says_when_the_daemon_goes_silent(tmp_path, capsys, monkeypatch):
     from mousedom.commands import watch
 
     monkeypatch.setattr(watch, "SILENCE_S", 0.5)
-    t = _templates()
-    path = str(tmp_path / "s.sock")
-    srv = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    srv.bind(path)
-    srv.listen(1)
+    from test_client import _scripted
 
-    def serve() -> None:
-        conn, _ = srv.accept()
+    t = _templates()
+
+    def banner_then_silence(conn: socket.socket) -> None:
         conn.sendall((json.dumps(t["VERSION"]) + "\n").encode())
         line = conn.makefile("rb").readline()
         conn.sendall((json.dumps({**t["OK"], "id": json.loads(line)["id"]}) + "\n").encode())
         time.sleep(3)
-        conn.close()
-        srv.close()
 
-    th = threading.Thread(target=serve, daemon=True)
-    th.start()
+    path, th = _scripted(tmp_path, banner_then_silence)
     start = time.monotonic()
     code = cli.main(["watch", "--socket", path])
     err = capsys.readouterr().err
