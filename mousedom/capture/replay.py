@@ -116,6 +116,7 @@ class _Run:
         self.want = [-math.inf] * n  # how far each sensor's input is complete
         self.last_t = -math.inf  # the latest report read
         self.pushed_t = -math.inf  # the latest report handed to the tracker
+        self.skipped_to = -math.inf  # where the last skipped gap ended
         self.longest_period = max(periods, default=0.0)
 
     def emit(self, b: PoseBatch) -> None:
@@ -196,6 +197,11 @@ class _Run:
             lim = self._limit()
             for sensor in range(len(self.pending)):
                 self._push_until(sensor, lim)
+            # Completeness is bounded from the reports now pushed, not from the bound
+            # they were pushed to: how far a pause is windowed (MAX_GAP_S past its last
+            # report) must not depend on how the input was split into batches.
+            lim = self._limit()
+            for sensor in range(len(self.pending)):
                 if self.want[sensor] > -math.inf:
                     self.tracker.complete_until(min(self.want[sensor], lim), sensor)
             b = self.tracker.poll()
@@ -211,9 +217,13 @@ class _Run:
         if tracker.t0 is None:
             return math.inf
         lim = tracker.frontier_time + MAX_WINDOWS * tracker.period
-        # Not more than a gap's worth past the last report: a longer gap is skipped
-        # (skip_gap), not windowed through.
-        return min(lim, max(self.pushed_t, tracker.frontier_time) + MAX_GAP_S)
+        # Not more than a gap's worth past the last report (or the last skip's end; the
+        # start before any report): a longer gap is skipped (skip_gap), not windowed
+        # through, and windowed as far whether or not the report after it was read yet.
+        base = max(self.pushed_t, self.skipped_to)
+        if base == -math.inf:
+            base = tracker.frontier_time
+        return min(lim, base + MAX_GAP_S)
 
     def _push_until(self, sensor: int, lim: float) -> None:
         """Hand the tracker the sensor's waiting input stamped at or before ``lim``."""
@@ -247,6 +257,7 @@ class _Run:
         span = tracker.skip_quiet(until)
         if span is None:
             return False
+        self.skipped_to = span[1]
         # (its first MAX_GAP_S were windowed as any pause is: the reports before it may
         # still have closed windows there; the rest is skipped)
         self.warnings.append(
