@@ -434,6 +434,39 @@ def test_distance_json_and_write(tmp_path):
     )
 
 
+@pytest.mark.parametrize("at", [0, 2, 4])
+def test_distance_says_a_push_among_the_turns_is_no_turn(tmp_path, at):
+    """A straight push among the turns moves both mice alike: it was left out as a
+    "bump" (|d1 - d2| near 0 is under a quarter of the median run's), so the error for a
+    push never came; a run is a bump by how far the mice moved, and the push is named."""
+    eta = math.radians(90)
+    moves = [(0.0, 0.0, eta * s, 2.0) for s in (1, -1, 1, -1)]
+    moves.insert(at, (0.3, 0.0, 0.0, 2.0))
+    mice = [
+        SynthMouse("left", 0.0, 0.135, cpi_x=450, cpi_y=450),
+        SynthMouse("right", 0.0, -0.135, cpi_x=450, cpi_y=450, phase=0.5),
+    ]
+    motion = build_motion(moves)
+    rec = {m.name: mouse_reports(m, motion, i) for i, m in enumerate(mice)}
+    cap = write_native(tmp_path / "turns.mdcap", rec)
+    cfg = write_config(
+        tmp_path,
+        {
+            "left": {"cpi": 450, "mount": {"x": 0.0, "y": 0.135}},
+            "right": {"cpi": 450, "mount": {"x": 0.0, "y": -0.135}},
+        },
+    )
+    caps = ["--capture", f"left={cap}", "--capture", f"right={cap}"]
+    p = fails(
+        calib("distance", cfg, *caps, "--angle", "90"), f"run {at + 1}: both mice moved alike"
+    )
+    assert "bump" not in p.stderr
+    fails(
+        calib("distance", cfg, *caps, "--angle", "90", "--mice", "left,left"),
+        "names one mouse twice",
+    )
+
+
 # --------------------------------------------------------------------------- mounts
 
 
@@ -687,7 +720,11 @@ def test_scales_write_the_cpi_the_others_imply(tmp_path):
     assert front.endswith("unchanged: within spread"), front
     assert "common to all the mice cannot be seen" in out.stdout
     assert not (tmp_path / "rig.calib.yaml").read_text().count("scales")  # no --write: as was
-    doc = json.loads(ok(calib("scales", cfg, *caps, "--json", "--write")).stdout)
+    wrote = ok(calib("scales", cfg, *caps, "--json", "--write"))
+    doc = json.loads(wrote.stdout)
+    # The triangle's drive never slides: the one scale is written to both axes, said so.
+    assert "warning: left: cpi x and y both written 5.0% higher" in wrote.stderr
+    assert "assumes both are off alike" in wrote.stderr
     assert doc["left"]["change"] is True and doc["left"]["implied_cpi"]["x"] == pytest.approx(
         840.0, rel=0.005
     )
@@ -971,6 +1008,23 @@ def test_mounts_scale_to_a_cpi_no_mouse_reports_is_not_stored(mounts_session):
     )
     assert not (tmp / "rig.calib.yaml").exists()
     ok(calib("mounts", cfg, *args, "--write", "--force"))
+
+
+def test_mounts_say_a_mouse_whose_flip_is_wrong_and_store_nothing(mounts_session):
+    """Mouse b read through a mirror (its REL_X negated: a flip the config does not say)
+    was fitted 0.1 m and its CPI 60 % off, and --write stored that with exit 0."""
+    tmp, cfg, caps, ref, _, motion = mounts_session
+    rec = mounts_recording(motion)
+    b = rec["b"]
+    rec["b"] = Reports("b", b.t, -b.dx, b.dy)
+    write_native(tmp / "drive.mdcap", rec)
+    for extra in ((), ("--write", "--force")):
+        fails(
+            calib("mounts", cfg, *caps, "--reference", str(ref), *extra),
+            "mouse b: its readings are a mirror image",
+            "`flip` for it is wrong (it says flip: false)",
+        )
+    assert not (tmp / "rig.calib.yaml").exists()
 
 
 def test_scales_on_captures_without_motion_say_one_error(tmp_path):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -13,6 +14,7 @@ from mousedom.calibrate.mounts import (
     exact_system,
     kimlee,
     kimlee_system,
+    mirrored,
     motion_problem,
 )
 from mousedom.calibrate.runs import run_windows, split_runs, window_counts
@@ -376,3 +378,47 @@ def test_a_mouse_whose_motion_ends_first_is_cut_only_if_the_others_moved_on():
     rec["a"] = Reports("a", t[cut], 0 * ones[cut], 5 * ones[cut])
     with pytest.raises(UserError, match=r"mouse a: its motion ends at t = 0\.99\d s, inside run 1"):
         check_whole_captures(rec, split_runs(rec), 0.5)
+
+
+SIDEWAYS = [(0.3, 0, 0, 1.5), (0, 0, 1.5, 2), (0.3, 0, 1.0, 2), (0, 0.2, -1, 2), (0.1, 0.1, 0.5, 1)]
+NO_SIDEWAYS = [(0.3, 0, 0, 1.5), (0, 0, 1.5, 2), (0.3, 0, 1.0, 2), (-0.3, 0, 0, 1.5)]
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_a_mouse_read_through_a_mirror_is_refused_not_fitted(seed):
+    """A mouse whose ``flip`` is configured wrong reads the motion through a reflection,
+    which k R(yaw) cannot represent: the fit once returned it 0.1 m and its CPI 60 % off
+    (exit 0, written by --write).  Random rigs, per-axis CPIs, noise: the readings as
+    configured fit; the same readings mirrored are refused wherever the motion slides
+    sideways (without sideways motion a mirror cannot be seen: ``mirrored`` says so)."""
+    rng = np.random.default_rng(seed)
+    mice = [
+        SynthMouse(
+            name,
+            float(rng.uniform(-0.2, 0.2)),
+            float(rng.uniform(-0.2, 0.2)),
+            yaw=float(rng.uniform(-180, 180)),
+            cpi_x=float(rng.uniform(400, 3200)),
+            cpi_y=0.0,
+            flip=bool(rng.random() < 0.5),
+            rel_noise=0.01,
+            abs_noise=0.3,
+            report_hz=float(rng.choice([125, 500, 1000])),
+        )
+        for name in "abc"
+    ]
+    mice = [replace(m, cpi_y=m.cpi_x * float(rng.uniform(0.96, 1.04))) for m in mice]
+    for moves, seen in ((SIDEWAYS, True), (NO_SIDEWAYS, False)):
+        readings, w = _windows_for(mice, build_motion(moves), cpi_conf=1000.0)
+        for m in mice:
+            # _windows_for reads every mouse as unflipped: undo the flip for "as configured".
+            as_configured = readings[m.name] * ([1.0, -1.0] if m.flip else [1.0, 1.0])
+            mirror = as_configured * [1.0, -1.0]
+            assert not mirrored(as_configured, w)
+            assert mirrored(mirror, w) == seen
+            if seen:
+                with pytest.raises(MountError, match="mirror image.*`flip`"):
+                    exact_mount(mirror, w)
+            fit = exact_mount(as_configured, w)
+            if seen:
+                assert math.hypot(fit.x - m.x, fit.y - m.y) < 2e-3

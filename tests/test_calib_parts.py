@@ -223,3 +223,12 @@ def test_csv_files_with_a_byte_order_mark_are_read(tmp_path):
     assert ref.kind == "twist" and len(ref.t) == 2
     dirs, err = parse_runs("\ufeffdirection,dx,dy\ncw,0.1,0\n", "RUNS.csv")
     assert dirs == ["cw"] and err.tolist() == [[0.1, 0.0]]
+
+
+def test_csv_lines_are_numbered_as_editors_number_them():
+    """A form feed or other str.splitlines separator inside a row split it in two and put
+    every later line number off by one; \\r\\n, \\n and a lone \\r end lines."""
+    from mousedom.calibrate.csvtext import content_lines
+
+    text = "h\nx\fy\r\nz\rw\n\n# c\nq\x1c1\u2028"
+    assert content_lines(text) == [(1, "h"), (2, "x\fy"), (3, "z"), (4, "w"), (7, "q\x1c1\u2028")]

@@ -14,13 +14,19 @@ import re
 
 from mousedom.errors import UserError, located
 
+_NEWLINE = re.compile(r"\r\n|\r|\n")
+
 
 def content_lines(text: str) -> list[tuple[int, str]]:
-    """(1-based line number, line) of every line that is neither blank nor a # comment."""
+    """(1-based line number, line) of every line that is neither blank nor a # comment.
+
+    Lines end at \\r\\n, \\n or \\r (universal newlines, as editors and spreadsheets
+    number them); str.splitlines also ends lines at \\f, \\v, \\x1c-\\x1e, \\x85 and
+    U+2028/9, which split a row in two and put every later line number off by one."""
     text = text.removeprefix("\ufeff")  # spreadsheets save CSV with a byte-order mark
     return [
         (i + 1, line)
-        for i, line in enumerate(text.splitlines())
+        for i, line in enumerate(_NEWLINE.split(text))
         if line.strip() and not line.lstrip().startswith("#")
     ]
 

@@ -126,8 +126,9 @@ def calibrate_distance(
         if off_line > math.degrees(math.asin(tolerance)):
             hints.append(
                 f"the mice's joining line as measured is {off_line:.1f} degrees from the "
-                "configured mounts' (or their yaws are off): check the mounts (calibrate "
-                "mounts finds positions and yaws)"
+                "configured mounts' (or their yaws are off, or a mouse's `flip` is wrong, "
+                "which puts the distance off too): check the mounts (calibrate mounts finds "
+                "positions and yaws, and says a wrong flip)"
             )
     if len(off):
         bad = ", ".join(f"run {run_number(numbers, k)}: {per_run[k] * 1000:.1f} mm" for k in off)

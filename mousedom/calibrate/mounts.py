@@ -243,8 +243,14 @@ def motion_problem(w: np.ndarray, length: float = 0.1) -> str | None:
 
 
 def exact_mount(m: np.ndarray, w: np.ndarray) -> MountFit:
-    """Position, yaw and scale of one mouse; raises MountError if they are not separable.
+    """Position, yaw and scale of one mouse; raises MountError if they are not separable,
+    or if the readings are a mirror image of the motion (the config's ``flip`` is wrong).
     The scale is one for both axes unless the two differ plainly (module docstring)."""
+    if mirrored(m, w):
+        raise MountError(
+            "its readings are a mirror image of the reference motion, which no rotation and "
+            "scale undo: the config's `flip` for it is wrong"
+        )
     one = _one_scale(m, w)
     axes = _axes_fit(m, w, one)
     if axes is None:
@@ -255,6 +261,42 @@ def exact_mount(m: np.ndarray, w: np.ndarray) -> MountFit:
     if not diff_se <= AXES_UNSEEN:
         diff_se = math.inf
     return replace(one, axes_diff=diff, axes_diff_stderr=diff_se)
+
+
+def mirrored(m: np.ndarray, w: np.ndarray) -> bool:
+    """Whether the readings ``m`` (n, 2) are a mirror image of the motion ``w`` (n, 3).
+
+    G = k R(yaw) (or R diag(k_f, k_l)) has a positive determinant; a mouse whose ``flip``
+    is configured wrong reads through a reflection, which no such G represents, and the
+    one-scale fit then returns a mount 0.1 m and a CPI 60 % off with nothing to show
+    for it but a large residual.  The free linear map B m = (U_x - Θ p_y, U_y + Θ p_x),
+    six unknowns (B, p_x, p_y) and linear, tells: det B < 0.  Only where the motion
+    determines B (it needs sideways motion: without it the readings give four numbers,
+    as ``_axes_fit`` says, and a mirror cannot be seen); a reflection's determinant is
+    -k^2, so noise that flips its sign would be 100 % of the motion."""
+    m = np.asarray(m, dtype=float).reshape(-1, 2)
+    w = np.asarray(w, dtype=float).reshape(-1, 3)
+    n = len(m)
+    if n < 4:  # 2n equations, 6 unknowns and a residual
+        return False
+    a = np.zeros((2 * n, 6))  # (B11, B12, B21, B22, p_x, p_y)
+    a[0::2, 0], a[0::2, 1], a[0::2, 5] = m[:, 0], m[:, 1], w[:, 2]
+    a[1::2, 2], a[1::2, 3], a[1::2, 4] = m[:, 0], m[:, 1], -w[:, 2]
+    rhs = np.empty(2 * n)
+    rhs[0::2], rhs[1::2] = w[:, 0], w[:, 1]
+    norms = np.linalg.norm(a, axis=0)
+    if np.any(norms == 0) or not np.all(np.isfinite(a)) or not np.all(np.isfinite(rhs)):
+        return False
+    an = a / norms
+    sv = np.linalg.svd(an, compute_uv=False)
+    if sv[-1] <= 1e-6 * sv[0]:
+        return False
+    zn, *_ = np.linalg.lstsq(an, rhs, rcond=None)
+    b11, b12, b21, b22 = (zn / norms)[:4]
+    det = b11 * b22 - b12 * b21
+    # Mirrored only where the map is plainly a reflection: its determinant negative and
+    # as large as a rotation's would be (|det| = |B|^2 / 2 for k R(yaw) and for a mirror).
+    return bool(det < -0.25 * (b11**2 + b12**2 + b21**2 + b22**2) / 2)
 
 
 def _one_scale(m: np.ndarray, w: np.ndarray) -> MountFit:

@@ -125,7 +125,11 @@ def distance(session: Session, angle: float, min_runs: int = 2) -> DistanceResul
     _no_motion(session, counts)
     d1 = body_frame(a, counts[:, 0, 0], counts[:, 0, 1])
     d2 = body_frame(b, counts[:, 1, 0], counts[:, 1, 1])
-    keep = _keep_real_runs(session, np.hypot(*(d1 - d2).T), "distance")
+    # A bump is told by how far the mice moved, not by how differently: a push moves
+    # them alike (a difference near 0), and must reach calibrate_distance's error for
+    # that, not be left out as a bump.
+    moved = np.maximum(np.hypot(*d1.T), np.hypot(*d2.T))
+    keep = _keep_real_runs(session, moved, "distance")
     line = np.array([b.mount.x - a.mount.x, b.mount.y - a.mount.y])
     try:
         result = calibrate_distance(d1[keep], d2[keep], angle, line, min_runs=min_runs,
@@ -328,7 +332,8 @@ def mounts(
             try:
                 fits[m.name] = exact_mount(reading, w)
             except MountError as e:
-                raise UserError(f"mouse {m.name}: {e}") from None
+                said = f" (it says flip: {str(m.flip).lower()})" if "`flip`" in str(e) else ""
+                raise UserError(f"mouse {m.name}: {e}{said}") from None
             if not fits[m.name].axes_seen:
                 session.notes.append(_axes_unseen(m.name, ref.kind == "wheels"))
         return MountsResult("exact", fits, len(w))

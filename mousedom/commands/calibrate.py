@@ -375,6 +375,8 @@ def run_distance(args: argparse.Namespace) -> int:
         pair = [p.strip() for p in args.mice.split(",")]
         if len(pair) != 2 or not all(pair):
             raise UserError(f"--mice {args.mice!r}: give two mouse names, e.g. --mice left,right")
+        if pair[0] == pair[1]:
+            raise UserError(f"--mice {args.mice!r}: names one mouse twice: give two mice")
     config, s = _setup(args, pair)
     if len(s.names) != 2:  # said before anything about runs, which would not help
         raise UserError(
@@ -469,6 +471,19 @@ def run_scales(args: argparse.Namespace) -> int:
         print(f"{config.calibration}: not written: every mouse agrees with the others",
               file=sys.stderr)  # fmt: skip
         return 0
+
+    for m in changed:
+        if not m.axes_seen:
+            # Stored (the configured ratio of the two CPIs is the best the drive can say),
+            # but not silently: a mouse off on one axis only has the other put off too.
+            change = 1.0 / m.scale - 1.0
+            print(
+                f"mousedom: warning: {m.name}: cpi x and y both written {abs(change):.1%} "
+                f"{'higher' if change > 0 else 'lower'}: the drive does not tell its two axes "
+                "apart, so this assumes both are off alike; if only one is, the other is now "
+                "off by as much (`calibrate cpi --axis x` and `--axis y` measure each)",
+                file=sys.stderr,
+            )
 
     def update(data):
         for m in changed:
