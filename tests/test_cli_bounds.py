@@ -73,3 +73,50 @@ def test_replay_speed_out_of_range_is_one_line(tmp_path, speed):
     p = run_mousedom("replay", "-c", str(DEMO_CONFIG), "--speed", speed, timeout=60)
     assert p.returncode != 0 and "Traceback" not in p.stderr, p.stderr
     assert "--speed: must be from 0.001 to 1e+06" in p.stderr, p.stderr
+
+
+def _numeric_options():
+    """(subcommand path, option) of every option the CLI parses as a number."""
+    import argparse
+
+    from mousedom.cli import build_parser
+
+    out = []
+
+    def walk(parser, path):
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for name, sub in action.choices.items():
+                    walk(sub, [*path, name])
+            elif action.option_strings and action.type is not None and action.nargs is None:
+                try:
+                    action.type("2")
+                except (argparse.ArgumentTypeError, ValueError, TypeError):
+                    continue  # not a number at all (a path, a NAME=FILE)
+                out.append((tuple(path), action.option_strings[-1]))
+
+    walk(build_parser(), [])
+    return out
+
+
+NUMERIC = _numeric_options()
+
+
+def test_every_numeric_option_is_found():
+    names = {opt for _, opt in NUMERIC}
+    assert {"--speed", "--rate", "--count", "--duration", "--timeout", "--angle"} <= names
+
+
+@pytest.mark.parametrize("path,option", NUMERIC, ids=[" ".join(p) + o for p, o in NUMERIC])
+def test_numeric_options_take_numbers_as_people_write_them(path, option, capsys):
+    """float() and int() took "1_000", full-width and Arabic-Indic digits: numbers no
+    user types and the CSV readers refuse.  Every numeric option refuses them, one line,
+    exit 2 (argparse's own exit, before the command runs)."""
+    from mousedom.cli import main
+
+    for bad in ("1_0", "\uff12", "\u0663", "0x10"):
+        with pytest.raises(SystemExit) as e:
+            main([*path, option, bad])
+        err = capsys.readouterr().err
+        assert e.value.code == 2, (bad, err)
+        assert f"argument {option}: not a" in err and repr(bad) in err, err

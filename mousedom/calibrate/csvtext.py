@@ -12,6 +12,7 @@ import io
 import math
 import re
 
+from mousedom import plainnumber as plain
 from mousedom.errors import UserError, located
 
 _NEWLINE = re.compile(r"\r\n|\r|\n")
@@ -45,9 +46,6 @@ def header_names(line: str, path: str | None = None, lineno: int | None = None) 
     return [c.strip().lower() for c in fields(line, path, lineno)]
 
 
-# A number as people and spreadsheets write one: ASCII digits only.  float() also takes
-# "1_0", Arabic-Indic and full-width digits, "nan" and "infinity": none is a measurement.
-_NUMBER = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?", re.ASCII)
 # No value in these files comes near it (times are below 1e10 s, lengths below 1e4 m);
 # beyond it sums and squares overflow to inf.
 MAX_ABS = 1e12
@@ -57,7 +55,7 @@ def finite(raw: str, path: str | None, line: int, column: str, max_abs: float = 
     """``raw`` as a finite float of at most ``max_abs`` in size, written in ASCII decimal
     notation, or a UserError naming file, line and column."""
     raw = raw.strip()
-    if not _NUMBER.fullmatch(raw):
+    if not plain.FLOAT.fullmatch(raw):
         try:
             infinite = not math.isfinite(float(raw))  # nan, inf, infinity
         except ValueError:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 
 from mousedom.config import DEFAULT_CONFIG_PATH
+from mousedom.plainnumber import plain_float, plain_int
 
 
 def add_config(
@@ -48,3 +49,25 @@ def add_root(p: argparse.ArgumentParser) -> None:
         help="read DIR/dev/input, DIR/sys/class/input and DIR/run/udev/data instead of "
         "the real ones (containers, tests)",
     )
+
+
+NON_FINITE = ("nan", "inf", "infinity")
+
+
+def number(text: str) -> float:
+    """An argparse type: a number in ASCII decimal notation (``plainnumber``); float()
+    would take "1_000", full-width digits and "nan" (each option checks its own range)."""
+    try:
+        return plain_float(text)
+    except ValueError as e:
+        if text.strip().lower().lstrip("+-") in NON_FINITE:
+            return float(text)  # the option's range check says what it takes
+        raise argparse.ArgumentTypeError(str(e)) from None
+
+
+def whole(text: str) -> int:
+    """An argparse type: a whole number in ASCII digits."""
+    try:
+        return plain_int(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None

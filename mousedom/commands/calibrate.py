@@ -25,6 +25,7 @@ from mousedom.capture.assignment import config_captures, input_files, parse_capt
 from mousedom.commands import _options as options
 from mousedom.config import Config, load_config
 from mousedom.errors import UserError
+from mousedom.plainnumber import plain_float, plain_int
 from mousedom.safewrite import refuse_inputs
 
 
@@ -44,14 +45,16 @@ def _argument(convert, ok, requirement: str, kind: str = "number"):
     return parse
 
 
-_positive = _argument(float, lambda v: v > 0 and math.isfinite(v), "a positive number")
+_positive = _argument(plain_float, lambda v: v > 0 and math.isfinite(v), "a positive number")
 # Lengths a rig can have (a push, a wheel, a track): past these the arithmetic overflows
 # (1e300 m) or divides by nothing (1e-300 m) and prints inf.
-_length = _argument(float, lambda v: 1e-4 <= v <= 1e7, "a length between 0.0001 and 1e7 m")
-_angle = _argument(float, lambda v: 0.1 <= abs(v) <= 36000, "between 0.1 and 36000 degrees")
-_ticks = _argument(float, lambda v: 1 <= v <= 1e9, "between 1 and 1e9 ticks")
-_count = _argument(int, lambda v: v >= 1, "1 or more", kind="whole number")
-_window = _argument(float, lambda v: v >= 0 and math.isfinite(v), "0 (one window per run) or more")
+_length = _argument(plain_float, lambda v: 1e-4 <= v <= 1e7, "a length between 0.0001 and 1e7 m")
+_angle = _argument(plain_float, lambda v: 0.1 <= abs(v) <= 36000, "between 0.1 and 36000 degrees")
+_ticks = _argument(plain_float, lambda v: 1 <= v <= 1e9, "between 1 and 1e9 ticks")
+_count = _argument(plain_int, lambda v: v >= 1, "1 or more", kind="whole number")
+_window = _argument(
+    plain_float, lambda v: v >= 0 and math.isfinite(v), "0 (one window per run) or more"
+)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -205,7 +208,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     sc.add_argument(
         "--max-spread",
-        type=_argument(float, lambda v: 0 < v <= 100, "a percentage between 0 and 100"),
+        type=_argument(plain_float, lambda v: 0 < v <= 100, "a percentage between 0 and 100"),
         default=100 * scales.MAX_SPREAD,
         metavar="PERCENT",
         help=f"the largest standard deviation of a scale accepted, in per cent (default "

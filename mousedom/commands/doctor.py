@@ -88,7 +88,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--socket", metavar="PATH", help="daemon socket (default: found as run does)")
     p.add_argument(
         "--timeout",
-        type=float,
+        type=options.number,
         default=1.5,
         metavar="S",
         help="how long to read the running daemon, and to listen for its ROS 2 odometry "

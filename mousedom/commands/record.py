@@ -69,10 +69,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     options.add_output(
         p, "the native capture to write (refused if it exists, unless --force)", required=True
     )
-    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    p.add_argument("--duration", type=options.number, metavar="S", help="stop after S seconds")
     p.add_argument(
         "--status-interval",
-        type=float,
+        type=options.number,
         default=1.0,
         metavar="S",
         help="seconds between status lines on stderr (0: none)",

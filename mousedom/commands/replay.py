@@ -33,6 +33,7 @@ from mousedom.commands._replay_health import (
 from mousedom.config import INTEGRATORS, MODELS, Config, load_config
 from mousedom.errors import UserError
 from mousedom.fusion.tracker import PoseBatch
+from mousedom.plainnumber import plain_float
 from mousedom.safewrite import open_stream, refuse_shared_outputs, same_file
 
 # The summary's health lines live in _replay_health; their names stay reachable from here.
@@ -83,7 +84,7 @@ def register(subparsers) -> None:
     )
     p.add_argument(
         "--speed",
-        type=float,
+        type=options.number,
         metavar="X",
         help="pace output at X times real time (default: as fast as possible)",
     )
@@ -343,7 +344,7 @@ class _Output:
 
 def _true_end(args) -> tuple[float, float]:
     try:
-        x, y = (float(v) for v in args.true_end.split(","))
+        x, y = (plain_float(v) for v in args.true_end.split(","))
     except ValueError:
         raise UserError(f"--true-end: expected X,Y in metres, got {args.true_end!r}") from None
     if not (math.isfinite(x) and math.isfinite(y)):

@@ -9,6 +9,7 @@ import shutil
 import sys
 from typing import Any, TextIO
 
+from mousedom.commands import _options as options
 from mousedom.commands import _watchview as view
 from mousedom.errors import UserError
 
@@ -22,8 +23,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "is printed per pose.",
     )
     p.add_argument("--socket", metavar="PATH", help="daemon socket (default: found as run does)")
-    p.add_argument("--rate", type=float, default=10.0, metavar="HZ", help="poses per second")
-    p.add_argument("--count", type=int, metavar="N", help="stop after N poses")
+    p.add_argument(
+        "--rate", type=options.number, default=10.0, metavar="HZ", help="poses per second"
+    )
+    p.add_argument("--count", type=options.whole, metavar="N", help="stop after N poses")
     p.add_argument("--json", action="store_true", help="print the raw protocol lines")
     p.set_defaults(func=run)
 
