@@ -213,3 +213,47 @@ def test_a_reload_that_changes_the_view_says_it_waits_for_a_restart(tmp_path):
         assert "outputs.foxglove changed: takes effect at the next restart" in log
     finally:
         assert d.stop() == 0
+
+
+def test_mouse_frames_are_named_and_turned_as_ros2_has_them():
+    """Foxglove's base_link -> mouse transforms used the raw name ("front-left_mouse",
+    ROS 2's /tf_static "front_left_mouse") and the yaw alone (a mirrored sensor drawn
+    upright): both now as ros2conv's static transforms, for any name, yaw and flip."""
+    import numpy as np
+
+    from mousedom.config import MouseConfig
+    from mousedom.config.rig import Mount
+    from mousedom.service import ros2conv
+    from mousedom.service.foxgloveout import mount_frames
+
+    rng = np.random.default_rng(4)
+    names = ["front-left", "2nd", "Rear", "a.b", "x"]
+    mice = [
+        MouseConfig(
+            name=n,
+            cpi_x=800.0,
+            cpi_y=800.0,
+            flip=bool(rng.random() < 0.5),
+            mount=Mount(
+                x=float(rng.uniform(-0.2, 0.2)),
+                y=float(rng.uniform(-0.2, 0.2)),
+                yaw=float(rng.uniform(-math.pi, math.pi)),
+            ),
+        )  # fmt: skip
+        for n in names
+    ]
+    assert any(m.flip for m in mice) and not all(m.flip for m in mice)
+    from foxglove.messages import FrameTransform
+
+    schema = FrameTransform.get_schema()
+    decode = _decoder(base64.b64encode(schema.data).decode(), schema.name).FromString
+    frames = [decode(f.encode()) for f in mount_frames(mice, None)]
+    for m, f in zip(mice, frames, strict=True):
+        ros = ros2conv.mount_transform("base_link", m.name, m.mount.x, m.mount.y, m.mount.yaw,
+                                       m.flip, {"sec": 0, "nanosec": 0})  # fmt: skip
+        assert f.parent_frame_id == "base_link" and f.child_frame_id == ros["child_frame_id"]
+        r = ros["transform"]["rotation"]
+        q = f.rotation
+        assert (q.x, q.y, q.z, q.w) == (r["x"], r["y"], r["z"], r["w"])
+        assert (f.translation.x, f.translation.y) == (m.mount.x, m.mount.y)
+    assert frames[0].child_frame_id == "front_left_mouse"

@@ -184,4 +184,4 @@ def _start_outputs(args: argparse.Namespace, config: Config, outputs: list[Outpu
         inputs = config_inputs(config)
         outputs.append(McapRecorder(args.record_mcap, config.ros2 or Ros2Config(),
                                     config.names, config.rate_hz, inputs,
-                                    offset=system_offset(config.ros2)))  # fmt: skip
+                                    offset=system_offset(config.ros2), live=True))  # fmt: skip

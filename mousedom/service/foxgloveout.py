@@ -31,6 +31,7 @@ from mousedom.config import FoxgloveConfig, MouseConfig
 from mousedom.errors import UserError
 from mousedom.fusion import robust
 from mousedom.fusion.posebatch import PoseRow
+from mousedom.service import ros2conv
 from mousedom.service.output import Output, PerMouse
 
 log = logging.getLogger(__name__)
@@ -85,6 +86,22 @@ def _quat(yaw: float) -> Any:
     from foxglove.messages import Quaternion
 
     return Quaternion(x=0.0, y=0.0, z=math.sin(0.5 * yaw), w=math.cos(0.5 * yaw))
+
+
+def mount_frames(mice: tuple[MouseConfig, ...] | list[MouseConfig], stamp: Any) -> list[Any]:
+    """base_link -> each mouse's frame, as ROS 2's /tf_static has them (``ros2conv``): the
+    frame named by the mouse's ROS token, a mirrored sensor turned upside down."""
+    from foxglove.messages import FrameTransform, Quaternion, Vector3
+
+    out = []
+    for m in mice:
+        rot = ros2conv.mount_rotation(m.mount.yaw, m.flip)
+        out.append(FrameTransform(
+            timestamp=stamp, parent_frame_id="base_link",
+            child_frame_id=ros2conv.mouse_frame(m.name),
+            translation=Vector3(x=m.mount.x, y=m.mount.y, z=0.0),
+            rotation=Quaternion(**rot)))  # fmt: skip
+    return out
 
 
 class FoxgloveOutput(PerMouse, Output):
@@ -157,12 +174,7 @@ class FoxgloveOutput(PerMouse, Output):
                                      rotation=_quat(yaw))]  # fmt: skip
         if self.per_mouse and t - self._mounts_sent >= 1.0:  # (output.PerMouse)
             self._mounts_sent = t
-            for m in self.mice:
-                transforms.append(FrameTransform(
-                    timestamp=stamp, parent_frame_id="base_link",
-                    child_frame_id=f"{m.name}_mouse",
-                    translation=Vector3(x=m.mount.x, y=m.mount.y, z=0.0),
-                    rotation=_quat(m.mount.yaw)))  # fmt: skip
+            transforms += mount_frames(self.mice, stamp)
         self.tf_ch.log(FrameTransforms(transforms=transforms))
         if self.per_mouse:
             self._mice(t, row)

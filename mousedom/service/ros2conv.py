@@ -209,15 +209,22 @@ def mount_transform(
     """A mouse's mount as a static transform base -> its frame: x forward toward the
     mouse's buttons, y to its left, z up; a mirrored sensor (``flip``) is the same mouse
     turned upside down, a half turn about its x axis (its y and z reversed)."""
-    if flip:  # yaw, then a half turn about x: (w, x, y, z) = (0, cos(yaw/2), sin(yaw/2), 0)
-        rot = {"x": math.cos(0.5 * yaw), "y": math.sin(0.5 * yaw), "z": 0.0, "w": 0.0}
-    else:
-        rot = quaternion(yaw)
     return {
         "header": header(base, st),
         "child_frame_id": mouse_frame(name, base),
-        "transform": {"translation": {"x": x, "y": y, "z": 0.0}, "rotation": rot},
+        "transform": {
+            "translation": {"x": x, "y": y, "z": 0.0},
+            "rotation": mount_rotation(yaw, flip),
+        },
     }
+
+
+def mount_rotation(yaw: float, flip: bool) -> dict[str, float]:
+    """A mouse's orientation on the body: its yaw, and for a mirrored sensor (``flip``)
+    then a half turn about its x axis, (w, x, y, z) = (0, cos(yaw/2), sin(yaw/2), 0)."""
+    if flip:
+        return {"x": math.cos(0.5 * yaw), "y": math.sin(0.5 * yaw), "z": 0.0, "w": 0.0}
+    return quaternion(yaw)
 
 
 # diagnostic_msgs/msg/DiagnosticStatus levels
