@@ -62,8 +62,12 @@ def test_our_field_lists_are_ros2s(store):
         return f"{describe(inner)}[{size if kind == 3 else ''}]"
 
     for name, fields in ros2msgs.FIELDS.items():
-        _, theirs = ts.fielddefs[ros2msgs.ros2_name(name)]
+        consts, theirs = ts.fielddefs[ros2msgs.ros2_name(name)]
         assert [(describe(node), fname) for fname, node in theirs] == list(fields), name
+        # and their constants (the MCAP schema's text carries them: a viewer names levels)
+        ours = [(n, c, v) for c, n, v in ros2msgs.CONSTANTS.get(name, ())]
+        assert ours == list(consts), name
+    assert "byte OK=0\nbyte WARN=1\n" in ros2msgs.msgdef(ros2msgs.DIAGNOSTICS)
 
 
 def test_our_cdr_is_what_rosbags_reads():

@@ -72,6 +72,14 @@ FIELDS: dict[str, tuple[tuple[str, str], ...]] = {
     ),
 }  # fmt: skip
 
+# type -> ((constant type, name, value), ...): the constants of a type's definition, which
+# the ros2msg schema text carries (a viewer names a level by them) and the wire does not.
+CONSTANTS: dict[str, tuple[tuple[str, str, int], ...]] = {
+    "diagnostic_msgs/DiagnosticStatus": (
+        ("byte", "OK", 0), ("byte", "WARN", 1), ("byte", "ERROR", 2), ("byte", "STALE", 3),
+    ),
+}  # fmt: skip
+
 # REP-2011 type hashes of the published types (the same in Humble and Jazzy; tests check
 # them against rosbags' computation from ROS 2's definitions).  ROS 2 since Iron announces
 # its own in each endpoint's USER_DATA as "typehash=RIHS01_...;" (rmw_dds_common), shown
@@ -113,11 +121,13 @@ def dependencies(name: str) -> list[str]:
 
 
 def msgdef(name: str) -> str:
-    """The ``ros2msg`` schema text of an MCAP channel: the type's fields, then each type
-    it uses after a line of '=' and ``MSG: pkg/Type`` (the rosbag2 and Foxglove layout)."""
+    """The ``ros2msg`` schema text of an MCAP channel: the type's constants and fields, then
+    each type it uses after a line of '=' and ``MSG: pkg/Type`` (the rosbag2 and Foxglove
+    layout)."""
 
     def body(t: str) -> str:
-        return "".join(f"{ftype} {fname}\n" for ftype, fname in FIELDS[t])
+        consts = "".join(f"{c} {n}={v}\n" for c, n, v in CONSTANTS.get(t, ()))
+        return consts + "".join(f"{ftype} {fname}\n" for ftype, fname in FIELDS[t])
 
     parts = [body(name)]
     for dep in dependencies(name):
