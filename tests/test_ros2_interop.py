@@ -379,3 +379,41 @@ def test_the_configs_ros2_names_are_those_rclpy_accepts(ros2, tmp_path):
         if took != want:
             wrong.append((ns, topic, "rclpy takes it" if want else "rclpy refuses it"))
     assert not wrong, wrong[:5]
+
+
+def test_a_stopped_daemon_leaves_the_ros2_graph_at_once(ros2, tmp_path):
+    """A daemon stopped by SIGTERM stayed in rclpy's graph for Fast DDS's lease (10 s), so
+    a restarted one was two nodes of one name meanwhile: Fast DDS does not act on Cyclone's
+    disposal of a deleted participant.  Its node list is emptied before it goes (as rmw
+    does when a node is destroyed): the node leaves the graph within a second."""
+    domain = random.Random().randrange(1, 100)
+    cfg = _config(tmp_path, domain)
+    sock = tmp_path / "run" / "mousedom.sock"
+    out = tmp_path / "graph.jsonl"
+    env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""),
+               RMW_IMPLEMENTATION="rmw_fastrtps_cpp")  # fmt: skip
+    env.pop("ROS_DOMAIN_ID", None)
+    env.pop("CYCLONEDDS_URI", None)
+    script = (
+        NETNS + f"{sys.executable} -m mousedom run --config {cfg} --socket {sock} "
+        f"2>{tmp_path / 'daemon.log'} & daemon=$!; "
+        f"ROS_DOMAIN_ID={domain} {ros2} {REPO / 'tests' / 'ros2_rclpy_graph.py'} 9 {out} & "
+        "watch=$!; "
+        # once the watcher has seen the daemon's node (at most 6 s), stop the daemon
+        f"for i in $(seq 60); do grep -q '\"mousedom\"' {out} 2>/dev/null && break; "
+        "sleep 0.1; done; sleep 0.5; "
+        "python3 -c 'import time; print(time.time())'; kill -TERM $daemon; wait $daemon; "
+        "echo rc=$?; wait $watch"
+    )
+    proc = subprocess.run(["unshare", "-n", "bash", "-c", script], env=env,
+                          capture_output=True, text=True, timeout=60)  # fmt: skip
+    log = (tmp_path / "daemon.log").read_text()
+    assert proc.returncode == 0 and "rc=0" in proc.stdout, proc.stdout + proc.stderr + log
+    killed = float(proc.stdout.split()[0])
+    rows = [json.loads(x) for x in out.read_text().splitlines()]
+    node = ["mousedom", "/"]
+    assert any(node in r["nodes"] for r in rows if r["t"] < killed), rows[:3]
+    after = [r for r in rows if r["t"] > killed + 1.0]
+    assert after and rows[-1]["t"] > killed + 3.0, (killed, rows[-1])
+    still = [r["t"] - killed for r in after if node in r["nodes"]]
+    assert not still, f"in the graph {max(still):.1f} s after SIGTERM"

@@ -107,3 +107,12 @@ class NodeAnnouncer:
             writer_gid_seq=[gid(w) for w in self.writers],
         )
         self.writer.write(info(gid=gid(self.participant), node_entities_info_seq=[node]))
+
+    def withdraw(self) -> None:
+        """The node is going: the participant's node list emptied, as rmw does when a node
+        is destroyed.  ROS 2's graph then drops the node at once: Fast DDS does not act on
+        Cyclone's disposal of a deleted participant, which it keeps until its lease ends
+        (10 s: a restarted daemon was two nodes of one name meanwhile)."""
+        _, _, info = graph_types()
+        self.readers, self.writers = [], []
+        self.writer.write(info(gid=gid(self.participant), node_entities_info_seq=[]))

@@ -130,6 +130,10 @@ class Ros2ImuSource(Source):
         return f"ros2:{self.domain}:{self.ros2.topic}" if self.reader is not None else None
 
     def close(self) -> None:
+        if self._graph is not None:
+            from mousedom.service.ros2out import withdraw
+
+            withdraw(self._graph)
         self.reader = None
         self._graph = None
         self._participant = None

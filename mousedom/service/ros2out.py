@@ -182,6 +182,17 @@ def _why_no_participant(domain: int, said: str, what: str = "ROS 2 output") -> s
 _DOMAINS: dict[int, Any] = {}
 
 
+def withdraw(graph: Any) -> None:
+    """Take a closing node off ROS 2's graph (``NodeAnnouncer.withdraw``); a DDS error then
+    is logged, not raised: the node is going anyway, and its lease ends it."""
+    from cyclonedds.core import DDSException
+
+    try:
+        graph.withdraw()
+    except DDSException as e:
+        log.warning("could not take node %s off the ROS 2 graph: %s", graph.name, e)
+
+
 def participant(domain: int, what: str = "ROS 2 output") -> Any:
     """A DDS participant on ``domain``, the domain configured as ``dds_config`` says the
     first time; Ros2Unavailable saying why (``what`` wanted it) where none can be made."""
@@ -387,6 +398,8 @@ class Ros2Output(PerMouse, Output):
             self.diag.write(cdr.diagnostics(st, conv.diagnostics(st, messages)))
 
     def close(self) -> None:
+        if self.graph is not None:
+            withdraw(self.graph)
         self.graph = self.tf_static = self.initialpose = None
         self.odom = self.tf = self.diag = None
         self.counts = []
