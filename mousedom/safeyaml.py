@@ -26,6 +26,11 @@ MAX_BYTES = 4 << 20  # a config or a recording's device header; event lists are 
 MAX_DEPTH = 32  # a rig config is 4 deep; libinput headers 5
 MAX_NODES = 200_000  # nodes after alias expansion
 MAX_INT_DIGITS = 100  # no integer in any of our files needs more
+# A rig config and its calibration file: a SIGHUP parses them in the daemon's loop, with the
+# pure-Python composer (it keeps every node's line), at about 20 us a node: 200,000 nodes
+# stalled the loop 4.4 s (no POSE, SIGTERM unanswered).  A rig of 8 mice is some 200 nodes.
+CONFIG_MAX_BYTES = 256 << 10
+CONFIG_MAX_NODES = 10_000
 
 try:  # libyaml's parser when present: faster, and the same events
     _Parser: Any = yaml.CSafeLoader
@@ -114,7 +119,7 @@ def prepare(text: str) -> str:
     return text
 
 
-def check(text: str, *, max_bytes: int = MAX_BYTES) -> None:
+def check(text: str, *, max_bytes: int = MAX_BYTES, max_nodes: int = MAX_NODES) -> None:
     """Raise LimitError if parsing ``text`` would take more than the limits allow."""
     if len(text) > max_bytes:
         raise LimitError(
@@ -122,7 +127,7 @@ def check(text: str, *, max_bytes: int = MAX_BYTES) -> None:
             problem_mark=yaml.Mark("<text>", 0, 0, 0, None, None),
         )
     try:
-        _measure(text)
+        _measure(text, max_nodes)
     except yaml.reader.ReaderError as e:
         # Not a MarkedYAMLError: say it with a line, as every other YAML error is said.
         line = text.count("\n", 0, e.position)
@@ -132,7 +137,7 @@ def check(text: str, *, max_bytes: int = MAX_BYTES) -> None:
         ) from None
 
 
-def _measure(text: str) -> None:
+def _measure(text: str, max_nodes: int) -> None:
     """One pass over the parser's events: depth, alias expansion and cycles."""
     depth = 0
     sizes: dict[str, int] = {}  # anchor -> nodes it stands for, aliases expanded
@@ -171,9 +176,9 @@ def _measure(text: str) -> None:
             open_counts[-1] = (parent + size, parent_anchor)
         else:
             total += size
-        if size > MAX_NODES or total > MAX_NODES:
+        if size > max_nodes or total > max_nodes:
             raise LimitError(
-                problem=f"aliases expand to more than {MAX_NODES} nodes",
+                problem=f"more than {max_nodes} nodes (aliases expanded)",
                 problem_mark=event.start_mark,
             )
 
@@ -201,9 +206,10 @@ def load(text: str | bytes) -> Any:
 
 def compose(text: str) -> tuple[yaml.Node | None, Loader]:
     """The node tree (for line numbers) and the loader that will construct it; the caller
-    calls ``loader.construct_document(node)`` and ``loader.dispose()``."""
+    calls ``loader.construct_document(node)`` and ``loader.dispose()``.  Used for configs
+    and calibration files: their limits (CONFIG_MAX_BYTES, CONFIG_MAX_NODES)."""
     text = prepare(text)
-    check(text)
+    check(text, max_bytes=CONFIG_MAX_BYTES, max_nodes=CONFIG_MAX_NODES)
     loader = Loader(text)
     try:
         return loader.get_single_node(), loader

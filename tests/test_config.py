@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 
 import pytest
 
@@ -250,3 +251,47 @@ def test_an_empty_socket_path_is_refused_and_a_yaw_beyond_a_turn_is_warned_of():
     assert any("mice.right.mount.yaw: 1e+30 degrees is more than a turn" in w
                for w in cfg.warnings), cfg.warnings  # fmt: skip
     assert not parse_config(GOOD, "rig.yaml").warnings
+
+
+_ONE = "rate_hz: 50\nmodel: lsq\nmice:\n  a: {{{a}}}\n  b: {{cpi: 800, mount: {{x: -0.1, y: 0}}}}\n"
+
+
+@pytest.mark.parametrize("a,said", [
+    ("cpi: 1e-300, mount: {x: 0.1, y: 0}", "mice.a.cpi: must be between 1 and 1e+06"),
+    ("cpi: {x: 800, y: 2e6}, mount: {x: 0.1, y: 0}", "mice.a.cpi.y: must be between 1 and 1e+06"),
+    ("cpi: 800, mount: {x: 1e308, y: 0}", "mice.a.mount.x: must be between -1000 and 1000"),
+    ("cpi: 800, mount: {x: 0.1, y: -2000}", "mice.a.mount.y: must be between -1000 and 1000"),
+    ("cpi: 800, mount: {x: 0.1, y: 0}, sigma: 1e-9", "mice.a.sigma: must be between 0.01 and"),
+    ("cpi: 800, mount: {x: 0.1, y: 0}, sigma: 2e4", "mice.a.sigma: must be between 0.01 and"),
+])  # fmt: skip
+def test_values_no_rig_has_are_refused_naming_the_line(a, said):
+    """A CPI of 1e-300 passed (a warning) and overflowed replay (a traceback); a mount of
+    1e308 said the mice were all at one point; a sigma 1e9 times smaller than another
+    mouse's passed check-config and killed the daemon at its reload (singular weights)."""
+    with pytest.raises(ConfigError, match=re.escape("rig.yaml:4: " + said)):
+        parse_config(_ONE.format(a=a), "rig.yaml", need_sources=False)
+
+
+@pytest.mark.parametrize("sa,sb", [(0.01, 1e4), (1e4, 0.01), (0.01, 0.01), (1e4, 1e4)])
+def test_sigmas_at_the_limits_make_a_fusion_that_runs(sa, sb):
+    """The limits are what the arithmetic takes: the most different sigmas allowed solve
+    (the weights' ratio 1e12; 1e16 was singular) on the demo's drive, and every pose is
+    finite."""
+    import numpy as np
+
+    from mousedom.capture import assign
+    from mousedom.capture.replay import Replay
+    from mousedom.demo import DEMO_CONFIG
+
+    text = open(DEMO_CONFIG).read()
+    first = text.index("sigma: 1.0")
+    text = text[:first] + f"sigma: {sa}" + text[first + 10 :]
+    second = text.index("sigma: 1.0")
+    text = text[:second] + f"sigma: {sb}" + text[second + 10 :]
+    config = parse_config(text, str(DEMO_CONFIG), need_sources=False)
+    assert [m.sigma for m in config.mice][:2] == [sa, sb]
+    batches = []
+    Replay(config, assign(config, [])).run(batches.append)
+    x = np.concatenate([b.x for b in batches])
+    assert len(x) > 100 and np.all(np.isfinite(x))
+    assert all(np.all(np.isfinite(b.cov)) for b in batches)

@@ -473,6 +473,64 @@ def test_a_reload_whose_new_sensor_does_not_open_keeps_the_daemon(tmp_path, capl
     assert not th.is_alive()
 
 
+def test_a_reload_whose_fusion_cannot_be_made_keeps_the_old_config(tmp_path, caplog):
+    """A config that loads but whose fusion fails to build (a singular weighted system: a
+    sigma 1e9 times another's, refused at load since) raised out of the reload and killed
+    the daemon with a traceback, its socket removed.  Whatever the new tracker meets, the
+    old config runs on, said once; the next good reload applies."""
+    import numpy as np
+
+    from mousedom.config import load_config
+    from mousedom.fusion.tracker import Tracker
+
+    def write(mice: str) -> None:
+        (tmp_path / "rig.yaml").write_text(f"rate_hz: 50\nmodel: lsq\nmice:\n{mice}")
+
+    line = "  {n}: {{evdev: {{path: /dev/null}}, cpi: 1000, mount: {{x: {x}, y: {y}}}}}\n"
+    two = line.format(n="a", x=0.1, y=0) + line.format(n="b", x=-0.1, y=0)
+    write(two)
+    d = Daemon(load_config(tmp_path / "rig.yaml"), str(tmp_path / "d.sock"),
+               source_factory=lambda m, _clock: PipeSource(m.name),
+               handle_signals=False)  # fmt: skip
+
+    class Broken(Tracker):
+        def __init__(self, config, **kw):
+            if len(config.mice) == 3:
+                raise np.linalg.LinAlgError("Singular matrix")
+            super().__init__(config, **kw)
+
+    d.reloader.tracker_class = Broken
+    th = threading.Thread(target=d.run)
+    th.start()
+    try:
+        wait_listening(Path(d.server.path), None, 10)
+        c = Conn(d.server.path)
+        c.until("VERSION")
+        write(two + line.format(n="c", x=0, y=0.1))
+        d.request_reload()
+        deadline = time.monotonic() + 5
+        while not any("reload failed" in r.getMessage() for r in caplog.records):
+            assert time.monotonic() < deadline, "the reload never said it failed"
+            time.sleep(0.02)
+        assert th.is_alive() and Path(d.server.path).exists()
+        assert list(d.running.config.names) == ["a", "b"]
+        assert Conn(d.server.path).read()["sensors"] == ["a", "b"]
+        said = [r.getMessage() for r in caplog.records if "reload failed" in r.getMessage()]
+        assert len(said) == 1 and "Singular matrix" in said[0], said
+        write(two.replace("x: 0.1", "x: 0.12"))  # a good reload after it applies
+        old = d.running.config
+        d.request_reload()
+        deadline = time.monotonic() + 5
+        while d.running.config is old:
+            assert time.monotonic() < deadline, "the good reload never applied"
+            time.sleep(0.02)
+        assert d.running.config.mouse("a").mount.x == 0.12
+    finally:
+        d.request_stop()
+        th.join(5)
+    assert not th.is_alive()
+
+
 class _Cycle:
     """An object in a reference cycle: only the collector frees it."""
 

@@ -80,3 +80,19 @@ def test_a_full_receiver_never_blocks_the_sender(listener):
     assert time.monotonic() - t < 1.0
     assert results[0] and not results[-1]
     assert sock.recv(4096) == b"WATCHDOG=1"
+
+
+@pytest.mark.parametrize("status", ["x" * 39_000, "é" * 3000, "ok " * 1365, "y" * 4088])
+def test_a_long_status_is_cut_so_that_systemd_takes_the_datagram(listener, status):
+    """systemd ignores a notify datagram over 4096 bytes (PIPE_BUF): a reload's READY=1
+    sent with a STATUS naming 200 bad keys (39 kB) was lost, and systemd waited on."""
+    path, sock = listener
+    n = Notifier({"NOTIFY_SOCKET": path})
+    assert n.notify(READY=1, STATUS=status)
+    got = sock.recv(65536)
+    assert len(got) <= 4096 and got.startswith(b"READY=1\nSTATUS=")
+    text = got.decode()  # whole characters
+    sent = text.removeprefix("READY=1\nSTATUS=")
+    whole = len(f"READY=1\nSTATUS={status}".encode()) <= 4096
+    assert sent == status if whole else (sent.endswith("...") and status.startswith(sent[:-3]))
+    n.close()

@@ -226,7 +226,9 @@ def load_config(
     """Read a config file; every problem is a ConfigError naming file, line and key."""
     p = str(path)
     try:
-        text = safeyaml.read_text(p)  # bounded: a reload must not swallow a 10 GB file
+        text = safeyaml.read_text(
+            p, safeyaml.CONFIG_MAX_BYTES
+        )  # bounded: a reload must not swallow a 10 GB file
     except FileNotFoundError:
         raise ConfigError(f"{p}: config file not found") from None
     except IsADirectoryError:

@@ -25,6 +25,17 @@ MOUSE_KEYS = ("cpi", "mount", "flip", "sigma", "report_hz", "evdev", "serial", "
               "max_speed", "min_squal")  # fmt: skip
 
 
+# Hard limits, beyond the plausible ranges that only warn (mousedom.plausible): values past
+# these are no rig, and break the arithmetic.  A CPI of 1e-300 overflows a count to inf (a
+# replay's traceback); a mount of 1e308 overflows the geometry; a sigma 1e8 times another
+# mouse's makes the weighted normal equations singular (a reload that killed the daemon).
+# Sigma within 0.01-10,000 counts keeps the weights' ratio at 1e12, four decades short of
+# that; a count's rounding alone is 0.29 counts, so no mouse is known 0.01 counts well.
+CPI_LIMITS = (1.0, 1e6)
+SIGMA_LIMITS = (0.01, 1e4)
+MOUNT_LIMIT_M = 1000.0
+
+
 def _cpi(r: Reader, key: str, default: tuple[float, float] | None) -> tuple[float, float]:
     v = r.raw(key)
     if v is None:
@@ -33,11 +44,11 @@ def _cpi(r: Reader, key: str, default: tuple[float, float] | None) -> tuple[floa
         return default
     if isinstance(v, dict):
         sub = r.sub(key, ("x", "y"))
-        cx = sub.number("x", positive=True)
-        cy = sub.number("y", positive=True)
+        cx = sub.number("x", positive=True, within=CPI_LIMITS)
+        cy = sub.number("y", positive=True, within=CPI_LIMITS)
         sub.finish()
         return cx, cy
-    c = r.number(key, positive=True)
+    c = r.number(key, positive=True, within=CPI_LIMITS)
     return c, c
 
 
@@ -52,8 +63,8 @@ def _mount(r: Reader, default: Mount | None) -> Mount:
         return default
     m = r.sub("mount", ("x", "y", "yaw"))
     base = default or Mount()
-    x = m.number("x", base.x)
-    y = m.number("y", base.y)
+    x = m.number("x", base.x, within=(-MOUNT_LIMIT_M, MOUNT_LIMIT_M))
+    y = m.number("y", base.y, within=(-MOUNT_LIMIT_M, MOUNT_LIMIT_M))
     yaw = math.radians(m.number("yaw", math.degrees(base.yaw)))
     m.finish()
     return Mount(x, y, yaw)
@@ -127,7 +138,8 @@ def read_mouse(doc: YamlDoc, name: str, value: Any, base_dir: Path) -> MouseConf
     cpi = required("cpi", lambda: _cpi(r, "cpi", None))
     mount = required("mount", lambda: _mount(r, None if doc.need_mounts else Mount()))
     flip = doc.attempt(r.boolean, "flip", default(MouseConfig, "flip", bool))
-    sigma = doc.attempt(r.number, "sigma", default(MouseConfig, "sigma", float), positive=True)
+    sigma = doc.attempt(r.number, "sigma", default(MouseConfig, "sigma", float), positive=True,
+                        within=SIGMA_LIMITS)  # fmt: skip
     report_hz = doc.attempt(r.number, "report_hz", default(MouseConfig, "report_hz", float),
                             within=(1.0, 100000.0))  # fmt: skip
     # Present or None: these two have no default for a USB mouse.
@@ -178,7 +190,7 @@ def apply_calibration(
     (``file:line: key: message``) for a calibrated CPI no mouse reports
     (``plausible.cpi_problem``), as the config's own CPI gets."""
     try:
-        text = safeyaml.read_text(path)
+        text = safeyaml.read_text(path, safeyaml.CONFIG_MAX_BYTES)
     except FileNotFoundError:
         return mice, []
     except OSError as e:

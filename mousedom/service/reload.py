@@ -88,9 +88,13 @@ class Reloader:
         self.publisher.log_scales()
         kept = self.sensors.kept(sensors_of(new))
         tracker = old
-        if not old.go_on(new, kept):  # (the fusion's terms changed: learnt afresh)
-            tracker = self.tracker_class(new, t0=old.frontier_time)
-            tracker.carry(old, kept)  # the pose, its covariance
+        try:  # nothing has changed yet: a fusion the new config cannot make keeps the old
+            if not old.go_on(new, kept):  # (the fusion's terms changed: learnt afresh)
+                tracker = self.tracker_class(new, t0=old.frontier_time)
+                tracker.carry(old, kept)  # the pose, its covariance
+        except Exception as e:  # noqa: BLE001 - whatever a reload meets, the old config runs on
+            self._failed(path, e)
+            return
         self._stop_recording_if_mice_changed(new)
         self.publisher.fold_window_health()  # the old slots' last windows, before they move
         previous = self.running.config
@@ -127,11 +131,16 @@ class Reloader:
                 raise UserError("the running config was not read from a file")
             return load_config(path)
         except Exception as e:  # noqa: BLE001 - whatever a reload meets, the old config runs on
-            if not isinstance(e, UserError):
-                log.exception("reload of %s failed unexpectedly", path)
-            log.error("reload failed, keeping the running config: %s", e)
-            self.notifier.notify(READY=1, STATUS=f"reload failed: {e}")
+            self._failed(path, e)
             return None
+
+    def _failed(self, path: str | None, e: Exception) -> None:
+        """Said once: in the log (with the traceback where no UserError explains it) and
+        to systemd, which is told the daemon is ready again with the old config."""
+        if not isinstance(e, UserError):
+            log.exception("reload of %s failed unexpectedly", path)
+        log.error("reload failed, keeping the running config: %s", e)
+        self.notifier.notify(READY=1, STATUS=f"reload failed: {e}")
 
     def finish_windows(self) -> None:
         """What is already readable belongs to the running windows: read it, close and

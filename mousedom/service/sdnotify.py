@@ -46,6 +46,24 @@ def watchdog_interval(environ: dict[str, str] | None = None) -> float | None:
     return value / 2e6
 
 
+# systemd ignores a notify datagram longer than this (NOTIFY_BUFFER_MAX, PIPE_BUF): a
+# READY=1 sent with a STATUS naming 200 bad keys was lost, and the reload never ended.
+MAX_DATAGRAM = 4096
+
+
+def datagram(fields: dict[str, object]) -> bytes:
+    """``KEY=VALUE`` lines, one field a line, within MAX_DATAGRAM bytes: a STATUS too long
+    for it is cut (at a character, ending in "..."); the other fields are short."""
+    lines = {key: str(value).replace("\n", " ") for key, value in fields.items()}
+    data = "\n".join(f"{k}={v}" for k, v in lines.items()).encode()
+    if len(data) <= MAX_DATAGRAM or "STATUS" not in lines:
+        return data
+    over = len(data) - MAX_DATAGRAM + len(b"...")
+    status = lines["STATUS"].encode()
+    lines["STATUS"] = status[: max(0, len(status) - over)].decode(errors="ignore") + "..."
+    return "\n".join(f"{k}={v}" for k, v in lines.items()).encode()
+
+
 class Notifier:
     """Sends notify datagrams; a no-op when ``NOTIFY_SOCKET`` is not set."""
 
@@ -69,14 +87,10 @@ class Notifier:
         """
         if self._sock is None or self.address is None or not fields:
             return False
-        lines = []
-        for key, value in fields.items():
-            text = str(value).replace("\n", " ")  # one field a line: no newlines inside
-            lines.append(f"{key}={text}")
         try:
             # Never block the fusion on the notify socket: a receiver whose queue is full
             # (it holds only a few datagrams) costs us one status line, not a stall.
-            self._sock.sendto("\n".join(lines).encode(), socket.MSG_DONTWAIT, self.address)
+            self._sock.sendto(datagram(fields), socket.MSG_DONTWAIT, self.address)
         except BlockingIOError:
             log.debug("sd_notify to %r: receiver busy, line dropped", self.address)
             return False
