@@ -372,3 +372,37 @@ def test_doctor_checks_the_endpoint_the_config_names(tmp_path, capsys):
         assert "restart it" in got[0]["hint"]
     finally:
         d.stop()
+
+
+def test_idle_scrapers_cannot_use_up_the_daemons_descriptors(tmp_path):
+    """Each connection to the endpoint held a thread and a descriptor for ever: 150 idle
+    half-sent requests used up the daemon's descriptors and its socket refused clients.
+    At most MAX_SCRAPERS connections are served at once (the rest closed unanswered), each
+    given REQUEST_TIMEOUT_S to send its request; the socket's clients never notice."""
+    from mousedom.service.metrics import MAX_SCRAPERS, REQUEST_TIMEOUT_S
+
+    d = _start(tmp_path, "outputs:\n  metrics: {port: 0}\n")
+    idle: list[socket.socket] = []
+    try:
+        _, port = _endpoint(d)
+        _scrape(port)
+        before = len(os.listdir(f"/proc/{d.proc.pid}/fd"))
+        for _ in range(60):
+            s = socket.create_connection(("127.0.0.1", port), timeout=5)
+            s.sendall(b"GET /metrics HTTP/1.1\r\nHost: x\r\n")  # and never the end
+            idle.append(s)
+        time.sleep(0.5)
+        held = len(os.listdir(f"/proc/{d.proc.pid}/fd")) - before
+        assert held <= MAX_SCRAPERS + 2, held
+        c = Conn(d.socket_path)  # the socket's clients are served as before
+        assert c.read()["class"] == "VERSION" and c.until("POSE")
+        c.close()
+        # Once the held ones' time is up, a scrape is answered again
+        time.sleep(REQUEST_TIMEOUT_S + 0.5)
+        assert _value(_scrape(port), "mousedom_clients") == 0
+    finally:
+        for s in idle:
+            s.close()
+        rc = d.stop()
+    assert rc == 0, d.log()
+    assert "Traceback" not in d.log()

@@ -25,6 +25,7 @@ from __future__ import annotations
 import ipaddress
 import logging
 import socket
+import sys
 import threading
 from bisect import bisect_left
 from collections.abc import Iterator
@@ -50,6 +51,12 @@ CPU_BUCKETS = (25e-6, 50e-6, 100e-6, 200e-6, 500e-6, 1e-3, 2e-3, 5e-3, 10e-3, 20
 STATES = (*robust.STATES, "gone")
 # How soon the server thread sees a stop (SIGTERM must end the daemon within a second)
 POLL_S = 0.1
+# Scrapers at once, and how long one may take to send its request: each connection holds a
+# thread and a file descriptor, and 150 idle half-sent requests used up the daemon's
+# descriptors (its socket's clients refused, a sensor's reopen would fail).  A Prometheus
+# server scrapes with one connection; more are answered once these are done.
+MAX_SCRAPERS = 8
+REQUEST_TIMEOUT_S = 5.0
 
 
 def require() -> None:
@@ -235,6 +242,8 @@ def _quiet_handler() -> type:
     from wsgiref.simple_server import WSGIRequestHandler
 
     class Handler(WSGIRequestHandler):
+        timeout = REQUEST_TIMEOUT_S  # (StreamRequestHandler: the connection's socket timeout)
+
         def log_message(self, format: str, *args: Any) -> None:  # noqa: A002
             pass
 
@@ -267,6 +276,31 @@ class MetricsExporter(Output):
         # poll: SIGTERM ends the daemon within a second.
         class Server(ThreadingWSGIServer):
             address_family = family
+            slots = threading.BoundedSemaphore(MAX_SCRAPERS)
+
+            def process_request(self, request: Any, client_address: Any) -> None:
+                # Past MAX_SCRAPERS at once a connection is closed unanswered (its scraper
+                # retries at its next interval), not given a thread and kept.
+                if not self.slots.acquire(blocking=False):
+                    self.shutdown_request(request)
+                    return
+                try:
+                    super().process_request(request, client_address)
+                except BaseException:
+                    self.slots.release()
+                    raise
+
+            def handle_error(self, request: Any, client_address: Any) -> None:
+                # A scraper that timed out (REQUEST_TIMEOUT_S) or went: no traceback on
+                # stderr (the journal) for each, as socketserver prints by default.
+                log.debug("metrics: connection from %s failed: %s", client_address,
+                          sys.exc_info()[1])  # fmt: skip
+
+            def process_request_thread(self, request: Any, client_address: Any) -> None:
+                try:
+                    super().process_request_thread(request, client_address)
+                finally:
+                    self.slots.release()
 
         try:
             self.httpd = make_server(
