@@ -38,6 +38,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    if _subcommand(sys.argv[1:] if argv is None else argv) == "run":
+        from mousedom import hangup
+
+        hangup.hold()  # a reload asked before the daemon's handlers are in is kept
     try:
         from mousedom import core  # noqa: F401  (MOUSEDOM_CORE is judged once, here first)
     except UserError as error:
@@ -47,6 +51,11 @@ def main(argv: list[str] | None = None) -> int:
         return _main(argv)
     except KeyboardInterrupt:  # Ctrl-C while the commands are still being imported
         return 130
+
+
+def _subcommand(argv: list[str]) -> str | None:
+    """The subcommand named (the first word not an option), before argparse runs."""
+    return next((a for a in argv if not a.startswith("-")), None)
 
 
 def _main(argv: list[str] | None) -> int:

@@ -632,3 +632,81 @@ def test_a_replayed_rig_wakes_about_once_a_window(tmp_path):
         assert wakes < 2 * windows, (wakes, windows)
     finally:
         daemon.stop()
+
+
+def _catches_sighup(pid: int) -> bool:
+    """Whether the process has a handler for SIGHUP (/proc's SigCgt mask, bit 0)."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("SigCgt:"):
+            return bool(int(line.split()[1], 16) & 1)
+    return False
+
+
+def test_a_sighup_while_the_daemon_starts_is_a_reload_not_its_end(tmp_path):
+    """Python's default for SIGHUP ends the process: one in the first half second of `run`
+    (imports, config, sensors) killed the daemon with no word (exit -1).  From the moment
+    `mousedom run` catches it (cli.main's first step), SIGHUPs every 20 ms until the
+    socket listens are kept: the daemon comes up, reloads once its handlers are in, and
+    stops cleanly."""
+    import subprocess
+    import sys
+
+    from conftest import mousedom_env
+
+    from mousedom.demo import DEMO_CONFIG
+
+    cfg = tmp_path / "rig.yaml"
+    cfg.write_text(DEMO_CONFIG.read_text().replace(
+        "demo-rig.mdcap", str(DEMO_CONFIG.with_suffix(".mdcap"))))  # fmt: skip
+    sock = tmp_path / "d.sock"
+    proc = subprocess.Popen([sys.executable, "-m", "mousedom", "run", "--config", str(cfg),
+                             "--socket", str(sock)], env=mousedom_env(),
+                            stderr=subprocess.PIPE, text=True)  # fmt: skip
+    try:
+        deadline = time.monotonic() + 20
+        while not _catches_sighup(proc.pid):  # (the interpreter's own start: no handler)
+            assert proc.poll() is None and time.monotonic() < deadline
+            time.sleep(0.002)
+        sent = 0
+        while not sock.exists():
+            assert proc.poll() is None, f"died on SIGHUP: rc {proc.returncode}"
+            assert time.monotonic() < deadline, "never listened"
+            proc.send_signal(signal.SIGHUP)
+            sent += 1
+            time.sleep(0.02)
+        c = Conn(sock)
+        assert c.read()["class"] == "VERSION"
+        c.until("POSE")
+        c.close()
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=10)
+    assert proc.returncode == 0, err
+    assert sent >= 3, sent  # (some came before the daemon's own handlers)
+    assert "reloaded" in err and "Traceback" not in err, err
+
+
+def test_run_holds_sighup_from_its_first_step_and_other_commands_do_not():
+    """cli.main catches SIGHUP before anything else for `run` (the daemon's reload); any
+    other command keeps Python's default (a terminal's hangup ends it)."""
+    import subprocess
+    import sys
+
+    from conftest import mousedom_env
+
+    code = (
+        "import os, signal, sys\n"
+        "from mousedom import cli, hangup\n"
+        "cli.main(sys.argv[1:])\n"  # (fails at once: no such config)
+        "os.kill(os.getpid(), signal.SIGHUP)\n"
+        "print('alive', hangup.pending())\n"
+    )
+    for argv, alive in ((["run", "-c", "/nonexistent/rig.yaml"], True),
+                        (["-v", "run", "-c", "/nonexistent/rig.yaml"], True),
+                        (["check-config", "-c", "/nonexistent/rig.yaml"], False)):  # fmt: skip
+        p = subprocess.run([sys.executable, "-c", code, *argv], env=mousedom_env(),
+                           capture_output=True, text=True, timeout=60)  # fmt: skip
+        if alive:
+            assert p.returncode == 0 and p.stdout.strip() == "alive True", (argv, p)
+        else:
+            assert p.returncode == -signal.SIGHUP, (argv, p)

@@ -105,6 +105,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from mousedom import hangup
     from mousedom.service.daemon import Daemon, make_source
     from mousedom.service.socketfile import default_socket_path
 
@@ -126,7 +127,8 @@ def run(args: argparse.Namespace) -> int:
         factory = functools.partial(make_source, loop=True) if args.demo else make_source
         # (this process is the daemon's: its heap is frozen from the collector's scans)
         daemon = Daemon(config, socket_path, source_factory=factory, record=args.record,
-                        outputs=outputs, freeze_heap=True)  # fmt: skip
+                        outputs=outputs, freeze_heap=True,
+                        pending_reload=hangup.pending)  # fmt: skip
         return daemon.run()
     finally:
         for out in outputs:

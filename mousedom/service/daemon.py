@@ -96,6 +96,7 @@ class Daemon:
         record: str | None = None,
         outputs: list[Output] | None = None,
         freeze_heap: bool = False,
+        pending_reload: Callable[[], bool] | None = None,
     ) -> None:
         """``freeze_heap``: the process is the daemon's own (``mousedom run``): its heap is
         frozen at start and after each reload (``freeze_heap``, above)."""
@@ -107,6 +108,8 @@ class Daemon:
         self.notifier = notifier or Notifier()
         self.handle_signals = handle_signals
         self.freeze_heap = freeze_heap
+        # a SIGHUP that came before our handlers (mousedom.hangup): reloaded once they are in
+        self.pending_reload = pending_reload
         self.selector = selectors.DefaultSelector()
         self.server = Server(
             socket_path, config.server, self.selector, self._on_command, self._on_connect
@@ -228,6 +231,8 @@ class Daemon:
         self._old_wakeup = signal.set_wakeup_fd(self._wake_w, warn_on_full_buffer=False)
         for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
             self._old_handlers[sig] = signal.signal(sig, self._on_signal)
+        if self.pending_reload is not None and self.pending_reload():
+            self._reload = True  # (after ours are in: no SIGHUP falls between)
 
     def _restore_signals(self) -> None:
         for sig, handler in self._old_handlers.items():
