@@ -295,3 +295,28 @@ def test_sigmas_at_the_limits_make_a_fusion_that_runs(sa, sb):
     x = np.concatenate([b.x for b in batches])
     assert len(x) > 100 and np.all(np.isfinite(x))
     assert all(np.all(np.isfinite(b.cov)) for b in batches)
+
+
+_TWO = "rate_hz: 50\nmodel: lsq\nmice:\n  a: {cpi: 800, mount: {x: 0.1, y: 0}}\n" \
+       "  b: {cpi: 800, mount: {x: -0.1, y: 0}}\n"  # fmt: skip
+
+
+@pytest.mark.parametrize("tail,said", [
+    ("server: {socket: /run/" + "s" * 104 + "}", "server.socket: is 109 bytes, longer than"),
+    ("server: {control_uids: [true]}", "server.control_uids: must be a list of numeric ids"),
+    ("server: {control_gids: [0, yes]}", "server.control_gids: must be a list of numeric ids"),
+    ("server: {control_uids: [4294967295]}", "server.control_uids: must be a list of numeric"),
+    ("calibration: ''", "calibration: is empty: a file name, or leave the key out"),
+])  # fmt: skip
+def test_what_the_daemon_would_refuse_or_misread_check_config_refuses(tail, said):
+    """check-config said 0 ("it would run") for a socket path run refuses as too long for
+    a Unix address; a YAML true in control_uids gave uid 1 control (1 in (True,)); an
+    empty calibration was read as none without a word."""
+    with pytest.raises(ConfigError, match=re.escape("rig.yaml:6: " + said)):
+        parse_config(_TWO + tail + "\n", "rig.yaml", need_sources=False)
+
+
+def test_a_socket_path_at_the_limit_and_ids_at_theirs_are_taken():
+    text = _TWO + "server: {socket: /run/" + "s" * 102 + ", control_uids: [0, 4294967294]}\n"
+    c = parse_config(text, "rig.yaml", need_sources=False)
+    assert len(c.server.socket) == 107 and c.server.control_uids == (0, 4294967294)

@@ -164,6 +164,8 @@ def parse_config(
     gyro = (doc.attempt(read_gyro, top, need_sources=need_sources, base_dir=base_dir)
             if top.has("gyro") else None)  # fmt: skip
     calibration = doc.attempt(top.string, "calibration")
+    if calibration is not None and not calibration.strip():  # (it read as no file at all)
+        doc.keep(top.err("calibration", "is empty: a file name, or leave the key out"))
     calibration_path = str(base_dir / calibration) if calibration else None
     doc.raise_problems()
     mice = tuple(m for m in read if m is not None)

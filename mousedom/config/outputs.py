@@ -4,6 +4,7 @@ Foxglove, Prometheus), their types and their YAML sections (``server:``, ``outpu
 from __future__ import annotations
 
 import ipaddress
+import os
 import re
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -12,6 +13,9 @@ from typing import TypeVar
 from mousedom.yamldoc import Reader, shown
 
 T = TypeVar("T")
+
+MAX_SOCKET_PATH = 107  # sizeof(sockaddr_un.sun_path) on Linux, less its terminating NUL
+MAX_ID = 2**32 - 2  # uid_t and gid_t; (uid_t) -1 means "no change" to chown, no user
 
 
 @dataclass(frozen=True)
@@ -105,14 +109,20 @@ def read_server(r: Reader) -> ServerConfig:
         raise s.err("mode", f"must be a file mode between 0 and 0777, got {shown(mode)}")
 
     def ids(key: str, default: tuple[int, ...]) -> tuple[int, ...]:
+        # (a YAML true is an int to Python: 1 in (True,) gave uid 1 control)
         v = s.raw(key, list(default))
-        if not isinstance(v, list) or not all(isinstance(i, int) and i >= 0 for i in v):
-            raise s.err(key, f"must be a list of numeric ids, got {shown(v)}")
+        if not isinstance(v, list) or not all(
+            isinstance(i, int) and not isinstance(i, bool) and 0 <= i <= MAX_ID for i in v
+        ):
+            raise s.err(key, f"must be a list of numeric ids (0 to {MAX_ID}), got {shown(v)}")
         return tuple(v)
 
     socket = s.string("socket")
     if socket is not None and not socket.strip():  # ("" fell back to the default path)
         raise s.err("socket", "is empty: a path, or leave the key out for the default")
+    if socket is not None and len(os.fsencode(socket)) > MAX_SOCKET_PATH:
+        raise s.err("socket", f"is {len(os.fsencode(socket))} bytes, longer than the "
+                    f"{MAX_SOCKET_PATH} a Unix socket's address holds")  # fmt: skip
     server = ServerConfig(
         socket=socket,
         mode=mode,

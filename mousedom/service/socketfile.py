@@ -16,12 +16,12 @@ import stat
 from dataclasses import dataclass, replace
 
 from mousedom.config import ServerConfig
+from mousedom.config.outputs import MAX_SOCKET_PATH
 from mousedom.errors import UserError
 
 log = logging.getLogger(__name__)
 
 SOCKET_NAME = "mousedom.sock"
-MAX_SOCKET_PATH = 107  # sizeof(sockaddr_un.sun_path) on Linux, less its terminating NUL
 
 
 def default_socket_path(environ: dict[str, str] | None = None, uid: int | None = None) -> str:
