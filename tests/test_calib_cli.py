@@ -382,26 +382,28 @@ def test_cpi_on_a_real_recording(external_captures, tmp_path):
 # --------------------------------------------------------------------------- distance
 
 
-def test_distance_json_and_write(tmp_path):
-    eta = math.radians(90)
-    pivot = (0.0, 0.03)
-    motion = build_motion(
-        [(eta * pivot[1] * s, -eta * pivot[0] * s, eta * s, 2.0) for s in (1, -1, 1, -1)]
-    )
+def _pair_drive(tmp_path: Path, moves, mounts: dict) -> tuple[Path, Path, dict]:
+    """A capture of mice left and right 270 mm apart (450 CPI) driven by ``moves``
+    (build_motion's): the config with ``mounts``, the capture, the mice's reports."""
     mice = [
         SynthMouse("left", 0.0, 0.135, cpi_x=450, cpi_y=450),
         SynthMouse("right", 0.0, -0.135, cpi_x=450, cpi_y=450, phase=0.5),
     ]
+    motion = build_motion(moves)
     rec = {m.name: mouse_reports(m, motion, i) for i, m in enumerate(mice)}
     cap = write_native(tmp_path / "turns.mdcap", rec)
-    cfg = write_config(
-        tmp_path,
-        {
-            "left": {"cpi": 450, "mount": {"x": 0.01, "y": 0.125}},
-            "right": {"cpi": 450, "mount": {"x": 0.01, "y": -0.125}},
-            "rear": {"cpi": 450, "mount": {"x": -0.2, "y": 0}},
-        },
-    )
+    return write_config(tmp_path, mounts), cap, rec
+
+
+def test_distance_json_and_write(tmp_path):
+    eta = math.radians(90)
+    pivot = (0.0, 0.03)
+    moves = [(eta * pivot[1] * s, -eta * pivot[0] * s, eta * s, 2.0) for s in (1, -1, 1, -1)]
+    cfg, cap, rec = _pair_drive(tmp_path, moves, {
+        "left": {"cpi": 450, "mount": {"x": 0.01, "y": 0.125}},
+        "right": {"cpi": 450, "mount": {"x": 0.01, "y": -0.125}},
+        "rear": {"cpi": 450, "mount": {"x": -0.2, "y": 0}},
+    })  # fmt: skip
     caps = ["--capture", f"left={cap}", "--capture", f"right={cap}"]
     p = ok(calib("distance", cfg, *caps, "--angle", "90", "--json"))
     doc = json.loads(p.stdout)
@@ -442,20 +444,10 @@ def test_distance_says_a_push_among_the_turns_is_no_turn(tmp_path, at):
     eta = math.radians(90)
     moves = [(0.0, 0.0, eta * s, 2.0) for s in (1, -1, 1, -1)]
     moves.insert(at, (0.3, 0.0, 0.0, 2.0))
-    mice = [
-        SynthMouse("left", 0.0, 0.135, cpi_x=450, cpi_y=450),
-        SynthMouse("right", 0.0, -0.135, cpi_x=450, cpi_y=450, phase=0.5),
-    ]
-    motion = build_motion(moves)
-    rec = {m.name: mouse_reports(m, motion, i) for i, m in enumerate(mice)}
-    cap = write_native(tmp_path / "turns.mdcap", rec)
-    cfg = write_config(
-        tmp_path,
-        {
-            "left": {"cpi": 450, "mount": {"x": 0.0, "y": 0.135}},
-            "right": {"cpi": 450, "mount": {"x": 0.0, "y": -0.135}},
-        },
-    )
+    cfg, cap, _ = _pair_drive(tmp_path, moves, {
+        "left": {"cpi": 450, "mount": {"x": 0.0, "y": 0.135}},
+        "right": {"cpi": 450, "mount": {"x": 0.0, "y": -0.135}},
+    })  # fmt: skip
     caps = ["--capture", f"left={cap}", "--capture", f"right={cap}"]
     p = fails(
         calib("distance", cfg, *caps, "--angle", "90"), f"run {at + 1}: both mice moved alike"

@@ -446,16 +446,25 @@ def _net_counts(name: str):
     return sum(b.counts[:, i].sum(axis=0) for b in batches)
 
 
-def test_run_record_mcap_writes_what_the_socket_saw(tmp_path):
-    from mcap.reader import make_reader
-    from mcap_ros2.decoder import DecoderFactory
-
+def _demo_recording_mcap(tmp_path: Path) -> tuple[DaemonProcess, Path, Conn]:
+    """`run --demo --record-mcap`, listening, and a client on its socket."""
     out = tmp_path / "run.mcap"
     daemon = DaemonProcess(Path("unused"), tmp_path / "run" / "m.sock", "--demo",
                            "--record-mcap", str(out), config_args=False)  # fmt: skip
     try:
         daemon.wait_socket()
-        c = Conn(daemon.socket_path)
+        return daemon, out, Conn(daemon.socket_path)
+    except BaseException:
+        daemon.stop()
+        raise
+
+
+def test_run_record_mcap_writes_what_the_socket_saw(tmp_path):
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    daemon, out, c = _demo_recording_mcap(tmp_path)
+    try:
         poses = [m for m in (c.read() for _ in range(200)) if m["class"] == "POSE"]
         time.sleep(1.2)  # a SOURCE round: /diagnostics
     finally:
@@ -481,12 +490,8 @@ def test_a_killed_daemon_s_mcap_keeps_all_but_its_last_seconds(tmp_path):
     from mcap.records import Channel, Message
     from mcap.stream_reader import StreamReader
 
-    out = tmp_path / "run.mcap"
-    daemon = DaemonProcess(Path("unused"), tmp_path / "run" / "m.sock", "--demo",
-                           "--record-mcap", str(out), config_args=False)  # fmt: skip
+    daemon, out, c = _demo_recording_mcap(tmp_path)
     try:
-        daemon.wait_socket()
-        c = Conn(daemon.socket_path)
         seen = [m for m in (c.read() for _ in range(400)) if m["class"] == "POSE"]
         time.sleep(2.5)
         daemon.signal(signal.SIGKILL)
