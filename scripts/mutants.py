@@ -200,7 +200,7 @@ MUTANTS = [
     Mutant(
         "yaml-alias-unbounded",
         "mousedom/safeyaml.py",
-        "        if size > MAX_NODES or total > MAX_NODES:\n",
+        "        if size > max_nodes or total > max_nodes:\n",
         "        if False:\n",
         ("tests/test_safeyaml.py",),
         "an alias bomb is built instead of refused",

@@ -967,7 +967,9 @@ def test_a_cpi_no_mouse_reports_is_not_stored_without_force(tmp_path, true_cpi):
     """Regression: a capture whose counts are hostile (near 2^31 a report) gave a CPI of
     545 million, stored by --write with only a warning, and check-config said nothing of
     it.  A result outside what mice report (``plausible.CPI_RANGE``) is now a warning that
-    --write refuses (exit 2) unless --force; stored, check-config names its file and line."""
+    --write refuses (exit 2) unless --force; stored, check-config names its file and line.
+    Past the config's own limits (CPI 1 to 1e6: no rig has more) not even --force stores
+    it: the file written is read back and refused, and the old one stays."""
     motion = build_motion([(0.2 * (-1) ** k, 0, 0, 1.2) for k in range(4)])
     rep = mouse_reports(SynthMouse("m", 0, 0, cpi_x=true_cpi, cpi_y=true_cpi), motion, 0)
     cap = write_evemu(tmp_path / "m.events", rep)
@@ -978,6 +980,11 @@ def test_a_cpi_no_mouse_reports_is_not_stored_without_force(tmp_path, true_cpi):
     assert "counts per inch is outside" in p.stderr
     fails(calib("cpi", cfg, *args, "--write"), "not written", "--force")
     assert not (tmp_path / "rig.calib.yaml").exists()
+    if true_cpi > 1e6:
+        fails(calib("cpi", cfg, *args, "--write", "--force"), "the result does not load",
+              "mice.m.cpi.y: must be between 1 and 1e+06")  # fmt: skip
+        assert not (tmp_path / "rig.calib.yaml").exists()
+        return
     ok(calib("cpi", cfg, *args, "--write", "--force"))
     p = ok(run_mousedom("check-config", "--config", str(cfg), "--no-sources"))
     assert re.search(r"rig\.calib\.yaml:\d+: .*counts per inch is outside", p.stderr), p.stderr

@@ -6,7 +6,8 @@
     sources                                devices -> reports (evdev, ADNS-3080)
     fusion                                 the pure engine: no I/O, time as data
     config, yamldoc, errors, safeyaml,     what every room uses
-    safewrite, invocation, core
+    safewrite, plainnumber, hangup,
+    invocation, core
 
 A module may import from its own room and from the rooms below it, never from above
 (docs/architecture.md).  One exception is written down: ``config`` checks a rig's rank at
@@ -39,6 +40,8 @@ LAYERS = [
         "safewrite",
         "saferead",
         "plausible",
+        "plainnumber",
+        "hangup",
         "angles",
         "invocation",
         "allocator",
