@@ -293,3 +293,30 @@ def test_without_the_extra_the_gyro_says_how_to_install_it_and_the_mice_go_on(tm
                           text=True, timeout=60)  # fmt: skip
     assert proc.returncode == 0, proc.stderr
     assert "gyro: /imu (" in proc.stdout and "pip install 'mousedom[ros2]'" in proc.stdout
+
+
+def test_a_topic_nobody_publishes_is_gone_after_first_s_and_not_fused_before(dds):
+    """A gyro topic joined but never published (no IMU driver, or one on another domain)
+    said `connected` for ever: SILENT_S counts only after a message came.  Until its first
+    message the source is not answered (read, not fused: Source.answered), and after
+    FIRST_S with none it is gone, saying why; joined again, its first message answers."""
+    from mousedom.service import ros2imu
+    from mousedom.sources.base import SourceGone
+
+    src = ros2imu.Ros2ImuSource(GyroConfig(ros2=GyroRos2("/imu/data", dds)))
+    src.open()
+    t0 = time.monotonic()
+    assert src.read(t0) == [] and not src.answered
+    assert src.read(t0 + ros2imu.FIRST_S - 0.1) == []
+    with pytest.raises(SourceGone, match=r"no message in 3 s since it was joined .*domain"):
+        src.read(t0 + ros2imu.FIRST_S + 0.1)
+    assert not src.health.connected
+    src.open()  # the daemon's retry; a driver now publishes
+    assert not src.answered
+    w = ImuWriter(dds)
+    w.matched()
+    lead = time.time() - time.monotonic()
+    w.write(time.monotonic() + lead, (0.0, 0.0, 0.125))
+    _, rate = _read_all(src, 1)
+    assert rate.tolist() == [0.125] and src.answered and src.health.connected
+    src.close()

@@ -471,3 +471,23 @@ def test_a_node_in_use_elsewhere_is_refused_before_anything_changes(tmp_path, mo
     monkeypatch.undo()
     assert attr(sysdir, "current_timestamp_clock") == "realtime"
     assert attr(sysdir, "sampling_frequency") == "50" and enabled(sysdir) == set()
+
+
+@pytest.mark.parametrize("hz,quiet_until", [("4", 2.5), ("50", 0.5), ("1000 2000", 0.5)])
+def test_a_slow_device_s_own_rate_sets_its_silence(tmp_path, hz, quiet_until):
+    """Without gyro.sample_hz the silence rule was a fixed 0.5 s: a device sampling below
+    20 Hz was declared gone every 0.5 s and reopened in a loop.  Its own sampling_frequency
+    now counts as sample_hz would (ten periods, at least 0.5 s); one that is no number
+    (an available-frequencies list) leaves the 0.5 s."""
+    sysdir = add_gyro(tmp_path)
+    (sysdir / "sampling_frequency").write_text(hz + "\n")
+    src = source(tmp_path)
+    src.open()
+    assert src.silent_s == quiet_until
+    w = Writer(tmp_path / "dev" / "iio:device0")  # a live device that sends nothing
+    assert src.read(T0) == []
+    assert src.read(T0 + quiet_until - 0.05) == []
+    with pytest.raises(SourceGone, match=f"no sample for {quiet_until:g} s"):
+        src.read(T0 + quiet_until + 0.05)
+    w.close()
+    src.close()

@@ -28,10 +28,11 @@ shows it, ``ros2 topic info /imu/data`` counts it among the subscribers.
 No descriptor to wait on (cyclonedds' Python API has none): the source is ``paced``, read
 on each turn of the daemon's loop.  A driver that stops publishing sends nothing to say so
 (an IIO device's unplug wakes its reader): after ``SILENT_S`` without a message the topic
-counts as gone (``SourceGone``), so that the windows after it take the mice's heading
-rather than a gyro that turned nothing; the daemon joins it again a second later, and it
-is back with its next message.  Samples that are not data (the writer's disposal or
-unregistration, which Cyclone hands over as "invalid samples") are skipped.
+counts as gone (``SourceGone``), and so after ``FIRST_S`` with none since it was joined,
+so that the windows after it take the mice's heading rather than a gyro that turned
+nothing; the daemon joins it again a second later, and it is back with its next message.
+Samples that are not data (the writer's disposal or unregistration, which Cyclone hands
+over as "invalid samples") are skipped.
 """
 
 from __future__ import annotations
@@ -59,6 +60,11 @@ HISTORY = 1024  # messages kept between two reads: seconds of a 200 Hz IMU
 TAKE = 256  # per take (a read takes until none is left, at most HISTORY)
 # No message for this long (after one came) is a driver gone: IMUs publish at 50-1000 Hz
 SILENT_S = 0.5
+# No message at all for this long after the topic was joined: no driver publishes it (or
+# on another domain).  Longer than SILENT_S: DDS discovery takes a second or so.  Until
+# the first message the gyro is read but not fused, and SOURCE says it is not connected
+# (it said connected for ever, and the windows took a gyro that was never heard).
+FIRST_S = 3.0
 GYRO_NODE = "mousedom_gyro"  # the reader's node in the ROS 2 graph (the output's: mousedom)
 
 
@@ -86,6 +92,7 @@ class Ros2ImuSource(Source):
         self._participant: Any = None
         self._graph: Any = None
         self._heard: float | None = None  # when the last message was taken
+        self._joined: float | None = None  # the first read since the topic was joined
         self.no_rate = 0  # messages without an angular velocity (covariance[0] = -1)
         self.frame_id: str | None = None
 
@@ -118,7 +125,8 @@ class Ros2ImuSource(Source):
             self._graph.announce([self.reader], [])
         except UserError as e:  # no cyclonedds, no participant: said as the source's error
             raise SourceUnavailable(f"{self.name}: {self.ros2.topic} ({e})") from None
-        self._heard = None
+        self._heard = self._joined = None
+        self.answered = False  # (until its first message: Source.answered)
         self._update_health()
         log.info("%s: reading %s (sensor_msgs/Imu) on ROS 2 domain %d", self.name,
                  self.ros2.topic, self.domain)  # fmt: skip
@@ -152,7 +160,18 @@ class Ros2ImuSource(Source):
             if len(got) < TAKE:
                 break
         if not taken:
-            if self._heard is not None and now - self._heard > SILENT_S:
+            if self._heard is None:
+                self._joined = now if self._joined is None else self._joined
+                if now - self._joined > FIRST_S:
+                    self.health.connected = False
+                    self.health.error = (
+                        f"{self.name}: {self.ros2.topic}: no message in {FIRST_S:g} s since "
+                        f"it was joined (is an IMU driver publishing it on domain "
+                        f"{self.domain}?)")  # fmt: skip
+                    self.close()
+                    raise SourceGone(self.health.error)
+                return []
+            if now - self._heard > SILENT_S:
                 self.health.connected = False
                 self.health.error = (f"{self.name}: {self.ros2.topic}: no message for "
                                      f"{SILENT_S:g} s (the driver stopped?)")  # fmt: skip
@@ -160,6 +179,7 @@ class Ros2ImuSource(Source):
                 raise SourceGone(self.health.error)
             return []
         self._heard = now
+        self.answered = True
         batch = self._samples(taken, now)
         if batch is None:
             return []

@@ -48,7 +48,8 @@ vanishes reads ENOENT: both raise ``SourceGone``; ``open()`` later finds the dev
 by the same rule.  The buffer's poll does not report the removal (since Linux 4.x it
 returns no event once the device is unregistered), so the buffered source is read at
 every wake of the daemon (``probe``), and one that delivers nothing for ``silent_s``
-(SILENT_S, or ten sample periods where ``sample_hz`` is slower) is gone too: unplugged,
+(SILENT_S, or ten sample periods where ``sample_hz``, or the device's own
+``sampling_frequency`` where the config gives none, is slower) is gone too: unplugged,
 its driver unbound, or its buffer disabled by another program.  Its windows then take
 the mice's heading, not a gyro that saw no turn.  Test hook: the character device may be
 a FIFO (the tests' records, packed as the kernel documents); a FIFO whose writer closed is
@@ -162,6 +163,9 @@ class GyroSource(Source):
         self.channel = f"in_anglvel_{config.axis}"
         self.clock = clock
         self.device: IioDevice | None = None
+        # the device's own sampling_frequency where the config gives no sample_hz: a slow
+        # one (below 20 Hz) was declared silent every 0.5 s and reopened in a loop
+        self._device_hz: float | None = None
         self.mode: GyroMode | None = None
         self.polled_because: str | None = None
         self.scale = math.nan  # rad/s per LSB
@@ -199,10 +203,18 @@ class GyroSource(Source):
         log.info("%s: attached to %s (%s, %s)", self.name, dev.sysdir, dev.name, self.mode)
 
     def _set_rate(self, dev: IioDevice) -> None:
-        """``sampling_frequency`` = the config's ``sample_hz``, if it gives one."""
-        if self.config.sample_hz is None:
-            return
+        """``sampling_frequency`` = the config's ``sample_hz``, if it gives one; else the
+        device's own, read for the silence rule (``silent_s``)."""
         found = first(dev.sysdir, ("sampling_frequency", "in_anglvel_sampling_frequency"))
+        if self.config.sample_hz is None:
+            self._device_hz = None
+            if found is not None:
+                try:
+                    hz = self.sysfs.number(found)
+                except SourceUnavailable:  # ("1000 2000" lists, or unreadable: the default)
+                    return
+                self._device_hz = hz if hz > 0 else None
+            return
         if found is None:
             raise SourceUnavailable(
                 f"{self.name}: {dev.sysdir}: no sampling_frequency to write gyro.sample_hz to"
@@ -409,7 +421,7 @@ class GyroSource(Source):
     @property
     def silent_s(self) -> float:
         """How long the buffer may deliver nothing before the device is taken to be gone."""
-        hz = self.config.sample_hz
+        hz = self.config.sample_hz or self._device_hz
         return max(SILENT_S, 10.0 / hz) if hz else SILENT_S
 
     def _check_silence(self, now: float) -> None:
