@@ -74,7 +74,8 @@ def _main(argv: list[str] | None) -> int:
     except UserError as error:
         print(f"mousedom: error: {error}", file=sys.stderr)
         return error.exit_code
-    except KeyboardInterrupt:
+    except KeyboardInterrupt:  # Ctrl-C: one line (on a new one, past a live count line)
+        print(("\n" if sys.stderr.isatty() else "") + "mousedom: interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:
         # The reader of our stdout went away (e.g. `| head`); that is not an error of ours.

@@ -232,3 +232,86 @@ def test_live_mouse_not_found_is_named_once(tmp_path):
     )  # fmt: skip
     assert p.returncode == 2 and "Traceback" not in p.stderr
     assert "mousedom: error: mouse a: no input device matches name=" in p.stderr, p.stderr
+
+
+@pytest.mark.parametrize("stdin", ["devnull", "file", "closed"])
+def test_live_with_no_keyboard_on_stdin_is_one_line(rig, stdin):
+    """/dev/null or a regular file as stdin: epoll refuses them (PermissionError, a
+    traceback); a closed stdin: an AttributeError.  One line now, exit 2."""
+    tmp, _ = rig
+    (tmp / "keys.txt").write_text("\n\nq\n")
+    cmd = [sys.executable, "-m", "mousedom", "calibrate", "cpi", "--config", "rig.yaml",
+           "--distance", "0.1"]  # fmt: skip
+    kw: dict = {"stdin": subprocess.DEVNULL}
+    if stdin == "file":
+        kw["stdin"] = open(tmp / "keys.txt", "rb")  # noqa: SIM115 (closed below)
+    elif stdin == "closed":
+        cmd = ["bash", "-c", " ".join(f"'{a}'" for a in cmd) + " <&-"]
+    try:
+        p = subprocess.run(cmd, cwd=tmp, capture_output=True, text=True, env=mousedom_env(),
+                           timeout=60, **kw)  # fmt: skip
+    finally:
+        if stdin == "file":
+            kw["stdin"].close()
+    assert p.returncode == 2, p.stderr
+    assert "live calibration reads Enter presses on stdin" in p.stderr, p.stderr
+    assert "Traceback" not in p.stderr and len(p.stderr.strip().splitlines()) == 1
+
+
+def test_live_write_goes_on_when_stdout_s_reader_is_gone(rig):
+    """`calibrate cpi --write | true`: the report's print raised BrokenPipeError, the CLI
+    took it for a reader that had enough (exit 0) and the calibration was never written.
+    It is written now, and the lost report is said on stderr."""
+    tmp, fifos = rig
+    r, w = os.pipe()
+    os.close(r)  # stdout's reader: gone before a line is written
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "mousedom", "calibrate", "cpi", "--config", "rig.yaml",
+         "--distance", str(PUSH), "--runs", "2", "--write"],
+        cwd=tmp, stdin=subprocess.PIPE, stdout=w, stderr=subprocess.PIPE,
+        env={**mousedom_env(), "PYTHONUNBUFFERED": "1"},
+    )  # fmt: skip
+    os.close(w)
+    p = Proc.__new__(Proc)
+    p.p, p.err = proc, b""
+    writers = {}
+    try:
+        p.wait_for("push 1: press Enter to start")
+        writers = {n: os.open(f, os.O_WRONLY) for n, f in fifos.items()}
+        for k in range(2):
+            p.enter()
+            p.wait_for("moving... press Enter to stop", times=k + 1)
+            for name in writers:
+                os.write(writers[name], frames(20.0 + 5 * k, [(-1) ** k * 100] * 39 + [37]))
+            p.enter()
+            p.wait_for(f"push {k + 1} recorded")
+        _, err = proc.communicate(timeout=30)
+    finally:
+        p.end(writers)
+    text = (p.err + err).decode()
+    assert proc.returncode == 0, text
+    assert "the report was not shown" in text and "Traceback" not in text
+    assert (tmp / "rig.calib.yaml").exists()
+
+
+def test_live_ctrl_c_is_one_line_and_writes_nothing(rig):
+    """Ctrl-C mid-run ended with exit 130 and no word at all; now one line."""
+    import signal
+
+    tmp, fifos = rig
+    proc = Proc(["calibrate", "cpi", "--config", "rig.yaml", "--distance", "0.1", "--write"],
+                tmp)  # fmt: skip
+    writers = {}
+    try:
+        proc.wait_for("push 1: press Enter")
+        writers = {n: os.open(f, os.O_WRONLY) for n, f in fifos.items()}
+        proc.enter()
+        proc.wait_for("moving... press Enter to stop")
+        proc.p.send_signal(signal.SIGINT)
+        _, err = proc.p.communicate(timeout=30)
+    finally:
+        proc.end(writers)
+    text = (proc.err + err).decode()
+    assert proc.p.returncode == 130, text
+    assert text.rstrip().endswith("mousedom: interrupted") and "Traceback" not in text
+    assert not (tmp / "rig.calib.yaml").exists()

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import os
 import selectors
+import stat
 import time
 from collections.abc import Callable, Sequence
 from typing import TextIO
@@ -23,6 +24,9 @@ from mousedom.errors import UserError
 from mousedom.sources.base import Reports, Source, SourceGone, SourceUnavailable
 
 REFRESH = 0.1  # seconds between live count updates
+# After a redraw of the counts line: the rest of the old one cleared (ECMA-48 EL), or a
+# count that got shorter (-1000 to -999) showed the old one's last digit (-9990)
+CLEAR_TO_EOL = "\x1b[K"
 
 
 class _Collector:
@@ -68,6 +72,28 @@ class _Collector:
         return "  ".join(f"{n}: x {c[0]:+.0f} y {c[1]:+.0f}" for n, c in self.current.items())
 
 
+def _check_stdin(fd: int) -> None:
+    """UserError unless ``fd`` can be waited on for Enter presses: a terminal or a pipe
+    (or a socket).  /dev/null and regular files cannot be (epoll refuses them: a traceback
+    before), nor a closed stdin."""
+    try:
+        mode = os.fstat(fd).st_mode
+    except OSError:
+        raise UserError(
+            "live calibration reads Enter presses on stdin, which is closed: "
+            "run it at a terminal, or give the runs with --capture"
+        ) from None
+    if stat.S_ISREG(mode) or stat.S_ISDIR(mode) or fd < 0:
+        what = "a file"
+    elif stat.S_ISCHR(mode) and not os.isatty(fd):
+        what = "a device that is no terminal (/dev/null?)"
+    else:
+        return
+    raise UserError(f"live calibration reads Enter presses on stdin, which is {what}: run it "
+                    "at a terminal or pipe the Enter presses in, or give the runs with "
+                    "--capture")  # fmt: skip
+
+
 def collect_runs(
     sources: Sequence[Source],
     stdin_fd: int,
@@ -77,6 +103,7 @@ def collect_runs(
     clock: Callable[[], float] = time.monotonic,
 ) -> tuple[dict[str, Reports], list[Run]]:
     """Run the prompt loop until ``max_runs`` runs, ``q`` or end of input."""
+    _check_stdin(stdin_fd)
     for s in sources:
         try:
             s.open()
@@ -148,7 +175,8 @@ class _Session:
                 for b in batches:
                     self.col.add(b)
         except SourceGone as e:
-            raise UserError(f"mouse {source.name} went away: {e}") from None
+            text = str(e).removeprefix(f"{source.name}: ")  # (sources name their mouse)
+            raise UserError(f"mouse {source.name} went away: {text}") from None
 
     def prompt(self) -> None:
         k = len(self.col.runs) + 1
@@ -159,7 +187,7 @@ class _Session:
 
     def show_counts(self) -> None:
         if self.tty and self.col.active and self.clock() - self.last_show >= REFRESH:
-            self.out.write("\r" + self.col.status())
+            self.out.write("\r" + self.col.status() + CLEAR_TO_EOL)
             self.out.flush()
             self.last_show = self.clock()
 
@@ -183,7 +211,7 @@ class _Session:
             for s in self.sources:
                 self.drain(s)
             kept = col.stop()
-            out.write(("\r" if self.tty else "") + col.status() + "\n")
+            out.write(("\r" + col.status() + CLEAR_TO_EOL if self.tty else col.status()) + "\n")
             out.write(
                 f"{self.what} {len(col.runs)} recorded\n"
                 if kept

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 from typing import Any
 
@@ -287,7 +288,8 @@ def _live(config: Config, names: list[str], args: argparse.Namespace):
             )
         sources.append(EvdevSource(m))
     what = {"cpi": "push", "distance": "turn"}.get(args.what, "run")
-    return collect_runs(sources, sys.stdin.fileno(), sys.stderr, args.runs, what)
+    stdin = sys.stdin.fileno() if sys.stdin is not None else -1  # (None: closed, <&-)
+    return collect_runs(sources, stdin, sys.stderr, args.runs, what)
 
 
 def _emit(
@@ -300,14 +302,25 @@ def _emit(
             "(--distance, --angle) cannot give a calibration"
         )
     text_out = sys.stderr if args.json else sys.stdout
-    for line in lines:
-        print(line, file=text_out)
-    for note in s.notes:
-        print(f"note: {note}", file=sys.stderr)
-    for w in warnings:
-        print(f"mousedom: warning: {w}", file=sys.stderr)
-    if args.json:
-        print(json.dumps(doc, indent=2))
+    try:
+        for line in lines:
+            print(line, file=text_out)
+        for note in s.notes:
+            print(f"note: {note}", file=sys.stderr)
+        for w in warnings:
+            print(f"mousedom: warning: {w}", file=sys.stderr)
+        if args.json:
+            print(json.dumps(doc, indent=2))
+        sys.stdout.flush()
+    except BrokenPipeError:
+        # stdout's reader went (`--write | head`): the report is lost, the calibration is
+        # not: --write goes on (it was lost with exit 0 before), and stdout is discarded
+        # from here, so that nothing fails again at exit.
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+        print("mousedom: warning: stdout's reader went away: the report was not shown",
+              file=sys.stderr)  # fmt: skip
 
 
 def _not_finite(doc: Any, path: str = "") -> str | None:
