@@ -31,16 +31,25 @@ def frames(t0: float, counts: list[int]) -> bytes:
 
 
 class Proc:
-    def __init__(self, args, cwd):
+    def __init__(self, args, cwd, stdout=subprocess.PIPE, env: dict | None = None):
         self.p = subprocess.Popen(
             [sys.executable, "-m", "mousedom", *args],
             cwd=cwd,
             stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
+            stdout=stdout,
             stderr=subprocess.PIPE,
-            env=mousedom_env(),
+            env={**mousedom_env(), **(env or {})},
         )
         self.err = b""
+
+    def one_run(self, k: int, what: str, writes: dict[int, bytes]) -> None:
+        """Run k + 1 (``what``: push, turn): Enter, each FIFO writer's bytes, Enter."""
+        self.enter()
+        self.wait_for("moving... press Enter to stop", times=k + 1)
+        for fd, data in writes.items():
+            os.write(fd, data)
+        self.enter()
+        self.wait_for(f"{what} {k + 1} recorded")
 
     def wait_for(self, needle: str, times: int = 1, timeout: float = 15.0) -> None:
         """Until ``needle`` has appeared ``times`` times on stderr."""
@@ -203,14 +212,12 @@ def test_live_distance_turns(rig):
         proc.wait_for("turn 1: press Enter to start")
         writers = {n: os.open(f, os.O_WRONLY) for n, f in fifos.items()}
         for k in range(2):
-            proc.enter()
-            proc.wait_for("moving... press Enter to stop", times=k + 1)
             sign = 1 if k == 0 else -1
-            for name, s in (("left", sign), ("right", -sign)):
-                parts = [s * 100] * (counts // 100) + [s * (counts % 100)]
-                os.write(writers[name], frames(30.0 + 5 * k, parts))
-            proc.enter()
-            proc.wait_for(f"turn {k + 1} recorded")
+            proc.one_run(k, "turn", {
+                writers[name]: frames(30.0 + 5 * k, [s * 100] * (counts // 100)
+                                      + [s * (counts % 100)])
+                for name, s in (("left", sign), ("right", -sign))
+            })  # fmt: skip
         out, err = proc.p.communicate(timeout=30)
         assert proc.p.returncode == 0, (proc.err + err).decode()
     finally:
@@ -265,31 +272,21 @@ def test_live_write_goes_on_when_stdout_s_reader_is_gone(rig):
     tmp, fifos = rig
     r, w = os.pipe()
     os.close(r)  # stdout's reader: gone before a line is written
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "mousedom", "calibrate", "cpi", "--config", "rig.yaml",
-         "--distance", str(PUSH), "--runs", "2", "--write"],
-        cwd=tmp, stdin=subprocess.PIPE, stdout=w, stderr=subprocess.PIPE,
-        env={**mousedom_env(), "PYTHONUNBUFFERED": "1"},
-    )  # fmt: skip
+    p = Proc(["calibrate", "cpi", "--config", "rig.yaml", "--distance", str(PUSH), "--runs",
+              "2", "--write"], tmp, stdout=w, env={"PYTHONUNBUFFERED": "1"})  # fmt: skip
     os.close(w)
-    p = Proc.__new__(Proc)
-    p.p, p.err = proc, b""
     writers = {}
     try:
         p.wait_for("push 1: press Enter to start")
         writers = {n: os.open(f, os.O_WRONLY) for n, f in fifos.items()}
         for k in range(2):
-            p.enter()
-            p.wait_for("moving... press Enter to stop", times=k + 1)
-            for name in writers:
-                os.write(writers[name], frames(20.0 + 5 * k, [(-1) ** k * 100] * 39 + [37]))
-            p.enter()
-            p.wait_for(f"push {k + 1} recorded")
-        _, err = proc.communicate(timeout=30)
+            push = frames(20.0 + 5 * k, [(-1) ** k * 100] * 39 + [37])
+            p.one_run(k, "push", {fd: push for fd in writers.values()})
+        _, err = p.p.communicate(timeout=30)
     finally:
         p.end(writers)
     text = (p.err + err).decode()
-    assert proc.returncode == 0, text
+    assert p.p.returncode == 0, text
     assert "the report was not shown" in text and "Traceback" not in text
     assert (tmp / "rig.calib.yaml").exists()
 

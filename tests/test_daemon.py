@@ -333,6 +333,21 @@ def test_make_source_needs_a_source():
     assert make_source(mouse).kind == "evdev"
 
 
+def _serving(d: Daemon) -> tuple[threading.Thread, Conn]:
+    """The daemon's loop on a thread, listening, and a client past its VERSION."""
+    th = threading.Thread(target=d.run)
+    th.start()
+    try:
+        wait_listening(Path(d.server.path), None, 10)  # (the file is there before listen)
+        c = Conn(d.server.path)
+        c.until("VERSION")
+    except BaseException:
+        d.request_stop()
+        th.join(5)
+        raise
+    return th, c
+
+
 def test_reload_swaps_changed_mice_and_keeps_the_pose(tmp_path):
     """SIGHUP's work in-process: a removed mouse is closed, a new one opened, the pose
     and the unchanged mouse's source stay."""
@@ -355,12 +370,8 @@ def test_reload_swaps_changed_mice_and_keeps_the_pose(tmp_path):
         source_factory=factory,
         handle_signals=False,
     )
-    th = threading.Thread(target=d.run)
-    th.start()
+    th, c = _serving(d)
     try:
-        wait_listening(Path(d.server.path), None, 10)  # (the file is there before listen)
-        c = Conn(d.server.path)
-        c.until("VERSION")
         c.send({"cmd": "reset", "x": 3.0, "y": -1.0})
         c.until("OK")
         a_source = d.sensors.slots[0].source
@@ -439,12 +450,8 @@ def test_a_reload_whose_new_sensor_does_not_open_keeps_the_daemon(tmp_path, capl
     write(two)
     d = Daemon(load_config(tmp_path / "rig.yaml"), str(tmp_path / "d.sock"),
                source_factory=factory, handle_signals=False)  # fmt: skip
-    th = threading.Thread(target=d.run)
-    th.start()
+    th, c = _serving(d)
     try:
-        wait_listening(Path(d.server.path), None, 10)
-        c = Conn(d.server.path)
-        c.until("VERSION")
         write(three)
         _BadCapture.missing = broken == "retried"  # not there at the reload: retried
         old_tracker = d.tracker
@@ -500,12 +507,8 @@ def test_a_reload_whose_fusion_cannot_be_made_keeps_the_old_config(tmp_path, cap
             super().__init__(config, **kw)
 
     d.reloader.tracker_class = Broken
-    th = threading.Thread(target=d.run)
-    th.start()
+    th, c = _serving(d)
     try:
-        wait_listening(Path(d.server.path), None, 10)
-        c = Conn(d.server.path)
-        c.until("VERSION")
         write(two + line.format(n="c", x=0, y=0.1))
         d.request_reload()
         deadline = time.monotonic() + 5

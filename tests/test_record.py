@@ -59,6 +59,16 @@ def stop(p: subprocess.Popen, sig: int) -> str:
     return p.communicate(timeout=20)[1]
 
 
+def interrupt_after_writes(p: subprocess.Popen, writers: dict[str, int]) -> str:
+    """Let the recorder read what was written (0.4 s), Ctrl-C it, close the mice's FIFO
+    writers; its stderr."""
+    time.sleep(0.4)
+    err = stop(p, signal.SIGINT)
+    for w in writers.values():
+        os.close(w)
+    return err
+
+
 def read_capture(path: Path):
     cap = NativeCapture(str(path))
     motion: dict[str, list] = {d.mouse: [[], [], []] for d in cap.devices}
@@ -559,10 +569,7 @@ def test_record_then_replay_keeps_every_count_with_dropped_frames(tmp_path):
                 data, *sent[n] = _events_with_drops(seed * 10 + k, time.monotonic())
                 for lo in range(0, len(data), 24 * 97):  # reads cut anywhere in a frame
                     os.write(w, data[lo : lo + 24 * 97])
-            time.sleep(0.4)
-            err = stop(p, signal.SIGINT)
-            for w in ws.values():
-                os.close(w)
+            err = interrupt_after_writes(p, ws)
         finally:
             p.kill()
         assert p.returncode == 0, err
@@ -620,10 +627,7 @@ def test_record_stopped_mid_frame_keeps_the_open_frames_counts(tmp_path, cut):
         os.write(ws["b"], whole)
         # then a frame's REL_X (and REL_Y) without its SYN_REPORT: 24-byte events
         os.write(ws["a"], motion_bytes(time.monotonic(), [53], [-11])[: 24 * cut])
-        time.sleep(0.4)
-        err = stop(p, signal.SIGINT)
-        for w in ws.values():
-            os.close(w)
+        err = interrupt_after_writes(p, ws)
     finally:
         p.kill()
     assert p.returncode == 0, err
