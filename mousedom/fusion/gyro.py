@@ -45,6 +45,7 @@ from mousedom.fusion.choices import GYRO as GYRO  # (re-exported: the gyro's nam
 from mousedom.fusion.choices import GYRO_USES
 from mousedom.fusion.gyrobias import BiasLearner
 from mousedom.fusion.gyrojudge import RELEARN_S, GyroJudge, MiceView, Verdict
+from mousedom.fusion.stampspread import StampSpread
 
 # What the config does not say: the bias's random walk and how far off it may be at the
 # start (simgyro.py says where these figures come from).
@@ -158,6 +159,7 @@ class GyroFusion:
             noise.bias_sigma, noise.bias_walk, noise.density, period, false_alarm
         )
         self._white_var = noise.density**2 * period  # the integral's white noise
+        self.spread = StampSpread(period)  # the mice's timing, learnt against the gyro
 
     def heading_set(self) -> None:
         """The heading was set from outside (reset, fix): its error no longer owes
@@ -273,6 +275,7 @@ class GyroFusion:
         if turn is not None and not ok and self.use != "mice":
             # The mice in the solve lack rank (one left of two on an axle): with the gyro's
             # turn as one more row they may not
+            self.spread.gap()
             st = self.state
             st.predict()
             k1 = 1.0 + st.scale
@@ -286,10 +289,21 @@ class GyroFusion:
                 return Judged(q2, c2, self._report(turn, math.nan, True), (), True)
             return Judged(list(q), c, self._report(turn, math.nan, False), (), True)
         if turn is None or not ok:
+            self.spread.gap()
             return Judged(*self.window(q, c, turn, ok, still), (), True)
+        if still:
+            self.spread.gap()
         extra = 0.0
         if not still:
-            extra = judge.timing_var(mice)
+            unit = judge.timing_var(mice)
+            extra = unit * self.spread.factor  # (the rig's own timing: stampspread.py)
+            if not silent and mice.consistent:
+                st, k1 = self.state, 1.0 + self.state.scale
+                e = turn - k1 * q[2] - st.bias * self.period
+                rest = k1 * k1 * c[2][2] + st.hph(q[2]) + self._white_var
+                self.spread.observe(e, k1 * k1 * unit, rest, tuple(mice.used))
+            else:
+                self.spread.gap()
             if silent:
                 floor = judge.sigma_turn_var(mice) - c[2][2]
                 if math.isfinite(floor):

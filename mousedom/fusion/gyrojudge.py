@@ -46,6 +46,10 @@ class MiceView(NamedTuple):
     d: Sequence[Sequence[float]]  # each mouse's body-frame displacement (x, y), metres
     used: Sequence[bool]  # the mice in the solve
     consistent: bool  # whether their own screen found them consistent
+    # Each mouse's learnt factor of its error in proportion to motion, as the screen tested
+    # this window with (noisemodel's lam_r: >= 1, learnt from the mice's redundancy, where
+    # stamps a few ms late make it several times the config's rho); None: not learnt
+    learnt: Sequence[float] | None = None
 
 
 class Verdict(NamedTuple):
@@ -85,6 +89,14 @@ class GyroJudge:
         # q's covariance does not hold and the gyro, stamped by the kernel, does not share
         self.relative = relative
 
+    def _relative2(self, mice: MiceView, idx: list[int]) -> np.ndarray:
+        """The squared proportional error of the mice ``idx``: rho^2, times each one's
+        learnt factor where the screen learns them (MiceView.learnt)."""
+        rho2 = np.full(len(idx), self.relative**2)
+        if mice.learnt is not None:
+            rho2 *= np.asarray(mice.learnt)[idx]
+        return rho2
+
     def moved(self, mice: MiceView) -> bool:
         """Whether any mouse in the solve counted anything."""
         return any(
@@ -96,8 +108,9 @@ class GyroJudge:
     def timing_var(self, mice: MiceView) -> float:
         """The variance the turn of the mice in the solve gets from their errors in
         proportion to their motion: the rotation of a weighted rigid fit, 1 / sum_i w_i
-        |p_i - c|^2 with w_i = 1 / (relative |d_i|)^2 and c the weighted centre (Kim &
-        Lee's estimator's turn for isotropic errors), less that of their sigma alone."""
+        |p_i - c|^2 with w_i = 1 / (rho_i |d_i|)^2 and c the weighted centre (Kim &
+        Lee's estimator's turn for isotropic errors), less that of their sigma alone;
+        rho_i the config's relative_noise, times the root of mouse i's learnt factor."""
         if not self.relative:
             return 0.0
         idx = [i for i, u in enumerate(mice.used) if u]
@@ -105,13 +118,13 @@ class GyroJudge:
             i = idx[0]
             px = self.positions[i][0]
             moved2 = mice.d[i][0] ** 2 + mice.d[i][1] ** 2
-            return self.relative**2 * moved2 / (px * px) if px else 0.0
+            return float(self._relative2(mice, idx)[0]) * moved2 / (px * px) if px else 0.0
         if len(idx) < 2:
             return 0.0
         p = self.positions[idx]
         d2 = np.array([mice.d[i][0] ** 2 + mice.d[i][1] ** 2 for i in idx])
         base = self.sigma[idx] ** 2
-        both = base + self.relative**2 * d2
+        both = base + self._relative2(mice, idx) * d2
 
         def turn_var(var: np.ndarray) -> float:
             w = 1.0 / var

@@ -33,7 +33,9 @@ def screen(
     that mask; spans: (n, N) long report spans cut by each window's edges, or None (rows
     with one go to ``decide``, whose noise model allows for them).  Returns (used (n, N),
     inflate (n,), consistent (n,), state (n, N) int8,
-    reason (n, N) int8, correction (n, 3) or None: Decision.correction, by row)."""
+    reason (n, N) int8, correction (n, 3) or None: Decision.correction, by row, factors:
+    the noise model's proportional factors each row was tested with, as (first row, its
+    ``lam_r_list``) in row order: the gyro's judge takes them (gyrojudge.MiceView))."""
     n, nm = mask.shape
     used = mask.copy()
     inflate = np.ones(n)
@@ -41,8 +43,9 @@ def screen(
     state = np.where(mask, TRACKING, MISSING).astype(np.int8)
     reason = np.zeros((n, nm), dtype=np.int8)
     correction = None
+    factors: list[tuple[int, list[float]]] = []
     if n == 0:
-        return used, inflate, consistent, state, reason, correction
+        return used, inflate, consistent, state, reason, correction, factors
     p = sc.predict(q)
     codes = mask.astype(np.int64) @ (np.int64(1) << np.arange(nm, dtype=np.int64))
     changes = np.flatnonzero(codes[1:] != codes[:-1]) + 1
@@ -68,6 +71,8 @@ def screen(
     # that changed them.
     blocks = 1 if sc.noise.version == 0 else HORIZON
     while i < n:
+        if not factors or factors[-1][1] is not sc.noise.lam_r_list:
+            factors.append((i, sc.noise.lam_r_list))  # (a block's end in the row before)
         if version != sc.noise.version or i >= horizon:
             # The common case's test and the noise model's samples for the rows ahead,
             # with the factors as they are; again when a block's end changes them.
@@ -108,7 +113,7 @@ def screen(
         # the next window's changes are from this one's own solution: decide it too
         prev_altered = not np.array_equal(dec.used, mask[i])
         i += 1
-    return used, inflate, consistent, state, reason, correction
+    return used, inflate, consistent, state, reason, correction, factors
 
 
 def _leverages(sc: Screen, mask: np.ndarray, codes: np.ndarray) -> np.ndarray:

@@ -74,14 +74,16 @@ class ArrayPath:
             for i in range(2):
                 np.add(cx * m[n, i, 0], cy * m[n, i, 1], out=d[:, n, i])
         sol = models.solve(setup.model, d, setup.positions, setup.sigma, mask, self._noise)
-        sol, health, reason, consistent, in_solve = self._screened(d, mask, sol, evidence, spans)
+        screened = self._screened(d, mask, sol, evidence, spans)
+        sol, health, reason, consistent, in_solve, factors = screened
         q = np.where(sol.ok[:, None], sol.q, 0.0)
         qcov, gyro = sol.cov, None
         used = sol.used
         turned = q  # what the pose turns by: q, and the heading the gyro's renewals give back
         if setup.gyro is not None and turn is not None:  # the gyro's reading of the turns
             q, qcov, gyro, used, owed = self._with_gyro(setup.gyro, q, sol, d, in_solve, turn,
-                                                        health, reason, consistent)  # fmt: skip
+                                                        health, reason, consistent,
+                                                        factors)  # fmt: skip
             turned = q.copy()
             turned[:, 2] += owed
         partials = integrate.step_partials(turned)  # the noise's Jacobian; its S, C: the step
@@ -129,13 +131,15 @@ class ArrayPath:
         health: np.ndarray,
         reason: np.ndarray,
         consistent: np.ndarray,
+        factors: list[tuple[int, list[float]]],
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The gyro's turn in each window, judged where it disagrees (GyroFusion.judged),
         in window order (the bias is sequential), ``in_solve`` (n, N) the mice each
         window's solve used (the screen's: not only the excluded are out of it, a late
         mouse is too, as the one-window path's MiceView says); the mice it blames excluded
         in ``health`` and ``reason`` and ``consistent`` cleared where nobody could be, in
-        place.  Returns (q, q's covariance, the gyro's columns, mice used, the heading
+        place; ``factors`` the screen's learnt proportional factors by row (screenbatch).
+        Returns (q, q's covariance, the gyro's columns, mice used, the heading
         its renewals give back in each window: gyrobias.BiasLearner.renew)."""
         from mousedom.fusion.gyrojudge import MiceView
 
@@ -144,9 +148,13 @@ class ArrayPath:
         gyro = np.empty((n, GYRO_FIELDS))
         used = sol.used.copy()
         owed = np.zeros(n)
+        learnt, changes = None, iter(factors)
+        change = next(changes, None)
         for k in range(n):
+            while change is not None and change[0] <= k:
+                learnt, change = change[1], next(changes, None)
             tk = float(turn[k])
-            mice = MiceView(d[k].tolist(), in_solve[k].tolist(), bool(consistent[k]))
+            mice = MiceView(d[k].tolist(), in_solve[k].tolist(), bool(consistent[k]), learnt)
             j = fusion.judged(q[k].tolist(), sol.cov[k].tolist(),
                               None if math.isnan(tk) else tk, bool(sol.ok[k]), mice)  # fmt: skip
             q2[k], c2[k] = j.q, j.c
@@ -165,19 +173,23 @@ class ArrayPath:
         sol: models.Solution,
         evidence: Evidence | None,
         spans: np.ndarray | None = None,
-    ) -> tuple[models.Solution, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    ) -> tuple[
+        models.Solution, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+        list[tuple[int, list[float]]],
+    ]:  # fmt: skip
         """The fault-tolerant screen over an array of windows (mousedom.fusion.robust):
         the solution re-solved without the mice it excluded, with the covariance of
         unattributed inconsistent windows inflated, and each mouse's health per window:
-        (solution, state, reason, consistent, the mice in each window's solve)."""
+        (solution, state, reason, consistent, the mice in each window's solve, the noise
+        model's proportional factors by row: screenbatch.screen's)."""
         n = len(mask)
         setup = self._setup
         if setup.screen is None:
             state = np.where(mask, robust.TRACKING, robust.MISSING).astype(np.int8)
-            return sol, state, np.zeros_like(state), np.ones(n, dtype=bool), mask
+            return sol, state, np.zeros_like(state), np.ones(n, dtype=bool), mask, []
         q = np.where(sol.ok[:, None], sol.q, 0.0)
         scale, low = evidence if evidence is not None else (None, None)
-        used, inflate, consistent, state, reason, correction = screenbatch.screen(
+        used, inflate, consistent, state, reason, correction, factors = screenbatch.screen(
             setup.screen, d, mask, q, scale, low, spans
         )
         altered = used != mask
@@ -194,4 +206,4 @@ class ArrayPath:
             if correction is not None:
                 q += correction
             sol = models.Solution(q=q, cov=cov, residual=res, used=n_used, ok=ok)
-        return sol, state, reason, consistent, used
+        return sol, state, reason, consistent, used, factors

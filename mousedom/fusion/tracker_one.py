@@ -143,6 +143,8 @@ class OneWindowPath:
         q, residual, idx, c3, ok = self._linear_one(d_all, live)
         consistent = True
         screen = self._screen
+        # the factors this window is tested with (a block it ends may change them)
+        learnt = screen.noise.lam_r_list if screen is not None else None
         special = evidence is not None or spans is not None
         if screen is None or screen.fast_one(d_all, q, live, special, defer_block_end):
             # The common case (or no screen): every live mouse tracking, the rest missing,
@@ -175,7 +177,7 @@ class OneWindowPath:
 
             pairs = [d_all[2 * i : 2 * i + 2] for i in range(n)]
             in_solve = [i in idx for i in range(n)]
-            j = self.gyro.judged(q, c3, turn, ok, MiceView(pairs, in_solve, consistent))
+            j = self.gyro.judged(q, c3, turn, ok, MiceView(pairs, in_solve, consistent, learnt))
             q, c3, said = j.q, j.c, j.report
             gyro = said.row()
             consistent = consistent and j.consistent
