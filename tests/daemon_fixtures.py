@@ -163,6 +163,7 @@ class DaemonProcess:
         env=None,
         config_args: bool = True,
         preexec=None,
+        cwd: Path | None = None,
     ) -> None:
         environ = dict(os.environ)
         environ["PYTHONPATH"] = str(REPO) + os.pathsep + environ.get("PYTHONPATH", "")
@@ -178,6 +179,7 @@ class DaemonProcess:
             stderr=self._log,
             env=environ,
             preexec_fn=preexec,
+            cwd=cwd,
         )
 
     def wait_socket(self, timeout: float = 15.0) -> None:

@@ -386,3 +386,30 @@ def test_a_daemon_gone_before_the_command_is_sent_is_said_to_have_closed_it(tmp_
     monkeypatch.setattr(Client, "_read", after_the_close)
     got = doctor.read_live(path, 2.0)
     assert got.closed and got.seconds < 1.0
+
+
+def test_a_daemon_started_with_a_relative_config_is_found_from_another_directory(
+    tmp_path, capsys, monkeypatch
+):
+    """`cd D && mousedom run --config rig.yaml`, then doctor from elsewhere: the config the
+    daemon reports is its own file (STATUS gave "rig.yaml", which doctor opened in its own
+    directory: "config file not found", exit 1, for a healthy daemon)."""
+    rig = tmp_path / "rig"
+    rig.mkdir()
+    shutil.copy(DEMO_CONFIG, rig / "rig.yaml")
+    shutil.copy(DEMO_CAPTURE, rig / DEMO_CAPTURE.name)
+    run = tmp_path / "run"
+    run.mkdir()
+    d = DaemonProcess(Path("unused"), run / "m.sock", "--config", "rig.yaml",
+                      config_args=False, cwd=rig)  # fmt: skip
+    try:
+        d.wait_socket()
+        monkeypatch.setattr(doctor, "DEFAULT_CONFIG_PATH", str(tmp_path / "absent.yaml"))
+        monkeypatch.chdir(tmp_path)
+        code = main(["doctor", "--socket", str(d.socket_path), "--timeout", "0.5",
+                     "--root", str(tmp_path)])  # fmt: skip
+    finally:
+        d.stop()
+    out = capsys.readouterr().out
+    assert f"OK    config: {rig / 'rig.yaml'} (the running daemon's)" in out, out
+    assert code == 0, out

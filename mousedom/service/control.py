@@ -9,6 +9,7 @@ the publisher's SOURCE messages and counters (``PublisherView``) and the loop's 
 from __future__ import annotations
 
 import logging
+import os
 from collections.abc import Callable
 from typing import Any, Protocol
 
@@ -110,7 +111,9 @@ class ClientCommands:
         status = {
             "class": "STATUS",
             "uptime": round(now - loop.started, 3),
-            "config": config.path,
+            # absolute: doctor and a user read it from another working directory (the
+            # daemon never changes its own, so this is the file it loaded and reloads)
+            "config": os.path.abspath(config.path) if config.path else config.path,
             "model": config.model,
             "integrator": config.integrator,
             "rate_hz": config.rate_hz,
