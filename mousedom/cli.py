@@ -14,7 +14,7 @@ import logging
 import pkgutil
 import sys
 
-from mousedom import __version__, commands
+from mousedom import __version__, commands, hangup
 from mousedom.errors import UserError
 
 
@@ -37,10 +37,14 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
-    if _subcommand(sys.argv[1:] if argv is None else argv) == "run":
-        from mousedom import hangup
+# Commands that handle SIGTERM and SIGHUP themselves (the daemon reloads on SIGHUP; record
+# closes its file on either); every other one has them raised (hangup.stopping).
+OWN_SIGNALS = ("run", "record")
 
+
+def main(argv: list[str] | None = None) -> int:
+    command = _subcommand(sys.argv[1:] if argv is None else argv)
+    if command == "run":
         hangup.hold()  # a reload asked before the daemon's handlers are in is kept
     try:
         from mousedom import core  # noqa: F401  (MOUSEDOM_CORE is judged once, here first)
@@ -48,9 +52,22 @@ def main(argv: list[str] | None = None) -> int:
         print(f"mousedom: error: {error}", file=sys.stderr)
         return error.exit_code
     try:
-        return _main(argv)
+        if command in OWN_SIGNALS:
+            return _main(argv)
+        with hangup.stopping():
+            return _main(argv)
     except KeyboardInterrupt:  # Ctrl-C while the commands are still being imported
         return 130
+    except hangup.Terminated as stop:  # likewise
+        return 128 + stop.signum
+
+
+def _last_word(line: str) -> None:
+    """A line on stderr that may be gone (a hangup closed the terminal)."""
+    try:
+        print(line, file=sys.stderr, flush=True)
+    except (OSError, ValueError):
+        pass
 
 
 def _subcommand(argv: list[str]) -> str | None:
@@ -75,8 +92,11 @@ def _main(argv: list[str] | None) -> int:
         print(f"mousedom: error: {error}", file=sys.stderr)
         return error.exit_code
     except KeyboardInterrupt:  # Ctrl-C: one line (on a new one, past a live count line)
-        print(("\n" if sys.stderr.isatty() else "") + "mousedom: interrupted", file=sys.stderr)
+        _last_word(("\n" if sys.stderr.isatty() else "") + "mousedom: interrupted")
         return 130
+    except hangup.Terminated as stop:  # what a file being written left is removed
+        _last_word(f"mousedom: terminated ({stop.name})")
+        return 128 + stop.signum
     except BrokenPipeError:
         # The reader of our stdout went away (e.g. `| head`); that is not an error of ours.
         sys.stderr.close()

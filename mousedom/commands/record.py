@@ -384,6 +384,12 @@ def run(args: argparse.Namespace) -> int:
     # Installed before the sources open, so that an early Ctrl-C still closes cleanly.
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
+    # A hangup (the terminal closed, the ssh session dropped) stops the recording as
+    # SIGTERM does, with the file closed whole: killed by it, the last quarter second and
+    # the counters of dropped frames were lost.  Unless started under nohup, which means
+    # "go on": an ignored SIGHUP stays ignored.
+    if signal.getsignal(signal.SIGHUP) is not signal.SIG_IGN:
+        signal.signal(signal.SIGHUP, on_signal)
     # A file size limit (ulimit -f) would kill us with SIGXFSZ and no word; ignored, the
     # write fails with EFBIG and the user is told (the file stays readable either way).
     signal.signal(signal.SIGXFSZ, signal.SIG_IGN)

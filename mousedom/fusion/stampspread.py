@@ -30,10 +30,10 @@ down, never up), and in which u is at least the rest of the innovation's varianc
 gyro's white noise, the mice's sigma, the bias's uncertainty): the products of windows
 whose turn the stamps cannot move (a robot driving straight, whose one mouse's turn comes
 from its sideways counts alone) hold that noise and nothing of lambda, and summed against
-their tiny u they made it anything up to MAX_FACTOR.  Forgetting with a half-life of ``HALF_LIFE_S``; ``factor`` is 1 (the
-config's rho) until ``MIN_PAIRS`` such windows were seen, and never below 1: the config's
-rho is the least timing error the judge allows.  An estimate, not a test: it moves the
-judge's threshold, never the pose.
+their tiny u they made it anything up to MAX_FACTOR.  Forgetting with a half-life of
+``HALF_LIFE_S``; ``factor`` is 1 (the config's rho) until ``MIN_PAIRS`` such windows were
+seen, and never below 1: the config's rho is the least timing error the judge allows.  An
+estimate, not a test: it moves the judge's threshold, never the pose.
 """
 
 from __future__ import annotations

@@ -1,0 +1,111 @@
+"""SIGTERM and SIGHUP on the command line (mousedom/hangup.py): a command that writes a file
+leaves nothing half-written behind when `timeout`, systemd or a closed terminal ends it;
+record closes its file whole on a hangup; nohup's ignored SIGHUP stays ignored."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import mousedom_env
+from test_evdev_fakes import motion_bytes
+from test_record import fifos, read_capture, rig, start, stop
+
+from mousedom.capture.evemu import format_evemu
+
+
+def _big_evemu(folder: Path) -> Path:
+    """An evemu recording that takes convert a second or more (about 15 MB)."""
+    n = 200_000
+    rng = np.random.default_rng(5)
+    path = folder / "big.evemu"
+    t = 1.0 + 0.001 * np.arange(n)
+    path.write_text(format_evemu(t, rng.integers(1, 6, n), rng.integers(-5, 6, n)))
+    return path
+
+
+def _convert_signalled(folder: Path, source: Path, sig: int, preexec=None):
+    out = folder / "out.mdcap"
+    p = subprocess.Popen(
+        [sys.executable, "-m", "mousedom", "convert", "--capture", f"m={source}", "-o", str(out)],
+        stderr=subprocess.PIPE, text=True, env=mousedom_env(), preexec_fn=preexec,
+    )  # fmt: skip
+    deadline = time.monotonic() + 60
+    while not list(folder.glob(".out.mdcap.*")) and p.poll() is None:
+        assert time.monotonic() < deadline
+        time.sleep(0.002)
+    p.send_signal(sig)
+    err = p.communicate(timeout=60)[1]
+    return p.returncode, err, sorted(f.name for f in folder.iterdir() if f.name != source.name)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
+def test_convert_ended_by_a_signal_leaves_no_temporary_file(tmp_path, sig):
+    """Killed by the default disposition, the full-size `.out.mdcap.XXXX.part` stayed."""
+    source = _big_evemu(tmp_path)
+    code, err, left = _convert_signalled(tmp_path, source, sig)
+    assert left == [], (left, err)
+    assert code == 128 + sig, err
+    assert f"mousedom: terminated ({signal.Signals(sig).name})" in err
+    assert "Traceback" not in err
+
+
+def test_a_hangup_ignored_by_nohup_stays_ignored(tmp_path):
+    source = _big_evemu(tmp_path)
+
+    def nohup() -> None:
+        signal.signal(signal.SIGHUP, signal.SIG_IGN)
+
+    code, err, left = _convert_signalled(tmp_path, source, signal.SIGHUP, nohup)
+    assert code == 0 and left == ["out.mdcap"], err
+    _, motion, _ = read_capture(tmp_path / "out.mdcap")
+    assert len(motion["m"][0]) == 200_000
+
+
+def test_record_closes_its_file_whole_on_a_hangup(tmp_path):
+    """A closed terminal or a dropped ssh session: the recording stops as on SIGTERM, every
+    count and the counters' NOTE chunk written (killed by SIGHUP before: no "done", the
+    last quarter second and the dropped-frame counters lost)."""
+    f = fifos(tmp_path, "a", "b")
+    out = tmp_path / "run.mdcap"
+    p = start("record", "--config", str(rig(tmp_path, f)), "-o", str(out),
+              "--status-interval", "0")  # fmt: skip
+    dx = np.arange(300) % 7 - 3
+    try:
+        ws = _writers(f.values(), p)
+        for w in ws:
+            os.write(w, motion_bytes(time.monotonic(), dx, -dx, dt=0.001))
+        time.sleep(0.5)
+        err = stop(p, signal.SIGHUP)
+        for w in ws:
+            os.close(w)
+    finally:
+        p.kill()
+    assert p.returncode == 0, err
+    assert "record: done" in err and f"record: wrote {out}" in err, err
+    cap, motion, _ = read_capture(out)
+    for name in ("a", "b"):
+        assert motion[name][1] == dx.tolist() and motion[name][2] == (-dx).tolist()
+    assert [st.frames for st in cap.stats] == [300, 300]
+
+
+def _writers(paths, p: subprocess.Popen, timeout: float = 20.0) -> list[int]:
+    """Writers of the FIFOs, once the recorder reads them (a blocking open would wait until
+    then, and for ever had it stopped)."""
+    deadline = time.monotonic() + timeout
+    out = []
+    for path in paths:
+        while True:
+            try:
+                out.append(os.open(path, os.O_WRONLY | os.O_NONBLOCK))
+                break
+            except OSError:  # ENXIO: no reader yet
+                assert p.poll() is None and time.monotonic() < deadline, p.communicate()[1]
+                time.sleep(0.01)
+    return out
