@@ -109,3 +109,32 @@ def _writers(paths, p: subprocess.Popen, timeout: float = 20.0) -> list[int]:
                 assert p.poll() is None and time.monotonic() < deadline, p.communicate()[1]
                 time.sleep(0.01)
     return out
+
+
+def test_record_to_stdout_streams_the_capture(tmp_path):
+    """`record -o -` writes the capture to stdout, as convert's and replay's -o - do (it
+    wrote a regular file named "-"); read back whole after a Ctrl-C."""
+    f = fifos(tmp_path, "a", "b")
+    out = tmp_path / "piped.mdcap"
+    with open(out, "wb") as sink:
+        p = subprocess.Popen(
+            [sys.executable, "-m", "mousedom", "record", "--config", str(rig(tmp_path, f)),
+             "-o", "-", "--status-interval", "0"],
+            stdout=sink, stderr=subprocess.PIPE, text=True, env=mousedom_env(), cwd=tmp_path,
+        )  # fmt: skip
+        dx = np.arange(200) % 5 - 2
+        try:
+            ws = _writers(f.values(), p)
+            for w in ws:
+                os.write(w, motion_bytes(time.monotonic(), dx, dx, dt=0.001))
+            time.sleep(0.5)
+            err = stop(p, signal.SIGINT)
+            for w in ws:
+                os.close(w)
+        finally:
+            p.kill()
+    assert p.returncode == 0, err
+    assert not (tmp_path / "-").exists()
+    assert "record: wrote <stdout>" in err, err
+    _, motion, _ = read_capture(out)
+    assert motion["a"][1] == dx.tolist() and motion["b"][2] == dx.tolist()

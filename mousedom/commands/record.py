@@ -63,11 +63,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="record every configured source into a native capture file",
         description="Record the mice (evdev) and serial sensors of a rig config into one "
         "native capture file, showing events and rates per source on stderr. Stop with "
-        "Ctrl-C (SIGINT) or SIGTERM, or give --duration.",
+        "Ctrl-C (SIGINT), SIGTERM or a hangup (SIGHUP; not under nohup), or give --duration.",
     )
     options.add_config(p, "the rig config whose sources to record", required=True)
     options.add_output(
-        p, "the native capture to write (refused if it exists, unless --force)", required=True
+        p,
+        "the native capture to write (refused if it exists, unless --force); - for stdout",
+        required=True,
     )
     p.add_argument("--duration", type=options.number, metavar="S", help="stop after S seconds")
     p.add_argument(
@@ -127,7 +129,7 @@ class Recorder:
 
         try:
             self.writer = NativeWriter(
-                output,
+                sys.stdout.buffer if output == "-" else output,
                 [device_info(s) for s in self.slots]
                 + ([gyro_device_info(self.gyro)] if self.gyro else []),
                 config_text=config_text,
@@ -146,7 +148,7 @@ class Recorder:
         for s in self.sensors:
             self._register(s)
         self._stop = stop  # the signal handler appends to it
-        self.output = output
+        self.output = "<stdout>" if output == "-" else output
         self._quiet = False  # stderr went away: no more status lines
 
     def _register(self, s: Sensor) -> None:
@@ -364,10 +366,18 @@ def run(args: argparse.Namespace) -> int:
     if not args.output:
         raise UserError("-o/--output: empty file name")
     cfg = load_config(args.config)
-    if same_file(args.output, args.config):
-        raise UserError(f"{args.output}: is the config file {args.config}; not overwriting it")
-    if os.path.exists(args.output) and not args.force:
-        raise UserError(f"{args.output}: exists; not overwriting a recording (use --force)")
+    if args.output == "-":
+        # As convert's and replay's -o -: the capture goes to stdout (a pipe to ssh, gzip),
+        # chunk by chunk as it is recorded.  (A file named "-" was written before.)
+        if sys.stdout.isatty():
+            raise UserError("-o -: stdout is a terminal; redirect it, or give a file name")
+        if args.fsync:
+            raise UserError("--fsync: -o - writes to a pipe, which cannot be fsync'ed")
+    else:
+        if same_file(args.output, args.config):
+            raise UserError(f"{args.output}: is the config file {args.config}; not overwriting it")
+        if os.path.exists(args.output) and not args.force:
+            raise UserError(f"{args.output}: exists; not overwriting a recording (use --force)")
     config_text = saferead.read_text(args.config)
     if args.duration is not None and not (args.duration > 0 and math.isfinite(args.duration)):
         raise UserError(f"--duration: must be a positive number of seconds, got {args.duration}")
@@ -404,7 +414,7 @@ def run(args: argparse.Namespace) -> int:
     names = ", ".join(f"{s.name} ({describe(s)})" for s in rec.slots)
     if rec.gyro is not None:
         names += f", gyro ({rec.gyro.source.kind} {rec.gyro.node})"
-    rec.say(f"record: {args.output}: recording {names}")
+    rec.say(f"record: {rec.output}: recording {names}")
     try:
         rec.run(args.duration, args.status_interval)
     except UserError:
@@ -412,7 +422,7 @@ def run(args: argparse.Namespace) -> int:
     except Exception as e:  # a bug must not end in a traceback; the file is closed already
         log.debug("record failed", exc_info=True)
         raise UserError(
-            f"{args.output}: recording stopped by an internal error ({type(e).__name__}: {e}); "
+            f"{rec.output}: recording stopped by an internal error ({type(e).__name__}: {e}); "
             "the file holds everything recorded until then. Run with -v for details.",
             exit_code=1,
         ) from None
