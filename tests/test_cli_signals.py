@@ -138,3 +138,21 @@ def test_record_to_stdout_streams_the_capture(tmp_path):
     assert "record: wrote <stdout>" in err, err
     _, motion, _ = read_capture(out)
     assert motion["a"][1] == dx.tolist() and motion["b"][2] == dx.tolist()
+
+
+def test_convert_to_a_reader_that_goes_away_is_an_error(tmp_path):
+    """`convert -o - | head -c 1000`: the capture is the product, and its reader got a cut
+    one: exit 1 and one line (exit 0 before, which pipefail could not see)."""
+    source = _big_evemu(tmp_path)
+    p = subprocess.Popen(
+        [sys.executable, "-m", "mousedom", "convert", "--capture", f"m={source}", "-o", "-"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=mousedom_env(),
+    )  # fmt: skip
+    assert p.stdout is not None and p.stderr is not None
+    p.stdout.read(1000)
+    p.stdout.close()
+    err = p.stderr.read().decode()
+    assert p.wait(timeout=60) == 1, err
+    assert (
+        err == "mousedom: error: <stdout>: the reader went away; the capture it got is cut short\n"
+    )

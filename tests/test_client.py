@@ -135,6 +135,10 @@ def test_watch_prints_poses_and_stops_after_count(rig_run):
         bad = run_mousedom("watch", "--socket", str(run.daemon.socket_path), "--rate", rate,
                            timeout=20)  # fmt: skip
         assert bad.returncode == 2 and said in bad.stderr and "Traceback" not in bad.stderr
+    # --count with --rate 0 (no POSE asked for) waited for ever: refused before it asks
+    bad = run_mousedom("watch", "--socket", str(run.daemon.socket_path), "--rate", "0",
+                       "--count", "1", timeout=20)  # fmt: skip
+    assert bad.returncode == 2 and "--rate 0 asks for none" in bad.stderr, bad.stderr
 
 
 def test_watch_without_daemon_says_so(tmp_path):

@@ -86,7 +86,13 @@ def run(args) -> int:
                 inputs, sys.stdout.buffer, config_text=config_text, compress=not args.no_compress
             )
         except BrokenPipeError:
-            raise
+            # Not `| head` having read enough: the capture is the product, and the reader
+            # has a cut one (exit 0 here, as the CLI gives a reader that went away, hid it
+            # from pipefail).  Nothing more to stdout, not even Python's flush at exit.
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            raise UserError(
+                "<stdout>: the reader went away; the capture it got is cut short", exit_code=1
+            ) from None
         except OSError as e:
             raise UserError(f"<stdout>: cannot write: {e.strerror or e}") from None
         size = None

@@ -143,6 +143,10 @@ def _check(args: argparse.Namespace) -> None:
         raise UserError(f"--rate must be a number of at least 0, got {args.rate}")
     if args.count is not None and args.count < 1:
         raise UserError(f"--count must be at least 1, got {args.count}")
+    if args.count is not None and args.rate == 0:
+        # rate 0 asks the daemon for no POSE at all: --count would wait for ever (the
+        # daemon's SOURCE lines each second keep the silence check from ending it)
+        raise UserError("--count counts poses, and --rate 0 asks for none; give a rate")
 
 
 def _ask_rate(client: Any, hz: float) -> None:
