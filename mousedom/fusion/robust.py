@@ -445,7 +445,24 @@ class Screen(RigidTest):
             if used[i] and in_use and beyond > worst and self._solve(d, _but(used, i)) is not None:
                 worst, blame = beyond, i
         self._quiet_any = any(x or y for x, y in self._quiet)
+        if blame is not None and self._most_still_or_short(d, used):
+            return None
         return blame
+
+    def _most_still_or_short(self, d: np.ndarray, used: np.ndarray) -> bool:
+        """Whether half the mice in use or more read nothing beyond their sigma, or read
+        short of the others' motion: then that motion is the odd one (one mouse creeping
+        while the rest stand still drags every prediction), not a lift of the silent ones.
+        Lifts come one mouse at a time; a shortfall's sum waits for a window in which most
+        mice moved (tests/test_robust_creep.py)."""
+        sig2 = self.noise.sig2_list
+        n_used = still = short = 0
+        for i in range(self.n):
+            if used[i]:
+                n_used += 1
+                still += float(d[i, 0]) ** 2 + float(d[i, 1]) ** 2 <= sig2[i]
+                short += self._short_now[i]
+        return 2 * still >= n_used or 2 * short >= n_used
 
     def _silent(self, d: np.ndarray, i: int) -> bool:
         """No counts in the window (a thousandth of its sigma: the split of reports
