@@ -100,8 +100,9 @@ def _check_input_dir(
         elif not configured:
             lines.warn(f"no {where} on this machine", container)
         else:
-            lines.ok(f"no {where} on this machine (not needed: no mouse of this config is an "
-                     "evdev device)")  # fmt: skip
+            # (an evdev mouse read from a FIFO or a file is one too: say what is not needed)
+            lines.ok(f"no {where} on this machine (not needed: no mouse of this config is read "
+                     "from an input node)")  # fmt: skip
         return
     if result.error:
         lines.fail(result.error, "the input directory is normally readable by everyone "
