@@ -59,6 +59,7 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:  # Ctrl-C while the commands are still being imported
         return 130
     except hangup.Terminated as stop:  # likewise
+        hangup.die(stop.signum)
         return 128 + stop.signum
 
 
@@ -96,6 +97,7 @@ def _main(argv: list[str] | None) -> int:
         return 130
     except hangup.Terminated as stop:  # what a file being written left is removed
         _last_word(f"mousedom: terminated ({stop.name})")
+        hangup.die(stop.signum)
         return 128 + stop.signum
     except BrokenPipeError:
         # The reader of our stdout went away (e.g. `| head`); that is not an error of ours.

@@ -12,13 +12,14 @@ calibrate, umbmark...): the default ends the process where it stands, and ``repl
 left its full-size temporary file beside the output (`timeout`, systemd, a closed
 terminal).  ``stopping`` turns the two signals into ``Terminated``, which unwinds as
 Ctrl-C's KeyboardInterrupt does: every ``finally`` and cleanup runs, and the CLI says so
-in one line and exits 128 + the signal's number.  A signal the process was started with
-ignored (``nohup``) stays ignored.
+in one line and then dies by the signal (``die``: what a supervisor asked for).  A
+signal the process was started with ignored (``nohup``) stays ignored.
 """
 
 from __future__ import annotations
 
 import contextlib
+import os
 import signal
 import threading
 from collections.abc import Iterator
@@ -61,13 +62,24 @@ def stopping() -> Iterator[None]:
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    before = {sig: signal.getsignal(sig) for sig in STOPS}
+    # (None: a handler set from C, which Python cannot put back: left as it is)
+    before = {
+        sig: handler
+        for sig in STOPS
+        if (handler := signal.getsignal(sig)) is not None and handler is not signal.SIG_IGN
+    }
     try:
-        for sig, handler in before.items():
-            if handler is not signal.SIG_IGN:
-                signal.signal(sig, _raise)
+        for sig in before:
+            signal.signal(sig, _raise)
         yield
     finally:
         for sig, handler in before.items():
-            if handler is not None:
-                signal.signal(sig, handler)
+            signal.signal(sig, handler)
+
+
+def die(signum: int) -> None:
+    """End the process by ``signum`` itself, its cleanup done: a supervisor (systemd, a
+    shell's `wait`) then sees a death by that signal, as it asked for, and not an exit
+    status it would count as a failure.  Returns only where the signal does not kill."""
+    signal.signal(signum, signal.SIG_DFL)
+    os.kill(os.getpid(), signum)

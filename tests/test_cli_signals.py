@@ -1,5 +1,7 @@
 """SIGTERM and SIGHUP on the command line (mousedom/hangup.py): a command that writes a file
-leaves nothing half-written behind when `timeout`, systemd or a closed terminal ends it;
+leaves nothing half-written behind when `timeout`, systemd or a closed terminal ends it, and
+then dies by the signal (an exit status of 143 is a failure to systemd, a death by SIGTERM
+after `systemctl stop` is not);
 record closes its file whole on a hangup; nohup's ignored SIGHUP stays ignored."""
 
 from __future__ import annotations
@@ -51,7 +53,7 @@ def test_convert_ended_by_a_signal_leaves_no_temporary_file(tmp_path, sig):
     source = _big_evemu(tmp_path)
     code, err, left = _convert_signalled(tmp_path, source, sig)
     assert left == [], (left, err)
-    assert code == 128 + sig, err
+    assert code == -sig, err  # dies by it after its cleanup, as a supervisor asked
     assert f"mousedom: terminated ({signal.Signals(sig).name})" in err
     assert "Traceback" not in err
 
@@ -156,3 +158,16 @@ def test_convert_to_a_reader_that_goes_away_is_an_error(tmp_path):
     assert (
         err == "mousedom: error: <stdout>: the reader went away; the capture it got is cut short\n"
     )
+
+
+def test_record_to_a_closed_stdout_is_one_line(tmp_path):
+    """`record -o - >&-`: stdout is None to Python (an AttributeError traceback before)."""
+    f = fifos(tmp_path, "a", "b")
+    p = subprocess.run(
+        [sys.executable, "-m", "mousedom", "record", "--config", str(rig(tmp_path, f)),
+         "-o", "-"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=mousedom_env(),
+        preexec_fn=lambda: os.close(1), timeout=60,
+    )  # fmt: skip
+    assert p.returncode == 2, p.stderr
+    assert p.stderr == "mousedom: error: -o -: stdout is closed; redirect it, or give a file name\n"

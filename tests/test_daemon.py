@@ -457,8 +457,12 @@ def test_a_reload_whose_new_sensor_does_not_open_keeps_the_daemon(tmp_path, capl
         old_tracker = d.tracker
         d.request_reload()
         deadline = time.monotonic() + 5
-        while d.tracker is old_tracker and time.monotonic() < deadline:
+        # (the reload swaps the tracker, then the sensors' slots: wait for the slot, which
+        # an earlier wait for the tracker alone could miss by a few instructions)
+        while not [s for s in d.sensors.slots if s.name == "c"]:
+            assert time.monotonic() < deadline, "never reloaded"
             time.sleep(0.01)
+        assert d.tracker is not old_tracker
         (slot,) = [s for s in d.sensors.slots if s.name == "c"]
         _BadCapture.missing = False  # ... and there at a retry, unreadable
         deadline = time.monotonic() + 5

@@ -4,8 +4,11 @@
 from __future__ import annotations
 
 import argparse
+import sys
+from typing import BinaryIO
 
 from mousedom.config import DEFAULT_CONFIG_PATH
+from mousedom.errors import UserError
 from mousedom.plainnumber import plain_float, plain_int
 
 
@@ -71,3 +74,13 @@ def whole(text: str) -> int:
         return plain_int(text)
     except ValueError as e:
         raise argparse.ArgumentTypeError(str(e)) from None
+
+
+def binary_stdout() -> BinaryIO:
+    """stdout for ``-o -`` (a capture to a pipe: ssh, gzip), refused where it cannot be
+    one: closed (started with ``>&-``) or a terminal."""
+    if sys.stdout is None:
+        raise UserError("-o -: stdout is closed; redirect it, or give a file name")
+    if sys.stdout.isatty():
+        raise UserError("-o -: stdout is a terminal; redirect it, or give a file name")
+    return sys.stdout.buffer

@@ -79,8 +79,7 @@ def run(args) -> int:
             raise UserError(f"{args.output}: the output would overwrite an input ({path})")
     if args.output == "-":
         # As replay's -o -: the capture goes to stdout (a pipe, e.g. to ssh or gzip).
-        if sys.stdout.isatty():
-            raise UserError("-o -: stdout is a terminal; redirect it, or give a file name")
+        options.binary_stdout()  # (refused early where it cannot be a pipe)
         try:
             stats = convert(
                 inputs, sys.stdout.buffer, config_text=config_text, compress=not args.no_compress

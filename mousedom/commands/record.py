@@ -362,15 +362,14 @@ class Recorder:
             s.source.close()
 
 
-def run(args: argparse.Namespace) -> int:
-    if not args.output:
-        raise UserError("-o/--output: empty file name")
-    cfg = load_config(args.config)
+def _check_output(args: argparse.Namespace) -> None:
+    """-o: stdout (``-``, as convert's and replay's -o -: the capture chunk by chunk to a
+    pipe such as ssh or gzip; a file named "-" was written before), or a file that is not
+    the config and is not overwritten without --force."""
     if args.output == "-":
         # As convert's and replay's -o -: the capture goes to stdout (a pipe to ssh, gzip),
         # chunk by chunk as it is recorded.  (A file named "-" was written before.)
-        if sys.stdout.isatty():
-            raise UserError("-o -: stdout is a terminal; redirect it, or give a file name")
+        options.binary_stdout()  # (refused early where it cannot be a pipe)
         if args.fsync:
             raise UserError("--fsync: -o - writes to a pipe, which cannot be fsync'ed")
     else:
@@ -378,6 +377,13 @@ def run(args: argparse.Namespace) -> int:
             raise UserError(f"{args.output}: is the config file {args.config}; not overwriting it")
         if os.path.exists(args.output) and not args.force:
             raise UserError(f"{args.output}: exists; not overwriting a recording (use --force)")
+
+
+def run(args: argparse.Namespace) -> int:
+    if not args.output:
+        raise UserError("-o/--output: empty file name")
+    cfg = load_config(args.config)
+    _check_output(args)
     config_text = saferead.read_text(args.config)
     if args.duration is not None and not (args.duration > 0 and math.isfinite(args.duration)):
         raise UserError(f"--duration: must be a positive number of seconds, got {args.duration}")

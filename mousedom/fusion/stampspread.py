@@ -38,6 +38,8 @@ estimate, not a test: it moves the judge's threshold, never the pose.
 
 from __future__ import annotations
 
+import math
+
 HALF_LIFE_S = 60.0  # of the evidence
 MIN_PAIRS = 300  # neighbouring moving windows (3 s at 100 Hz) before the factor is used
 # The most the timing may exceed the config's rho by (in variance): rho 8 times the
@@ -66,8 +68,11 @@ class StampSpread:
         prev, self._prev = self._prev, (e, u, used)
         if prev is None or prev[2] != used:
             return
+        product = -4.0 * e * prev[0]
+        if not math.isfinite(product):  # (a rate near the float's end: nothing to learn)
+            return
         keep = self._keep
-        self._num = keep * self._num - 4.0 * e * prev[0]
+        self._num = keep * self._num + product
         self._den = keep * self._den + u + prev[1]
         self._pairs = keep * self._pairs + 1.0
         if self._pairs >= MIN_PAIRS:
