@@ -79,3 +79,25 @@ def test_windows_the_stamps_cannot_move_teach_nothing():
     for e in rng.normal(0.0, 1e-3, 5000).tolist():
         spread.observe(e, 1e-12, 1e-6, (True,))
     assert spread.factor == 1.0
+
+
+def test_a_skipped_pause_pairs_no_window_across_it():
+    """Replay skips a long pause without closing its windows (Tracker.skip_quiet): the
+    timing learner must not pair the window before the pause with the one after it, as the
+    daemon, closing every empty window in between, does not."""
+    from mousedom.fusion.tracker import Tracker
+
+    rig = dataclasses.replace(scenarios.rig("triangle"), gyro=simgyro.SimGyro(sample_hz=200.0))
+    result = sim.simulate(rig, sim.sequence(sim.pause(0.5), drive(3.0, seed=1)), seed=1)
+    tracker = Tracker(sim.rig_config(rig), t0=float(result.motion.starts[0]))
+    for name, rep in result.reports.items():
+        tracker.push(name, rep.t, rep.dx, rep.dy)
+    tracker.push_gyro(result.gyro.t, result.gyro.rate)
+    last = max([float(r.t[-1]) for r in result.reports.values()] + [float(result.gyro.t[-1])])
+    tracker.complete_until(last + 0.1)
+    tracker.poll()
+    spread = tracker._one.gyro.spread
+    spread.observe(1e-3, 1.0, 0.0, (True, True, True))  # a window to pair with
+    tracker.complete_until(last + 100.0)
+    assert tracker.skip_quiet(last + 100.0) is not None
+    assert spread._prev is None

@@ -539,6 +539,8 @@ class Tracker:
         end = self.frontier_time
         for m in self._clocks:
             m.skip_to(end)
+        if self._one.gyro is not None:  # no window after the gap is the one before's neighbour
+            self._one.gyro.spread.gap()
         return start, end
 
     def finish(self) -> PoseBatch:
