@@ -171,3 +171,35 @@ def test_record_to_a_closed_stdout_is_one_line(tmp_path):
     )  # fmt: skip
     assert p.returncode == 2, p.stderr
     assert p.stderr == "mousedom: error: -o -: stdout is closed; redirect it, or give a file name\n"
+
+
+def test_a_killed_recorder_keeps_the_counts_it_noted_lost(tmp_path):
+    """kill -9 (a crash, a power cut) after frames with SYN_DROPPED: the file's notes say
+    what they lost, up to the last flush (one NOTE at the end lost them all: the torn
+    file's replay said nothing of the counts lost)."""
+    from test_record import _events_with_drops
+
+    f = fifos(tmp_path, "a", "b")
+    out = tmp_path / "run.mdcap"
+    p = start("record", "--config", str(rig(tmp_path, f)), "-o", str(out),
+              "--status-interval", "0")  # fmt: skip
+    sent = {}
+    try:
+        ws = dict(zip(f, _writers(f.values(), p), strict=True))
+        for k, (name, w) in enumerate(ws.items()):
+            data, *sent[name] = _events_with_drops(40 + k, time.monotonic())
+            os.write(w, data)
+        time.sleep(0.8)  # past a flush (FLUSH_S)
+        p.kill()
+        p.wait(timeout=20)
+        for w in ws.values():
+            os.close(w)
+    finally:
+        p.kill()
+    cap, motion, _ = read_capture(out)
+    for i, dev in enumerate(cap.devices):
+        st = cap.stats[i]
+        kept_x, kept_y, lost_x, lost_y = sent[dev.mouse]
+        assert (sum(motion[dev.mouse][1]), sum(motion[dev.mouse][2])) == (kept_x, kept_y)
+        assert (st.lost_x, st.lost_y) == (lost_x, lost_y), dev.mouse
+        assert st.dropped_frames > 0

@@ -27,6 +27,7 @@ from contextlib import contextmanager
 from typing import TYPE_CHECKING
 
 from mousedom import saferead
+from mousedom.capture.base import SOURCE_COUNTERS, DeviceStats
 from mousedom.commands import _options as options
 from mousedom.commands._recordslots import (
     GyroSlot,
@@ -53,6 +54,9 @@ Sensor = Slot | GyroSlot  # what the loop reads: a mouse's slot, or the gyro's
 log = logging.getLogger(__name__)
 
 FLUSH_S = 0.25  # bound on what a kill -9 can lose
+# The counters whose change is written at the next flush (the rest at the end): what a
+# replay must say was lost
+LOSS_COUNTERS = ("dropped_frames", "dropped_events", "lost_x", "lost_y", "skipped")
 RETRY_S = 0.5  # how often to look for an unplugged device
 TICK_S = 0.05  # longest sleep in select: signals and deadlines are noticed this fast
 
@@ -150,6 +154,7 @@ class Recorder:
         self._stop = stop  # the signal handler appends to it
         self.output = "<stdout>" if output == "-" else output
         self._quiet = False  # stderr went away: no more status lines
+        self._noted: dict[int, DeviceStats] = {}  # each mouse's counters in NOTEs so far
 
     def _register(self, s: Sensor) -> None:
         fd = fileno_of(s.source)
@@ -251,7 +256,24 @@ class Recorder:
                 if s.raw is not None and s.raw.data:
                     self.writer.serial_many(s.index, s.raw.t, s.raw.data)
                     s.raw.t, s.raw.data = [], []
+            self._note_counters(final=False)
             self.writer.flush()
+
+    def _note_counters(self, final: bool) -> None:
+        """Each evdev mouse's counters since its last NOTE (a reader adds NOTE chunks up):
+        at each flush where frames were dropped, skipped or cut since, so that a kill -9
+        loses at most FLUSH_S of them (one NOTE at the end lost them all: a replay of the
+        torn file said nothing of the counts lost in dropped frames); at the end, the rest."""
+        for s in self.slots:
+            if s.serial:
+                continue
+            now = DeviceStats()
+            now.take_assembler(s.evdev.assembler.stats)
+            before = self._noted.get(s.index, DeviceStats())
+            delta = {k: getattr(now, k) - getattr(before, k) for k in SOURCE_COUNTERS}
+            if any(delta[k] for k in (SOURCE_COUNTERS if final else LOSS_COUNTERS)):
+                self.writer.note(s.index, DeviceStats(**delta))
+                self._noted[s.index] = now
 
     def status(self, elapsed: float, dt: float) -> str:
         parts = []
@@ -340,15 +362,7 @@ class Recorder:
                     self._write_motion(slot, batch.t, batch.dx, batch.dy)
                     slot.reports += len(batch)
         self._flush()
-        from mousedom.capture.base import DeviceStats
-
-        for s in self.slots:
-            if s.serial:
-                continue
-            note = DeviceStats()
-            note.take_assembler(s.evdev.assembler.stats)
-            with self._writing():
-                self.writer.note(s.index, note)
+        self._note_counters(final=True)
         with self._writing():
             self.writer.close()
         self.close_sources()
