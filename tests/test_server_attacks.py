@@ -21,7 +21,7 @@ from conftest import REPO, mousedom_env
 def test_a_healthy_client_keeps_its_poses_under_attack(attack):
     proc = subprocess.run(
         [sys.executable, str(REPO / "scripts" / "attack.py"), "--seconds", "2",
-         "--attack", attack, "--idle-timeout", "2", "--json"],
+         "--attack", attack, "--idle-timeout", "2", "--max-gap", "300", "--json"],
         capture_output=True, text=True, timeout=120, env=mousedom_env(),
     )  # fmt: skip
     rows = [json.loads(line) for line in proc.stdout.splitlines() if line.startswith("{")]
@@ -37,4 +37,6 @@ def test_a_healthy_client_keeps_its_poses_under_attack(attack):
     assert row["worst_gap_ms"] < 300.0, row
     if attack == "idle":
         assert row["new_client_after_idle"] is True, row
+    # (the script's own verdict, at the worst gap held above: its default of 50 ms failed
+    # a run whose gaps this test accepts, on a machine stalled once for 149 ms)
     assert proc.returncode == 0, proc.stdout + proc.stderr
