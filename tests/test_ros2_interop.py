@@ -269,7 +269,7 @@ def test_an_imu_driver_on_fast_dds_is_the_daemons_gyro(ros2, tmp_path):
         NETNS + f"{sys.executable} -m mousedom run --config {cfg} --socket {sock} "
         f"--record {rec} 2>{tmp_path / 'daemon.log'} & daemon=$!; sleep 2; "
         f"ROS_DOMAIN_ID={domain} {ros2} {REPO / 'tests' / 'ros2_rclpy_imu.py'} {seconds} {out}; "
-        f"{sys.executable} -c 'import time; print(time.time() - time.monotonic())'; "
+        f"{sys.executable} -c 'from mousedom.service.rostime import system_lead as s; print(s())'; "
         "sleep 0.5; kill -TERM $daemon; wait $daemon"
     )
     proc = subprocess.run(["unshare", "-n", "bash", "-c", script], env=env,
@@ -291,8 +291,14 @@ def test_an_imu_driver_on_fast_dds_is_the_daemons_gyro(ros2, tmp_path):
     by_rate = {m["z"]: m["sec"] + m["nanosec"] * 1e-9 - lead for m in sent}
     assert len(rates) >= 0.9 * len(sent), (len(rates), len(sent), log[-2000:])
     assert all(r in by_rate for r in rates.tolist())  # each a published rate, exactly
-    stamped = np.array([by_rate[r] for r in rates.tolist()])
-    np.testing.assert_allclose(t, stamped, rtol=0, atol=0.01)  # (the lead, read apart)
+    off = t - np.array([by_rate[r] for r in rates.tolist()])
+    # The two reads of the clocks' lead (the daemon's at each take, the test's once) may
+    # differ by a few ms on a loaded machine; within one run the daemon's is the same to
+    # microseconds, so each sample keeps the spacing the node stamped (stamps taken on
+    # receipt, two or so samples a read sharing one, would be ms apart from it)
+    assert abs(float(np.median(off))) < 0.01, np.median(off)
+    spread = np.abs(off - np.median(off))
+    assert spread.max() < 0.002, (spread.max(), int((spread >= 0.002).sum()), len(off))
     assert "reading /imu/data (sensor_msgs/Imu) on ROS 2 domain" in log
 
 

@@ -21,17 +21,16 @@ from mousedom.service import ros2cdr as cdr
 from mousedom.service import ros2conv as conv
 from mousedom.service import ros2msgs as msgs
 from mousedom.service.output import Output, PerMouse
+from mousedom.service.rostime import system_lead
 
 INSTALL_HINT = "MCAP output needs mcap, which is not installed: pip install 'mousedom[ros2]'"
 
 
 def system_offset(cfg: Ros2Config | None) -> float:
     """How far the system clock is ahead of the monotonic one (0 for monotonic stamps)."""
-    import time
-
     if cfg is not None and cfg.stamps == "monotonic":
         return 0.0
-    return time.time() - time.monotonic()
+    return system_lead()
 
 
 def require() -> None:

@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 
 from mousedom.config import GyroConfig
+from mousedom.service.rostime import system_lead
 from mousedom.sources.base import (
     MAX_RATE,
     Reports,
@@ -191,7 +192,7 @@ class Ros2ImuSource(Source):
 
     def _samples(self, msgs: list[Any], now: float) -> GyroSamples | None:
         axis, sign = self.config.axis, self.config.sign
-        lead = self.wall() - self.clock() if self.ros2.stamps == "system" else 0.0
+        lead = system_lead(self.wall, self.clock) if self.ros2.stamps == "system" else 0.0
         t, rate = [], []
         for m in msgs:
             cov = m.angular_velocity_covariance

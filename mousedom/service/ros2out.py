@@ -34,6 +34,7 @@ from mousedom.service import ros2cdr as cdr
 from mousedom.service import ros2conv as conv
 from mousedom.service import ros2msgs as msgs
 from mousedom.service.output import Output, PerMouse
+from mousedom.service.rostime import system_lead
 
 log = logging.getLogger(__name__)
 
@@ -342,7 +343,7 @@ class Ros2Output(PerMouse, Output):
 
     def _offset(self) -> float:
         # The system clock's lead over the monotonic one, read per message: NTP may step it.
-        return time.time() - time.monotonic() if self.cfg.stamps == "system" else 0.0
+        return system_lead() if self.cfg.stamps == "system" else 0.0
 
     def publish(self, row: PoseRow) -> None:
         """One window (a PoseRow): Odometry, and TF where enabled."""
