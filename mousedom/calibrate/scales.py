@@ -199,7 +199,9 @@ def learn(
     # left out of, and no per-axis evidence
     held = [learner.held_out_scale(i) is not None for i in range(len(config.mice))]
     for i, m in enumerate(config.mice):
-        g, s = float(learner.estimate[i, 0]), float(learner.spread[i, 0])
+        g, s = float(learner.one[i]), float(learner.one_spread[i])
+        if held[i]:  # (reported from the windows it was left out of: _report_held_out)
+            g, s = float(learner.estimate[i, 0]), float(learner.spread[i, 0])
         one = MouseScale(m.name, g, s, (m.cpi_x, m.cpi_y))
         mice.append(one if held[i] else _per_axis(one, fitted, i, max_spread))
     split = np.array([m.per_axis for m in mice])

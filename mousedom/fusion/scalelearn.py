@@ -19,12 +19,14 @@ near 1), divided by its median mouse (with one mouse wrong, a right one).  Its s
 the residual g' S g per degree of freedom through the inverse of S off the null
 direction.  One scale per mouse, both axes, for the fusion: a CPI is most often wrong for
 a sensor as a whole, and per axis the sideways one (which reads the turn) is often too
-weakly observable to trust within the seconds the fusion has.  Where asked (``axes``:
-`calibrate scales`, over a whole drive), the same evidence is also kept per count axis,
-J's column per mouse split in two (S is then 2N x 2N), and ``fit_axes`` gives a scale per
-axis with the spread of each and of their difference, infinite where the drive does not
-tell an axis apart from the others: a mouse whose CPI is off on one axis only reads, in
-one scale, as about half as far off on both.
+weakly observable to trust within the seconds the fusion has.  The same evidence is also
+kept per count axis, J's column per mouse split in two (S is then 2N x 2N), and
+``fit_axes`` gives a scale per axis with the spread of each and of their difference,
+infinite where the drive does not tell an axis apart from the others: a mouse whose CPI
+is off on one axis only reads, in one scale, as some mean of the two (of either sign),
+and the misfit bends the healthy mice's scales.  So a mouse whose two axes differ plainly
+is given a scale per axis, the others one each from the same fit (``_split_axes``);
+`calibrate scales` reads the per-axis evidence over a whole drive.
 
 The learnt scale is applied where plain (more than ``_PLAIN`` of its standard deviations
 and ``_MIN_APPLIED`` from 1, after ``_MIN_GROUPS`` groups of evidence (the first second's
@@ -306,9 +308,11 @@ class ScaleLearner:
         self._base_inv = np.linalg.inv(self.base)
         self.gram = np.zeros((self.n, self.n))  # S, forgetting
         self._segments: list[np.ndarray] = []  # S in blocks (``jackknife``), forgetting
-        # per count axis (``fit_axes``), kept only where asked (`calibrate scales`): S with
-        # a column per mouse and axis, 2N x 2N, and its blocks, forgetting as S does
+        # per count axis (``fit_axes``): S with a column per mouse and axis, 2N x 2N, and
+        # its blocks, forgetting as S does; kept always (``_split_axes``: a mouse off on
+        # one axis is given a scale per axis), ``axes`` is what `calibrate scales` sets
         self.axes = False
+        self.split = np.zeros(self.n, dtype=bool)  # the mice given a scale per axis
         self.axis_gram = np.zeros((2 * self.n, 2 * self.n))
         self.axis_segments: list[np.ndarray] = []
         # per mouse, from the groups it was left out of: sum X.X, X.Y, Y.Y, groups
@@ -316,6 +320,8 @@ class ScaleLearner:
         self.groups = 0.0  # groups of evidence in S, forgetting
         self.estimate = np.ones((self.n, 2))  # the fit, unclipped
         self.spread = np.full((self.n, 2), np.inf)  # its standard deviation
+        self.one = np.ones(self.n)  # one scale per mouse (``fit``) and its spread
+        self.one_spread = np.full(self.n, np.inf)
         self.scale = np.ones((self.n, 2))  # applied: the fit clipped to bounds
         # this block's (counts, usable, held_out, q, steps, in_solve, heading): arrays from
         # add, one window's lists from add_row
@@ -574,8 +580,7 @@ class ScaleLearner:
             if len(segments) > _SEGMENTS:
                 segments[:2] = [segments[0] + segments[1]]
         self._segments = segments
-        if self.axes:
-            self._learn_axes(c, not flagged and len(c) > 0)
+        self._learn_axes(c, not flagged and len(c) > 0)
         return self._solve()
 
     def _learn_axes(self, c: np.ndarray, learnt: bool) -> None:
@@ -617,8 +622,10 @@ class ScaleLearner:
             spread = np.maximum(spread, jackknife(self.gram, self._segments) * (t / _PLAIN))
         else:
             spread = np.full(self.n, np.inf)
+        self.one, self.one_spread = g, spread
         self.estimate = np.repeat(g[:, None], 2, axis=1)
         self.spread = np.repeat(spread[:, None], 2, axis=1)
+        self._split_axes()
         # applied where plain: a scale within 3 of its standard deviations of 1 is noise,
         # and noise applied to a mouse that reads the turn is heading lost for good
         off = np.abs(self.estimate - 1.0)
@@ -628,6 +635,34 @@ class ScaleLearner:
         self.scale = np.where(plain, np.clip(self.estimate, *self.bounds), 1.0)
         self.version += 1
         return True
+
+    def _split_axes(self) -> None:
+        """A mouse whose two count axes' scales differ plainly (beyond _PLAIN of the
+        difference's spread and _MIN_APPLIED; kept while beyond _KEEP_PLAIN and
+        _KEEP_APPLIED) is given a scale per axis, the others one each from the same fit
+        (``fit_axes`` with ``split``).  One scale per mouse cannot fit a CPI off on one
+        axis: it reads as some mean of the two, of either sign, and its misfit bends the
+        healthy mice's scales (three mice, one 4 % off on its x axis: one scale gave it
+        2.5 % the wrong way, 3.7 m off at the end of a 36 s drive against 1.8 m with no
+        scale; per axis 0.18 m).  Where the drive does not tell a mouse's axes apart
+        (its difference's spread infinite: mice whose axes all lie along the body's,
+        with no sideways motion), the one scale stands."""
+        n, cols = self.n, len(self.cols)
+        evidence = (self.axis_gram, self.axis_segments, self.groups, n, cols)
+        with np.errstate(invalid="ignore"):  # exact readings: a residual of -0 (spread inf)
+            fitted = fit_axes(*evidence)
+        if fitted is None:
+            self.split = np.zeros(n, dtype=bool)
+            return
+        off, sd = np.abs(fitted[2]), fitted[3]
+        kept = self.split & (off > _KEEP_PLAIN * sd) & (off > _KEEP_APPLIED)
+        self.split = kept | ((off > _PLAIN * sd) & (off > _MIN_APPLIED))
+        if not self.split.any():
+            return
+        with np.errstate(invalid="ignore"):
+            mixed = fit_axes(*evidence, split=self.split)
+        if mixed is not None:
+            self.estimate, self.spread = mixed[0], mixed[1]
 
     def _faults(self, block: np.ndarray, groups: int) -> list[int]:
         """The mice whose scale in this block alone (its S, ``groups`` of them) is beyond
@@ -690,14 +725,19 @@ class ScaleLearner:
         standard deviations: a CPI typo, or the wrong mouse's CPI."""
         out = []
         for i, name in enumerate(names):
-            g, s = float(self.estimate[i, 0]), float(self.spread[i, 0])
             held = self.held_out_scale(i)
+            # a mouse given a scale per axis (``split``) is warned of by its worse axis
+            axes = [(float(self.estimate[i, a]), float(self.spread[i, a]), a) for a in (0, 1)]
             if held is not None:
-                g, s = held
+                axes = [(held[0], held[1], 0)]
+            elif not self.split[i]:
+                axes = axes[:1]
+            g, s, a = max(axes, key=lambda e: abs(1.0 / e[0] - 1.0))
             if abs(1.0 / g - 1.0) >= WARN and abs(g - 1.0) > 3.0 * s:
                 word = "less" if g > 1.0 else "more"  # it needs g times its counts
+                where = f" on its {'xy'[a]} axis" if len(axes) == 2 else ""
                 out.append(
                     f"mouse {name} reads {abs(1.0 / g - 1.0) * 100:.0f} % {word} than "
-                    f"the others: check its cpi (learnt scale {g:.3f} +- {s:.3f})"
+                    f"the others{where}: check its cpi (learnt scale {g:.3f} +- {s:.3f})"
                 )
         return out
