@@ -180,6 +180,7 @@ def fit_axes(
     n: int,
     cols: int,
     split: np.ndarray | None = None,
+    jackknifed: bool = True,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
     """A scale per count axis from the per-axis evidence S (2N x 2N, rows mouse-major:
     mouse i's x then y) and its ``segments``: (g (N, 2), spread (N, 2), g_x - g_y (N,),
@@ -194,7 +195,8 @@ def fit_axes(
     the common mode pinned, beyond 1 / _MIN_SEPARATION of S's largest eigenvalue's
     inverse: e.g. the sideways axes of a drive that never slides) has an infinite spread,
     and so has its mouse's difference.  None where S gives nothing (too little
-    evidence)."""
+    evidence).  ``jackknifed=False``: the spreads the residual's alone, a lower bound,
+    without the jackknife's solve per segment (what can be plain at all)."""
     m = 2 * n
     if groups < _MIN_GROUPS or s.shape != (m, m) or not np.all(np.isfinite(s)):
         return None
@@ -213,7 +215,6 @@ def fit_axes(
         col += 2 if split[i] else 1
     k = len(owner)
     s = t_map.T @ s @ t_map
-    segments = [t_map.T @ seg @ t_map for seg in segments]
     evidence = np.diag(s)
     g = scales(s)
     if not np.all(np.isfinite(g)):
@@ -241,15 +242,16 @@ def fit_axes(
     weak_d = ~(var_d < 2 * free) | weak[first] | weak[first + 1]
     spread = np.sqrt(np.maximum(var, 0.0) * r2)
     spread_d = np.sqrt(np.maximum(var_d, 0.0) * r2)
-    b = len(segments)
-    loo = scales(s[None] - np.stack(segments))  # (B, K)
-    t = student.quantile(_PLAIN_P, b - 1) / _PLAIN
-    with np.errstate(invalid="ignore", over="ignore"):
-        jack = np.sqrt((b - 1) / b * np.sum((loo - loo.mean(axis=0)) ** 2, axis=0))
-        loo_d = loo[:, first] - loo[:, first + 1]
-        jack_d = np.sqrt((b - 1) / b * np.sum((loo_d - loo_d.mean(axis=0)) ** 2, axis=0))
-    spread = np.maximum(spread, jack * t)
-    spread_d = np.maximum(spread_d, jack_d * t)
+    if jackknifed:
+        b = len(segments)
+        loo = scales(s[None] - np.stack([t_map.T @ seg @ t_map for seg in segments]))
+        t = student.quantile(_PLAIN_P, b - 1) / _PLAIN
+        with np.errstate(invalid="ignore", over="ignore"):
+            jack = np.sqrt((b - 1) / b * np.sum((loo - loo.mean(axis=0)) ** 2, axis=0))
+            loo_d = loo[:, first] - loo[:, first + 1]
+            jack_d = np.sqrt((b - 1) / b * np.sum((loo_d - loo_d.mean(axis=0)) ** 2, axis=0))
+        spread = np.maximum(spread, jack * t)
+        spread_d = np.maximum(spread_d, jack_d * t)
     spread = np.where(np.isfinite(spread) & ~weak, spread, np.inf)
     g = np.where(weak, 1.0, g)
     d_all, spread_d_all = np.zeros(n), np.full(n, np.nan)
@@ -648,31 +650,22 @@ class ScaleLearner:
         (its difference's spread infinite: mice whose axes all lie along the body's,
         with no sideways motion), the one scale stands."""
         n, cols = self.n, len(self.cols)
-        # First the one solve a split needs (its difference is the plain scales' as they
-        # are, an axis too weakly seen gets no split): where no mouse's axes differ by the
-        # least a split takes, none is made, without the jackknife's solve per block of
-        # evidence (a fifth of replay's time on healthy rigs).  NaN splits nothing either.
-        s = self.axis_gram
-        if self.groups < _MIN_GROUPS or not np.all(np.isfinite(s)) or np.diag(s).max() <= 0:
-            self.split = np.zeros(n, dtype=bool)
-            return
-        with np.errstate(invalid="ignore", divide="ignore"):
-            g = scales(s)
-        least = np.where(self.split, _KEEP_APPLIED, _MIN_APPLIED)
-        if not (np.abs(g[0::2] - g[1::2]) > least).any():
-            self.split = np.zeros(n, dtype=bool)
-            return
         evidence = (self.axis_gram, self.axis_segments, self.groups, n, cols)
-        with np.errstate(invalid="ignore"):  # exact readings: a residual of -0 (spread inf)
-            fitted = fit_axes(*evidence)
-        if fitted is None:
-            self.split = np.zeros(n, dtype=bool)
-            return
-        off, sd = np.abs(fitted[2]), fitted[3]
-        kept = self.split & (off > _KEEP_PLAIN * sd) & (off > _KEEP_APPLIED)
-        self.split = kept | ((off > _PLAIN * sd) & (off > _MIN_APPLIED))
-        if not self.split.any():
-            return
+        split = self.split
+        # First with the residual's spreads alone, a lower bound: where no difference can
+        # be plain with them, none is with the jackknife's either, whose solve per
+        # segment (a fifth of replay's time on a healthy rig) is then not made.
+        for jackknifed in (False, True):
+            with np.errstate(invalid="ignore"):  # exact readings: a residual of -0
+                fitted = fit_axes(*evidence, jackknifed=jackknifed)
+            if fitted is None:
+                self.split = np.zeros(n, dtype=bool)
+                return
+            off, sd = np.abs(fitted[2]), fitted[3]
+            kept = split & (off > _KEEP_PLAIN * sd) & (off > _KEEP_APPLIED)
+            self.split = kept | ((off > _PLAIN * sd) & (off > _MIN_APPLIED))
+            if not self.split.any():
+                return
         with np.errstate(invalid="ignore"):
             mixed = fit_axes(*evidence, split=self.split)
         if mixed is not None:
