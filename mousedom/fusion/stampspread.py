@@ -41,7 +41,8 @@ from __future__ import annotations
 import math
 
 HALF_LIFE_S = 60.0  # of the evidence
-MIN_PAIRS = 300  # neighbouring moving windows (3 s at 100 Hz) before the factor is used
+MIN_PAIRS = 100  # neighbouring moving windows (1 s at 100 Hz) before the factor is used (with
+# 300, a pair's healthy windows the judge took for faults in the first 3 s taught the scale)
 # The most the timing may exceed the config's rho by (in variance): rho 8 times the
 # config's 0.05 is a window's motion 40 % wrong from its stamps alone, beyond any host; a
 # learnt factor past it would let a faulty mouse through the gyro's test.
