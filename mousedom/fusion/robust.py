@@ -798,10 +798,8 @@ class Screen(RigidTest):
         tolerance from one window to the next, a glitching sensor does, so an explanation
         whose motion is by far the closest to the motion its own mice read HISTORY_S
         earlier wins (not the previous window's solution: a fault that crept in below the
-        test's tolerance has already bent that towards itself), unless one explanation
-        alone blames mice that read short of the motion now and then while the rest
-        moved (a lift under way: then the motion before is the fault's).  Then a mouse
-        that is silent while the rest say it moved (a lift).  The fit is judged over the windows
+        test's tolerance has already bent that towards itself).  Then a mouse that is
+        silent while the rest say it moved (a lift).  The fit is judged over the windows
         in a row that the same explanations passed (``_fit_sums``)."""
         sums = self._fit_sums(used, passing)
         fits = sorted(passing, key=lambda c: sums[tuple(c.excluded)])
@@ -809,17 +807,12 @@ class Screen(RigidTest):
             return fits[0].excluded
         thr2 = self._thresholds[2]
         silent = []
-        lifted = []
         change = []
         then = self._then()
-        short_then = self._short_then(then)
         for combo, stat in passing:
             p = self.predict(stat.q)
             if all(self._silent(d, j) and p[j] @ p[j] > thr2 * s2[j] for j in combo):
                 silent.append(combo)
-            if all(short_then[j] and self._quiet_n[j] >= 2 and p[j] @ p[j] > thr2 * s2[j]
-                   and d[j] @ p[j] < SHORT * (p[j] @ p[j]) for j in combo):  # fmt: skip
-                lifted.append(combo)
             before = self.prev_p
             if then is not None:
                 # the same mice's motion a few windows back: a fault that crept in below
@@ -831,25 +824,6 @@ class Screen(RigidTest):
                 if q_then is not None:
                     before = self.predict(q_then)
             change.append((float(np.sum(np.sum((p - before) ** 2, axis=1) / s2)), combo))
-        # A lift, before continuity: the one explanation whose mice read short (less than
-        # SHORT along it: nothing, or a lifted sensor's noise) of what it moves them now,
-        # of what all the other mice moved them then, and of the rig's motion in the
-        # window before this one too (``_quiet_blame``'s run), while two or more of the
-        # rest read motion.  Their readings of then were the fault's already, and the
-        # motion before of an explanation that keeps them is built on it.  Mice near one
-        # line, the middle one lifted near a turn's pivot: the lift hides in the others'
-        # errors until the rig drives off; then "a pivot about the silent mouse" continues
-        # the turn where the truth ramps to a straight, and continuity took a healthy end
-        # mouse out (a review's line of three: 12 drives in 30, up to 7 m off;
-        # tests/test_robust_line.py).  A mouse at a spin's pivot was not moved by the
-        # others then (tests/test_shortfall_pivot.py); one mover among still mice is also
-        # a mouse creeping at a standstill (tests/test_robust_creep.py).
-        if len(lifted) == 1:
-            rest = used.copy()
-            rest[lifted[0]] = False
-            moving = norm2(d) > self.noise.sig2
-            if int(np.count_nonzero(rest & moving & ~short_then)) >= 2:
-                return lifted[0]
         change.sort(key=lambda c: c[0])
         # the other explanation must need a change of motion beyond the tolerance itself:
         # at a standstill every explanation's change is noise, and ratios of noise decide
@@ -899,30 +873,6 @@ class Screen(RigidTest):
                 and norm2(self.predict(q)[i]) > self._thresholds[2] * self.noise.sig2[i]
             ):
                 out = _but(out, i)
-        return out
-
-    def _short_then(self, then: np.ndarray | None) -> np.ndarray:
-        """(N,) bool: the mice that read less than SHORT of what all the other mice used
-        in the window ``then`` moved them, along it, where that was beyond what their
-        errors predict (``_quiet_blame``'s rule: a mouse at a spin's pivot is not short of
-        anything); a lift under way (``_tie_break``).  None without ``then``.  Only
-        where a window's explanations tie: a loop of solves."""
-        out = np.zeros(self.n, dtype=bool)
-        if then is None or len(self.used_history) < self.history_len:
-            return out
-        used = np.array(self.used_history[-self.history_len], dtype=bool)
-        sig2 = self.noise.sig2_list
-        for i in range(self.n):
-            others = _but(used, i)
-            q = self._solve(then, others)
-            if q is None:
-                continue
-            p = self.predict(q)[i]
-            p2 = float(p @ p)
-            if p2 <= sig2[i] or float(then[i] @ p) >= SHORT * p2:
-                continue
-            white, prop = self._prediction_errors(then, others)
-            out[i] = p2 > sig2[i] + white[i] + prop[i] * prop[i]
         return out
 
     def _then(self) -> np.ndarray | None:
