@@ -102,3 +102,16 @@ def test_a_mouse_given_a_scale_per_axis_is_warned_of_by_its_worse_axis():
     assert line.startswith(f"mouse m{bad} reads 15 % more than the others on its y axis"), line
     learner.split[bad] = False  # one scale: its x axis's, no axis named
     assert learner.warnings(names) == []
+
+
+def test_source_reports_a_split_mouse_by_its_axis_off():
+    """SOURCE's ``scale`` of a mouse given a scale per axis is that of its axis off (it
+    said the x axis's 1.0, not applied, of this mouse 3.5 % off on its y axis)."""
+    from mousedom.service.scales import scale_fields
+
+    _, learner, bad, err, axis = _run(33, learn=True)
+    assert axis == 1 and learner.split[bad]
+    names = [f"m{k}" for k in range(learner.n)]
+    fields = scale_fields(learner, names, applying=True)[bad]
+    assert fields["scale"] == pytest.approx(1.0 / (1.0 + err), abs=0.005), fields
+    assert fields["scale_applied"] is True

@@ -54,7 +54,8 @@ def warning_texts(learner: Any, names: Sequence[str]) -> dict[str, str]:
 
 def scale_fields(learner: Any, names: Sequence[str], applying: bool) -> list[dict[str, Any]]:
     """Per mouse (config order) the SOURCE keys of its learnt scale (docs/protocol.md):
-    ``scale`` (the factor its counts need to agree with the others; both axes are one),
+    ``scale`` (the factor its counts need to agree with the others; both axes are one,
+    but for a mouse given a scale per axis: its axis further from 1),
     ``scale_spread`` (its standard deviation), ``scale_applied`` (whether the fusion
     multiplies the mouse's counts by it, within robust.scale_limit) and ``scale_warning``
     (the learner's warning, or None).  ``scale`` and ``scale_spread`` are None where
@@ -71,14 +72,20 @@ def scale_fields(learner: Any, names: Sequence[str], applying: bool) -> list[dic
     warnings = warning_texts(learner, names)
     out = []
     for i, name in enumerate(names):
-        g, s = float(learner.estimate[i, 0]), float(learner.spread[i, 0])
+        # a mouse given a scale per axis (``split``, a CPI off on one axis): the axis
+        # further from 1, as its warning names it; applied where either axis is
+        a = 0
+        split = getattr(learner, "split", None)
+        if split is not None and split[i]:
+            a = int(abs(learner.estimate[i, 1] - 1.0) > abs(learner.estimate[i, 0] - 1.0))
+        g, s = float(learner.estimate[i, a]), float(learner.spread[i, a])
         if not (math.isfinite(g) and math.isfinite(s)):
             out.append(dict(none))
             continue
         out.append({
             "scale": round(g, 6),
             "scale_spread": round(s, 6),
-            "scale_applied": bool(applying and float(learner.scale[i, 0]) != 1.0),
+            "scale_applied": bool(applying and (learner.scale[i] != 1.0).any()),
             "scale_warning": warnings.get(name),
         })  # fmt: skip
     return out
