@@ -15,7 +15,7 @@ right; docs/calibration.md, "Online scale").
 A mouse's two count axes may be off by different amounts (the config has ``cpi: {x,
 y}``).  One scale for both then reads as about their mean, and a mouse 3 % off on one axis
 looked as if it agreed with the others.  So the learner also keeps its evidence per count
-axis here (``ScaleLearner.axes``, ``scalelearn.fit_axes``), and a mouse whose two axes'
+axis (``ScaleLearner.axis_gram``, ``scalelearn.fit_axes``), and a mouse whose two axes'
 scales differ plainly (beyond PLAIN_SIGMAS standard deviations of the difference and
 MIN_CHANGE, the rule by which a CPI is corrected) is given a scale per axis; where they
 agree, the one scale stands; where the drive does not tell the two apart (the
@@ -181,8 +181,6 @@ def learn(
             "for every mouse (a drive recorded with `mousedom record` or `mousedom run --record`)"
         )
     replay = Replay(config, assign(config, specs))
-    if replay.tracker.scales is not None:
-        replay.tracker.scales.axes = True  # the evidence per count axis as well
     summary = replay.run(lambda batch: None, progress=progress)
     if not summary.windows:  # one error, not replay's "no pose to write" before it
         raise UserError(

@@ -311,9 +311,8 @@ class ScaleLearner:
         self.gram = np.zeros((self.n, self.n))  # S, forgetting
         self._segments: list[np.ndarray] = []  # S in blocks (``jackknife``), forgetting
         # per count axis (``fit_axes``): S with a column per mouse and axis, 2N x 2N, and
-        # its blocks, forgetting as S does; kept always (``_split_axes``: a mouse off on
-        # one axis is given a scale per axis), ``axes`` is what `calibrate scales` sets
-        self.axes = False
+        # its blocks, forgetting as S does (``_split_axes``: a mouse off on one axis is
+        # given a scale per axis; `calibrate scales` reads it over a whole drive)
         self.split = np.zeros(self.n, dtype=bool)  # the mice given a scale per axis
         self.axis_gram = np.zeros((2 * self.n, 2 * self.n))
         self.axis_segments: list[np.ndarray] = []
