@@ -726,22 +726,28 @@ class ScaleLearner:
         d = np.diag(self.gram)
         return float(self.groups * d[i] / d.mean()) if d.mean() > 0 else 0.0
 
+    def reported_axis(self, i: int) -> int:
+        """The count axis (0: x, 1: y) whose scale stands for mouse i where one number is
+        reported (its warning, SOURCE): x, as both are one, but for a mouse given a scale
+        per axis (``split``) the one whose counts need the larger change."""
+        if not self.split[i]:
+            return 0
+        gx, gy = (float(v) for v in self.estimate[i])
+        return int(abs(1.0 / gy - 1.0) > abs(1.0 / gx - 1.0))
+
     def warnings(self, names: tuple[str, ...] | list[str]) -> list[str]:
         """A line per mouse whose scale is WARN or more from 1, beyond three of its
         standard deviations: a CPI typo, or the wrong mouse's CPI."""
         out = []
         for i, name in enumerate(names):
             held = self.held_out_scale(i)
-            # a mouse given a scale per axis (``split``) is warned of by its worse axis
-            axes = [(float(self.estimate[i, a]), float(self.spread[i, a]), a) for a in (0, 1)]
+            a = self.reported_axis(i)
+            g, s = float(self.estimate[i, a]), float(self.spread[i, a])
             if held is not None:
-                axes = [(held[0], held[1], 0)]
-            elif not self.split[i]:
-                axes = axes[:1]
-            g, s, a = max(axes, key=lambda e: abs(1.0 / e[0] - 1.0))
+                g, s = held
             if abs(1.0 / g - 1.0) >= WARN and abs(g - 1.0) > 3.0 * s:
                 word = "less" if g > 1.0 else "more"  # it needs g times its counts
-                where = f" on its {'xy'[a]} axis" if len(axes) == 2 else ""
+                where = f" on its {'xy'[a]} axis" if held is None and self.split[i] else ""
                 out.append(
                     f"mouse {name} reads {abs(1.0 / g - 1.0) * 100:.0f} % {word} than "
                     f"the others{where}: check its cpi (learnt scale {g:.3f} +- {s:.3f})"

@@ -72,12 +72,7 @@ def scale_fields(learner: Any, names: Sequence[str], applying: bool) -> list[dic
     warnings = warning_texts(learner, names)
     out = []
     for i, name in enumerate(names):
-        # a mouse given a scale per axis (``split``, a CPI off on one axis): the axis
-        # further from 1, as its warning names it; applied where either axis is
-        a = 0
-        split = getattr(learner, "split", None)
-        if split is not None and split[i]:
-            a = int(abs(learner.estimate[i, 1] - 1.0) > abs(learner.estimate[i, 0] - 1.0))
+        a = learner.reported_axis(i)  # (a mouse given a scale per axis: its axis off)
         g, s = float(learner.estimate[i, a]), float(learner.spread[i, a])
         if not (math.isfinite(g) and math.isfinite(s)):
             out.append(dict(none))
@@ -85,6 +80,7 @@ def scale_fields(learner: Any, names: Sequence[str], applying: bool) -> list[dic
         out.append({
             "scale": round(g, 6),
             "scale_spread": round(s, 6),
+            # applied where either axis is
             "scale_applied": bool(applying and (learner.scale[i] != 1.0).any()),
             "scale_warning": warnings.get(name),
         })  # fmt: skip
