@@ -16,7 +16,7 @@ import math
 import numpy as np
 import pytest
 
-from mousedom.fusion import scenarios, sim
+from mousedom.fusion import scalelearn, scenarios, sim
 from mousedom.fusion.drives import drive
 
 
@@ -115,3 +115,27 @@ def test_source_reports_a_split_mouse_by_its_axis_off():
     fields = scale_fields(learner, names, applying=True)[bad]
     assert fields["scale"] == pytest.approx(1.0 / (1.0 + err), abs=0.005), fields
     assert fields["scale_applied"] is True
+
+
+def test_no_healthy_mouse_of_generated_rigs_is_split():
+    """Twelve of the generator's rigs with every CPI right: no mouse is ever given a scale
+    per axis (a split is a false alarm there), and none a scale beyond half a per cent."""
+    for seed in range(100, 112):
+        base, duration, *_ = random_rig(seed)
+        result = sim.simulate(base, drive(duration, seed), seed=seed)
+        cfg = scenarios.config(base, cpi={m.name: (1000.0, 1000.0) for m in base.mice})
+        seen = []
+        learner_type = scalelearn.ScaleLearner
+        original = learner_type._split_axes
+
+        def watched(self, original=original, seen=seen):
+            original(self)
+            seen.append(bool(self.split.any()))
+
+        learner_type._split_axes = watched
+        try:
+            _, tracker = scenarios.run(result, cfg)
+        finally:
+            learner_type._split_axes = original
+        assert seen and not any(seen), seed
+        assert np.abs(tracker.scales.scale - 1.0).max() < 0.005, (seed, tracker.scales.scale)
