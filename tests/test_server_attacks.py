@@ -37,6 +37,7 @@ def test_a_healthy_client_keeps_its_poses_under_attack(attack):
     assert row["worst_gap_ms"] < 300.0, row
     if attack == "idle":
         assert row["new_client_after_idle"] is True, row
-    # (the script's own verdict, at the worst gap held above: its default of 50 ms failed
-    # a run whose gaps this test accepts, on a machine stalled once for 149 ms)
+    # (the script's own verdict, at the worst gap held above.  Its default of 50 ms once
+    # failed on a gap of 149 ms, and a CI run failed p99 at 149 ms: both were the demo rig
+    # stopping, which holds a POSE back by late_report_s; the script now sets it to 0.)
     assert proc.returncode == 0, proc.stdout + proc.stderr
