@@ -1,0 +1,106 @@
+"""A mouse whose scale changes during a drive (onto another floor, a lens dirtied: its CPI
+steps a few per cent): the online scale learner finds the change, forgets the evidence
+from before it, and gives back the turn and walk of the windows since only.
+
+The learner sums its evidence over the whole drive (forgetting by half in two minutes), so
+after a step its fit was some mean of the two scales, and the turn given back at each
+renewal applied that scale to every window of the horizon, those before the step
+included: on random rigs of 3-6 mice with USB gaps and late stamps, one mouse stepping
+5-10 %, learning ended drives 180 mm off at the median (p90 1.05 m, worst 2.0 m, that one
+in a single window), worse than no learning in 3 of 39 (a broad sweep's figures).  With
+the change found: median 14 mm, p90 0.20 m, none worse than no learning."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from mousedom.fusion import scenarios, sim
+from mousedom.fusion.drives import drive
+
+
+def random_step(seed: int) -> tuple[sim.Rig, float, int, float, float]:
+    """(rig with its host's USB gaps and late stamps, drive length, the mouse that steps,
+    when, and what it reads of its motion from then on)."""
+    rng = np.random.default_rng((4242, seed))
+    n = int(rng.integers(3, 7))
+    while True:
+        if rng.random() < 0.5:  # a ring
+            r = rng.uniform(0.06, 0.25)
+            ang = rng.uniform(0, 2 * math.pi) + 2 * math.pi * np.arange(n) / n
+            xy = np.c_[r * np.cos(ang), r * np.sin(ang)] + rng.uniform(-0.1, 0.1, 2)
+        else:  # scattered
+            xy = rng.uniform(-0.25, 0.25, (n, 2))
+        d = np.hypot(*(xy[:, None] - xy[None]).transpose(2, 0, 1))
+        d[np.diag_indices(n)] = 1.0
+        if d.min() >= 0.05:
+            break
+    yaws = 90.0 * rng.integers(-1, 3, n) if rng.random() < 0.5 else rng.uniform(-180, 180, n)
+    duration = float(rng.uniform(25, 40))
+    mice = []
+    for k in range(n):
+        gaps = sim.usb_gap_spans(int(rng.integers(1 << 30)), duration, 0.5, 0.03, 0.3)
+        mice.append(sim.SimMouse(
+            f"m{k}", float(xy[k, 0]), float(xy[k, 1]), yaw=float(yaws[k]),
+            cpi_x=float(rng.choice([400.0, 800.0, 1600.0])), cpi_y=0.0,
+            report_hz=float(rng.choice([125.0, 250.0, 500.0, 1000.0])),
+            phase=float(rng.uniform(0, 0.008)), noise=0.3,
+            stamp_delay=float(rng.uniform(0.0, 0.003)),
+            usb_gaps=gaps if rng.random() < 0.5 else ()))  # fmt: skip
+    mice = [dataclasses.replace(m, cpi_y=m.cpi_x) for m in mice]
+    bad = int(rng.integers(n))
+    start = float(rng.uniform(0.3, 0.6) * duration)
+    size = 1.0 + float(rng.uniform(0.05, 0.09) * rng.choice([-1, 1]))
+    return sim.Rig(tuple(mice), model="lsq"), duration, bad, start, size
+
+
+def _run(seed: int, learn: bool):
+    base, duration, bad, start, size = random_step(seed)
+    mice = list(base.mice)
+    mice[bad] = dataclasses.replace(mice[bad], scale=((start, duration + 1.0, size),))
+    result = sim.simulate(dataclasses.replace(base, mice=tuple(mice)), drive(duration, seed),
+                          seed=seed)  # fmt: skip
+    cfg = scenarios.config(base)
+    if not learn:
+        cfg = dataclasses.replace(cfg, robust=dataclasses.replace(cfg.robust, learn_scale=False))
+    batch, tracker = scenarios.run(result, cfg)
+    e = scenarios.end_pose_error(result, batch)
+    return math.hypot(e[0], e[1]), tracker.scales, bad, size
+
+
+@pytest.mark.parametrize("seed", [0, 3, 5, 11, 13])
+def test_a_mouse_whose_scale_steps_is_followed(seed):
+    """The change is found, the stepped mouse's scale is learnt again (within half a per
+    cent of the truth), the others keep theirs, and the drive ends within 50 mm and under
+    half of no learning's error (before: 91-639 mm, against 96-1288 without learning;
+    seed 13 ended 350 mm off where no learning ended 97)."""
+    on, learner, bad, size = _run(seed, learn=True)
+    off, *_ = _run(seed, learn=False)
+    assert learner.changes >= 1
+    assert learner.scale[bad] == pytest.approx([1.0 / size] * 2, rel=0.005)
+    others = np.delete(learner.scale, bad, axis=0)
+    assert np.all(np.abs(others - 1.0) < 0.005), others
+    assert on < 0.05 and on < 0.5 * off, (on, off)
+
+
+def test_learning_through_a_step_is_never_worse_than_none():
+    """Twelve more of the generator's drives: learning ends each within 25 mm of no
+    learning's error or better, and their median under a quarter of it."""
+    runs = [(_run(seed, True)[0], _run(seed, False)[0]) for seed in range(16, 28)]
+    assert all(on <= max(off, 0.025) for on, off in runs), runs
+    ons, offs = zip(*runs, strict=True)
+    assert np.median(ons) < 0.25 * np.median(offs), runs
+
+
+@pytest.mark.parametrize("seed", range(40, 46))
+def test_no_change_is_found_on_a_healthy_rig(seed):
+    """The same rigs, hosts and drives without the step: no change of scale is found (a
+    false one would drop the evidence and owe the turn of a few seconds only)."""
+    base, duration, *_ = random_step(seed)
+    result = sim.simulate(base, drive(duration, seed), seed=seed)
+    _, tracker = scenarios.run(result, scenarios.config(base))
+    assert tracker.scales.changes == 0
+    assert np.all(tracker.scales.scale == 1.0), tracker.scales.scale
