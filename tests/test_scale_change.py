@@ -80,6 +80,8 @@ def test_a_mouse_whose_scale_steps_is_followed(seed):
     on, learner, bad, size = _run(seed, learn=True)
     off, *_ = _run(seed, learn=False)
     assert learner.changes >= 1
+    ratios = dict(learner.changed)  # the mouse that changed, its scale after over before
+    assert set(ratios) == {bad} and ratios[bad] == pytest.approx(1.0 / size, rel=0.03)
     assert learner.scale[bad] == pytest.approx([1.0 / size] * 2, rel=0.005)
     others = np.delete(learner.scale, bad, axis=0)
     assert np.all(np.abs(others - 1.0) < 0.005), others

@@ -128,3 +128,21 @@ def test_a_scale_within_its_uncertainty_is_not_warned_of(spread):
     """The learner's own rule: 10 % off, beyond three of its standard deviations."""
     lrn = _learner([1.0, 0.88, 1.0], [0.001, spread, 0.001])
     assert bool(warning_texts(lrn, NAMES)) is (0.12 > 3 * spread)
+
+
+def test_a_change_of_scale_is_logged_once(caplog):
+    """A mouse whose scale changed during the drive (scalelearn's change of scale: another
+    floor, a lens) is said once (INFO), at the renewal that found it, not at the next."""
+    caplog.set_level(logging.INFO, logger="mousedom.service.scales")
+    log = ScaleLog()
+    lrn = _learner([1.0] * 3, [0.001] * 3)
+    log.renewed(lrn, NAMES, 0.0)
+    lrn.changes, lrn.changed = 1, [(2, 1.08)]
+    _renew(lrn, [1.0, 1.0, 1.08], [0.001] * 3)
+    log.renewed(lrn, NAMES, 0.5)
+    _renew(lrn, [1.0, 1.0, 1.08], [0.001] * 3)
+    log.renewed(lrn, NAMES, 1.0)
+    assert [(r.levelname, r.getMessage()) for r in caplog.records] == [
+        ("INFO", "mouse right reads 7.4 % less than it did (another floor, its lens?): the "
+         "scales are learnt again from the change on")
+    ]  # fmt: skip

@@ -321,6 +321,8 @@ class ScaleLearner:
         self._segments: list[np.ndarray] = []  # S in blocks (``jackknife``), forgetting
         self._segment_groups: list[float] = []  # the groups of each, forgetting alike
         self.changes = 0  # changes of scale found (``_changed``): evidence before dropped
+        # of the last: the mice that changed, and each one's scale after over before
+        self.changed: list[tuple[int, float]] = []
         self._segment_count = 0  # segments of evidence ever added (numbering them)
         # the recent blocks' parts of turn_unit and walk_unit (``_gave``), each with the
         # number of the first segment that may follow it: (first, unit, local, perp)
@@ -649,7 +651,11 @@ class ScaleLearner:
                 t = student.quantile(_PLAIN_P, len(part) - 1)
                 widths.append(np.maximum(sd, jackknife(s, part) * (t / _PLAIN)))
             spread = np.hypot(*widths)
-            return bool(np.any((diff > _CHANGE_SIGMAS * spread) & (diff > _CHANGE_MIN)))
+            plain = (diff > _CHANGE_SIGMAS * spread) & (diff > _CHANGE_MIN)
+        if not plain.any():
+            return False
+        self.changed = [(int(i), float(new[0][i] / old[0][i])) for i in np.flatnonzero(plain)]
+        return True
 
     def _change_point(self) -> int:
         """The recent segments from the change of scale ``_changed`` found: the last k

@@ -103,6 +103,7 @@ class ScaleLog:
         self.repeat_s, self.clear_s = repeat_s, clear_s
         self.learner: Any = None  # the learner and version last read
         self.version = -1
+        self.changes = 0  # the learner's changes of scale logged
         self.warned: dict[str, _Warned] = {}
 
     def due(self, learner: Any) -> bool:
@@ -114,7 +115,17 @@ class ScaleLog:
 
     def renewed(self, learner: Any, names: Sequence[str], now: float) -> None:
         """Read a renewal of ``learner`` (mice ``names``) at daemon time ``now``; log."""
+        if learner is not self.learner:
+            self.changes = 0
         self.learner, self.version = learner, learner.version
+        if learner.changes != self.changes:
+            self.changes = learner.changes
+            for i, ratio in learner.changed:
+                log.info(
+                    "mouse %s reads %.1f %% %s than it did (another floor, its lens?): the "
+                    "scales are learnt again from the change on", names[i],
+                    abs(1.0 / ratio - 1.0) * 100, "less" if ratio > 1.0 else "more",
+                )  # fmt: skip
         texts = warning_texts(learner, names)
         for name, text in texts.items():
             w = self.warned.get(name)
