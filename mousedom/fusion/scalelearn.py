@@ -636,6 +636,11 @@ class ScaleLearner:
         if min(counts) < _MIN_GROUPS:
             return False
         sums = [np.sum(part, axis=0) for part in parts]
+        # The scales alone first (one solve for both): a change under _CHANGE_MIN is none,
+        # whatever the spreads (a healthy rig's stay within a few tenths of a per cent).
+        with np.errstate(invalid="ignore"):
+            if not np.any(np.abs(np.subtract(*scales(np.stack(sums)))) > _CHANGE_MIN):
+                return False
         new, old = (fit(s, k, n, cols) for s, k in zip(sums, counts, strict=True))
         if new is None or old is None:
             return False
