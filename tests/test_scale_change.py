@@ -12,6 +12,7 @@ the change found: median 14 mm, p90 0.20 m, none worse than no learning."""
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 
@@ -20,6 +21,7 @@ import pytest
 
 from mousedom.fusion import scenarios, sim
 from mousedom.fusion.drives import drive
+from mousedom.fusion.scalelearn import ScaleLearner
 
 
 def random_step(seed: int) -> tuple[sim.Rig, float, int, float, float]:
@@ -106,3 +108,51 @@ def test_no_change_is_found_on_a_healthy_rig(seed):
     _, tracker = scenarios.run(result, scenarios.config(base))
     assert tracker.scales.changes == 0
     assert np.all(tracker.scales.scale == 1.0), tracker.scales.scale
+
+
+@pytest.mark.parametrize("size", [1.07, 0.93])
+def test_what_is_owed_after_a_change_is_that_of_a_horizon_begun_at_it(monkeypatch, size):
+    """A mouse steps a second before the robot stands for 30 s; the change is found once it
+    drives again, and the segments after it reach back before the stop (60 blocks with
+    nothing learnt between them).  The turn and walk owed, made again at the change, are
+    what ``_gave`` sums over a horizon begun at the first of those blocks (a cap on the
+    blocks kept had cut the moving ones before the stop: sums 6-33 % off, 47 and 61 mm at
+    the end against 14 and 26).  Checked at every change, against a learner fed the same
+    blocks from there on."""
+    blocks: list[tuple[int, int, tuple]] = []  # (segments before it, rebased, _gave's args)
+    gave, drop = ScaleLearner._gave, ScaleLearner._drop_before_change
+    checked = []
+
+    def logging_gave(self, *args):
+        blocks.append((self._segment_count, self._rebased, tuple(a.copy() for a in args)))
+        gave(self, *args)
+
+    def checked_drop(self, keep):
+        drop(self, keep)
+        since = self._segment_count - keep
+        fresh = copy.copy(self)
+        fresh.turn_unit, fresh.walk_unit = np.zeros((self.n, 2)), np.zeros((self.n, 2, 2))
+        fresh.turn_given, fresh.walk_given = fresh.turn_unit.copy(), fresh.walk_unit.copy()
+        fresh._recent_gave = []
+        for first, rebased, args in blocks:
+            if first >= since:
+                fresh._rebased = rebased
+                gave(fresh, *args)
+        for ours, theirs in ((self.turn_unit, fresh.turn_unit), (self.walk_unit, fresh.walk_unit)):
+            assert np.abs(ours - theirs).max() <= 1e-12 * np.abs(theirs).max()
+        checked.append(keep)
+
+    monkeypatch.setattr(ScaleLearner, "_gave", logging_gave)
+    monkeypatch.setattr(ScaleLearner, "_drop_before_change", checked_drop)
+    seed = 5
+    base, _, bad, _, _ = random_step(seed)
+    first = drive(14.0, seed)
+    stop = sum(s.duration for s in first)
+    traj = first + sim.pause(30.0) + drive(14.0, seed + 100)
+    mice = list(base.mice)
+    mice[bad] = dataclasses.replace(mice[bad], scale=((stop - 1.0, stop + 60.0, size),))
+    result = sim.simulate(dataclasses.replace(base, mice=tuple(mice)), traj, seed=seed)
+    batch, tracker = scenarios.run(result, scenarios.config(base))
+    assert checked and tracker.scales.changes == len(checked)
+    e = scenarios.end_pose_error(result, batch)
+    assert math.hypot(e[0], e[1]) < 0.03

@@ -94,7 +94,6 @@ _CHANGE_SEGMENTS = 10
 _CHANGE_OLDER = 4
 _CHANGE_SIGMAS = 5.0
 _CHANGE_MIN = 0.01
-_RECENT_BLOCKS = 4 * _CHANGE_SEGMENTS  # the blocks' turns kept for that (a bound when still)
 
 
 def medians(v: np.ndarray) -> np.ndarray:
@@ -129,6 +128,12 @@ def scales(s: np.ndarray) -> np.ndarray:
         return np.where(mid > 0, g / mid, np.nan)
 
 
+def _plain_change(diff: np.ndarray, spread: np.ndarray) -> np.ndarray:
+    """Which mice's scales differ plainly between two fits (``ScaleLearner._changed``):
+    by more than _CHANGE_SIGMAS of the difference's ``spread``, and _CHANGE_MIN."""
+    return (diff > _CHANGE_SIGMAS * spread) & (diff > _CHANGE_MIN)
+
+
 def jackknife(s: np.ndarray, segments: Sequence[np.ndarray]) -> np.ndarray:
     """(N,) the standard error of ``fit``'s scales by a jackknife over the ``segments`` of
     evidence that S sums (blocks of windows): each left out in turn, the scales' spread
@@ -148,6 +153,18 @@ def jackknife(s: np.ndarray, segments: Sequence[np.ndarray]) -> np.ndarray:
     loo = scales(s[None] - np.stack(segments))
     var = (b - 1) / b * np.sum((loo - loo.mean(axis=0)) ** 2, axis=0)
     return np.where(np.isfinite(var), np.sqrt(var), np.inf)
+
+
+def widened(spread: np.ndarray, s: np.ndarray, segments: Sequence[np.ndarray]) -> np.ndarray:
+    """``fit``'s ``spread`` of the scales of S ``s``, widened to the jackknife's over the
+    ``segments`` S sums as the normal's equivalent: _PLAIN of it is t's quantile for its
+    degrees (the segments less one: with four, 9.2 of the jackknife's standard errors).
+    Inf with fewer than two segments."""
+    b = len(segments)
+    if b < 2:
+        return np.full(len(spread), np.inf)
+    t = student.quantile(_PLAIN_P, b - 1)
+    return np.maximum(spread, jackknife(s, segments) * (t / _PLAIN))
 
 
 def fit(s: np.ndarray, groups: float, n: int, cols: int) -> tuple[np.ndarray, np.ndarray] | None:
@@ -324,9 +341,10 @@ class ScaleLearner:
         # of the last: the mice that changed, and each one's scale after over before
         self.changed: list[tuple[int, float]] = []
         self._segment_count = 0  # segments of evidence ever added (numbering them)
-        # the recent blocks' parts of turn_unit and walk_unit (``_gave``), each with the
-        # number of the first segment that may follow it: (first, unit, local, perp)
-        self._recent_gave: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = []
+        # the recent blocks' parts of turn_unit and walk_unit (``_gave``), those that share
+        # the number of the first segment that may follow them composed into one:
+        # (first, forgetting, turn, walk, steps turned)
+        self._recent_gave: list[tuple[int, float, np.ndarray, np.ndarray, np.ndarray]] = []
         # per count axis (``fit_axes``): S with a column per mouse and axis, 2N x 2N, and
         # its blocks, forgetting as S does (``_split_axes``: a mouse off on one axis is
         # given a scale per axis; `calibrate scales` reads it over a whole drive)
@@ -496,14 +514,28 @@ class ScaleLearner:
         unit = per.sum(axis=0)
         self.turn_unit = (self.turn_unit + unit) * f
         self.turn_given = (self.turn_given + self.scale * unit) * f
-        # and this block's own: its turn, its walk with the turn before the block left out,
-        # and its steps turned, kept from the blocks of the last _CHANGE_SEGMENTS segments
-        # on (at most _RECENT_BLOCKS), from which the sums are made again as of a horizon
-        # that began at a change of scale (``_drop_before_change``)
+        # and this block's own part: its turn, its walk with the turn before the block left
+        # out, and its steps turned summed, kept from the blocks of the last
+        # _CHANGE_SEGMENTS segments on, from which the sums are made again as of a horizon
+        # that began at a change of scale (``_drop_before_change``).  A block's part maps
+        # (turn, walk) before it to after it, affinely: the parts of blocks with the same
+        # first segment (kept or dropped together: a stop, a mouse out for long) are
+        # composed into one, so that the list holds at most _CHANGE_SEGMENTS + 1.
         local = np.einsum("kia,kb->iab", np.cumsum(per, axis=0) - per, perp) + straight
         since = self._segment_count - _CHANGE_SEGMENTS
-        kept = [part for part in self._recent_gave[-_RECENT_BLOCKS + 1 :] if part[0] >= since]
-        kept.append((self._segment_count, unit, local, perp.sum(axis=0)))
+        kept = [part for part in self._recent_gave if part[0] >= since]
+        part = (self._segment_count, f, unit * f, local * f, perp.sum(axis=0) * f)
+        if kept and kept[-1][0] == part[0]:
+            _, a1, u1, l1, q1 = kept.pop()
+            _, a2, u2, l2, q2 = part
+            part = (
+                part[0],
+                a1 * a2,
+                a2 * u1 + u2,
+                a2 * l1 + l2 + u1[:, :, None] * q2,
+                a2 * q1 + a1 * q2,
+            )
+        kept.append(part)
         self._recent_gave = kept
 
     def take_turn(self) -> float:
@@ -648,24 +680,19 @@ class ScaleLearner:
         # First with the residual's spreads alone, a lower bound of the jackknifed ones:
         # where no change is plain with them, none is (and no jackknife is solved).
         with np.errstate(invalid="ignore"):
-            spread = np.hypot(new[1], old[1])
-            if not np.any((diff > _CHANGE_SIGMAS * spread) & (diff > _CHANGE_MIN)):
+            if not _plain_change(diff, np.hypot(new[1], old[1])).any():
                 return False
-            widths = []
-            for (_, sd), s, part in zip((new, old), sums, parts, strict=True):
-                t = student.quantile(_PLAIN_P, len(part) - 1)
-                widths.append(np.maximum(sd, jackknife(s, part) * (t / _PLAIN)))
-            spread = np.hypot(*widths)
-            plain = (diff > _CHANGE_SIGMAS * spread) & (diff > _CHANGE_MIN)
+            widths = [widened(new[1], sums[0], parts[0]), widened(old[1], sums[1], parts[1])]
+            plain = _plain_change(diff, np.hypot(*widths))
         if not plain.any():
             return False
         self.changed = [(int(i), float(new[0][i] / old[0][i])) for i in np.flatnonzero(plain)]
         return True
 
     def _change_point(self) -> int:
-        """The recent segments from the change of scale ``_changed`` found: the last k
-        (2 <= k <= _CHANGE_SEGMENTS) whose fit and the older ones' leave the least
-        residual together (the change's most likely place, to a block)."""
+        """How many of the recent segments are after the change of scale ``_changed``
+        found: the last k (2 <= k <= _CHANGE_SEGMENTS) whose fit and the older ones' leave
+        the least residual together (the change's most likely place, to a block)."""
         segments = np.stack(self._segments)
         ks = np.arange(2, _CHANGE_SEGMENTS + 1)
         total = np.cumsum(segments[::-1], axis=0)  # total[k - 1]: the last k summed
@@ -689,14 +716,16 @@ class ScaleLearner:
         self.axis_gram = np.sum(self.axis_segments, axis=0)
         # Their turns and walks summed as _gave sums them, the turn before each walk from
         # the first of those blocks on, and given at the scales applied now (as the
-        # renewals' turns given back made them).  The windows before keep theirs.
+        # renewals' turns given back made them).  The windows before the change are owed
+        # nothing more: they keep the scales the pose was given for them.  (Blocks
+        # without evidence just before the first kept segment are among those blocks:
+        # the robot stood, or a mouse was out; what they turned is theirs either way.)
         since = self._segment_count - keep
         self._recent_gave = [part for part in self._recent_gave if part[0] >= since]
-        f = self.forget
         turn, walk = np.zeros((self.n, 2)), np.zeros((self.n, 2, 2))
-        for _, unit, local, perp in self._recent_gave:
-            walk = (walk + local + turn[:, :, None] * perp) * f
-            turn = (turn + unit) * f
+        for _, a, unit, local, perp in self._recent_gave:
+            walk = a * walk + local + turn[:, :, None] * perp
+            turn = a * turn + unit
         self.turn_unit, self.walk_unit = turn, walk
         self.turn_given = self.scale * turn
         self.walk_given = self.scale[:, :, None] * walk
@@ -732,15 +761,8 @@ class ScaleLearner:
         if fitted is None:
             return False
         g, spread = fitted
-        # The spread is the larger of the residual's and the jackknife's over the blocks,
-        # the latter as the normal's equivalent: _PLAIN of it is t's quantile for its
-        # degrees (the blocks less one: with four, 9.2 of the jackknife's standard errors).
-        b = len(self._segments)
-        if b >= 2:
-            t = student.quantile(_PLAIN_P, b - 1)
-            spread = np.maximum(spread, jackknife(self.gram, self._segments) * (t / _PLAIN))
-        else:
-            spread = np.full(self.n, np.inf)
+        # the spread: the larger of the residual's and the jackknife's over the blocks
+        spread = widened(spread, self.gram, self._segments)
         self.one, self.one_spread = g, spread
         self.estimate = np.repeat(g[:, None], 2, axis=1)
         self.spread = np.repeat(spread[:, None], 2, axis=1)
