@@ -156,3 +156,28 @@ def test_what_is_owed_after_a_change_is_that_of_a_horizon_begun_at_it(monkeypatc
     assert checked and tracker.scales.changes == len(checked)
     e = scenarios.end_pose_error(result, batch)
     assert math.hypot(e[0], e[1]) < 0.03
+
+
+def test_calibrate_scales_says_a_scale_changed_during_its_captures(tmp_path):
+    """`calibrate scales` reads the learner at the end of the captures: after a change of
+    scale those are the scales since, and it says so (a warning naming the mouse), where it
+    said nothing and calibrated from a mean of the two floors' scales."""
+    from test_calib_cli import write_evemu
+
+    from mousedom.calibrate import scales as calib_scales
+    from mousedom.config import load_config
+
+    base, duration, bad, start, size = random_step(3)
+    mice = list(base.mice)
+    mice[bad] = dataclasses.replace(mice[bad], scale=((start, duration + 1.0, size),))
+    result = sim.simulate(dataclasses.replace(base, mice=tuple(mice)), drive(duration, 3),
+                          seed=3)  # fmt: skip
+    cfg = tmp_path / "rig.yaml"
+    cfg.write_text(sim.rig_yaml(base))
+    caps = [f"{m.name}={write_evemu(tmp_path / f'{m.name}.events', result.reports[m.name])}"
+            for m in base.mice]  # fmt: skip
+    learnt = calib_scales.learn(load_config(str(cfg), need_sources=False), caps)
+    said = [w for w in learnt.warnings if "scale changed during the captures" in w]
+    assert len(said) == 1 and f"m{bad} reads" in said[0], learnt.warnings
+    by = {m.name: m for m in learnt.mice}
+    assert by[f"m{bad}"].scale == pytest.approx(1.0 / size, rel=0.005)

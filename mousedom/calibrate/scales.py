@@ -216,12 +216,25 @@ def learn(
                 mice[i] = dataclasses.replace(mouse, axes=(gx, gy), axes_spread=(sx, sy))
             else:
                 mice[i] = dataclasses.replace(mouse, scale=gx, spread=sx)
+    warnings = list(summary.warnings)
+    if learner.changes:
+        # (scalelearn's change of scale: the evidence before the last change was dropped)
+        last = ", ".join(
+            f"{config.mice[i].name} reads {abs(1.0 / r - 1.0) * 100:.1f} % "
+            f"{'less' if r > 1.0 else 'more'} than it did" for i, r in learner.changed
+        )  # fmt: skip
+        times = "once" if learner.changes == 1 else f"{learner.changes} times; the last"
+        warnings.append(
+            f"a mouse's scale changed during the captures ({times}: {last}): the scales are "
+            f"those after it, from {learner.groups * GROUP_S:.1f} s of motion (calibrate "
+            "from a drive on one floor throughout)"
+        )
     return ScaleResult(
         mice=mice,
         duration=summary.duration,
         windows=summary.windows,
         evidence_s=float(learner.groups) * GROUP_S,
-        warnings=list(summary.warnings),
+        warnings=warnings,
     )
 
 
