@@ -651,11 +651,18 @@ MUTANTS = [
     Mutant(
         "scale-judged-by-its-residual-alone",
         "mousedom/fusion/scalelearn.py",
-        "            spread = np.maximum(spread, jackknife(self.gram, self._segments)"
-        " * (t / _PLAIN))",
-        "            pass",
+        "        spread = widened(spread, self.gram, self._segments)\n",
+        "        pass\n",
         ("tests/test_scalelearn.py",),
         "a scale from a few blocks of hard driving is applied on the residual's white spread",
+    ),
+    Mutant(
+        "scale-change-not-followed",
+        "mousedom/fusion/scalelearn.py",
+        "        if self._changed():\n",
+        "        if False:\n",
+        ("tests/test_scale_change.py",),
+        "a mouse whose scale steps keeps a mean of its two scales, given back over the whole drive",
     ),
     Mutant(
         "scale-fault-not-excluded",
