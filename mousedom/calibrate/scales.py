@@ -35,7 +35,7 @@ from mousedom.capture.assignment import assign, parse_capture_arg
 from mousedom.capture.replay import Replay
 from mousedom.config import Config
 from mousedom.errors import UserError
-from mousedom.fusion.scalelearn import GROUP_S, HALF_LIFE_S, fit_axes
+from mousedom.fusion.scalelearn import GROUP_S, HALF_LIFE_S, fit_axes, reads
 
 MIN_MICE = 3  # two mice cannot tell which of them is off
 MAX_SPREAD = 0.005  # a scale known less well than this (a standard deviation) is refused
@@ -219,10 +219,7 @@ def learn(
     warnings = list(summary.warnings)
     if learner.changes:
         # (scalelearn's change of scale: the evidence before the last change was dropped)
-        last = ", ".join(
-            f"{config.mice[i].name} reads {abs(1.0 / r - 1.0) * 100:.1f} % "
-            f"{'less' if r > 1.0 else 'more'} than it did" for i, r in learner.changed
-        )  # fmt: skip
+        last = ", ".join(learner.change_lines(config.names))
         times = "once" if learner.changes == 1 else f"{learner.changes} times; the last"
         warnings.append(
             f"a mouse's scale changed during the captures ({times}: {last}): the scales are "
@@ -265,10 +262,9 @@ def check(result: ScaleResult, max_spread: float = MAX_SPREAD) -> None:
 
 
 def _reads(g: float) -> str:
-    off = 1.0 / g - 1.0  # what it reads beyond the others (g < 1: more)
-    if round(100 * off, 1) == 0:
+    if round(100 * (1.0 / g - 1.0), 1) == 0:
         return "as the others"
-    return f"{100 * abs(off):.1f} % {'more' if off > 0 else 'less'}"
+    return reads(g, 1)
 
 
 def _implied(m: MouseScale) -> str:

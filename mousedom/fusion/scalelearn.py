@@ -128,6 +128,12 @@ def scales(s: np.ndarray) -> np.ndarray:
         return np.where(mid > 0, g / mid, np.nan)
 
 
+def reads(g: float, digits: int = 0) -> str:
+    """How a mouse whose counts need the scale ``g`` reads against the truth it is held
+    to, in words: "7.4 % less" (g > 1: it needs more of its counts) or "... more"."""
+    return f"{abs(1.0 / g - 1.0) * 100:.{digits}f} % {'less' if g > 1.0 else 'more'}"
+
+
 def _plain_change(diff: np.ndarray, spread: np.ndarray) -> np.ndarray:
     """Which mice's scales differ plainly between two fits (``ScaleLearner._changed``):
     by more than _CHANGE_SIGMAS of the difference's ``spread``, and _CHANGE_MIN."""
@@ -875,6 +881,11 @@ class ScaleLearner:
         gx, gy = (float(v) for v in self.estimate[i])
         return int(abs(1.0 / gy - 1.0) > abs(1.0 / gx - 1.0))
 
+    def change_lines(self, names: Sequence[str]) -> list[str]:
+        """A line per mouse of the last change of scale (``changed``): "mouse right reads
+        7.4 % less than it did" (the daemon's log and `calibrate scales` say it)."""
+        return [f"mouse {names[i]} reads {reads(r, 1)} than it did" for i, r in self.changed]
+
     def warnings(self, names: tuple[str, ...] | list[str]) -> list[str]:
         """A line per mouse whose scale is WARN or more from 1, beyond three of its
         standard deviations: a CPI typo, or the wrong mouse's CPI."""
@@ -886,10 +897,9 @@ class ScaleLearner:
             if held is not None:
                 g, s = held
             if abs(1.0 / g - 1.0) >= WARN and abs(g - 1.0) > 3.0 * s:
-                word = "less" if g > 1.0 else "more"  # it needs g times its counts
                 where = f" on its {'xy'[a]} axis" if held is None and self.split[i] else ""
                 out.append(
-                    f"mouse {name} reads {abs(1.0 / g - 1.0) * 100:.0f} % {word} than "
-                    f"the others{where}: check its cpi (learnt scale {g:.3f} +- {s:.3f})"
+                    f"mouse {name} reads {reads(g)} than the others{where}: check its cpi "
+                    f"(learnt scale {g:.3f} +- {s:.3f})"
                 )
         return out

@@ -120,11 +120,10 @@ class ScaleLog:
         self.learner, self.version = learner, learner.version
         if learner.changes != self.changes:
             self.changes = learner.changes
-            for i, ratio in learner.changed:
+            for line in learner.change_lines(names):
                 log.info(
-                    "mouse %s reads %.1f %% %s than it did (another floor, its lens?): the "
-                    "scales are learnt again from the change on", names[i],
-                    abs(1.0 / ratio - 1.0) * 100, "less" if ratio > 1.0 else "more",
+                    "%s (another floor, its lens?): the scales are learnt again from the "
+                    "change on", line,
                 )  # fmt: skip
         texts = warning_texts(learner, names)
         for name, text in texts.items():
