@@ -484,8 +484,9 @@ def test_a_lifted_mouse_is_excluded_in_pose_and_source(rig_run):
 def test_a_wrong_cpi_is_in_source_and_logged_once(rig_run):
     """Issue 31 item 3 end to end: one of three FIFO mice reads 13 % short (its CPI as
     configured is 15 % off the truth); within seconds of driving SOURCE carries its learnt
-    scale, applied within the 10 % limit, and the warning; the others' scales are 1; the
-    journal has the warning once, not at each renewal (twice a second)."""
+    scale and the warning; the others' scales are 1; the journal has the warning once, not
+    at each renewal (twice a second).  Its scale is beyond the 10 % limit, so the mouse is
+    held out (ScaleLearner.beyond), and SOURCE and the warning say so."""
     import dataclasses
 
     rig = sim.three_mouse_rig()
@@ -511,6 +512,10 @@ def test_a_wrong_cpi_is_in_source_and_logged_once(rig_run):
         assert s["scale"] == pytest.approx(1.0, abs=0.01) and s["scale_warning"] is None
         assert s["scale_applied"] is False
     c.poses(2.0)  # four renewals more, each still warning
+    held = c.until("SOURCE", lambda m: m["name"] == "left")
+    assert held["state"] == "excluded" and held["scale_warning"].endswith(
+        "; beyond scale_limit: held out"
+    ), held
     said = [line for line in run.daemon.log().splitlines() if "mouse left reads" in line]
     assert len(said) == 1 and said[0].startswith("WARNING mousedom.service.scales: mouse left")
 

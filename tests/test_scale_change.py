@@ -24,9 +24,12 @@ from mousedom.fusion.drives import drive
 from mousedom.fusion.scalelearn import ScaleLearner
 
 
-def random_step(seed: int) -> tuple[sim.Rig, float, int, float, float]:
+def random_step(
+    seed: int, steps: tuple[float, float] = (0.05, 0.09)
+) -> tuple[sim.Rig, float, int, float, float]:
     """(rig with its host's USB gaps and late stamps, drive length, the mouse that steps,
-    when, and what it reads of its motion from then on)."""
+    when, and what it reads of its motion from then on: more or less by a fraction drawn
+    from ``steps``)."""
     rng = np.random.default_rng((4242, seed))
     n = int(rng.integers(3, 7))
     while True:
@@ -55,7 +58,7 @@ def random_step(seed: int) -> tuple[sim.Rig, float, int, float, float]:
     mice = [dataclasses.replace(m, cpi_y=m.cpi_x) for m in mice]
     bad = int(rng.integers(n))
     start = float(rng.uniform(0.3, 0.6) * duration)
-    size = 1.0 + float(rng.uniform(0.05, 0.09) * rng.choice([-1, 1]))
+    size = 1.0 + float(rng.uniform(*steps) * rng.choice([-1, 1]))
     return sim.Rig(tuple(mice), model="lsq"), duration, bad, start, size
 
 

@@ -185,6 +185,7 @@ class Screen(RigidTest):
         self.health = [MouseHealth() for _ in range(self.n)]
         self._steady: tuple[bool, ...] | None = None
         self._steady_known = False  # _steady is that of the health as it is
+        self._held_beyond: frozenset[int] = frozenset()  # hold_beyond's mice
         # Python copies for fast_one, which must not touch numpy (RigidTest._xy).
         self._max2 = self.max_step2.tolist()
         self._prev = [[0.0, 0.0] for _ in range(self.n)]  # the previous window's predictions
@@ -369,6 +370,18 @@ class Screen(RigidTest):
             h.state, h.reason, h.good = EXCLUDED, INCONSISTENT, 0
             self._quiet_reset(i)
         self._steady_known = False
+
+    def hold_beyond(self, mice: Sequence[int]) -> None:
+        """The mice whose scale the learner's evidence puts beyond its bounds
+        (``ScaleLearner.beyond``): excluded as ``exclude_faulty`` does, and not re-admitted
+        while they stay in it.  A mouse reading 15 % more than its CPI says passes each
+        window's test and its run's (a fifth of a second), and one scale clipped to the
+        bound leaves it 5 % off in every window it is used in."""
+        held = frozenset(mice)
+        if held == self._held_beyond:
+            return
+        self._held_beyond = held
+        self.exclude_faulty(sorted(held))
 
     def _quiet_reset(self, i: int) -> None:
         """Mouse i read in full (or is gone): its shortfall's sum starts again."""
@@ -1023,7 +1036,7 @@ class Screen(RigidTest):
                 h.state, h.reason, h.good = TRACKING, NONE, 0
         elif shows:
             h.good += 1
-            if h.good >= self.readmit:
+            if h.good >= self.readmit and i not in self._held_beyond:
                 verdict = self._run_agrees(h)
                 if verdict is False:  # the run disagrees as a whole: a new one starts
                     self._end_run(i, h)

@@ -82,6 +82,7 @@ _MIN_SEPARATION = 1e-2
 FAULT_MARGIN = 0.15
 FAULT_SIGMAS = 5.0
 _FAULT_GROUPS = 3
+_BEYOND_MIN = 0.01
 # The jackknife's segments of evidence (``jackknife``): a block each, the oldest two merged
 # beyond this many (20 s of motion with every mouse tracking; older evidence is forgotten
 # towards half by HALF_LIFE_S).
@@ -371,6 +372,9 @@ class ScaleLearner:
         self._held = 0  # windows in _rows
         self.version = 0  # bumped whenever the estimates are renewed
         self.faults: list[int] = []  # the mice the last block found faulty (_faults)
+        self.beyond: list[int] = []  # the mice the evidence puts beyond the bounds (_beyond_bounds)
+        # this block's part of ``held`` (``_released``)
+        self._held_block = np.zeros((4, self.n))
         # Per mouse and count axis, forgetting: the turn its readings gave at scale 1
         # (unit) and at the scales applied (given), over windows with every mouse in use.
         self.turn_unit = np.zeros((self.n, 2))
@@ -592,6 +596,7 @@ class ScaleLearner:
         over groups of GROUP_S in which it was left out throughout: the scale that fits
         them (least squares; its residual says whether the readings are in proportion at
         all, as a wrong CPI's are and a lift's or a seam's are not)."""
+        self._held_block = np.zeros((4, self.n))
         if not held_out.any():
             self.held *= self.forget
             return
@@ -611,9 +616,13 @@ class ScaleLearner:
             y = np.add.reduceat(pred[:, i], starts, axis=0)
             take = out & (np.abs(y).sum(axis=1) >= _MIN_COUNTS)
             x, y = x[take], y[take]
-            self.held[:, i] += (np.sum(x * x), np.sum(x * y), np.sum(y * y), len(x))
+            self._held_block[:, i] = (np.sum(x * x), np.sum(x * y), np.sum(y * y), len(x))
+        self.held += self._held_block
 
     def _learn(self, counts: np.ndarray, usable: np.ndarray) -> bool:
+        released = self._released()
+        if released:
+            self._start_over(released)
         # Groups of consecutive windows (GROUP_S) in which every mouse tracked: their
         # counts summed (a count read a few ms late moves between neighbouring windows,
         # not out of their sum, so the readings' timing noise mostly cancels).
@@ -655,45 +664,126 @@ class ScaleLearner:
             self._drop_before_change(self._change_point())
         return self._solve()
 
+    def _released(self) -> list[int]:
+        """The mice held out beyond the bounds (``beyond``) whose readings in this block,
+        against what the others say they moved (``_learn_held_out``), need a scale within
+        the bounds again: back on a floor they read as configured.  (Nothing is learnt
+        while a mouse is out, so the evidence that put it beyond would hold it out for
+        good.)  One block is enough: a mouse let back too soon is found beyond again from
+        the evidence since, and the windows it was used in are given back at its scale."""
+        lo, hi = self.bounds
+        out = []
+        for i in self.beyond:
+            xx, xy, _, groups = self._held_block[:, i]
+            if groups >= _FAULT_GROUPS and xx > 0 and lo <= xy / xx <= hi:
+                out.append(i)
+        return out
+
+    def _start_over(self, released: list[int]) -> None:
+        """The evidence is dropped, and what the pose is owed for the windows before: a
+        mouse ``released`` from beyond the bounds reads otherwise than it says, and the
+        others' scales are learnt again with it.  The scales applied stay, but for the
+        released mice's (1 until learnt again)."""
+        self.gram = np.zeros((self.n, self.n))
+        self.axis_gram = np.zeros((2 * self.n, 2 * self.n))
+        self.groups = 0.0
+        self._segments, self._segment_groups, self.axis_segments = [], [], []
+        self._recent_gave = []
+        for a in (self.turn_unit, self.turn_given, self.walk_unit, self.walk_given):
+            a[...] = 0.0
+        self.scale[released] = 1.0
+        self.split[released] = False
+        self.beyond = []
+        self.version += 1
+
+    def _beyond_bounds(self) -> list[int]:
+        """The mice whose scale over the evidence is plainly beyond the bounds (by
+        FAULT_SIGMAS of its spread and _BEYOND_MIN): no CPI within them fits its
+        readings, and one clipped to the bound leaves the rest in every window."""
+        lo, hi = self.bounds
+        g, spread = self.one, self.one_spread
+        beyond = np.maximum(lo - g, g - hi)
+        with np.errstate(invalid="ignore"):
+            plain = (beyond > _BEYOND_MIN) & (beyond > FAULT_SIGMAS * spread)
+        return np.flatnonzero(plain).tolist()
+
     def _changed(self) -> bool:
         """Whether a mouse's scale changed within the evidence: the scales fitted to the
-        last _CHANGE_SEGMENTS segments and to the older ones differ plainly (beyond
-        _CHANGE_SIGMAS of their combined spread, each the larger of the residual's and
-        the jackknife's as in ``_solve``, and by _CHANGE_MIN).  The evidence sums
-        everything since the start (forgetting by half in two minutes), so after a change
-        its fit is some mean of the two scales, and the turn given back at a renewal
-        (``take_turn``) applies it to the whole horizon, windows before the change
-        included: three mice, one reading 8.6 % less from 23 s on, ended a 31 s drive
-        2.0 m and 31 degrees off (0.04 m with no learning), all of it in one window."""
-        recent, older = _CHANGE_SEGMENTS, len(self._segments) - _CHANGE_SEGMENTS
-        if older < _CHANGE_OLDER:
+        recent segments and to the older ones differ plainly (beyond _CHANGE_SIGMAS of
+        their combined spread, each the larger of the residual's and the jackknife's as in
+        ``_solve``, and by _CHANGE_MIN).  The evidence sums everything since the start
+        (forgetting by half in two minutes), so after a change its fit is some mean of the
+        two scales, and the turn given back at a renewal (``take_turn``) applies it to the
+        whole horizon, windows before the change included: three mice, one reading 8.6 %
+        less from 23 s on, ended a 31 s drive 2.0 m and 31 degrees off (0.04 m with no
+        learning), all of it in one window.  "Recent" is the last _CHANGE_SEGMENTS
+        segments and the split ``_change_point`` finds: a change a few segments back mixes
+        both scales into the last ten, whose jackknife spread it then widens, and the fit
+        of the mixed evidence renewed meanwhile (three mice, one reading 14 % less: 60
+        degrees given back over the whole horizon, a second before the fixed split saw
+        the change)."""
+        if len(self._segments) - _CHANGE_SEGMENTS < _CHANGE_OLDER:
             return False
+        for recent in dict.fromkeys((self._change_point(), _CHANGE_SEGMENTS)):
+            found = self._change_at(recent)
+            if found:
+                self.changed = found
+                return True
+        return False
+
+    def _change_at(self, recent: int) -> list[tuple[int, float]]:
+        """``_changed``'s test of the last ``recent`` segments against the older ones: the
+        mice that changed plainly, each with its scale after over before (none: [])."""
+        older = len(self._segments) - recent
         n, cols = self.n, len(self.cols)
         parts = (self._segments[-recent:], self._segments[:older])
         counts = (sum(self._segment_groups[-recent:]), sum(self._segment_groups[:older]))
         if min(counts) < _MIN_GROUPS:
-            return False
+            return []
         sums = [np.sum(part, axis=0) for part in parts]
         # The scales alone first (one solve for both): a change under _CHANGE_MIN is none,
         # whatever the spreads (a healthy rig's stay within a few tenths of a per cent).
         with np.errstate(invalid="ignore"):
             if not np.any(np.abs(np.subtract(*scales(np.stack(sums)))) > _CHANGE_MIN):
-                return False
+                return []
         new, old = (fit(s, k, n, cols) for s, k in zip(sums, counts, strict=True))
         if new is None or old is None:
-            return False
+            return []
         diff = np.abs(new[0] - old[0])
         # First with the residual's spreads alone, a lower bound of the jackknifed ones:
         # where no change is plain with them, none is (and no jackknife is solved).
         with np.errstate(invalid="ignore"):
             if not _plain_change(diff, np.hypot(new[1], old[1])).any():
-                return False
+                return []
             widths = [widened(new[1], sums[0], parts[0]), widened(old[1], sums[1], parts[1])]
             plain = _plain_change(diff, np.hypot(*widths))
-        if not plain.any():
-            return False
-        self.changed = [(int(i), float(new[0][i] / old[0][i])) for i in np.flatnonzero(plain)]
-        return True
+        if plain.any():
+            plain &= self._axes_changed(recent, counts)
+        return [(int(i), float(new[0][i] / old[0][i])) for i in np.flatnonzero(plain)]
+
+    def _axes_changed(self, recent: int, counts: tuple[float, float]) -> np.ndarray:
+        """``_change_at``'s mice whose change the per-axis evidence bears out (N,): an axis
+        whose scale after differs plainly from before, or none the evidence tells apart.
+        A mouse whose CPI is off on one axis reads, in one scale, as some mean of its two
+        that moves with the mix of directions driven (docs/calibration.md): its one scale
+        "changes" by a per cent or two wherever the drive turns more or slides less, and
+        dropping the evidence for it lost the axis's own scale (six mice, one 4 % off on
+        one axis: five such changes, and no scale per axis at the end)."""
+        n, cols = self.n, len(self.cols)
+        older = len(self.axis_segments) - recent
+        fits = []
+        for part, k in zip((self.axis_segments[-recent:], self.axis_segments[:older]), counts,
+                           strict=True):  # fmt: skip
+            with np.errstate(invalid="ignore"):
+                fitted = fit_axes(np.sum(part, axis=0), part, k, n, cols)
+            if fitted is None:
+                return np.ones(n, dtype=bool)  # nothing per axis to say: the one scale's word
+            fits.append(fitted)
+        (g_new, sd_new, *_), (g_old, sd_old, *_) = fits
+        told = np.isfinite(sd_new) & np.isfinite(sd_old)
+        with np.errstate(invalid="ignore"):
+            changed = _plain_change(np.abs(g_new - g_old), np.hypot(sd_new, sd_old)) & told
+        return changed.any(axis=1) | ~told.any(axis=1)
 
     def _change_point(self) -> int:
         """How many of the recent segments are after the change of scale ``_changed``
@@ -779,7 +869,13 @@ class ScaleLearner:
         plain = (off > _PLAIN * self.spread) & (off > _MIN_APPLIED)
         plain |= (self.scale != 1.0) & (off > _KEEP_PLAIN * self.spread) & (off > _KEEP_APPLIED)
         plain &= self.groups >= _MIN_GROUPS
-        self.scale = np.where(plain, np.clip(self.estimate, *self.bounds), 1.0)
+        # A mouse plainly beyond the bounds is held out by the screen (``beyond``); its
+        # scale, unclipped, gives back what it moved the pose since its evidence began
+        # (a change of scale drops what came before: ``_drop_before_change``).
+        self.beyond = self._blamed(self._beyond_bounds())
+        lo, hi = np.full(self.n, self.bounds[0]), np.full(self.n, self.bounds[1])
+        lo[self.beyond], hi[self.beyond] = -np.inf, np.inf
+        self.scale = np.where(plain, np.clip(self.estimate, lo[:, None], hi[:, None]), 1.0)
         self.version += 1
         return True
 
@@ -888,7 +984,8 @@ class ScaleLearner:
 
     def warnings(self, names: tuple[str, ...] | list[str]) -> list[str]:
         """A line per mouse whose scale is WARN or more from 1, beyond three of its
-        standard deviations: a CPI typo, or the wrong mouse's CPI."""
+        standard deviations: a CPI typo, or the wrong mouse's CPI (and where beyond the
+        bounds, that the screen holds it out: ``beyond``)."""
         out = []
         for i, name in enumerate(names):
             held = self.held_out_scale(i)
@@ -898,8 +995,9 @@ class ScaleLearner:
                 g, s = held
             if abs(1.0 / g - 1.0) >= WARN and abs(g - 1.0) > 3.0 * s:
                 where = f" on its {'xy'[a]} axis" if held is None and self.split[i] else ""
+                held_out = "; beyond scale_limit: held out" if i in self.beyond else ""
                 out.append(
                     f"mouse {name} reads {reads(g)} than the others{where}: check its cpi "
-                    f"(learnt scale {g:.3f} +- {s:.3f})"
+                    f"(learnt scale {g:.3f} +- {s:.3f}){held_out}"
                 )
         return out

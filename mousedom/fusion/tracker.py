@@ -200,8 +200,10 @@ class Tracker:
             self._carried.give_back(renewal.turn, renewal.walk)
         if renewal.cov_add is not None:
             self._carried.cov = (np.array(self._carried.cov) + renewal.cov_add).tolist()
-        if renewal.faults and self.screen is not None:
-            self.screen.exclude_faulty(renewal.faults)
+        if self.screen is not None:
+            if renewal.faults:
+                self.screen.exclude_faulty(renewal.faults)
+            self.screen.hold_beyond(renewal.beyond)
         self._rebind()
 
     # ------------------------------------------------------------------ inputs

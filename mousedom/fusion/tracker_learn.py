@@ -37,6 +37,9 @@ class Renewal(NamedTuple):
     # the mice the block's scales found faulty, no wrong CPI (ScaleLearner._faults): the
     # screen excludes them from the next window on
     faults: tuple[int, ...] = ()
+    # the mice whose scale the evidence puts beyond the bounds (ScaleLearner.beyond): the
+    # screen holds them out while it does
+    beyond: tuple[int, ...] = ()
 
 
 class WarmUp:
@@ -274,13 +277,14 @@ class Learners:
             else:
                 warm.settle()
         faults = tuple(self.scales.faults) if scales else ()
+        beyond = tuple(self.scales.beyond)
         if scales:
             # taken at every renewal, applied or not (ScaleLearner.take_turn)
             turn, walk = self.scales.take_turn(), self.scales.take_walk().tolist()
             if self._apply:
-                return Renewal(self.scales.matrices(), turn, walk, cov_add, faults)
+                return Renewal(self.scales.matrices(), turn, walk, cov_add, faults, beyond)
         if noise or scales:
-            return Renewal(None, 0.0, [0.0, 0.0], cov_add, faults)
+            return Renewal(None, 0.0, [0.0, 0.0], cov_add, faults, beyond)
         return None
 
     def until_block_end(self) -> int:
