@@ -232,6 +232,7 @@ class Screen(RigidTest):
         self._run_s2 = np.zeros(self.n)
         self._run_n = [0] * self.n
         self._run_after = [0] * self.n
+        self._run_owed = [False] * self.n  # its silence owed beyond its error
         self._run_any = False
 
     # ----------------------------------------------------------------- basics
@@ -493,6 +494,7 @@ class Screen(RigidTest):
         self._run[i] = 0.0
         self._run_s2[i] = 0.0
         self._run_n[i] = self._run_after[i] = 0
+        self._run_owed[i] = False
 
     def _run_step(self, i: int, r: np.ndarray, silent: bool, s2: float) -> None:
         """One more window of mouse i's open silence: residual r under the others (or in
@@ -504,6 +506,8 @@ class Screen(RigidTest):
         self._run_s2[i] += s2
         if silent:
             self._run_n[i] += 1
+            owed = self._run[i]
+            self._run_owed[i] = float(owed @ owed) > self._thresholds[2] * self._run_s2[i]
             return
         self._run_after[i] += 1
         if self._run_after[i] > CATCH_UP_WINDOWS:
@@ -517,18 +521,28 @@ class Screen(RigidTest):
         (those are decided), so their residual in use is a standstill's noise or the rest
         of a catch-up already judged; what they add is that, at the floor's error."""
         sig2 = self.noise.sig2_list
+        p_rows = np.asarray(p, dtype=float).reshape(len(p), self.n, 2)
+        d_rows = np.asarray(d, dtype=float).reshape(len(d), self.n, 2)
         for i in range(self.n):
             if not self._run_n[i]:
                 continue
             if not used[i]:
                 self._run_close(i)
                 continue
-            for pk, dk in zip(p, d, strict=True):
-                pi = np.asarray(pk, dtype=float).reshape(self.n, 2)[i]
-                di = np.asarray(dk, dtype=float).reshape(self.n, 2)[i]
-                self._run_step(i, di - pi, float(di @ di) <= 1e-6 * sig2[i], sig2[i])
+            r = d_rows[:, i] - p_rows[:, i]
+            silent = np.einsum("ij,ij->i", d_rows[:, i], d_rows[:, i]) <= 1e-6 * sig2[i]
+            # a standstill's silent rows at once (a parked rig: thousands), then row by row
+            # from the first it reads in, until its catch-up's windows are over
+            k = len(r) if self._run_after[i] == 0 and silent.all() else 0
+            if self._run_after[i] == 0 and not silent.all():
+                k = int(np.argmin(silent))
+            if k:
+                self._run_step(i, r[:k].sum(axis=0), True, k * sig2[i])
+                self._run_n[i] += k - 1
+            for j in range(k, len(r)):
                 if not self._run_n[i]:
                     break
+                self._run_step(i, r[j], bool(silent[j]), sig2[i])
         self._run_any = any(self._run_n)
 
     def _runs(self, d: np.ndarray, used: np.ndarray, s2: np.ndarray) -> None:
@@ -562,7 +576,8 @@ class Screen(RigidTest):
         """The used mice whose reading in this window is the catch-up of a silence they
         were used through (``_runs``): their residuals under the others summed over the
         silence and through this window are within twice this window's error and the
-        silence's, at the test's threshold, where before this window they owed more.
+        silence's, at the test's threshold, where the silence owed more (``_run_owed``;
+        the catch-up's second window is judged on what the first left).
 
         A USB host that does not poll a mouse for longer than ``late_report_s`` delivers
         its counts summed in one report, which covers one report period
@@ -575,18 +590,15 @@ class Screen(RigidTest):
         thr2 = self._thresholds[2]
         out = []
         for i in range(self.n):
-            if not (self._run_n[i] and used[i]) or self._run_after[i] >= CATCH_UP_WINDOWS:
-                continue
+            if not (self._run_owed[i] and used[i]) or self._run_after[i] >= CATCH_UP_WINDOWS:
+                continue  # (its silence owed nothing beyond its errors: nothing to catch up)
             if self._silent(d, i):
                 continue
-            before = self._run[i]
-            var = 2.0 * float(s2[i]) + float(self._run_s2[i])
-            if float(before @ before) <= thr2 * var:
-                continue  # owed nothing beyond its errors: nothing to catch up
             q = self._solve(d, _but(used, i))
             if q is None:
                 continue
-            owed = before + d[i] - self.predict(q)[i]
+            var = 2.0 * float(s2[i]) + float(self._run_s2[i])
+            owed = self._run[i] + d[i] - self.predict(q)[i]
             if float(owed @ owed) <= thr2 * var:
                 out.append(i)
         return out
