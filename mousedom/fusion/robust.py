@@ -551,6 +551,9 @@ class Screen(RigidTest):
         them, as does a mouse with one open that reads again (its catch-up); a mouse
         held out leaves it to the ledger."""
         sig2 = self.noise.sig2
+        silent = [self._silent(d, i) for i in range(self.n)]
+        if not self._run_any and all(silent[i] for i in range(self.n) if used[i]):
+            return  # no used mouse read anything (a standstill): no silence to tell
         for i in range(self.n):
             if not used[i]:
                 if self._run_n[i]:
@@ -559,8 +562,7 @@ class Screen(RigidTest):
                     self.ledger.before(i, self._run[i], float(self._run_s2[i]))
                     self._run_close(i)
                 continue
-            silent = self._silent(d, i)
-            if not (self._run_n[i] or silent):
+            if not (self._run_n[i] or silent[i]):
                 continue
             q = self._solve(d, _but(used, i))
             if q is None:
@@ -569,7 +571,7 @@ class Screen(RigidTest):
             p_i = self.predict(q)[i]
             if not self._run_n[i] and float(p_i @ p_i) <= sig2[i]:
                 continue  # moved too little to tell: nothing owed
-            self._run_step(i, d[i] - p_i, silent, float(s2[i]))
+            self._run_step(i, d[i] - p_i, silent[i], float(s2[i]))
         self._run_any = any(self._run_n)
 
     def _catching_up(self, d: np.ndarray, used: np.ndarray, s2: np.ndarray) -> list[int]:
