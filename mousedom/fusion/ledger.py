@@ -50,6 +50,11 @@ class Ledger:
         # the largest covariance (2, 2) of the others' prediction of a window in it
         # (RigidTest.prediction_cov; a solve without rank adds nothing)
         self.owed_pc = np.zeros((n, 2, 2))
+        # the residuals under the others of the silence it was used through just before
+        # it was held out (``before``), and their expected error summed: counted in the
+        # pose already, they do not join what is given back, but its catch-up pays them
+        self.pre = np.zeros((n, 2))
+        self.pre_s2 = np.zeros(n)
         self._run = np.zeros((n, 2))  # the run of agreeing windows going on
         self._run_s2 = np.zeros(n)
         self._banked = np.zeros((n, 2))  # the runs that counted
@@ -62,6 +67,8 @@ class Ledger:
         self.owed[i] = r
         self.owed_s2[i] = s2
         self.owed_pc[i] = 0.0
+        self.pre[i] = 0.0
+        self.pre_s2[i] = 0.0
         self._predicted(i, pc)
         self._run[i] = self._banked[i] = 0.0
         self._run_s2[i] = self._banked_s2[i] = 0.0
@@ -71,6 +78,20 @@ class Ledger:
         self.owed[i] += r
         self.owed_s2[i] = max(self.owed_s2[i], s2)
         self._predicted(i, pc)
+
+    def before(self, i: int, r: np.ndarray, s2: float) -> None:
+        """Mouse i, held out in this window, had been used through a silence just before
+        (``Screen._runs``): r its residuals under the others summed over it, s2 their
+        expected error.  A USB host that stopped polling it delivers the silence's counts
+        in one catch-up report, which may arrive while it is out: its debt, the motion of
+        the windows held out, is then overpaid by the motion of the silence's windows in
+        use, and the whole of its counts, dropped, left the pose where the zeros put it
+        (two mice: 0.77 m off at the end, fault handling off 0.11 m).  Whether it paid is
+        judged on both; what is given back is the debt's alone (the windows in use are in
+        the pose already).  The windows taken back from the pose (``take``) move from
+        this part to the debt."""
+        self.pre[i] = r
+        self.pre_s2[i] = s2
 
     def _predicted(self, i: int, pc: np.ndarray | None) -> None:
         if pc is not None and np.all(np.isfinite(pc)):
@@ -86,7 +107,7 @@ class Ledger:
         prediction: a debt paid back is nothing to within that (a healthy mouse late once
         far behind a close pair was excluded on the others' error, its heading left to the
         pair, 13 m off at the end of a drive)."""
-        r = self.owed[i]
+        r = self.owed[i] + self.pre[i]
         if self.owed_s2[i] <= 0.0:
             return not r.any()
         # its own error, or the prediction's where larger (the part of it beyond the
@@ -96,11 +117,15 @@ class Ledger:
         s2 = self.owed_s2[i]
         w, v = np.linalg.eigh(self.owed_pc[i])
         cov = 2.0 * (s2 * np.eye(2) + (v * np.maximum(w - s2, 0.0)) @ v.T)
+        cov += self.pre_s2[i] * np.eye(2)
         return float(r @ np.linalg.solve(cov, r)) <= self.thr2
 
     def take(self, i: int, r: np.ndarray) -> None:
-        """Residuals of windows taken back from the pose join the account."""
+        """Residuals of windows taken back from the pose join the account (out of the
+        silence before it, where they were in it: ``before``)."""
         self.owed[i] += r
+        if self.pre_s2[i] > 0.0:
+            self.pre[i] -= r
 
     def agree(self, i: int, r: np.ndarray, s2: float) -> None:
         """A window of the exclusion in which mouse i agreed, in a run."""
