@@ -86,6 +86,7 @@ from mousedom.fusion.lateness import Lateness
 from mousedom.fusion.ledger import Ledger
 from mousedom.fusion.noisemodel import NoiseModel, norm2
 from mousedom.fusion.rigidtest import RigidTest, Statistic
+from mousedom.fusion.silences import Silences
 
 # The health's names are the screen's vocabulary (robust.EXCLUDED, robust.REASONS, ...).
 __all__ = ["EXCLUDED", "INCONSISTENT", "LATE", "LOW_QUALITY", "MISSING", "NONE", "REASONS",
@@ -101,11 +102,6 @@ HISTORY_S = 0.05
 # paid-back lag (Screen._caught_up): (I - block)^-1 would multiply the earlier windows'
 # residuals, noise included, by more than 4 along it.
 _CATCH_UP_LEVERAGE = 0.75
-# A silent mouse's catch-up (Screen._runs): a report after a silence longer than
-# late_report_s covers one report period, so its counts land in the window of its stamp
-# and, where that period straddles an edge, the next; the silence's account stays open for
-# this many windows after the mouse reads again.
-CATCH_UP_WINDOWS = 2
 # A mouse reads short of its motion (Screen._quiet_blame) where it reads less than this
 # fraction of what the others moved it, along it: a lift reads nothing or noise, while a
 # healthy mouse beside an undetected faulty one (which bends the solution) reads most.
@@ -225,16 +221,7 @@ class Screen(RigidTest):
         self._short_now = [False] * self.n  # short in the window being decided
         self._quiet_any = False
         self._quiet_held: int | None = None  # the mouse this window held out for it
-        # Each used mouse's silence (``_runs``): its residual under the others summed over
-        # the windows it read nothing in while they moved it, and over the windows since it
-        # read again (up to CATCH_UP_WINDOWS, the catch-up report's), the sum's expected
-        # error, the windows silent and those since; ``_run_any``: any open.
-        self._run = np.zeros((self.n, 2))
-        self._run_s2 = np.zeros(self.n)
-        self._run_n = [0] * self.n
-        self._run_after = [0] * self.n
-        self._run_owed = [False] * self.n  # its silence owed beyond its error
-        self._run_any = False
+        self.silences = Silences(self.n)  # each used mouse's silence (``_runs``)
 
     # ----------------------------------------------------------------- basics
 
@@ -269,8 +256,8 @@ class Screen(RigidTest):
         (the continuity of motion and lateness look back over them), every row solved
         with the mice ``used``; ``decided``: by ``decide``, which kept the silences'
         accounts itself (``_runs``)."""
-        if self._run_any and not decided:
-            self._run_rows(p, d, used)
+        if self.silences.any and not decided:
+            self.silences.rows(p, d, used, self.noise.sig2_list, self._thresholds[2])
         self._prev = np.asarray(p[-1], dtype=float).tolist()
         self.history.extend(d[-self.onset_len :])
         self.lateness.remember_rows(p)
@@ -345,8 +332,9 @@ class Screen(RigidTest):
             heard.append(moved)
         if self._quiet_any:
             self._heard(heard)
-        if self._run_any:
-            self._run_rows([accepted[0]], [d], live)
+        if self.silences.any:
+            sig2, thr2 = self.noise.sig2_list, self._thresholds[2]
+            self.silences.rows([accepted[0]], [d], live, sig2, thr2)
         self._prev, by_floor, by_prop = accepted
         nm.take(by_floor, by_prop)
         self.history.append(d)
@@ -502,96 +490,41 @@ class Screen(RigidTest):
 
     # ----------------------------------------------------------------- a silence's catch-up
 
-    def _run_close(self, i: int) -> None:
-        """Mouse i's silence is over, or no longer its own to settle (``_runs``)."""
-        self._run[i] = 0.0
-        self._run_s2[i] = 0.0
-        self._run_n[i] = self._run_after[i] = 0
-        self._run_owed[i] = False
-
-    def _run_step(self, i: int, r: np.ndarray, silent: bool, s2: float) -> None:
-        """One more window of mouse i's open silence: residual r under the others (or in
-        use, where the window needed no ``decide``), expected error s2."""
-        if silent and self._run_after[i]:
-            self._run_close(i)  # silent again after it read: its catch-up is over
-            return
-        self._run[i] += r
-        self._run_s2[i] += s2
-        if silent:
-            self._run_n[i] += 1
-            owed = self._run[i]
-            self._run_owed[i] = float(owed @ owed) > self._thresholds[2] * self._run_s2[i]
-            return
-        self._run_after[i] += 1
-        if self._run_after[i] > CATCH_UP_WINDOWS:
-            self._run_close(i)
-
-    def _run_rows(self, p: Sequence[Any] | np.ndarray, d: Sequence[Any] | np.ndarray,
-                  used: Sequence[bool]) -> None:  # fmt: skip
-        """Windows accepted without ``decide`` (predictions p and readings d, rows of
-        (N, 2) or of N * 2 floats, solved with the mice ``used``) for the open silences:
-        none of them held a mouse short of what the others moved it beyond its sigma
-        (those are decided), so their residual in use is a standstill's noise or the rest
-        of a catch-up already judged; what they add is that, at the floor's error."""
-        sig2 = self.noise.sig2_list
-        p_rows = np.asarray(p, dtype=float).reshape(len(p), self.n, 2)
-        d_rows = np.asarray(d, dtype=float).reshape(len(d), self.n, 2)
-        for i in range(self.n):
-            if not self._run_n[i]:
-                continue
-            if not used[i]:
-                self._run_close(i)
-                continue
-            r = d_rows[:, i] - p_rows[:, i]
-            silent = np.einsum("ij,ij->i", d_rows[:, i], d_rows[:, i]) <= 1e-6 * sig2[i]
-            # a standstill's silent rows at once (a parked rig: thousands), then row by row
-            # from the first it reads in, until its catch-up's windows are over
-            k = len(r) if self._run_after[i] == 0 and silent.all() else 0
-            if self._run_after[i] == 0 and not silent.all():
-                k = int(np.argmin(silent))
-            if k:
-                self._run_step(i, r[:k].sum(axis=0), True, k * sig2[i])
-                self._run_n[i] += k - 1
-            for j in range(k, len(r)):
-                if not self._run_n[i]:
-                    break
-                self._run_step(i, r[j], bool(silent[j]), sig2[i])
-        self._run_any = any(self._run_n)
-
     def _runs(self, d: np.ndarray, used: np.ndarray, s2: np.ndarray) -> None:
         """A decided window's part in each used mouse's silence: a mouse silent while the
         others moved it beyond its sigma opens one (or adds to it) with its residual under
         them, as does a mouse with one open that reads again (its catch-up); a mouse
         held out leaves it to the ledger."""
         sig2 = self.noise.sig2
+        silences = self.silences
         silent = [self._silent(d, i) for i in range(self.n)]
-        if not self._run_any and all(silent[i] for i in range(self.n) if used[i]):
+        if not silences.any and all(silent[i] for i in range(self.n) if used[i]):
             return  # no used mouse read anything (a standstill): no silence to tell
         for i in range(self.n):
             if not used[i]:
-                if self._run_n[i]:
+                if silences.silent[i]:
                     # held out now: the silence it was used through joins its account, so
                     # that a catch-up arriving while it is out pays it back (``Ledger``)
-                    self.ledger.before(i, self._run[i], float(self._run_s2[i]))
-                    self._run_close(i)
+                    self.ledger.before(i, silences.sum[i], float(silences.s2[i]))
+                    silences.close(i)
                 continue
-            if not (self._run_n[i] or silent[i]):
+            if not (silences.silent[i] or silent[i]):
                 continue
             q = self._solve(d, _but(used, i))
             if q is None:
-                self._run_close(i)
+                silences.close(i)
                 continue
             p_i = self.predict(q)[i]
-            if not self._run_n[i] and float(p_i @ p_i) <= sig2[i]:
+            if not silences.silent[i] and float(p_i @ p_i) <= sig2[i]:
                 continue  # moved too little to tell: nothing owed
-            self._run_step(i, d[i] - p_i, silent[i], float(s2[i]))
-        self._run_any = any(self._run_n)
+            silences.step(i, d[i] - p_i, silent[i], float(s2[i]), self._thresholds[2])
+        silences.settle()
 
     def _catching_up(self, d: np.ndarray, used: np.ndarray, s2: np.ndarray) -> list[int]:
         """The used mice whose reading in this window is the catch-up of a silence they
         were used through (``_runs``): their residuals under the others summed over the
         silence and through this window are within twice this window's error and the
-        silence's, at the test's threshold, where the silence owed more (``_run_owed``;
+        silence's, at the test's threshold, where the silence owed more (``Silences.owed``;
         the catch-up's second window is judged on what the first left).
 
         A USB host that does not poll a mouse for longer than ``late_report_s`` delivers
@@ -603,17 +536,18 @@ class Screen(RigidTest):
         them.  This window's error holds the catch-up's own proportional error (it
         grows with the reading), the CPIs' part of the sum."""
         thr2 = self._thresholds[2]
+        silences = self.silences
         out = []
         for i in range(self.n):
-            if not (self._run_owed[i] and used[i]) or self._run_after[i] >= CATCH_UP_WINDOWS:
+            if not (used[i] and silences.catching(i)):
                 continue  # (its silence owed nothing beyond its errors: nothing to catch up)
             if self._silent(d, i):
                 continue
             q = self._solve(d, _but(used, i))
             if q is None:
                 continue
-            var = 2.0 * float(s2[i]) + float(self._run_s2[i])
-            owed = self._run[i] + d[i] - self.predict(q)[i]
+            var = 2.0 * float(s2[i]) + float(silences.s2[i])
+            owed = silences.sum[i] + d[i] - self.predict(q)[i]
             if float(owed @ owed) <= thr2 * var:
                 out.append(i)
         return out
@@ -722,7 +656,7 @@ class Screen(RigidTest):
         a lag paid back (``_caught_up``), or a silence's catch-up (``_catching_up``; then
         also where the window passes, so that the noise model does not learn from it)."""
         caught_up = False
-        catching = self._catching_up(d, used, s2) if self._run_any else []
+        catching = self._catching_up(d, used, s2) if self.silences.any else []
         blamed = None
         if stat is not None and stat.dof > 0 and not self._passes(stat):
             blamed = self._identify(d, used, s2)
