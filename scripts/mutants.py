@@ -691,15 +691,15 @@ MUTANTS = [
     Mutant(
         "scale-change-at-a-fixed-split",
         "mousedom/fusion/scalelearn.py",
-        "        for recent in dict.fromkeys((self._change_point(), _CHANGE_SEGMENTS)):\n",
-        "        for recent in (_CHANGE_SEGMENTS,):\n",
+        "        best = self._change_point()\n",
+        "        best = _CHANGE_SEGMENTS\n",
         ("tests/test_scale_beyond.py",),
         "a change a few segments back is mixed into the last ten: found late, its mean given back",
     ),
     Mutant(
         "scale-change-of-one-scale-alone",
         "mousedom/fusion/scalelearn.py",
-        "            plain &= self._axes_changed(recent, counts)\n",
+        "            plain &= self._axes_changed(recent, counts, diff >= unclear)\n",
         "            pass\n",
         ("tests/test_scale_one_axis.py",),
         "a mouse off on one axis 'changes' scale with the mix of directions: its axis lost",

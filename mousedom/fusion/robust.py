@@ -386,11 +386,13 @@ class Screen(RigidTest):
         while they stay in it.  A mouse reading 15 % more than its CPI says passes each
         window's test and its run's (a fifth of a second), and one scale clipped to the
         bound leaves it 5 % off in every window it is used in."""
-        held = frozenset(mice)
-        if held == self._held_beyond:
-            return
-        self._held_beyond = held
-        self.exclude_faulty(sorted(held))
+        # At every renewal, not only when the set changes: a held mouse may be back in use
+        # by another way (unplugged and back: MISSING -> TRACKING; its sensor's gate;
+        # needed for rank), or exclude_faulty refused it (the rest could not check each
+        # other); exclude_faulty acts on the mice in use alone.
+        self._held_beyond = frozenset(mice)
+        if any(self.health[i].state in (TRACKING, SUSPECT) for i in self._held_beyond):
+            self.exclude_faulty(sorted(self._held_beyond))
 
     def _quiet_reset(self, i: int) -> None:
         """Mouse i read in full (or is gone): its shortfall's sum starts again."""

@@ -95,6 +95,10 @@ _CHANGE_SEGMENTS = 10
 _CHANGE_OLDER = 4
 _CHANGE_SIGMAS = 5.0
 _CHANGE_MIN = 0.01
+# At the split _change_point finds, a mouse whose axes the evidence does not tell apart is
+# taken on its one scale's change only from this far (``_changed``): a mouse off on one
+# axis by a few per cent "changes" its one scale by 1-3 % as the drive's directions mix.
+_SCAN_UNCLEAR = 0.05
 
 
 def medians(v: np.ndarray) -> np.ndarray:
@@ -693,6 +697,7 @@ class ScaleLearner:
             a[...] = 0.0
         self.scale[released] = 1.0
         self.split[released] = False
+        self.held[:, released] = 0.0  # (what it read on the other floor: not its scale now)
         self.beyond = []
         self.version += 1
 
@@ -721,31 +726,48 @@ class ScaleLearner:
         both scales into the last ten, whose jackknife spread it then widens, and the fit
         of the mixed evidence renewed meanwhile (three mice, one reading 14 % less: 60
         degrees given back over the whole horizon, a second before the fixed split saw
-        the change)."""
+        the change).  That split is chosen for the least residual, so it makes the most of
+        any difference: a change there must be borne out axis by axis (``_axes_changed``:
+        a mouse off on one axis found four false changes where the drive's mix of
+        directions shifted, 217 mm off at the end against 3).  The scan is made only where
+        the last ten segments' scales alone differ from the older ones' by _CHANGE_MIN (a
+        healthy rig pays nothing more than before)."""
         if len(self._segments) - _CHANGE_SEGMENTS < _CHANGE_OLDER:
             return False
-        for recent in dict.fromkeys((self._change_point(), _CHANGE_SEGMENTS)):
-            found = self._change_at(recent)
+        if not self._scales_differ(_CHANGE_SEGMENTS):
+            return False
+        best = self._change_point()
+        for recent, unclear in dict.fromkeys(((best, _SCAN_UNCLEAR), (_CHANGE_SEGMENTS, 0.0))):
+            found = self._change_at(recent, unclear)
             if found:
                 self.changed = found
                 return True
         return False
 
-    def _change_at(self, recent: int) -> list[tuple[int, float]]:
+    def _scales_differ(self, recent: int) -> bool:
+        """Whether the scales alone of the last ``recent`` segments and of the older ones
+        differ by _CHANGE_MIN for any mouse (one solve for both): a change under that is
+        none, whatever the spreads (a healthy rig's stay within a few tenths of a per
+        cent)."""
+        older = len(self._segments) - recent
+        sums = (np.sum(self._segments[-recent:], axis=0), np.sum(self._segments[:older], axis=0))
+        with np.errstate(invalid="ignore"):
+            return bool(np.any(np.abs(np.subtract(*scales(np.stack(sums)))) > _CHANGE_MIN))
+
+    def _change_at(self, recent: int, unclear: float) -> list[tuple[int, float]]:
         """``_changed``'s test of the last ``recent`` segments against the older ones: the
-        mice that changed plainly, each with its scale after over before (none: [])."""
+        mice that changed plainly, each with its scale after over before (none: []); a
+        mouse whose axes the evidence does not tell apart is taken on its one scale's word
+        where that changed by ``unclear`` or more (``_axes_changed``)."""
         older = len(self._segments) - recent
         n, cols = self.n, len(self.cols)
         parts = (self._segments[-recent:], self._segments[:older])
         counts = (sum(self._segment_groups[-recent:]), sum(self._segment_groups[:older]))
         if min(counts) < _MIN_GROUPS:
             return []
+        if not self._scales_differ(recent):
+            return []
         sums = [np.sum(part, axis=0) for part in parts]
-        # The scales alone first (one solve for both): a change under _CHANGE_MIN is none,
-        # whatever the spreads (a healthy rig's stay within a few tenths of a per cent).
-        with np.errstate(invalid="ignore"):
-            if not np.any(np.abs(np.subtract(*scales(np.stack(sums)))) > _CHANGE_MIN):
-                return []
         new, old = (fit(s, k, n, cols) for s, k in zip(sums, counts, strict=True))
         if new is None or old is None:
             return []
@@ -758,12 +780,15 @@ class ScaleLearner:
             widths = [widened(new[1], sums[0], parts[0]), widened(old[1], sums[1], parts[1])]
             plain = _plain_change(diff, np.hypot(*widths))
         if plain.any():
-            plain &= self._axes_changed(recent, counts)
+            plain &= self._axes_changed(recent, counts, diff >= unclear)
         return [(int(i), float(new[0][i] / old[0][i])) for i in np.flatnonzero(plain)]
 
-    def _axes_changed(self, recent: int, counts: tuple[float, float]) -> np.ndarray:
+    def _axes_changed(
+        self, recent: int, counts: tuple[float, float], unclear: np.ndarray
+    ) -> np.ndarray:
         """``_change_at``'s mice whose change the per-axis evidence bears out (N,): an axis
-        whose scale after differs plainly from before, or none the evidence tells apart.
+        whose scale after differs plainly from before, or, for the mice ``unclear`` (N,)
+        allows, none the evidence tells apart.
         A mouse whose CPI is off on one axis reads, in one scale, as some mean of its two
         that moves with the mix of directions driven (docs/calibration.md): its one scale
         "changes" by a per cent or two wherever the drive turns more or slides less, and
@@ -776,14 +801,14 @@ class ScaleLearner:
                            strict=True):  # fmt: skip
             with np.errstate(invalid="ignore"):
                 fitted = fit_axes(np.sum(part, axis=0), part, k, n, cols)
-            if fitted is None:
-                return np.ones(n, dtype=bool)  # nothing per axis to say: the one scale's word
+            if fitted is None:  # nothing per axis to say
+                return np.asarray(unclear, dtype=bool)
             fits.append(fitted)
         (g_new, sd_new, *_), (g_old, sd_old, *_) = fits
         told = np.isfinite(sd_new) & np.isfinite(sd_old)
         with np.errstate(invalid="ignore"):
             changed = _plain_change(np.abs(g_new - g_old), np.hypot(sd_new, sd_old)) & told
-        return changed.any(axis=1) | ~told.any(axis=1)
+        return changed.any(axis=1) | (unclear & ~told.any(axis=1))
 
     def _change_point(self) -> int:
         """How many of the recent segments are after the change of scale ``_changed``
