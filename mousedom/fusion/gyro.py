@@ -210,7 +210,7 @@ class GyroFusion:
         kappa = 0.0 if still else {"both": k1 * k1 * caa / s, "gyro": 1.0, "mice": 0.0}[self.use]
         drift = st.carry(kappa, a_mice)  # the heading's error with (bias, scale)'s
         a_gyro, var_gyro = st.corrected(turn), (self._white_var + st.hph(a_mice)) / (k1 * k1)
-        st.observe(e, a_mice, caa - timing, timing, kappa, trusted or still)
+        st.observe(e, a_mice, caa - timing, timing, kappa, trusted or still, turn / self.period)
         report = self._report(turn, e * e / s, kappa > 0.0)
         if kappa == 0.0:  # the mice's (use = mice, or a standstill)
             return list(q), mice_c, report
@@ -255,6 +255,30 @@ class GyroFusion:
             return judge.silent_mice_blamed(c, a, var_a, mice)
         return judge.leave_one_out(q, c, a, var_a, mice)
 
+    def _timing(
+        self, q: Sequence[float], c: Matrix3, turn: float, mice: MiceView, judge: GyroJudge,
+        silent: bool,
+    ) -> float:  # fmt: skip
+        """A moving window's timing variance of the mice's turn beyond q's covariance (the
+        judge's ``extra``), and the window taught to the stamps' spread: the config's rho
+        on the whole motion, and the rig's timing in excess of it on what a late stamp
+        moves (GyroJudge.stamp_var), by the learnt factor (stampspread.py; a host's "few
+        ms" until it is learnt)."""
+        unit, stamp = judge.timing_var(mice), judge.stamp_var(mice)
+        extra = unit + stamp * (self.spread.in_use - 1.0)
+        if not silent and mice.consistent:
+            st, k1 = self.state, 1.0 + self.state.scale
+            e = turn - k1 * q[2] - st.bias * self.period
+            rest = k1 * k1 * c[2][2] + st.hph(q[2]) + self._white_var
+            self.spread.observe(e, k1 * k1 * stamp, rest, tuple(mice.used))
+        else:
+            self.spread.gap()
+        if silent:
+            floor = judge.sigma_turn_var(mice) - c[2][2]
+            if math.isfinite(floor):
+                extra = max(extra, floor)
+        return extra
+
     def judged(
         self, q: Sequence[float], c: Matrix3, turn: float | None, ok: bool, mice: MiceView
     ) -> Judged:
@@ -293,21 +317,7 @@ class GyroFusion:
             return Judged(*self.window(q, c, turn, ok, still), (), True)
         if still:
             self.spread.gap()
-        extra = 0.0
-        if not still:
-            unit = judge.timing_var(mice)
-            extra = unit * self.spread.factor  # (the rig's own timing: stampspread.py)
-            if not silent and mice.consistent:
-                st, k1 = self.state, 1.0 + self.state.scale
-                e = turn - k1 * q[2] - st.bias * self.period
-                rest = k1 * k1 * c[2][2] + st.hph(q[2]) + self._white_var
-                self.spread.observe(e, k1 * k1 * unit, rest, tuple(mice.used))
-            else:
-                self.spread.gap()
-            if silent:
-                floor = judge.sigma_turn_var(mice) - c[2][2]
-                if math.isfinite(floor):
-                    extra = max(extra, floor)
+        extra = 0.0 if still else self._timing(q, c, turn, mice, judge, silent)
         n_used = sum(1 for u in mice.used if u)
         trusted = n_used >= 3 and mice.consistent
         if self.use == "mice":
@@ -345,6 +355,10 @@ class GyroFusion:
             self._disagree = 0
             return Judged(*self.window(q, c, turn, ok, still, extra, trusted), (), True)
         st.predict()  # nothing learnt from a window judged
+        if not still and not trusted:
+            # the span it leaves errs by about as much (BiasLearner.hole); not where three
+            # mice that agree blamed the gyro: its error was in this window alone
+            st.hole(e)
         a = st.corrected(turn)
         var_a = (self._white_var + st.hph(a)) / (k1 * k1)
         if jumped:
