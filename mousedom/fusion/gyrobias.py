@@ -252,7 +252,13 @@ class BiasLearner:
             return False
         h = self._span_h()
         if not agreed:  # the bias moved: learnt again from this span, alone (see relearn)
+            # as uncertain as the jump the span shows, at least: from the prior's sigma
+            # (1 deg/s) alone, a span of mice whose timing is not learnt yet (its R that of
+            # stamps 0-4 ms late) learnt a third of an 8.8 deg/s jump, and the scale took
+            # part of the rest in a steady turn (5 degrees off in 15 s)
             self._bias_reset()
+            shown = self._e / (self._n * self._period)
+            self.p[0][0] = max(self.p[0][0], shown * shown)
             h = [h[0], 0.0]  # (the scale, independent of it now, learns nothing here)
         s = _hph(h, self.p) + self._rest(LAG_SIGMA)
         ph = _ph(self.p, h)
