@@ -33,6 +33,15 @@ heading 12 degrees off in 30 s).  So then a jump takes two trusted spans in a ro
 fail the same way: a late stamp's error in a span is its last edge's, which the next span
 starts with the other way, while a jump's stays.
 
+The mice's stamps may lag the gyro's on average (a host stamping 0-4 ms late: 2 ms), and
+a lag d moves E by d times the change of the turn rate across the span's edges (taken as
+the gyro's rate in its last window less that in its first): a few per cent of a span's
+turn where a turn starts or ends, nothing in steady motion.  Neither b nor s explains it;
+R holds it at LAG_SIGMA (the first turn's spans taught the scale the lag), and a trusted
+span that fails is a bias jump only if it fails with a lag of LAG_MAX too: a jump shows in
+steady motion as well, a lag's error only with a change of rate (spans at a turn's end
+read as jumps had the bias relearnt at 1-2 deg/s against a true 0.5).
+
 A window the judge leaves out of the pose (GyroFusion.judged) is left out of its span too,
 and the span's sum telescopes no more across it (``hole``).
 
