@@ -26,12 +26,19 @@ nothing, unless the mice it holds are trusted (three or more that agree, or a st
 then the gyro's bias moved, and
 b is learnt again from that span (its variance reset; the scale's kept, and not taught by
 the span: a clip in a fast turn would read as a new scale).  Until the mice's timing is
-learnt (stampspread.py: GyroFusion sets ``timing_guessed``), R's timing is a guess, and
-healthy mice whose stamps were later than it failed spans, each read as a jump (three
-mice stamped 0-4 ms late: the bias relearnt at 4 deg/s from one span, true 0.5, and the
-heading 12 degrees off in 30 s).  So then a jump takes two trusted spans in a row that
-fail the same way: a late stamp's error in a span is its last edge's, which the next span
-starts with the other way, while a jump's stays.
+learnt (stampspread.py), R's timing is a cautious guess (stamps 0-4 ms late), which a span
+passes or fails to learn from; but a trusted span that passes under the guess and fails at
+the timing learnt so far (``sure``) may be a jump as well: it teaches nothing, and is a
+jump if the span before it did the same, its E of the same sign (a late stamp's error in a
+span is its edges', which the next span starts with the other way; a jump's stays).  Under
+the guess alone, a 3.7 deg/s jump 1 s into the motion passed three spans of a slow turn
+and was learnt as a scale 6.6 % off (5 degrees in 15 s); taken as a jump from one such
+span, a square's first start with stamps 0-4 ms late relearnt its bias 0.08 deg/s off
+(0.43 to 0.90 degree at the end of a 30 s drive).  A jump's span may hold windows from
+before it (it fails where the jump began, anywhere in it), so the bias's variance stays at
+least the jump the span shows after it is learnt from, and the next span learns the rest
+of it: otherwise the scale took it in a steady turn (an 8.8 deg/s jump 1.1 s into the
+motion: 5 degrees off).
 
 The mice's stamps may lag the gyro's on average (a host stamping 0-4 ms late: 2 ms), and
 a lag d moves E by d times the change of the turn rate across the span's edges (taken as
@@ -111,6 +118,9 @@ class BiasLearner:
         self._period = period
         self._span = max(1, round(SPAN_S / period))
         self._threshold = chi2.quantile(1.0 - false_alarm, 1)
+        # the sign of the last span's E where it failed only at the mice's timing as
+        # learnt so far (``renew``), 0 if it did not
+        self._doubt = 0.0
         self._reset_span()
 
     def _reset_span(self) -> None:
@@ -123,6 +133,9 @@ class BiasLearner:
         # moved across its two edges remain (see the module docstring)
         self._timing_first = 0.0
         self._timing_last = 0.0
+        # the same at the rig's timing as learnt so far, not guessed (GyroFusion._timing)
+        self._sure_first = 0.0
+        self._sure_last = 0.0
         # the gyro's rate (rad/s) in the span's first and last windows: a lag d of the
         # mice's stamps moves the span's sum by d times their difference
         self._rate_first = 0.0
@@ -193,12 +206,14 @@ class BiasLearner:
 
     def observe(
         self, e: float, a: float, white: float, timing: float, kappa: float, trusted: bool,
-        rate: float = 0.0,
+        rate: float = 0.0, sure: float | None = None,
     ) -> None:  # fmt: skip
         """One window of the span: its innovation ``e`` (g - (1 + s) a - b T), the mice's
         turn ``a``, their white and timing variances, the gyro's share ``kappa`` in the
         heading, whether its mice are trusted, and the gyro's ``rate`` (its turn over T,
-        rad/s: a lag's error in the span is in how it changed)."""
+        rad/s: a lag's error in the span is in how it changed), and ``sure``, the timing
+        variance at the rig's timing as learnt so far (None: ``timing``)."""
+        sure = timing if sure is None else sure
         k1 = 1.0 + self.scale
         self._n += 1
         self._e += e
@@ -206,8 +221,10 @@ class BiasLearner:
         self._white_sum += k1 * k1 * white
         if self._n == 1:
             self._timing_first = k1 * k1 * timing
+            self._sure_first = k1 * k1 * sure
             self._rate_first = rate
         self._timing_last = k1 * k1 * timing
+        self._sure_last = k1 * k1 * sure
         self._rate_last = rate
         self._ncov += kappa * self._white / k1 - (1.0 - kappa) * k1 * (white + timing)
         self._used[0] += kappa / k1 * self._period
@@ -235,17 +252,20 @@ class BiasLearner:
     def _span_h(self) -> Vec2:
         return [self._n * self._period, self._turn]
 
-    def _rest(self, lag: float) -> float:
-        """R, the mice's stamps lagging the gyro's by ``lag`` (its sigma, seconds)."""
+    def _rest(self, lag: float, sure: bool = False) -> float:
+        """R, the mice's stamps lagging the gyro's by ``lag`` (its sigma, seconds); ``sure``:
+        their timing as learnt so far, not guessed."""
         mice_scale = (MICE_TURN_SCALE * self._turn) ** 2
-        edges = self._timing_first + self._timing_last + self._holes
+        edges = (self._sure_first + self._sure_last if sure else
+                 self._timing_first + self._timing_last) + self._holes  # fmt: skip
         lagged = (lag * (self._rate_last - self._rate_first)) ** 2
         return self._white_sum + edges + self._n * self._white + mice_scale + lagged
 
-    def _agrees(self, lag: float = LAG_SIGMA) -> bool:
+    def _agrees(self, lag: float = LAG_SIGMA, sure: bool = False) -> bool:
         """Whether the span so far passes the test (see the module docstring), its mice's
-        stamps lagging the gyro's by ``lag``."""
-        s = _hph(self._span_h(), self.p) + self._rest(lag)
+        stamps lagging the gyro's by ``lag``, their timing as learnt so far (``sure``) or
+        guessed."""
+        s = _hph(self._span_h(), self.p) + self._rest(lag, sure)
         return self._e * self._e <= self._threshold * s
 
     def renew(self) -> bool | None:
@@ -255,12 +275,22 @@ class BiasLearner:
         the pose by it, as the mice's learnt scales give theirs back)."""
         if not self._n:
             return None
-        agreed = self._agrees()
-        if not agreed and not (self._trusted and not self._agrees(LAG_MAX)):
+        # a jump: trusted mice, and failing even with a lag of LAG_MAX; where it fails so
+        # only at their timing as learnt so far, not at the guess, it is a jump if the
+        # span before did the same way, and teaches nothing (module docstring)
+        jumped = self._trusted and not self._agrees(LAG_MAX)
+        doubt = 0.0
+        if self._trusted and not jumped and not self._agrees(LAG_MAX, sure=True):
+            doubt = math.copysign(1.0, self._e)
+            jumped = doubt == self._doubt
+        self._doubt = 0.0 if jumped else doubt
+        agreed = self._agrees() and not jumped and not doubt
+        if not agreed and not jumped:
             self._reset_span()  # (failing, but no jump: module docstring)
             return False
         h = self._span_h()
-        if not agreed:  # the bias moved: learnt again from this span, alone (see relearn)
+        shown = 0.0
+        if jumped:  # the bias moved: learnt again from this span, alone (see relearn)
             # as uncertain as the jump the span shows, at least: from the prior's sigma
             # (1 deg/s) alone, a span of mice whose timing is not learnt yet (its R that of
             # stamps 0-4 ms late) learnt a third of an 8.8 deg/s jump, and the scale took
@@ -284,5 +314,7 @@ class BiasLearner:
         self.cross = [self.cross[0] - k[0] * hx + k[0] * self._ncov,
                       self.cross[1] - k[1] * hx + k[1] * self._ncov]  # fmt: skip
         self.p = [[self.p[i][j] - k[i] * ph[j] for j in range(2)] for i in range(2)]
+        if jumped:  # and after it: the jump began anywhere in the span (module docstring)
+            self.p[0][0] = max(self.p[0][0], shown * shown)
         self._reset_span()
         return agreed
