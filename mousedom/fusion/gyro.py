@@ -176,6 +176,7 @@ class GyroFusion:
         still: bool = False,
         extra: float = 0.0,
         trusted: bool = False,
+        sure: float | None = None,
     ) -> tuple[list[float], Matrix3, GyroWindow]:
         """The window's (q, C) with the gyro's ``turn`` (None: no samples) folded in as
         ``use`` says; ``ok`` False (the mice lacked rank) leaves q alone and learns
@@ -184,7 +185,9 @@ class GyroFusion:
         of a window without counts), the window measures the bias alone and the heading
         stays, whatever ``use`` (a zero-velocity update).  ``extra``: variance of the
         mice's turn from their timing (GyroJudge.timing_var), which q's covariance does
-        not hold; ``trusted``: the mice would win a disagreement (gyrobias.py).
+        not hold; ``trusted``: the mice would win a disagreement (gyrobias.py); ``sure``:
+        ``extra`` at the rig's timing as learnt so far, not guessed (``_timing``; None: as
+        ``extra``).
 
         The window's innovation goes to the bias learner, which learns once a span
         (gyrobias.py).  The bias's error is the same from one window to the next: a
@@ -210,7 +213,10 @@ class GyroFusion:
         kappa = 0.0 if still else {"both": k1 * k1 * caa / s, "gyro": 1.0, "mice": 0.0}[self.use]
         drift = st.carry(kappa, a_mice)  # the heading's error with (bias, scale)'s
         a_gyro, var_gyro = st.corrected(turn), (self._white_var + st.hph(a_mice)) / (k1 * k1)
-        st.observe(e, a_mice, caa - timing, timing, kappa, trusted or still)
+        sure_t = timing if sure is None or still else min(timing, sure)
+        st.observe(
+            e, a_mice, caa - timing, timing, kappa, trusted or still, turn / self.period, sure_t
+        )
         report = self._report(turn, e * e / s, kappa > 0.0)
         if kappa == 0.0:  # the mice's (use = mice, or a standstill)
             return list(q), mice_c, report
@@ -255,6 +261,32 @@ class GyroFusion:
             return judge.silent_mice_blamed(c, a, var_a, mice)
         return judge.leave_one_out(q, c, a, var_a, mice)
 
+    def _timing(
+        self, q: Sequence[float], c: Matrix3, turn: float, mice: MiceView, judge: GyroJudge,
+        silent: bool,
+    ) -> tuple[float, float]:  # fmt: skip
+        """A moving window's timing variance of the mice's turn beyond q's covariance (the
+        judge's ``extra``), and the window taught to the stamps' spread: the config's rho
+        on the whole motion, and the rig's timing in excess of it on what a late stamp
+        moves (GyroJudge.stamp_var), by the learnt factor (stampspread.py; a host's "few
+        ms" until it is learnt).  Also what it is at the factor learnt so far, not that
+        guess (``sure``: the bias learner's test of a jump, gyrobias.py)."""
+        unit, stamp = judge.timing_var(mice), judge.stamp_var(mice)
+        extra = unit + stamp * (self.spread.in_use - 1.0)
+        sure = unit + stamp * (self.spread.factor - 1.0)
+        if not silent and mice.consistent:
+            st, k1 = self.state, 1.0 + self.state.scale
+            e = turn - k1 * q[2] - st.bias * self.period
+            rest = k1 * k1 * c[2][2] + st.hph(q[2]) + self._white_var
+            self.spread.observe(e, k1 * k1 * stamp, rest, tuple(mice.used))
+        else:
+            self.spread.gap()
+        if silent:
+            floor = judge.sigma_turn_var(mice) - c[2][2]
+            if math.isfinite(floor):
+                extra, sure = max(extra, floor), max(sure, floor)
+        return extra, sure
+
     def judged(
         self, q: Sequence[float], c: Matrix3, turn: float | None, ok: bool, mice: MiceView
     ) -> Judged:
@@ -293,25 +325,11 @@ class GyroFusion:
             return Judged(*self.window(q, c, turn, ok, still), (), True)
         if still:
             self.spread.gap()
-        extra = 0.0
-        if not still:
-            unit = judge.timing_var(mice)
-            extra = unit * self.spread.factor  # (the rig's own timing: stampspread.py)
-            if not silent and mice.consistent:
-                st, k1 = self.state, 1.0 + self.state.scale
-                e = turn - k1 * q[2] - st.bias * self.period
-                rest = k1 * k1 * c[2][2] + st.hph(q[2]) + self._white_var
-                self.spread.observe(e, k1 * k1 * unit, rest, tuple(mice.used))
-            else:
-                self.spread.gap()
-            if silent:
-                floor = judge.sigma_turn_var(mice) - c[2][2]
-                if math.isfinite(floor):
-                    extra = max(extra, floor)
+        extra, sure = (0.0, 0.0) if still else self._timing(q, c, turn, mice, judge, silent)
         n_used = sum(1 for u in mice.used if u)
         trusted = n_used >= 3 and mice.consistent
         if self.use == "mice":
-            return Judged(*self.window(q, c, turn, ok, still, extra, trusted), (), True)
+            return Judged(*self.window(q, c, turn, ok, still, extra, trusted, sure), (), True)
         st, t = self.state, self.period
         k1 = 1.0 + st.scale
         a_mice = 0.0 if still else q[2]
@@ -323,7 +341,7 @@ class GyroFusion:
         if stat <= judge.threshold:
             self._disagree = 0
             judge.last_blamed = None
-            return Judged(*self.window(q, c, turn, ok, still, extra, trusted), (), True)
+            return Judged(*self.window(q, c, turn, ok, still, extra, trusted, sure), (), True)
         slow = still and abs(e) <= STILL_TURN * t
         # Still mice against a gyro that turns faster than a bias moves: the robot turned
         # unseen (every mouse off the floor) or the gyro's bias jumped.  Two mice (at two
@@ -343,8 +361,12 @@ class GyroFusion:
             # bias moved far, or was learnt wrong: learnt again from here
             st.relearn()
             self._disagree = 0
-            return Judged(*self.window(q, c, turn, ok, still, extra, trusted), (), True)
+            return Judged(*self.window(q, c, turn, ok, still, extra, trusted, sure), (), True)
         st.predict()  # nothing learnt from a window judged
+        if not still and not trusted:
+            # the span it leaves errs by about as much (BiasLearner.hole); not where three
+            # mice that agree blamed the gyro: its error was in this window alone
+            st.hole(e)
         a = st.corrected(turn)
         var_a = (self._white_var + st.hph(a)) / (k1 * k1)
         if jumped:

@@ -20,11 +20,37 @@ two edges) and the gyro's white noise, each mouse term times (1 + s_hat)^2.  The
 own, not twice the span's mean: a span of still windows but for a sudden start at its end
 has a mean a span's length smaller than that edge's variance, and one such span taught the
 scale 0.03 off (and the bias, reset by the spans that then failed, took the rest).
+
 E^2 / S is chi-square (1 dof) when both tell the truth: a span that fails it teaches
 nothing, unless the mice it holds are trusted (three or more that agree, or a standstill):
 then the gyro's bias moved, and
 b is learnt again from that span (its variance reset; the scale's kept, and not taught by
-the span: a clip in a fast turn would read as a new scale).
+the span: a clip in a fast turn would read as a new scale).  Until the mice's timing is
+learnt (stampspread.py), R's timing is a cautious guess (stamps 0-4 ms late), which a span
+passes or fails to learn from; but a trusted span that passes under the guess and fails at
+the timing learnt so far (``sure``) may be a jump as well: it teaches nothing, and is a
+jump if the span before it did the same, its E of the same sign (a late stamp's error in a
+span is its edges', which the next span starts with the other way; a jump's stays).  Under
+the guess alone, a 3.7 deg/s jump 1 s into the motion passed three spans of a slow turn
+and was learnt as a scale 6.6 % off (5 degrees in 15 s); taken as a jump from one such
+span, a square's first start with stamps 0-4 ms late relearnt its bias 0.08 deg/s off
+(0.43 to 0.90 degree at the end of a 30 s drive).  A jump's span may hold windows from
+before it (it fails where the jump began, anywhere in it), so the bias's variance stays at
+least the jump the span shows after it is learnt from, and the next span learns the rest
+of it: otherwise the scale took it in a steady turn (an 8.8 deg/s jump 1.1 s into the
+motion: 5 degrees off).
+
+The mice's stamps may lag the gyro's on average (a host stamping 0-4 ms late: 2 ms), and
+a lag d moves E by d times the change of the turn rate across the span's edges (taken as
+the gyro's rate in its last window less that in its first): a few per cent of a span's
+turn where a turn starts or ends, nothing in steady motion.  Neither b nor s explains it;
+R holds it at LAG_SIGMA (the first turn's spans taught the scale the lag), and a trusted
+span that fails is a bias jump only if it fails with a lag of LAG_MAX too: a jump shows in
+steady motion as well, a lag's error only with a change of rate (spans at a turn's end
+read as jumps had the bias relearnt at 1-2 deg/s against a true 0.5).
+
+A window the judge leaves out of the pose (GyroFusion.judged) is left out of its span too,
+and the span's sum telescopes no more across it (``hole``).
 
 Between renewals the error dx is constant, and a heading made with the gyro drifts by
 H_k dx / (1 + s_hat) a window: ``cross``, the covariance of the heading's error with dx,
@@ -45,6 +71,13 @@ SCALE_SIGMA = 0.03
 # How well the mice know a turn's size: their CPIs are calibrated to about this, so the
 # gyro's scale is not learnt closer to theirs than this over a span's turn
 MICE_TURN_SCALE = 0.003
+# How far the mice's stamps may lag the gyro's on average (s), which nothing learns: a
+# host stamps its reports "a few ms" late (DESIGN.md; 0-4 ms: 2 ms on average), a gyro's
+# low-pass filter delays its samples a few ms the other way.  LAG_SIGMA is R's, LAG_MAX
+# the most: a trusted span that fails by no more than LAG_MAX gives where the turn rate
+# changed is not read as a bias jump (module docstring)
+LAG_SIGMA = 0.002
+LAG_MAX = 0.006
 
 Vec2 = list[float]
 Mat2 = list[list[float]]
@@ -85,6 +118,9 @@ class BiasLearner:
         self._period = period
         self._span = max(1, round(SPAN_S / period))
         self._threshold = chi2.quantile(1.0 - false_alarm, 1)
+        # the sign of the last span's E where it failed only at the mice's timing as
+        # learnt so far (``renew``), 0 if it did not
+        self._doubt = 0.0
         self._reset_span()
 
     def _reset_span(self) -> None:
@@ -97,6 +133,14 @@ class BiasLearner:
         # moved across its two edges remain (see the module docstring)
         self._timing_first = 0.0
         self._timing_last = 0.0
+        # the same at the rig's timing as learnt so far, not guessed (GyroFusion._timing)
+        self._sure_first = 0.0
+        self._sure_last = 0.0
+        # the gyro's rate (rad/s) in the span's first and last windows: a lag d of the
+        # mice's stamps moves the span's sum by d times their difference
+        self._rate_first = 0.0
+        self._rate_last = 0.0
+        self._holes = 0.0  # the innovations of the span's windows left out, squared
         self._ncov = 0.0  # the heading's noise with E's (see the module)
         self._used = [0.0, 0.0]  # sum of kappa / (1 + s_hat) H_k: how the heading used them
         self._trusted = True  # every window's mice trusted (three that agree, or still)
@@ -161,11 +205,15 @@ class BiasLearner:
         return drift
 
     def observe(
-        self, e: float, a: float, white: float, timing: float, kappa: float, trusted: bool
-    ) -> None:
+        self, e: float, a: float, white: float, timing: float, kappa: float, trusted: bool,
+        rate: float = 0.0, sure: float | None = None,
+    ) -> None:  # fmt: skip
         """One window of the span: its innovation ``e`` (g - (1 + s) a - b T), the mice's
         turn ``a``, their white and timing variances, the gyro's share ``kappa`` in the
-        heading, whether its mice are trusted."""
+        heading, whether its mice are trusted, and the gyro's ``rate`` (its turn over T,
+        rad/s: a lag's error in the span is in how it changed), and ``sure``, the timing
+        variance at the rig's timing as learnt so far (None: ``timing``)."""
+        sure = timing if sure is None else sure
         k1 = 1.0 + self.scale
         self._n += 1
         self._e += e
@@ -173,7 +221,11 @@ class BiasLearner:
         self._white_sum += k1 * k1 * white
         if self._n == 1:
             self._timing_first = k1 * k1 * timing
+            self._sure_first = k1 * k1 * sure
+            self._rate_first = rate
         self._timing_last = k1 * k1 * timing
+        self._sure_last = k1 * k1 * sure
+        self._rate_last = rate
         self._ncov += kappa * self._white / k1 - (1.0 - kappa) * k1 * (white + timing)
         self._used[0] += kappa / k1 * self._period
         self._used[1] += kappa / k1 * a
@@ -184,17 +236,36 @@ class BiasLearner:
         if self._n >= self._span or not self._agrees():
             self.renew()
 
+    def hole(self, e: float) -> None:
+        """A moving window inside the span that the judge left out of the pose (and so of
+        the span), its innovation ``e``.  The span's sum telescopes no more across it:
+        what a late stamp moved into or out of the window stays in its neighbours, and a
+        window is judged mostly where that was much (e beyond the judge's threshold), so
+        the span errs by about e: R holds e^2 more.  Without, holes in a pair's first turn
+        with stamps 0-4 ms late (1.6 mrad each) taught the gyro's scale 1 % off in one
+        span, its sigma cut to 0.004.  (Summed into the span instead, as a window with
+        e^2 more variance, one mouse's heading fared worse: 1.6 degrees median over 12
+        drives against 0.6.)"""
+        if math.isfinite(e):  # (before the span's first window: its first edge is e's)
+            self._holes += e * e
+
     def _span_h(self) -> Vec2:
         return [self._n * self._period, self._turn]
 
-    def _rest(self) -> float:
+    def _rest(self, lag: float, sure: bool = False) -> float:
+        """R, the mice's stamps lagging the gyro's by ``lag`` (its sigma, seconds); ``sure``:
+        their timing as learnt so far, not guessed."""
         mice_scale = (MICE_TURN_SCALE * self._turn) ** 2
-        edges = self._timing_first + self._timing_last
-        return self._white_sum + edges + self._n * self._white + mice_scale
+        edges = (self._sure_first + self._sure_last if sure else
+                 self._timing_first + self._timing_last) + self._holes  # fmt: skip
+        lagged = (lag * (self._rate_last - self._rate_first)) ** 2
+        return self._white_sum + edges + self._n * self._white + mice_scale + lagged
 
-    def _agrees(self) -> bool:
-        """Whether the span so far passes the test (see the module docstring)."""
-        s = _hph(self._span_h(), self.p) + self._rest()
+    def _agrees(self, lag: float = LAG_SIGMA, sure: bool = False) -> bool:
+        """Whether the span so far passes the test (see the module docstring), its mice's
+        stamps lagging the gyro's by ``lag``, their timing as learnt so far (``sure``) or
+        guessed."""
+        s = _hph(self._span_h(), self.p) + self._rest(lag, sure)
         return self._e * self._e <= self._threshold * s
 
     def renew(self) -> bool | None:
@@ -204,15 +275,31 @@ class BiasLearner:
         the pose by it, as the mice's learnt scales give theirs back)."""
         if not self._n:
             return None
-        agreed = self._agrees()
-        if not agreed and not self._trusted:
-            self._reset_span()
+        # a jump: trusted mice, and failing even with a lag of LAG_MAX; where it fails so
+        # only at their timing as learnt so far, not at the guess, it is a jump if the
+        # span before did the same way, and teaches nothing (module docstring)
+        jumped = self._trusted and not self._agrees(LAG_MAX)
+        doubt = 0.0
+        if self._trusted and not jumped and not self._agrees(LAG_MAX, sure=True):
+            doubt = math.copysign(1.0, self._e)
+            jumped = doubt == self._doubt
+        self._doubt = 0.0 if jumped else doubt
+        agreed = self._agrees() and not jumped and not doubt
+        if not agreed and not jumped:
+            self._reset_span()  # (failing, but no jump: module docstring)
             return False
         h = self._span_h()
-        if not agreed:  # the bias moved: learnt again from this span, alone (see relearn)
+        shown = 0.0
+        if jumped:  # the bias moved: learnt again from this span, alone (see relearn)
+            # as uncertain as the jump the span shows, at least: from the prior's sigma
+            # (1 deg/s) alone, a span of mice whose timing is not learnt yet (its R that of
+            # stamps 0-4 ms late) learnt a third of an 8.8 deg/s jump, and the scale took
+            # part of the rest in a steady turn (5 degrees off in 15 s)
             self._bias_reset()
+            shown = self._e / (self._n * self._period)
+            self.p[0][0] = max(self.p[0][0], shown * shown)
             h = [h[0], 0.0]  # (the scale, independent of it now, learns nothing here)
-        s = _hph(h, self.p) + self._rest()
+        s = _hph(h, self.p) + self._rest(LAG_SIGMA)
         ph = _ph(self.p, h)
         k = [ph[0] / s, ph[1] / s]
         # E = -H dx + N: the estimate moves against the error it reads
@@ -227,5 +314,7 @@ class BiasLearner:
         self.cross = [self.cross[0] - k[0] * hx + k[0] * self._ncov,
                       self.cross[1] - k[1] * hx + k[1] * self._ncov]  # fmt: skip
         self.p = [[self.p[i][j] - k[i] * ph[j] for j in range(2)] for i in range(2)]
+        if jumped:  # and after it: the jump began anywhere in the span (module docstring)
+            self.p[0][0] = max(self.p[0][0], shown * shown)
         self._reset_span()
         return agreed

@@ -134,6 +134,27 @@ class GyroJudge:
 
         return max(0.0, turn_var(both) - turn_var(base))
 
+    def stamp_var(self, mice: MiceView) -> float:
+        """The part of ``timing_var`` that a late stamp moves between windows, which
+        stampspread.py learns the rig's factor of: a late stamp moves counts along a
+        mouse's motion, and Hong's one mouse turns only its sideways ones (a = d_y / p_x).
+        Its forward counts (driving straight, most of a drive) move no turn across a
+        window's edge: learnt against the whole motion, those windows held the factor
+        near 1, several times short of what stamps 0-4 ms late give a turning window (the
+        judge took those for faults, each leaving in the heading what the stamp had moved
+        into its neighbour).  The config's rho stays on the whole motion (it holds a
+        CPI's or a mounting's error too, which the forward counts do move).  Two or more
+        mice: ``timing_var``."""
+        idx = [i for i, u in enumerate(mice.used) if u]
+        if len(idx) != 1:
+            return self.timing_var(mice)
+        if not self.relative:
+            return 0.0
+        i = idx[0]
+        px = self.positions[i][0]
+        side2 = mice.d[i][1] ** 2
+        return float(self._relative2(mice, idx)[0]) * side2 / (px * px) if px else 0.0
+
     def sigma_turn_var(self, mice: MiceView) -> float:
         """The turn's variance of the mice in the solve from their sigma alone (a count
         each): what a window without counts knows of the turn while the robot may creep."""

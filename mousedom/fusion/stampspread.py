@@ -47,6 +47,13 @@ MIN_PAIRS = 100  # neighbouring moving windows (1 s at 100 Hz) before the factor
 # config's 0.05 is a window's motion 40 % wrong from its stamps alone, beyond any host; a
 # learnt factor past it would let a faulty mouse through the gyro's test.
 MAX_FACTOR = 64.0
+# The factor taken until the rig's is learnt (``in_use``): a host's late stamps are not
+# known yet.  At the config's 1, mice stamped 0-4 ms late had their healthy windows judged
+# faults in their first second of motion (9-14 windows of a pair, each leaving the counts
+# a late stamp moved into its neighbour in the heading: 0.6-0.9 degrees of a pair's 30 s
+# drives), and the first turn's spans taught the gyro's scale (1 % off in one span).
+# 16: stamps 0-4 ms late (DESIGN.md's "a few ms") against the 0-1 ms the config's rho is of.
+EARLY_FACTOR = 16.0
 
 
 class StampSpread:
@@ -78,6 +85,17 @@ class StampSpread:
         self._pairs = keep * self._pairs + 1.0
         if self._pairs >= MIN_PAIRS:
             self.factor = min(MAX_FACTOR, max(1.0, float(self._num / self._den)))
+
+    @property
+    def known(self) -> bool:
+        """Whether ``factor`` is learnt (MIN_PAIRS windows seen), not the prior 1."""
+        return self._pairs >= MIN_PAIRS
+
+    @property
+    def in_use(self) -> float:
+        """The factor the judge and the bias's spans take: ``factor`` once known,
+        EARLY_FACTOR before."""
+        return self.factor if self.known else max(self.factor, EARLY_FACTOR)
 
     def gap(self) -> None:
         """A window that gives no innovation to pair with (still, no turn, a fault)."""
