@@ -371,9 +371,15 @@ MUTANTS = [
     Mutant(
         "gyro-span-timing-its-mean",
         "mousedom/fusion/gyrobias.py",
-        "        edges = self._timing_first + self._timing_last\n",
-        "        edges = 2.0 * (self._timing_first + self._timing_last) / (self._n + 1)\n",
-        ("tests/test_gyro_sudden_starts.py",),
+        "        edges = (self._sure_first + self._sure_last if sure else\n"
+        "                 self._timing_first + self._timing_last) + self._holes  # fmt: skip\n",
+        "        edges = 2.0 * (self._sure_first + self._sure_last if sure else\n"
+        "                 self._timing_first + self._timing_last) / (self._n + 1) + self._holes\n",
+        (
+            "tests/test_gyro_sudden_starts.py",
+            "tests/test_gyro_late_mean.py",
+            "tests/test_gyro_late_stamps.py",
+        ),
         "a span's timing taken as its mean, not its edges': a sudden start teaches the scale",
     ),
     Mutant(
