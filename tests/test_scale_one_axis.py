@@ -15,6 +15,7 @@ import math
 
 import numpy as np
 import pytest
+from layouts import random_layout
 
 from mousedom.fusion import scalelearn, scenarios, sim
 from mousedom.fusion.drives import drive
@@ -25,22 +26,7 @@ def random_rig(seed: int) -> tuple[sim.Rig, float, int, float, str]:
     rng = np.random.default_rng((777, seed))
     n = int(rng.integers(3, 7))
     kind = str(rng.choice(["ring", "scatter", "bunched"]))
-    while True:
-        if kind == "ring":
-            r = rng.uniform(0.05, 0.25)
-            a0 = rng.uniform(0, 2 * math.pi)
-            ang = a0 + 2 * math.pi * np.arange(n) / n + rng.uniform(-0.3, 0.3, n)
-            c = rng.uniform(-0.15, 0.15, 2)
-            xy = np.c_[c[0] + r * np.cos(ang), c[1] + r * np.sin(ang)]
-        elif kind == "scatter":
-            xy = rng.uniform(-0.25, 0.25, (n, 2))
-        else:  # most bunched, one far
-            xy = rng.uniform(-0.08, 0.08, (n, 2))
-            xy[0] += rng.uniform(0.2, 0.4) * np.array([1.0, rng.uniform(-0.5, 0.5)])
-        d = np.hypot(*(xy[:, None] - xy[None]).transpose(2, 0, 1))
-        d[np.diag_indices(n)] = 1.0
-        if d.min() >= 0.04:
-            break
+    xy = random_layout(rng, n, kind)
     yaw_kind = str(rng.choice(["zero", "quarters", "any"]))
     if yaw_kind == "zero":
         yaws = np.zeros(n)

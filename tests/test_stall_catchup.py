@@ -19,38 +19,12 @@ import math
 
 import numpy as np
 import pytest
+from layouts import random_layout
 
 from mousedom.config import RobustConfig
 from mousedom.fusion import scenarios, sim
 from mousedom.fusion.drives import drive
 from mousedom.fusion.tracker import PoseBatch, Tracker
-
-
-def _layout(rng: np.random.Generator, n: int, kind: str) -> np.ndarray:
-    while True:
-        if kind == "ring":
-            r = rng.uniform(0.05, 0.25)
-            a0 = rng.uniform(0, 2 * math.pi)
-            ang = a0 + 2 * math.pi * np.arange(n) / n + rng.uniform(-0.3, 0.3, n)
-            c = rng.uniform(-0.15, 0.15, 2)
-            xy = np.c_[c[0] + r * np.cos(ang), c[1] + r * np.sin(ang)]
-        elif kind == "scatter":
-            xy = rng.uniform(-0.25, 0.25, (n, 2))
-        elif kind == "bunched":  # most bunched, one far
-            xy = rng.uniform(-0.08, 0.08, (n, 2))
-            xy[0] += rng.uniform(0.2, 0.4) * np.array([1.0, rng.uniform(-0.5, 0.5)])
-        else:  # near-line
-            ang = rng.uniform(0, math.pi)
-            along = np.sort(rng.uniform(-0.25, 0.25, n))
-            across = rng.uniform(-0.015, 0.015, n)
-            u = np.array([math.cos(ang), math.sin(ang)])
-            v = np.array([-u[1], u[0]])
-            c = rng.uniform(-0.1, 0.1, 2)
-            xy = c + along[:, None] * u + across[:, None] * v
-        d = np.hypot(*(xy[:, None] - xy[None]).transpose(2, 0, 1))
-        d[np.diag_indices(n)] = 1.0
-        if d.min() >= 0.04:
-            return xy
 
 
 def _case(seed: int) -> tuple[sim.Rig, sim.Rig, float]:
@@ -59,7 +33,7 @@ def _case(seed: int) -> tuple[sim.Rig, sim.Rig, float]:
     rng = np.random.default_rng((9191, seed))
     n = int(rng.integers(2, 7))
     model = "diff-drive" if n <= 2 else "lsq"
-    xy = _layout(rng, n, str(rng.choice(["ring", "scatter", "bunched", "near-line"])))
+    xy = random_layout(rng, n, str(rng.choice(["ring", "scatter", "bunched", "near-line"])))
     yaw_kind = str(rng.choice(["zero", "quarters", "any"]))
     yaws = {"zero": np.zeros(n), "quarters": 90.0 * rng.integers(-1, 3, n),
             "any": rng.uniform(-180, 180, n)}[yaw_kind]  # fmt: skip
