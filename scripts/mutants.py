@@ -641,10 +641,19 @@ MUTANTS = [
     Mutant(
         "scale-fault-never-seen",
         "mousedom/fusion/scalelearn.py",
-        "        return np.flatnonzero((beyond > 0) & (beyond > FAULT_SIGMAS * spread)).tolist()\n",
-        "        return []\n",
+        "        flagged = np.flatnonzero((beyond > 0) & (beyond > FAULT_SIGMAS * spread))"
+        ".tolist()\n",
+        "        flagged = []\n",
         ("tests/test_scale_faults.py",),
         "a mouse reading half its motion passes as noise",
+    ),
+    Mutant(
+        "scale-fault-not-given-back",
+        "mousedom/fusion/scalelearn.py",
+        "        self._give_back_faults(block_scale, usable.all(axis=0))\n",
+        "        pass\n",
+        ("tests/test_scale_faults.py",),
+        "the block a fault was found in keeps the turn its readings gave the heading",
     ),
     Mutant(
         "scale-fault-learnt-as-a-cpi",

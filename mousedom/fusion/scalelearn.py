@@ -83,6 +83,10 @@ FAULT_MARGIN = 0.15
 FAULT_SIGMAS = 5.0
 _FAULT_GROUPS = 3
 _BEYOND_MIN = 0.01
+# A faulty block's windows are given back at its own scale of the mouse only where that
+# scale explains its readings: the block's residual per degree of freedom at most this
+# many times the evidence's (``_in_proportion``)
+_PROPORTION = 9.0
 # The jackknife's segments of evidence (``jackknife``): a block each, the oldest two merged
 # beyond this many (20 s of motion with every mouse tracking; older evidence is forgotten
 # towards half by HALF_LIFE_S).
@@ -390,6 +394,8 @@ class ScaleLearner:
         self._rebased = 0  # windows of this block added before the pose was last set
         self.turn_owed = 0.0  # what the heading is owed at the last renewal (take_turn)
         self.walk_owed = np.zeros(2)  # and the position
+        # the last block's own turn and walk per unit scale, unforgotten (``_gave``)
+        self._block_gave = (np.zeros((self.n, 2)), np.zeros((self.n, 2, 2)))
 
     @property
     def bounds(self) -> tuple[float, float]:
@@ -536,6 +542,7 @@ class ScaleLearner:
         # first segment (kept or dropped together: a stop, a mouse out for long) are
         # composed into one, so that the list holds at most _CHANGE_SEGMENTS + 1.
         local = np.einsum("kia,kb->iab", np.cumsum(per, axis=0) - per, perp) + straight
+        self._block_gave = (per.sum(axis=0), local)  # (``_give_back_faults``)
         since = self._segment_count - _CHANGE_SEGMENTS
         kept = [part for part in self._recent_gave if part[0] >= since]
         part = (self._segment_count, f, unit * f, local * f, perp.sum(axis=0) * f)
@@ -647,8 +654,9 @@ class ScaleLearner:
             j[:, 2 * i : 2 * i + 2, i] = body[:, i]
         pj = np.einsum("rs,gst->grt", self.project, j)
         block = np.einsum("grt,r,grs->ts", pj, self.weight, pj)
-        flagged = self._faults(block, len(c))
+        flagged, block_scale = self._faults(block, len(c))
         self.faults = self._blamed(flagged)
+        self._give_back_faults(block_scale, usable.all(axis=0))
         self.gram *= self.forget
         self.groups *= self.forget
         segments = [segment * self.forget for segment in self._segments]
@@ -937,7 +945,7 @@ class ScaleLearner:
         if mixed is not None:
             self.estimate, self.spread = mixed[0], mixed[1]
 
-    def _faults(self, block: np.ndarray, groups: int) -> list[int]:
+    def _faults(self, block: np.ndarray, groups: int) -> tuple[list[int], np.ndarray | None]:
         """The mice whose scale in this block alone (its S, ``groups`` of them) is beyond
         what any CPI within the bounds gives, by FAULT_MARGIN of it and FAULT_SIGMAS of
         the block's spread: a mouse that reads half its motion (a dirty lens, a sensor
@@ -947,14 +955,62 @@ class ScaleLearner:
         told), and the screen's noise model then learns it as noise; summed over a
         block's groups, the timing noise cancels and it is plain."""
         if groups < _FAULT_GROUPS:
-            return []
+            return [], None
         fitted = fit(block, groups, self.n, len(self.cols))
         if fitted is None:
-            return []
+            return [], None
         g, spread = fitted
         lo, hi = self.bounds
         beyond = np.maximum(lo * (1.0 - FAULT_MARGIN) - g, g - hi * (1.0 + FAULT_MARGIN))
-        return np.flatnonzero((beyond > 0) & (beyond > FAULT_SIGMAS * spread)).tolist()
+        flagged = np.flatnonzero((beyond > 0) & (beyond > FAULT_SIGMAS * spread)).tolist()
+        return flagged, g if flagged and self._in_proportion(block, groups, g) else None
+
+    def _in_proportion(self, block: np.ndarray, groups: int, g: np.ndarray) -> bool:
+        """Whether the block's own scales explain its readings about as well as the
+        evidence's explain the evidence (the residual per degree of freedom at most
+        _PROPORTION times): a mouse reading at another scale (a dirty lens, another
+        floor) is; one reading nothing, then everything at once (a USB stall's silence and
+        catch-up), or at random (a lift) is not, whatever scale fits it best."""
+        if self.groups < _MIN_GROUPS:
+            return False  # (nothing to compare with)
+        per = 2 * self.n - len(self.cols)
+        block_r2 = float(g @ block @ g) / max(1.0, groups * per - (self.n - 1))
+        one = self.one
+        known = float(one @ self.gram @ one) / max(1.0, self.groups * per - (self.n - 1))
+        return block_r2 <= _PROPORTION * known
+
+    def _give_back_faults(self, block_scale: np.ndarray | None, unseen: np.ndarray) -> None:
+        """The windows of this block in which a mouse the block found faulty was used
+        (with every mouse: ``_gave``'s) are given back at the block's own scale for it,
+        once and for good.  Its readings were off since its fault began: the screen's
+        test had let them by (late stamps, a far mouse, a spin with a mouse near the
+        centre), and a mouse reading 30-45 % less, found a block or two late, had turned
+        the heading by up to 25 degrees (drives ended 0.05-0.7 m off against 5 mm without
+        it).  The block's scale is the least-squares fit of its readings to what the
+        others say they moved, so the block's turn given at it is the others' turn, even
+        where the fault began within the block.  Those windows then leave the horizon
+        (turn and walk, unit and given, and the recent blocks' parts): a scale learnt
+        later does not give them back again.  Only for a mouse ``unseen`` by the screen,
+        usable in every window of the block: one it saw (a USB stall's silence and its
+        catch-up, a lift's windows) read out of proportion, not at a scale, and the
+        screen has dealt with those windows itself."""
+        if not self.faults or block_scale is None or not self._recent_gave:
+            return  # (none, or the horizon was just started over: ``_start_over``)
+        unit, local = self._block_gave
+        f = self.forget
+        last = self._recent_gave[-1]
+        for i in self.faults:
+            if not unseen[i]:
+                continue
+            delta = block_scale[i] - self.scale[i]  # per count axis
+            self.turn_owed += float(delta @ unit[i])
+            self.walk_owed = self.walk_owed + delta @ local[i]
+            self.turn_unit[i] -= unit[i] * f
+            self.turn_given[i] -= self.scale[i] * unit[i] * f
+            self.walk_unit[i] -= local[i] * f
+            self.walk_given[i] -= self.scale[i][:, None] * local[i] * f
+            last[2][i] -= unit[i] * f
+            last[3][i] -= local[i] * f
 
     def _blamed(self, flagged: list[int]) -> list[int]:
         """Of a block's ``flagged`` mice, those to exclude: all of them where they are
