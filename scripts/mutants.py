@@ -650,10 +650,18 @@ MUTANTS = [
     Mutant(
         "scale-fault-not-given-back",
         "mousedom/fusion/scalelearn.py",
-        "        self._give_back_faults(block_scale, usable.all(axis=0))\n",
+        "        self._give_back_faults(block_scale, unseen)\n",
         "        pass\n",
         ("tests/test_scale_faults.py",),
         "the block a fault was found in keeps the turn its readings gave the heading",
+    ),
+    Mutant(
+        "scale-fault-block-before-kept",
+        "mousedom/fusion/scalelearn.py",
+        "                self._give_back_block(i, g, self._prev_block_gave, parts[-2], 2, steps)\n",
+        "                pass\n",
+        ("tests/test_scale_faults.py",),
+        "the block a fault began in, learnt as a CPI, keeps the turn its readings gave",
     ),
     Mutant(
         "scale-fault-learnt-as-a-cpi",

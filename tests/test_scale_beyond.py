@@ -79,11 +79,8 @@ def test_a_mouse_stepping_far_beyond_the_bounds_is_given_back_the_block_it_was_f
     and walk of the block's windows it was used in are given back at the block's scale
     of it (``ScaleLearner._give_back_faults``): the drive ends within 50 mm of the same
     drive without that mouse configured (before: 80-350 mm on these seeds).  Over seeds
-    1-40 of this generator, 33 drives end so (before: 24); of the others, one block's
-    readings the block's scale does not explain (``_in_proportion``: not given back), and
-    the rest's fault was found a block after one that learnt the step as a CPI, or after
-    seconds without evidence (a spin about a mouse near the centre: docs/models.md, "A
-    mouse out of proportion to its motion")."""
+    1-40 of this generator, 36 drives end so (before: 24; docs/models.md, "A mouse out of
+    proportion to its motion", says why not the other four)."""
     on, batch, *_ = _run(seed, steps=FAULTY)
     oracle, *_ = _run(seed, _oracle, steps=FAULTY)
     assert on < oracle + 0.05, (on, oracle)

@@ -113,6 +113,32 @@ def test_a_faulty_blocks_windows_are_given_back_the_turn_the_others_say(seed, f)
         assert abs(learner.take_turn()) < 0.03 * abs(lost)
 
 
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("f", [0.5, 1.8])
+def test_the_block_before_a_faulty_one_is_given_back_where_it_read_plainly_off(seed, f):
+    """The fault began a block earlier, where the mouse's scale was beyond the bounds but
+    within the fault margin (reading 15 % less or 12 % more): that block was learnt as a
+    CPI, and the next one finds the fault.  Both blocks' windows are given back, each at
+    its own scale of the mouse (before this, the first kept its turn: the sweep's drives
+    whose fault was found a block late ended up to 0.36 m off)."""
+    n = 4
+    learner = _learner(n)
+    for k in range(6):
+        assert _block(learner, np.ones(n), 50 + k) == []
+    learner.take_turn()
+    learner.take_walk()
+    which = seed % n
+    row = learner.turn_row.reshape(n, 2)[which]
+    lost = 0.0
+    for read in (0.85 if f < 1 else 1.12, f):
+        factor = np.ones(n)
+        factor[which] = read
+        counts, q = _windows(learner, factor, 90 + seed + int(10 * read))
+        lost += (1.0 / read - 1.0) * float(np.sum(counts[:, which] / COUNTS_PER_M @ row))
+    assert learner.faults == [which]
+    assert learner.take_turn() == pytest.approx(lost, rel=0.03)
+
+
 @pytest.mark.parametrize("seed", [0, 2, 4])
 def test_an_under_read_of_a_close_pair_mouse_is_excluded_within_a_second(seed):
     """close-pair-plus, the first mouse (of the close pair, 125 Hz) reading half for 5 s:

@@ -394,8 +394,12 @@ class ScaleLearner:
         self._rebased = 0  # windows of this block added before the pose was last set
         self.turn_owed = 0.0  # what the heading is owed at the last renewal (take_turn)
         self.walk_owed = np.zeros(2)  # and the position
-        # the last block's own turn and walk per unit scale, unforgotten (``_gave``)
-        self._block_gave = (np.zeros((self.n, 2)), np.zeros((self.n, 2, 2)))
+        # the last block's own turn and walk per unit scale and its steps turned summed,
+        # unforgotten (``_gave``), and the block's before it (``_give_back_faults``)
+        self._block_gave = (np.zeros((self.n, 2)), np.zeros((self.n, 2, 2)), np.zeros(2))
+        self._prev_block_gave = self._block_gave
+        self._learnt_last = False  # whether the block before this one was learnt
+        self._prev_unseen = np.zeros(self.n, dtype=bool)  # and its mice usable throughout
 
     @property
     def bounds(self) -> tuple[float, float]:
@@ -542,7 +546,8 @@ class ScaleLearner:
         # first segment (kept or dropped together: a stop, a mouse out for long) are
         # composed into one, so that the list holds at most _CHANGE_SEGMENTS + 1.
         local = np.einsum("kia,kb->iab", np.cumsum(per, axis=0) - per, perp) + straight
-        self._block_gave = (per.sum(axis=0), local)  # (``_give_back_faults``)
+        self._prev_block_gave = self._block_gave
+        self._block_gave = (per.sum(axis=0), local, perp.sum(axis=0))  # (_give_back_faults)
         since = self._segment_count - _CHANGE_SEGMENTS
         kept = [part for part in self._recent_gave if part[0] >= since]
         part = (self._segment_count, f, unit * f, local * f, perp.sum(axis=0) * f)
@@ -656,7 +661,9 @@ class ScaleLearner:
         block = np.einsum("grt,r,grs->ts", pj, self.weight, pj)
         flagged, block_scale = self._faults(block, len(c))
         self.faults = self._blamed(flagged)
-        self._give_back_faults(block_scale, usable.all(axis=0))
+        unseen = np.asarray(usable.all(axis=0), dtype=bool)
+        self._give_back_faults(block_scale, unseen)
+        self._learnt_last, self._prev_unseen = not flagged and len(c) > 0, unseen
         self.gram *= self.forget
         self.groups *= self.forget
         segments = [segment * self.forget for segment in self._segments]
@@ -993,24 +1000,64 @@ class ScaleLearner:
         later does not give them back again.  Only for a mouse ``unseen`` by the screen,
         usable in every window of the block: one it saw (a USB stall's silence and its
         catch-up, a lift's windows) read out of proportion, not at a scale, and the
-        screen has dealt with those windows itself."""
+        screen has dealt with those windows itself.
+
+        The block before is given back as well, at its own scale of the mouse, where it
+        was learnt (its own scale still within the fault margin: the fault began in it)
+        and that scale is plainly off the one applied (FAULT_SIGMAS of its spread and
+        _BEYOND_MIN) and explains it: on the sweep the fault was found a block after its
+        start in most drives, and the block of its start had kept up to 0.36 m."""
         if not self.faults or block_scale is None or not self._recent_gave:
             return  # (none, or the horizon was just started over: ``_start_over``)
-        unit, local = self._block_gave
-        f = self.forget
-        last = self._recent_gave[-1]
+        parts = self._recent_gave
+        # The block before, where it was learnt (the fault often began there, its own
+        # scale of the mouse not yet beyond the fault margin, and was learnt as a CPI):
+        # given back too where its own scale is plainly off, and explains it.
+        before = None
+        if (self._learnt_last and len(parts) >= 2 and parts[-1][0] == self._segment_count
+                and parts[-2][0] == self._segment_count - 1):  # fmt: skip
+            prev, prev_groups = self._segments[-1], self._segment_groups[-1]
+            fitted = fit(prev, prev_groups, self.n, len(self.cols))
+            if fitted is not None and self._in_proportion(prev, int(prev_groups), fitted[0]):
+                before = fitted
+        steps = self._block_gave[2]
         for i in self.faults:
             if not unseen[i]:
                 continue
-            delta = block_scale[i] - self.scale[i]  # per count axis
-            self.turn_owed += float(delta @ unit[i])
-            self.walk_owed = self.walk_owed + delta @ local[i]
-            self.turn_unit[i] -= unit[i] * f
-            self.turn_given[i] -= self.scale[i] * unit[i] * f
-            self.walk_unit[i] -= local[i] * f
-            self.walk_given[i] -= self.scale[i][:, None] * local[i] * f
-            last[2][i] -= unit[i] * f
-            last[3][i] -= local[i] * f
+            self._give_back_block(i, block_scale[i], self._block_gave, parts[-1], 1, None)
+            if before is None or not self._prev_unseen[i]:
+                continue
+            g, spread = before[0][i], before[1][i]
+            off = abs(g - float(self.scale[i].mean()))
+            if off > _BEYOND_MIN and off > FAULT_SIGMAS * spread:
+                self._give_back_block(i, g, self._prev_block_gave, parts[-2], 2, steps)
+
+    def _give_back_block(
+        self, i: int, scale: float, gave: tuple[np.ndarray, ...], part: tuple, age: int,
+        steps_after: np.ndarray | None,
+    ) -> None:  # fmt: skip
+        """Mouse i's windows of one block (``gave``: its own turn and walk per unit scale,
+        unforgotten; ``part``: the recent blocks' part it is the last of; ``age``: blocks
+        since it, itself included, whose forgetting its sums have had) given back at
+        ``scale``, and taken out of the horizon.  ``steps_after``: the steps turned summed
+        of the block after it (its heading owed turns those too), or None."""
+        unit, local = gave[0][i], gave[1][i]
+        delta = scale - self.scale[i]  # per count axis
+        walk = local if steps_after is None else local + unit[:, None] * steps_after[None]
+        self.turn_owed += float(delta @ unit)
+        self.walk_owed = self.walk_owed + delta @ walk
+        f, fa = self.forget, self.forget**age
+        # in the horizon: forgotten ``age`` times; its turn's walk over the block after
+        # (the ``before`` of that block's _gave) twice less one
+        in_walk = local * fa
+        if steps_after is not None:
+            in_walk = in_walk + unit[:, None] * steps_after[None] * fa
+        self.turn_unit[i] -= unit * fa
+        self.turn_given[i] -= self.scale[i] * unit * fa
+        self.walk_unit[i] -= in_walk
+        self.walk_given[i] -= self.scale[i][:, None] * in_walk
+        part[2][i] -= unit * f  # (a part holds its own last block forgotten once)
+        part[3][i] -= local * f
 
     def _blamed(self, flagged: list[int]) -> list[int]:
         """Of a block's ``flagged`` mice, those to exclude: all of them where they are
