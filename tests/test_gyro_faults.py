@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from mousedom.fusion import sim, simgyro
+from mousedom.fusion import gyrobias, sim, simgyro
 from mousedom.fusion.drives import drive
 from mousedom.fusion.health import Reason
 from mousedom.fusion.scenarios import rig as layout_rig
@@ -135,6 +135,31 @@ def test_a_bias_jump_on_two_mice_is_learnt_again_at_the_next_standstill(seed):
     drift = err[settled].max() - err[settled].min()
     assert drift < math.radians(0.3), math.degrees(drift)
     assert abs(batch.gyro[-1, 1] - result.gyro.bias[-1]) < math.radians(0.2)
+
+
+@pytest.mark.parametrize("rate", [0.5, 1.6, -1.0])
+@pytest.mark.parametrize("learnt", [False, True])
+def test_a_span_read_as_a_bias_jump_teaches_the_bias_and_never_the_scale(rate, learnt):
+    """The learner itself (gyrobias.BiasLearner.renew): a span of trusted mice failing as
+    a jump, in a turn at ``rate`` rad/s, is learnt again as a bias alone, whether the scale
+    was learnt before (``learnt``) or is still at its prior.  The drives above see little
+    of it since a jump's span resets the bias's variance to the jump it shows (the bias
+    then takes nearly all of the error): this holds the rule itself, the scale unmoved to
+    the bit, where what looks like a new scale is a clip or a jump."""
+    period = 0.01
+    learner = gyrobias.BiasLearner(math.radians(1.0), 1e-4, math.radians(0.005), period)
+    turn = rate * period
+    spans = 4 if learnt else 0
+    for _ in range(spans * learner._span):  # agreeing spans: the scale is learnt a little
+        learner.observe(1e-6 * turn, turn, 1e-10, 1e-10, 0.5, True, rate)
+    scale, bias = learner.scale, learner.bias
+    assert (learner.p[1][1] < gyrobias.SCALE_SIGMA**2) == learnt
+    for _ in range(learner._span):  # a jump of 20 deg/s: the span fails at once
+        learner.observe(math.radians(20.0) * period, turn, 1e-10, 1e-10, 0.5, True, rate)
+        if learner.bias != bias:
+            break
+    assert learner.bias - bias > math.radians(1.0)  # learnt again, as a bias
+    assert learner.scale == scale
 
 
 def test_a_gyro_clipped_unseen_through_a_spin_is_not_learnt_as_its_scale():
