@@ -650,7 +650,7 @@ MUTANTS = [
     Mutant(
         "scale-fault-not-given-back",
         "mousedom/fusion/scalelearn.py",
-        "        self._give_back_faults(block_scale, unseen)\n",
+        "        self._give_back_faults(block_scale)\n",
         "        pass\n",
         ("tests/test_scale_faults.py",),
         "the block a fault was found in keeps the turn its readings gave the heading",

@@ -73,14 +73,15 @@ def test_a_mouse_stepping_beyond_the_bounds_is_held_out(seed):
 FAULTY = (0.25, 0.45)
 
 
-@pytest.mark.parametrize("seed", [2, 3, 6, 8, 34, 37])
+@pytest.mark.parametrize("seed", [3, 8, 37, 46, 60, 67])
 def test_a_mouse_stepping_far_beyond_the_bounds_is_given_back_the_block_it_was_found_in(seed):
     """A step so large that a block finds the mouse faulty: it is excluded, and the turn
     and walk of the block's windows it was used in are given back at the block's scale
     of it (``ScaleLearner._give_back_faults``): the drive ends within 50 mm of the same
-    drive without that mouse configured (before: 80-350 mm on these seeds).  Over seeds
-    1-40 of this generator, 36 drives end so (before: 24; docs/models.md, "A mouse out of
-    proportion to its motion", says why not the other four)."""
+    drive without that mouse configured (before: 80-670 mm on these seeds; the last three
+    have the mouse suspect in some of the block's windows, still used).  Over seeds 1-80 of
+    this generator (``bench/scale_steps.py``), 73 drives end so (before: 50;
+    docs/models.md, "A mouse out of proportion to its motion", says why not the others)."""
     on, batch, *_ = _run(seed, steps=FAULTY)
     oracle, *_ = _run(seed, _oracle, steps=FAULTY)
     assert on < oracle + 0.05, (on, oracle)

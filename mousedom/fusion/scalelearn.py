@@ -399,7 +399,6 @@ class ScaleLearner:
         self._block_gave = (np.zeros((self.n, 2)), np.zeros((self.n, 2, 2)), np.zeros(2))
         self._prev_block_gave = self._block_gave
         self._learnt_last = False  # whether the block before this one was learnt
-        self._prev_unseen = np.zeros(self.n, dtype=bool)  # and its mice usable throughout
 
     @property
     def bounds(self) -> tuple[float, float]:
@@ -661,9 +660,8 @@ class ScaleLearner:
         block = np.einsum("grt,r,grs->ts", pj, self.weight, pj)
         flagged, block_scale = self._faults(block, len(c))
         self.faults = self._blamed(flagged)
-        unseen = np.asarray(usable.all(axis=0), dtype=bool)
-        self._give_back_faults(block_scale, unseen)
-        self._learnt_last, self._prev_unseen = not flagged and len(c) > 0, unseen
+        self._give_back_faults(block_scale)
+        self._learnt_last = not flagged and len(c) > 0
         self.gram *= self.forget
         self.groups *= self.forget
         segments = [segment * self.forget for segment in self._segments]
@@ -986,7 +984,7 @@ class ScaleLearner:
         known = float(one @ self.gram @ one) / max(1.0, self.groups * per - (self.n - 1))
         return block_r2 <= _PROPORTION * known
 
-    def _give_back_faults(self, block_scale: np.ndarray | None, unseen: np.ndarray) -> None:
+    def _give_back_faults(self, block_scale: np.ndarray | None) -> None:
         """The windows of this block in which a mouse the block found faulty was used
         (with every mouse: ``_gave``'s) are given back at the block's own scale for it,
         once and for good.  Its readings were off since its fault began: the screen's
@@ -994,13 +992,15 @@ class ScaleLearner:
         centre), and a mouse reading 30-45 % less, found a block or two late, had turned
         the heading by up to 25 degrees (drives ended 0.05-0.7 m off against 5 mm without
         it).  The block's scale is the least-squares fit of its readings to what the
-        others say they moved, so the block's turn given at it is the others' turn, even
-        where the fault began within the block.  Those windows then leave the horizon
-        (turn and walk, unit and given, and the recent blocks' parts): a scale learnt
-        later does not give them back again.  Only for a mouse ``unseen`` by the screen,
-        usable in every window of the block: one it saw (a USB stall's silence and its
-        catch-up, a lift's windows) read out of proportion, not at a scale, and the
-        screen has dealt with those windows itself.
+        others say they moved, so the block's turn given at it is about the others' turn,
+        where the fault began within the block too (each window weighs as its motion).
+        Those windows then leave the horizon (turn and walk, unit and given, and the
+        recent blocks' parts): a scale learnt later does not give them back again.
+        Only where the block's scale explains its readings (``_in_proportion``): a USB
+        stall's silence and its catch-up in one block, or a lift's readings, fit some
+        scale too, and given back at it a stall's drive ended 0.65 m off against 0.17
+        with fault handling off.  (The windows the screen excluded the mouse from are
+        not among those given back; those it was suspect in, still used, are.)
 
         The block before is given back as well, at its own scale of the mouse, where it
         was learnt (its own scale still within the fault margin: the fault began in it)
@@ -1022,10 +1022,8 @@ class ScaleLearner:
                 before = fitted
         steps = self._block_gave[2]
         for i in self.faults:
-            if not unseen[i]:
-                continue
             self._give_back_block(i, block_scale[i], self._block_gave, parts[-1], 1, None)
-            if before is None or not self._prev_unseen[i]:
+            if before is None:
                 continue
             g, spread = before[0][i], before[1][i]
             off = abs(g - float(self.scale[i].mean()))
