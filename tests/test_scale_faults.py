@@ -81,6 +81,24 @@ def test_a_fault_is_not_learnt_as_a_cpi():
     assert np.allclose(learner.estimate[:, 0], 1.0, atol=0.01)
 
 
+def _settled(n: int) -> scalelearn.ScaleLearner:
+    """A learner after six healthy blocks, nothing owed."""
+    learner = _learner(n)
+    for k in range(6):
+        assert _block(learner, np.ones(n), 50 + k) == []
+    learner.take_turn()
+    learner.take_walk()
+    return learner
+
+
+def _lost(learner: scalelearn.ScaleLearner, counts: np.ndarray, which: int, read: float) -> float:
+    """The turn mouse ``which``'s ``counts`` (a block's, reading ``read`` times its motion)
+    made short of what they would have made at its true scale (the learner's heading row,
+    the solve's)."""
+    row = learner.turn_row.reshape(learner.n, 2)[which]
+    return (1.0 / read - 1.0) * float(np.sum(counts[:, which] / COUNTS_PER_M @ row))
+
+
 @pytest.mark.parametrize("seed", range(4))
 @pytest.mark.parametrize("f", [0.35, 0.6, 1.5, 2.2])
 def test_a_faulty_blocks_windows_are_given_back_the_turn_the_others_say(seed, f):
@@ -91,21 +109,13 @@ def test_a_faulty_blocks_windows_are_given_back_the_turn_the_others_say(seed, f)
     (ScaleLearner._give_back_faults).  Before, nothing was: a mouse reading 30-45 % less,
     found a block or two late, had turned the heading by up to 25 degrees."""
     n = 4
-    learner = _learner(n)
-    for k in range(6):
-        assert _block(learner, np.ones(n), 50 + k) == []
-    learner.take_turn()
-    learner.take_walk()
+    learner = _settled(n)
     which = seed % n
     factor = np.ones(n)
     factor[which] = f
     counts, q = _windows(learner, factor, seed)
     assert learner.faults == [which]
-    # the turn its readings made of the block (the learner's heading row, the solve's),
-    # and what they would have made at its true scale
-    row = learner.turn_row.reshape(n, 2)[which]
-    made = float(np.sum(counts[:, which] / COUNTS_PER_M @ row))
-    lost = (1.0 / f - 1.0) * made
+    lost = _lost(learner, counts, which, f)
     assert abs(lost) > 2e-4  # (the block turns: the test can tell)
     assert learner.take_turn() == pytest.approx(lost, rel=0.02)
     for k in range(3):  # healthy blocks after: nothing more is owed for it
@@ -122,19 +132,14 @@ def test_the_block_before_a_faulty_one_is_given_back_where_it_read_plainly_off(s
     its own scale of the mouse (before this, the first kept its turn: the sweep's drives
     whose fault was found a block late ended up to 0.36 m off)."""
     n = 4
-    learner = _learner(n)
-    for k in range(6):
-        assert _block(learner, np.ones(n), 50 + k) == []
-    learner.take_turn()
-    learner.take_walk()
+    learner = _settled(n)
     which = seed % n
-    row = learner.turn_row.reshape(n, 2)[which]
     lost = 0.0
     for read in (0.85 if f < 1 else 1.12, f):
         factor = np.ones(n)
         factor[which] = read
         counts, q = _windows(learner, factor, 90 + seed + int(10 * read))
-        lost += (1.0 / read - 1.0) * float(np.sum(counts[:, which] / COUNTS_PER_M @ row))
+        lost += _lost(learner, counts, which, read)
     assert learner.faults == [which]
     assert learner.take_turn() == pytest.approx(lost, rel=0.03)
 

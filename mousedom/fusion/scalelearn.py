@@ -182,6 +182,13 @@ def widened(spread: np.ndarray, s: np.ndarray, segments: Sequence[np.ndarray]) -
     return np.maximum(spread, jackknife(s, segments) * (t / _PLAIN))
 
 
+def residual_per_dof(s: np.ndarray, g: np.ndarray, groups: float, cols: int) -> float:
+    """g' S g over its degrees of freedom: ``groups`` groups of 2N readings of N mice, less
+    the rig motion's ``cols`` per group and the N - 1 scales fitted."""
+    n = len(g)
+    return float(g @ s @ g) / max(1.0, groups * (2 * n - cols) - (n - 1))
+
+
 def fit(s: np.ndarray, groups: float, n: int, cols: int) -> tuple[np.ndarray, np.ndarray] | None:
     """The scales g (N,) that minimise g' S g, drawn to 1 only where the evidence is
     silent, the common mode pinned by the median mouse, and their spreads (N,) (inf: not
@@ -195,8 +202,7 @@ def fit(s: np.ndarray, groups: float, n: int, cols: int) -> tuple[np.ndarray, np
         return None
     # the spread: the fit's residual per degree of freedom, through the inverse of S off
     # its null direction (the common mode)
-    dof = max(1.0, groups * (2 * n - cols) - (n - 1))
-    r2 = float(g @ s @ g) / dof
+    r2 = residual_per_dof(s, g, groups, cols)
     w, v = np.linalg.eigh(s)  # ascending: the first is the common mode's (near 0)
     with np.errstate(divide="ignore", invalid="ignore"):
         inv = (v[:, 1:] / w[1:]) @ v[:, 1:].T
@@ -978,11 +984,9 @@ class ScaleLearner:
         catch-up), or at random (a lift) is not, whatever scale fits it best."""
         if self.groups < _MIN_GROUPS:
             return False  # (nothing to compare with)
-        per = 2 * self.n - len(self.cols)
-        block_r2 = float(g @ block @ g) / max(1.0, groups * per - (self.n - 1))
-        one = self.one
-        known = float(one @ self.gram @ one) / max(1.0, self.groups * per - (self.n - 1))
-        return block_r2 <= _PROPORTION * known
+        cols = len(self.cols)
+        known = residual_per_dof(self.gram, self.one, self.groups, cols)
+        return residual_per_dof(block, g, groups, cols) <= _PROPORTION * known
 
     def _give_back_faults(self, block_scale: np.ndarray | None) -> None:
         """The windows of this block in which a mouse the block found faulty was used
@@ -1045,8 +1049,8 @@ class ScaleLearner:
         self.turn_owed += float(delta @ unit)
         self.walk_owed = self.walk_owed + delta @ walk
         f, fa = self.forget, self.forget**age
-        # in the horizon: forgotten ``age`` times; its turn's walk over the block after
-        # (the ``before`` of that block's _gave) twice less one
+        # in the horizon, forgotten ``age`` times: its own sums, and its turn times the
+        # steps of the block after (the turn before each window there, ``_gave``)
         in_walk = local * fa
         if steps_after is not None:
             in_walk = in_walk + unit[:, None] * steps_after[None] * fa
