@@ -609,8 +609,8 @@ MUTANTS = [
     Mutant(
         "give-back-without-the-direct-walk",
         "mousedom/fusion/scalelearn.py",
-        "axis=3).sum(axis=0)\n",
-        "axis=3).sum(axis=0) * 0.0\n",
+        "        straight = straight_each.sum(axis=0)\n",
+        "        straight = straight_each.sum(axis=0) * 0.0\n",
         ("tests/test_scale_give_back.py::test_the_position_a_wrong_cpi_moved_is_given_back",),
         "the position a wrong CPI moved directly (mice off the rig's centre) is kept for good",
     ),
@@ -658,10 +658,19 @@ MUTANTS = [
     Mutant(
         "scale-fault-block-before-kept",
         "mousedom/fusion/scalelearn.py",
-        "                self._give_back_block(i, g, self._prev_block_gave, parts[-2], 2, steps)\n",
+        "                self._give_back_block(i, g, self._prev_block_gave, owed, parts[-2], 2,"
+        " steps)\n",
         "                pass\n",
         ("tests/test_scale_faults.py",),
         "the block a fault began in, learnt as a CPI, keeps the turn its readings gave",
+    ),
+    Mutant(
+        "scale-fault-take-back-given-again",
+        "mousedom/fusion/scalelearn.py",
+        "        if keep.all():\n            return unit, local\n",
+        "        if True:\n            return unit, local\n",
+        ("tests/test_scale_faults.py",),
+        "the windows the screen took back from a faulty mouse are given back a second time",
     ),
     Mutant(
         "scale-fault-learnt-as-a-cpi",

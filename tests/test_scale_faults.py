@@ -35,9 +35,11 @@ def _block(learner: scalelearn.ScaleLearner, factor: np.ndarray, seed: int) -> l
 
 
 def _windows(
-    learner: scalelearn.ScaleLearner, factor: np.ndarray, seed: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """``_block``'s block, learnt; its counts (windows, N, 2) and true twists (windows, 3)."""
+    learner: scalelearn.ScaleLearner, factor: np.ndarray, seed: int,
+    taken: list[tuple[int, int, int]] | None = None,
+) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """``_block``'s block, learnt; its counts (windows, N, 2) and true twists (windows, 3).
+    ``taken``: the screen's take-backs handed on with it (``Screen.hand_taken``)."""
     rng = np.random.default_rng(seed)
     n, windows = learner.n, learner.block
     q = np.stack([rng.uniform(0.5, 1.5, windows) * 1e-3, rng.uniform(-0.3, 0.3, windows) * 1e-3,
@@ -45,7 +47,7 @@ def _windows(
     body = np.stack([q[:, None, 0] - q[:, None, 2] * XY[None, :n, 1],
                      q[:, None, 1] + q[:, None, 2] * XY[None, :n, 0]], axis=2)  # fmt: skip
     counts = body * COUNTS_PER_M * factor[None, :, None] + rng.normal(0, 0.3, body.shape)
-    assert learner.add(counts, np.ones((windows, n), dtype=bool))
+    assert learner.add(counts, np.ones((windows, n), dtype=bool), taken=taken or ())
     return counts, q
 
 
@@ -140,6 +142,68 @@ def test_the_block_before_a_faulty_one_is_given_back_where_it_read_plainly_off(s
         factor[which] = read
         counts, q = _windows(learner, factor, 90 + seed + int(10 * read))
         lost += _lost(learner, counts, which, read)
+    assert learner.faults == [which]
+    assert learner.take_turn() == pytest.approx(lost, rel=0.03)
+
+
+def _taken_span(rng: np.random.Generator, windows: int) -> tuple[int, int]:
+    """Windows [a, b) of a block, at least 3 and at most half of it (a take-back's)."""
+    length = int(rng.integers(3, windows // 2 + 1))
+    a = int(rng.integers(0, windows - length + 1))
+    return a, a + length
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("f", [0.4, 1.7])
+def test_windows_the_screen_took_back_are_not_given_back_again(seed, f):
+    """The screen took back the windows since the mouse's fault began when it held it out
+    (``Screen._take_back``: solved again without it), and the same block then finds it
+    faulty: its give-back owes only the block's other windows' turn.  Before, it gave
+    those windows back a second time (a drive ended 59 mm off against 5 without the
+    mouse).  Take-backs of another mouse change nothing."""
+    n = 4
+    rng = np.random.default_rng(seed)
+    which = seed % n
+    learner = _settled(n)
+    windows = learner.block
+    a, b = _taken_span(rng, windows)
+    other = (which + 1) % n
+    # counted back from the block's last window (1): windows a..b-1 are windows - a down to
+    # windows - b + 1; the other mouse's covers the whole block
+    taken = [(which, windows - a, windows - b), (other, windows, 0)]
+    factor = np.ones(n)
+    factor[which] = f
+    counts, q = _windows(learner, factor, seed, taken)
+    assert learner.faults == [which]
+    kept = np.r_[0:a, b:windows]
+    lost = _lost(learner, counts[kept], which, f)
+    twice = _lost(learner, counts, which, f)  # (what was given before: the test can tell)
+    got = learner.take_turn()
+    assert abs(lost - twice) > 0.1 * abs(lost)
+    assert got == pytest.approx(lost, rel=0.03), (a, b)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_a_take_back_reaching_into_the_block_before_leaves_those_windows_out_too(seed):
+    """The fault began in the block before the one that found it, and the screen's
+    take-back reached back across the block's edge: both blocks' give-backs leave out the
+    windows taken back, whichever block's add handed the take-back on."""
+    n = 4
+    rng = np.random.default_rng(100 + seed)
+    which = seed % n
+    learner = _settled(n)
+    windows = learner.block
+    back = int(rng.integers(3, windows // 2))  # windows of the block before taken back
+    into = int(rng.integers(2, windows // 2))  # and of the block that finds the fault
+    reads = (0.85, 0.5)
+    lost = 0.0
+    for k, read in enumerate(reads):
+        factor = np.ones(n)
+        factor[which] = read
+        taken = [(which, windows + back, windows - into)] if k == 1 else None
+        counts, q = _windows(learner, factor, 90 + seed + int(10 * read), taken)
+        kept = np.arange(windows - back) if k == 0 else np.arange(into, windows)
+        lost += _lost(learner, counts[kept], which, read)
     assert learner.faults == [which]
     assert learner.take_turn() == pytest.approx(lost, rel=0.03)
 

@@ -201,6 +201,10 @@ class Screen(RigidTest):
         self.history: deque[Any] = deque(maxlen=self.onset_len)
         self.used_history: deque[tuple[bool, ...]] = deque(maxlen=self.onset_len)
         self._windows = 0  # windows solved so far (_used_for): which ties are consecutive
+        # The take-backs not yet handed on (``hand_taken``): (mouse, first window, end
+        # window), numbered as ``_windows`` counts them.  The scale learner must not give
+        # those windows' readings back again (ScaleLearner._give_back_faults).
+        self._taken: list[tuple[int, int, int]] = []
         # The tie breaks of the latest windows, per set of mice tested: the window, and the
         # explanations' statistics summed over the windows in a row with the same ones
         # (_fit_sums).
@@ -269,6 +273,15 @@ class Screen(RigidTest):
         row = used if type(used) is tuple else tuple(bool(u) for u in used)  # (fast_one's)
         self.used_history.extend([row] * min(rows, self.onset_len))
         self._windows += rows
+
+    def hand_taken(self) -> list[tuple[int, int, int]]:
+        """The take-backs since the last call, once: (mouse, from, to), the windows taken
+        back being those ``from`` down to ``to`` + 1 windows before the latest one solved
+        and the latest itself as 1 (``to`` = 1: up to the one before the window that took
+        them back).  Counted back, not numbered: the learners count their own windows."""
+        now, taken = self._windows, self._taken
+        self._taken = []
+        return [(i, now - lo, now - hi) for i, lo, hi in taken]
 
     def used_run(self, i: int) -> int:
         """The latest windows in a row mouse i was used in (up to ``history_len``)."""
@@ -827,6 +840,8 @@ class Screen(RigidTest):
         if not taken_r.any():
             return None
         self.ledger.take(i, taken_r)
+        # (this window is not counted yet: the last one taken back is _windows - 1)
+        self._taken.append((i, self._windows - take_n, self._windows))
         return -taken_q
 
     def _span_p(

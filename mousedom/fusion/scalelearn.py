@@ -50,6 +50,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, DTypeLike
@@ -308,6 +309,19 @@ def fit_axes(
     return g[axis_of].reshape(n, 2), spread[axis_of].reshape(n, 2), d_all, spread_d_all
 
 
+class BlockWindows(NamedTuple):
+    """A learnt block's windows as ``_gave`` added them to the horizon, one by one, for a
+    give-back that must leave some of them out (the screen's take-backs): the number of
+    its first window (``ScaleLearner._serial``), each window's turn per unit scale per
+    mouse and count axis (K, N, 2), its step turned by 90 degrees (K, 2), and what each
+    mouse's count axes moved the body in it, world axes (K, N, 2, 2)."""
+
+    first: int
+    per: np.ndarray
+    perp: np.ndarray
+    straight: np.ndarray
+
+
 class ScaleLearner:
     """Each mouse's scale, learnt from the others (module docstring); kept per count axis
     (both the same) for the reports, which have a column per axis."""
@@ -404,6 +418,14 @@ class ScaleLearner:
         # unforgotten (``_gave``), and the block's before it (``_give_back_faults``)
         self._block_gave = (np.zeros((self.n, 2)), np.zeros((self.n, 2, 2)), np.zeros(2))
         self._prev_block_gave = self._block_gave
+        # and the two blocks' windows one by one, where the screen took some back
+        self._block_windows: BlockWindows | None = None
+        self._prev_block_windows: BlockWindows | None = None
+        self._serial = 0  # windows added ever (add, add_row): numbering them
+        # The screen's take-backs (Screen.hand_taken): (mouse, first window, end window),
+        # numbered as _serial numbers them.  The windows of a take-back no longer hold
+        # that mouse's readings in the pose, so a give-back must not give them back again.
+        self._taken: list[tuple[int, int, int]] = []
         self._learnt_last = False  # whether the block before this one was learnt
 
     @property
@@ -437,6 +459,7 @@ class ScaleLearner:
         steps: np.ndarray | None = None,
         in_solve: np.ndarray | None = None,
         heading: np.ndarray | None = None,
+        taken: Sequence[tuple[int, int, int]] = (),
     ) -> bool:
         """Add windows of the current block, at most ``until_block_end()`` of them; at the
         block's end, learn.  ``counts`` (n, N, 2) raw REL_X/REL_Y; ``usable`` (n, N): the
@@ -448,8 +471,10 @@ class ScaleLearner:
         the window's pose used every mouse (the turns it made are given back at a
         renewal, consistent or not; default: the windows with every mouse usable);
         ``heading`` (n,): the pose's heading in the middle of each window (radians, world;
-        default 0), which turns what a scale moved the body into the world's axes.
-        Returns whether a block ended (and the estimates were renewed)."""
+        default 0), which turns what a scale moved the body into the world's axes;
+        ``taken``: the screen's take-backs up to the last of these windows
+        (``Screen.hand_taken``).  Returns whether a block ended (and the estimates were
+        renewed)."""
         if not self.active or not len(counts):
             return False
         n = len(counts)
@@ -462,11 +487,13 @@ class ScaleLearner:
         self._rows.append((np.asarray(counts), np.asarray(usable), np.asarray(held_out),
                            np.asarray(q), np.asarray(steps), whole, theta))  # fmt: skip
         self._held += n
+        self._count(n, taken)
         return self.end_block()
 
     def add_row(
         self, counts: list, usable: list, held_out: list, q: list, step: list | None = None,
         in_solve: bool | None = None, heading: float = 0.0,
+        taken: Sequence[tuple[int, int, int]] = (),
     ) -> bool:  # fmt: skip
         """``add`` for one window as Python values (the daemon's: no numpy per window),
         without the learning: True when the block is full, and ``end_block`` is due before
@@ -478,7 +505,15 @@ class ScaleLearner:
                            [all(usable) if in_solve is None else in_solve],
                            [heading]))  # fmt: skip
         self._held += 1
+        self._count(1, taken)
         return self._held >= self.block
+
+    def _count(self, n: int, taken: Sequence[tuple[int, int, int]]) -> None:
+        """``n`` windows added, and the take-backs up to the last of them, counted back
+        from it (Screen.hand_taken), numbered as the windows are."""
+        self._serial += n
+        for i, ago_from, ago_to in taken:
+            self._taken.append((i, self._serial - ago_from, self._serial - ago_to))
 
     def end_block(self) -> bool:
         """At a full block, learn from it (True); otherwise nothing (False)."""
@@ -526,7 +561,8 @@ class ScaleLearner:
         self._rebased = 0
         cos, sin = np.cos(heading)[:, None, None], np.sin(heading)[:, None, None]
         bx, by = moved[..., 0], moved[..., 1]
-        straight = np.stack([cos * bx - sin * by, sin * bx + cos * by], axis=3).sum(axis=0)
+        straight_each = np.stack([cos * bx - sin * by, sin * bx + cos * by], axis=3)
+        straight = straight_each.sum(axis=0)
         # the turn before each window (so far in the horizon) times its step turned +90
         before = self.turn_unit[None] + np.cumsum(per, axis=0) - per
         perp = np.stack([-steps[:, 1], steps[:, 0]], axis=1)
@@ -553,6 +589,12 @@ class ScaleLearner:
         local = np.einsum("kia,kb->iab", np.cumsum(per, axis=0) - per, perp) + straight
         self._prev_block_gave = self._block_gave
         self._block_gave = (per.sum(axis=0), local, perp.sum(axis=0))  # (_give_back_faults)
+        self._prev_block_windows = self._block_windows
+        first = self._serial - len(counts)
+        self._block_windows = BlockWindows(first, per, perp, straight_each)
+        # take-backs of windows older than the two blocks kept concern no give-back
+        oldest = first if self._prev_block_windows is None else self._prev_block_windows.first
+        self._taken = [mark for mark in self._taken if mark[2] > oldest]
         since = self._segment_count - _CHANGE_SEGMENTS
         kept = [part for part in self._recent_gave if part[0] >= since]
         part = (self._segment_count, f, unit * f, local * f, perp.sum(axis=0) * f)
@@ -1026,27 +1068,57 @@ class ScaleLearner:
             before = fit(self._segments[-1], self._segment_groups[-1], self.n, len(self.cols))
         steps = self._block_gave[2]
         for i in self.faults:
-            self._give_back_block(i, block_scale[i], self._block_gave, parts[-1], 1, None)
+            owed = self._not_taken(i, self._block_gave, self._block_windows)
+            self._give_back_block(i, block_scale[i], self._block_gave, owed, parts[-1], 1, None)
             if before is None:
                 continue
             g, spread = before[0][i], before[1][i]
             off = abs(g - float(self.scale[i].mean()))
             if off > _BEYOND_MIN and off > FAULT_SIGMAS * spread:
-                self._give_back_block(i, g, self._prev_block_gave, parts[-2], 2, steps)
+                owed = self._not_taken(i, self._prev_block_gave, self._prev_block_windows)
+                self._give_back_block(i, g, self._prev_block_gave, owed, parts[-2], 2, steps)
+
+    def _not_taken(
+        self, i: int, gave: tuple[np.ndarray, ...], windows: BlockWindows | None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Mouse i's turn and walk per unit scale in a block (``gave``'s, ``_gave``'s
+        sums) over the windows the screen did not take back for it (``_take_back``: it
+        solved them again without the mouse, from its fault's onset on; given back again
+        here, that turn counted twice, and a drive ended 59 mm off against 7)."""
+        unit, local = gave[0][i], gave[1][i]
+        if windows is None:
+            return unit, local
+        k = len(windows.per)
+        keep = np.ones(k)
+        for mouse, lo, hi in self._taken:
+            a, b = max(lo - windows.first, 0), min(hi - windows.first, k)
+            if mouse == i and a < b:
+                keep[a:b] = 0.0
+        if keep.all():
+            return unit, local
+        # _gave's sums for this mouse, the windows taken back left out
+        per = windows.per[:, i] * keep[:, None]
+        before = np.cumsum(per, axis=0) - per
+        local = before.T @ windows.perp + np.einsum("k,kab->ab", keep, windows.straight[:, i])
+        return per.sum(axis=0), local
 
     def _give_back_block(
-        self, i: int, scale: float, gave: tuple[np.ndarray, ...], part: tuple, age: int,
+        self, i: int, scale: float, gave: tuple[np.ndarray, ...],
+        owed: tuple[np.ndarray, np.ndarray], part: tuple, age: int,
         steps_after: np.ndarray | None,
     ) -> None:  # fmt: skip
         """Mouse i's windows of one block (``gave``: its own turn and walk per unit scale,
-        unforgotten; ``part``: the recent blocks' part it is the last of; ``age``: blocks
-        since it, itself included, whose forgetting its sums have had) given back at
-        ``scale``, and taken out of the horizon.  ``steps_after``: the steps turned summed
-        of the block after it (its heading owed turns those too), or None."""
+        unforgotten; ``owed``: those of the windows the screen did not take back,
+        ``_not_taken``; ``part``: the recent blocks' part it is the last of; ``age``:
+        blocks since it, itself included, whose forgetting its sums have had) given back
+        at ``scale``, and all of them taken out of the horizon.  ``steps_after``: the
+        steps turned summed of the block after it (its heading owed turns those too), or
+        None."""
         unit, local = gave[0][i], gave[1][i]
         delta = scale - self.scale[i]  # per count axis
-        walk = local if steps_after is None else local + unit[:, None] * steps_after[None]
-        self.turn_owed += float(delta @ unit)
+        o_unit, o_local = owed
+        walk = o_local if steps_after is None else o_local + o_unit[:, None] * steps_after[None]
+        self.turn_owed += float(delta @ o_unit)
         self.walk_owed = self.walk_owed + delta @ walk
         f, fa = self.forget, self.forget**age
         # in the horizon, forgotten ``age`` times: its own sums, and its turn times the

@@ -619,7 +619,7 @@ class Tracker:
             tb = None if turns is None else turns[a:b]
             lb = None if long is None else long[a:b]
             part = self._batch.solve(edges[a + 1 : b + 1], counts[a:b], mask[a:b], ev, tb, lb)
-            renewal = learners.add(counts[a:b], part, mask[a:b], start)
+            renewal = learners.add(counts[a:b], part, mask[a:b], start, self._taken())
             if renewal is not None:
                 self._renew(renewal)
             out.append(part)
@@ -657,10 +657,15 @@ class Tracker:
             batch = self._one.solve(end, counts, live, evidence, turn, spans, defer_learning)
         learners = self._learners
         if learners is not None:
-            learners.add_row(counts, batch.rows()[0], live, before)
+            learners.add_row(counts, batch.rows()[0], live, before, self._taken())
         if not defer_learning:
             self.settle()
         return batch
+
+    def _taken(self) -> list[tuple[int, int, int]]:
+        """The screen's take-backs since the windows last handed to the learners
+        (``Screen.hand_taken``): theirs not to give back again."""
+        return [] if self.screen is None else self.screen.hand_taken()
 
     # Up to this many windows per poll(one_by_one=True), _close_one (floats, no
     # validation) is used, one window after the other (otherwise one window); tests set

@@ -10,6 +10,7 @@ estimates at block ends; the tracker then rebinds its solving paths (``Renewal``
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import NamedTuple
 
 import numpy as np
@@ -194,7 +195,7 @@ class Learners:
 
     def add_row(
         self, counts: list[tuple[float, float]], row: PoseRow, live: tuple[bool, ...],
-        start: list[float],
+        start: list[float], taken: Sequence[tuple[int, int, int]] = (),
     ) -> None:  # fmt: skip
         """``add`` for the one window the daemon closed, on Python values, without the
         learning: where a block is full (``due``), ``end_block`` comes before the next."""
@@ -220,7 +221,7 @@ class Learners:
         step = [row.x - start[0], row.y - start[1]]
         in_solve = row.used == self._n  # every mouse in the pose (whatever the screen said)
         heading = row.theta - 0.5 * q[2]  # the window's middle
-        scales = self.scales.add_row(counts, usable, held, q, step, in_solve, heading)
+        scales = self.scales.add_row(counts, usable, held, q, step, in_solve, heading, taken)
         self._full = (noise, scales)
 
     @property
@@ -238,11 +239,13 @@ class Learners:
         return self._renewal(noise, scales)
 
     def add(
-        self, counts: np.ndarray, batch: PoseBatch, live: np.ndarray, start: list[float]
-    ) -> Renewal | None:
+        self, counts: np.ndarray, batch: PoseBatch, live: np.ndarray, start: list[float],
+        taken: Sequence[tuple[int, int, int]] = (),
+    ) -> Renewal | None:  # fmt: skip
         """Hand closed windows (at most ``until_block_end()``) to the learners: mice
         tracking in consistent windows are the scales' evidence, and the ones left out as
-        inconsistent, against the others' motion; ``start`` is the position before them."""
+        inconsistent, against the others' motion; ``start`` is the position before them;
+        ``taken``: the screen's take-backs up to the last of them (``Screen.hand_taken``)."""
         state, reason = batch.state, batch.reason
         usable = (state == robust.TRACKING) & batch.consistent[:, None] & live
         held_out = (state == robust.EXCLUDED) & (reason == robust.INCONSISTENT) & live
@@ -265,7 +268,7 @@ class Learners:
         in_solve = batch.used == self._n
         heading = batch.theta - 0.5 * q[:, 2]
         scales = self.scales.add(counts, usable, held_out, q, xy[1:] - xy[:-1], in_solve,
-                                 heading)  # fmt: skip
+                                 heading, taken)  # fmt: skip
         return self._renewal(noise, scales)
 
     def _renewal(self, noise: bool, scales: bool) -> Renewal | None:
