@@ -240,7 +240,7 @@ MUTANTS = [
     Mutant(
         "robust-never-readmits",
         "mousedom/fusion/robust.py",
-        "        elif shows:\n            h.good += 1\n",
+        "        elif shows:\n            h.good += k\n",
         "        elif shows:\n            h.good += 0\n",
         ("tests/test_robust.py",),
         "an excluded mouse that agrees again is never used again",
@@ -633,7 +633,7 @@ MUTANTS = [
     Mutant(
         "silence-shows-a-far-mouse-sound",
         "mousedom/fusion/robust.py",
-        "            float(d[i] @ p[i]) >= (1.0 - SHORT) * p2\n            or float(",
+        "            float(di @ pi) >= (1.0 - SHORT) * p2\n            or float(",
         "            read2 > 0.0\n            or float(",
         ("tests/test_reconcile.py",),
         "a landing (part-read) window starts a far mouse's run: its shortfall given back",
@@ -663,6 +663,14 @@ MUTANTS = [
         "                pass\n",
         ("tests/test_scale_faults.py",),
         "the block a fault began in, learnt as a CPI, keeps the turn its readings gave",
+    ),
+    Mutant(
+        "readmit-judged-per-short-window",
+        "mousedom/fusion/robust.py",
+        "        self._group = max(1, math.ceil(EVIDENCE_S / window - 1e-9))",
+        "        self._group = 1 or max(1, math.ceil(EVIDENCE_S / window - 1e-9))",
+        ("tests/test_robust_short_windows.py",),
+        "a healthy mouse excluded at 2.5-5 ms windows is never let back",
     ),
     Mutant(
         "scale-fault-take-back-given-again",

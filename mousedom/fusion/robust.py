@@ -114,6 +114,14 @@ TAKE_BACK_WINDOWS = 3
 # (a mouse that saturates as a turn speeds up, a surface that turns glossy) passes the test
 # window after window for most of a second before it is caught.
 TAKE_BACK_S = 1.0
+# An excluded mouse's windows are judged toward its re-admission in groups at least this
+# long (Screen._grouped): a window's motion shrinks with its length while the error that
+# late stamps put in it does not (it is motion over the lateness, a few ms), so windows of
+# 2.5-5 ms, each alone, seldom moved a mouse beyond that error: a healthy mouse excluded
+# once (a false alarm) was never let back (a drive ended 37 mm off against 2 with fault
+# handling off).  Summed over a group, the motion grows with the group and the lateness
+# stays that of its edges.  The windows of 100 Hz and longer are their own group.
+EVIDENCE_S = 0.01
 # Where the onset's sum has fallen this far (in sigmas) below its peak, the walk back stops:
 # noise alone takes about one a window from it and does not climb back so far.
 _ONSET_GIVE_UP = 6.0
@@ -139,6 +147,7 @@ def _fresh_wait(h: MouseHealth) -> None:
     fit from an earlier wait (``Screen._waiting``)."""
     h.behind, h.fit_r, h.fit_info = 0, 0.0, 0.0
     h.behind_r, h.behind_cov = np.zeros(2), np.zeros((2, 2))
+    h.group_n = 0
 
 
 class Explanation(NamedTuple):
@@ -183,6 +192,7 @@ class Screen(RigidTest):
         self.max_step2 = (speed * window) ** 2  # inf: no limit
         self.readmit = max(1, math.ceil(settings.readmit_s / window - 1e-9))
         self.readmit_evidence = max(1, self.readmit // 5)
+        self._group = max(1, math.ceil(EVIDENCE_S / window - 1e-9))  # windows a group (_grouped)
         self.health = [MouseHealth() for _ in range(self.n)]
         self._steady: tuple[bool, ...] | None = None
         self._steady_known = False  # _steady is that of the health as it is
@@ -570,7 +580,11 @@ class Screen(RigidTest):
     def _silent(self, d: np.ndarray, i: int) -> bool:
         """No counts in the window (a thousandth of its sigma: the split of reports
         across windows leaves rounding dust where there were none)."""
-        return float(d[i] @ d[i]) <= 1e-6 * self.noise.sig2[i]
+        return self._reads_nothing(d[i], i)
+
+    def _reads_nothing(self, di: np.ndarray, i: int) -> bool:
+        """``_silent`` for mouse i's reading ``di``."""
+        return float(di @ di) <= 1e-6 * self.noise.sig2[i]
 
     def decide(
         self,
@@ -1070,11 +1084,15 @@ class Screen(RigidTest):
         if h.state == LATE:
             self._late(d, p, i, h, thr2 * 2.0 * self.ledger.owed_s2[i])
             return
-        self._waiting(i, h, d, p, s2, not_proportional, pred_cov)
+        grouped = self._grouped(h, d[i], p[i], s2, not_proportional, pred_cov)
+        if grouped is not None:  # (None: the group goes on)
+            self._waiting(i, h, *grouped)
 
-    def _waiting(self, i: int, h: MouseHealth, d: np.ndarray, p: np.ndarray, s2: float,
-                 not_proportional: float, pred_cov: np.ndarray) -> None:  # fmt: skip
-        """_held_out for a mouse excluded before this window, waiting to be re-admitted."""
+    def _waiting(self, i: int, h: MouseHealth, di: np.ndarray, pi: np.ndarray, s2: float,
+                 not_proportional: float, pred_cov: np.ndarray, k: int) -> None:  # fmt: skip
+        """_held_out for a mouse excluded before this window, waiting to be re-admitted:
+        ``k`` windows judged at once (``_grouped``), mouse i's reading ``di`` and prediction
+        ``pi`` over them."""
         thr2 = self._thresholds[2]
         # Excluded earlier: count the windows that would have shown its fault (the others
         # moved it well beyond its error) and where it agreed.  Each window is held to
@@ -1087,7 +1105,7 @@ class Screen(RigidTest):
         # is, for up to ``lateness.limit`` windows: it agrees again once its residuals
         # summed since are within their summed error (the counts came), and its run goes
         # on; a mouse still behind after that starts a new run.
-        r = d[i] - p[i]
+        r = di - pi
         cov = s2 * np.eye(2) + pred_cov
         alone = _within(r, cov, thr2)
         caught_up = False
@@ -1103,12 +1121,12 @@ class Screen(RigidTest):
             if h.behind < self.lateness.limit:
                 h.behind_r = r + (h.behind_r if h.behind else 0.0)
                 h.behind_cov = cov + (h.behind_cov if h.behind else 0.0)
-                h.behind += 1
+                h.behind += k
                 return
             h.behind = 0
             self._end_run(i, h)
             h.good = 0
-            h.reason = SILENT if self._silent(d, i) else INCONSISTENT
+            h.reason = SILENT if self._reads_nothing(di, i) else INCONSISTENT
             return
         # moved enough to show a fault: the others moved it beyond its own error, and
         # either it read as much (three quarters of it along it at least: the window a
@@ -1118,12 +1136,11 @@ class Screen(RigidTest):
         # (A far mouse, held to the others' poor prediction of it, passed in silence
         # while they slowed from a spin, still lifted: its run started there and gave
         # back their motion, a heading 1 degree off at its return.)
-        p2 = float(p[i] @ p[i])
-        read2 = float(d[i] @ d[i])
+        p2 = float(pi @ pi)
+        read2 = float(di @ di)
         shows = p2 > 4.0 * thr2 * not_proportional and (
-            float(d[i] @ p[i]) >= (1.0 - SHORT) * p2
-            or float(p[i] @ np.linalg.solve(not_proportional * np.eye(2) + pred_cov, p[i]))
-            > 4.0 * thr2
+            float(di @ pi) >= (1.0 - SHORT) * p2
+            or float(pi @ np.linalg.solve(not_proportional * np.eye(2) + pred_cov, pi)) > 4.0 * thr2
         )
         if h.good > 0 or shows:
             # a run starts where the mouse shows itself sound: before, a lifted mouse's
@@ -1134,7 +1151,7 @@ class Screen(RigidTest):
         if read2 > 4.0 * thr2 * not_proportional and not caught_up:
             # along its own reading, whose direction the prediction's error does not
             # steer (along the prediction, that error would read as an under-read)
-            u = d[i] / math.sqrt(read2)
+            u = di / math.sqrt(read2)
             var = float(u @ cov @ u)
             h.fit_r += float(r @ u) * math.sqrt(read2) / var
             h.fit_info += read2 / var
@@ -1142,12 +1159,12 @@ class Screen(RigidTest):
             # Its own sensor said why, and says so no more: a fifth of the wait (a longer
             # one only loses a good mouse, here the one whose speed limit a fast rig
             # keeps crossing).
-            h.good += 1
+            h.good += k
             if h.good >= self.readmit_evidence:
                 self.ledger.readmit(i, h.good)
                 h.state, h.reason, h.good = TRACKING, NONE, 0
         elif shows:
-            h.good += 1
+            h.good += k
             if h.good >= self.readmit and i not in self._held_beyond:
                 verdict = self._run_agrees(h)
                 if verdict is False:  # the run disagrees as a whole: a new one starts
@@ -1156,6 +1173,33 @@ class Screen(RigidTest):
                 elif verdict:
                     self.ledger.readmit(i, h.good)
                     h.state, h.reason, h.good = TRACKING, NONE, 0
+
+    def _grouped(
+        self, h: MouseHealth, di: np.ndarray, pi: np.ndarray, s2: float,
+        not_proportional: float, pred_cov: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray, float, float, np.ndarray, int] | None:  # fmt: skip
+        """One more window of an excluded mouse's group (EVIDENCE_S): None while the
+        group goes on, else its reading, prediction, variance, variance not in proportion
+        to the motion and prediction's covariance, each summed over its windows (the
+        variances summed as if independent: a late count in one window is missing from
+        the one before, so the sum's is smaller; the test is the stricter for it), and
+        its windows.  A window of 10 ms or more is its own group, as it is."""
+        if self._group == 1:
+            return di, pi, s2, not_proportional, pred_cov, 1
+        g = h.group
+        if h.group_n == 0:
+            g[:] = 0.0
+        g[0:2] += di
+        g[2:4] += pi
+        g[4] += s2
+        g[5] += not_proportional
+        g[6:10] += pred_cov.ravel()
+        h.group_n += 1
+        if h.group_n < self._group:
+            return None
+        h.group_n = 0
+        return (g[0:2].copy(), g[2:4].copy(), float(g[4]), float(g[5]),
+                g[6:10].reshape(2, 2), self._group)  # fmt: skip
 
     def _end_run(self, i: int, h: MouseHealth) -> None:
         """An excluded mouse's run of agreeing windows ends: banked to be given back at its
