@@ -106,3 +106,34 @@ def test_a_false_alarm_at_200_hz_does_not_stop_the_scales_being_learnt():
     on_mm, off_mm = (1e3 * float(np.hypot(*scenarios.end_pose_error(result, b)[:2]))
                      for b in (batch, off))  # fmt: skip
     assert on_mm < 0.5 * off_mm, (on_mm, off_mm)
+
+
+def test_the_daemon_lets_the_mouse_back_at_the_same_window_as_replay():
+    """The groups are the screen's own state (MouseHealth), so the daemon's path, a
+    window at a time and learning after each POSE, makes the same decisions as replay's
+    arrays: seed 18's 400 Hz rig, its mouse excluded and let back, window for window
+    (states equal; poses to 1e-12, their last bits apart as anywhere on this rig)."""
+    from mousedom.fusion.posebatch import PoseBatch
+    from mousedom.fusion.tracker import Tracker
+
+    rig, duration, drive_seed = healthy_rig(18)
+    result = sim.simulate(rig, drive(min(duration, 12.0), drive_seed), seed=18)
+    cfg = _config(rig)
+    replay, _ = scenarios.run(result, cfg)
+    out = np.asarray(replay.state) == robust.EXCLUDED
+    assert out.any() and not out[-1].any()  # (excluded, and let back: the test can tell)
+
+    t0 = float(result.motion.starts[0])
+    for one_by_one in (False, True):
+
+        def deferred(tracker: Tracker, one_by_one: bool = one_by_one) -> PoseBatch:
+            batch = tracker.poll(defer_learning=True, one_by_one=one_by_one)
+            tracker.settle()
+            return batch
+
+        live = PoseBatch.concat(sim.run_tracker_live(result, Tracker(cfg, t0=t0), deferred),
+                                len(rig.mice))  # fmt: skip
+        assert np.array_equal(np.asarray(live.state), np.asarray(replay.state))
+        # (the same poses but for their last bits: a poll may close several windows)
+        for k in ("x", "y", "theta"):
+            np.testing.assert_allclose(getattr(live, k), getattr(replay, k), rtol=0, atol=1e-12)
