@@ -289,8 +289,10 @@ class Screen(RigidTest):
         back being those ``from`` down to ``to`` + 1 windows before the latest one solved
         and the latest itself as 1 (``to`` = 1: up to the one before the window that took
         them back).  Counted back, not numbered: the learners count their own windows."""
-        now, taken = self._windows, self._taken
-        self._taken = []
+        taken = self._taken
+        if not taken:
+            return taken  # (empty: every window of the daemon's common case)
+        self._taken, now = [], self._windows
         return [(i, now - lo, now - hi) for i, lo, hi in taken]
 
     def used_run(self, i: int) -> int:

@@ -512,7 +512,7 @@ class ScaleLearner:
         """``n`` windows added, and the take-backs up to the last of them, counted back
         from it (Screen.hand_taken), numbered as the windows are."""
         self._serial += n
-        for i, ago_from, ago_to in taken:
+        for i, ago_from, ago_to in taken:  # (none in nearly every window)
             self._taken.append((i, self._serial - ago_from, self._serial - ago_to))
 
     def end_block(self) -> bool:
