@@ -626,6 +626,38 @@ def test_two_epoch_files_stay_aligned_through_replay(tmp_path):
     assert abs(out["rel"]["theta"][out["rel"]["t"] < 1.2][-1]) > 1e-3
 
 
+def test_mixed_epoch_and_relative_captures_give_one_duration_replayed_or_converted(tmp_path):
+    """The summary's duration compared each capture's own stamps: an epoch file's
+    (~1.7e9 s) against a relative one's (from 0), a span of 1.7e9 s where the windows saw
+    5 s, while the same captures converted first (one rebased file) gave 5 s.  Both now
+    give the span on the replay's time base: a's epoch stamps less its first, b's kept."""
+    t = np.arange(1, 201) * 0.01  # 0.01 .. 2.00 s, one report each
+    d = np.ones(200, dtype=int)
+    a, b = tmp_path / "a.evemu", tmp_path / "b.evemu"
+    a.write_text(format_evemu(1.7e9 + t, d, -d, version=None))  # epoch: rebased to 0 .. 1.99
+    b.write_text(format_evemu(3.0 + t, -d, d))  # relative: kept at 3.01 .. 5.00
+    cfg = tmp_path / "r.yaml"
+    cfg.write_text(
+        "rate_hz: 100\nmice:\n  a: {cpi: 400, mount: {x: 0, y: 0.1}}\n"
+        "  b: {cpi: 400, mount: {x: 0, y: -0.1}}\n"
+    )
+    caps = ["--capture", f"a={a}", "--capture", f"b={b}"]
+    native = tmp_path / "ab.mdcap"
+    _ok(run_mousedom("convert", *caps, "-o", str(native)))
+
+    def duration(*capture_args: str) -> float:
+        proc = _ok(run_mousedom("replay", "--config", str(cfg), *capture_args))
+        line = next(ln for ln in proc.stdout.splitlines() if ln.startswith("duration"))
+        return float(line.split()[1])
+
+    direct = duration(*caps)
+    converted = duration("--capture", str(native))  # its devices name their mice
+    # a's first report to b's last: 5.00 - 0 s (stamps rounded to the microsecond, and an
+    # epoch one near 1.7e9 s holds only ~2.4e-7 s).
+    assert direct == pytest.approx(5.0 - 0.0, abs=2e-3)
+    assert converted == pytest.approx(direct, abs=2e-3)
+
+
 def test_a_long_pause_is_closed_in_bounded_batches_with_the_same_poses(tmp_path):
     """A rig parked for a while: the tracker closed every window of the pause in one
     batch (a 1e5 s pause at 20 Hz took 1.5 GB).  The engine now hands it out in batches

@@ -363,6 +363,7 @@ class Replay:
                     stats=a.capture.stats[a.device],
                     counts_in=_pair(counts_in[a.mouse]),
                     counts_out=_pair(counts_out[a.mouse]),
+                    offset=self._offset_of(a.capture),
                     **summary.health_of(a.mouse),
                 )
             )

@@ -39,11 +39,24 @@ class MouseSummary:
     suspect_why: dict[str, int] = field(default_factory=dict)
     scale: tuple[float, float] | None = None  # learnt scale (REL_X, REL_Y) at the end; None:
     # no window had one learnt
+    # Seconds the replay subtracted from this capture's times (its epoch offset, 0 for
+    # relative and monotonic captures): ``stats`` stays on the capture's own time base,
+    # and the captures given together are compared only once on the replay's.
+    offset: float = 0.0
 
     @property
     def reports_per_s(self) -> float:
         """The measured report rate (``rate_hz`` is the config's window rate)."""
         return measured_rate(self.stats)
+
+    @property
+    def span(self) -> tuple[float, float] | None:
+        """Its first and last report on the replay's time base (the windows'); None: it
+        had no report."""
+        first, last = self.stats.first_t, self.stats.last_t
+        if first is None or last is None:
+            return None
+        return (first - self.offset, last - self.offset)
 
 
 @dataclass
@@ -147,9 +160,14 @@ class Summary:
 
     @property
     def duration(self) -> float:
-        firsts = [m.stats.first_t for m in self.mice if m.stats.first_t is not None]
-        lasts = [m.stats.last_t for m in self.mice if m.stats.last_t is not None]
-        return (max(lasts) - min(firsts)) if firsts else 0.0
+        """Seconds from the first report of any mouse to the last, on the replay's time
+        base: an epoch capture's own stamps are ~1.3e9 s from a relative one's t = 0, and
+        only its rebased times (``MouseSummary.offset``) measure the span the windows had
+        (the figure ``convert``'s rebased file replays to)."""
+        spans = [sp for m in self.mice if (sp := m.span) is not None]
+        if not spans:
+            return 0.0
+        return max(last for _, last in spans) - min(first for first, _ in spans)
 
     @property
     def reports(self) -> int:
