@@ -18,6 +18,16 @@ class UserError(Exception):
             self.exit_code = exit_code
 
 
+def escaped(text: str) -> str:
+    """Text from outside (a device's name, a capture's line) as one line for a terminal:
+    its control characters escaped as Python writes them (``\\x1b``, ``\\n``).  A name
+    with a newline broke a listing's layout, one with ESC sent the terminal a sequence (a
+    window title, a cleared screen) when printed raw."""
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
 def located(path: str | None, line: int | None, message: str, key: str | None = None) -> str:
     """Format ``file:line: key: message`` leaving out the parts that are unknown."""
     where = str(path) if path else "<input>"

@@ -38,12 +38,13 @@ def simulated(seed: int = 4, gyro: SimGyro | None = GYRO):
     return rig, sim.simulate(rig, traj, seed=seed, t_start=1000.0)
 
 
-def write_capture(path, rig, res, *, gyro: bool = True, step: float = 0.25, chunk=2000) -> None:
+def write_capture(path, rig, res, *, gyro: bool = True, step: float = 0.25, chunk=2000,
+                  gyro_device: DeviceInfo = GYRO_DEVICE) -> None:  # fmt: skip
     """The simulation as ``mousedom record`` would have written it: every source in time
     slices, a sync point after each; the first time the simulation's start."""
     devices = [DeviceInfo(name=f"usb {m.name}", mouse=m.name, rel_xy=True) for m in rig.mice]
     if gyro:
-        devices.append(GYRO_DEVICE)
+        devices.append(gyro_device)
     start = float(res.motion.starts[0])
     # the last stamp of any source: a sync point past it would close empty windows after
     # it, which a batch of the same reports does not have
@@ -181,6 +182,22 @@ def test_csv_and_summary_of_a_replay_with_a_gyro(tmp_path):
     bias, sigma = math.degrees(want.gyro[-1, 1]), math.degrees(want.gyro[-1, 2])
     assert f"{len(res.gyro.t)} samples" in line and "200.0 Hz" in line
     assert f"bias {bias:+.3f} +- {sigma:.3f} deg/s" in line and "mpu6050" in line
+
+
+def test_summary_escapes_the_control_characters_of_the_gyro_name(tmp_path):
+    """The gyro's line printed the capture's device name raw, as the mice's rows did: an
+    IIO name holding ESC sent the terminal a sequence (here a title and a cleared screen)."""
+    rig, res = simulated()
+    path = tmp_path / "g.mdcap"
+    hostile = dataclasses.replace(GYRO_DEVICE, name="mpu\x1b]0;pwned\x07\x1b[2J")
+    write_capture(path, rig, res, gyro_device=hostile)
+    cfg = tmp_path / "rig.yaml"
+    cfg.write_text(sim.rig_yaml(rig))
+    proc = run_mousedom("replay", "-c", str(cfg), "--capture", str(path))
+    assert proc.returncode == 0, proc.stderr
+    assert "\x1b" not in proc.stdout + proc.stderr and "\x07" not in proc.stdout + proc.stderr
+    line = next(ln for ln in proc.stdout.splitlines() if ln.startswith("gyro "))
+    assert line.endswith(f"{path} (mpu\\x1b]0;pwned\\x07\\x1b[2J)"), line
 
 
 def test_summary_says_when_the_gyro_was_left_out_or_ignored(tmp_path):

@@ -3,7 +3,9 @@ clear line and a non-zero exit, never a traceback (real processes)."""
 
 from __future__ import annotations
 
+import json
 import os
+import re
 import subprocess
 import sys
 
@@ -354,3 +356,89 @@ def test_time_base_warning_comes_before_the_replay_not_after(tmp_path):
         proc.send_signal(signal.SIGINT)
         proc.wait(timeout=30)
         proc.stderr.close()
+
+
+# A device's name as a capture may hold it: an OSC that sets the window title (ESC ] ...
+# BEL), a CSI that clears the screen (ESC [ 2J), and the 8-bit CSI (U+009B).  Printed
+# raw, the summary's "file (device)" column sent them to the terminal.
+HOSTILE_NAME = "m\x1b]0;pwned\x07\x1b[2J\x9b31m"
+SHOWN_NAME = r"m\x1b]0;pwned\x07\x1b[2J\x9b31m"
+# Any C0 or C1 control character but the newline that ends a line.
+_CONTROL = re.compile(r"[\x00-\x09\x0b-\x1f\x7f-\x9f]")
+
+
+def _no_control_characters(proc: subprocess.CompletedProcess) -> None:
+    for stream in (proc.stdout, proc.stderr):
+        assert not _CONTROL.search(stream), stream
+
+
+def _libinput_device(node: str, name: str, t_usec: int) -> str:
+    """One device of a ``libinput record`` file, its node and name as JSON strings (YAML
+    reads JSON's escapes: the control characters are in the values, not the text)."""
+    return (
+        f"- node: {json.dumps(node)}\n  evdev:\n    name: {json.dumps(name)}\n"
+        "    id: [3, 1, 2, 3]\n    codes:\n      0: [0]\n      2: [0, 1]\n"
+        f"  events:\n  - evdev:\n    - [0, {t_usec}, 2, 0, 10]\n    - [0, {t_usec}, 0, 0, 0]\n"
+    )
+
+
+def _capture_named(tmp_path, kind: str, name: str):
+    """A one-mouse capture of format ``kind`` whose device is called ``name``."""
+    import numpy as np
+
+    from mousedom.capture import DeviceInfo, NativeWriter
+    from mousedom.capture.evemu import format_evemu
+
+    t = np.arange(1, 51) * 0.01
+    d = np.ones(50, dtype=int)
+    if kind == "evemu":
+        path = tmp_path / "m.evemu"
+        path.write_bytes(format_evemu(t, d, -d, name=name).encode())
+    elif kind == "libinput":
+        path = tmp_path / "m.yml"
+        path.write_text(
+            "# libinput record\nversion: 1\nndevices: 1\ndevices:\n"
+            + _libinput_device("/dev/input/event4", name, 10000)
+        )
+    else:
+        path = tmp_path / "m.mdcap"
+        with NativeWriter(path, [DeviceInfo(name=name, mouse="m", rel_xy=True)]) as w:
+            w.motion(0, t, d, -d)
+    return path
+
+
+@pytest.mark.parametrize("kind", ["evemu", "libinput", "native"])
+def test_control_characters_of_a_device_name_never_reach_the_terminal(tmp_path, kind):
+    """replay's summary printed "FILE (DEVICE)" with the capture's device name raw; it
+    is now escaped as `mousedom list` escapes a name, directly and after convert."""
+    path = _capture_named(tmp_path, kind, HOSTILE_NAME)
+    cfg = one_mouse_config(tmp_path)
+    proc = run_mousedom("replay", "--config", str(cfg), "--capture", f"m={path}")
+    assert proc.returncode == 0, proc.stderr
+    _no_control_characters(proc)
+    row = next(ln for ln in proc.stdout.splitlines() if ln.startswith("m "))
+    assert row.endswith(f"{path} ({SHOWN_NAME})"), row
+    native = tmp_path / "converted.mdcap"
+    proc = run_mousedom("convert", "--capture", f"m={path}", "-o", str(native))
+    assert proc.returncode == 0, proc.stderr
+    _no_control_characters(proc)
+    proc = run_mousedom("replay", "--config", str(cfg), "--capture", str(native))
+    assert proc.returncode == 0, proc.stderr
+    _no_control_characters(proc)
+    assert f"{native} ({SHOWN_NAME})" in proc.stdout
+
+
+def test_control_characters_of_a_recorded_node_never_reach_the_terminal(tmp_path):
+    """A libinput file of two mice that match none: the message lists each device with
+    its recorded node, which was printed raw (the names beside it were repr'd)."""
+    rec = tmp_path / "two.yml"
+    rec.write_text(
+        "# libinput record\nversion: 1\nndevices: 2\ndevices:\n"
+        + _libinput_device("/dev/input/\x1b]0;pwned\x07", "a\x1b[2J", 10000)
+        + _libinput_device("/dev/input/event\x9b31m", "b\x07", 20000)
+    )
+    cfg = one_mouse_config(tmp_path)
+    proc = run_mousedom("replay", "--config", str(cfg), "--capture", f"m={rec}")
+    assert proc.returncode == 2
+    _no_control_characters(proc)
+    _one_error_line(proc.stderr, r"(/dev/input/\x1b]0;pwned\x07)", r"(/dev/input/event\x9b31m)")

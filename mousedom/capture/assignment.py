@@ -16,6 +16,7 @@ from mousedom.capture.base import GYRO_KIND, Capture, CaptureError, DeviceInfo
 from mousedom.capture.evemu import companion
 from mousedom.capture.sniff import open_capture
 from mousedom.config import Config, EvdevMatch, MouseConfig
+from mousedom.errors import escaped
 
 
 def parse_capture_arg(arg: str) -> tuple[str | None, str]:
@@ -85,8 +86,10 @@ def _candidates(capture: Capture) -> list[int]:
 
 
 def _node(capture: Capture, i: int) -> str:
+    # A libinput record's node: key is the capture's text, printed in messages: escaped
+    # (the names beside it are shown with repr, which escapes them already).
     node = capture.devices[i].extra.get("node")
-    return f" ({node})" if node else ""
+    return f" ({escaped(str(node))})" if node else ""
 
 
 def _describe(capture: Capture, devices: list[int]) -> str:

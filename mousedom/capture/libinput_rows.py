@@ -15,7 +15,7 @@ from typing import NoReturn
 import numpy as np
 
 from mousedom.capture.base import CaptureError, DeviceStats, decimal_field
-from mousedom.errors import located
+from mousedom.errors import escaped, located
 
 # Seconds since the start of a recording: a century is far past any real one, and keeps
 # every time exact in float64 and the window arithmetic bounded.
@@ -205,5 +205,4 @@ def _show(raw: bytes) -> str:
     """A piece of a line for a message: control characters escaped (a raw \\x1c or \\r
     would end or garble the message's line in a terminal)."""
     text = raw.decode("utf-8", "replace").strip()
-    text = text if len(text) <= 50 else text[:47] + "..."
-    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+    return escaped(text if len(text) <= 50 else text[:47] + "...")

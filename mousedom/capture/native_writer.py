@@ -38,6 +38,7 @@ from mousedom.capture.native_format import (
     plausible_time,
     version_for,
 )
+from mousedom.errors import escaped
 from mousedom.safewrite import open_stream
 from mousedom.sources.base import MAX_RATE
 
@@ -173,7 +174,7 @@ class NativeWriter:
         dev = self.devices[device]
         src = dev.extra.get("converted_from")
         raise CaptureError(
-            f"{src or dev.name}: device {dev.name!r}: the report at t={t[k]:.6f} holds "
+            f"{escaped(src or dev.name)}: device {dev.name!r}: the report at t={t[k]:.6f} holds "
             f"({int(dx[k])}, {int(dy[k])}) counts, beyond the native format's signed 32 bits"
         )
 

@@ -9,6 +9,7 @@ import math
 import numpy as np
 
 from mousedom.capture.summary import Summary
+from mousedom.errors import escaped
 from mousedom.fusion.scalelearn import WARN
 
 # A learnt scale this far from 1 is a wrong CPI, not a floor: the summary says so (the
@@ -111,5 +112,6 @@ def gyro_line(s: Summary) -> str | None:
         bias = f"bias {math.degrees(g.bias):+.3f} +- {math.degrees(g.bias_sigma):.3f} deg/s"
     if g.stats.saturated:  # those windows' heading is the mice's alone
         bias += f", {g.stats.saturated} saturated (left out)"
+    # (the device's name is the capture's: escaped, as the mice's in format_summary)
     return (f"{'gyro':<12} {g.stats.reports} samples, {g.samples_per_s:.1f} Hz, {bias}  "
-            f"{g.file} ({g.device})")  # fmt: skip
+            f"{escaped(g.file)} ({escaped(g.device)})")  # fmt: skip

@@ -9,7 +9,7 @@ import sys
 
 from mousedom.commands import _options as options
 from mousedom.config import Config, GyroConfig, load_config
-from mousedom.errors import UserError
+from mousedom.errors import UserError, escaped
 from mousedom.sources.discovery import (
     DeviceInfo,
     Scan,
@@ -63,14 +63,6 @@ def _quoted(text: str) -> str:
     return json.dumps(text, ensure_ascii=False)
 
 
-def _shown(text: str) -> str:
-    """A device's string as a line of text: its control characters escaped (a name with a
-    newline broke the listing's layout, one with ESC sent the terminal a sequence)."""
-    if text.isprintable():
-        return text
-    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
-
-
 def _text(result: Scan) -> str:
     where = result.paths.dev_input
     if not result.present:
@@ -86,11 +78,11 @@ def _text(result: Scan) -> str:
     locked = [d for d in result.devices if not d.readable]
     for d in result.devices:
         unnamed = "(no name)" if d.readable else "(unknown: cannot open)"
-        lines.append(f"{d.node}  {_shown(d.name) or unnamed}")
+        lines.append(f"{d.node}  {escaped(d.name) or unnamed}")
         if d.name or d.readable:
             lines.append(f"  id       {d.bus} {d.vendor:04x}:{d.product:04x}")
-            lines.append(f"  phys     {_shown(d.phys) or '-'}")
-            lines.append(f"  uniq     {_shown(d.uniq) or '-'}")
+            lines.append(f"  phys     {escaped(d.phys) or '-'}")
+            lines.append(f"  uniq     {escaped(d.uniq) or '-'}")
         for link in d.by_id:
             lines.append(f"  by-id    {link}")
         for link in d.by_path:

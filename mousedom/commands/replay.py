@@ -31,7 +31,7 @@ from mousedom.commands._replay_health import (
     why_line,
 )
 from mousedom.config import INTEGRATORS, MODELS, Config, load_config
-from mousedom.errors import UserError
+from mousedom.errors import UserError, escaped
 from mousedom.fusion.tracker import PoseBatch
 from mousedom.plainnumber import plain_float
 from mousedom.safewrite import open_stream, refuse_shared_outputs, same_file
@@ -493,10 +493,12 @@ def format_summary(s: Summary, replay: Replay, args) -> str:
     )
     for m in s.mice:
         st = m.stats
+        # The device's name is the capture's (an evemu N: line, a libinput name: key): a
+        # control character in it would reach the terminal raw, ESC as a sequence.
         lines.append(
             f"{m.name:<12} {st.reports:>8} {m.reports_per_s:>8.1f} {st.net_x:>8} {st.net_y:>8} "
             f"{st.path_x:>8} {st.path_y:>8} {st.skipped:>8} {st.dropped_frames:>8}  "
-            f"{m.file} ({m.device})"
+            f"{escaped(m.file)} ({escaped(m.device)})"
         )
         extra = []
         if st.lost_x or st.lost_y:
