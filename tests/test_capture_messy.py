@@ -197,16 +197,32 @@ def test_a_touchpad_is_not_a_mouse(tmp_path):
     [
         ("E: " + "9" * 320 + ".000001 0002 0000 1", "time out of range"),
         ("E: 1." + "1" * 40 + " 0002 0000 1", "time out of range"),
-        ("E: 1.000001 0002 0000 " + "9" * 5000, "value"),
+        ("E: 1.000001 0002 0000 " + "9" * 5000, "value beyond the signed 32 bits"),
+        ("E: 1.000001 0002 0000 -" + "9" * 3_000_000, "value beyond the signed 32 bits"),
+        ("E: 1.000001 0002 0000 " + "0" * 5000 + "2147483648", "value beyond the signed 32"),
+        ("E: 1.000001 0002 0000 -2147483649", "value beyond the signed 32 bits"),
     ],
 )
 def test_evemu_absurd_numbers_are_one_clear_error(tmp_path, line, words):
+    """A value of thousands of digits got Python's own message ("Exceeds the limit (4300
+    digits) for integer string conversion ... use sys.set_int_max_str_digits()"): it is
+    the project's, naming the file and line, as for a value just past 32 bits."""
     body = format_evemu(*_reports(5)).splitlines()
-    body.insert(len(body) - 2, line)
+    at = len(body) - 2
+    body.insert(at, line)
     path = tmp_path / "big.evemu"
     path.write_text("\n".join(body) + "\n")
-    with pytest.raises(CaptureError, match=words):
+    with pytest.raises(CaptureError, match=rf"big.evemu:{at + 1}: .*{words}") as e:
         drain(path)
+    assert "set_int_max_str_digits" not in str(e.value) and "Exceeds" not in str(e.value)
+
+
+def test_evemu_value_of_leading_zeros_within_32_bits_is_read():
+    """The digits counted are the significant ones: zeros in front change nothing."""
+    from mousedom.capture.evemu_lines import event_line
+
+    assert event_line(b"E: 1.000001 0002 0000 -" + b"0" * 5000 + b"2147483648")[3] == -(2**31)
+    assert event_line(b"E: 1.000001 0002 0000 +0002147483647")[3] == 2**31 - 1
 
 
 @pytest.mark.parametrize(
