@@ -58,7 +58,9 @@ def healthy_rig(seed: int, n: int | None = None, model: str | None = None,
     return sim.Rig(tuple(mice), rate_hz=rate, model=model), duration, int(rng.integers(1 << 20))
 
 
-def _config(rig: sim.Rig, enabled: bool = True, cpi: dict | None = None):
+def healthy_config(rig: sim.Rig, enabled: bool = True, cpi: dict | None = None):
+    """The rig's config, fault handling on or off (``cpi``: the CPIs configured, where
+    not the true ones)."""
     cfg = scenarios.config(rig, robust=enabled, cpi=cpi)
     return dataclasses.replace(cfg, robust=RobustConfig(enabled=enabled))
 
@@ -71,10 +73,10 @@ def test_a_healthy_mouse_excluded_at_400_hz_windows_is_let_back(seed):
     rig, duration, drive_seed = healthy_rig(seed)
     assert rig.rate_hz == 400.0
     result = sim.simulate(rig, drive(duration, drive_seed), seed=seed)
-    batch, tracker = scenarios.run(result, _config(rig))
+    batch, tracker = scenarios.run(result, healthy_config(rig))
     out = (np.asarray(batch.state) == robust.EXCLUDED).mean(axis=0)
     assert out.max() < 0.1, out
-    off, _ = scenarios.run(result, _config(rig, enabled=False))
+    off, _ = scenarios.run(result, healthy_config(rig, enabled=False))
     on_mm, off_mm = (1e3 * float(np.hypot(*scenarios.end_pose_error(result, b)[:2]))
                      for b in (batch, off))  # fmt: skip
     assert on_mm < 2.0 * off_mm + 2.0, (on_mm, off_mm)
@@ -98,11 +100,11 @@ def test_a_false_alarm_at_200_hz_does_not_stop_the_scales_being_learnt():
                                   cpi_y=mice[4].cpi_y * 0.9753)  # fmt: skip
     true = dataclasses.replace(rig, mice=tuple(mice))
     result = sim.simulate(true, drive(duration, drive_seed), seed=6)
-    batch, tracker = scenarios.run(result, _config(true, cpi=configured))
+    batch, tracker = scenarios.run(result, healthy_config(true, cpi=configured))
     out = np.asarray(batch.state)[:, 0] == robust.EXCLUDED
     assert out.any() and out.sum() * (1.0 / rig.rate_hz) < 1.5
     assert tracker.scales.scale[4] == pytest.approx([1.0 / 0.9753] * 2, rel=0.01)
-    off, _ = scenarios.run(result, _config(true, enabled=False, cpi=configured))
+    off, _ = scenarios.run(result, healthy_config(true, enabled=False, cpi=configured))
     on_mm, off_mm = (1e3 * float(np.hypot(*scenarios.end_pose_error(result, b)[:2]))
                      for b in (batch, off))  # fmt: skip
     assert on_mm < 0.5 * off_mm, (on_mm, off_mm)
@@ -118,7 +120,7 @@ def test_the_daemon_lets_the_mouse_back_at_the_same_window_as_replay():
 
     rig, duration, drive_seed = healthy_rig(18)
     result = sim.simulate(rig, drive(min(duration, 12.0), drive_seed), seed=18)
-    cfg = _config(rig)
+    cfg = healthy_config(rig)
     replay, _ = scenarios.run(result, cfg)
     out = np.asarray(replay.state) == robust.EXCLUDED
     assert out.any() and not out[-1].any()  # (excluded, and let back: the test can tell)
