@@ -164,12 +164,15 @@ class DaemonProcess:
         config_args: bool = True,
         preexec=None,
         cwd: Path | None = None,
+        log: Path | None = None,
     ) -> None:
+        """``log``: where its stderr goes (default: beside the socket's directory, named
+        after the socket)."""
         environ = dict(os.environ)
         environ["PYTHONPATH"] = str(REPO) + os.pathsep + environ.get("PYTHONPATH", "")
         environ.update(env or {})
         self.socket_path = socket_path
-        self.stderr_path = socket_path.parent.parent / f"{socket_path.stem}.log"
+        self.stderr_path = log or socket_path.parent.parent / f"{socket_path.stem}.log"
         self._log = open(self.stderr_path, "w")  # noqa: SIM115 - closed in stop()
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "mousedom", "run"]

@@ -320,3 +320,29 @@ def test_a_socket_path_at_the_limit_and_ids_at_theirs_are_taken():
     text = _TWO + "server: {socket: /run/" + "s" * 102 + ", control_uids: [0, 4294967294]}\n"
     c = parse_config(text, "rig.yaml", need_sources=False)
     assert len(c.server.socket) == 107 and c.server.control_uids == (0, 4294967294)
+
+
+@pytest.mark.parametrize("mice", [2, 3, 9])
+def test_a_queue_too_short_for_a_status_answer_is_refused(mice):
+    """``server.queue_lines`` must hold a status answer and what goes ahead of it, twice
+    over (the server answers while the queue is under half full): 4 x (sensors + 2).
+    Shorter, the config was taken and the daemon never answered a command (1 line) or
+    dropped a client that read as fast as it could ("queue full", 2-4 lines)."""
+    from mousedom.config.load import queue_lines_needed
+
+    names = [f"m{k}" for k in range(mice)]
+    text = "rate_hz: 100\nmodel: lsq\nmice:\n" + "".join(
+        f"  {n}:\n    cpi: 800\n    mount: {{x: {0.1 * (k % 3)}, y: {0.05 * k}, yaw: 0}}\n"
+        f"    replay: {n}.events\n"
+        for k, n in enumerate(names)
+    )
+    least = queue_lines_needed(mice)
+    assert least == 4 * (mice + 2)
+    for lines in (1, 2, least - 1):
+        with pytest.raises(ConfigError) as err:
+            parse_config(text + f"server: {{queue_lines: {lines}}}\n", "rig.yaml")
+        message = str(err.value)
+        assert re.search(r"rig\.yaml:\d+: server\.queue_lines: ", message), message
+        assert f"at least {least}" in message, message
+    cfg = parse_config(text + f"server: {{queue_lines: {least}}}\n", "rig.yaml")
+    assert cfg.server.queue_lines == least

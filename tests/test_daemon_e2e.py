@@ -34,7 +34,7 @@ def _rate(poses: list[dict]) -> float:
 
 
 def test_clients_rate_commands_and_sigterm(rig_run):
-    run = rig_run(sim.straight(1.0, 0.1), extra="server: {queue_lines: 16, idle_timeout_s: 2}\n")
+    run = rig_run(sim.straight(1.0, 0.1), extra="server: {queue_lines: 20, idle_timeout_s: 2}\n")
     sock = run.daemon.socket_path
     a, _stalled, slow = Conn(sock), Conn(sock), Conn(sock)
     banner = a.read()
@@ -561,7 +561,7 @@ def test_after_a_stall_every_reading_client_gets_the_latest_pose_and_stays(rig_r
     once, queued every POSE to every client, and dropped all 20 healthy readers together.
     Now each client's queue holds only the latest POSE beyond its kernel buffer, and the
     daemon's own stall does not count against anyone."""
-    run = rig_run(sim.straight(20.0, 0.05), extra="server: {queue_lines: 16}\n")
+    run = rig_run(sim.straight(20.0, 0.05), extra="server: {queue_lines: 20}\n")
     clients = [Conn(run.daemon.socket_path) for _ in range(20)]
     for c in clients:
         c.until("VERSION")
@@ -716,3 +716,64 @@ def test_run_holds_sighup_from_its_first_step_and_other_commands_do_not():
             assert p.returncode == 0 and p.stdout.strip() == "alive True", (argv, p)
         else:
             assert p.returncode == -signal.SIGHUP, (argv, p)
+
+
+def test_a_daemon_leaving_does_not_remove_another_daemons_socket(tmp_path):
+    """An operator removed daemon A's socket file while it ran and started daemon B at
+    the same path (docs/daemon.md: a socket with a live daemon behind it is not
+    replaced).  A's SIGTERM took B's socket from under it: B ran on, unreachable.  A
+    removes the socket file only where it is still the one it made."""
+    from daemon_fixtures import DaemonProcess
+
+    sock = tmp_path / "run" / "demo.sock"
+    a = DaemonProcess(Path("unused"), sock, "--demo", config_args=False)
+    b = None
+    try:
+        a.wait_socket()
+        sock.unlink()
+        b = DaemonProcess(Path("unused"), sock, "--demo", config_args=False,
+                          log=tmp_path / "b.log")  # fmt: skip
+        b.wait_socket()
+        assert a.stop() == 0
+        assert sock.is_socket()
+        assert Conn(sock).until("VERSION")["sensors"] == ["front", "left", "right"]
+        assert "not the socket this daemon made any more; not removing it" in a.log()
+        assert b.stop() == 0
+        assert not sock.exists()  # (b's own: removed at its exit)
+    finally:
+        a.stop()
+        if b is not None:
+            b.stop()
+
+
+def test_a_client_reading_flat_out_at_the_shortest_queue_is_answered_every_status(rig_run):
+    """``server.queue_lines`` at its least for the rig (4 x (sensors + 2): 20 for three
+    mice): a client that sends 3,000 status commands in one write and reads as fast as it
+    can gets every answer and stays.  A status answer is its STATUS and a SOURCE per
+    sensor, and the SOURCE lines and POSE waiting go ahead of it; at 2-4 lines such a
+    client was dropped for a full queue, and at 1 no command was answered."""
+    import threading
+
+    from mousedom.config.load import queue_lines_needed
+
+    least = queue_lines_needed(3)
+    run = rig_run(sim.straight(20.0, 0.05), extra=f"server: {{queue_lines: {least}}}\n")
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    sock.connect(str(run.daemon.socket_path))
+    sock.settimeout(20.0)
+    n = 3000
+    writer = threading.Thread(target=sock.sendall, args=(b'{"cmd": "status"}\n' * n,))
+    writer.start()
+    statuses, buf, closed = 0, b"", False
+    deadline = time.monotonic() + 60.0
+    while statuses < n and time.monotonic() < deadline:
+        data = sock.recv(65536)
+        if not data:
+            closed = True
+            break
+        *lines, buf = (buf + data).split(b"\n")
+        statuses += sum(1 for line in lines if line.startswith(b'{"class":"STATUS"'))
+    writer.join(10)
+    sock.close()
+    assert (statuses, closed) == (n, False), (statuses, closed)
+    assert "queue full" not in run.daemon.log()

@@ -104,6 +104,17 @@ def _ros2_across(
     return gyro
 
 
+def queue_lines_needed(sensors: int) -> int:
+    """The least ``server.queue_lines`` for a rig of ``sensors`` sensors.  The server answers
+    a client's command while its owed lines fill less than half the queue (back-pressure,
+    server.Server._answer_some); a ``status`` answer and what goes ahead of it (each
+    sensor's SOURCE waiting, the latest POSE) add up to 2 x sensors + 2 lines, so half the
+    queue must hold that and a few more (a VERSION, an ERROR): below it, a client that read
+    as fast as it could was dropped for a full queue, and with 1 no command was ever
+    answered."""
+    return 4 * (sensors + 2)
+
+
 def parse_config(
     text: str,
     path: str | None = None,
@@ -173,6 +184,12 @@ def parse_config(
     if clashed:
         raise doc.error(("mice",), clashed)
     gyro = _ros2_across(doc, ros2, gyro, mice)
+    least = queue_lines_needed(len(mice) + (gyro is not None))
+    if server.queue_lines < least:
+        raise doc.error(("server", "queue_lines"),
+                        f"{server.queue_lines} lines cannot hold a status answer and what waits "
+                        f"before it for {len(mice) + (gyro is not None)} sensors: at least "
+                        f"{least}")  # fmt: skip
 
     found = plausible.suspects([(m.name, m.cpi_x, m.cpi_y, m.mount.x, m.mount.y,
                                  math.degrees(m.mount.yaw)) for m in mice])  # fmt: skip

@@ -203,10 +203,8 @@ class Server:
                 self.selector.unregister(self.listener)
             self.listener.close()
             self.listener = None
-            try:
-                os.unlink(self.path)
-            except FileNotFoundError:
-                pass
+            if self.access is not None:
+                socketfile.remove_own(self.access)
 
     def apply_settings(self, settings: ServerConfig) -> None:
         """New limits after a reload, and the socket file's group and mode as at start

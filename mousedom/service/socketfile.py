@@ -231,3 +231,22 @@ def remove_stale(path: str) -> None:
     except FileNotFoundError:
         return
     log.info("removed stale socket %s", path)
+
+
+def remove_own(access: Access) -> None:
+    """The daemon's socket file removed at its exit, where it is still the one it made
+    (``access.identity``): an operator who removed it while the daemon ran and started
+    another daemon at the same path gave the path to that one, and the first one's exit
+    took it from under it (the second ran on with no socket to reach it by)."""
+    path = access.path
+    try:
+        st = os.lstat(path)
+    except FileNotFoundError:
+        return
+    if not stat.S_ISSOCK(st.st_mode) or (st.st_dev, st.st_ino) != access.identity:
+        log.warning("%s: not the socket this daemon made any more; not removing it", path)
+        return
+    try:
+        os.unlink(path)
+    except FileNotFoundError:
+        pass
