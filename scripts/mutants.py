@@ -144,8 +144,8 @@ MUTANTS = [
     Mutant(
         "evemu-abs-value",
         "mousedom/capture/evemu_lines.py",
-        "va = int(value, 10)",
-        "va = abs(int(value, 10))",
+        'va = (-1 if value[:1] == b"-" else 1) * int(digits)',
+        "va = int(digits)",
         ("tests/test_capture_evemu.py",),
         "the careful evemu line parser drops the value's sign",
     ),
