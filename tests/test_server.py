@@ -712,6 +712,37 @@ def test_a_half_closed_client_at_rate_zero_gets_every_answer_it_is_owed(harness,
     p.close()
 
 
+@pytest.mark.parametrize("paused", [True, False])
+@pytest.mark.parametrize("n", [0, 1, 40])
+def test_a_last_command_without_its_newline_is_answered_at_eof(harness, n, paused):
+    """``printf '{"cmd":"status"}' | nc -U``: the last command has no newline, and the
+    client shuts its sending side and reads.  It was dropped unanswered; EOF ends it as
+    a newline would (after ``n`` complete ones, at rate 0 or not)."""
+    h = harness()
+    p = Peer(h.server.path)
+    p.read()
+    head = b'{"cmd": "rate", "hz": 0}\n' if paused else b""
+    p.send(head + b'{"cmd": "status"}\n' * n + b'{"cmd": "status"}')
+    p.sock.shutdown(socket.SHUT_WR)
+    want = n + 1 + paused
+    got, closed = _read_all(p.sock, want + 1, 3.0 if paused else 1.0)
+    assert got == want
+    assert closed == paused  # (at rate 0 it goes once its answers are out; else it stays)
+    p.close()
+
+
+def test_a_line_cut_by_eof_past_max_line_is_one_error():
+    """A last line longer than ``max_line`` without its newline is TooLong once, as any."""
+    from mousedom.service.protocol import LineBuffer, TooLong
+
+    rx = LineBuffer(8)
+    assert rx.feed(b"ab\ncdefghijklmn") == [b"ab"]
+    last = rx.finish()
+    assert len(last) == 1 and isinstance(last[0], TooLong) and last[0].size == 12
+    assert rx.finish() == []
+    assert rx.feed(b"xy\r") == [] and rx.finish() == [b"xy"]
+
+
 def test_the_answers_of_a_turn_stop_when_the_wakes_budget_is_spent(harness):
     """Client work per wake is bounded (docs/protocol.md, 4 ms): the budget is looked at
     before each line, and what is left waits in the backlog, in turn.  It was looked at

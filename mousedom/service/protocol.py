@@ -109,6 +109,19 @@ class LineBuffer:
             start = nl + 1
         return out
 
+    def finish(self) -> list[bytes | TooLong]:
+        """The stream ended (EOF): a last line without its newline is a line all the same
+        (``printf '{"cmd":"status"}' | nc -U``: the command was dropped unanswered)."""
+        if self._skipping:
+            out: list[bytes | TooLong] = [TooLong(self._skipping)]
+            self._skipping = 0
+            return out
+        if not self._buf:
+            return []
+        line = bytes(self._buf).rstrip(b"\r")
+        self._buf.clear()
+        return [line]
+
 
 def _number(name: str, key: str, value: Any) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):

@@ -501,8 +501,8 @@ class Server:
             client.partial = client.partial[n:]
             client.waiting_since = None  # it takes what it is sent
         waiting = _waiting(client)
-        if not waiting and client.closing:
-            self.drop(client, None)  # (all it was owed is out)
+        if not waiting and client.closing and not client.lines:
+            self.drop(client, None)  # (all it was owed is out, and nothing is to come)
             return
         if waiting and client.waiting_since is None:
             client.waiting_since = self.running
@@ -541,9 +541,15 @@ class Server:
             self.drop(client, None)
             return
         client.reading = False  # (EOF stays readable: the socket is no longer read)
+        last = client.rx.finish()  # a last command without its newline
+        if last:
+            client.lines.extend(last)
+            self._answer_some(client)
+            if not self.alive(client):
+                return
         if client.paused:
             client.closing = True
-            if not _waiting(client):
+            if not _waiting(client) and not client.lines:  # (lines: answers still to come)
                 self.drop(client, None)
                 return
         self._register(client)
