@@ -658,8 +658,7 @@ MUTANTS = [
     Mutant(
         "scale-fault-block-before-kept",
         "mousedom/fusion/scalelearn.py",
-        "                self._give_back_block(i, g, self._prev_block_gave, owed, parts[-2], 2,"
-        " steps)\n",
+        "                self._give_back_block(i, g, prev, parts[-2], 2, block.steps)\n",
         "                pass\n",
         ("tests/test_scale_faults.py",),
         "the block a fault began in, learnt as a CPI, keeps the turn its readings gave",

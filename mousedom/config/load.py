@@ -184,12 +184,12 @@ def parse_config(
     if clashed:
         raise doc.error(("mice",), clashed)
     gyro = _ros2_across(doc, ros2, gyro, mice)
-    least = queue_lines_needed(len(mice) + (gyro is not None))
+    sensors = len(mice) + (gyro is not None)
+    least = queue_lines_needed(sensors)
     if server.queue_lines < least:
         raise doc.error(("server", "queue_lines"),
                         f"{server.queue_lines} lines cannot hold a status answer and what waits "
-                        f"before it for {len(mice) + (gyro is not None)} sensors: at least "
-                        f"{least}")  # fmt: skip
+                        f"before it for {sensors} sensors: at least {least}")  # fmt: skip
 
     found = plausible.suspects([(m.name, m.cpi_x, m.cpi_y, m.mount.x, m.mount.y,
                                  math.degrees(m.mount.yaw)) for m in mice])  # fmt: skip

@@ -1201,7 +1201,7 @@ class Screen(RigidTest):
             return None
         h.group_n = 0
         return (g[0:2].copy(), g[2:4].copy(), float(g[4]), float(g[5]),
-                g[6:10].reshape(2, 2), self._group)  # fmt: skip
+                g[6:10].reshape(2, 2).copy(), self._group)  # fmt: skip
 
     def _end_run(self, i: int, h: MouseHealth) -> None:
         """An excluded mouse's run of agreeing windows ends: banked to be given back at its

@@ -309,13 +309,19 @@ def fit_axes(
     return g[axis_of].reshape(n, 2), spread[axis_of].reshape(n, 2), d_all, spread_d_all
 
 
-class BlockWindows(NamedTuple):
-    """A learnt block's windows as ``_gave`` added them to the horizon, one by one, for a
-    give-back that must leave some of them out (the screen's take-backs): the number of
-    its first window (``ScaleLearner._serial``), each window's turn per unit scale per
-    mouse and count axis (K, N, 2), its step turned by 90 degrees (K, 2), and what each
-    mouse's count axes moved the body in it, world axes (K, N, 2, 2)."""
+class BlockGave(NamedTuple):
+    """What a learnt block's windows gave the horizon (``_gave``), kept for the give-back
+    of a mouse it or the next block finds faulty (``_give_back_faults``): each mouse's
+    own turn and walk per unit scale, unforgotten (``unit`` (N, 2), ``local`` (N, 2, 2))
+    and its steps turned summed (``steps`` (2,)); and the same window by window, for a
+    give-back that must leave some windows out (the screen's take-backs, ``_not_taken``):
+    the number of its first window (``ScaleLearner._serial``), each window's turn per
+    unit scale (K, N, 2), its step turned by 90 degrees (K, 2), and what each mouse's
+    count axes moved the body in it, world axes (K, N, 2, 2)."""
 
+    unit: np.ndarray
+    local: np.ndarray
+    steps: np.ndarray
     first: int
     per: np.ndarray
     perp: np.ndarray
@@ -416,11 +422,8 @@ class ScaleLearner:
         self.walk_owed = np.zeros(2)  # and the position
         # the last block's own turn and walk per unit scale and its steps turned summed,
         # unforgotten (``_gave``), and the block's before it (``_give_back_faults``)
-        self._block_gave = (np.zeros((self.n, 2)), np.zeros((self.n, 2, 2)), np.zeros(2))
-        self._prev_block_gave = self._block_gave
-        # and the two blocks' windows one by one, where the screen took some back
-        self._block_windows: BlockWindows | None = None
-        self._prev_block_windows: BlockWindows | None = None
+        self._block: BlockGave | None = None
+        self._prev_block: BlockGave | None = None
         self._serial = 0  # windows added ever (add, add_row): numbering them
         # The screen's take-backs (Screen.hand_taken): (mouse, first window, end window),
         # numbered as _serial numbers them.  The windows of a take-back no longer hold
@@ -587,13 +590,12 @@ class ScaleLearner:
         # first segment (kept or dropped together: a stop, a mouse out for long) are
         # composed into one, so that the list holds at most _CHANGE_SEGMENTS + 1.
         local = np.einsum("kia,kb->iab", np.cumsum(per, axis=0) - per, perp) + straight
-        self._prev_block_gave = self._block_gave
-        self._block_gave = (per.sum(axis=0), local, perp.sum(axis=0))  # (_give_back_faults)
-        self._prev_block_windows = self._block_windows
         first = self._serial - len(counts)
-        self._block_windows = BlockWindows(first, per, perp, straight_each)
+        block = BlockGave(per.sum(axis=0), local, perp.sum(axis=0), first, per, perp,
+                          straight_each)  # fmt: skip
+        self._prev_block, self._block = self._block, block  # (_give_back_faults)
         # take-backs of windows older than the two blocks kept concern no give-back
-        oldest = first if self._prev_block_windows is None else self._prev_block_windows.first
+        oldest = first if self._prev_block is None else self._prev_block.first
         self._taken = [mark for mark in self._taken if mark[2] > oldest]
         since = self._segment_count - _CHANGE_SEGMENTS
         kept = [part for part in self._recent_gave if part[0] >= since]
@@ -1066,57 +1068,50 @@ class ScaleLearner:
         if (self._learnt_last and len(parts) >= 2 and parts[-1][0] == self._segment_count
                 and parts[-2][0] == self._segment_count - 1):  # fmt: skip
             before = fit(self._segments[-1], self._segment_groups[-1], self.n, len(self.cols))
-        steps = self._block_gave[2]
+        block, prev = self._block, self._prev_block
+        if block is None:
+            return  # (no block given yet: nothing to give back)
         for i in self.faults:
-            owed = self._not_taken(i, self._block_gave, self._block_windows)
-            self._give_back_block(i, block_scale[i], self._block_gave, owed, parts[-1], 1, None)
-            if before is None:
+            self._give_back_block(i, block_scale[i], block, parts[-1], 1, None)
+            if before is None or prev is None:
                 continue
             g, spread = before[0][i], before[1][i]
             off = abs(g - float(self.scale[i].mean()))
             if off > _BEYOND_MIN and off > FAULT_SIGMAS * spread:
-                owed = self._not_taken(i, self._prev_block_gave, self._prev_block_windows)
-                self._give_back_block(i, g, self._prev_block_gave, owed, parts[-2], 2, steps)
+                self._give_back_block(i, g, prev, parts[-2], 2, block.steps)
 
-    def _not_taken(
-        self, i: int, gave: tuple[np.ndarray, ...], windows: BlockWindows | None
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Mouse i's turn and walk per unit scale in a block (``gave``'s, ``_gave``'s
-        sums) over the windows the screen did not take back for it (``_take_back``: it
-        solved them again without the mouse, from its fault's onset on; given back again
-        here, that turn counted twice, and a drive ended 59 mm off against 7)."""
-        unit, local = gave[0][i], gave[1][i]
-        if windows is None:
-            return unit, local
-        k = len(windows.per)
+    def _not_taken(self, i: int, block: BlockGave) -> tuple[np.ndarray, np.ndarray]:
+        """Mouse i's turn and walk per unit scale in a block (its ``unit`` and ``local``)
+        over the windows the screen did not take back for it (``_take_back``: it solved
+        them again without the mouse, from its fault's onset on; given back again here,
+        that turn counted twice, and a drive ended 59 mm off against 7)."""
+        unit, local = block.unit[i], block.local[i]
+        k = len(block.per)
         keep = np.ones(k)
         for mouse, lo, hi in self._taken:
-            a, b = max(lo - windows.first, 0), min(hi - windows.first, k)
+            a, b = max(lo - block.first, 0), min(hi - block.first, k)
             if mouse == i and a < b:
                 keep[a:b] = 0.0
         if keep.all():
             return unit, local
         # _gave's sums for this mouse, the windows taken back left out
-        per = windows.per[:, i] * keep[:, None]
+        per = block.per[:, i] * keep[:, None]
         before = np.cumsum(per, axis=0) - per
-        local = before.T @ windows.perp + np.einsum("k,kab->ab", keep, windows.straight[:, i])
+        local = before.T @ block.perp + np.einsum("k,kab->ab", keep, block.straight[:, i])
         return per.sum(axis=0), local
 
     def _give_back_block(
-        self, i: int, scale: float, gave: tuple[np.ndarray, ...],
-        owed: tuple[np.ndarray, np.ndarray], part: tuple, age: int,
+        self, i: int, scale: float, block: BlockGave, part: tuple, age: int,
         steps_after: np.ndarray | None,
     ) -> None:  # fmt: skip
-        """Mouse i's windows of one block (``gave``: its own turn and walk per unit scale,
-        unforgotten; ``owed``: those of the windows the screen did not take back,
-        ``_not_taken``; ``part``: the recent blocks' part it is the last of; ``age``:
-        blocks since it, itself included, whose forgetting its sums have had) given back
-        at ``scale``, and all of them taken out of the horizon.  ``steps_after``: the
-        steps turned summed of the block after it (its heading owed turns those too), or
-        None."""
-        unit, local = gave[0][i], gave[1][i]
+        """Mouse i's windows of one block given back at ``scale`` (but those the screen
+        took back, ``_not_taken``), and all of them taken out of the horizon.  ``part``:
+        the recent blocks' part it is the last of; ``age``: blocks since it, itself
+        included, whose forgetting its sums have had; ``steps_after``: the steps turned
+        summed of the block after it (its heading owed turns those too), or None."""
+        unit, local = block.unit[i], block.local[i]
         delta = scale - self.scale[i]  # per count axis
-        o_unit, o_local = owed
+        o_unit, o_local = self._not_taken(i, block)
         walk = o_local if steps_after is None else o_local + o_unit[:, None] * steps_after[None]
         self.turn_owed += float(delta @ o_unit)
         self.walk_owed = self.walk_owed + delta @ walk

@@ -501,7 +501,7 @@ class Server:
             client.partial = client.partial[n:]
             client.waiting_since = None  # it takes what it is sent
         waiting = _waiting(client)
-        if not waiting and client.closing and not client.lines:
+        if client.closing and _done(client):
             self.drop(client, None)  # (all it was owed is out, and nothing is to come)
             return
         if waiting and client.waiting_since is None:
@@ -549,7 +549,7 @@ class Server:
                 return
         if client.paused:
             client.closing = True
-            if not _waiting(client) and not client.lines:  # (lines: answers still to come)
+            if _done(client):
                 self.drop(client, None)
                 return
         self._register(client)
@@ -599,6 +599,12 @@ class Server:
 def _waiting(client: Client) -> bool:
     """Whether anything waits to be sent to the client."""
     return bool(client.partial or client.queue or client.pose is not None or client.states)
+
+
+def _done(client: Client) -> bool:
+    """Whether nothing waits to be sent to the client and none of its lines waits to be
+    answered: a half-closed client at rate 0 goes then."""
+    return not _waiting(client) and not client.lines
 
 
 def no_budget() -> bool:

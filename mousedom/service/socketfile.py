@@ -154,7 +154,7 @@ def reapply(access: Access, settings: ServerConfig) -> Access:
     except OSError as e:
         log.warning("%s: %s; its mode and group are not changed", path, e.strerror)
         return access
-    if not stat.S_ISSOCK(st.st_mode) or (st.st_dev, st.st_ino) != access.identity:
+    if not _made(access, st):
         log.warning("%s: not the socket this daemon made any more; not touching it", path)
         return access
     if gid != st.st_gid:
@@ -177,6 +177,13 @@ def reapply(access: Access, settings: ServerConfig) -> Access:
         log.warning("cannot set mode of %s: %s", path, e.strerror)
         return replace(access, gid=gid)
     return replace(access, mode=settings.mode, gid=gid)
+
+
+def _made(access: Access, st: os.stat_result) -> bool:
+    """Whether the file ``st`` (an lstat of ``access.path``) is still the socket this
+    daemon made there: a socket of the same device and inode (an operator may have
+    removed it, and another daemon made its own at the path since)."""
+    return stat.S_ISSOCK(st.st_mode) and (st.st_dev, st.st_ino) == access.identity
 
 
 def refuse_if_taken(path: str) -> None:
@@ -243,7 +250,7 @@ def remove_own(access: Access) -> None:
         st = os.lstat(path)
     except FileNotFoundError:
         return
-    if not stat.S_ISSOCK(st.st_mode) or (st.st_dev, st.st_ino) != access.identity:
+    if not _made(access, st):
         log.warning("%s: not the socket this daemon made any more; not removing it", path)
         return
     try:
