@@ -429,3 +429,31 @@ def test_one_over_long_field_is_refused_in_bounded_memory(tmp_path):
                          timeout=120, env=mousedom_env(), preexec_fn=limit)  # fmt: skip
     assert out.returncode != 0 and "Traceback" not in out.stderr, out.stderr[-2000:]
     assert f"rec.yml:{k + 1}: an evdev event must be" in out.stderr, out.stderr[-500:]
+
+
+@pytest.mark.parametrize("n_devices", [1, 2, 3])
+@pytest.mark.parametrize("seed", range(4))
+def test_a_device_with_two_events_lists_is_refused_at_the_second(tmp_path, n_devices, seed):
+    """A device with two ``events:`` keys had both lists read: its counts summed twice
+    over where YAML would keep one. Refused, naming the file and the second key's line,
+    whichever device holds it and wherever in its events it stands."""
+    rng = np.random.default_rng(seed)
+    devices = []
+    for k in range(n_devices):
+        n = int(rng.integers(3, 30))
+        t = np.cumsum(rng.uniform(0.001, 0.01, n))
+        devices.append((f"m{k}", t, rng.integers(-9, 9, n), rng.integers(-9, 9, n)))
+    lines = format_libinput(devices).splitlines(keepends=True)
+    heads = [i for i, ln in enumerate(lines) if ln.lstrip().startswith("- node:")]
+    which = int(rng.integers(n_devices))
+    first = next(i for i in range(heads[which], len(lines)) if lines[i].strip() == "events:")
+    end = heads[which + 1] if which + 1 < n_devices else len(lines)
+    # The second list goes before one of the device's later rows, or at its end.
+    rows = [i for i in range(first + 2, end) if lines[i].lstrip().startswith("- evdev")]
+    at = int(rng.choice(rows + [end]))
+    p = tmp_path / "rec.yml"
+    p.write_text("".join(lines[:at] + [lines[first]] + lines[first + 1 : first + 5] + lines[at:]))
+    with pytest.raises(UserError) as e:
+        drain(p)
+    assert str(e.value).startswith(f"{p}:{at + 1}: a second 'events:' list in one device")
+    assert f"its first is at line {first + 1}" in str(e.value)

@@ -257,6 +257,18 @@ class LibinputCapture(Capture):
                         nl = block.find(b"\n", pos)
                         spans[-1].events = offset + (nl + 1 if nl >= 0 else len(block))
                         spans[-1].events_line = at_line + 1
+                    elif spans:
+                        # A device has one events list (YAML would keep the last of two
+                        # keys, a scan both): which one the user meant is not ours to
+                        # guess, so the file is refused where the second begins.
+                        raise CaptureError(
+                            located(
+                                self.path,
+                                at_line,
+                                "a second 'events:' list in one device (its first is at "
+                                f"line {spans[-1].events_line - 1}): one list per device",
+                            )
+                        )
                 line += block.count(b"\n")
                 offset += len(block)
                 if eof:
