@@ -737,3 +737,29 @@ def test_stop_requests_from_other_threads_race_the_stop_safely(inproc):
         th.join(10)
     assert not d.thread.is_alive()
     assert not errors, errors[:3]
+
+
+@pytest.mark.parametrize("lines", [6, 16])
+def test_one_clients_lines_in_a_wake_keep_to_the_clients_budget(inproc, lines):
+    """docs/protocol.md: all the clients' events of a wake get at most 4 ms (looked at
+    before each line answered). A wake with one event took a path without the budget: one
+    client's 16 status lines took up to 5.7 ms. Each answer here costs 1.5 ms: a wake may
+    answer at most 3 lines (checked at 0, 1.5 and 3 ms), and every line is answered."""
+    d, _ = inproc("lsq", {"a": (0.05, 0.0), "b": (-0.05, 0.0)})
+    wakes: list[int] = []
+    answer = d.commands.on_command
+
+    def slow(client, cmd):
+        wakes.append(d.wakes)
+        time.sleep(0.0015)
+        return answer(client, cmd)
+
+    d.commands.on_command = slow
+    c = Conn(Path(d.server.path))
+    c.until("VERSION")
+    c.send(b'{"cmd": "status"}\n' * lines)
+    for _ in range(lines):
+        c.until("STATUS")
+    assert len(wakes) == lines
+    per_wake = [wakes.count(w) for w in sorted(set(wakes))]
+    assert max(per_wake) <= 3, per_wake
