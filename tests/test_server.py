@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 import os
 import queue
 import selectors
@@ -21,6 +22,7 @@ from daemon_fixtures import stopped_listener
 
 from mousedom.config import ServerConfig
 from mousedom.errors import UserError
+from mousedom.service import server as server_module
 from mousedom.service.protocol import encode, error_message, ok_message
 from mousedom.service.server import Server
 from mousedom.service.socketfile import default_socket_path
@@ -199,6 +201,40 @@ def test_pose_moving_commands_need_a_listed_uid(harness):
     assert [c[1] for c in h.commands] == ["status"]
     h.close()
     os.rmdir(shared)
+
+
+@pytest.mark.parametrize("flood", [1, 7, 60])
+def test_refusals_for_the_client_limit_are_logged_once_a_while_with_their_count(
+    harness, caplog, monkeypatch, flood
+):
+    """Each refused connection logged its own WARNING: 3,000 connects wrote 392 lines. The
+    first of a flood is logged; the rest are counted into the next line, at most one per
+    REFUSED_LOG_S of running time; every one is still refused and counted."""
+    monkeypatch.setattr(server_module, "REFUSED_LOG_S", 0.5)
+    h = harness(max_clients=1)
+    a = Peer(h.server.path)
+    a.read()
+    caplog.set_level(logging.WARNING, logger=server_module.__name__)
+
+    def refuse(n):
+        for _ in range(n):
+            p = Peer(h.server.path)
+            assert p.read() == error_message("too many clients; try again later")
+            p.close()
+
+    def said():
+        return [r.getMessage() for r in caplog.records if "refusing" in r.getMessage()]
+
+    refuse(flood)
+    assert len(said()) == 1 and "more refused" not in said()[0]
+    time.sleep(0.6)
+    refuse(1)
+    assert len(said()) == 2
+    assert said()[1].endswith(f"; {flood - 1} more refused since the last such line") == (
+        flood > 1
+    ), said()
+    assert h.server.refused == flood + 1
+    a.close()
 
 
 def test_client_limit(harness):

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import errno
 import logging
+import math
 import os
 import resource
 import select
@@ -65,6 +66,9 @@ JUNK_PER_S = 8.0
 MAX_TICK_S = 1.5  # the loop wakes at least once a second (SOURCE), whatever the rate
 # Out of descriptors: the listener rests this long (or until a client leaves).
 ACCEPT_PAUSE_S = 0.5
+# Refusals for the client limit are logged at most once in this much running time, each
+# line with the number refused since the last (a flood of 3,000 connects wrote 392 lines).
+REFUSED_LOG_S = 10.0
 _OUT_OF_RESOURCES = (errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.ENOMEM)
 
 
@@ -153,6 +157,7 @@ class Server:
         self.access: socketfile.Access | None = None  # the socket file's mode and group
         self.dropped = 0  # clients dropped for not reading (owed lines overflowing, idle)
         self.refused = 0  # clients refused for the client limit
+        self._refused_logged = (0, -math.inf)  # self.refused and self.running at the last line
         # The daemon's running time: wall time with its own stalls cut to MAX_TICK_S, so a
         # paused daemon never blames its clients for what it did not send.
         self.running = 0.0
@@ -247,7 +252,7 @@ class Server:
             client = Client(sock, self.settings, self.may_control(uid, gid))
             if len(self.clients) >= self.settings.max_clients:
                 self.refused += 1
-                log.warning("refusing %r: already %d clients", client, len(self.clients))
+                self._log_refused(client)
                 try:
                     sock.send(encode(error_message("too many clients; try again later")))
                 except OSError:
@@ -264,6 +269,16 @@ class Server:
                     self.send(client, encode(msg))
             except Exception as e:  # noqa: BLE001 - as in handle(): only this client goes
                 self._fail(client, e)
+
+    def _log_refused(self, client: Client) -> None:
+        logged, at = self._refused_logged
+        if self.running < at + REFUSED_LOG_S:
+            return
+        since = self.refused - logged - 1
+        log.warning("refusing %r: already %d clients (server.max_clients)%s", client,
+                    len(self.clients), f"; {since} more refused since the last such line"
+                    if since else "")  # fmt: skip
+        self._refused_logged = (self.refused, self.running)
 
     def _pause_accepting(self, error: OSError) -> None:
         """Out of descriptors (or memory): the listener stays readable, and accepting at
