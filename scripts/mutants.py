@@ -818,6 +818,32 @@ MUTANTS = [
         ("tests/test_nees_drives.py::test_nees_of_a_mouse_noisier_than_configured_is_three",),
         "the covariance of the seconds before the noise is learnt stays at the config's sigma",
     ),
+    Mutant(
+        "noise-two-mice-never-learnt",
+        "mousedom/fusion/tracker.py",
+        '            self.n_mice >= 3 or (self.n_mice == 2 and self.model != "bonarini")\n',
+        "            self.n_mice >= 3\n",
+        ("tests/test_nees_drives.py::test_two_mouse_drives_are_not_overconfident",),
+        "two mice keep the config's guessed sigma: the covariance is overconfident",
+    ),
+    Mutant(
+        "noise-two-mice-may-lower-sigma",
+        "mousedom/fusion/noiserate.py",
+        "        self._floor = (1.0 if self.redundant < FEW_READINGS else FLOOR) * sig2\n",
+        "        self._floor = FLOOR * sig2\n",
+        (
+            "tests/test_covariance_truth.py::test_a_mouse_with_unequal_axis_cpis_is_not_overconfident",
+        ),
+        "one redundant reading's noisy estimate lowers a right sigma: overconfident by chance",
+    ),
+    Mutant(
+        "noise-two-mice-blocks-misaligned",
+        "mousedom/fusion/tracker_learn.py",
+        "        if self.scales.active or self.noise_rate is None:\n",
+        "        if True:\n",
+        ("tests/test_noiserate.py",),
+        "two mice: replay learns the noise at other windows than the daemon",
+    ),
 ]
 
 

@@ -15,8 +15,10 @@ import math
 
 import numpy as np
 import pytest
+from test_robust_short_windows import healthy_config, healthy_rig
 
 from mousedom.fusion import chi2, conditions, scenarios, sim
+from mousedom.fusion.drives import drive
 
 DURATION = 30.0
 
@@ -77,3 +79,25 @@ def test_nees_of_a_mouse_noisier_than_configured_is_three():
     ]
     assert all(math.isfinite(v) for v in values)
     _within_band(values)
+
+
+@pytest.mark.parametrize("model", ["lsq", "diff-drive"])
+def test_two_mouse_drives_are_not_overconfident(model):
+    """Two mice: one redundant reading on lsq (two on diff-drive), too few for the noise
+    rate as it was (three or more mice), so the covariance kept the config's sigma, a
+    guess: generated rigs (any layout, 125-8000 Hz, USB gaps, late stamps) summed to NEES
+    10.1 (lsq) and 20.5 (diff-drive) per drive, single drives up to 173; now 2.9 and 2.9.
+    The redundancy
+    now sets the noise's level (noiserate: one factor of sigma^2 on lsq), never below the
+    config's: the sum is at most chi-square's 99.9 % point, and not so wide that a drive
+    averages under 1 (one common factor on mice of unequal rates is wide on the quiet)."""
+    values = []
+    for seed in range(16):
+        rig, duration, drive_seed = healthy_rig(seed, n=2, model=model, duration=20.0)
+        result = sim.simulate(rig, drive(duration, drive_seed), seed=seed)
+        run = scenarios.measure(result, healthy_config(rig))
+        assert run.nees_dof == 3
+        values.append(run.nees)
+    total, dof = float(np.sum(values)), 3 * len(values)
+    seen = (total / len(values), [round(v, 1) for v in values])
+    assert dof / 3 < total <= chi2.quantile(0.999, dof), seen

@@ -25,7 +25,19 @@ and LONG_S) give Kv as the difference of their mean squares over the difference 
 motion; v = K^-1 (K v), none below a floor.  Spans count only while every mouse is in use
 in consistent windows (a fault's windows are not noise).
 
-It needs three or more mice (with two, K has rank 1: only the sum shows).  Learnt in
+Where K has full rank (three or more mice on ``lsq``, two or more on ``diff-drive``),
+each mouse's variance is learnt.  Where it has less (two mice on ``lsq``: one redundant
+reading, the distance along the line joining them, so K has rank 1 and only a weighted
+sum shows), the variances are taken in the proportions of the config's sigma^2 and one
+factor is learnt, the least-squares fit of f K sigma^2 to K v: the config's guess of the
+noise's level, which left two-mouse rigs' covariance too narrow (NEES 6.6 on healthy
+drives, 11.7 with late stamps, where 3 is expected), is what the redundancy corrects.
+With no redundant reading (one mouse on ``diff-drive``), nothing is learnt.  With fewer
+than FEW_READINGS redundant readings (two mice), the learnt variance may raise the
+config's sigma^2, not lower it: one or two readings' worth of residuals over the first
+seconds make a noisy estimate, and a covariance too narrow by chance costs NEES far more
+than one as much too wide saves (a drive of 9 s with the config's sigma right: NEES 3.4
+with the config's, 4.8 with the estimate alone).  Learnt in
 blocks of windows, the tracker's scale learner's (so the array and one-window paths
 change at the same window), forgetting with a half-life of HALF_LIFE_S; until
 MIN_MOVING_S of motion has been seen, ``noise`` is None and the covariance keeps the
@@ -48,6 +60,8 @@ MIN_MOVING_S = 5.0  # of motion in long spans before the estimate is used
 # twist's covariance stays invertible), both relative to the config's sigma^2.
 FLOOR = 1e-3
 REST = 1e-4
+RANK_TOL = 1e-6  # of K's singular values, relative to its largest
+FEW_READINGS = 3  # redundant readings below which the config's sigma^2 is a floor
 
 
 class NoiseRate:
@@ -77,6 +91,17 @@ class NoiseRate:
         project = np.eye(n2) - a @ np.linalg.solve(aw @ a, aw)
         blocks = project.reshape(self.n, 2, self.n, 2)
         self.k = np.einsum("iajb,iajb->ij", blocks, blocks) / 2.0
+        # K's rank: all of v where full, else one common factor of sigma^2 (docstring).
+        # Relative to K's largest singular value (about 1: P is a projection), a rank-1 K
+        # of two mice leaves 1e-17; a rig whose second value is below this is too near one
+        # (mice almost at one point) for each mouse's share to be told.
+        values = np.linalg.svd(self.k, compute_uv=False) if self.n else np.zeros(0)
+        top = float(values[0]) if values.size else 0.0
+        self.rank = int(np.sum(values > RANK_TOL * top)) if top > 0 else 0
+        self._k_sig2 = self.k @ sig2
+        # the redundant readings: the residual projection's rank (its trace)
+        self.redundant = round(float(np.trace(project))) if self.n else 0
+        self._floor = (1.0 if self.redundant < FEW_READINGS else FLOOR) * sig2
         self.block = int(block)
         self.short = max(1, round(SHORT_S / window))
         self.long = max(self.short + 1, round(LONG_S / window))
@@ -100,8 +125,12 @@ class NoiseRate:
 
     @property
     def active(self) -> bool:
-        """Whether the rig has the redundancy: three or more mice."""
-        return self.n >= 3
+        """Whether the rig has a redundant reading to learn from (K not zero)."""
+        return self.rank > 0
+
+    def until_block_end(self) -> int:
+        """Windows still to add before the current block ends (at least 1)."""
+        return self.block - self._held
 
     def add(self, residual: np.ndarray, eligible: np.ndarray, moving: np.ndarray) -> bool:
         """Add windows: ``residual`` (n, N, 2) body metres, ``eligible`` (n,) every mouse in
@@ -187,8 +216,12 @@ class NoiseRate:
             return
         mean_sq = self.square / self.spans[:, None] / 2.0  # per axis
         kv = (mean_sq[1] - mean_sq[0]) / (mean_m[1] - mean_m[0])
-        v = np.linalg.lstsq(self.k, kv, rcond=None)[0]
-        v = np.maximum(v, FLOOR * self.sig2)
+        if self.rank == self.n:
+            v = np.linalg.lstsq(self.k, kv, rcond=None)[0]
+        else:  # one factor of the config's sigma^2 (module docstring)
+            ks = self._k_sig2
+            v = float(ks @ kv) / float(ks @ ks) * self.sig2
+        v = np.maximum(v, self._floor)
         if not np.all(np.isfinite(v)):
             return
         self.variance = v

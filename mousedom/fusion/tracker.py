@@ -130,11 +130,15 @@ class Tracker:
         self._carried = Carried.origin()
         self._batch = ArrayPath(setup, self._carried)
         self._one = OneWindowPath(setup, self._carried)
-        # Online scale calibration and noise (Learners): with the fault screen, on three or
-        # more mice; the scales are reported, and folded into _to_body where the config
-        # says so (robust.learn_scale).
+        # Online scale calibration and noise (Learners): with the fault screen, where a
+        # mouse's reading is redundant. The scales need three or more mice (two others to
+        # predict one), and are reported, and folded into _to_body where the config says
+        # so (robust.learn_scale); the noise needs two (noiserate: one factor of sigma^2
+        # on two lsq mice), and no model of bonarini's (no linear estimator).
         self._learners: Learners | None = None
-        if self.screen is not None and self.n_mice >= 3:
+        if self.screen is not None and (
+            self.n_mice >= 3 or (self.n_mice == 2 and self.model != "bonarini")
+        ):
             self._learners = Learners(
                 setup, self._to_body, np.array([m.sigma for m in config.mice]), config.robust
             )
@@ -145,8 +149,10 @@ class Tracker:
 
     @property
     def scales(self) -> scalelearn.ScaleLearner | None:
-        """The online scale learner (None: not learnt, see __init__)."""
-        return None if self._learners is None else self._learners.scales
+        """The online scale learner (None: not learnt, see __init__; two mice have the
+        learners for the noise, and nothing of scales to report)."""
+        learners = self._learners
+        return None if learners is None or not learners.scales.active else learners.scales
 
     @property
     def noise_rate(self) -> noiserate.NoiseRate | None:
@@ -157,9 +163,9 @@ class Tracker:
         """Hand both paths what the learners renew: the counts matrices, the noise model
         (None: the config's sigma) and the scales reported.  The paths hold these from
         one rebind to the next; they never read them off the tracker."""
-        learners = self._learners
+        learners, scales = self._learners, self.scales
         noise = None if learners is None else learners.noise
-        scale = None if learners is None else learners.scales.estimate
+        scale = None if scales is None else scales.estimate
         self._batch.rebind(self._to_body, noise, scale)
         self._one.rebind(self._to_body, noise, scale)
 

@@ -291,8 +291,12 @@ class Learners:
         return None
 
     def until_block_end(self) -> int:
-        """Windows ``add`` takes before the current block ends (at least 1)."""
-        return self.scales.until_block_end()
+        """Windows ``add`` takes before the current block ends (at least 1). The two
+        learners' blocks are one length and end together; two mice learn only the noise
+        (the scales count no windows there), so its count is the one to follow."""
+        if self.scales.active or self.noise_rate is None:
+            return self.scales.until_block_end()
+        return self.noise_rate.until_block_end()
 
     def rebase(self) -> None:
         """The pose was set from outside: the scales' give-back starts from here (it owes
