@@ -178,6 +178,7 @@ class Learners:
                 (0, 2) if setup.model == "diff-drive" else (0, 1, 2),
             )  # fmt: skip
         self._apply = settings.learn_scale
+        self._scales_learn = self.scales.active
         # below these a reading is no count (models.STILL), in counts
         self._still_counts = models.STILL * sigma_counts
         self._still_counts_list = self._still_counts.tolist()  # add_row's
@@ -202,8 +203,6 @@ class Learners:
         tracking, excluded, inconsistent = robust.TRACKING, robust.EXCLUDED, robust.INCONSISTENT
         ok = row.consistent
         usable = [ok and v and st == tracking for v, st in zip(live, row.state, strict=True)]
-        held = [v and st == excluded and why == inconsistent
-                for v, st, why in zip(live, row.state, row.reason, strict=True)]  # fmt: skip
         per = self._period
         q = [row.vx * per, row.vy * per, row.omega * per] if row.ok else [0.0, 0.0, 0.0]
         noise = False
@@ -218,10 +217,14 @@ class Learners:
                         for v, st in zip(live, row.state, strict=True)]  # fmt: skip
                 self._warm.add([row.x], [row.y], [row.theta], [q], [row.ok], [used],
                                [moving], [row.qcov])  # fmt: skip
-        step = [row.x - start[0], row.y - start[1]]
-        in_solve = row.used == self._n  # every mouse in the pose (whatever the screen said)
-        heading = row.theta - 0.5 * q[2]  # the window's middle
-        scales = self.scales.add_row(counts, usable, held, q, step, in_solve, heading, taken)
+        scales = False
+        if self._scales_learn:  # (two mice learn only the noise: nothing more per window)
+            held = [v and st == excluded and why == inconsistent
+                    for v, st, why in zip(live, row.state, row.reason, strict=True)]  # fmt: skip
+            step = [row.x - start[0], row.y - start[1]]
+            in_solve = row.used == self._n  # every mouse in the pose (whatever the screen said)
+            heading = row.theta - 0.5 * q[2]  # the window's middle
+            scales = self.scales.add_row(counts, usable, held, q, step, in_solve, heading, taken)
         self._full = (noise, scales)
 
     @property
