@@ -156,13 +156,20 @@ def test_requiring_the_compiled_core_where_it_is_missing_is_a_clear_error(tmp_pa
     pkg = tmp_path / "mousedom"
     shutil.copytree(REPO / "mousedom", pkg, ignore=shutil.ignore_patterns("_core*", "__pycache__"))
     env = {**os.environ, "MOUSEDOM_CORE": "c", "PYTHONPATH": str(tmp_path)}
-    out = subprocess.run([sys.executable, "-m", "mousedom", "--version"], env=env,
+    # The copy's `mousedom._core`, not found in it, fell through to an editable install's
+    # finder (pip install -e: a meta path finder mapping the package to the checkout),
+    # which loaded the checkout's: the copy is run without such finders.
+    run_copy = ("import runpy, sys; sys.argv = ['mousedom', '--version']; "
+                "sys.meta_path[:] = [f for f in sys.meta_path "
+                "if 'Editable' not in getattr(f, '__name__', type(f).__name__)]; "
+                "runpy.run_module('mousedom', run_name='__main__', alter_sys=True)")  # fmt: skip
+    out = subprocess.run([sys.executable, "-c", run_copy], env=env,
                          capture_output=True, text=True, cwd=tmp_path, timeout=60)  # fmt: skip
     assert out.returncode == 2, out.stderr
     assert "MOUSEDOM_CORE=c, but the compiled core does not load" in out.stderr
     assert "docs/install.md" in out.stderr and "Traceback" not in out.stderr
     env["MOUSEDOM_CORE"] = ""
-    out = subprocess.run([sys.executable, "-m", "mousedom", "--version"], env=env,
+    out = subprocess.run([sys.executable, "-c", run_copy], env=env,
                          capture_output=True, text=True, cwd=tmp_path, timeout=60)  # fmt: skip
     assert out.returncode == 0 and "(core: python (no compiled core built))" in out.stdout
 
