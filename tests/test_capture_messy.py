@@ -198,7 +198,8 @@ def test_a_touchpad_is_not_a_mouse(tmp_path):
         ("E: " + "9" * 320 + ".000001 0002 0000 1", "time out of range"),
         ("E: 1." + "1" * 40 + " 0002 0000 1", "time out of range"),
         ("E: 1.000001 0002 0000 " + "9" * 5000, "value beyond the signed 32 bits"),
-        ("E: 1.000001 0002 0000 -" + "9" * 3_000_000, "value beyond the signed 32 bits"),
+        # (past a line's bound: refused as a line before its value is read)
+        ("E: 1.000001 0002 0000 -" + "9" * 3_000_000, "a line longer than 1048576 bytes"),
         ("E: 1.000001 0002 0000 " + "0" * 5000 + "2147483648", "value beyond the signed 32"),
         ("E: 1.000001 0002 0000 -2147483649", "value beyond the signed 32 bits"),
     ],

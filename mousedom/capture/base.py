@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from mousedom.errors import UserError
+from mousedom.errors import UserError, located
 from mousedom.saferead import NotRegularFile, open_regular
 from mousedom.sources.events import AssemblerStats, FrameAssembler
 
@@ -45,6 +45,47 @@ def open_binary(path: str):
         raise CaptureError(f"{path}: {e.strerror}; a capture is read from a file") from None
     except OSError as e:
         raise CaptureError(f"{path}: cannot read: {e.strerror}") from None
+
+
+# The longest line a text capture (evemu, libinput record) may hold: theirs are tens of
+# bytes (a comment, a device name, a few hundred). The readers carry a partial line from
+# one block to the next; one line of hundreds of megabytes was copied again with each
+# block read (a 400 MB line: 22-40 s and up to 1.7 GB), so a longer one is refused.
+MAX_LINE_BYTES = 1 << 20
+
+
+def check_line_length(path: str, carry: bytes | memoryview, line: int) -> None:
+    """Refuse a partial line carried past MAX_LINE_BYTES (``line``: its number)."""
+    if len(carry) > MAX_LINE_BYTES:
+        raise CaptureError(
+            located(path, line, f"a line longer than {MAX_LINE_BYTES} bytes: not a capture's line")
+        )
+
+
+def check_lines(path: str, block: bytes, first_line: int, end: int | None = None) -> None:
+    """Refuse a block of whole lines (``first_line``: the first one's number) holding a
+    line longer than MAX_LINE_BYTES, wherever it falls: the same file is taken or
+    refused whatever the reader's block size.  From each line start, the last newline
+    within the next MAX_LINE_BYTES + 1 bytes is the next start; none there is such a
+    line.  Each step is one search in C and passes a whole window but its last line:
+    a handful of steps a block.  ``end``: where the lines end (default: the block's)."""
+    start, end = 0, len(block) if end is None else end
+    while end - start > MAX_LINE_BYTES:
+        nl = block.rfind(b"\n", start, start + MAX_LINE_BYTES + 1)
+        if nl < 0:
+            check_line_length(path, block[start:end], first_line + block.count(b"\n", 0, start))
+        start = nl + 1
+
+
+def bounded_lines(f: Any, path: str, first_line: int) -> Iterator[bytes]:
+    """The lines of the binary file ``f`` from where it stands (``first_line``: the first
+    one's number), none held past MAX_LINE_BYTES: a longer one is refused."""
+    line = first_line
+    while raw := f.readline(MAX_LINE_BYTES + 1):
+        if len(raw) > MAX_LINE_BYTES and not raw.endswith(b"\n"):  # (its newline not counted)
+            check_line_length(path, raw, line)
+        yield raw
+        line += 1
 
 
 TIME_BASES = ("epoch", "relative", "monotonic")

@@ -38,6 +38,9 @@ from mousedom.capture.base import (
     DeviceInfo,
     Feed,
     FrameBatcher,
+    bounded_lines,
+    check_line_length,
+    check_lines,
     sec_usec,
 )
 from mousedom.capture.base import open_binary as _open
@@ -170,11 +173,15 @@ class EvemuCapture(Capture):
         with _open(self.data_path) as f:
             head: list[bytes] = []
             self._body_offset = 0
-            for raw in f:
+            for raw in bounded_lines(f, self.path, 1):
                 if raw.lstrip().startswith(b"E:"):
                     break
                 head.append(raw)
                 self._body_offset += len(raw)
+                if self._body_offset > MAX_DESC_BYTES:  # (held whole: bounded as a .desc is)
+                    raise CaptureError(located(self.path, len(head), f"more than "
+                                       f"{MAX_DESC_BYTES} bytes before the first event: "
+                                       "not an evemu recording"))  # fmt: skip
         self._body_line = len(head) + 1
         if not desc_path and not b"".join(head).strip() and self._body_offset == self.bytes_total:
             # Nothing at all, not even a header: a recording that never started, or the
@@ -189,7 +196,7 @@ class EvemuCapture(Capture):
     def first_time(self) -> float | None:
         with _open(self.data_path) as f:
             f.seek(self._body_offset)
-            for i, raw in enumerate(f):
+            for i, raw in enumerate(bounded_lines(f, self.path, self._body_line)):
                 line = raw.split(b"#", 1)[0].strip()
                 if line:
                     if not raw.endswith(b"\n"):
@@ -212,6 +219,7 @@ class EvemuCapture(Capture):
         with _open(self.data_path) as f:
             f.seek(self._body_offset)
             carry = b""
+            line = self._body_line  # the carried line's number
             while True:
                 buf = f.read(self.block_bytes)
                 if not buf:
@@ -222,8 +230,11 @@ class EvemuCapture(Capture):
                 cut = buf.rfind(b"\n") + 1
                 carry = buf[cut:]
                 if cut:
+                    check_lines(self.path, buf, line, cut)
                     self.bytes_done += cut
+                    line += buf.count(b"\n", 0, cut)
                     yield memoryview(buf)[:cut], False
+                check_line_length(self.path, carry, line)
 
     def _batches(self) -> Iterator[Batch]:
         stats = self.stats[0]

@@ -47,6 +47,8 @@ from mousedom.capture.base import (
     DeviceInfo,
     Feed,
     FrameBatcher,
+    check_line_length,
+    check_lines,
     sec_usec,
 )
 from mousedom.capture.base import open_binary as _open
@@ -206,6 +208,7 @@ class LibinputCapture(Capture):
         with _open(self.data_path) as f:
             f.seek(self._spans[0].start)
             carry = b""
+            line = self._spans[0].first_line  # the carried line's number
             while True:
                 buf = f.read(self.block_bytes)
                 text = carry + buf
@@ -215,6 +218,8 @@ class LibinputCapture(Capture):
                     return False
                 if not buf:
                     return True
+                line += block.count(b"\n")
+                check_line_length(self.path, carry, line)
 
     def _index(self) -> list[_Span]:
         spans: list[_OpenSpan] = []
@@ -230,6 +235,8 @@ class LibinputCapture(Capture):
                 block, carry = buf[:cut], buf[cut:]
                 if eof and not block:
                     break
+                check_lines(self.path, block, line)
+                check_line_length(self.path, carry, line + block.count(b"\n"))
                 marks = sorted(
                     [(m.start(), 0) for m in _DEVICE.finditer(block)]
                     + [(m.start(), 1) for m in _EVENTS.finditer(block)]
@@ -361,6 +368,7 @@ class LibinputCapture(Capture):
                     line += block.count(b"\n")
                 if limit:
                     return
+                check_line_length(self.path, carry, line)
 
     def _batches(self, index: int) -> Iterator[Batch]:
         stats = self.stats[index]
