@@ -67,14 +67,32 @@ def test_window_counts_split_a_report_in_proportion_to_time():
     """A report at t = 1.0 covers (0.992, 1.0]; a cut at 0.996 halves it."""
     w = window_counts(np.array([1.0]), np.array([10.0]), np.array([0.0, 0.996, 2.0]), 0.008)
     np.testing.assert_allclose(w, [5.0, 5.0])
-    # Equal stamps merge; a report never reaches back past the previous one.
+    # A report never reaches back past the previous one; one stamped under half a period
+    # after it (held up on its way) joins its span, as in the fusion (countfunction).
     w = window_counts(
         np.array([1.0, 1.0, 1.002]),
         np.array([2.0, 2.0, 4.0]),
         np.array([0.0, 1.0, 1.001, 5.0]),
         0.008,
     )
-    np.testing.assert_allclose(w, [4.0, 2.0, 2.0])
+    np.testing.assert_allclose(w, [2.0, 3.0, 3.0])
+
+
+def test_a_catch_up_report_covers_the_polls_the_host_skipped():
+    """A 125 Hz mouse moving at a steady 10 counts a report whose host skips polls for
+    30 ms gets one report of 40 counts: within the bridge (late_report_s) it covers the
+    32 ms since the previous report, as in the fusion, and windows cut inside the gap
+    get the steady rate (one period back, as before, put all 40 in the last 8 ms)."""
+    period = 0.008
+    t = np.concatenate([np.arange(1, 11) * period, [0.112], 0.112 + np.arange(1, 11) * period])
+    v = np.where(np.isclose(t, 0.112), 40.0, 10.0)
+    edges = np.array([0.0, 0.08, 0.096, 0.112, 0.3])
+    np.testing.assert_allclose(window_counts(t, v, edges, period, bridge=0.15), [100, 20, 20, 100])
+    np.testing.assert_allclose(window_counts(t, v, edges, period), [100, 0, 40, 100])
+    # A report after a rest longer than the bridge covers one period, as before.
+    w = window_counts(np.array([0.0, 1.0]), np.array([5.0, 8.0]), np.array([-1, 0.5, 0.996, 2]),
+                      period, bridge=0.15)  # fmt: skip
+    np.testing.assert_allclose(w, [5.0, 4.0, 4.0])
 
 
 def test_counts_follow_the_evdev_convention():

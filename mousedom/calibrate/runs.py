@@ -4,20 +4,25 @@ A calibration session is a sequence of runs (one push, one turn, one drive) sepa
 pauses.  A rig moves as one body, so the runs are found on the union of every mouse's
 motion reports: a new run starts where no mouse reported motion for longer than ``gap``.
 
-A report stamped t covers the motion since the device's previous report, but never more
-than one report period back (DESIGN.md, time alignment).  ``window_counts`` spreads each
-report uniformly over that span, so that windows cut anywhere get the counts that belong
-to them, and the window sums still add up exactly to the totals (no count is lost).
+A report stamped t covers the motion since the device's previous report where that came
+within a bridge (the config's late_report_s: a USB host's catch-up report after skipped
+polls), else one report period back (it starts again after a rest): the fusion's rule
+(``fusion.countfunction``; DESIGN.md's "one period back" put a 30 ms catch-up's counts in
+its last 8 ms, across window edges).  ``window_counts`` spreads each report uniformly over
+that span, so that windows cut anywhere get the counts that belong to them, and the window
+sums still add up exactly to the totals (no count is lost).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from mousedom.errors import UserError
+from mousedom.fusion.countfunction import CountFunction
 from mousedom.sources.base import Reports
 
 
@@ -88,11 +93,18 @@ def run_counts(
     return out
 
 
-def cumulative(t: np.ndarray, values: np.ndarray, period: float) -> tuple[np.ndarray, np.ndarray]:
+def cumulative(
+    t: np.ndarray, values: np.ndarray, period: float, bridge: float = 0.0
+) -> tuple[np.ndarray, np.ndarray]:
     """Knots (x, y) of the piecewise-linear cumulative sum of ``values`` over time.
 
-    Report i rises linearly from max(t[i-1], t[i] - period) to t[i].  Reports with equal
-    stamps are merged first so that the knots never step vertically.
+    The fusion's rule (``fusion.countfunction``, docs/models.md "Timing is not a fault"),
+    so that a calibration and the fusion count a report where it was measured alike: a
+    report rises linearly over the time since its mouse's previous report where that was
+    at most ``bridge`` seconds before (a USB host's catch-up report after skipped polls, a
+    mouse creeping along), else over one report ``period`` (the first report after a rest);
+    a report stamped under half a period after the one before (held up on its way) joins
+    that report's span.  ``bridge`` 0: one period at most, as before (DESIGN.md).
     """
     t = np.asarray(t, dtype=float)
     v = np.asarray(values, dtype=float)
@@ -100,32 +112,31 @@ def cumulative(t: np.ndarray, values: np.ndarray, period: float) -> tuple[np.nda
         raise ValueError("report stamps must be non-decreasing")
     if len(t) == 0:
         return np.array([0.0]), np.array([0.0])
-    uniq, first = np.unique(t, return_index=True)
-    sums = np.add.reduceat(v, first)
-    c = np.cumsum(sums)
-    prev_t = np.concatenate([[-np.inf], uniq[:-1]])
-    start = np.maximum(prev_t, uniq - period)
-    prev_c = np.concatenate([[0.0], c[:-1]])
-    x = np.empty(2 * len(uniq))
-    y = np.empty(2 * len(uniq))
-    x[0::2], y[0::2] = start, prev_c
-    x[1::2], y[1::2] = uniq, c
-    return x, y
+    f = CountFunction(period, bridge)
+    f.queue(t, v, np.zeros_like(v), float(t[-1]))
+    f.ingest(-math.inf)
+    knots = f.knot_array()
+    return knots[0], knots[1]
 
 
 def window_counts(
-    t: np.ndarray, values: np.ndarray, edges: np.ndarray, period: float
+    t: np.ndarray, values: np.ndarray, edges: np.ndarray, period: float, bridge: float = 0.0
 ) -> np.ndarray:
-    """Counts per window (edges[k], edges[k+1]], each report spread over its span."""
-    return _windows(*cumulative(t, values, period), edges)
+    """Counts per window (edges[k], edges[k+1]], each report spread over its span
+    (``cumulative``)."""
+    return _windows(*cumulative(t, values, period, bridge), edges)
 
 
 def runs_window_counts(
-    t: np.ndarray, values: np.ndarray, edges: Sequence[np.ndarray], period: float
+    t: np.ndarray,
+    values: np.ndarray,
+    edges: Sequence[np.ndarray],
+    period: float,
+    bridge: float = 0.0,
 ) -> np.ndarray:
     """``window_counts`` for every run's edges, concatenated; the cumulative sum of the
     whole recording is built once, not once per run."""
-    x, y = cumulative(t, values, period)
+    x, y = cumulative(t, values, period, bridge)
     if not len(edges):
         return np.zeros(0)
     return np.concatenate([_windows(x, y, e) for e in edges])

@@ -319,10 +319,13 @@ def mounts(
     _reference_still_in_pauses(session, ref, edges, geo, gap, period, size)
     w = np.concatenate([window_twist(ref, e, geo) for e in edges])
     counts = np.zeros((len(w), len(mice), 2))
+    # A report covers the time since its mouse's previous one within late_report_s (a USB
+    # catch-up), as in the fusion; never across a pause that split two runs.
+    bridge = min(session.config.late_report_s, gap)
     for j, m in enumerate(mice):
         rep = session.recording[m.name]
         for axis, values in enumerate((rep.dx, rep.dy)):
-            counts[:, j, axis] = runs_window_counts(rep.t, values, edges, 1.0 / m.report_hz)
+            counts[:, j, axis] = runs_window_counts(rep.t, values, edges, 1.0 / m.report_hz, bridge)
     _no_motion(session, counts)
     _refuse_unfit(ref, session, w, size)
     if method == "exact":
