@@ -1066,3 +1066,26 @@ def test_a_reference_in_other_units_is_hinted_at_in_the_mounts_error():
     assert "m/s: millimetres per second?" in _units_hint(
         Reference("twist", t, np.array([[300.0, 0.0, 0.0]] * len(t)), "r.csv"), session
     )
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_a_reference_sample_far_out_is_named_by_its_time(mounts_session, seed):
+    """A single REF.csv sample far out (a logger's glitch, hostile data: 1e3-1e11 in any
+    column, in a pause or in a run) is refused naming the column and the sample's time.
+    In a pause it was refused as "the reference moves ... where every mouse was still
+    (100055540043% of a run's motion) ... the captures begin in the middle of a motion",
+    naming neither."""
+    tmp, cfg, caps, ref, _, motion = mounts_session
+    rng = np.random.default_rng(seed)
+    lines = ref.read_text().splitlines()
+    column = int(rng.integers(1, 4))
+    for row in rng.choice(np.arange(1, len(lines)), 3, replace=False):
+        bad = lines.copy()
+        fields = bad[row].split(",")
+        fields[column] = f"{rng.choice([-1, 1]) * 10.0 ** rng.uniform(3, 11):.6g}"
+        bad[row] = ",".join(fields)
+        (tmp / "bad.csv").write_text("\n".join(bad) + "\n")
+        p = fails(calib("mounts", cfg, *caps, "--reference", str(tmp / "bad.csv")))
+        name = "omega reaches" if column == 3 else "vx, vy reach"
+        assert name in p.stderr and f"(at t = {float(fields[0]):.3f} s)" in p.stderr, p.stderr
+        assert len(p.stderr.strip().splitlines()) == 1

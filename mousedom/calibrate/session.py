@@ -166,10 +166,15 @@ def _units_hint(ref: Reference, session: Session) -> str:
     said = []
     if ref.kind == "twist" and len(ref.values):
         top = np.abs(ref.values).max(axis=0)
+        # where: a single sample far out (a logger's glitch) is found by its time
+        at = ref.t[np.argmax(np.abs(ref.values), axis=0)]
         if top[2] > 20.0:
-            said.append(f"its omega reaches {top[2]:g} rad/s: degrees per second?")
+            said.append(f"its omega reaches {top[2]:g} rad/s: degrees per second? (at t = "
+                        f"{at[2]:.3f} s)")  # fmt: skip
         if max(top[0], top[1]) > 10.0:
-            said.append(f"its vx, vy reach {max(top[0], top[1]):g} m/s: millimetres per second?")
+            k = int(top[1] > top[0])
+            said.append(f"its vx, vy reach {top[k]:g} m/s: millimetres per second? (at t = "
+                        f"{at[k]:.3f} s)")  # fmt: skip
     spans = [float(r.t[-1] - r.t[0]) for r in session.recording.values() if len(r.t) > 1]
     if len(ref.t) > 1 and spans and float(ref.t[-1] - ref.t[0]) > 100.0 * max(spans):
         said.append(f"its t spans {float(ref.t[-1] - ref.t[0]):g} s where the capture spans "
@@ -316,6 +321,9 @@ def mounts(
         e[0] -= max(0.0, min(PAD, room[k] - period))
         e[-1] += max(0.0, min(PAD, after[k]))
     size = max([0.05] + [math.hypot(m.mount.x, m.mount.y) for m in mice])
+    units = _units_hint(ref, session)  # before the pauses' check: the likelier cause
+    if units:
+        raise UserError(f"calibrate mounts: {units}")
     _reference_still_in_pauses(session, ref, edges, geo, gap, period, size)
     w = np.concatenate([window_twist(ref, e, geo) for e in edges])
     counts = np.zeros((len(w), len(mice), 2))
