@@ -43,13 +43,16 @@ def _heading_error(layout: str, model: str, seed: int, late: float, gyro: bool) 
 
 
 def test_three_or_more_mice_stamped_late_keep_their_heading_with_a_gyro():
-    """Three, four and five mice, six drives each: before, the end heading with the gyro
+    """Three, four and five mice, three drives each: before, the end heading with the gyro
     had a median of 0.5-0.9 degrees on each of these layouts (the mice alone 0.11-0.14),
-    the worst 5.6."""
+    the worst 5.6.  Seeds 23-25 (of the 20-25 this ran): their nine drives end 0.12 degree
+    off in median (worst 0.36); with a span's timing taken as its mean (the mutant
+    gyro-span-timing-its-mean) 0.61, where all six seeds' 18 drives gave 0.42 against the
+    0.4 bound; half the time."""
     errors = [
         _heading_error(layout, "lsq", s, LATE_S, True)
         for layout in ("triangle", "square", "pentagon")
-        for s in range(20, 26)
+        for s in range(23, 26)
     ]
     assert statistics.median(errors) < 0.4 and max(errors) < 4.0, errors
 
