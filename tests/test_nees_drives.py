@@ -71,11 +71,14 @@ def test_nees_of_a_mouse_noisier_than_configured_is_three():
     "noisy").  Until the noise rate's first estimate (seconds of motion) the covariance
     took its noise at sigma^2, a twenty-fifth of the truth, for good: 60 drives of 30 s
     summed to 5.7 per drive (6.8 on the first 30).  The first estimate now restates those
-    windows' covariance with what it learnt (tracker_learn.WarmUp): 3.4."""
+    windows' covariance with what it learnt (tracker_learn.WarmUp): 3.4.  The first 30
+    drives are run (half the time): 4.07 per drive, in the band's [1.81, 4.57]; without
+    the restatement (the mutant warm-up-never-restated) 6.83, far out of it.  (The other
+    30 alone, 2.76 against 4.56 without, would not tell the two apart.)"""
     values = [
         _nees(layout, "noisy", seed)
         for layout in ("triangle", "square", "pentagon")
-        for seed in (*range(700, 710), *range(720, 730))
+        for seed in range(700, 710)
     ]
     assert all(math.isfinite(v) for v in values)
     _within_band(values)
