@@ -198,7 +198,7 @@ def _evemu_same(sanitized, rnd: random.Random) -> bool:
 EVEMU = {"taken": 0, "refused": 0}
 
 
-def child(seconds: float, seed: int) -> int:
+def child(seconds: float, seed: int, min_cases: int = 0) -> int:
     sys.path.insert(0, str(REPO))
     from fuzz_core_window import TALLY, window_same  # (scripts/, this script's directory)
 
@@ -215,9 +215,12 @@ def child(seconds: float, seed: int) -> int:
         print("fuzz_core: the ASan runtime is not loaded", file=sys.stderr)
         return 2
     rnd = random.Random(seed)
-    end = time.monotonic() + seconds
+    start = time.monotonic()
+    end, cap = start + seconds, start + 4 * seconds
     cases = 0
-    while time.monotonic() < end:
+    # (at least ``min_cases``, as long as four times the time allows: on a loaded machine
+    # the run takes longer rather than fuzzing less)
+    while (now := time.monotonic()) < end or (cases < min_cases and now < cap):
         chunks = _cuts(_stream(rnd), rnd)
         carried = _carried(rnd)
         results = []
@@ -253,7 +256,8 @@ def child(seconds: float, seed: int) -> int:
                 return 1
         cases += 1
     calls = sum(TALLY.values())
-    print(f"fuzz_core: {cases} cases in {seconds:g} s, seed {seed}: no fault, all as the Python; "
+    took = time.monotonic() - start
+    print(f"fuzz_core: {cases} cases in {took:.1f} s, seed {seed}: no fault, all as the Python; "
           f"window calls {calls}: " + ", ".join(f"{v} {k}" for k, v in TALLY.items())
           + f"; evemu blocks {EVEMU['taken']} taken, {EVEMU['refused']} refused")  # fmt: skip
     if EVEMU["taken"] < cases or EVEMU["refused"] < cases // 4:
@@ -268,13 +272,19 @@ def child(seconds: float, seed: int) -> int:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seconds", type=float, default=60.0)
+    ap.add_argument(
+        "--min-cases",
+        type=int,
+        default=0,
+        help="go on past --seconds (up to four times) until this many cases",
+    )
     ap.add_argument("--seed", type=int, default=None)
     ap.add_argument("--build-dir", type=Path, default=None)
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
     seed = args.seed if args.seed is not None else random.SystemRandom().getrandbits(32)
     if args.child:
-        return child(args.seconds, seed)
+        return child(args.seconds, seed, args.min_cases)
     scratch = args.build_dir or Path(tempfile.mkdtemp(prefix="fuzz-core-"))
     scratch.mkdir(parents=True, exist_ok=True)
     try:
@@ -291,7 +301,7 @@ def main() -> int:
             "MOUSEDOM_CORE": "python",  # the child chooses the core per call itself
         }
         cmd = [sys.executable, __file__, "--child", "--seconds", str(args.seconds),
-               "--seed", str(seed)]  # fmt: skip
+               "--min-cases", str(args.min_cases), "--seed", str(seed)]  # fmt: skip
         return subprocess.run(cmd, env=env, check=False).returncode
     finally:
         if args.build_dir is None:
