@@ -10,11 +10,13 @@ import stat
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 from capture_helpers import PS2, external_dir, one_mouse_config
 from conftest import run_mousedom
 from test_replay_errors import _one_error_line
 
+from mousedom.capture.evemu import format_evemu
 from mousedom.errors import UserError
 from mousedom.safewrite import open_stream, replace_bytes, replace_file
 
@@ -93,10 +95,15 @@ def _rig(tmp_path):
 
 
 def test_replay_outputs_refuse_links(tmp_path):
+    """--plot and --umbmark-csv are written after the replay: a 2 s capture, not the PS/2
+    recording (minutes of it at 1000 Hz, 18 s of the three runs), reaches them as surely."""
     cfg = _rig(tmp_path)
     target = tmp_path / "victim"
     target.write_text("keep")
-    cap = f"m={external_dir() / PS2}"
+    n = 250
+    short = tmp_path / "short.evemu"
+    short.write_text(format_evemu(np.arange(1, n + 1) * 0.008, np.full(n, 3), np.full(n, -2)))
+    cap = f"m={short}"
     for flag, name in (("-o", "out.csv"), ("--plot", "out.png"), ("--umbmark-csv", "runs.csv")):
         link = tmp_path / name
         link.symlink_to(target)
