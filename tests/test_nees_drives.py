@@ -93,9 +93,13 @@ def test_two_mouse_drives_are_not_overconfident(model):
     The redundancy
     now sets the noise's level (noiserate: one factor of sigma^2 on lsq), never below the
     config's: the sum is at most chi-square's 99.9 % point, and not so wide that a drive
-    averages under 1 (one common factor on mice of unequal rates is wide on the quiet)."""
+    averages under 1 (one common factor on mice of unequal rates is wide on the quiet).
+    The first 12 drives (of 16 before): 38.6 (lsq) and 38.7 (diff-drive) against the
+    bounds [12, 68.0]; with the noise never learnt on two mice (the mutant
+    noise-two-mice-never-learnt) 94.8 and 260.7.  (The first 8 would not do: 51.0
+    without it on lsq, under their bound 51.2.)"""
     values = []
-    for seed in range(16):
+    for seed in range(12):
         rig, duration, drive_seed = healthy_rig(seed, n=2, model=model, duration=20.0)
         result = sim.simulate(rig, drive(duration, drive_seed), seed=seed)
         run = scenarios.measure(result, healthy_config(rig))
