@@ -7,8 +7,15 @@ The stamps then lag the gyro's by 2 ms on average, and spread by as much.  Befor
 0.41 / 2.0, a triangle 0.15 / 0.51 against 0.77 / 12.4, a square 0.09 / 0.39 against
 0.28 / 7.5.  The first turn's spans taught the gyro's scale the lag and the spread (the
 rig's timing not learnt yet), and three mice that agree read the spans that then failed as
-a bias jump, relearnt from one span (docs/gyro.md).  These are three drives per rig,
-among them the worst of those 24 (seeds 23, 10, 19 and 16)."""
+a bias jump, relearnt from one span (docs/gyro.md).  These are two or three drives per
+rig, among them the worst of those 24 (seeds 23, 10, 19 and 16).
+
+Nine drives (twelve before; left out: one 18, triangle 16, square 18, none of them a
+worst of the 24, the worst with the gyro here, pair 10, or the drive the bug below sends
+off): median 0.14 with the gyro against 0.20 alone (its bound 0.30; with all twelve 0.13
+against 0.24), worst 0.72 (the bound 1.0).  With a span's timing taken as its mean (the
+mutant gyro-span-timing-its-mean) triangle 4 ends 2.46 off, and the median, 0.32, is just
+over its bound as well."""
 
 from __future__ import annotations
 
@@ -20,7 +27,7 @@ from mousedom.fusion import scenarios, sim, simgyro
 from mousedom.fusion.drives import drive
 
 LATE_S = 0.004
-SEEDS = {"one": (23, 18, 5), "pair": (10, 21, 3), "triangle": (19, 16, 4), "square": (16, 18, 2)}
+SEEDS = {"one": (23, 5), "pair": (10, 21, 3), "triangle": (19, 4), "square": (16, 2)}
 MARGIN_DEG = 0.1  # the gyro's median may exceed the mice's alone by this much
 WORST_DEG = 1.0  # no drive ends further off with the gyro
 
