@@ -698,8 +698,8 @@ MUTANTS = [
     Mutant(
         "scale-change-not-followed",
         "mousedom/fusion/scalelearn.py",
-        "        if self._changed():\n",
-        "        if False:\n",
+        "        keep = self._changed()\n",
+        "        keep = 0\n",
         ("tests/test_scale_change.py",),
         "a mouse whose scale steps keeps a mean of its two scales, given back over the whole drive",
     ),
@@ -730,7 +730,7 @@ MUTANTS = [
     Mutant(
         "scale-change-at-a-fixed-split",
         "mousedom/fusion/scalelearn.py",
-        "        best = self._change_point()\n",
+        "        best = _change_point(segments)\n",
         "        best = _CHANGE_SEGMENTS\n",
         ("tests/test_scale_beyond.py",),
         "a change a few segments back is mixed into the last ten: found late, its mean given back",
@@ -738,10 +738,18 @@ MUTANTS = [
     Mutant(
         "scale-change-of-one-scale-alone",
         "mousedom/fusion/scalelearn.py",
-        "            plain &= self._axes_changed(recent, counts, diff >= unclear)\n",
-        "            pass\n",
-        ("tests/test_scale_one_axis.py",),
-        "a mouse off on one axis 'changes' scale with the mix of directions: its axis lost",
+        "        m = g[:, None] * np.repeat(np.eye(self.n), 2, axis=0)\n",
+        "        m = np.repeat(np.eye(self.n), 2, axis=0)\n",
+        ("tests/test_scale_axis_change.py",),
+        "a mouse off on one axis 'changes' scale with the mix of directions: evidence dropped",
+    ),
+    Mutant(
+        "scale-change-axes-of-the-older-alone",
+        "mousedom/fusion/scalelearn.py",
+        "        g = axis_scales(older, groups, n, cols, prior=whole)\n",
+        "        g = axis_scales(older, groups, n, cols)\n",
+        ("tests/test_scale_axis_change.py",),
+        "older evidence that never read an axis: the axis off taken for a change",
     ),
     Mutant(
         "scale-fault-not-excluded",

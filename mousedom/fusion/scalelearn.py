@@ -100,10 +100,10 @@ _CHANGE_SEGMENTS = 10
 _CHANGE_OLDER = 4
 _CHANGE_SIGMAS = 5.0
 _CHANGE_MIN = 0.01
-# At the split _change_point finds, a mouse whose axes the evidence does not tell apart is
-# taken on its one scale's change only from this far (``_changed``): a mouse off on one
-# axis by a few per cent "changes" its one scale by 1-3 % as the drive's directions mix.
-_SCAN_UNCLEAR = 0.05
+# The change test corrects each count axis by its scale over the older evidence first
+# (``_change_evidence``), drawn to 1 where that evidence knows it less well than this
+# (``axis_scales``): a mouse off on one axis is then one scale throughout.
+_AXIS_PRIOR = 0.01
 
 
 def medians(v: np.ndarray) -> np.ndarray:
@@ -307,6 +307,59 @@ def fit_axes(
     spread_d_all[split] = np.where(np.isfinite(spread_d) & ~weak_d, spread_d, np.inf)
     axis_of = np.argmax(t_map, axis=1)  # each axis's unknown
     return g[axis_of].reshape(n, 2), spread[axis_of].reshape(n, 2), d_all, spread_d_all
+
+
+def axis_scales(
+    s: np.ndarray, groups: float, n: int, cols: int, prior: np.ndarray | None = None
+) -> np.ndarray:
+    """(2N,) each count axis's scale from per-axis evidence S (2N x 2N, ``fit_axes``') of
+    ``groups`` groups of N mice and a rig motion of ``cols`` degrees of freedom, drawn to
+    ``prior`` (default all ones) as far as the evidence leaves it open: the solution of
+    (S + mu) g = mu prior, mu the residual per degree of freedom over _AXIS_PRIOR squared
+    (a direction of g known to better than _AXIS_PRIOR is the data's, one known less well
+    stays near the prior's: the common mode, and what the drive leaves nearly free, such
+    as the sideways axes against the forward ones of a drive that never slides), divided
+    by its median.  The prior where S gives nothing (too little evidence, or a scale not
+    positive)."""
+    ones = np.ones(len(s))
+    p = ones if prior is None else prior
+    if groups < _MIN_GROUPS or not np.all(np.isfinite(s)) or not np.diag(s).max() > 0:
+        return p
+    g = scales(s)
+    if not np.all(np.isfinite(g)):
+        return p
+    dof = max(1.0, groups * (2 * n - cols) - (2 * n - 1))
+    mu = max(float(g @ s @ g) / dof, 0.0) / _AXIS_PRIOR**2 + _RIDGE * float(np.diag(s).max())
+    g = np.linalg.solve(s + mu * np.eye(len(s)), mu * p)
+    mid = float(medians(g))
+    if not mid > 0 or not np.all(g > 0):
+        return p
+    return g / mid
+
+
+def _scales_differ(segments: np.ndarray, recent: int) -> bool:
+    """Whether the scales alone of the last ``recent`` of the ``segments`` and of the
+    older ones differ by _CHANGE_MIN for any mouse (one solve for both): a change under
+    that is none, whatever the spreads (a healthy rig's stay within a few tenths of a per
+    cent)."""
+    sums = np.stack([segments[-recent:].sum(axis=0), segments[:-recent].sum(axis=0)])
+    with np.errstate(invalid="ignore"):
+        return bool(np.any(np.abs(np.subtract(*scales(sums))) > _CHANGE_MIN))
+
+
+def _change_point(segments: np.ndarray) -> int:
+    """How many of the recent ``segments`` are after the change of scale ``_changed``
+    found: the last k (2 <= k <= _CHANGE_SEGMENTS) whose fit and the older ones' leave the
+    least residual together (the change's most likely place, to a block)."""
+    ks = np.arange(2, _CHANGE_SEGMENTS + 1)
+    total = np.cumsum(segments[::-1], axis=0)  # total[k - 1]: the last k summed
+    after = total[ks - 1]
+    parts = np.concatenate([after, total[-1][None] - after])
+    with np.errstate(invalid="ignore"):
+        g = np.nan_to_num(scales(parts), nan=1.0)
+        residual = np.einsum("ki,kij,kj->k", g, parts, g)
+    cost = residual[: len(ks)] + residual[len(ks) :]
+    return int(ks[np.argmin(cost)])
 
 
 class BlockGave(NamedTuple):
@@ -727,8 +780,9 @@ class ScaleLearner:
                 groups[:2] = [groups[0] + groups[1]]
         self._segments, self._segment_groups = segments, groups
         self._learn_axes(c, not flagged and len(c) > 0)
-        if self._changed():
-            self._drop_before_change(self._change_point())
+        keep = self._changed()
+        if keep:
+            self._drop_before_change(keep)
         return self._solve()
 
     def _released(self) -> list[int]:
@@ -775,8 +829,9 @@ class ScaleLearner:
             plain = (beyond > _BEYOND_MIN) & (beyond > FAULT_SIGMAS * spread)
         return np.flatnonzero(plain).tolist()
 
-    def _changed(self) -> bool:
-        """Whether a mouse's scale changed within the evidence: the scales fitted to the
+    def _changed(self) -> int:
+        """How many of the recent segments are after a change of a mouse's scale within the
+        evidence (0: none, else the split ``_change_point`` finds): the scales fitted to the
         recent segments and to the older ones differ plainly (beyond _CHANGE_SIGMAS of
         their combined spread, each the larger of the residual's and the jackknife's as in
         ``_solve``, and by _CHANGE_MIN).  The evidence sums everything since the start
@@ -789,46 +844,55 @@ class ScaleLearner:
         both scales into the last ten, whose jackknife spread it then widens, and the fit
         of the mixed evidence renewed meanwhile (three mice, one reading 14 % less: 60
         degrees given back over the whole horizon, a second before the fixed split saw
-        the change).  That split is chosen for the least residual, so it makes the most of
-        any difference: a change there must be borne out axis by axis (``_axes_changed``:
-        a mouse off on one axis found four false changes where the drive's mix of
-        directions shifted, 217 mm off at the end against 3).  The scan is made only where
-        the last ten segments' scales alone differ from the older ones' by _CHANGE_MIN (a
-        healthy rig pays nothing more than before)."""
+        the change).  The scales compared are one per mouse of the evidence with each
+        count axis's counts first corrected by its scale over the older segments
+        (``_change_evidence``): a mouse off on one axis reads, in one scale, as a mean of
+        its two weighted by the directions driven, so its one scale moved wherever the
+        drive's mix of directions did, and was taken for a change (a triangle, one mouse
+        3 % off on x: 8 of 15 drives, the evidence before cut from 32 s to 7).  The scan
+        is made only where the last ten segments' scales alone differ from the older
+        ones' by _CHANGE_MIN (a healthy rig pays nothing more than before)."""
         if len(self._segments) - _CHANGE_SEGMENTS < _CHANGE_OLDER:
-            return False
-        if not self._scales_differ(_CHANGE_SEGMENTS):
-            return False
-        best = self._change_point()
-        for recent, unclear in dict.fromkeys(((best, _SCAN_UNCLEAR), (_CHANGE_SEGMENTS, 0.0))):
-            found = self._change_at(recent, unclear)
+            return 0
+        segments = self._change_evidence()
+        if not _scales_differ(segments, _CHANGE_SEGMENTS):
+            return 0
+        best = _change_point(segments)
+        for recent in dict.fromkeys((best, _CHANGE_SEGMENTS)):
+            found = self._change_at(segments, recent)
             if found:
                 self.changed = found
-                return True
-        return False
+                return best
+        return 0
 
-    def _scales_differ(self, recent: int) -> bool:
-        """Whether the scales alone of the last ``recent`` segments and of the older ones
-        differ by _CHANGE_MIN for any mouse (one solve for both): a change under that is
-        none, whatever the spreads (a healthy rig's stay within a few tenths of a per
-        cent)."""
-        older = len(self._segments) - recent
-        sums = (np.sum(self._segments[-recent:], axis=0), np.sum(self._segments[:older], axis=0))
-        with np.errstate(invalid="ignore"):
-            return bool(np.any(np.abs(np.subtract(*scales(np.stack(sums)))) > _CHANGE_MIN))
-
-    def _change_at(self, recent: int, unclear: float) -> list[tuple[int, float]]:
-        """``_changed``'s test of the last ``recent`` segments against the older ones: the
-        mice that changed plainly, each with its scale after over before (none: []); a
-        mouse whose axes the evidence does not tell apart is taken on its one scale's word
-        where that changed by ``unclear`` or more (``_axes_changed``)."""
-        older = len(self._segments) - recent
+    def _change_evidence(self) -> np.ndarray:
+        """The segments ``_changed`` compares (K, N, N): the per-axis segments with each
+        count axis's counts corrected by its scale over the segments older than the last
+        _CHANGE_SEGMENTS (``axis_scales``), summed per mouse into one column as S's are.
+        A CPI off on one axis is a fixed ratio of the mouse's two axes: corrected, the
+        one scale of every stretch of the drive is the same whatever its directions, and
+        a change of scale (both axes alike: another floor, a dirty lens) shows as it
+        did."""
         n, cols = self.n, len(self.cols)
-        parts = (self._segments[-recent:], self._segments[:older])
+        whole = axis_scales(self.axis_gram, self.groups, n, cols)
+        older = np.sum(self.axis_segments[:-_CHANGE_SEGMENTS], axis=0)
+        groups = sum(self._segment_groups[:-_CHANGE_SEGMENTS])
+        g = axis_scales(older, groups, n, cols, prior=whole)
+        # (2N, N): mouse i's axes into its one column, each times its scale
+        m = g[:, None] * np.repeat(np.eye(self.n), 2, axis=0)
+        return m.T @ np.stack(self.axis_segments) @ m
+
+    def _change_at(self, segments: np.ndarray, recent: int) -> list[tuple[int, float]]:
+        """``_changed``'s test of the last ``recent`` of the ``segments`` against the older
+        ones: the mice that changed plainly, each with its scale after over before (none:
+        [])."""
+        older = len(segments) - recent
+        n, cols = self.n, len(self.cols)
+        parts = (segments[-recent:], segments[:older])
         counts = (sum(self._segment_groups[-recent:]), sum(self._segment_groups[:older]))
         if min(counts) < _MIN_GROUPS:
             return []
-        if not self._scales_differ(recent):
+        if not _scales_differ(segments, recent):
             return []
         sums = [np.sum(part, axis=0) for part in parts]
         new, old = (fit(s, k, n, cols) for s, k in zip(sums, counts, strict=True))
@@ -840,53 +904,10 @@ class ScaleLearner:
         with np.errstate(invalid="ignore"):
             if not _plain_change(diff, np.hypot(new[1], old[1])).any():
                 return []
-            widths = [widened(new[1], sums[0], parts[0]), widened(old[1], sums[1], parts[1])]
+            widths = [widened(new[1], sums[0], list(parts[0])),
+                      widened(old[1], sums[1], list(parts[1]))]  # fmt: skip
             plain = _plain_change(diff, np.hypot(*widths))
-        if plain.any():
-            plain &= self._axes_changed(recent, counts, diff >= unclear)
         return [(int(i), float(new[0][i] / old[0][i])) for i in np.flatnonzero(plain)]
-
-    def _axes_changed(
-        self, recent: int, counts: tuple[float, float], unclear: np.ndarray
-    ) -> np.ndarray:
-        """``_change_at``'s mice whose change the per-axis evidence bears out (N,): an axis
-        whose scale after differs plainly from before, or, for the mice ``unclear`` (N,)
-        allows, none the evidence tells apart.
-        A mouse whose CPI is off on one axis reads, in one scale, as some mean of its two
-        that moves with the mix of directions driven (docs/calibration.md): its one scale
-        "changes" by a per cent or two wherever the drive turns more or slides less, and
-        dropping the evidence for it lost the axis's own scale (six mice, one 4 % off on
-        one axis: five such changes, and no scale per axis at the end)."""
-        n, cols = self.n, len(self.cols)
-        older = len(self.axis_segments) - recent
-        fits = []
-        for part, k in zip((self.axis_segments[-recent:], self.axis_segments[:older]), counts,
-                           strict=True):  # fmt: skip
-            with np.errstate(invalid="ignore"):
-                fitted = fit_axes(np.sum(part, axis=0), part, k, n, cols)
-            if fitted is None:  # nothing per axis to say
-                return np.asarray(unclear, dtype=bool)
-            fits.append(fitted)
-        (g_new, sd_new, *_), (g_old, sd_old, *_) = fits
-        told = np.isfinite(sd_new) & np.isfinite(sd_old)
-        with np.errstate(invalid="ignore"):
-            changed = _plain_change(np.abs(g_new - g_old), np.hypot(sd_new, sd_old)) & told
-        return changed.any(axis=1) | (unclear & ~told.any(axis=1))
-
-    def _change_point(self) -> int:
-        """How many of the recent segments are after the change of scale ``_changed``
-        found: the last k (2 <= k <= _CHANGE_SEGMENTS) whose fit and the older ones' leave
-        the least residual together (the change's most likely place, to a block)."""
-        segments = np.stack(self._segments)
-        ks = np.arange(2, _CHANGE_SEGMENTS + 1)
-        total = np.cumsum(segments[::-1], axis=0)  # total[k - 1]: the last k summed
-        after = total[ks - 1]
-        parts = np.concatenate([after, total[-1][None] - after])
-        with np.errstate(invalid="ignore"):
-            g = np.nan_to_num(scales(parts), nan=1.0)
-            residual = np.einsum("ki,kij,kj->k", g, parts, g)
-        cost = residual[: len(ks)] + residual[len(ks) :]
-        return int(ks[np.argmin(cost)])
 
     def _drop_before_change(self, keep: int) -> None:
         """After a change of scale (``_changed``) in the last ``keep`` segments: the
