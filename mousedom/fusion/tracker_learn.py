@@ -178,7 +178,6 @@ class Learners:
                 (0, 2) if setup.model == "diff-drive" else (0, 1, 2),
             )  # fmt: skip
         self._apply = settings.learn_scale
-        self._scales_learn = self.scales.active
         # below these a reading is no count (models.STILL), in counts
         self._still_counts = models.STILL * sigma_counts
         self._still_counts_list = self._still_counts.tolist()  # add_row's
@@ -218,7 +217,7 @@ class Learners:
                 self._warm.add([row.x], [row.y], [row.theta], [q], [row.ok], [used],
                                [moving], [row.qcov])  # fmt: skip
         scales = False
-        if self._scales_learn:  # (two mice learn only the noise: nothing more per window)
+        if self.scales.active:  # (two mice learn only the noise: nothing more per window)
             held = [v and st == excluded and why == inconsistent
                     for v, st, why in zip(live, row.state, row.reason, strict=True)]  # fmt: skip
             step = [row.x - start[0], row.y - start[1]]
