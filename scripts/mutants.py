@@ -290,7 +290,7 @@ MUTANTS = [
     Mutant(
         "lifted-mouse-silence-agrees",
         "mousedom/fusion/robust.py",
-        "        if h.good > 0 or shows:\n",
+        "        if h.good > 0 or (shows and k <= self._group):\n",
         "        if True:\n",
         ("tests/test_reconcile.py",),
         "a lifted mouse's silence, within a tolerance the motion widened, is given back",
@@ -851,6 +851,51 @@ MUTANTS = [
         "        if True:\n",
         ("tests/test_noiserate.py",),
         "two mice: replay learns the noise at other windows than the daemon",
+    ),
+    Mutant(
+        "readmission-fit-keeps-noise-bias",
+        "mousedom/fusion/robust.py",
+        "h.fit_r += (float(r @ di) - 2.0 * s2) / var",
+        "h.fit_r += float(r @ di) / var",
+        ("tests/test_readmission_evidence.py::test_the_run_fit_of_a_healthy_mouse_is_unbiased",),
+        "a healthy excluded mouse's own noise reads as an over-read in its run's fit",
+    ),
+    Mutant(
+        "readmission-fit-chosen-by-reading",
+        "mousedom/fusion/robust.py",
+        "        if p2 > _SHOWS * thr2 * not_proportional and read2 > 0.0 and not caught_up:",
+        "        if read2 > _SHOWS * thr2 * not_proportional and not caught_up:",
+        ("tests/test_readmission_evidence.py::test_the_run_fit_of_a_healthy_mouse_is_unbiased",),
+        "the run's fit takes the windows whose reading is long: a healthy mouse reads over",
+    ),
+    Mutant(
+        "readmission-groups-never-grow",
+        "mousedom/fusion/robust.py",
+        "EVIDENCE_MAX_S = 0.25\n",
+        "EVIDENCE_MAX_S = 0.01\n",
+        ("tests/test_readmission_evidence.py",),
+        "under late stamps an excluded mouse's windows seldom show it sound: never let back",
+    ),
+    Mutant(
+        "readmission-grown-group-given-back",
+        "mousedom/fusion/robust.py",
+        "or (shows and k <= self._group):",
+        "or shows:",
+        (
+            "tests/test_robust.py::test_a_lift_is_found_where_late_stamps_widened_every_tolerance",
+            "tests/test_readmission_evidence.py",
+        ),
+        "a group grown to show gives back the silence a lifted mouse landed in",
+    ),
+    Mutant(
+        "ledger-paid-by-summed-prediction",
+        "mousedom/fusion/ledger.py",
+        "np.linalg.eigh(self.owed_pc_sum[i] / max(1, self.owed_pc_n[i]))",
+        "np.linalg.eigh(self.owed_pc_sum[i])",
+        (
+            "tests/test_readmission_evidence.py::test_a_lifts_shortfall_is_not_taken_for_a_paid_back_debt",
+        ),
+        "a lift's shortfall passes as paid back on the prediction's error of every window summed",
     ),
 ]
 

@@ -122,6 +122,15 @@ TAKE_BACK_S = 1.0
 # handling off).  Summed over a group, the motion grows with the group and the lateness
 # stays that of its edges.  The windows of 100 Hz and longer are their own group.
 EVIDENCE_S = 0.01
+# ... and a group goes on, up to this long, until the others moved the mouse enough to show
+# a fault (_SHOWS times the test's threshold on the error not in proportion to the motion):
+# where late stamps' learnt error is wide, windows of 10 ms seldom moved a mouse so far
+# (5 in 1,300 on a far mouse behind a close pair), and a healthy mouse excluded once was
+# never let back (63 of 155 lifts of one second stayed excluded to the drive's end; now
+# none, tests/test_readmission_evidence.py).  A group's motion grows with its windows, its
+# error not in proportion to the motion (summed as if independent) as their square root.
+EVIDENCE_MAX_S = 0.25
+_SHOWS = 4.0
 # Where the onset's sum has fallen this far (in sigmas) below its peak, the walk back stops:
 # noise alone takes about one a window from it and does not climb back so far.
 _ONSET_GIVE_UP = 6.0
@@ -192,7 +201,9 @@ class Screen(RigidTest):
         self.max_step2 = (speed * window) ** 2  # inf: no limit
         self.readmit = max(1, math.ceil(settings.readmit_s / window - 1e-9))
         self.readmit_evidence = max(1, self.readmit // 5)
-        self._group = max(1, math.ceil(EVIDENCE_S / window - 1e-9))  # windows a group (_grouped)
+        # the windows of a group (_grouped): at least, and at most
+        self._group = max(1, math.ceil(EVIDENCE_S / window - 1e-9))
+        self._group_max = max(self._group, math.ceil(EVIDENCE_MAX_S / window - 1e-9))
         self.health = [MouseHealth() for _ in range(self.n)]
         self._steady: tuple[bool, ...] | None = None
         self._steady_known = False  # _steady is that of the health as it is
@@ -1140,22 +1151,31 @@ class Screen(RigidTest):
         # back their motion, a heading 1 degree off at its return.)
         p2 = float(pi @ pi)
         read2 = float(di @ di)
-        shows = p2 > 4.0 * thr2 * not_proportional and (
+        shows = p2 > _SHOWS * thr2 * not_proportional and (
             float(di @ pi) >= (1.0 - SHORT) * p2
             or float(pi @ np.linalg.solve(not_proportional * np.eye(2) + pred_cov, pi)) > 4.0 * thr2
         )
-        if h.good > 0 or shows:
+        if h.good > 0 or (shows and k <= self._group):
             # a run starts where the mouse shows itself sound: before, a lifted mouse's
-            # silence can pass where the motion's changes widen every tolerance
+            # silence can pass where the motion's changes widen every tolerance.  A group
+            # grown to show (``_grouped``) counts toward the re-admission but is not given
+            # back: it may begin before the mouse landed, and its tolerance, summed over
+            # its windows, let the silence pass (11 mm given back, a drive 20 mm off)
             self.ledger.agree(i, r, 0.5 * float(np.trace(cov)))
         if h.good == 0:
             h.fit_r = h.fit_info = 0.0
-        if read2 > 4.0 * thr2 * not_proportional and not caught_up:
+        if p2 > _SHOWS * thr2 * not_proportional and read2 > 0.0 and not caught_up:
             # along its own reading, whose direction the prediction's error does not
-            # steer (along the prediction, that error would read as an under-read)
+            # steer (along the prediction, that error would read as an under-read).  The
+            # mouse's own noise n does steer it: (d - p) . d holds |n|^2, whose mean, the
+            # trace of its covariance (2 s2), is taken off.  And the windows are chosen by
+            # the others' motion, not by the reading, which chose long readings where the
+            # motion was near the bar.  Each bias alone made a healthy mouse's g 0.05-0.2
+            # (reading "over"), a run's fit grew tight enough to see it and failed, and
+            # the mouse was never let back.
             u = di / math.sqrt(read2)
             var = float(u @ cov @ u)
-            h.fit_r += float(r @ u) * math.sqrt(read2) / var
+            h.fit_r += (float(r @ di) - 2.0 * s2) / var
             h.fit_info += read2 / var
         if h.reason in (SATURATED, LOW_QUALITY):
             # Its own sensor said why, and says so no more: a fifth of the wait (a longer
@@ -1186,7 +1206,7 @@ class Screen(RigidTest):
         variances summed as if independent: a late count in one window is missing from
         the one before, so the sum's is smaller; the test is the stricter for it), and
         its windows.  A window of 10 ms or more is its own group, as it is."""
-        if self._group == 1:
+        if self._group_max == 1:
             return di, pi, s2, not_proportional, pred_cov, 1
         g = h.group
         if h.group_n == 0:
@@ -1199,9 +1219,12 @@ class Screen(RigidTest):
         h.group_n += 1
         if h.group_n < self._group:
             return None
-        h.group_n = 0
+        p = g[2:4]
+        if h.group_n < self._group_max and float(p @ p) <= _SHOWS * self._thresholds[2] * g[5]:
+            return None  # too little motion yet to show a fault (``_waiting``)
+        k, h.group_n = h.group_n, 0
         return (g[0:2].copy(), g[2:4].copy(), float(g[4]), float(g[5]),
-                g[6:10].reshape(2, 2).copy(), self._group)  # fmt: skip
+                g[6:10].reshape(2, 2).copy(), k)  # fmt: skip
 
     def _end_run(self, i: int, h: MouseHealth) -> None:
         """An excluded mouse's run of agreeing windows ends: banked to be given back at its
