@@ -888,14 +888,24 @@ MUTANTS = [
         "a group grown to show gives back the silence a lifted mouse landed in",
     ),
     Mutant(
-        "ledger-paid-by-summed-prediction",
+        "ledger-paid-by-the-summed-prediction",
         "mousedom/fusion/ledger.py",
-        "np.linalg.eigh(self.owed_pc_sum[i] / max(1, self.owed_pc_n[i]))",
-        "np.linalg.eigh(self.owed_pc_sum[i])",
+        "        w, v = np.linalg.eigh(self.sum_pc[i] / max(1, self.windows_pc[i]))\n",
+        "        w, v = np.linalg.eigh(self.sum_pc[i])\n",
         (
             "tests/test_readmission_evidence.py::test_a_lifts_shortfall_is_not_taken_for_a_paid_back_debt",
         ),
         "a lift's shortfall passes as paid back on the prediction's error of every window summed",
+    ),
+    Mutant(
+        "ledger-paid-by-the-largest-window",
+        "mousedom/fusion/ledger.py",
+        "        s2 = self.sum_s2[i] / self.windows[i]\n",
+        "        s2 = self.owed_s2[i]\n",
+        (
+            "tests/test_readmission_evidence.py::test_a_noisy_lifts_shortfall_is_not_paid_back_whole",
+        ),
+        "a lift's shortfall passes as paid back on the largest error of any window held out",
     ),
 ]
 

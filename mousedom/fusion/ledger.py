@@ -10,8 +10,8 @@ gets B_i times the sum (``settle``, by solving the sum as if it were a reading).
 
 - **Whole**: a late mouse's sum is its lateness at the end less that at the start, no
   larger than one window's error: chi-square with 2 degrees of freedom at the false-alarm
-  rate, against twice the expected error of a window in the exclusion: the mouse's own
-  (the largest), or that of the others' prediction of it (the mean) where larger, from
+  rate, against twice the expected error of a window in the exclusion (the mean over
+  them): the mouse's own, or that of the others' prediction of it where larger, from
   which every residual is taken (``paid``; far across the line through two close mice,
   many times its own).  A lifted,
   under-reading or jumping mouse owes the motion it missed or invented: far beyond.
@@ -47,13 +47,14 @@ class Ledger:
         self.evidence = evidence
         self.owed = np.zeros((n, 2))  # the sum of residuals over the exclusion
         self.owed_s2 = np.zeros(n)  # the largest expected error of a window in it
-        # the mean covariance (2, 2) of the others' prediction of a window in it
-        # (RigidTest.prediction_cov; a solve without rank adds nothing): the sum and the
-        # windows summed.  The mean, not the largest: one window of the exclusion in which
-        # the others barely fixed the mouse (41 mm across against 1.6 mm typical) made a
-        # lift's whole shortfall (68 mm) pass as paid back, a heading 13 degrees off
-        self.owed_pc_sum = np.zeros((n, 2, 2))
-        self.owed_pc_n = np.zeros(n, dtype=int)
+        # the expected error of the windows held out and the covariance (2, 2) of the
+        # others' prediction of it in each (RigidTest.prediction_cov; a solve without rank
+        # adds nothing), summed, and the windows summed: ``paid`` holds the debt to their
+        # means
+        self.sum_s2 = np.zeros(n)
+        self.sum_pc = np.zeros((n, 2, 2))
+        self.windows = np.zeros(n, dtype=int)
+        self.windows_pc = np.zeros(n, dtype=int)
         # the residuals under the others of the silence it was used through just before
         # it was held out (``before``), and their expected error summed: counted in the
         # pose already, they do not join what is given back, but its catch-up pays them
@@ -70,8 +71,8 @@ class Ledger:
         of the prediction r is taken from): a new account."""
         self.owed[i] = r
         self.owed_s2[i] = s2
-        self.owed_pc_sum[i] = 0.0
-        self.owed_pc_n[i] = 0
+        self.sum_s2[i], self.windows[i] = s2, 1
+        self.sum_pc[i], self.windows_pc[i] = 0.0, 0
         self.pre[i] = 0.0
         self.pre_s2[i] = 0.0
         self._predicted(i, pc)
@@ -82,6 +83,8 @@ class Ledger:
         """One more window held out."""
         self.owed[i] += r
         self.owed_s2[i] = max(self.owed_s2[i], s2)
+        self.sum_s2[i] += s2
+        self.windows[i] += 1
         self._predicted(i, pc)
 
     def before(self, i: int, r: np.ndarray, s2: float) -> None:
@@ -100,18 +103,25 @@ class Ledger:
 
     def _predicted(self, i: int, pc: np.ndarray | None) -> None:
         if pc is not None and np.all(np.isfinite(pc)):
-            self.owed_pc_sum[i] += pc
-            self.owed_pc_n[i] += 1
+            self.sum_pc[i] += pc
+            self.windows_pc[i] += 1
 
     def paid(self, i: int) -> bool:
-        """Whether mouse i's debt is nothing to within the test (``thr2``): held to twice
-        its largest window's error, or its windows' mean prediction's error where that
-        is larger (direction by direction).  What the others
-        predict of a mouse they fix poorly (far across the line through two close ones) is
-        off by many times its own error, and every residual it owes is taken from such a
-        prediction: a debt paid back is nothing to within that (a healthy mouse late once
-        far behind a close pair was excluded on the others' error, its heading left to the
-        pair, 13 m off at the end of a drive)."""
+        """Whether mouse i's debt is nothing to within the test (``thr2``): a late mouse's
+        sum is its lateness at the end less that at the start, so it is held to twice the
+        error of a window held out: the mouse's own, or its prediction's where that is
+        larger (direction by direction), each the mean over the windows held out.  What
+        the others predict of a mouse they fix poorly (far across the line through two
+        close ones) is off by many times its own error, and every residual it owes is
+        taken from such a prediction: a debt paid back is nothing to within that (a
+        healthy mouse late once far behind a close pair was excluded on the others'
+        error, its heading left to the pair, 13 m off at the end of a drive).  The mean,
+        not the largest error of any window held out: one window in which the others
+        barely fixed the mouse (41 mm across against 1.6 mm typical), or in which it read
+        a lift's noise (148 mm), passed a lift's whole shortfall (68 mm; 0.6 m) as paid
+        back, the heading turned 13 and 25 degrees at its return.  (Its first and latest
+        windows' errors alone, where the lateness lies, were tried: they left drives whose
+        catch-up came mid-account up to 24 mm worse.)"""
         r = self.owed[i] + self.pre[i]
         if self.owed_s2[i] <= 0.0:
             return not r.any()
@@ -119,8 +129,8 @@ class Ledger:
         # mouse's own, direction by direction): where the others predict it as well as it
         # reads, a single window's residual was already within twice its own error, and
         # adding the prediction's let a jump on a square pass as paid back
-        s2 = self.owed_s2[i]
-        w, v = np.linalg.eigh(self.owed_pc_sum[i] / max(1, self.owed_pc_n[i]))
+        s2 = self.sum_s2[i] / self.windows[i]
+        w, v = np.linalg.eigh(self.sum_pc[i] / max(1, self.windows_pc[i]))
         cov = 2.0 * (s2 * np.eye(2) + (v * np.maximum(w - s2, 0.0)) @ v.T)
         cov += self.pre_s2[i] * np.eye(2)
         return float(r @ np.linalg.solve(cov, r)) <= self.thr2
