@@ -1,0 +1,163 @@
+#!/usr/bin/env python3
+"""Generated faulty drives, each run three ways: the default engine, fault handling off, and
+fault handling off told the fault (its reports removed by hand: the informed reference).
+
+    .venv/bin/python scripts/fault_sweep.py [--drives 300] [--seed 31337] [--jobs 2]
+        [--kinds lift,under-read] [--conditions late-stamps,usb-gaps] [--only K,K]
+
+Drive k draws from ``(seed, k)``: a layout of scenarios.LAYOUTS, a mouse, a fault kind
+(lift, lift-noisy, under-read, jumps) starting at 4-12 s for 0.5-3 s, a condition of a
+healthy rig (conditions.py; late stamps with a tail of 1-5 ms), and a 20 s drive.  Prints
+one row per drive (end position and heading error of each run), then per kind and
+condition the median errors and the drives where the default engine ends worse than three
+times the informed reference and 30 mm ("far off"), each with what rebuilds it (``--only
+k``).  A long run for finding wrong answers one step past the tests: the suite runs a few
+of these drives in tests/test_readmission_evidence.py.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import sys
+from collections import defaultdict
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from mousedom.fusion import scenarios, sim  # noqa: E402
+from mousedom.fusion.conditions import apply_condition, condition, condition_config  # noqa: E402
+from mousedom.fusion.drives import drive  # noqa: E402
+
+DURATION = 20.0
+KINDS = ("lift", "lift-noisy", "under-read", "jumps")
+CONDITIONS = ("healthy", "usb-gaps", "late-stamps", "usb-gaps+late-stamps", "noisy", "stamp-delay")
+
+
+class Drive(NamedTuple):
+    k: int
+    layout: str
+    mouse: str
+    kind: str
+    condition: str
+    seed: int  # the drive's and the condition's
+    stamp_tail: float  # s (late-stamps only)
+    start: float
+    end: float
+
+
+class Result(NamedTuple):
+    drive: Drive
+    default: tuple[float, float]  # end (position mm, heading degrees)
+    off: tuple[float, float]
+    informed: tuple[float, float]
+
+    @property
+    def far_off(self) -> bool:
+        return self.default[0] > 3.0 * self.informed[0] + 30.0
+
+
+def draw(k: int, seed: int, kinds: tuple[str, ...], conditions: tuple[str, ...]) -> Drive:
+    rng = np.random.default_rng((seed, k))
+    layout = sorted(scenarios.LAYOUTS)[int(rng.integers(len(scenarios.LAYOUTS)))]
+    mice = scenarios.LAYOUTS[layout]
+    mouse = mice[int(rng.integers(len(mice)))][0]
+    kind = kinds[int(rng.integers(len(kinds)))]
+    cond = conditions[int(rng.integers(len(conditions)))]
+    drive_seed = int(rng.integers(10000))
+    tail = float(rng.uniform(0.001, 0.005)) if "late-stamps" in cond else 0.0
+    start = float(rng.uniform(4.0, 12.0))
+    return Drive(k, layout, mouse, kind, cond, drive_seed, tail, start,
+                 start + float(rng.uniform(0.5, 3.0)))  # fmt: skip
+
+
+def _end(result: sim.SimResult, batch) -> tuple[float, float]:
+    e = scenarios.end_pose_error(result, batch)
+    return 1000.0 * math.hypot(e[0], e[1]), math.degrees(abs(float(e[2])))
+
+
+def run(d: Drive) -> Result:
+    base = scenarios.rig(d.layout)
+    params = {"stamp_tail": d.stamp_tail} if d.stamp_tail else {}
+    cond = condition(d.condition, d.seed, **params)
+    if d.kind == "jumps":  # the scenario's jumps, on the drawn mouse
+        fault = scenarios.fault_for("jumps", base, DURATION, d.seed)
+        fault = dataclasses.replace(fault, mouse=d.mouse)
+    else:
+        fault = scenarios.Fault(d.kind, d.mouse, d.start, d.end)
+    traj = drive(DURATION, d.seed)
+    true = scenarios.apply(apply_condition(base, cond, DURATION), fault)
+    result = sim.simulate(true, traj, seed=d.seed)
+    off = condition_config(base, cond, robust=False)
+    default, _ = scenarios.run(result, condition_config(base, cond))
+    plain, _ = scenarios.run(result, off)
+    informed, _ = scenarios.run(result, off, scenarios.informed_dead(fault, base, traj))
+    if d.kind == "jumps":
+        d = d._replace(start=fault.start, end=fault.end)
+    return Result(d, _end(result, default), _end(result, plain), _end(result, informed))
+
+
+def row(r: Result) -> str:
+    d = r.drive
+    return (f"k={d.k:<4d} {d.layout:15s} {d.mouse:6s} {d.kind:10s} {d.start:6.2f}-{d.end:6.2f} s "
+            f"{d.condition:20s} tail {d.stamp_tail * 1000:4.2f} ms seed {d.seed:<5d} | "
+            f"default {r.default[0]:8.1f} mm {r.default[1]:6.2f} deg  off {r.off[0]:8.1f} mm "
+            f"{r.off[1]:6.2f} deg  informed {r.informed[0]:7.1f} mm {r.informed[1]:5.2f} deg"
+            + ("  FAR OFF" if r.far_off else ""))  # fmt: skip
+
+
+def summary(results: list[Result]) -> list[str]:
+    groups: dict[tuple[str, str], list[Result]] = defaultdict(list)
+    for r in results:
+        groups[(r.drive.kind, r.drive.condition)].append(r)
+    out = [f"{'kind':11s} {'condition':21s} {'n':>3s} {'default':>8s} {'informed':>8s} "
+           f"{'off':>8s} {'far off':>7s}   (median end position error, mm)"]  # fmt: skip
+    for (kind, cond), g in sorted(groups.items()):
+
+        def med(which: str, g: list[Result] = g) -> float:
+            return float(np.median([getattr(r, which)[0] for r in g]))
+
+        far = sum(r.far_off for r in g)
+        out.append(f"{kind:11s} {cond:21s} {len(g):3d} {med('default'):8.1f} "
+                   f"{med('informed'):8.1f} {med('off'):8.1f} {far:7d}")  # fmt: skip
+    far_off = sorted((r for r in results if r.far_off),
+                     key=lambda r: r.default[0] - r.informed[0], reverse=True)  # fmt: skip
+    out.append(f"far off (default > 3 x informed + 30 mm): {len(far_off)} of {len(results)}")
+    out.extend(row(r) for r in far_off)
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--drives", type=int, default=300)
+    ap.add_argument("--seed", type=int, default=31337)
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--kinds", default=",".join(KINDS))
+    ap.add_argument("--conditions", default=",".join(CONDITIONS))
+    ap.add_argument("--only", default="", help="comma-separated drive numbers k to run")
+    args = ap.parse_args(argv)
+    kinds, conds = tuple(args.kinds.split(",")), tuple(args.conditions.split(","))
+    for k in kinds:
+        if k not in KINDS:
+            ap.error(f"--kinds: unknown kind {k!r}; choose of {', '.join(KINDS)}")
+    for c in conds:
+        if c not in CONDITIONS:
+            ap.error(f"--conditions: unknown condition {c!r}; choose of {', '.join(CONDITIONS)}")
+    ks = [int(k) for k in args.only.split(",")] if args.only else range(args.drives)
+    drives = [draw(k, args.seed, kinds, conds) for k in ks]
+    results = []
+    with ProcessPoolExecutor(max(1, args.jobs)) as pool:
+        for r in pool.map(run, drives):
+            print(row(r), flush=True)
+            results.append(r)
+    print("\n".join(summary(results)))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
