@@ -907,6 +907,16 @@ MUTANTS = [
         ),
         "a lift's shortfall passes as paid back on the largest error of any window held out",
     ),
+    Mutant(
+        "continuity-overrules-the-fit",
+        "mousedom/fusion/robust.py",
+        "                and sums[smoother] - sums[rougher] <= 0.5 * _FIT_MARGIN",
+        "                and True",
+        (
+            "tests/test_tie_sums.py::test_the_motion_does_not_overrule_a_fit_that_leans_the_other_way",
+        ),
+        "an under-read as the robot speeds up changes less: the healthy mouse is blamed",
+    ),
 ]
 
 
