@@ -577,7 +577,11 @@ MUTANTS = [
         "mousedom/fusion/robust.py",
         "        cov = s2 * np.eye(2) + pred_cov\n",
         "        cov = s2 * np.eye(2)\n",
-        ("tests/test_timing_not_fault.py::test_a_mouse_the_others_predict_poorly_is_not_left_out",),
+        (
+            "tests/test_timing_not_fault.py::test_a_mouse_the_others_predict_poorly_is_not_left_out",
+            "tests/test_readmission_evidence.py::"
+            "test_a_far_mouse_lifted_behind_a_close_pair_is_back_within_a_second",
+        ),
         "a far mouse the others predict poorly never agrees again",
     ),
     Mutant(
