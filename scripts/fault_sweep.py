@@ -76,9 +76,8 @@ def draw(k: int, seed: int, kinds: tuple[str, ...], conditions: tuple[str, ...])
                  start + float(rng.uniform(0.5, 3.0)))  # fmt: skip
 
 
-def _end(result: sim.SimResult, batch) -> tuple[float, float]:
-    e = scenarios.end_pose_error(result, batch)
-    return 1000.0 * math.hypot(e[0], e[1]), math.degrees(abs(float(e[2])))
+def _end(run: scenarios.Run) -> tuple[float, float]:
+    return 1000.0 * run.position, math.degrees(run.heading)
 
 
 def run(d: Drive) -> Result:
@@ -94,12 +93,12 @@ def run(d: Drive) -> Result:
     true = scenarios.apply(apply_condition(base, cond, DURATION), fault)
     result = sim.simulate(true, traj, seed=d.seed)
     off = condition_config(base, cond, robust=False)
-    default, _ = scenarios.run(result, condition_config(base, cond))
-    plain, _ = scenarios.run(result, off)
-    informed, _ = scenarios.run(result, off, scenarios.informed_dead(fault, base, traj))
+    default = scenarios.measure(result, condition_config(base, cond))
+    plain = scenarios.measure(result, off)
+    informed = scenarios.measure(result, off, scenarios.informed_dead(fault, base, traj))
     if d.kind == "jumps":
         d = d._replace(start=fault.start, end=fault.end)
-    return Result(d, _end(result, default), _end(result, plain), _end(result, informed))
+    return Result(d, _end(default), _end(plain), _end(informed))
 
 
 def row(r: Result) -> str:

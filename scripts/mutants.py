@@ -867,7 +867,7 @@ MUTANTS = [
     Mutant(
         "readmission-fit-chosen-by-reading",
         "mousedom/fusion/robust.py",
-        "        if p2 > _SHOWS * thr2 * not_proportional and read2 > 0.0 and not caught_up:",
+        "        if moved and read2 > 0.0 and not caught_up:",
         "        if read2 > _SHOWS * thr2 * not_proportional and not caught_up:",
         ("tests/test_readmission_evidence.py::test_the_run_fit_of_a_healthy_mouse_is_unbiased",),
         "the run's fit takes the windows whose reading is long: a healthy mouse reads over",

@@ -24,11 +24,28 @@ import pytest
 
 from mousedom.config import RobustConfig
 from mousedom.fusion import robust, scenarios, sim
-from mousedom.fusion.conditions import apply_condition, condition, condition_config
+from mousedom.fusion.conditions import Condition, apply_condition, condition, condition_config
 from mousedom.fusion.drives import drive
 
 DURATION = 20.0
 LAYOUTS = sorted(name for name, mice in scenarios.LAYOUTS.items() if len(mice) >= 3)
+
+
+def _faulty(layout: str, cond: Condition, fault: scenarios.Fault, seed: int):
+    """``drive(DURATION, seed)`` on ``layout`` under ``cond`` with ``fault``, through the
+    default engine: (the rig as configured, the simulation, the batch)."""
+    base = scenarios.rig(layout)
+    true = scenarios.apply(apply_condition(base, cond, DURATION), fault)
+    result = sim.simulate(true, drive(DURATION, seed), seed=seed)
+    batch, _ = scenarios.run(result, condition_config(base, cond))
+    return base, result, batch
+
+
+def _back_after(states: np.ndarray, t: np.ndarray, end: float) -> float:
+    """Seconds from ``end`` to the first window after it in which the mouse (``states``,
+    one per window) is in use again (inf: never)."""
+    out = (t > end) & (states != robust.EXCLUDED) & (states != robust.LATE)
+    return float(t[np.argmax(out)] - end) if out.any() else math.inf
 
 
 def _lift_drive(k: int):
@@ -37,17 +54,14 @@ def _lift_drive(k: int):
     and that of fault handling off told the lift (the reports removed by hand)."""
     rng = np.random.default_rng((20261207, k))
     layout = LAYOUTS[int(rng.integers(len(LAYOUTS)))]
-    base = scenarios.rig(layout)
-    mouse = base.mice[int(rng.integers(len(base.mice)))].name
+    mice = scenarios.LAYOUTS[layout]
+    mouse = mice[int(rng.integers(len(mice)))][0]
     seed = int(rng.integers(1000))
     name = "late-stamps+usb-gaps" if rng.random() < 0.3 else "late-stamps"
     cond = condition(name, seed, stamp_tail=float(rng.uniform(0.0015, 0.005)))
     start = float(rng.uniform(4.0, 12.0))
     end = start + float(rng.uniform(0.5, 2.0))
-    true = scenarios.apply(apply_condition(base, cond, DURATION),
-                           scenarios.Fault("lift", mouse, start, end))  # fmt: skip
-    result = sim.simulate(true, drive(DURATION, seed), seed=seed)
-    batch, _ = scenarios.run(result, condition_config(base, cond))
+    base, result, batch = _faulty(layout, cond, scenarios.Fault("lift", mouse, start, end), seed)
     told, _ = scenarios.run(result, condition_config(base, cond, robust=False),
                             ((mouse, start, end),))  # fmt: skip
     j = [m.name for m in base.mice].index(mouse)
@@ -72,10 +86,7 @@ def test_a_lifted_mouse_comes_back_under_late_stamps(drives):
     handling off told the lift, four better than it)."""
     stuck = [label for label, st, _, _, _ in drives if st[-1] == robust.EXCLUDED]
     assert len(stuck) <= len(drives) // 8, stuck
-    back = []
-    for _, st, t, end, _ in drives:
-        out = (t > end) & (st != robust.EXCLUDED) & (st != robust.LATE)
-        back.append(t[np.argmax(out)] - end if out.any() else math.inf)
+    back = [_back_after(st, t, end) for _, st, t, end, _ in drives]
     assert np.median(back) < 1.5, back
 
 
@@ -109,12 +120,10 @@ def test_a_far_mouse_behind_a_close_pair_is_let_back():
     once and never let back; when one of the pair was lifted, the pair alone read the lift
     as a spin: the drive ended 7 m and 160 degrees off (told the lift: 4 mm)."""
     seed = 11
-    base = scenarios.rig("close-pair-plus")
     cond = condition("late-stamps", seed)
-    true = scenarios.apply(apply_condition(base, cond, DURATION),
-                           scenarios.Fault("lift", "a", 8.0, 9.0))  # fmt: skip
-    result = sim.simulate(true, drive(DURATION, seed), seed=seed)
-    batch, _ = scenarios.run(result, condition_config(base, cond))
+    _, result, batch = _faulty(
+        "close-pair-plus", cond, scenarios.Fault("lift", "a", 8.0, 9.0), seed
+    )
     e = scenarios.end_pose_error(result, batch)
     assert math.hypot(e[0], e[1]) < 0.02 and abs(e[2]) < math.radians(1.0), e
     far = np.asarray(batch.state)[:, 2]
@@ -163,13 +172,9 @@ def test_a_noisy_lifts_shortfall_is_not_paid_back_whole():
     return, and the heading jumped 25 degrees to where fault handling off had it (29
     degrees off at the end).  Held to the mean window's error it is not paid back."""
     seed, tail, start, end = 6044, 0.004579668710217194, 9.535733913200678, 12.064345259992542
-    base = scenarios.rig("close-pair-plus")
     cond = condition("usb-gaps+late-stamps", seed, stamp_tail=tail)
-    true = scenarios.apply(
-        apply_condition(base, cond, DURATION), scenarios.Fault("lift-noisy", "c", start, end)
-    )
-    result = sim.simulate(true, drive(DURATION, seed), seed=seed)
-    batch, _ = scenarios.run(result, condition_config(base, cond))
+    fault = scenarios.Fault("lift-noisy", "c", start, end)
+    base, result, batch = _faulty("close-pair-plus", cond, fault, seed)
     off, _ = scenarios.run(result, condition_config(base, cond, robust=False))
     heading = abs(scenarios.end_pose_error(result, batch)[2])
     heading_off = abs(scenarios.end_pose_error(result, off)[2])
@@ -185,16 +190,9 @@ def test_a_far_mouse_lifted_behind_a_close_pair_is_back_within_a_second(cond_nam
     the pair; held to its own error alone, it came back after 0.6-6.7 s or never."""
     late = []
     for seed in range(1, 7):
-        base = scenarios.rig("close-pair-plus")
-        cond = condition(cond_name, seed)
-        true = scenarios.apply(
-            apply_condition(base, cond, DURATION), scenarios.Fault("lift", "c", 8.0, 9.0)
-        )
-        result = sim.simulate(true, drive(DURATION, seed), seed=seed)
-        batch, _ = scenarios.run(result, condition_config(base, cond))
-        st, t = np.asarray(batch.state)[:, 2], np.asarray(batch.t)
-        out = (t > 9.0) & (st != robust.EXCLUDED) & (st != robust.LATE)
-        back = t[np.argmax(out)] - 9.0 if out.any() else math.inf
+        fault = scenarios.Fault("lift", "c", 8.0, 9.0)
+        _, _, batch = _faulty("close-pair-plus", condition(cond_name, seed), fault, seed)
+        back = _back_after(np.asarray(batch.state)[:, 2], np.asarray(batch.t), 9.0)
         if back > 1.0:
             late.append((seed, back))
     assert not late, late

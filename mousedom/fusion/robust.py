@@ -120,7 +120,7 @@ TAKE_BACK_S = 1.0
 # 2.5-5 ms, each alone, seldom moved a mouse beyond that error: a healthy mouse excluded
 # once (a false alarm) was never let back (a drive ended 37 mm off against 2 with fault
 # handling off).  Summed over a group, the motion grows with the group and the lateness
-# stays that of its edges.  The windows of 100 Hz and longer are their own group.
+# stays that of its edges.  A window of 10 ms or longer starts as a group of its own.
 EVIDENCE_S = 0.01
 # ... and a group goes on, up to this long, until the others moved the mouse enough to show
 # a fault (_SHOWS times the test's threshold on the error not in proportion to the motion):
@@ -1157,7 +1157,8 @@ class Screen(RigidTest):
         # back their motion, a heading 1 degree off at its return.)
         p2 = float(pi @ pi)
         read2 = float(di @ di)
-        shows = p2 > _SHOWS * thr2 * not_proportional and (
+        moved = self._moved_enough(pi, not_proportional)
+        shows = moved and (
             float(di @ pi) >= (1.0 - SHORT) * p2
             or float(pi @ np.linalg.solve(not_proportional * np.eye(2) + pred_cov, pi)) > 4.0 * thr2
         )
@@ -1170,7 +1171,7 @@ class Screen(RigidTest):
             self.ledger.agree(i, r, 0.5 * float(np.trace(cov)))
         if h.good == 0:
             h.fit_r = h.fit_info = 0.0
-        if p2 > _SHOWS * thr2 * not_proportional and read2 > 0.0 and not caught_up:
+        if moved and read2 > 0.0 and not caught_up:
             # along its own reading, whose direction the prediction's error does not
             # steer (along the prediction, that error would read as an under-read).  The
             # mouse's own noise n does steer it: (d - p) . d holds |n|^2, whose mean, the
@@ -1202,16 +1203,24 @@ class Screen(RigidTest):
                     self.ledger.readmit(i, h.good)
                     h.state, h.reason, h.good = TRACKING, NONE, 0
 
+    def _moved_enough(self, p: np.ndarray, not_proportional: float) -> bool:
+        """Whether the others moved an excluded mouse (prediction ``p``) far enough beyond
+        its error not in proportion to the motion for a fault to show: what a group waits
+        for (``_grouped``), what a window must have to count toward re-admission and
+        what the run's fit takes (``_waiting``)."""
+        return float(p @ p) > _SHOWS * self._thresholds[2] * not_proportional
+
     def _grouped(
         self, h: MouseHealth, di: np.ndarray, pi: np.ndarray, s2: float,
         not_proportional: float, pred_cov: np.ndarray,
     ) -> tuple[np.ndarray, np.ndarray, float, float, np.ndarray, int] | None:  # fmt: skip
-        """One more window of an excluded mouse's group (EVIDENCE_S): None while the
-        group goes on, else its reading, prediction, variance, variance not in proportion
-        to the motion and prediction's covariance, each summed over its windows (the
-        variances summed as if independent: a late count in one window is missing from
-        the one before, so the sum's is smaller; the test is the stricter for it), and
-        its windows.  A window of 10 ms or more is its own group, as it is."""
+        """One more window of an excluded mouse's group: None while the group goes on
+        (shorter than EVIDENCE_S, or the others have not yet moved the mouse enough to
+        show a fault, ``_moved_enough``, within EVIDENCE_MAX_S), else its reading,
+        prediction, variance, variance not in proportion to the motion and prediction's
+        covariance, each summed over its windows (the variances summed as if
+        independent: a late count in one window is missing from the one before, so the
+        sum's is smaller; the test is the stricter for it), and its windows."""
         if self._group_max == 1:
             return di, pi, s2, not_proportional, pred_cov, 1
         g = h.group
@@ -1225,9 +1234,8 @@ class Screen(RigidTest):
         h.group_n += 1
         if h.group_n < self._group:
             return None
-        p = g[2:4]
-        if h.group_n < self._group_max and float(p @ p) <= _SHOWS * self._thresholds[2] * g[5]:
-            return None  # too little motion yet to show a fault (``_waiting``)
+        if h.group_n < self._group_max and not self._moved_enough(g[2:4], float(g[5])):
+            return None
         k, h.group_n = h.group_n, 0
         return (g[0:2].copy(), g[2:4].copy(), float(g[4]), float(g[5]),
                 g[6:10].reshape(2, 2).copy(), k)  # fmt: skip
