@@ -4,6 +4,7 @@ fault handling off told the fault (its reports removed by hand: the informed ref
 
     .venv/bin/python scripts/fault_sweep.py [--drives 300] [--seed 31337] [--jobs 2]
         [--kinds lift,under-read] [--conditions late-stamps,usb-gaps] [--only K,K]
+        [--timeline]
 
 Drive k draws from ``(seed, k)``: a layout of scenarios.LAYOUTS, a mouse, a fault kind
 (lift, lift-noisy, under-read, jumps) starting at 4-12 s for 0.5-3 s, a condition of a
@@ -13,6 +14,10 @@ condition the median errors and the drives where the default engine ends worse t
 times the informed reference and 30 mm ("far off"), each with what rebuilds it (``--only
 k``).  A long run for finding wrong answers one step past the tests: the suite runs a few
 of these drives in tests/test_readmission_evidence.py.
+
+``--timeline`` (with ``--only``) prints under each drive's row what a far-off drive is
+read from: the drive's held stretches (straight, arc, pivot, stop) and every window in
+which the default engine's health of some mouse changed.
 """
 
 from __future__ import annotations
@@ -30,9 +35,14 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from mousedom.fusion import scenarios, sim  # noqa: E402
-from mousedom.fusion.conditions import apply_condition, condition, condition_config  # noqa: E402
-from mousedom.fusion.drives import drive  # noqa: E402
+from mousedom.fusion import robust, scenarios, sim  # noqa: E402
+from mousedom.fusion.conditions import (  # noqa: E402
+    Condition,
+    apply_condition,
+    condition,
+    condition_config,
+)
+from mousedom.fusion.drives import drive, drive_spans  # noqa: E402
 
 DURATION = 20.0
 KINDS = ("lift", "lift-noisy", "under-read", "jumps")
@@ -80,7 +90,18 @@ def _end(run: scenarios.Run) -> tuple[float, float]:
     return 1000.0 * run.position, math.degrees(run.heading)
 
 
-def run(d: Drive) -> Result:
+class Built(NamedTuple):
+    """Drive d simulated: the rig as configured, its condition, the fault, the motion
+    and the simulation."""
+
+    base: sim.Rig
+    cond: Condition
+    fault: scenarios.Fault
+    traj: list[sim.Segment]
+    result: sim.SimResult
+
+
+def build(d: Drive) -> Built:
     base = scenarios.rig(d.layout)
     params = {"stamp_tail": d.stamp_tail} if d.stamp_tail else {}
     cond = condition(d.condition, d.seed, **params)
@@ -91,7 +112,11 @@ def run(d: Drive) -> Result:
         fault = scenarios.Fault(d.kind, d.mouse, d.start, d.end)
     traj = drive(DURATION, d.seed)
     true = scenarios.apply(apply_condition(base, cond, DURATION), fault)
-    result = sim.simulate(true, traj, seed=d.seed)
+    return Built(base, cond, fault, traj, sim.simulate(true, traj, seed=d.seed))
+
+
+def run(d: Drive) -> Result:
+    base, cond, fault, traj, result = build(d)
     off = condition_config(base, cond, robust=False)
     default = scenarios.measure(result, condition_config(base, cond))
     plain = scenarios.measure(result, off)
@@ -99,6 +124,28 @@ def run(d: Drive) -> Result:
     if d.kind == "jumps":
         d = d._replace(start=fault.start, end=fault.end)
     return Result(d, _end(default), _end(plain), _end(informed))
+
+
+def timeline(d: Drive) -> list[str]:
+    """Drive d's held stretches, then each window in which the default engine's health
+    of a mouse changed: its end time and every mouse's state (reason)."""
+    built = build(d)
+    spans = ", ".join(f"{sp.kind} {sp.start:.2f}-{sp.end:.2f}"
+                      for sp in drive_spans(DURATION, d.seed))  # fmt: skip
+    out = [f"  drive: {spans}"]
+    batch, _ = scenarios.run(built.result, condition_config(built.base, built.cond))
+    names = [m.name for m in built.base.mice]
+    last = None
+    for t, state, reason in zip(batch.t.tolist(), batch.state.tolist(), batch.reason.tolist(),
+                                strict=True):  # fmt: skip
+        now = tuple(zip(state, reason, strict=True))
+        if now != last:
+            health = "  ".join(f"{n} {robust.STATES[s]}"
+                               + (f" ({robust.REASONS[r]})" if r else "")
+                               for n, (s, r) in zip(names, now, strict=True))  # fmt: skip
+            out.append(f"  {t:7.3f} s  {health}")
+            last = now
+    return out
 
 
 def row(r: Result) -> str:
@@ -139,7 +186,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--kinds", default=",".join(KINDS))
     ap.add_argument("--conditions", default=",".join(CONDITIONS))
     ap.add_argument("--only", default="", help="comma-separated drive numbers k to run")
+    ap.add_argument("--timeline", action="store_true",
+                    help="with --only: each drive's stretches and health changes")  # fmt: skip
     args = ap.parse_args(argv)
+    if args.timeline and not args.only:
+        ap.error("--timeline needs --only K: it prints every window's change of health")
     kinds, conds = tuple(args.kinds.split(",")), tuple(args.conditions.split(","))
     for k in kinds:
         if k not in KINDS:
@@ -153,6 +204,8 @@ def main(argv: list[str] | None = None) -> int:
     with ProcessPoolExecutor(max(1, args.jobs)) as pool:
         for r in pool.map(run, drives):
             print(row(r), flush=True)
+            if args.timeline:
+                print("\n".join(timeline(r.drive)), flush=True)
             results.append(r)
     print("\n".join(summary(results)))
     return 0
