@@ -914,12 +914,23 @@ MUTANTS = [
     Mutant(
         "continuity-overrules-the-fit",
         "mousedom/fusion/robust.py",
-        "                and sums[smoother] - sums[rougher] <= 0.5 * _FIT_MARGIN",
+        "                and not leans_against",
         "                and True",
         (
             "tests/test_tie_sums.py::test_the_motion_does_not_overrule_a_fit_that_leans_the_other_way",
         ),
         "an under-read as the robot speeds up changes less: the healthy mouse is blamed",
+    ),
+    Mutant(
+        "a-fit-better-than-expected-wins",
+        "mousedom/fusion/robust.py",
+        "        return total > chi2.quantile(p, dof * run)",
+        "        return True",
+        (
+            "tests/test_tie_sums.py::test_a_fit_better_than_its_own_expectation_is_no_evidence_against_another",
+            "tests/test_tie_sums.py::test_a_pair_that_cannot_fail_does_not_win_the_fit",
+        ),
+        "a pair across the motion cannot fail, wins the fit, and the far mouse is blamed",
     ),
 ]
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import re
 import subprocess
 import sys
+from itertools import pairwise
 
 from conftest import REPO
 
@@ -57,7 +58,7 @@ def test_a_timeline_shows_the_drive_and_each_change_of_health():
         changes.append((float(t), dict(m.split(" ")[:2] for m in health.split("  "))))
     times = [t for t, _ in changes]
     assert times == sorted(times) and len(set(times)) == len(times)
-    assert all(a != b for (_, a), (_, b) in zip(changes, changes[1:])), "a line per change"
+    assert all(a != b for (_, a), (_, b) in pairwise(changes)), "a line per change"
     assert set(changes[0][1].values()) == {"tracking"} and mouse in changes[0][1]
     out_of_use = [t for t, h in changes if h[mouse] != "tracking"]
     assert out_of_use and start <= out_of_use[0] <= end, (start, end, out_of_use)

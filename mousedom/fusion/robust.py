@@ -96,6 +96,10 @@ __all__ = ["EXCLUDED", "INCONSISTENT", "LATE", "LOW_QUALITY", "MISSING", "NONE",
 # How much smoother than the next one the winning explanation's motion must be (tie_break).
 _CONTINUITY_MARGIN = 3.0
 _FIT_MARGIN = chi2.quantile(0.999, 1)
+# ... and only against an explanation whose summed fit is worse than its own median: one
+# that fits better than it typically would is not shown wrong by one that fits better
+# still (_fits_badly).
+_FIT_P = 0.5
 # How far back the continuity of motion is judged from (_tie_break).
 HISTORY_S = 0.05
 # A mouse whose hat block has an eigenvalue beyond this is not looked back on for a
@@ -226,10 +230,10 @@ class Screen(RigidTest):
         # window), numbered as ``_windows`` counts them.  The scale learner must not give
         # those windows' readings back again (ScaleLearner._give_back_faults).
         self._taken: list[tuple[int, int, int]] = []
-        # The tie breaks of the latest windows, per set of mice tested: the window, and the
+        # The tie breaks of the latest windows, per set of mice tested: the window, the
         # explanations' statistics summed over the windows in a row with the same ones
-        # (_fit_sums).
-        self._ties: dict[tuple[bool, ...], tuple[int, dict[tuple[int, ...], float]]] = {}
+        # (_fit_sums), and how many windows that row holds.
+        self._ties: dict[tuple[bool, ...], tuple[int, dict[tuple[int, ...], float], int]] = {}
         # What each held-out mouse owes the pose, settled at its re-admission (ledger).
         self.ledger = Ledger(self.n, self._thresholds[2], self.readmit_evidence)
         self.lateness = Lateness(self.n, window, settings.late_s)
@@ -955,7 +959,10 @@ class Screen(RigidTest):
         in a row that the same explanations passed (``_fit_sums``)."""
         sums = self._fit_sums(used, passing)
         fits = sorted(passing, key=lambda c: sums[tuple(c.excluded)])
-        if sums[tuple(fits[1].excluded)] - sums[tuple(fits[0].excluded)] > _FIT_MARGIN:
+        worse = sums[tuple(fits[1].excluded)]
+        if worse - sums[tuple(fits[0].excluded)] > _FIT_MARGIN and self._fits_badly(
+            worse, fits[1].stat.dof, used, _FIT_P
+        ):
             return fits[0].excluded
         thr2 = self._thresholds[2]
         silent = []
@@ -985,9 +992,12 @@ class Screen(RigidTest):
         # mouse reading half as a pivot began: 0.64 m and 13 degrees off, the kept pair
         # blind to the under-read); the windows after it, summed, let the fit tell.
         smoother, rougher = tuple(change[0][1]), tuple(change[1][1])
+        leans_against = sums[smoother] - sums[rougher] > 0.5 * _FIT_MARGIN and self._fits_badly(
+            sums[smoother], passing[0].stat.dof, used, _FIT_P
+        )
         if (change[0][0] * _CONTINUITY_MARGIN < change[1][0]
                 and change[1][0] > self._thresholds[2 * self.n]
-                and sums[smoother] - sums[rougher] <= 0.5 * _FIT_MARGIN):  # fmt: skip
+                and not leans_against):  # fmt: skip
             return change[0][1]
         return silent[0] if len(silent) == 1 else None
 
@@ -1004,13 +1014,32 @@ class Screen(RigidTest):
         motion took a healthy mouse out instead, 64 degrees lost in the fault's 3 s."""
         key = tuple(used.tolist())
         now = {tuple(c.excluded): c.stat.t for c in passing}
-        last, sums = self._ties.get(key, (-2, {}))
+        last, sums, run = self._ties.get(key, (-2, {}, 0))
         if last == self._windows - 1 and sums.keys() == now.keys():
             now = {c: sums[c] + t for c, t in now.items()}
+            run += 1
+        else:
+            run = 1
         # (entries of windows before the previous one can no longer continue a run)
         self._ties = {k: v for k, v in self._ties.items() if v[0] >= self._windows - 1}
-        self._ties[key] = (self._windows, now)
+        self._ties[key] = (self._windows, now, run)
         return now
+
+    def _fits_badly(self, total: float, dof: int, used: np.ndarray, p: float) -> bool:
+        """Whether an explanation's statistic summed over the tie's run (``_fit_sums``,
+        ``dof`` degrees a window) is beyond its own quantile ``p`` for the run's degrees
+        (``_FIT_P``: its median): only then does a difference of sums tell the
+        explanations apart.  Each kept set
+        tests other directions, and the noise model's error in proportion to the motion
+        is the same across it as along it, while CPI and timing errors lie along it: a
+        pair whose one redundant reading lies across the motion fits a drive nearly
+        exactly whether or not one of it under-reads, and a healthy pair along the motion
+        shows its errors.  A far-one rig's mouse behind the far one reading half, its
+        pair summed 0.69 over 34 windows against the healthy pair's 11.9 (its own
+        expectation: 34), and the fit blamed the far mouse: 4.0 m off, where fault
+        handling off ended 0.26 m off."""
+        run = self._ties[tuple(used.tolist())][2]
+        return total > chi2.quantile(p, dof * run)
 
     def _read_then(self, then: np.ndarray, kept: np.ndarray) -> np.ndarray:
         """Of the ``kept`` mice, those whose readings ``then`` can say how the rig moved:
