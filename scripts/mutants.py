@@ -912,19 +912,20 @@ MUTANTS = [
         "a lift's shortfall passes as paid back on the largest error of any window held out",
     ),
     Mutant(
-        "continuity-overrules-the-fit",
+        "continuity-blind-to-ramps",
         "mousedom/fusion/robust.py",
-        "                and not leans_against",
-        "                and True",
+        "                and ramp_agrees):  # fmt: skip",
+        "                and True):  # fmt: skip",
         (
-            "tests/test_tie_sums.py::test_the_motion_does_not_overrule_a_fit_that_leans_the_other_way",
+            "tests/test_tie_sums.py::test_continuity_does_not_take_a_ramp_for_a_fault",
+            "tests/test_tie_sums.py::test_continuity_does_not_blame_a_healthy_mouse_as_the_robot_speeds_up",
         ),
-        "an under-read as the robot speeds up changes less: the healthy mouse is blamed",
+        "as the robot speeds up or a turn eases off, an under-reading mouse changes least",
     ),
     Mutant(
         "a-fit-better-than-expected-wins",
         "mousedom/fusion/robust.py",
-        "        return total > chi2.quantile(p, dof * run)",
+        "        return total > chi2.quantile(_FIT_P, dof * run)",
         "        return True",
         (
             "tests/test_tie_sums.py::test_a_fit_better_than_its_own_expectation_is_no_evidence_against_another",

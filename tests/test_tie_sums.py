@@ -124,10 +124,11 @@ def test_a_fit_better_than_its_own_expectation_is_no_evidence_against_another():
 FIT_BETTER_THAN_EXPECTED = ("far-one", "c", "healthy", 5415, 6.418221763993444, 9.417909030571966)
 
 
-# Generated drives (scripts/fault_sweep.py) in which the fit, one window short of its
-# margin, leaned against the explanation the continuity of motion chose: an under-read
-# as the robot sped up makes the smaller change.  (layout, mouse, condition, drive seed,
-# the under-read's span; end position error before, mm; informed.)
+# Generated drives (scripts/fault_sweep.py) in which an under-read began as the robot sped
+# up (or a pivot began): the under-reading mouse makes the smaller change, and continuity
+# took a healthy mouse out while the fit leaned the other way by most of its margin (7.5
+# against 10.8).  (layout, mouse, condition, drive seed, the under-read's span; end
+# position error before, mm; informed.)
 CONTINUITY_AGAINST_FIT = (
     ("triangle", "left", "usb-gaps", 825, 8.482905284394588, 10.9120418109387),  # 638; 3.8
     ("wide", "a", "stamp-delay", 3466, 6.745250024974142, 8.89905105407188),  # 1436; 4.9
@@ -135,13 +136,14 @@ CONTINUITY_AGAINST_FIT = (
 
 
 @pytest.mark.parametrize("layout,mouse,cond,seed,start,end", CONTINUITY_AGAINST_FIT)
-def test_the_motion_does_not_overrule_a_fit_that_leans_the_other_way(
+def test_continuity_does_not_blame_a_healthy_mouse_as_the_robot_speeds_up(
     layout, mouse, cond, seed, start, end
 ):
-    """A tie in which the fit leaned against the smoother explanation by most of its margin
-    (7.5 against 10.8) took the healthy mouse out; the kept mice were blind to the
-    under-read and the pose turned 13-45 degrees.  Now nobody is blamed until the windows
-    after it, summed, let the fit tell: the end is within 10 mm of the informed one."""
+    """The tie's smoother explanation kept the under-reading mouse; the kept mice were
+    blind to the under-read and the pose turned 13-45 degrees.  Against the motion carried
+    on from twice as far back (a ramp) it is not the smoother, so nobody is blamed until
+    the windows after it, summed, let the fit tell: the end is within 10 mm of the
+    informed one."""
     _blames_the_under_read(layout, mouse, cond, seed, start, end)
 
 
@@ -151,11 +153,28 @@ def test_a_pair_that_cannot_fail_does_not_win_the_fit():
     _blames_the_under_read(*FIT_BETTER_THAN_EXPECTED)
 
 
+# A far-one rig's mouse behind the far one starts to read half as a pivot eases off into a
+# straight: the pair that keeps it holds on to the turn, and judged against the motion
+# 50 ms back it changed least; the far mouse was blamed and the pair alone turned
+# (scripts/fault_sweep.py --seed 7 --only 81: 2,943 mm and 104 degrees off at the end;
+# fault handling off 169 mm; informed 0.5 mm).
+RAMP = ("far-one", "c", "healthy", 3715, 5.702695815835182, 7.251429866551046)
+
+
+def test_continuity_does_not_take_a_ramp_for_a_fault():
+    """RAMP: against the motion carried on from 100 ms back the other pair is the
+    smoother, so continuity does not decide; the under-reading mouse is blamed once the
+    windows after tell, and no healthy mouse is excluded.  The windows before that keep a
+    little of the under-read: 16 mm at the end."""
+    _blames_the_under_read(*RAMP, within=0.03)
+
+
 def _blames_the_under_read(
-    layout: str, mouse: str, cond: str, seed: int, start: float, end: float
-) -> None:
+    layout: str, mouse: str, cond: str, seed: int, start: float, end: float,
+    within: float = 0.01,
+) -> None:  # fmt: skip
     """The drive with ``mouse`` under-reading (half) from ``start`` to ``end`` ends within
-    10 mm of the informed reference, with no healthy mouse ever excluded."""
+    ``within`` (m) of the informed reference, with no healthy mouse ever excluded."""
     from mousedom.fusion import sim
     from mousedom.fusion.conditions import apply_condition, condition, condition_config
     from mousedom.fusion.drives import drive
@@ -172,7 +191,7 @@ def _blames_the_under_read(
     informed, _ = scenarios.run(result, off, scenarios.informed_dead(fault, base, traj))
     e = scenarios.end_pose_error(result, batch)
     ei = scenarios.end_pose_error(result, informed)
-    assert np.hypot(e[0], e[1]) < np.hypot(ei[0], ei[1]) + 0.01, (e, ei)
+    assert np.hypot(e[0], e[1]) < np.hypot(ei[0], ei[1]) + within, (e, ei)
     j = [m.name for m in base.mice].index(mouse)
     excluded = np.asarray(batch.state) == robust.EXCLUDED
     assert not np.delete(excluded, j, axis=1).any(), "a healthy mouse was excluded"
