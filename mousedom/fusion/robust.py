@@ -956,8 +956,9 @@ class Screen(RigidTest):
         earlier wins (not the previous window's solution: a fault that crept in below the
         test's tolerance has already bent that towards itself), where it is also by far
         the closest to that motion carried on from twice as far back (a ramp).  Then a
-        mouse that is silent while the rest say it moved (a lift).  The fit is judged over
-        the windows in a row that the same explanations passed (``_fit_sums``)."""
+        mouse that reads as a lifted one while the rest say it moved (``_lifted``).  The
+        fit is judged over the windows in a row that the same explanations passed
+        (``_fit_sums``)."""
         sums = self._fit_sums(used, passing)
         fits = sorted(passing, key=lambda c: sums[tuple(c.excluded)])
         worse = sums[tuple(fits[1].excluded)]
@@ -965,14 +966,13 @@ class Screen(RigidTest):
             worse, fits[1].stat.dof, used
         ):
             return fits[0].excluded
-        thr2 = self._thresholds[2]
         silent = []
         change = []
         then, then2 = self._then(), self._then(2)
         trend = []
         for combo, stat in passing:
             p = self.predict(stat.q)
-            if all(self._silent(d, j) and p[j] @ p[j] > thr2 * s2[j] for j in combo):
+            if all(self._lifted(d, p, s2, j) for j in combo):
                 silent.append(combo)
             before = self.prev_p
             ahead = None
@@ -1017,6 +1017,27 @@ class Screen(RigidTest):
                 and ramp_agrees):  # fmt: skip
             return change[0][1]
         return silent[0] if len(silent) == 1 else None
+
+    def _lifted(self, d: np.ndarray, p: np.ndarray, s2: np.ndarray, j: int) -> bool:
+        """Whether mouse j reads as a lifted mouse does under an explanation that
+        predicts ``p``: nothing beyond its own noise floor (an optical sensor off the floor
+        reads nothing, or noise: a noisy lift's 1.5 counts a report), where the rest say
+        it moved beyond its error, and moved it beyond its floor in the window before too
+        (a 125 Hz mouse's first window of a motion may hold no report yet: a far-one
+        rig's far mouse was blamed for it, 2.0 m off at the end).  Judged on its floor,
+        not on its prediction: a fault that bends an explanation's motion makes a
+        healthy mouse read short of it (a close pair's under-reading mouse made the far
+        mouse read a tenth of the spin it implied: 1.6-5.8 m off).  Exact silence alone
+        missed a noisy lift: a triangle, both the lift and the spin about the lifted
+        mouse passing, was suspect for the lift's 1.5 s and ended 0.45 m and 45 degrees
+        off (told the lift: 1 mm)."""
+        floor2 = self._thresholds[2] * self.noise.f_floor[j]
+        prev = self._prev[j]
+        return bool(
+            d[j] @ d[j] <= floor2
+            and p[j] @ p[j] > self._thresholds[2] * s2[j]
+            and prev[0] * prev[0] + prev[1] * prev[1] > floor2
+        )
 
     def _fit_sums(
         self, used: np.ndarray, passing: list[Explanation]
