@@ -16,8 +16,8 @@ k``).  A long run for finding wrong answers one step past the tests: the suite r
 of these drives in tests/test_readmission_evidence.py.
 
 ``--timeline`` (with ``--only``) prints under each drive's row what a far-off drive is
-read from: the drive's held stretches (straight, arc, pivot, stop) and every window in
-which the default engine's health of some mouse changed.
+read from: the drive's held stretches (straight, arc, turn: a pivot, stop) and every window
+in which the default engine's health of some mouse changed.
 """
 
 from __future__ import annotations

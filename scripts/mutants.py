@@ -949,8 +949,8 @@ MUTANTS = [
     Mutant(
         "a-fit-better-than-expected-wins",
         "mousedom/fusion/robust.py",
-        "        return total > chi2.quantile(_FIT_P, dof * run)",
-        "        return True",
+        "    return total > chi2.median(dof)",
+        "    return True",
         (
             "tests/test_tie_sums.py::test_a_fit_better_than_its_own_expectation_is_no_evidence_against_another",
             "tests/test_tie_sums.py::test_a_pair_that_cannot_fail_does_not_win_the_fit",

@@ -52,7 +52,7 @@ def test_a_timeline_shows_the_drive_and_each_change_of_health():
     assert lines[1].startswith("  drive: ") and "straight" in lines[1], lines[1]
     changes = []
     for ln in lines[2:]:
-        if not ln.startswith("    "):
+        if not re.match(r" +\d+\.\d{3} s  ", ln):
             break
         t, health = ln.split(" s  ")
         changes.append((float(t), dict(m.split(" ")[:2] for m in health.split("  "))))

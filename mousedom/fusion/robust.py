@@ -21,10 +21,11 @@ together with the others.  Per window (docs/models.md, "Faults"):
 3. Then each mouse (then each pair) is left out in turn, where the rest still determine the
    model with at least one redundant reading; if exactly one choice makes the rest
    consistent, those mice are excluded.  Where several do (the geometry cannot tell, e.g.
-   mice on one line), one that fits far better, or keeps the rig's motion continuous, or is
-   silent while the others say it moved is the one (``_tie_break``); otherwise nobody is
-   blamed: the window keeps all mice, its covariance is multiplied by T / dof, and the mice
-   become ``suspect``.
+   mice on one line), one that fits far better than another that fits worse than its own
+   median, or keeps the rig's motion continuous (against the motion of 50 ms before and
+   against a ramp), or whose excluded mouse reads as a lifted one is the one
+   (``_tie_break``); otherwise nobody is blamed: the window keeps all mice, its covariance
+   is multiplied by T / dof, and the mice become ``suspect``.
 3b. Where the kept mice fail, none of them can be blamed and some are held out from
    earlier windows, the choice is revisited: if an explanation among all the live mice
    excludes no more of them, it is taken, and the mice it brings back are suspect until they
@@ -96,10 +97,6 @@ __all__ = ["EXCLUDED", "INCONSISTENT", "LATE", "LOW_QUALITY", "MISSING", "NONE",
 # How much smoother than the next one the winning explanation's motion must be (tie_break).
 _CONTINUITY_MARGIN = 3.0
 _FIT_MARGIN = chi2.quantile(0.999, 1)
-# ... and only against an explanation whose summed fit is worse than its own median: one
-# that fits better than it typically would is not shown wrong by one that fits better
-# still (_fits_badly).
-_FIT_P = 0.5
 # How far back the continuity of motion is judged from (_tie_break).
 HISTORY_S = 0.05
 # A mouse whose hat block has an eigenvalue beyond this is not looked back on for a
@@ -138,6 +135,20 @@ _SHOWS = 4.0
 # Where the onset's sum has fallen this far (in sigmas) below its peak, the walk back stops:
 # noise alone takes about one a window from it and does not climb back so far.
 _ONSET_GIVE_UP = 6.0
+
+
+def _fits_badly(total: float, dof: int) -> bool:
+    """Whether an explanation's statistic summed over a tie's run (``_fit_sums``, ``dof``
+    degrees in all) is worse than its own median: only then does a difference of sums
+    tell the explanations apart (``Screen._tie_break``).  Each kept set tests other
+    directions, and the noise model's error in proportion to the motion is the same
+    across it as along it, while CPI and timing errors lie along it: a pair whose one
+    redundant reading lies across the motion fits a drive nearly exactly whether or not
+    one of it under-reads, and a healthy pair along the motion shows its errors.  A
+    far-one rig's mouse behind the far one reading half, its pair summed 0.69 over 34
+    windows against the healthy pair's 11.9 (its median: 33.3), and the fit blamed the
+    far mouse: 4.0 m off, where fault handling off ended 0.26 m off."""
+    return total > chi2.median(dof)
 
 
 def _within(r: np.ndarray, cov: np.ndarray, thr2: float) -> bool:
@@ -223,7 +234,8 @@ class Screen(RigidTest):
         # windows a creeping fault may already have bent (_tie_break, _caught_up).
         self.history_len = max(2, round(HISTORY_S / window))
         self.onset_len = max(self.history_len, round(TAKE_BACK_S / window))
-        self.history: deque[Any] = deque(maxlen=self.onset_len)
+        # (twice history_len at least: the ramp of _tie_break looks that far back)
+        self.history: deque[Any] = deque(maxlen=max(self.onset_len, 2 * self.history_len))
         self.used_history: deque[tuple[bool, ...]] = deque(maxlen=self.onset_len)
         self._windows = 0  # windows solved so far (_used_for): which ties are consecutive
         # The take-backs not yet handed on (``hand_taken``): (mouse, first window, end
@@ -949,7 +961,8 @@ class Screen(RigidTest):
         """Several exclusions explain the window (the geometry cannot tell the fault's
         direction apart): evidence and physical priors decide, or nobody is blamed.  First
         the fit: an explanation that leaves far less residual than every other (by the
-        0.999 quantile of chi-square with one degree, a likelihood ratio over 200) wins.
+        0.999 quantile of chi-square with one degree, a likelihood ratio over 200) wins,
+        where the next one fits worse than its own median (``_fits_badly``).
         Then continuity of motion: a robot does not change its motion by a multiple of its
         tolerance from one window to the next, a glitching sensor does, so an explanation
         whose motion is by far the closest to the motion its own mice read HISTORY_S
@@ -960,10 +973,11 @@ class Screen(RigidTest):
         fit is judged over the windows in a row that the same explanations passed
         (``_fit_sums``)."""
         sums = self._fit_sums(used, passing)
+        run = self._ties[tuple(used.tolist())][2]  # (the windows _fit_sums summed over)
         fits = sorted(passing, key=lambda c: sums[tuple(c.excluded)])
         worse = sums[tuple(fits[1].excluded)]
-        if worse - sums[tuple(fits[0].excluded)] > _FIT_MARGIN and self._fits_badly(
-            worse, fits[1].stat.dof, used
+        if worse - sums[tuple(fits[0].excluded)] > _FIT_MARGIN and _fits_badly(
+            worse, fits[1].stat.dof * run
         ):
             return fits[0].excluded
         silent = []
@@ -1005,10 +1019,9 @@ class Screen(RigidTest):
         # one as a turn eased off: 2.9 m and 104 degrees, fault handling off 0.17 m).  The
         # smoother explanation must also be the smoother by the margin against the motion
         # carried on from twice as far back (its threshold left out: that line's two
-        # windows' noise is the larger); else the windows after, summed, let the fit tell.
-        # (This replaces a rule that let the fit veto the motion where it leaned the other
-        # way by half its margin: over 840 generated faulty drives it now changes one, by
-        # 0.8 mm.)
+        # windows' noise is the larger); else the rule after this one or the windows
+        # after, summed, decide.  Where the ramp is not known for every explanation (the
+        # first 100 ms, an explanation without rank then), the look-back alone decides.
         ramp_agrees = len(trend) < len(change) or (
             trend[0][1] == change[0][1] and trend[0][0] * _CONTINUITY_MARGIN < trend[1][0]
         )
@@ -1022,9 +1035,9 @@ class Screen(RigidTest):
         """Whether mouse j reads as a lifted mouse does under an explanation that
         predicts ``p``: nothing beyond its own noise floor (an optical sensor off the floor
         reads nothing, or noise: a noisy lift's 1.5 counts a report), where the rest say
-        it moved beyond its error, and moved it beyond its floor in the window before too
-        (a 125 Hz mouse's first window of a motion may hold no report yet: a far-one
-        rig's far mouse was blamed for it, 2.0 m off at the end).  Judged on its floor,
+        it moved beyond its error, and the window before's solution moved it beyond its
+        floor too (a 125 Hz mouse's first window of a motion may hold no report yet: a
+        far-one rig's far mouse was blamed for it, 2.0 m off at the end).  Judged on its floor,
         not on its prediction: a fault that bends an explanation's motion makes a
         healthy mouse read short of it (a close pair's under-reading mouse made the far
         mouse read a tenth of the spin it implied: 1.6-5.8 m off).  Exact silence alone
@@ -1062,21 +1075,6 @@ class Screen(RigidTest):
         self._ties = {k: v for k, v in self._ties.items() if v[0] >= self._windows - 1}
         self._ties[key] = (self._windows, now, run)
         return now
-
-    def _fits_badly(self, total: float, dof: int, used: np.ndarray) -> bool:
-        """Whether an explanation's statistic summed over the tie's run (``_fit_sums``,
-        ``dof`` degrees a window) is beyond its own quantile ``_FIT_P`` (its median) for
-        the run's degrees: only then does a difference of sums tell the explanations
-        apart.  Each kept set tests other directions, and the noise model's error in
-        proportion to the motion is the same across it as along it, while CPI and timing
-        errors lie along it: a pair whose one redundant reading lies across the motion
-        fits a drive nearly exactly whether or not one of it under-reads, and a healthy
-        pair along the motion shows its errors.  A far-one rig's mouse behind the far one
-        reading half, its pair summed 0.69 over 34 windows against the healthy pair's
-        11.9 (its own expectation: 34), and the fit blamed the far mouse: 4.0 m off, where
-        fault handling off ended 0.26 m off."""
-        run = self._ties[tuple(used.tolist())][2]
-        return total > chi2.quantile(_FIT_P, dof * run)
 
     def _read_then(self, then: np.ndarray, kept: np.ndarray) -> np.ndarray:
         """Of the ``kept`` mice, those whose readings ``then`` can say how the rig moved:
