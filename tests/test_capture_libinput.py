@@ -389,19 +389,27 @@ def test_a_recording_re_dumped_as_json_is_read(tmp_path):
     assert len(t_read) == 50 and dx.sum() == 50 and dy.sum() == -50
 
 
-def test_a_device_with_events_as_an_empty_list_is_no_truncation(tmp_path):
-    """``events: []`` (what a re-dump by yq writes for a device without events) was taken
-    for a device header cut off: an error with one device, false truncation warnings
-    after another."""
+@pytest.mark.parametrize("empty", [" []", " [ ]", " null", " Null", " NULL", " ~",
+                                   " null  # none", " ~ "])  # fmt: skip
+@pytest.mark.parametrize("alone", [False, True], ids=["after-another", "alone"])
+def test_a_device_with_no_events_written_as_yaml_empties_is_no_truncation(tmp_path, empty, alone):
+    """``events: []`` (what a re-dump by yq writes for a device without events), and the
+    nulls a re-dump by PyYAML writes (``events: null``, found by the fuzzer), were taken
+    for a device header cut off: an error with that device alone, false truncation
+    warnings after another.  Every spelling YAML reads as an empty list or none is a
+    device without events, wherever it stands."""
     t = np.arange(1, 51) * 0.01
     e = np.zeros(0)
-    text = format_libinput([("m", t, np.ones(50, int), np.zeros(50, int)),
-                            ("k", e, e.astype(int), e.astype(int))])  # fmt: skip
+    empty_dev = ("k", e, e.astype(int), e.astype(int))
+    devices = [empty_dev] if alone else [("m", t, np.ones(50, int), np.zeros(50, int)),
+                                         empty_dev]  # fmt: skip
+    text = format_libinput(devices)
     p = tmp_path / "rec.yml"
-    p.write_text(text.rstrip("\n") + " []\n")
+    p.write_text(text.rstrip("\n") + empty + "\n")
     cap = drain(p)
-    assert [d.name for d in cap.devices] == ["m", "k"]
-    assert len(cap.motion[0][0]) == 50
+    assert [d.name for d in cap.devices] == (["k"] if alone else ["m", "k"])
+    if not alone:
+        assert len(cap.motion[0][0]) == 50
     assert not any("cut off" in w or "recorded" in w for w in cap.warnings), cap.warnings
 
 

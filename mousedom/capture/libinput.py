@@ -68,8 +68,11 @@ _FLOW_DEVICE = re.compile(
     rb"(?m)^[ \t]*- \{[ \t]*[\"']?(?:node|evdev|udev|events|hid|quirks)[\"']?[ \t]*:"
 )
 _BLOCK_ROW = re.compile(rb"(?m)^[ \t]*- - ")
-# (``events: []``: a device without events, as a re-dump by yq writes it)
-_EVENTS = re.compile(rb"(?m)^[ \t]+events:[ \t]*(?:\[[ \t]*\][ \t]*)?(?:#.*)?$")
+# (``events: []`` or a null, ``events: null`` / ``~``: a device without events, as a re-dump
+# by yq or PyYAML writes it; every spelling YAML reads as an empty list or none)
+_EVENTS = re.compile(
+    rb"(?m)^[ \t]+events:[ \t]*(?:(?:\[[ \t]*\]|null|Null|NULL|~)[ \t]*)?(?:#.*)?$"
+)
 # A top-level key after the devices began: a second recording appended (``cat a.yml b.yml``).
 _TOP = re.compile(rb"(?m)^(?:version|ndevices|libinput|system|devices):")
 
