@@ -35,14 +35,14 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from mousedom.fusion import robust, scenarios, sim  # noqa: E402
+from mousedom.fusion import robust, scenarios  # noqa: E402
 from mousedom.fusion.conditions import (  # noqa: E402
-    Condition,
-    apply_condition,
+    FaultyDrive,
     condition,
     condition_config,
+    faulty_drive,
 )
-from mousedom.fusion.drives import drive, drive_spans  # noqa: E402
+from mousedom.fusion.drives import drive_spans  # noqa: E402
 
 DURATION = 20.0
 KINDS = ("lift", "lift-noisy", "under-read", "jumps")
@@ -90,29 +90,16 @@ def _end(run: scenarios.Run) -> tuple[float, float]:
     return 1000.0 * run.position, math.degrees(run.heading)
 
 
-class Built(NamedTuple):
-    """Drive d simulated: the rig as configured, its condition, the fault, the motion
-    and the simulation."""
-
-    base: sim.Rig
-    cond: Condition
-    fault: scenarios.Fault
-    traj: list[sim.Segment]
-    result: sim.SimResult
-
-
-def build(d: Drive) -> Built:
-    base = scenarios.rig(d.layout)
+def build(d: Drive) -> FaultyDrive:
+    """Drive d simulated (its fault: the drawn one, or the scenario's jumps on its mouse)."""
     params = {"stamp_tail": d.stamp_tail} if d.stamp_tail else {}
     cond = condition(d.condition, d.seed, **params)
     if d.kind == "jumps":  # the scenario's jumps, on the drawn mouse
-        fault = scenarios.fault_for("jumps", base, DURATION, d.seed)
+        fault = scenarios.fault_for("jumps", scenarios.rig(d.layout), DURATION, d.seed)
         fault = dataclasses.replace(fault, mouse=d.mouse)
     else:
         fault = scenarios.Fault(d.kind, d.mouse, d.start, d.end)
-    traj = drive(DURATION, d.seed)
-    true = scenarios.apply(apply_condition(base, cond, DURATION), fault)
-    return Built(base, cond, fault, traj, sim.simulate(true, traj, seed=d.seed))
+    return faulty_drive(d.layout, cond, fault, d.seed, DURATION)
 
 
 def run(d: Drive) -> Result:

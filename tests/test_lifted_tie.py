@@ -13,9 +13,8 @@ import math
 import numpy as np
 import pytest
 
-from mousedom.fusion import robust, scenarios, sim
-from mousedom.fusion.conditions import apply_condition, condition, condition_config
-from mousedom.fusion.drives import drive
+from mousedom.fusion import robust, scenarios
+from mousedom.fusion.conditions import condition, condition_config, faulty_drive
 
 DURATION = 20.0
 
@@ -43,12 +42,8 @@ def _run(layout: str, mouse: str, kind: str, cond: str, seed: int, start: float,
     """(end position error of the default engine, of fault handling off told the fault, in
     m; whether a healthy mouse was ever held out; whether the lifted one was held out in
     its lift, and from then on to its end)."""
-    base = scenarios.rig(layout)
-    c = condition(cond, seed)
     fault = scenarios.Fault(kind, mouse, start, end)
-    traj = drive(DURATION, seed)
-    result = sim.simulate(scenarios.apply(apply_condition(base, c, DURATION), fault), traj,
-                          seed=seed)  # fmt: skip
+    base, c, _, traj, result = faulty_drive(layout, condition(cond, seed), fault, seed, DURATION)
     batch, _ = scenarios.run(result, condition_config(base, c))
     off = condition_config(base, c, robust=False)
     told, _ = scenarios.run(result, off, scenarios.informed_dead(fault, base, traj))

@@ -23,9 +23,8 @@ import numpy as np
 import pytest
 
 from mousedom.config import RobustConfig
-from mousedom.fusion import robust, scenarios, sim
-from mousedom.fusion.conditions import Condition, apply_condition, condition, condition_config
-from mousedom.fusion.drives import drive
+from mousedom.fusion import robust, scenarios
+from mousedom.fusion.conditions import Condition, condition, condition_config, faulty_drive
 
 DURATION = 20.0
 LAYOUTS = sorted(name for name, mice in scenarios.LAYOUTS.items() if len(mice) >= 3)
@@ -34,9 +33,7 @@ LAYOUTS = sorted(name for name, mice in scenarios.LAYOUTS.items() if len(mice) >
 def _faulty(layout: str, cond: Condition, fault: scenarios.Fault, seed: int):
     """``drive(DURATION, seed)`` on ``layout`` under ``cond`` with ``fault``, through the
     default engine: (the rig as configured, the simulation, the batch)."""
-    base = scenarios.rig(layout)
-    true = scenarios.apply(apply_condition(base, cond, DURATION), fault)
-    result = sim.simulate(true, drive(DURATION, seed), seed=seed)
+    base, _, _, _, result = faulty_drive(layout, cond, fault, seed, DURATION)
     batch, _ = scenarios.run(result, condition_config(base, cond))
     return base, result, batch
 

@@ -204,17 +204,10 @@ def _blames_the_under_read(
 ) -> None:  # fmt: skip
     """The drive with ``mouse`` under-reading (half) from ``start`` to ``end`` ends within
     ``within`` (m) of the informed reference, with no healthy mouse ever excluded."""
-    from mousedom.fusion import sim
-    from mousedom.fusion.conditions import apply_condition, condition, condition_config
-    from mousedom.fusion.drives import drive
+    from mousedom.fusion.conditions import condition, condition_config, faulty_drive
 
-    duration = 20.0
-    base = scenarios.rig(layout)
-    c = condition(cond, seed)
     fault = scenarios.Fault("under-read", mouse, start, end)
-    traj = drive(duration, seed)
-    result = sim.simulate(scenarios.apply(apply_condition(base, c, duration), fault), traj,
-                          seed=seed)  # fmt: skip
+    base, c, _, traj, result = faulty_drive(layout, condition(cond, seed), fault, seed, 20.0)
     batch, _ = scenarios.run(result, condition_config(base, c))
     off = condition_config(base, c, robust=False)
     informed, _ = scenarios.run(result, off, scenarios.informed_dead(fault, base, traj))

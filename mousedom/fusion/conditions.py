@@ -6,14 +6,14 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from mousedom.config import Config
 from mousedom.fusion import sim
 from mousedom.fusion.drives import drive
-from mousedom.fusion.scenarios import Trial, config, measure, rig
+from mousedom.fusion.scenarios import Fault, Trial, apply, config, measure, rig
 
 CONDITIONS = ("healthy", "usb-gaps", "late-stamps", "stamp-delay", "noisy", "cpi-error")
 
@@ -107,6 +107,29 @@ def apply_condition(base: sim.Rig, cond: Condition, duration: float) -> sim.Rig:
             )
         mice.append(m)
     return dataclasses.replace(base, mice=tuple(mice))
+
+
+class FaultyDrive(NamedTuple):
+    """A drive with a fault under a condition, simulated (``faulty_drive``)."""
+
+    base: sim.Rig  # the rig as configured (no fault, nominal CPI)
+    cond: Condition
+    fault: Fault
+    traj: list[sim.Segment]
+    result: sim.SimResult
+
+
+def faulty_drive(
+    layout: str, cond: Condition, fault: Fault, seed: int, duration: float
+) -> FaultyDrive:
+    """``drive(duration, seed)`` on ``layout`` as it truly is under ``cond``, with ``fault``
+    on it: what the fault sweeps (scripts/fault_sweep.py) and their tests run, through
+    ``condition_config(base, cond)`` and the informed reference
+    (``scenarios.informed_dead(fault, base, traj)``)."""
+    base = rig(layout)
+    traj = drive(duration, seed)
+    true = apply(apply_condition(base, cond, duration), fault)
+    return FaultyDrive(base, cond, fault, traj, sim.simulate(true, traj, seed=seed))
 
 
 def condition_config(
