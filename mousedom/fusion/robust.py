@@ -137,6 +137,12 @@ _SHOWS = 4.0
 _ONSET_GIVE_UP = 6.0
 
 
+def _moved_by(p: np.ndarray, ref: np.ndarray, s2: np.ndarray) -> float:
+    """How far the mice's motions ``p`` (N, 2) are from ``ref``, in their errors ``s2``:
+    sum_i |p_i - ref_i|^2 / s2_i (the continuity of motion's change, ``_tie_break``)."""
+    return float(np.sum(np.sum((p - ref) ** 2, axis=1) / s2))
+
+
 def _fits_badly(total: float, dof: int) -> bool:
     """Whether an explanation's statistic summed over a tie's run (``_fit_sums``, ``dof``
     degrees in all) is worse than its own median: only then does a difference of sums
@@ -1005,9 +1011,9 @@ class Screen(RigidTest):
                         q2 = self._solve(then2, self._read_then(then2, kept))
                         if q2 is not None:
                             ahead = 2.0 * before - self.predict(q2)
-            change.append((float(np.sum(np.sum((p - before) ** 2, axis=1) / s2)), combo))
+            change.append((_moved_by(p, before, s2), combo))
             if ahead is not None:
-                trend.append((float(np.sum(np.sum((p - ahead) ** 2, axis=1) / s2)), combo))
+                trend.append((_moved_by(p, ahead, s2), combo))
         change.sort(key=lambda c: c[0])
         trend.sort(key=lambda c: c[0])
         # The other explanation must need a change of motion beyond the tolerance itself:
