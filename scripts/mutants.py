@@ -766,10 +766,26 @@ MUTANTS = [
     Mutant(
         "tie-fit-one-window-only",
         "mousedom/fusion/robust.py",
-        "        if last == self._windows - 1 and sums.keys() == now.keys():\n",
+        "        if last >= self._windows - self.history_len and sums.keys() == fits.keys():\n",
         "        if False:\n",
         ("tests/test_tie_sums.py",),
         "an ambiguous fault's evidence judged window by window, never summed",
+    ),
+    Mutant(
+        "tie-run-ends-at-a-passing-window",
+        "mousedom/fusion/robust.py",
+        "        if last >= self._windows - self.history_len and sums.keys() == fits.keys():\n",
+        "        if last == self._windows - 1 and sums.keys() == fits.keys():\n",
+        ("tests/test_tie_sums.py",),
+        "a window in four passing whole ends the fit's run short of its margin",
+    ),
+    Mutant(
+        "tie-sums-only-what-passed",
+        "mousedom/fusion/robust.py",
+        "                fits[tuple(combo)] = stat.t\n                if self._passes(stat):\n",
+        "                if self._passes(stat):\n                    fits[tuple(combo)] = stat.t\n",
+        ("tests/test_tie_sums.py",),
+        "a third explanation passing now and then ends the fit's run short of its margin",
     ),
     Mutant(
         "gyro-span-clipped-at-its-period",
