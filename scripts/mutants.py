@@ -536,9 +536,9 @@ MUTANTS = [
     Mutant(
         "short-mouse-accepted-by-the-common-case",
         "mousedom/fusion/robust.py",
-        "                return False  # short of what the others moved it: decide "
+        "            return False  # short of what the others moved it: decide "
         "(``_quiet_blame``)\n",
-        "                pass\n",
+        "            pass\n",
         (
             "tests/test_robust.py::"
             "test_the_common_case_leaves_a_mouse_short_of_its_motion_to_the_decision",
@@ -637,7 +637,7 @@ MUTANTS = [
     Mutant(
         "silence-shows-a-far-mouse-sound",
         "mousedom/fusion/robust.py",
-        "            float(di @ pi) >= (1.0 - SHORT) * p2\n            or float(",
+        "            float(di @ pi) >= SHORT * p2\n            or float(",
         "            read2 > 0.0\n            or float(",
         ("tests/test_reconcile.py",),
         "a landing (part-read) window starts a far mouse's run: its shortfall given back",
@@ -770,6 +770,38 @@ MUTANTS = [
         "        if False:\n",
         ("tests/test_tie_sums.py",),
         "an ambiguous fault's evidence judged window by window, never summed",
+    ),
+    Mutant(
+        "short-of-the-solve-with-it",
+        "mousedom/fusion/robust.py",
+        "        alone[odd] = True\n",
+        "        pass\n",
+        ("tests/test_under_read_onset.py",),
+        "a mouse reading half bends the solve until it reads three quarters: never short",
+    ),
+    Mutant(
+        "short-of-the-others-not-the-odd-one",
+        "mousedom/fusion/robust.py",
+        "        if by > odd_by:\n",
+        "        if by > 0.0:\n",
+        ("tests/test_scale_beyond.py", "tests/test_under_read_onset.py"),
+        "beside a mouse reading 44 % more, a healthy one short of the others' bent word",
+    ),
+    Mutant(
+        "short-of-the-others-alone",
+        "mousedom/fusion/robust.py",
+        "            odd_short = ratio < SHORT and along < SHORT_OF_ALL * p2\n",
+        "            odd_short = ratio < SHORT\n",
+        ("tests/test_under_read_onset.py", "tests/test_scale_beyond.py"),
+        "a mouse short of the others' word though it reads the solve with it in full",
+    ),
+    Mutant(
+        "replay-short-of-the-solve-with-it",
+        "mousedom/fusion/screenbatch.py",
+        "    quiet = moved & ((along < SHORT_ALONE * p2) | of_others)\n",
+        "    quiet = moved & (along < SHORT_ALONE * p2)\n",
+        ("tests/test_under_read_onset.py",),
+        "replay lets an under-read's windows by on the common case: never found",
     ),
     Mutant(
         "tie-run-ends-at-a-passing-window",
@@ -958,7 +990,7 @@ MUTANTS = [
         "lifted-short-of-its-prediction",
         "mousedom/fusion/robust.py",
         "            d[j] @ d[j] <= floor2",
-        "            d[j] @ d[j] <= SHORT * SHORT * (p[j] @ p[j])",
+        "            d[j] @ d[j] <= 0.25 * 0.25 * (p[j] @ p[j])",
         ("tests/test_lifted_tie.py::test_the_lifted_mouse_is_the_one_blamed[short-of-a-spin]",),
         "a far mouse reads little of the spin a faulty pair implies: the far mouse blamed",
     ),

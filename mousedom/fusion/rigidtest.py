@@ -17,6 +17,11 @@ import numpy as np
 from mousedom.fusion import chi2, models
 from mousedom.fusion.geometry import design_matrix
 
+# A mouse whose hat block has an eigenvalue beyond this has no word from the others on it
+# (RigidTest.others_gain): its residual under them would be its residual in use multiplied
+# by more than 10.
+OTHERS_LEVERAGE = 0.9
+
 
 class Statistic(NamedTuple):
     """The consistency test of one set of mice in one window."""
@@ -39,6 +44,8 @@ class RigidTest:
         self.alpha = alpha
         self._thresholds = [math.inf] + [self.threshold(k) for k in range(1, 2 * self.n + 1)]
         self._leverages: dict[bytes, np.ndarray] = {}
+        self._gains: dict[bytes, np.ndarray] = {}  # others_gain's, per live pattern
+        self._gain_lists: dict[tuple[bool, ...], list[list[float]]] = {}
         # Python copies for fast paths on floats, which must not touch numpy: the daemon
         # runs one once per window after a sleep, when numpy's first call costs tens of
         # microseconds (cold caches), more than the test itself.
@@ -81,6 +88,41 @@ class RigidTest:
         k = int(np.count_nonzero(used[:j]))
         hat = est[0] @ est[1]
         return hat[2 * k : 2 * k + 2, 2 * k : 2 * k + 2]
+
+    def others_gain(self, used: np.ndarray) -> np.ndarray:
+        """(N, 2, 2) per used mouse, (I - block)^-1 of its hat block (``hat_block``): its
+        residual under the others (the solve without it) is this times its residual in
+        use, so ``d_i - gain_i (d_i - p_i)`` is what the others moved it.  Zero where the
+        others cannot say (its block's eigenvalue beyond OTHERS_LEVERAGE: the rest lack
+        the rank or nearly so, the others' word on it would be noise multiplied), and for
+        a mouse not used: that word is then its own reading."""
+        key = np.asarray(used, dtype=bool).tobytes()
+        gain = self._gains.get(key)
+        if gain is None:
+            gain = np.zeros((self.n, 2, 2))
+            used = np.frombuffer(key, dtype=bool)
+            est = None
+            if used.any():
+                est = models.estimator(
+                    self.positions.tobytes(), self.sigma.tobytes(), key, self.cols
+                )
+            if est is not None:
+                hat = est[0] @ est[1]
+                for k, i in enumerate(np.flatnonzero(used).tolist()):
+                    block = hat[2 * k : 2 * k + 2, 2 * k : 2 * k + 2]
+                    if np.all(np.abs(np.linalg.eigvals(block)) < OTHERS_LEVERAGE):
+                        gain[i] = np.linalg.inv(np.eye(2) - block)
+            self._gains[key] = gain
+        return gain
+
+    def others_gain_list(self, used: tuple[bool, ...]) -> list[list[float]]:
+        """``others_gain`` as floats, (m00, m01, m10, m11) per mouse, for the float path
+        (keyed by the tuple itself: no numpy call once a pattern is known)."""
+        rows = self._gain_lists.get(used)
+        if rows is None:
+            gain = self.others_gain(np.array(used, dtype=bool))
+            rows = self._gain_lists[used] = gain.reshape(self.n, 4).tolist()
+        return rows
 
     def prediction_cov(self, used: np.ndarray, s2: np.ndarray) -> np.ndarray:
         """(N, 2, 2) the covariance of each mouse's predicted motion, from the error of the

@@ -11,10 +11,11 @@ together with the others.  Per window (docs/models.md, "Faults"):
    each scaled by what the mouse's own residuals have shown).  The s_i are taken from the
    solution with every candidate mouse and kept while mice are left out in turn, so that a
    faulty mouse cannot widen its own tolerance by moving the solution.
-1b. A mouse that reads less than SHORT of what the others move it sums its shortfall;
-   once the sum is beyond twice its floor at the test's threshold it is held out (as
-   late) though the window passes: wide tolerances learnt from late stamps would let a
-   lift pass window after window (``_quiet_blame``).
+1b. A mouse that reads less than SHORT of what the others move it (the solve without it)
+   sums its shortfall; once the sum is beyond twice its floor at the test's threshold it
+   is held out (as late) though the window passes: wide tolerances learnt from late stamps
+   would let a lift pass window after window, and an under-read whose first windows passed
+   was learnt by the noise model as noise (``_quiet_blame``).
 2. T = min_q sum_i |d_i - A_i q|^2 / s_i^2 is chi-square with 2L - k degrees of freedom on
    a healthy rig of L mice and k unknowns, whatever the layout.  Above its (1 - alpha)
    quantile (``false_alarm`` alpha, 1e-4 by default) the window is inconsistent.
@@ -103,10 +104,24 @@ HISTORY_S = 0.05
 # paid-back lag (Screen._caught_up): (I - block)^-1 would multiply the earlier windows'
 # residuals, noise included, by more than 4 along it.
 _CATCH_UP_LEVERAGE = 0.75
-# A mouse reads short of its motion (Screen._quiet_blame) where it reads less than this
-# fraction of what the others moved it, along it: a lift reads nothing or noise, while a
-# healthy mouse beside an undetected faulty one (which bends the solution) reads most.
-SHORT = 0.25
+# A mouse reads short of its motion (``reads_short``, Screen._quiet_blame) where it reads
+# less than SHORT_ALONE of the solve with it (a lift reads nothing or noise), or less than
+# SHORT of what the others moved it (the solve without it) and SHORT_OF_ALL of the solve
+# with it, along it.  The first rule alone missed under-reads: the solve with the mouse
+# bends towards it, and one reading half beside two healthy ones read three quarters of
+# it.  Where an under-read's first windows passed the test, the noise model then learnt
+# them as noise and the fault was never found (an offset ring's mouse reading half for 3 s
+# on a healthy rig: 553 mm off at the end, told the fault 6.9 mm).  The others' word is
+# bent where one of them is the faulty one: healthy mice beside a lift read short of it
+# too, and were held out (1-7 m off at the end), which the solve with every mouse, read in
+# full, tells; and beside a mouse reading 44 % more, a healthy one read short of both (a
+# drive 0.93 m off, told 5 mm): the others' word on the faulty mouse is not bent by it, on
+# the others it is, so only the mouse that reads the most out of proportion to the
+# others' word counts, and only where it reads short.  What a mouse must read to count as
+# sound again (Screen._waiting) is SHORT of what the others moved it.
+SHORT = 0.75
+SHORT_OF_ALL = 0.9
+SHORT_ALONE = 0.25
 # How many windows before a mouse's exclusion a mouse short of its motion is taken back
 # over at least (Screen._take_back): a fault starts within a window and grows past the test
 # in a few.
@@ -155,6 +170,49 @@ def _fits_badly(total: float, dof: int) -> bool:
     windows against the healthy pair's 11.9 (its median: 33.3), and the fit blamed the
     far mouse: 4.0 m off, where fault handling off ended 0.26 m off."""
     return total > chi2.median(dof)
+
+
+def reads_short(
+    d: Sequence[float], p: Sequence[Sequence[float]], gains: Sequence[Sequence[float]],
+    considered: Sequence[bool], used: Sequence[bool],
+) -> list[bool]:  # fmt: skip
+    """Which of the ``considered`` mice (live, and moved beyond their sigma) read short of
+    their motion (SHORT, above).  ``d``: the readings flattened (x1, y1, x2, ...); ``p``:
+    the solve's predictions (N, 2), of the ``used`` mice; ``gains``: ``others_gain_list``'s
+    rows (m00, m01, m10, m11), with which a used mouse's residual becomes its residual
+    under the others (all zero: they cannot place it).  A mouse reads short where it reads
+    less than SHORT_ALONE of the solve (for a mouse not used, that is the others' word);
+    or, used, less than SHORT of what the others moved it and SHORT_OF_ALL of the solve
+    with it, where of the mice the others place it reads the most out of proportion to
+    their word (its ratio to that word, or that ratio's inverse, the largest; a reading
+    of nothing or against it, infinite).  screenbatch._fast_rows holds the same rule on
+    arrays."""
+    n = len(gains)
+    alone = [False] * n
+    odd, odd_by, odd_short = -1, 0.0, False
+    for i in range(n):
+        if not considered[i]:
+            continue
+        dx, dy = d[2 * i], d[2 * i + 1]
+        px, py = p[i]
+        along, p2 = dx * px + dy * py, px * px + py * py
+        alone[i] = along < SHORT_ALONE * p2
+        g0, g1, g2, g3 = gains[i]
+        if not used[i] or not (g0 or g1 or g2 or g3):
+            continue
+        rx, ry = dx - px, dy - py
+        ox, oy = dx - (g0 * rx + g1 * ry), dy - (g2 * rx + g3 * ry)
+        o2 = ox * ox + oy * oy
+        if not o2 > 0.0:
+            continue
+        ratio = (dx * ox + dy * oy) / o2
+        by = max(ratio, 1.0 / ratio) if ratio > 0.0 else math.inf
+        if by > odd_by:
+            odd, odd_by = i, by
+            odd_short = ratio < SHORT and along < SHORT_OF_ALL * p2
+    if odd_short:
+        alone[odd] = True
+    return alone
 
 
 def _within(r: np.ndarray, cov: np.ndarray, thr2: float) -> bool:
@@ -381,15 +439,12 @@ class Screen(RigidTest):
         if accepted is None:
             return False
         sig2 = nm.sig2_list
-        heard = []
-        for i, (px, py) in enumerate(accepted[0]):
-            p2 = px * px + py * py
-            moved = live[i] and p2 > sig2[i]
-            if moved and d[2 * i] * px + d[2 * i + 1] * py < SHORT * p2:
-                return False  # short of what the others moved it: decide (``_quiet_blame``)
-            heard.append(moved)
+        p = accepted[0]
+        heard = [live[i] and px * px + py * py > sig2[i] for i, (px, py) in enumerate(p)]
+        if any(reads_short(d, p, self.others_gain_list(live), heard, live)):
+            return False  # short of what the others moved it: decide (``_quiet_blame``)
         if self._quiet_any:
-            self._heard(heard)
+            self._heard(heard, not any(heard))
         if self.silences.any:
             sig2, thr2 = self.noise.sig2_list, self._thresholds[2]
             self.silences.rows([accepted[0]], [d], live, sig2, thr2)
@@ -409,13 +464,19 @@ class Screen(RigidTest):
         moved beyond its sigma in one of them read in full, and its shortfall's sum
         starts again."""
         if self._quiet_any:
-            self._heard(np.any(norm2(np.asarray(p, dtype=float)) > self.noise.sig2, axis=0))
+            moved = norm2(np.asarray(p, dtype=float)) > self.noise.sig2
+            self._heard(np.any(moved, axis=0), not np.all(np.any(moved, axis=1)))
 
-    def _heard(self, read: Sequence[bool]) -> None:
+    def _heard(self, read: Sequence[bool], still: bool = False) -> None:
         """The mice that read what the others moved them in the windows just accepted
-        (their motion beyond sigma, and not short): their shortfall's sum starts again."""
+        (their motion beyond sigma, and not short): their shortfall's sum starts again;
+        every mouse's does where the rig stood still in one of them (``still``: none
+        moved beyond its sigma).  A shortfall is a fault's while the robot moves: a sum
+        carried over a standstill joined windows seconds apart, and a mouse whose sum a
+        creeping mouse had grown (each still mouse read short of the motion the creep bent
+        into every prediction) was held out at the first window of the next motion."""
         for i, r in enumerate(read):
-            if r:
+            if r or still:
                 self._quiet_reset(i)
         self._quiet_any = any(x or y for x, y in self._quiet)
 
@@ -471,9 +532,9 @@ class Screen(RigidTest):
     def _quiet_blame(self, d: np.ndarray, p: np.ndarray, live: np.ndarray,
                      used: np.ndarray) -> int | None:  # fmt: skip
         """The window's shortfalls (module step 1b): each live mouse the others moved
-        beyond its sigma (and its prediction's noise) that read less than SHORT of that
-        along it adds what it missed (p - d) to its shortfall's sum; one that read more
-        starts again.  Returns the used mouse whose sum, over two windows or more, is
+        beyond its sigma (and its prediction's noise) that reads short of that
+        (``reads_short``) adds what it missed (p - d) to its shortfall's sum; one that
+        read more starts again.  Returns the used mouse whose sum, over two windows or more, is
         beyond twice its expected error's floor (two windows' worth of counts moved by late
         stamps) plus the sum's white noise, at the test's threshold, where the rest can do
         without it (the one furthest beyond, if several), else None.
@@ -490,6 +551,13 @@ class Screen(RigidTest):
         white: list[float] | None = None  # _prediction_errors', once a mouse reads short
         prop: list[float] = []
         self._short_now = [False] * self.n
+        moved = live & (norm2(p) > self.noise.sig2)
+        if not moved.any():
+            self._heard([False] * self.n, still=True)  # the rig stands: every sum ends
+            return None
+        key = tuple(used.tolist())
+        short = reads_short(d.ravel().tolist(), p.tolist(), self.others_gain_list(key),
+                            moved.tolist(), key)  # fmt: skip
         for i in range(self.n):
             px, py = float(p[i, 0]), float(p[i, 1])
             p2 = px * px + py * py
@@ -499,7 +567,7 @@ class Screen(RigidTest):
             if p2 <= sig2[i]:
                 continue  # moved too little to tell
             dx, dy = float(d[i, 0]), float(d[i, 1])
-            if dx * px + dy * py >= SHORT * p2:
+            if not short[i]:
                 self._quiet_reset(i)
                 continue
             if white is None:
@@ -1231,7 +1299,7 @@ class Screen(RigidTest):
             h.reason = SILENT if self._reads_nothing(di, i) else INCONSISTENT
             return
         # moved enough to show a fault: the others moved it beyond its own error, and
-        # either it read as much (three quarters of it along it at least: the window a
+        # either it read as much (SHORT of it along it at least: the window a
         # lifted mouse lands in reads part of it, within a far mouse's wide tolerance,
         # and given back turned a heading by half a degree) or that motion is beyond the
         # window's tolerance of a reading of nothing too, the prediction's error with it.
@@ -1242,7 +1310,7 @@ class Screen(RigidTest):
         read2 = float(di @ di)
         moved = self._moved_enough(pi, not_proportional)
         shows = moved and (
-            float(di @ pi) >= (1.0 - SHORT) * p2
+            float(di @ pi) >= SHORT * p2
             or float(pi @ np.linalg.solve(not_proportional * np.eye(2) + pred_cov, pi)) > 4.0 * thr2
         )
         if h.good > 0 or (shows and k <= self._group):

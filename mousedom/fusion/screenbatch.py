@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from mousedom.fusion.noisemodel import motion2, norm2
-from mousedom.fusion.robust import MISSING, SHORT, TRACKING, Screen
+from mousedom.fusion.robust import MISSING, SHORT, SHORT_ALONE, SHORT_OF_ALL, TRACKING, Screen
 
 HORIZON = 16  # learning blocks of rows tested at once after the factors changed
 HORIZON_MAX = 64  # and once they stayed as they were (bounded: (rows, mice) temporaries)
@@ -60,8 +60,9 @@ def screen(
     # is passed to the common case's test as one row.
     if len(changes):
         row_mask, lever = mask, _leverages(sc, mask, codes)
+        gain = _per_pattern(sc.others_gain, mask, codes)
     else:
-        row_mask, lever = mask[0], sc.leverage(mask[0])
+        row_mask, lever, gain = mask[0], sc.leverage(mask[0]), sc.others_gain(mask[0])
     i = 0
     prev_altered = False
     version, horizon = None, 0
@@ -82,7 +83,7 @@ def screen(
             horizon = min(n, i + blocks * sc.noise.block)
             rows = slice(i, horizon) if row_mask.ndim == 2 else slice(None)
             fast, samples = _fast_rows(sc, d[i:horizon], p[i:horizon], row_mask[rows],
-                                       lever[rows])  # fmt: skip
+                                       lever[rows], gain[rows])  # fmt: skip
             bad = np.flatnonzero(~fast | evidence[i:horizon]) + i
         steady = sc.steady()
         if steady is not None and not prev_altered:
@@ -118,17 +119,23 @@ def screen(
 
 def _leverages(sc: Screen, mask: np.ndarray, codes: np.ndarray) -> np.ndarray:
     """(n, N) each row's leverages (its live pattern's; a rig has few patterns)."""
+    return _per_pattern(sc.leverage, mask, codes)
+
+
+def _per_pattern(of, mask: np.ndarray, codes: np.ndarray) -> np.ndarray:
+    """(n, ...) each row's ``of(live pattern)`` (once per pattern: a rig has few)."""
     # (return_index also keeps numpy 2 from importing numpy.ma, 12 ms of a replay's start)
     _, first, which = np.unique(codes, return_index=True, return_inverse=True)
-    per_pattern = np.array([sc.leverage(mask[i]) for i in first.tolist()])
-    return per_pattern[which.ravel()].reshape(mask.shape)
+    per_pattern = np.array([of(mask[i]) for i in first.tolist()])
+    return per_pattern[which.ravel()]
 
 
-def _fast_rows(sc: Screen, d, p, mask, lever) -> tuple[np.ndarray, tuple]:
+def _fast_rows(sc: Screen, d, p, mask, lever, gain) -> tuple[np.ndarray, tuple]:
     """The common case's test for every row at once, each row's previous window taken as
     the row before it unaltered (a row after an altered one goes to ``decide``), and the
     noise model's samples of each row were it accepted.  ``mask`` and ``lever`` are (rows,
-    N), or (N,) when every row has that live pattern (the usual case: fewer operations)."""
+    N), or (N,) when every row has that live pattern (the usual case: fewer operations);
+    ``gain`` (rows, N, 2, 2) or (N, 2, 2) likewise (``RigidTest.others_gain``)."""
     prev_p = np.concatenate([sc.prev_p[None], p[:-1]])
     m2 = motion2(d, p)
     floor, prop = sc.noise.parts(d, p, prev_p, m2)
@@ -142,11 +149,26 @@ def _fast_rows(sc: Screen, d, p, mask, lever) -> tuple[np.ndarray, tuple]:
         dofs = 2 * _row_sum(mask.astype(np.int64)) - sc.k
         ok = (dofs <= 0) | (t <= thr[np.maximum(dofs, 0)])
     saturated = mask & (m2 >= sc.max_step2)
-    # a mouse that read less than SHORT of what the others moved it beyond its sigma:
-    # decide (Screen._quiet_blame)
+    # a mouse the others moved beyond its sigma that reads short of it (robust.reads_short,
+    # the same operations on arrays): decide (Screen._quiet_blame)
     p2 = norm2(p)
+    moved = mask & (p2 > sc.noise.sig2)
     along = d[..., 0] * p[..., 0] + d[..., 1] * p[..., 1]
-    quiet = mask & (p2 > sc.noise.sig2) & (along < SHORT * p2)
+    r = d - p
+    ox = d[..., 0] - (gain[..., 0, 0] * r[..., 0] + gain[..., 0, 1] * r[..., 1])
+    oy = d[..., 1] - (gain[..., 1, 0] * r[..., 0] + gain[..., 1, 1] * r[..., 1])
+    word = moved & np.any(gain != 0.0, axis=(-2, -1))
+    o2 = ox * ox + oy * oy
+    word &= o2 > 0.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = (d[..., 0] * ox + d[..., 1] * oy) / o2
+        by = np.where(ratio > 0.0, np.maximum(ratio, 1.0 / ratio), np.inf)
+    by = np.where(word, by, 0.0)
+    # the first of the largest, as the loop takes it
+    odd = (by == by.max(axis=-1, keepdims=True)) & (by > 0.0)
+    odd &= np.cumsum(odd, axis=-1) == 1
+    of_others = odd & (ratio < SHORT) & (along < SHORT_OF_ALL * p2)
+    quiet = moved & ((along < SHORT_ALONE * p2) | of_others)
     for i in range(saturated.shape[1]):
         ok &= ~saturated[:, i]
         ok &= ~quiet[:, i]
