@@ -138,3 +138,20 @@ def test_a_noisy_lift_of_a_far_mouse_leaves_the_pair_in():
     e = scenarios.end_pose_error(result, batch)
     ei = scenarios.end_pose_error(result, informed)
     assert np.hypot(e[0], e[1]) < np.hypot(ei[0], ei[1]) + 0.03, (e, ei)
+
+
+def test_a_standstill_of_the_live_mice_ends_every_sum_in_replay_as_in_the_daemon():
+    """Replay's accepted rows (``Screen.heard_rows``) judge a standstill on the live mice
+    alone, as the daemon's common case does (``fast_one``'s ``heard``): a missing mouse's
+    prediction, which moves in a slow turn, must not keep the sums going in one and not in
+    the other."""
+    positions = np.array([[0.01, 0.0], [-0.01, 0.0], [0.5, 0.0]])  # two close, one far
+    sc = Screen("least-squares", positions, np.full(3, 1e-5), np.full(3, 0.001), 0.01,
+                RobustConfig())  # fmt: skip
+    sc._quiet[1], sc._quiet_n[1], sc._quiet_any = [5e-6, 0.0], 1, True
+    live = np.array([[True, True, False]])
+    p = sc.predict(np.array([[0.0, 0.0, 1e-4]]))  # a slow turn: the live mice barely move
+    moved = np.sum(p * p, axis=-1) > sc.noise.sig2
+    assert not moved[0, :2].any() and moved[0, 2]  # (the missing mouse's prediction does)
+    sc.heard_rows(p, live)
+    assert sc._quiet[1] == [0.0, 0.0] and not sc._quiet_any

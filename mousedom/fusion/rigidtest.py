@@ -17,9 +17,9 @@ import numpy as np
 from mousedom.fusion import chi2, models
 from mousedom.fusion.geometry import design_matrix
 
-# A mouse whose hat block has an eigenvalue beyond this has no word from the others on it
-# (RigidTest.others_gain): its residual under them would be its residual in use multiplied
-# by more than 10.
+# A mouse whose hat block has an eigenvalue of this or more has no word from the others on
+# it (RigidTest.others_gain): its residual under them would be its residual in use
+# multiplied by 10 or more.
 OTHERS_LEVERAGE = 0.9
 
 
@@ -92,10 +92,10 @@ class RigidTest:
     def others_gain(self, used: np.ndarray) -> np.ndarray:
         """(N, 2, 2) per used mouse, (I - block)^-1 of its hat block (``hat_block``): its
         residual under the others (the solve without it) is this times its residual in
-        use, so ``d_i - gain_i (d_i - p_i)`` is what the others moved it.  Zero where the
-        others cannot say (its block's eigenvalue beyond OTHERS_LEVERAGE: the rest lack
-        the rank or nearly so, the others' word on it would be noise multiplied), and for
-        a mouse not used: that word is then its own reading."""
+        use, so ``d_i - gain_i (d_i - p_i)`` is what the others moved it.  Zero (no word)
+        where the others cannot say (its block's eigenvalue OTHERS_LEVERAGE or more: the
+        rest lack the rank or nearly so, the others' word on it would be noise
+        multiplied), and for a mouse not used (the solve is the others' word on it)."""
         key = np.asarray(used, dtype=bool).tobytes()
         gain = self._gains.get(key)
         if gain is None:

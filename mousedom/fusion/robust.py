@@ -11,11 +11,12 @@ together with the others.  Per window (docs/models.md, "Faults"):
    each scaled by what the mouse's own residuals have shown).  The s_i are taken from the
    solution with every candidate mouse and kept while mice are left out in turn, so that a
    faulty mouse cannot widen its own tolerance by moving the solution.
-1b. A mouse that reads less than SHORT of what the others move it (the solve without it)
-   sums its shortfall; once the sum is beyond twice its floor at the test's threshold it
-   is held out (as late) though the window passes: wide tolerances learnt from late stamps
-   would let a lift pass window after window, and an under-read whose first windows passed
-   was learnt by the noise model as noise (``_quiet_blame``).
+1b. A mouse that reads short of its motion (``reads_short``: under a quarter of the solve
+   with it, or, the one most out of proportion to the solve without it, under three
+   quarters of that) sums its shortfall; once the sum is beyond twice its floor at the
+   test's threshold it is held out (as late) though the window passes: wide tolerances
+   learnt from late stamps would let a lift pass window after window, and an under-read
+   whose first windows passed was learnt by the noise model as noise (``_quiet_blame``).
 2. T = min_q sum_i |d_i - A_i q|^2 / s_i^2 is chi-square with 2L - k degrees of freedom on
    a healthy rig of L mice and k unknowns, whatever the layout.  Above its (1 - alpha)
    quantile (``false_alarm`` alpha, 1e-4 by default) the window is inconsistent.
@@ -458,13 +459,13 @@ class Screen(RigidTest):
 
     # ----------------------------------------------------------------- the exact path
 
-    def heard_rows(self, p: np.ndarray) -> None:
+    def heard_rows(self, p: np.ndarray, live: np.ndarray) -> None:
         """Windows the common case accepted (``screenbatch``; none holds a mouse short of
-        its motion: those are decided), their predictions p (rows, N, 2): each mouse
-        moved beyond its sigma in one of them read in full, and its shortfall's sum
-        starts again."""
+        its motion: those are decided), their predictions p (rows, N, 2) and live mice
+        (rows, N): each live mouse moved beyond its sigma in one of them read in full, and
+        its shortfall's sum starts again (``fast_one``'s ``heard``, row by row)."""
         if self._quiet_any:
-            moved = norm2(np.asarray(p, dtype=float)) > self.noise.sig2
+            moved = (norm2(np.asarray(p, dtype=float)) > self.noise.sig2) & live
             self._heard(np.any(moved, axis=0), not np.all(np.any(moved, axis=1)))
 
     def _heard(self, read: Sequence[bool], still: bool = False) -> None:
@@ -553,7 +554,8 @@ class Screen(RigidTest):
         self._short_now = [False] * self.n
         moved = live & (norm2(p) > self.noise.sig2)
         if not moved.any():
-            self._heard([False] * self.n, still=True)  # the rig stands: every sum ends
+            # the rig stands (or no solve says it moved: p is zero): every sum ends
+            self._heard([False] * self.n, still=True)
             return None
         key = tuple(used.tolist())
         short = reads_short(d.ravel().tolist(), p.tolist(), self.others_gain_list(key),
@@ -905,7 +907,8 @@ class Screen(RigidTest):
 
         A mouse held out for reading short of its motion (``_quiet_blame``) began its
         fault where its shortfall's sum began: the ``short`` windows before this one, each
-        of which read less than SHORT of what the others moved it, are taken back (as far
+        of which read less than SHORT of what the others moved it (the solve without it,
+        ``reads_short``'s second rule without its guards), are taken back (as far
         as the readings are kept), however small each was against tolerances that late
         stamps widened."""
         now = self.ledger.owed[i]
@@ -1142,7 +1145,7 @@ class Screen(RigidTest):
         passes either way with a difference of 7-8 where the margin is 10.8); five in a row
         do, and without it the continuity of motion took a healthy mouse out instead, 64
         degrees lost in the fault's 3 s.  The sum goes on across windows that passed whole
-        (up to HISTORY_S of them in a row: they tell the explanations nothing apart) and
+        (fewer than HISTORY_S of them in a row: they tell the explanations nothing apart) and
         across windows where other explanations passed too (each is summed whether it
         passed or not): a wide rig's mouse under-reading in an arc, a window in four
         passing or a third explanation passing now and then cut every run short of the

@@ -96,7 +96,7 @@ def screen(
                     values = samples if sc.dof(int(mask[i].sum())) > 0 else None
                     stop = sc.noise.extend_blocks(values, i - base, stop - base) + base
                     sc.accepted(p[i:stop], d[i:stop], steady)
-                    sc.heard_rows(p[i:stop])
+                    sc.heard_rows(p[i:stop], mask[i:stop])
                     i = stop
                     continue
         sq = None if squal_scale is None else squal_scale[i]
