@@ -51,10 +51,15 @@ def open_regular(path: str | os.PathLike[str]) -> BinaryIO:
             err = errno.EISDIR if stat.S_ISDIR(mode) else errno.EINVAL
             raise NotRegularFile(err, f"is {kind_of(mode)}, not a regular file", str(path))
         os.set_blocking(fd, True)
-        return os.fdopen(fd, "rb")
     except BaseException:
         os.close(fd)
         raise
+    # Outside the try: once the file object holds the descriptor, an exception raised
+    # there (a SIGTERM's Terminated, hangup.py, between two bytecodes) must not close it a
+    # second time, when the orphan object is collected: by then the number may be another
+    # file's, which then reads "Bad file descriptor" (a convert ended by SIGTERM said so
+    # and exited 2, where it should have died by the signal).
+    return os.fdopen(fd, "rb")
 
 
 def read_bytes(path: str | os.PathLike[str], max_bytes: int | None = None) -> bytes:

@@ -119,12 +119,13 @@ def open_stream(
                 raise UserError(f"{path}: is the input {other}; not overwriting it")
         if not append and stat.S_ISREG(st.st_mode):
             os.ftruncate(fd, 0)
-        if text:
-            return os.fdopen(fd, "w", newline="", encoding="utf-8")
-        return os.fdopen(fd, "wb")
     except BaseException:
         os.close(fd)
         raise
+    # (outside the try, as saferead.open_regular: the file object owns the descriptor)
+    if text:
+        return os.fdopen(fd, "w", newline="", encoding="utf-8")
+    return os.fdopen(fd, "wb")
 
 
 def replace_file(
