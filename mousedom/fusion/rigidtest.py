@@ -63,17 +63,20 @@ class RigidTest:
         h = self._leverages.get(key)
         if h is None:
             h = np.zeros(self.n)
-            used = np.frombuffer(key, dtype=bool)
-            est = None
-            if used.any():
-                est = models.estimator(
-                    self.positions.tobytes(), self.sigma.tobytes(), key, self.cols
-                )
-            if est is not None:
-                diag = np.diag(est[0] @ est[1])
-                h[used] = diag[0::2] + diag[1::2]
+            hat = self._hat(key)
+            if hat is not None:
+                diag = np.diag(hat)
+                h[np.frombuffer(key, dtype=bool)] = diag[0::2] + diag[1::2]
             self._leverages[key] = h
         return h
+
+    def _hat(self, key: bytes) -> np.ndarray | None:
+        """The hat matrix A B (2L, 2L) of the solve with the used mice ``key`` (a bool
+        array's bytes), by the configured weights; None without rank or without mice."""
+        if not any(key):
+            return None
+        est = models.estimator(self.positions.tobytes(), self.sigma.tobytes(), key, self.cols)
+        return None if est is None else est[0] @ est[1]
 
     def hat_block(self, used: np.ndarray, j: int) -> np.ndarray | None:
         """Mouse j's 2x2 block of the hat matrix A B of the solve with ``used`` (j among
@@ -81,12 +84,10 @@ class RigidTest:
         (I - block) times its residual under the others (block deletion); None without
         rank."""
         used = np.asarray(used, dtype=bool)
-        est = models.estimator(self.positions.tobytes(), self.sigma.tobytes(),
-                                used.tobytes(), self.cols)  # fmt: skip
-        if est is None or not used[j]:
+        hat = self._hat(used.tobytes())
+        if hat is None or not used[j]:
             return None
         k = int(np.count_nonzero(used[:j]))
-        hat = est[0] @ est[1]
         return hat[2 * k : 2 * k + 2, 2 * k : 2 * k + 2]
 
     def others_gain(self, used: np.ndarray) -> np.ndarray:
@@ -100,15 +101,9 @@ class RigidTest:
         gain = self._gains.get(key)
         if gain is None:
             gain = np.zeros((self.n, 2, 2))
-            used = np.frombuffer(key, dtype=bool)
-            est = None
-            if used.any():
-                est = models.estimator(
-                    self.positions.tobytes(), self.sigma.tobytes(), key, self.cols
-                )
-            if est is not None:
-                hat = est[0] @ est[1]
-                for k, i in enumerate(np.flatnonzero(used).tolist()):
+            hat = self._hat(key)
+            if hat is not None:
+                for k, i in enumerate(np.flatnonzero(np.frombuffer(key, dtype=bool)).tolist()):
                     block = hat[2 * k : 2 * k + 2, 2 * k : 2 * k + 2]
                     if np.all(np.abs(np.linalg.eigvals(block)) < OTHERS_LEVERAGE):
                         gain[i] = np.linalg.inv(np.eye(2) - block)
