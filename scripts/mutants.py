@@ -535,10 +535,9 @@ MUTANTS = [
     ),
     Mutant(
         "short-mouse-accepted-by-the-common-case",
-        "mousedom/fusion/robust.py",
-        "            return False  # short of what the others moved it: decide "
-        "(``_quiet_blame``)\n",
-        "            pass\n",
+        "mousedom/fusion/steady.py",
+        "        return None  # short of its motion: decide (the screen's shortfall)\n",
+        "        pass\n",
         (
             "tests/test_robust.py::"
             "test_the_common_case_leaves_a_mouse_short_of_its_motion_to_the_decision",
@@ -773,7 +772,7 @@ MUTANTS = [
     ),
     Mutant(
         "short-of-the-solve-with-it",
-        "mousedom/fusion/robust.py",
+        "mousedom/fusion/shortfall.py",
         "        alone[odd] = True\n",
         "        pass\n",
         ("tests/test_under_read_onset.py",),
@@ -781,7 +780,7 @@ MUTANTS = [
     ),
     Mutant(
         "short-of-the-others-not-the-odd-one",
-        "mousedom/fusion/robust.py",
+        "mousedom/fusion/shortfall.py",
         "        if by > odd_by:\n",
         "        if by > 0.0:\n",
         ("tests/test_scale_beyond.py", "tests/test_under_read_onset.py"),
@@ -789,7 +788,7 @@ MUTANTS = [
     ),
     Mutant(
         "short-of-the-others-alone",
-        "mousedom/fusion/robust.py",
+        "mousedom/fusion/shortfall.py",
         "            odd_short = ratio < SHORT and along < SHORT_OF_ALL * p2\n",
         "            odd_short = ratio < SHORT\n",
         ("tests/test_under_read_onset.py", "tests/test_scale_beyond.py"),

@@ -22,7 +22,7 @@ from test_core import needs_core
 from test_onewindow import run
 
 from mousedom import core
-from mousedom.fusion import integrate, onewindow, sim, steady
+from mousedom.fusion import integrate, onewindow, shortfall, sim, steady
 from mousedom.fusion.countfunction import close_knots
 from mousedom.fusion.noisemodel import _MEDIAN_CHI2_2
 from mousedom.fusion.tracker import PoseBatch, Tracker
@@ -250,7 +250,10 @@ def steady_cases(draw):
     leverage = None
     if dof > 0:
         leverage = draw(st.lists(st.floats(0.0, 2.5), min_size=n, max_size=n))
-    return d, q, live, rig, threshold, dof, leverage
+    # others_gain_list's rows: (I - block)^-1, or zero where the others cannot say
+    gain = st.tuples(*[st.floats(-3.0, 3.0)] * 4).map(list) | st.just([0.0] * 4)
+    gains = draw(st.lists(gain, min_size=n, max_size=n))
+    return d, q, live, rig, threshold, dof, leverage, gains
 
 
 @needs_core
@@ -261,6 +264,8 @@ def test_steady_window_is_the_python_bit_for_bit(case):
     c, py = both(steady.steady_window, *case)
     assert bits(c) == bits(py)
     event("decide" if py is None else "samples" if py[1] or py[2] else "accepted")
+    if py is not None:
+        event(f"heard {sum(py[3])} of {len(py[3])}")
 
 
 @needs_core
@@ -268,18 +273,21 @@ def test_steady_window_declines_what_the_python_would_refuse():
     """Other types, other lengths, and a zero divisor (the Python raises) go to the Python."""
     rig = steady.Rig([[0.1, 0.0]], [math.inf], [[0.0, 0.0]], [1e-8], [1e-4], [0.0], [1e-8],
                      [1.0])  # fmt: skip
-    args = ([0.001, 0.0], [0.001, 0.0, 0.0], (True,), rig, 5.0, 1, [0.5], 1.386)
+    args = ([0.001, 0.0], [0.001, 0.0, 0.0], (True,), rig, 5.0, 1, [0.5], [[0.0] * 4], 1.386)
     native = core.native
     assert native.steady_window(*args) is not False
     assert native.steady_window([1, 0.0], *args[1:]) is False  # an int
     assert native.steady_window(*args[:2], (1,), *args[3:]) is False  # not a bool
     assert native.steady_window(*args[:3], rig._replace(max2=[]), *args[4:]) is False
     assert native.steady_window(*args[:3], rig[:7], *args[4:]) is False  # not a Rig
+    assert native.steady_window(*args[:7], [[0.0] * 3], args[8]) is False  # not four gains
+    assert native.steady_window(*args[:7], [(0.0,) * 4] * 2, args[8]) is False  # two mice
+    assert native.steady_window(*args[:7], ([0.0] * 4,), args[8]) is False  # a tuple
     zero = rig._replace(floor=[0.0], rho2=[0.0])
     assert native.steady_window(args[0], [0.0, 0.0, 0.0], args[2], zero, *args[4:]) is False
     with pytest.raises(ZeroDivisionError):
         with cores.using("python"):
-            steady.steady_window(args[0], [0.0, 0.0, 0.0], args[2], zero, *args[4:7])
+            steady.steady_window(args[0], [0.0, 0.0, 0.0], args[2], zero, *args[4:8])
 
 
 @needs_core
@@ -294,7 +302,7 @@ def test_steady_window_samples_at_the_quarter_boundaries(ratio, ux):
                      [prop * ratio] * 2, [rho2] * 2, [0.0] * 2, [1e-12] * 2, [1.0] * 2)  # fmt: skip
     d = [ux, 0.0, ux + 1e-4, 0.0]
     c, py = both(steady.steady_window, d, [ux, 0.0, 0.0], (True, True), rig, math.inf, 1,
-                 [0.5, 0.5])  # fmt: skip
+                 [0.5, 0.5], [[0.0] * 4] * 2)  # fmt: skip
     assert bits(c) == bits(py)
     assert py[1] and py[2] if ratio == 1.0 else py[1] or py[2]
 
@@ -316,6 +324,35 @@ class _Counting:
             return out
 
         return counted
+
+
+@needs_core
+@pytest.mark.parametrize(
+    ("x", "gain", "short"),
+    [
+        # not used by the others' word (no gain): short under SHORT_ALONE of the solve
+        (shortfall.SHORT_ALONE, 0.0, False),
+        (math.nextafter(shortfall.SHORT_ALONE, 0.0), 0.0, True),
+        # gain 1: what the others moved it is exactly the solve, 1, so the ratio is x
+        (shortfall.SHORT, 1.0, False),
+        (math.nextafter(shortfall.SHORT, 0.0), 1.0, True),
+        # gain 6: the others' word is 1.5 (a ratio of 0.6), and the solve's SHORT_OF_ALL
+        (shortfall.SHORT_OF_ALL, 6.0, False),
+        (math.nextafter(shortfall.SHORT_OF_ALL, 0.0), 6.0, True),
+    ],
+)
+def test_steady_window_leaves_a_shortfall_at_its_boundaries_to_the_decision(x, gain, short):
+    """The common case hands a window with a mouse short of its motion to the decision
+    (``shortfall.reads_short``) exactly where the Python does, at each of the rule's
+    three boundaries, on either core: the compiled constants are the Python's."""
+    rig = steady.Rig([[0.0, 0.0]], [math.inf], [[1.0, 0.0]], [1e-8], [0.0], [0.0], [1e-12],
+                     [1.0])  # fmt: skip
+    args = ([x, 0.0], [1.0, 0.0, 0.0], (True,), rig, math.inf, -1, None,
+            [[gain, 0.0, 0.0, gain]])  # fmt: skip
+    c, py = both(steady.steady_window, *args)
+    assert bits(c) == bits(py)
+    assert (py is None) == short
+    assert shortfall.reads_short(args[0], [[1.0, 0.0]], args[7], [True], [gain != 0.0]) == [short]
 
 
 @needs_core

@@ -374,9 +374,9 @@ def test_the_common_case_leaves_a_mouse_predicted_past_its_speed_to_the_decision
     d = [0.0099, 0.0, 0.0101, 0.0]  # mouse 0 read 9.9 mm (its limit: 10 mm a window)
     with cores.using(core_name):
         assert steady.steady_window(d, [0.0101, 0.0, 0.0], (True, True), rig, 10.0, 1,
-                                    [0.5, 0.5]) is None  # fmt: skip
+                                    [0.5, 0.5], [[0.0] * 4] * 2) is None  # fmt: skip
         assert steady.steady_window(d, [0.0098, 0.0, 0.0], (True, True), rig, 10.0, 1,
-                                    [0.5, 0.5]) is not None  # fmt: skip
+                                    [0.5, 0.5], [[0.0] * 4] * 2) is not None  # fmt: skip
 
 
 def _tailed_drive(layout: str, seed: int, hz: float | None, tail: float, kind: str):

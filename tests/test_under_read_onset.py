@@ -1,4 +1,4 @@
-"""A mouse that under-reads from a fault's first windows is found (robust.reads_short).
+"""A mouse that under-reads from a fault's first windows is found (shortfall.reads_short).
 
 Where an under-read's first windows pass the test (a robot starting from a stop, learnt
 tolerances that late stamps widened), the noise model learns them as noise, and every
@@ -20,7 +20,8 @@ import pytest
 from mousedom.config import RobustConfig
 from mousedom.fusion import robust, scenarios
 from mousedom.fusion.conditions import condition, condition_config, faulty_drive
-from mousedom.fusion.robust import Screen, reads_short
+from mousedom.fusion.robust import Screen
+from mousedom.fusion.shortfall import SHORT, reads_short
 
 
 def _offset_ring() -> Screen:
@@ -53,7 +54,7 @@ def test_a_healthy_mouse_beside_a_lift_is_not_short():
     d = np.array([[1.65e-3, 0.0], [1.65e-3, 0.0], [0.0, 0.0]])
     used = np.ones(3, dtype=bool)
     others_m0 = sc.predict(sc._solve(d, robust._but(used, 0)))[0]
-    assert float(d[0] @ others_m0) < robust.SHORT * float(others_m0 @ others_m0)
+    assert float(d[0] @ others_m0) < SHORT * float(others_m0 @ others_m0)
     assert _short(sc, d) == [False, False, True]
 
 
@@ -67,7 +68,7 @@ def test_a_healthy_mouse_beside_one_reading_more_is_not_short():
     used = np.ones(3, dtype=bool)
     bent = [sc.predict(sc._solve(d, robust._but(used, i)))[i] for i in range(3)]
     ratios = [float(d[i] @ bent[i] / (bent[i] @ bent[i])) for i in range(3)]
-    assert min(ratios[:2]) < robust.SHORT < 1.0 / robust.SHORT < ratios[2], ratios
+    assert min(ratios[:2]) < SHORT < 1.0 / SHORT < ratios[2], ratios
     assert _short(sc, d) == [False, False, False]
 
 

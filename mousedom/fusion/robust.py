@@ -11,7 +11,7 @@ together with the others.  Per window (docs/models.md, "Faults"):
    each scaled by what the mouse's own residuals have shown).  The s_i are taken from the
    solution with every candidate mouse and kept while mice are left out in turn, so that a
    faulty mouse cannot widen its own tolerance by moving the solution.
-1b. A mouse that reads short of its motion (``reads_short``: under a quarter of the solve
+1b. A mouse that reads short of its motion (``shortfall.reads_short``: under a quarter of the solve
    with it, or, the one most out of proportion to the solve without it, under three
    quarters of that) sums its shortfall; once the sum is beyond twice its floor at the
    test's threshold it is held out (as late) though the window passes: wide tolerances
@@ -89,6 +89,7 @@ from mousedom.fusion.lateness import Lateness
 from mousedom.fusion.ledger import Ledger
 from mousedom.fusion.noisemodel import NoiseModel, norm2
 from mousedom.fusion.rigidtest import RigidTest, Statistic
+from mousedom.fusion.shortfall import SHORT, reads_short
 from mousedom.fusion.silences import Silences
 
 # The health's names are the screen's vocabulary (robust.EXCLUDED, robust.REASONS, ...).
@@ -105,24 +106,6 @@ HISTORY_S = 0.05
 # paid-back lag (Screen._caught_up): (I - block)^-1 would multiply the earlier windows'
 # residuals, noise included, by more than 4 along it.
 _CATCH_UP_LEVERAGE = 0.75
-# A mouse reads short of its motion (``reads_short``, Screen._quiet_blame) where it reads
-# less than SHORT_ALONE of the solve with it (a lift reads nothing or noise), or less than
-# SHORT of what the others moved it (the solve without it) and SHORT_OF_ALL of the solve
-# with it, along it.  The first rule alone missed under-reads: the solve with the mouse
-# bends towards it, and one reading half beside two healthy ones read three quarters of
-# it.  Where an under-read's first windows passed the test, the noise model then learnt
-# them as noise and the fault was never found (an offset ring's mouse reading half for 3 s
-# on a healthy rig: 553 mm off at the end, told the fault 6.9 mm).  The others' word is
-# bent where one of them is the faulty one: healthy mice beside a lift read short of it
-# too, and were held out (1-7 m off at the end), which the solve with every mouse, read in
-# full, tells; and beside a mouse reading 44 % more, a healthy one read short of both (a
-# drive 0.93 m off, told 5 mm): the others' word on the faulty mouse is not bent by it, on
-# the others it is, so only the mouse that reads the most out of proportion to the
-# others' word counts, and only where it reads short.  What a mouse must read to count as
-# sound again (Screen._waiting) is SHORT of what the others moved it.
-SHORT = 0.75
-SHORT_OF_ALL = 0.9
-SHORT_ALONE = 0.25
 # How many windows before a mouse's exclusion a mouse short of its motion is taken back
 # over at least (Screen._take_back): a fault starts within a window and grows past the test
 # in a few.
@@ -171,49 +154,6 @@ def _fits_badly(total: float, dof: int) -> bool:
     windows against the healthy pair's 11.9 (its median: 33.3), and the fit blamed the
     far mouse: 4.0 m off, where fault handling off ended 0.26 m off."""
     return total > chi2.median(dof)
-
-
-def reads_short(
-    d: Sequence[float], p: Sequence[Sequence[float]], gains: Sequence[Sequence[float]],
-    considered: Sequence[bool], used: Sequence[bool],
-) -> list[bool]:  # fmt: skip
-    """Which of the ``considered`` mice (live, and moved beyond their sigma) read short of
-    their motion (SHORT, above).  ``d``: the readings flattened (x1, y1, x2, ...); ``p``:
-    the solve's predictions (N, 2), of the ``used`` mice; ``gains``: ``others_gain_list``'s
-    rows (m00, m01, m10, m11), with which a used mouse's residual becomes its residual
-    under the others (all zero: they cannot place it).  A mouse reads short where it reads
-    less than SHORT_ALONE of the solve (for a mouse not used, that is the others' word);
-    or, used, less than SHORT of what the others moved it and SHORT_OF_ALL of the solve
-    with it, where of the mice the others place it reads the most out of proportion to
-    their word (its ratio to that word, or that ratio's inverse, the largest; a reading
-    of nothing or against it, infinite).  screenbatch._fast_rows holds the same rule on
-    arrays."""
-    n = len(gains)
-    alone = [False] * n
-    odd, odd_by, odd_short = -1, 0.0, False
-    for i in range(n):
-        if not considered[i]:
-            continue
-        dx, dy = d[2 * i], d[2 * i + 1]
-        px, py = p[i]
-        along, p2 = dx * px + dy * py, px * px + py * py
-        alone[i] = along < SHORT_ALONE * p2
-        g0, g1, g2, g3 = gains[i]
-        if not used[i] or not (g0 or g1 or g2 or g3):
-            continue
-        rx, ry = dx - px, dy - py
-        ox, oy = dx - (g0 * rx + g1 * ry), dy - (g2 * rx + g3 * ry)
-        o2 = ox * ox + oy * oy
-        if not o2 > 0.0:
-            continue
-        ratio = (dx * ox + dy * oy) / o2
-        by = max(ratio, 1.0 / ratio) if ratio > 0.0 else math.inf
-        if by > odd_by:
-            odd, odd_by = i, by
-            odd_short = ratio < SHORT and along < SHORT_OF_ALL * p2
-    if odd_short:
-        alone[odd] = True
-    return alone
 
 
 def _within(r: np.ndarray, cov: np.ndarray, thr2: float) -> bool:
@@ -436,20 +376,16 @@ class Screen(RigidTest):
         rig = steady.Rig(self._xy, self._max2, self._prev, nm.f_floor, nm.f_rho2, nm.f_gran2,
                          nm.sig2_list, nm.lam_r_list)  # fmt: skip
         threshold = self._thresholds[dof] if dof > 0 else math.inf
-        accepted = steady.steady_window(d, q, live, rig, threshold, dof, leverage)
+        gains = self.others_gain_list(live)
+        accepted = steady.steady_window(d, q, live, rig, threshold, dof, leverage, gains)
         if accepted is None:
-            return False
-        sig2 = nm.sig2_list
-        p = accepted[0]
-        heard = [live[i] and px * px + py * py > sig2[i] for i, (px, py) in enumerate(p)]
-        if any(reads_short(d, p, self.others_gain_list(live), heard, live)):
-            return False  # short of what the others moved it: decide (``_quiet_blame``)
+            return False  # decide (a shortfall among it: ``_quiet_blame``)
+        p, by_floor, by_prop, heard = accepted
         if self._quiet_any:
             self._heard(heard, not any(heard))
         if self.silences.any:
-            sig2, thr2 = self.noise.sig2_list, self._thresholds[2]
-            self.silences.rows([accepted[0]], [d], live, sig2, thr2)
-        self._prev, by_floor, by_prop = accepted
+            self.silences.rows([p], [d], live, nm.sig2_list, self._thresholds[2])
+        self._prev = p
         nm.take(by_floor, by_prop)
         self.history.append(d)
         self.lateness.remember(self._prev)

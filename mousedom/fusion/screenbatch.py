@@ -14,7 +14,8 @@ from __future__ import annotations
 import numpy as np
 
 from mousedom.fusion.noisemodel import motion2, norm2
-from mousedom.fusion.robust import MISSING, SHORT, SHORT_ALONE, SHORT_OF_ALL, TRACKING, Screen
+from mousedom.fusion.robust import MISSING, TRACKING, Screen
+from mousedom.fusion.shortfall import SHORT, SHORT_ALONE, SHORT_OF_ALL
 
 HORIZON = 16  # learning blocks of rows tested at once after the factors changed
 HORIZON_MAX = 64  # and once they stayed as they were (bounded: (rows, mice) temporaries)
@@ -149,7 +150,7 @@ def _fast_rows(sc: Screen, d, p, mask, lever, gain) -> tuple[np.ndarray, tuple]:
         dofs = 2 * _row_sum(mask.astype(np.int64)) - sc.k
         ok = (dofs <= 0) | (t <= thr[np.maximum(dofs, 0)])
     saturated = mask & (m2 >= sc.max_step2)
-    # a mouse the others moved beyond its sigma that reads short of it (robust.reads_short,
+    # a mouse the others moved beyond its sigma that reads short of it (shortfall.reads_short,
     # the same operations on arrays): decide (Screen._quiet_blame)
     p2 = norm2(p)
     moved = mask & (p2 > sc.noise.sig2)

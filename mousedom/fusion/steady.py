@@ -18,6 +18,7 @@ from typing import NamedTuple
 
 from mousedom import core
 from mousedom.fusion.noisemodel import _MEDIAN_CHI2_2, sample_values
+from mousedom.fusion.shortfall import reads_short
 
 
 class Rig(NamedTuple):
@@ -35,23 +36,27 @@ class Rig(NamedTuple):
     lam_r: list[float]
 
 
-# The accepted window: each mouse's predicted motion (the next window's ``prev``), and the
-# noise model's samples as (mouse, value): floor factors, then proportional ones.
-Accepted = tuple[list[list[float]], list[tuple[int, float]], list[tuple[int, float]]]
+# The accepted window: each mouse's predicted motion (the next window's ``prev``), the
+# noise model's samples as (mouse, value): floor factors, then proportional ones, and which
+# live mice the solve moved beyond their sigma (each read in full: its shortfall's sum
+# starts again).
+Accepted = tuple[list[list[float]], list[tuple[int, float]], list[tuple[int, float]], list[bool]]
 
 
 def steady_window(
     d: list[float], q: list[float], live: tuple[bool, ...], rig: Rig, threshold: float,
-    dof: int, leverage: list[float] | None,
+    dof: int, leverage: list[float] | None, gains: list[list[float]],
 ) -> Accepted | None:  # fmt: skip
     """The window with body-frame displacements ``d`` (x1, y1, x2, ...) and solved twist
     ``q`` (ux, uy, a) of the ``live`` mice: None where the screen must decide (a mouse
-    saturated, or the statistic over ``threshold`` with ``dof`` > 0 degrees of freedom),
-    else what it gives (``Accepted``).  ``leverage``: each mouse's hat-matrix block trace
-    under this live pattern (None where dof <= 0: no sample is taken then)."""
+    saturated, the statistic over ``threshold`` with ``dof`` > 0 degrees of freedom, or a
+    mouse short of its motion), else what it gives (``Accepted``).  ``leverage``: each
+    mouse's hat-matrix block trace under this live pattern (None where dof <= 0: no sample
+    is taken then); ``gains``: ``RigidTest.others_gain_list``'s under it."""
     native = core.native
     if native is not None:
-        done = native.steady_window(d, q, live, rig, threshold, dof, leverage, _MEDIAN_CHI2_2)
+        done = native.steady_window(d, q, live, rig, threshold, dof, leverage, gains,
+                                    _MEDIAN_CHI2_2)  # fmt: skip
         if done is not False:  # False: declined (the types); None: decide
             return done
     ux, uy, a = q
@@ -79,9 +84,13 @@ def steady_window(
     if dof > 0 and leverage is not None:
         for i, r2, floor, prop, m2 in terms:
             if m2 > rig.sig2[i]:
-                f, p = sample_values(r2, floor, prop, leverage[i], rig.sig2[i], rig.lam_r[i])
-                if f is not None:
-                    by_floor.append((i, f))
-                if p is not None:
-                    by_prop.append((i, p))
-    return [[ux - a * y, uy + a * x] for x, y in rig.xy], by_floor, by_prop
+                by_f, by_p = sample_values(r2, floor, prop, leverage[i], rig.sig2[i], rig.lam_r[i])
+                if by_f is not None:
+                    by_floor.append((i, by_f))
+                if by_p is not None:
+                    by_prop.append((i, by_p))
+    p = [[ux - a * y, uy + a * x] for x, y in rig.xy]
+    heard = [live[i] and px * px + py * py > rig.sig2[i] for i, (px, py) in enumerate(p)]
+    if any(reads_short(d, p, gains, heard, live)):
+        return None  # short of its motion: decide (the screen's shortfall)
+    return p, by_floor, by_prop, heard
