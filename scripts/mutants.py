@@ -819,6 +819,31 @@ MUTANTS = [
         "a third explanation passing now and then ends the fit's run short of its margin",
     ),
     Mutant(
+        "quiet-hold-not-in-a-tie",
+        "mousedom/fusion/robust.py",
+        "            elif quiet is not None and used[quiet] and self._passes_without("
+        "d, used, quiet, s2):\n",
+        "            elif False:\n",
+        ("tests/test_tie_shortfall.py",),
+        "a mouse short of its motion for 38 windows left in while the tie stays unbroken",
+    ),
+    Mutant(
+        "continuity-against-the-fit",
+        "mousedom/fusion/robust.py",
+        "                and (smooth == ranked[0].excluded\n",
+        "                and (True\n",
+        ("tests/test_tie_shortfall.py",),
+        "the motion takes a healthy mouse out where the tie's fit speaks against it",
+    ),
+    Mutant(
+        "continuity-vetoed-by-noise",
+        "mousedom/fusion/robust.py",
+        "FIT_VETO = 0.95\n",
+        "FIT_VETO = 0.5\n",
+        ("tests/test_tie_shortfall.py",),
+        "sums of noise veto the motion's word on a jump, which goes into the pose",
+    ),
+    Mutant(
         "gyro-span-clipped-at-its-period",
         "mousedom/fusion/gyro.py",
         "    spans = np.where(gaps <= bridge, np.maximum(gaps, 0.0), period)\n",
@@ -961,8 +986,8 @@ MUTANTS = [
     Mutant(
         "continuity-blind-to-ramps",
         "mousedom/fusion/robust.py",
-        "                and ramp_agrees):  # fmt: skip",
-        "                and True):  # fmt: skip",
+        "                and ramp_agrees\n",
+        "                and True\n",
         (
             "tests/test_tie_sums.py::test_continuity_does_not_take_a_ramp_for_a_fault",
             "tests/test_tie_sums.py::test_continuity_does_not_blame_a_healthy_mouse_as_the_robot_speeds_up",

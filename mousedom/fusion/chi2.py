@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import functools
 import math
+import statistics
 
 
 def survival(x: float, dof: int) -> float:
@@ -75,16 +76,25 @@ def quantile(p: float, dof: int) -> float:
     return hi
 
 
-# Past this many degrees the median is the Wilson-Hilferty approximation (within 7e-6 of
-# it at 100, closer beyond): the exact quantile's survival sums grow with the degrees, and
-# past 1200 they are summed in logs at tens of milliseconds a call, where a tie held for
-# seconds asks for a median of every window's new sum (robust.Screen._fits_badly).
-_EXACT_MEDIAN_DOF = 100
+# Past this many degrees a quantile of a tie's sums (robust.Screen._tie_break) is the
+# Wilson-Hilferty approximation (the median within 7e-6 of the exact at 100 degrees,
+# closer beyond): the exact quantile's survival sums grow with the degrees, and past 1200
+# they are summed in logs at tens of milliseconds a call, where a tie held for seconds asks
+# for one of every window's new sum.
+_EXACT_DOF = 100
+
+
+@functools.lru_cache(maxsize=512)
+def sum_quantile(p: float, dof: int) -> float:
+    """``quantile`` for a sum of many windows' statistics: exact up to _EXACT_DOF degrees,
+    then k (1 - 2 / 9k + z_p sqrt(2 / 9k))^3 (z_p: the standard normal's p quantile)."""
+    if dof <= _EXACT_DOF:
+        return quantile(p, dof)
+    v = 2.0 / (9.0 * dof)
+    return dof * (1.0 - v + statistics.NormalDist().inv_cdf(p) * math.sqrt(v)) ** 3
 
 
 def median(dof: int) -> float:
-    """The median of chi-square with ``dof`` (a positive whole number) degrees: exact (the
-    0.5 quantile) up to _EXACT_MEDIAN_DOF, then k (1 - 2 / 9k)^3."""
-    if dof <= _EXACT_MEDIAN_DOF:
-        return quantile(0.5, dof)
-    return dof * (1.0 - 2.0 / (9.0 * dof)) ** 3
+    """The median of chi-square with ``dof`` (a positive whole number) degrees
+    (``sum_quantile``'s: past _EXACT_DOF, k (1 - 2 / 9k)^3)."""
+    return sum_quantile(0.5, dof)

@@ -11,12 +11,13 @@ together with the others.  Per window (docs/models.md, "Faults"):
    each scaled by what the mouse's own residuals have shown).  The s_i are taken from the
    solution with every candidate mouse and kept while mice are left out in turn, so that a
    faulty mouse cannot widen its own tolerance by moving the solution.
-1b. A mouse that reads short of its motion (``shortfall.reads_short``: under a quarter of the solve
-   with it, or, the one most out of proportion to the solve without it, under three
-   quarters of that) sums its shortfall; once the sum is beyond twice its floor at the
-   test's threshold it is held out (as late) though the window passes: wide tolerances
-   learnt from late stamps would let a lift pass window after window, and an under-read
-   whose first windows passed was learnt by the noise model as noise (``_quiet_blame``).
+1b. A mouse that reads short of its motion (``shortfall.reads_short``: under a quarter of
+   the solve with it, or, the one most out of proportion to the solve without it, under
+   three quarters of that) sums its shortfall; once the sum is beyond twice its floor at
+   the test's threshold it is held out (as late) though the window passes, or where it
+   fails in a tie that the window passes without it: wide tolerances learnt from late
+   stamps would let a lift pass window after window, and an under-read whose first
+   windows passed was learnt by the noise model as noise (``_quiet_blame``).
 2. T = min_q sum_i |d_i - A_i q|^2 / s_i^2 is chi-square with 2L - k degrees of freedom on
    a healthy rig of L mice and k unknowns, whatever the layout.  Above its (1 - alpha)
    quantile (``false_alarm`` alpha, 1e-4 by default) the window is inconsistent.
@@ -100,6 +101,9 @@ __all__ = ["EXCLUDED", "INCONSISTENT", "LATE", "LOW_QUALITY", "MISSING", "NONE",
 # How much smoother than the next one the winning explanation's motion must be (tie_break).
 _CONTINUITY_MARGIN = 3.0
 _FIT_MARGIN = chi2.quantile(0.999, 1)
+# The continuity of motion does not decide a tie for an explanation whose fit, summed over
+# the tie, is beyond this quantile of its own and worse than another's (_tie_break).
+FIT_VETO = 0.95
 # How far back the continuity of motion is judged from (_tie_break).
 HISTORY_S = 0.05
 # A mouse whose hat block has an eigenvalue beyond this is not looked back on for a
@@ -694,6 +698,13 @@ class Screen(RigidTest):
                 for j in blamed:
                     reason[j] = SILENT if self._silent(d, j) else INCONSISTENT
                 used, p = self._without(d, used, blamed)
+            elif quiet is not None and used[quiet] and self._passes_without(d, used, quiet, s2):
+                # nothing in the window alone tells who (a tie), but one mouse has read
+                # short of what the others moved it beyond its error, window after window,
+                # and the window passes without it: held out as where the window passes
+                reason[quiet] = SILENT if self._silent(d, quiet) else INCONSISTENT
+                used, p = self._without(d, used, [quiet])
+                self._quiet_held = quiet
             else:
                 consistent = False
                 inflate = stat.t / stat.dof
@@ -718,6 +729,11 @@ class Screen(RigidTest):
         self.accepted(p[None], d[None], used.tolist(), decided=True)
         self._count_window(defer_block_end)
         return Decision(used=used, inflate=inflate, consistent=consistent, correction=correction)
+
+    def _passes_without(self, d: np.ndarray, used: np.ndarray, i: int, s2: np.ndarray) -> bool:
+        """Whether the window's test passes with mouse i left out of ``used``."""
+        stat = self._statistic(d, _but(used, i), s2)
+        return stat is not None and self._passes(stat)
 
     def _blame(self, d: np.ndarray, used: np.ndarray, s2: np.ndarray,
                stat: Statistic | None) -> tuple[list[int] | None, bool]:  # fmt: skip
@@ -986,10 +1002,11 @@ class Screen(RigidTest):
         whose motion is by far the closest to the motion its own mice read HISTORY_S
         earlier wins (not the previous window's solution: a fault that crept in below the
         test's tolerance has already bent that towards itself), where it is also by far
-        the closest to that motion carried on from twice as far back (a ramp).  Then a
-        mouse that reads as a lifted one while the rest say it moved (``_lifted``).  The
-        fit (``fits``: every exclusion of the passing ones' size, its statistic) is judged
-        summed over the tie's windows (``_fit_sums``)."""
+        the closest to that motion carried on from twice as far back (a ramp), and unless
+        the fit speaks against it (FIT_VETO).  Then a mouse that reads as a lifted one
+        while the rest say it moved (``_lifted``).  The fit (``fits``: every exclusion of
+        the passing ones' size, its statistic) is judged summed over the tie's windows
+        (``_fit_sums``)."""
         sums, run = self._fit_sums(used, fits)
         ranked = sorted(passing, key=lambda c: sums[tuple(c.excluded)])
         worse = sums[tuple(ranked[1].excluded)]
@@ -1042,10 +1059,21 @@ class Screen(RigidTest):
         ramp_agrees = len(trend) < len(change) or (
             trend[0][1] == change[0][1] and trend[0][0] * _CONTINUITY_MARGIN < trend[1][0]
         )
+        # Nor for an explanation that fits worse than another, where its fit summed over
+        # the tie is beyond its own FIT_VETO quantile: the fit speaks against it, short
+        # of its margin (a wide rig's mouse under-reading as a turn began: two windows
+        # summed 0.2 leaving it out and 8.0 leaving a healthy one out, the motion chose
+        # the healthy one, and the drive ended 1.24 m off, fault handling off 0.71 m).
+        # Below that quantile the sums are noise, and a jump, which the motion tells,
+        # would be let into the pose while the windows after decide.
+        smooth = change[0][1]
         if (change[0][0] * _CONTINUITY_MARGIN < change[1][0]
                 and change[1][0] > self._thresholds[2 * self.n]
-                and ramp_agrees):  # fmt: skip
-            return change[0][1]
+                and ramp_agrees
+                and (smooth == ranked[0].excluded
+                     or sums[tuple(smooth)] <= chi2.sum_quantile(
+                         FIT_VETO, ranked[0].stat.dof * run))):  # fmt: skip
+            return smooth
         return silent[0] if len(silent) == 1 else None
 
     def _lifted(self, d: np.ndarray, p: np.ndarray, s2: np.ndarray, j: int) -> bool:
