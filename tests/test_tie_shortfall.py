@@ -15,6 +15,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from faulty_drives import assert_only_the_faulty_held_out, ends
 
 from mousedom.fusion import chi2, robust, scenarios
 from mousedom.fusion.conditions import condition, condition_config, faulty_drive
@@ -37,17 +38,9 @@ def test_the_under_reading_mouse_is_held_out_not_a_healthy_one(mouse, cond, seed
     """No healthy mouse is ever held out, the faulty one is during its fault, and the end
     is within 20 mm of the informed reference (fault handling off: 184 and 713 mm)."""
     fault = scenarios.Fault("under-read", mouse, start, end)
-    base, c, _, traj, result = faulty_drive("wide", condition(cond, seed), fault, seed, 20.0)
-    batch, _ = scenarios.run(result, condition_config(base, c))
-    off = condition_config(base, c, robust=False)
-    informed, _ = scenarios.run(result, off, scenarios.informed_dead(fault, base, traj))
-    e, ei = scenarios.end_pose_error(result, batch), scenarios.end_pose_error(result, informed)
+    base, batch, e, ei = ends("wide", condition(cond, seed), fault, seed)
     assert np.hypot(e[0], e[1]) < np.hypot(ei[0], ei[1]) + 0.02, (e, ei)
-    j = [m.name for m in base.mice].index(mouse)
-    out = np.isin(np.asarray(batch.state), (robust.EXCLUDED, robust.LATE))
-    assert not np.delete(out, j, axis=1).any(), "a healthy mouse was held out"
-    during = (np.asarray(batch.t) > start) & (np.asarray(batch.t) < end)
-    assert out[during, j].any(), "the under-reading mouse was never held out"
+    assert_only_the_faulty_held_out(base, batch, fault)
 
 
 def test_a_jump_is_still_told_by_the_motion_where_the_sums_are_noise():

@@ -16,10 +16,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from faulty_drives import assert_only_the_faulty_held_out, ends
 
 from mousedom.config import RobustConfig
 from mousedom.fusion import robust, scenarios
-from mousedom.fusion.conditions import condition, condition_config, faulty_drive
+from mousedom.fusion.conditions import condition
 from mousedom.fusion.robust import Screen
 from mousedom.fusion.shortfall import SHORT, reads_short
 
@@ -102,17 +103,6 @@ NEVER_FOUND = (
 )  # fmt: skip
 
 
-def _ends(layout: str, cond, fault: scenarios.Fault, seed: int):
-    """A 20 s drive on ``layout`` under ``cond`` with ``fault``, run by the default engine:
-    (the rig, its batch, its end error (x, y, theta), the informed reference's end error)."""
-    base, c, _, traj, result = faulty_drive(layout, cond, fault, seed, 20.0)
-    batch, _ = scenarios.run(result, condition_config(base, c))
-    off = condition_config(base, c, robust=False)
-    informed, _ = scenarios.run(result, off, scenarios.informed_dead(fault, base, traj))
-    return (base, batch, scenarios.end_pose_error(result, batch),
-            scenarios.end_pose_error(result, informed))  # fmt: skip
-
-
 @pytest.mark.parametrize("layout,mouse,cond,seed,start,end,tail", NEVER_FOUND)
 def test_an_under_read_whose_onset_passed_is_found(layout, mouse, cond, seed, start, end, tail):
     """The under-reading mouse is held out during the fault, no healthy mouse ever is, and
@@ -120,13 +110,9 @@ def test_an_under_read_whose_onset_passed_is_found(layout, mouse, cond, seed, st
     beyond its tolerance keep part of the fault)."""
     fault = scenarios.Fault("under-read", mouse, start, end)
     params = {"stamp_tail": tail} if tail else {}
-    base, batch, e, ei = _ends(layout, condition(cond, seed, **params), fault, seed)
+    base, batch, e, ei = ends(layout, condition(cond, seed, **params), fault, seed)
     assert np.hypot(e[0], e[1]) < np.hypot(ei[0], ei[1]) + 0.05, (e, ei)
-    j = [m.name for m in base.mice].index(mouse)
-    out = np.isin(np.asarray(batch.state), (robust.EXCLUDED, robust.LATE))
-    assert not np.delete(out, j, axis=1).any(), "a healthy mouse was held out"
-    during = (np.asarray(batch.t) > start) & (np.asarray(batch.t) < end)
-    assert out[during, j].any(), "the under-reading mouse was never held out"
+    assert_only_the_faulty_held_out(base, batch, fault)
 
 
 def test_a_noisy_lift_of_a_far_mouse_leaves_the_pair_in():
@@ -137,7 +123,7 @@ def test_a_noisy_lift_of_a_far_mouse_leaves_the_pair_in():
     mouse in full, and stays in: within 30 mm of the informed reference."""
     fault = scenarios.Fault("lift-noisy", "a", 6.408292741069073, 8.40296866060801)
     cond = condition("usb-gaps+late-stamps", 3791, stamp_tail=0.00462887181495422)
-    _, _, e, ei = _ends("far-one", cond, fault, 3791)
+    _, _, e, ei = ends("far-one", cond, fault, 3791)
     assert np.hypot(e[0], e[1]) < np.hypot(ei[0], ei[1]) + 0.03, (e, ei)
 
 
