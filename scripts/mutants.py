@@ -844,14 +844,6 @@ MUTANTS = [
         "sums of noise veto the motion's word on a jump, which goes into the pose",
     ),
     Mutant(
-        "scale-fault-from-an-unexplained-block",
-        "mousedom/fusion/scalelearn.py",
-        "        if explained is False:\n",
-        "        if False:\n",
-        ("tests/test_scale_faults.py::test_a_block_its_own_scales_do_not_explain_finds_no_fault",),
-        "a block bent by jumps its scales cannot explain blames a healthy mouse for 9 s",
-    ),
-    Mutant(
         "gyro-span-clipped-at-its-period",
         "mousedom/fusion/gyro.py",
         "    spans = np.where(gaps <= bridge, np.maximum(gaps, 0.0), period)\n",

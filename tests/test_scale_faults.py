@@ -9,14 +9,11 @@ any CPI within ``scale_limit`` is excluded, and is not learnt as a CPI."""
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
 from batches import assert_same_batches
 
 from mousedom.fusion import robust, scalelearn, scenarios, sim
-from mousedom.fusion.conditions import condition, condition_config, faulty_drive
 from mousedom.fusion.drives import drive
 from mousedom.fusion.posebatch import PoseBatch
 from mousedom.fusion.tracker import Tracker
@@ -228,48 +225,6 @@ def test_an_under_read_of_a_close_pair_mouse_is_excluded_within_a_second(seed):
     assert not np.isin(np.asarray(batch.state)[:, 1:], (robust.EXCLUDED, robust.LATE)).any()
     trial = scenarios.fault_trial("close-pair-plus", "under-read", seed, duration)
     assert trial.default.position < 0.25 * trial.off.position + 0.01, trial
-
-
-def test_a_block_its_own_scales_do_not_explain_finds_no_fault():
-    """A close pair's 125 Hz mouse jumping twice in a block, under USB gaps and late
-    stamps (scripts/fault_sweep.py --seed 13 --only 223): the jumps passed the windows'
-    test (the far mouse's tolerance was wide with its catch-ups), and the block's own
-    scales, bent by them, put the healthy far mouse at -0.09. It was excluded for 9 s, the
-    pair alone took the jumps as turns, and the drive ended 1.43 m off (fault handling off
-    13 mm). A block whose readings its scales do not explain (``_explained``) blames
-    nobody: the far mouse is never excluded, and the drive ends as near as with fault
-    handling off."""
-    base = scenarios.rig("close-pair-plus")
-    fault = dataclasses.replace(scenarios.fault_for("jumps", base, 20.0, 2176), mouse="a")
-    cond = condition("usb-gaps+late-stamps", 2176, stamp_tail=0.004545060175899996)
-    rig, c, _, _, result = faulty_drive("close-pair-plus", cond, fault, 2176, 20.0)
-    batch, _ = scenarios.run(result, condition_config(rig, c))
-    off, _ = scenarios.run(result, condition_config(rig, c, robust=False))
-    e, eo = scenarios.end_pose_error(result, batch), scenarios.end_pose_error(result, off)
-    assert np.hypot(e[0], e[1]) < np.hypot(eo[0], eo[1]) + 0.005, (e, eo)
-    # (its USB catch-ups hold it as late now and then: that is lateness, settled)
-    far = np.asarray(batch.state)[:, 2]
-    assert not (far == robust.EXCLUDED).any(), "the far mouse was excluded"
-
-
-def test_a_jump_in_a_block_with_evidence_behind_it_blames_nobody():
-    """The learner with evidence (healthy blocks), then a block in which mouse 0 reads
-    one window's jump of 5 mm on top of its motion: its scales do not explain it, and no
-    mouse is found faulty; the same learner then finds a mouse reading half."""
-    learner = _learner(4)
-    for seed in range(6):
-        _block(learner, np.ones(4), seed)
-    rng = np.random.default_rng(9)
-    n, windows = learner.n, learner.block
-    q = np.stack([rng.uniform(0.5, 1.5, windows) * 1e-3, rng.uniform(-0.3, 0.3, windows) * 1e-3,
-                  rng.uniform(-1.0, 1.0, windows) * 1e-2], axis=1)  # fmt: skip
-    body = np.stack([q[:, None, 0] - q[:, None, 2] * XY[None, :n, 1],
-                     q[:, None, 1] + q[:, None, 2] * XY[None, :n, 0]], axis=2)  # fmt: skip
-    counts = body * COUNTS_PER_M + rng.normal(0, 0.3, body.shape)
-    counts[windows // 2, 0] += (0.005 * COUNTS_PER_M, -0.003 * COUNTS_PER_M)
-    assert learner.add(counts, np.ones((windows, n), dtype=bool))
-    assert learner.faults == []
-    assert _block(learner, np.array([1.0, 0.5, 1.0, 1.0]), 11) == [1]
 
 
 def test_the_daemon_excludes_at_the_same_window_as_replay():

@@ -86,7 +86,7 @@ _FAULT_GROUPS = 3
 _BEYOND_MIN = 0.01
 # A faulty block's windows are given back at its own scale of the mouse only where that
 # scale explains its readings: the block's residual per degree of freedom at most this
-# many times the evidence's (``_explained``); beyond it, no mouse is found faulty at all.
+# many times the evidence's (``_in_proportion``)
 _PROPORTION = 9.0
 # The jackknife's segments of evidence (``jackknife``): a block each, the oldest two merged
 # beyond this many (20 s of motion with every mouse tracking; older evidence is forgotten
@@ -1039,30 +1039,19 @@ class ScaleLearner:
         lo, hi = self.bounds
         beyond = np.maximum(lo * (1.0 - FAULT_MARGIN) - g, g - hi * (1.0 + FAULT_MARGIN))
         flagged = np.flatnonzero((beyond > 0) & (beyond > FAULT_SIGMAS * spread)).tolist()
-        if not flagged:
-            return [], None
-        # A block its own scales do not explain is no scale's: its scales are bent by
-        # what they cannot explain, and the mouse they single out may be a healthy one.
-        # A close pair's mouse jumping twice in a block under USB gaps made the far mouse's
-        # scale -0.09; it was excluded for 9 s while the pair alone took the jumps as
-        # turns (1.43 m off at the end; fault handling off 13 mm).
-        explained = self._explained(block, groups, g)
-        if explained is False:
-            return [], None
-        return flagged, g if explained else None
+        return flagged, g if flagged and self._in_proportion(block, groups, g) else None
 
-    def _explained(self, block: np.ndarray, groups: int, g: np.ndarray) -> bool | None:
+    def _in_proportion(self, block: np.ndarray, groups: int, g: np.ndarray) -> bool:
         """Whether the block's own scales explain its readings about as well as the
         evidence's explain the evidence (the residual per degree of freedom at most
-        _PROPORTION times; None where there is no evidence to compare with): a mouse
-        reading at another scale (a dirty lens, another floor) is; one reading nothing,
-        then everything at once (a USB stall's silence and catch-up), at random (a lift)
-        or in jumps is not, whatever scale fits it best."""
+        _PROPORTION times): a mouse reading at another scale (a dirty lens, another
+        floor) is; one reading nothing, then everything at once (a USB stall's silence and
+        catch-up), or at random (a lift) is not, whatever scale fits it best."""
         if self.groups < _MIN_GROUPS:
-            return None
+            return False  # (nothing to compare with)
         cols = len(self.cols)
         known = residual_per_dof(self.gram, self.one, self.groups, cols)
-        return bool(residual_per_dof(block, g, groups, cols) <= _PROPORTION * known)
+        return residual_per_dof(block, g, groups, cols) <= _PROPORTION * known
 
     def _give_back_faults(self, block_scale: np.ndarray | None) -> None:
         """The windows of this block in which a mouse the block found faulty was used
@@ -1076,7 +1065,7 @@ class ScaleLearner:
         where the fault began within the block too (each window weighs as its motion).
         Those windows then leave the horizon (turn and walk, unit and given, and the
         recent blocks' parts): a scale learnt later does not give them back again.
-        Only where the block's scale explains its readings (``_explained``): a USB
+        Only where the block's scale explains its readings (``_in_proportion``): a USB
         stall's silence and its catch-up in one block, or a lift's readings, fit some
         scale too, and given back at it a stall's drive ended 0.65 m off against 0.17
         with fault handling off.  (The windows the screen excluded the mouse from are
