@@ -844,6 +844,27 @@ MUTANTS = [
         "sums of noise veto the motion's word on a jump, which goes into the pose",
     ),
     Mutant(
+        "scale-fault-from-bent-scales",
+        "mousedom/fusion/scalelearn.py",
+        "            if carriers:\n",
+        "            if False:\n",
+        (
+            "tests/test_scale_faults.py::test_jumps_of_a_close_pair_mouse_in_a_spin_never_blame_a_healthy_mouse",
+            "tests/test_scale_faults.py::test_a_stall_across_a_block_end_blames_the_stalled_mouse_alone",
+        ),
+        "a block bent by jumps its scales cannot explain blames a healthy mouse for 9 s",
+    ),
+    Mutant(
+        "scale-fault-from-an-ambiguous-block",
+        "mousedom/fusion/scalelearn.py",
+        "                flagged = [i for i in flagged if carriers == [i]]\n",
+        "                flagged = [i for i in flagged if i in carriers]\n",
+        (
+            "tests/test_scale_faults.py::test_jumps_of_a_close_pair_mouse_in_a_spin_never_blame_a_healthy_mouse",
+        ),
+        "a jump across a close pair, which the pair reads as a turn, blames the far mouse",
+    ),
+    Mutant(
         "gyro-span-clipped-at-its-period",
         "mousedom/fusion/gyro.py",
         "    spans = np.where(gaps <= bridge, np.maximum(gaps, 0.0), period)\n",

@@ -183,6 +183,27 @@ def widened(spread: np.ndarray, s: np.ndarray, segments: Sequence[np.ndarray]) -
     return np.maximum(spread, jackknife(s, segments) * (t / _PLAIN))
 
 
+def _motion_columns(positions: np.ndarray, cols: tuple[int, ...]) -> np.ndarray:
+    """A (2N, len(cols)): the stacked displacements (x, y per mouse) a unit rig motion
+    (forward, sideways, turn; ``cols`` of them) gives mice at ``positions`` (N, 2)."""
+    a = np.zeros((2 * len(positions), 3))
+    a[0::2, 0] = 1.0
+    a[1::2, 1] = 1.0
+    a[0::2, 2] = -positions[:, 1]
+    a[1::2, 2] = positions[:, 0]
+    return a[:, list(cols)]
+
+
+def _projector(a: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """P = I - A (A' W A)^-1 A' W: what of the stacked displacements no rig motion
+    explains (W: ``weight``, per reading); I where fewer than two mice tell nothing."""
+    n2 = len(a)
+    if n2 < 4:
+        return np.eye(n2)
+    aw = a.T * weight
+    return np.eye(n2) - a @ np.linalg.solve(aw @ a, aw)
+
+
 def residual_per_dof(s: np.ndarray, g: np.ndarray, groups: float, cols: int) -> float:
     """g' S g over its degrees of freedom: ``groups`` groups of 2N readings of N mice, less
     the rig motion's ``cols`` per group and the N - 1 scales fitted."""
@@ -405,15 +426,10 @@ class ScaleLearner:
         # P = I - A (A' W A)^-1 A' W: what of the stacked displacements (2N,) no motion of
         # the rig explains, W the config's sigmas (all mice in use)
         n2 = 2 * self.n
-        a = np.zeros((n2, 3))
-        a[0::2, 0] = 1.0
-        a[1::2, 1] = 1.0
-        a[0::2, 2] = -self.positions[:, 1]
-        a[1::2, 2] = self.positions[:, 0]
-        a = a[:, list(self.cols)]
+        a = _motion_columns(self.positions, self.cols)
         self.weight = np.repeat(1.0 / np.asarray(sigma, dtype=float) ** 2, 2)
         aw = a.T * self.weight
-        self.project = np.eye(n2) - a @ np.linalg.solve(aw @ a, aw) if self.n >= 2 else np.eye(n2)
+        self.project = _projector(a, self.weight)
         # The heading row of that least squares (every mouse in use): what each reading
         # adds to a window's turn (_turn_owed)
         est = np.linalg.solve(aw @ a, aw) if self.n >= 3 else np.zeros((len(self.cols), n2))
@@ -761,7 +777,7 @@ class ScaleLearner:
             j[:, 2 * i : 2 * i + 2, i] = body[:, i]
         pj = np.einsum("rs,gst->grt", self.project, j)
         block = np.einsum("grt,r,grs->ts", pj, self.weight, pj)
-        flagged, block_scale = self._faults(block, len(c))
+        flagged, block_scale = self._faults(block, len(c), body)
         self.faults = self._blamed(flagged)
         self._give_back_faults(block_scale)
         self._learnt_last = not flagged and len(c) > 0
@@ -1021,7 +1037,9 @@ class ScaleLearner:
         if mixed is not None:
             self.estimate, self.spread = mixed[0], mixed[1]
 
-    def _faults(self, block: np.ndarray, groups: int) -> tuple[list[int], np.ndarray | None]:
+    def _faults(
+        self, block: np.ndarray, groups: int, body: np.ndarray
+    ) -> tuple[list[int], np.ndarray | None]:
         """The mice whose scale in this block alone (its S, ``groups`` of them) is beyond
         what any CPI within the bounds gives, by FAULT_MARGIN of it and FAULT_SIGMAS of
         the block's spread: a mouse that reads half its motion (a dirty lens, a sensor
@@ -1029,7 +1047,8 @@ class ScaleLearner:
         the tolerances are wide (late stamps, a far mouse, a close pair: a 125 Hz mouse
         of a close pair, reading half in a spin, ended a drive 0.37 m off against 4 mm
         told), and the screen's noise model then learns it as noise; summed over a
-        block's groups, the timing noise cancels and it is plain."""
+        block's groups, the timing noise cancels and it is plain.  ``body``: the block's
+        groups' readings (G, N, 2) as configured, for ``_carries``."""
         if groups < _FAULT_GROUPS:
             return [], None
         fitted = fit(block, groups, self.n, len(self.cols))
@@ -1039,7 +1058,27 @@ class ScaleLearner:
         lo, hi = self.bounds
         beyond = np.maximum(lo * (1.0 - FAULT_MARGIN) - g, g - hi * (1.0 + FAULT_MARGIN))
         flagged = np.flatnonzero((beyond > 0) & (beyond > FAULT_SIGMAS * spread)).tolist()
-        return flagged, g if flagged and self._in_proportion(block, groups, g) else None
+        if not flagged:
+            return [], None
+        explained = self._in_proportion(block, groups, g)
+        if not explained and self._known_per_dof() is not None:
+            # A block its own scales do not explain: the scales are bent by what they
+            # cannot explain, so they may single out a healthy mouse.  Where leaving one
+            # mouse out explains the rest, that mouse carries it, and only it is found
+            # faulty; where leaving out either of two does (a close pair's jump across the
+            # pair reads to the pair alone as a turn), the block cannot tell whose it is
+            # and finds no fault.  Where none does, the scales' word stands.
+            carriers = [i for i in range(self.n) if self._carries(i, body, groups)]
+            if carriers:
+                flagged = [i for i in flagged if carriers == [i]]
+        return flagged, g if flagged and explained else None
+
+    def _known_per_dof(self) -> float | None:
+        """The evidence's residual per degree of freedom at its scales (None: too little
+        evidence to compare with, fewer than _MIN_GROUPS groups)."""
+        if self.groups < _MIN_GROUPS:
+            return None
+        return residual_per_dof(self.gram, self.one, self.groups, len(self.cols))
 
     def _in_proportion(self, block: np.ndarray, groups: int, g: np.ndarray) -> bool:
         """Whether the block's own scales explain its readings about as well as the
@@ -1047,10 +1086,40 @@ class ScaleLearner:
         _PROPORTION times): a mouse reading at another scale (a dirty lens, another
         floor) is; one reading nothing, then everything at once (a USB stall's silence and
         catch-up), or at random (a lift) is not, whatever scale fits it best."""
-        if self.groups < _MIN_GROUPS:
+        known = self._known_per_dof()
+        if known is None:
             return False  # (nothing to compare with)
-        cols = len(self.cols)
-        known = residual_per_dof(self.gram, self.one, self.groups, cols)
+        return residual_per_dof(block, g, groups, len(self.cols)) <= _PROPORTION * known
+
+    def _carries(self, i: int, body: np.ndarray, groups: int) -> bool:
+        """Whether mouse i carries what a block's scales leave unexplained: the other
+        mice's readings alone, at their own best scales, are explained in proportion
+        (``_in_proportion``'s bound; False where the others alone check nothing).  A USB
+        stall's silence and catch-up is the stalled mouse's own: without it the block is
+        plain, and without any other mouse it is not.  Jumps of a close pair's mouse
+        across the pair, under USB gaps, are plain without the jumping mouse and
+        without the far one alike (the pair alone reads them as turns), and the block's
+        bent scales singled out the far one (scale -0.09: 1.43 m off at the end against
+        13 mm with fault handling off)."""
+        known = self._known_per_dof()
+        n, cols = self.n - 1, len(self.cols)
+        if known is None or 2 * n <= cols:
+            return False
+        others = [k for k in range(self.n) if k != i]
+        a = _motion_columns(self.positions[others], self.cols)
+        weight = self.weight.reshape(self.n, 2)[others].ravel()
+        try:
+            project = _projector(a, weight)
+        except np.linalg.LinAlgError:  # the others at one point: no rig motion is fitted
+            return False
+        j = np.zeros((len(body), 2 * n, n))
+        for k, m in enumerate(others):
+            j[:, 2 * k : 2 * k + 2, k] = body[:, m]
+        pj = np.einsum("rs,gst->grt", project, j)
+        block = np.einsum("grt,r,grs->ts", pj, weight, pj)
+        g = scales(block)
+        if not np.all(np.isfinite(g)):
+            return False
         return residual_per_dof(block, g, groups, cols) <= _PROPORTION * known
 
     def _give_back_faults(self, block_scale: np.ndarray | None) -> None:
