@@ -865,6 +865,14 @@ MUTANTS = [
         "a jump across a close pair, which the pair reads as a turn, blames the far mouse",
     ),
     Mutant(
+        "scale-given-back-for-one-group",
+        "mousedom/fusion/scalelearn.py",
+        "        scaled = explained and not self._one_group(block, groups, pj) & set(flagged)\n",
+        "        scaled = explained\n",
+        ("tests/test_scale_faults.py::test_a_far_mouse_jumping_in_a_spin_is_given_back_no_turn",),
+        "a far mouse's one jump in a spin is given back as a scale: 15 degrees in one window",
+    ),
+    Mutant(
         "gyro-span-clipped-at-its-period",
         "mousedom/fusion/gyro.py",
         "    spans = np.where(gaps <= bridge, np.maximum(gaps, 0.0), period)\n",
