@@ -873,6 +873,22 @@ MUTANTS = [
         "a far mouse's one jump in a spin is given back as a scale: 15 degrees in one window",
     ),
     Mutant(
+        "one-axis-left-to-one-scale",
+        "mousedom/fusion/scalelearn.py",
+        "            split = self._one_split(evidence, before)\n",
+        "            pass\n",
+        ("tests/test_scale_one_split.py",),
+        "a mouse off on one axis is given one scale that bends the healthy mice",
+    ),
+    Mutant(
+        "one-split-without-a-margin",
+        "mousedom/fusion/scalelearn.py",
+        "_ONE_SPLIT_MARGIN = 1.5\n",
+        "_ONE_SPLIT_MARGIN = 1.0\n",
+        ("tests/test_scale_one_split.py",),
+        "the split that explains a little more, of two alike, may be a healthy mouse",
+    ),
+    Mutant(
         "gyro-span-clipped-at-its-period",
         "mousedom/fusion/gyro.py",
         "    spans = np.where(gaps <= bridge, np.maximum(gaps, 0.0), period)\n",

@@ -88,6 +88,9 @@ _BEYOND_MIN = 0.01
 # scale explains its readings: the block's residual per degree of freedom at most this
 # many times the evidence's (``_in_proportion``)
 _PROPORTION = 9.0
+# A mouse given a scale per axis on its own (``_one_split``): its split explains this many
+# times as much of what one scale each leaves unexplained as any other mouse's would
+_ONE_SPLIT_MARGIN = 1.5
 # The jackknife's segments of evidence (``jackknife``): a block each, the oldest two merged
 # beyond this many (20 s of motion with every mouse tracking; older evidence is forgotten
 # towards half by HALF_LIFE_S).
@@ -242,6 +245,39 @@ def fit(s: np.ndarray, groups: float, n: int, cols: int) -> tuple[np.ndarray, np
     return np.where(known, g, 1.0), np.where(known, spread, np.inf)
 
 
+# ``fit_axes``' evidence: the per-axis S, its segments, the groups, N mice, the rig
+# motion's degrees of freedom
+AxisEvidence = tuple[np.ndarray, Sequence[np.ndarray], float, int, int]
+
+
+def _axis_map(split: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For ``split`` (N,): each unknown's mouse (an axis of each split mouse, one scale of
+    each other), and T (2N, unknowns), the unknowns -> the count axes."""
+    n = len(split)
+    owner = np.repeat(np.arange(n), np.where(split, 2, 1))
+    t_map = np.zeros((2 * n, len(owner)))
+    col = 0
+    for i in range(n):
+        if split[i]:
+            t_map[2 * i, col], t_map[2 * i + 1, col + 1] = 1.0, 1.0
+        else:
+            t_map[2 * i : 2 * i + 2, col] = 1.0
+        col += 2 if split[i] else 1
+    return owner, t_map
+
+
+def unexplained(s: np.ndarray, split: np.ndarray) -> float:
+    """What the per-axis evidence S (2N x 2N) leaves unexplained at its best scales with
+    a scale per axis for the ``split`` mice and one for each other: g' S g at ``scales``'
+    solution, however weakly the evidence tells those scales apart (``fit_axes`` draws
+    what it does not tell apart to 1; here only the fit counts)."""
+    t_map = _axis_map(split)[1]
+    st = t_map.T @ s @ t_map
+    with np.errstate(invalid="ignore"):
+        g = scales(st)
+    return float(g @ st @ g) if np.all(np.isfinite(g)) else math.nan
+
+
 def fit_axes(
     s: np.ndarray,
     segments: Sequence[np.ndarray],
@@ -272,16 +308,7 @@ def fit_axes(
     if np.diag(s).max() <= 0 or len(segments) < 2:
         return None
     split = np.ones(n, bool) if split is None else np.asarray(split, bool)
-    # T: the unknowns (an axis of each split mouse, one scale of each other) -> the axes
-    owner = np.repeat(np.arange(n), np.where(split, 2, 1))
-    t_map = np.zeros((m, len(owner)))
-    col = 0
-    for i in range(n):
-        if split[i]:
-            t_map[2 * i, col], t_map[2 * i + 1, col + 1] = 1.0, 1.0
-        else:
-            t_map[2 * i : 2 * i + 2, col] = 1.0
-        col += 2 if split[i] else 1
+    owner, t_map = _axis_map(split)
     k = len(owner)
     s = t_map.T @ s @ t_map
     evidence = np.diag(s)
@@ -1016,26 +1043,77 @@ class ScaleLearner:
         (its difference's spread infinite: mice whose axes all lie along the body's,
         with no sideways motion), the one scale stands."""
         n, cols = self.n, len(self.cols)
-        evidence = (self.axis_gram, self.axis_segments, self.groups, n, cols)
-        split = self.split
+        evidence: AxisEvidence = (self.axis_gram, self.axis_segments, self.groups, n, cols)
+        before = self.split
+        split = self._plain_split(evidence, None, before)
+        if split is None:
+            self.split = np.zeros(n, dtype=bool)
+            return
+        if not split.any():
+            split = self._one_split(evidence, before)
+        self.split = split
+        if not split.any():
+            return
+        with np.errstate(invalid="ignore"):
+            mixed = fit_axes(*evidence, split=self.split)
+        if mixed is not None:
+            self.estimate, self.spread = mixed[0], mixed[1]
+
+    def _plain_split(
+        self, evidence: AxisEvidence, split: np.ndarray | None, before: np.ndarray
+    ) -> np.ndarray | None:
+        """The mice whose axes' scales differ plainly in ``fit_axes`` with ``split`` (None:
+        every mouse given a scale per axis); those ``before`` split kept while beyond
+        _KEEP_PLAIN.  None where the evidence gives no fit."""
         # First with the residual's spreads alone, a lower bound: where no difference can
         # be plain with them, none is with the jackknife's either, whose solve per
         # segment (a fifth of replay's time on a healthy rig) is then not made.
         for jackknifed in (False, True):
             with np.errstate(invalid="ignore"):  # exact readings: a residual of -0
-                fitted = fit_axes(*evidence, jackknifed=jackknifed)
+                fitted = fit_axes(*evidence, split=split, jackknifed=jackknifed)
             if fitted is None:
-                self.split = np.zeros(n, dtype=bool)
-                return
+                return None
             off, sd = np.abs(fitted[2]), fitted[3]
-            kept = split & (off > _KEEP_PLAIN * sd) & (off > _KEEP_APPLIED)
-            self.split = kept | ((off > _PLAIN * sd) & (off > _MIN_APPLIED))
-            if not self.split.any():
-                return
-        with np.errstate(invalid="ignore"):
-            mixed = fit_axes(*evidence, split=self.split)
-        if mixed is not None:
-            self.estimate, self.spread = mixed[0], mixed[1]
+            with np.errstate(invalid="ignore"):  # (NaN: a mouse with one scale)
+                kept = before & (off > _KEEP_PLAIN * sd) & (off > _KEEP_APPLIED)
+                plain = kept | ((off > _PLAIN * sd) & (off > _MIN_APPLIED))
+            if not plain.any():
+                break
+        return plain
+
+    def _one_split(self, evidence: AxisEvidence, before: np.ndarray) -> np.ndarray:
+        """Where a scale per axis for every mouse is more than the evidence tells apart
+        (a drive that never slides leaves every sideways axis against every forward one
+        free), a scale per axis for one mouse alone, the others one each, often is not.
+        Three mice of an offset ring, one reading 4.2 % short on its y axis only: with
+        every mouse split nothing was plain, and its one scale (1.027, bending a healthy
+        one to 0.976) turned the heading 33 degrees in 13 s and ended the drive 0.30 m
+        off against 27 mm with no scale; split alone its axes said 1.000 and 1.043 +-
+        0.001.  The mouse split is the one whose split explains the most of what one
+        scale each leaves unexplained, and only where it explains _ONE_SPLIT_MARGIN times
+        as much as any other mouse's would and its axes then differ plainly.  Other
+        mice's splits fit the misfit of the one that is off in part, some more plainly in
+        standard deviations than the right one (wide rig: a wrong mouse at 6.4 of them,
+        the right one's difference not separable), and two mice whose axes read alike (a
+        close pair's, mice in a line along x) fit one mouse's error about as well split
+        either way (a close pair: the healthy one split ended 595 mm off against 312
+        with one scale each): then none is split."""
+        n, s = self.n, evidence[0]
+        split = np.zeros(n, dtype=bool)
+        left = unexplained(s, split)
+        explained = np.zeros(n)  # what splitting each mouse alone explains of it
+        for i in range(n):
+            split[i] = True
+            explained[i] = left - unexplained(s, split)
+            split[i] = False
+        explained = np.where(np.isfinite(explained), explained, 0.0)
+        order = np.argsort(explained)[::-1]
+        best = int(order[0])
+        if not explained[best] > 0 or explained[best] < _ONE_SPLIT_MARGIN * explained[order[1]]:
+            return split
+        split[best] = True
+        plain = self._plain_split(evidence, split, before & split)
+        return split if plain is not None and plain[best] else np.zeros(n, dtype=bool)
 
     def _faults(
         self, block: np.ndarray, groups: int, body: np.ndarray, pj: np.ndarray
