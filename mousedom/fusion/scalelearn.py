@@ -273,8 +273,11 @@ def unexplained(s: np.ndarray, split: np.ndarray) -> float:
     what it does not tell apart to 1; here only the fit counts)."""
     t_map = _axis_map(split)[1]
     st = t_map.T @ s @ t_map
-    with np.errstate(invalid="ignore"):
-        g = scales(st)
+    try:
+        with np.errstate(invalid="ignore"):
+            g = scales(st)
+    except np.linalg.LinAlgError:  # (no evidence at all)
+        return math.nan
     return float(g @ st @ g) if np.all(np.isfinite(g)) else math.nan
 
 
@@ -427,6 +430,14 @@ class BlockGave(NamedTuple):
     per: np.ndarray
     perp: np.ndarray
     straight: np.ndarray
+
+
+class BlockFaults(NamedTuple):
+    """What a block found (``ScaleLearner._faults``)."""
+
+    faulty: list[int]  # the mice found faulty
+    scale: np.ndarray | None  # the block's own scales, where its windows are given back at them
+    beyond: bool  # its own scales put some mouse beyond the bounds: not learnt as a CPI
 
 
 class ScaleLearner:
@@ -804,15 +815,19 @@ class ScaleLearner:
             j[:, 2 * i : 2 * i + 2, i] = body[:, i]
         pj = np.einsum("rs,gst->grt", self.project, j)
         block = np.einsum("grt,r,grs->ts", pj, self.weight, pj)
-        flagged, block_scale = self._faults(block, len(c), body, pj)
+        found = self._faults(block, len(c), body, pj)
+        flagged, block_scale = found.faulty, found.scale
         self.faults = self._blamed(flagged)
         self._give_back_faults(block_scale)
-        self._learnt_last = not flagged and len(c) > 0
+        learnt = not found.beyond and len(c) > 0
+        self._learnt_last = learnt
         self.gram *= self.forget
         self.groups *= self.forget
         segments = [segment * self.forget for segment in self._segments]
         groups = [k * self.forget for k in self._segment_groups]
-        if not flagged and len(c):  # (a fault is not learnt as a CPI, blamed or not)
+        # A block that puts a mouse beyond is not learnt as a CPI, whether it finds a
+        # fault (blamed or not) or cannot tell whose it is (``_carries``)
+        if learnt:
             self.gram += block
             self.groups += len(c)
             segments.append(block)
@@ -822,7 +837,7 @@ class ScaleLearner:
                 segments[:2] = [segments[0] + segments[1]]
                 groups[:2] = [groups[0] + groups[1]]
         self._segments, self._segment_groups = segments, groups
-        self._learn_axes(c, not flagged and len(c) > 0)
+        self._learn_axes(c, learnt)
         keep = self._changed()
         if keep:
             self._drop_before_change(keep)
@@ -1109,7 +1124,11 @@ class ScaleLearner:
         explained = np.where(np.isfinite(explained), explained, 0.0)
         order = np.argsort(explained)[::-1]
         best = int(order[0])
-        if not explained[best] > 0 or explained[best] < _ONE_SPLIT_MARGIN * explained[order[1]]:
+        # (a mouse split at the last renewal stays split while its split explains the
+        # most, as ``_plain_split`` keeps a difference while beyond _KEEP_PLAIN: a split
+        # coming and going would move the heading at each renewal)
+        margin = 1.0 if before[best] else _ONE_SPLIT_MARGIN
+        if not explained[best] > 0 or explained[best] < margin * explained[order[1]]:
             return split
         split[best] = True
         plain = self._plain_split(evidence, split, before & split)
@@ -1117,7 +1136,7 @@ class ScaleLearner:
 
     def _faults(
         self, block: np.ndarray, groups: int, body: np.ndarray, pj: np.ndarray
-    ) -> tuple[list[int], np.ndarray | None]:
+    ) -> BlockFaults:
         """The mice whose scale in this block alone (its S, ``groups`` of them) is beyond
         what any CPI within the bounds gives, by FAULT_MARGIN of it and FAULT_SIGMAS of
         the block's spread: a mouse that reads half its motion (a dirty lens, a sensor
@@ -1128,30 +1147,31 @@ class ScaleLearner:
         block's groups, the timing noise cancels and it is plain.  ``body``: the block's
         groups' readings (G, N, 2) as configured, for ``_carries``; ``pj``: their part no
         rig motion explains per unit scale (G, 2N, N), for ``_one_group``."""
+        none = BlockFaults([], None, False)
         if groups < _FAULT_GROUPS:
-            return [], None
+            return none
         fitted = fit(block, groups, self.n, len(self.cols))
         if fitted is None:
-            return [], None
+            return none
         g, spread = fitted
         lo, hi = self.bounds
         beyond = np.maximum(lo * (1.0 - FAULT_MARGIN) - g, g - hi * (1.0 + FAULT_MARGIN))
         flagged = np.flatnonzero((beyond > 0) & (beyond > FAULT_SIGMAS * spread)).tolist()
         if not flagged:
-            return [], None
+            return none
         explained = self._in_proportion(block, groups, g)
         if not explained and self._known_per_dof() is not None:
             # A block its own scales do not explain: the scales are bent by what they
             # cannot explain, so they may single out a healthy mouse.  Where leaving one
-            # mouse out explains the rest, that mouse carries it, and only it is found
-            # faulty; where leaving out either of two does (a close pair's jump across the
-            # pair reads to the pair alone as a turn), the block cannot tell whose it is
-            # and finds no fault.  Where none does, the scales' word stands.
+            # mouse out explains the rest, that mouse carries it, and only it may stay
+            # flagged; where leaving out either of two does (a close pair's jump across
+            # the pair reads to the pair alone as a turn), the block cannot tell whose it
+            # is and blames nobody.  Where none does, the scales' word stands.
             carriers = [i for i in range(self.n) if self._carries(i, body, groups)]
             if carriers:
                 flagged = [i for i in flagged if carriers == [i]]
         scaled = explained and not self._one_group(block, groups, pj) & set(flagged)
-        return flagged, g if flagged and scaled else None
+        return BlockFaults(flagged, g if flagged and scaled else None, True)
 
     def _one_group(self, block: np.ndarray, groups: int, pj: np.ndarray) -> set[int]:
         """The mice whose scale is within the bounds (and FAULT_MARGIN) in the block less
@@ -1219,10 +1239,12 @@ class ScaleLearner:
             j[:, 2 * k : 2 * k + 2, k] = body[:, m]
         pj = np.einsum("rs,gst->grt", project, j)
         block = np.einsum("grt,r,grs->ts", pj, weight, pj)
-        g = scales(block)
-        if not np.all(np.isfinite(g)):
+        fitted = fit(block, groups, n, cols)
+        # (others whose readings fix none of their scales, two mice on a line through
+        # the centre of a spin, say, explain anything: they tell nothing)
+        if fitted is None or not np.isfinite(fitted[1]).any():
             return False
-        return residual_per_dof(block, g, groups, cols) <= _PROPORTION * known
+        return residual_per_dof(block, fitted[0], groups, cols) <= _PROPORTION * known
 
     def _give_back_faults(self, block_scale: np.ndarray | None) -> None:
         """The windows of this block in which a mouse the block found faulty was used
@@ -1239,7 +1261,8 @@ class ScaleLearner:
         Only where the block's scale explains its readings (``_in_proportion``): a USB
         stall's silence and its catch-up in one block, or a lift's readings, fit some
         scale too, and given back at it a stall's drive ended 0.65 m off against 0.17
-        with fault handling off.  (The windows the screen excluded the mouse from are
+        with fault handling off; and where no one group puts the mouse beyond
+        (``_one_group``: a jump is no scale).  (The windows the screen excluded the mouse from are
         not among those given back; those it was suspect in, still used, are.)
 
         The block before is given back as well, at its own scale of the mouse, where it
