@@ -1130,6 +1130,15 @@ class ScaleLearner:
         margin = 1.0 if before[best] else _ONE_SPLIT_MARGIN
         if not explained[best] > 0 or explained[best] < margin * explained[order[1]]:
             return split
+        # What one parameter more explains is its difference squared over its variance,
+        # so a difference plain beyond _PLAIN of its residual's spread explains _PLAIN
+        # squared times the residual per degree of freedom left: where it explains not
+        # half of that, ``_plain_split``'s fits (a tenth of a healthy rig's learning
+        # each) cannot find it plain.
+        groups, cols = evidence[2], evidence[4]
+        dof = max(1.0, groups * (2 * n - cols) - n)
+        if explained[best] < 0.5 * _PLAIN**2 * (left - explained[best]) / dof:
+            return split
         split[best] = True
         plain = self._plain_split(evidence, split, before & split)
         return split if plain is not None and plain[best] else np.zeros(n, dtype=bool)
