@@ -685,8 +685,8 @@ MUTANTS = [
     Mutant(
         "scale-fault-learnt-as-a-cpi",
         "mousedom/fusion/scalelearn.py",
-        "        if not flagged and len(c):  # (a fault is not learnt as a CPI, blamed or not)\n",
-        "        if len(c):\n",
+        "        learnt = not found.beyond and len(c) > 0\n",
+        "        learnt = len(c) > 0\n",
         ("tests/test_scale_faults.py",),
         "an under-read's block is learnt as the mouse's CPI",
     ),
