@@ -199,12 +199,26 @@ def _motion_columns(positions: np.ndarray, cols: tuple[int, ...]) -> np.ndarray:
 
 def _projector(a: np.ndarray, weight: np.ndarray) -> np.ndarray:
     """P = I - A (A' W A)^-1 A' W: what of the stacked displacements no rig motion
-    explains (W: ``weight``, per reading); I where fewer than two mice tell nothing."""
+    explains (W: ``weight``, per reading); I for one mouse (nothing to compare with)."""
     n2 = len(a)
     if n2 < 4:
         return np.eye(n2)
     aw = a.T * weight
     return np.eye(n2) - a @ np.linalg.solve(aw @ a, aw)
+
+
+def projected(
+    body: np.ndarray, project: np.ndarray, weight: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Groups' readings (G, N, 2) as configured: J g stacked (mouse i's two rows of column
+    i), the part of it no rig motion explains per unit scale, P J (G, 2N, N), and its
+    weighted square summed over the groups, S (N, N)."""
+    n = body.shape[1]
+    j = np.zeros((len(body), 2 * n, n))
+    for i in range(n):
+        j[:, 2 * i : 2 * i + 2, i] = body[:, i]
+    pj = np.einsum("rs,gst->grt", project, j)
+    return pj, np.einsum("grt,r,grs->ts", pj, weight, pj)
 
 
 def residual_per_dof(s: np.ndarray, g: np.ndarray, groups: float, cols: int) -> float:
@@ -798,7 +812,6 @@ class ScaleLearner:
         # Groups of consecutive windows (GROUP_S) in which every mouse tracked: their
         # counts summed (a count read a few ms late moves between neighbouring windows,
         # not out of their sum, so the readings' timing noise mostly cancels).
-        n = self.n
         starts = np.arange(0, len(counts), self.group)
         whole = np.minimum.reduceat(usable.all(axis=1).astype(np.int8), starts) > 0
         c = np.add.reduceat(counts, starts, axis=0)
@@ -810,11 +823,7 @@ class ScaleLearner:
         # of column i) times its scale g_i.  The part no rigid motion of the rig explains
         # is P J g; its weighted square summed over the groups is g' S g.
         body = np.einsum("nij,gnj->gni", self.base, c)
-        j = np.zeros((len(c), 2 * n, n))
-        for i in range(n):
-            j[:, 2 * i : 2 * i + 2, i] = body[:, i]
-        pj = np.einsum("rs,gst->grt", self.project, j)
-        block = np.einsum("grt,r,grs->ts", pj, self.weight, pj)
+        pj, block = projected(body, self.project, self.weight)
         found = self._faults(block, len(c), body, pj)
         flagged, block_scale = found.faulty, found.scale
         self.faults = self._blamed(flagged)
@@ -1168,15 +1177,16 @@ class ScaleLearner:
         flagged = np.flatnonzero((beyond > 0) & (beyond > FAULT_SIGMAS * spread)).tolist()
         if not flagged:
             return none
-        explained = self._in_proportion(block, groups, g)
-        if not explained and self._known_per_dof() is not None:
+        known = self._known_per_dof()
+        explained = self._in_proportion(block, groups, g, known)
+        if not explained and known is not None:
             # A block its own scales do not explain: the scales are bent by what they
             # cannot explain, so they may single out a healthy mouse.  Where leaving one
             # mouse out explains the rest, that mouse carries it, and only it may stay
             # flagged; where leaving out either of two does (a close pair's jump across
             # the pair reads to the pair alone as a turn), the block cannot tell whose it
             # is and blames nobody.  Where none does, the scales' word stands.
-            carriers = [i for i in range(self.n) if self._carries(i, body, groups)]
+            carriers = [i for i in range(self.n) if self._carries(i, body, groups, known)]
             if carriers:
                 flagged = [i for i in flagged if carriers == [i]]
         scaled = explained and not self._one_group(block, groups, pj) & set(flagged)
@@ -1211,18 +1221,20 @@ class ScaleLearner:
             return None
         return residual_per_dof(self.gram, self.one, self.groups, len(self.cols))
 
-    def _in_proportion(self, block: np.ndarray, groups: int, g: np.ndarray) -> bool:
+    def _in_proportion(
+        self, block: np.ndarray, groups: int, g: np.ndarray, known: float | None
+    ) -> bool:
         """Whether the block's own scales explain its readings about as well as the
         evidence's explain the evidence (the residual per degree of freedom at most
         _PROPORTION times): a mouse reading at another scale (a dirty lens, another
         floor) is; one reading nothing, then everything at once (a USB stall's silence and
-        catch-up), or at random (a lift) is not, whatever scale fits it best."""
-        known = self._known_per_dof()
+        catch-up), or at random (a lift) is not, whatever scale fits it best.  ``known``:
+        ``_known_per_dof``'s."""
         if known is None:
             return False  # (nothing to compare with)
         return residual_per_dof(block, g, groups, len(self.cols)) <= _PROPORTION * known
 
-    def _carries(self, i: int, body: np.ndarray, groups: int) -> bool:
+    def _carries(self, i: int, body: np.ndarray, groups: int, known: float) -> bool:
         """Whether mouse i carries what a block's scales leave unexplained: the other
         mice's readings alone, at their own best scales, are explained in proportion
         (``_in_proportion``'s bound; False where the others alone check nothing).  A USB
@@ -1231,10 +1243,9 @@ class ScaleLearner:
         across the pair, under USB gaps, are plain without the jumping mouse and
         without the far one alike (the pair alone reads them as turns), and the block's
         bent scales singled out the far one (scale -0.09: 1.43 m off at the end against
-        13 mm with fault handling off)."""
-        known = self._known_per_dof()
+        13 mm with fault handling off).  ``known``: ``_known_per_dof``'s."""
         n, cols = self.n - 1, len(self.cols)
-        if known is None or 2 * n <= cols:
+        if 2 * n <= cols:
             return False
         others = [k for k in range(self.n) if k != i]
         a = _motion_columns(self.positions[others], self.cols)
@@ -1243,11 +1254,7 @@ class ScaleLearner:
             project = _projector(a, weight)
         except np.linalg.LinAlgError:  # the others at one point: no rig motion is fitted
             return False
-        j = np.zeros((len(body), 2 * n, n))
-        for k, m in enumerate(others):
-            j[:, 2 * k : 2 * k + 2, k] = body[:, m]
-        pj = np.einsum("rs,gst->grt", project, j)
-        block = np.einsum("grt,r,grs->ts", pj, weight, pj)
+        block = projected(body[:, others], project, weight)[1]
         fitted = fit(block, groups, n, cols)
         # (others whose readings fix none of their scales, two mice on a line through
         # the centre of a spin, say, explain anything: they tell nothing)
