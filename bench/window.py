@@ -1,6 +1,6 @@
 """The daemon's window, phase by phase, in process: CPU after a sleep, and code touched.
 
-    .venv/bin/python bench/window.py [--mice 4] [--report-hz 1000] [--windows 400]
+    .venv/bin/python bench/window.py [--mice 4] [--report-hz 1000] [--windows 400] [--sparse 1]
 
 A real ``Daemon`` (real FIFOs as its evdev sources, its socket, one client in a child
 process) is driven window by window from here, without its loop: each window's reports
@@ -68,9 +68,9 @@ def reports(times: list[float], dx: int, dy: int) -> bytes:
 class Rig:
     """A daemon with its sources open on FIFOs and a client on its socket."""
 
-    def __init__(self, d: Path, n_mice: int, report_hz: float) -> None:
+    def __init__(self, d: Path, n_mice: int, report_hz: float, sparse: int = 1) -> None:
         bench_daemon.configure(n_mice, report_hz)
-        self.n_mice, self.report_hz = n_mice, report_hz
+        self.n_mice, self.report_hz, self.sparse = n_mice, report_hz, sparse
         fifos = [d / f"{m}.fifo" for m in bench_daemon.MICE]
         for f in fifos:
             os.mkfifo(f)
@@ -105,7 +105,8 @@ class Rig:
         own rate, phase-shifted per mouse, whatever the rate's ratio to the windows), and
         the clock set to when the daemon would wake for that window."""
         end = T0 + (self.k + 1) * PERIOD
-        gap = 1.0 / self.report_hz
+        period = 1.0 / self.report_hz
+        gap = self.sparse * period  # (a slow mouse reports only when it has a count)
         first_after = []
         for i, fd in enumerate(self.writers):
             times = []
@@ -119,7 +120,7 @@ class Rig:
         # As the daemon wakes (its _plan): the window is final when no report still to
         # come can join a mouse's first span past its end, half a period after it, plus
         # the read latency (0 for a paced source such as these FIFOs), here 0.1 ms on.
-        self.now = max(first_after) + 0.5 * gap + self.daemon.sensors.max_latency() + 1e-4
+        self.now = max(first_after) + 0.5 * period + self.daemon.sensors.max_latency() + 1e-4
         self.k += 1
 
     def phases(self):
@@ -186,9 +187,13 @@ def main() -> None:
     ap.add_argument("--mice", type=int, default=4)
     ap.add_argument("--report-hz", type=float, default=1000.0)
     ap.add_argument("--windows", type=int, default=400)
+    ap.add_argument("--sparse", type=int, default=1, metavar="K",
+                    help="each mouse reports every K-th period, as a mouse moving slowly "
+                         "(only when it has a count): K >= 2 makes the windows' edges cut "
+                         "long report spans")  # fmt: skip
     args = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="mousedom-window-") as tmp:
-        rig = Rig(Path(tmp), args.mice, args.report_hz)
+        rig = Rig(Path(tmp), args.mice, args.report_hz, args.sparse)
         try:
             costs = timed(rig, args.windows)
             code = footprint(rig)
@@ -198,7 +203,8 @@ def main() -> None:
     # the last (footprint's) may wait for the silence rule (late_report_s), never reached.
     if not rig.k - 1 <= rig.daemon.poses <= rig.k:
         raise SystemExit(f"{rig.daemon.poses} poses for {rig.k} windows: the rig is off")
-    print(f"{args.mice} mice x {args.report_hz:g} Hz, POSE at {1 / PERIOD:g} Hz, "
+    every = f" (reporting every {args.sparse} periods)" if args.sparse > 1 else ""
+    print(f"{args.mice} mice x {args.report_hz:g} Hz{every}, POSE at {1 / PERIOD:g} Hz, "
           f"{args.windows} windows, each after a {PERIOD * 1e3:g} ms sleep")  # fmt: skip
     print(f"{'phase':10s}{'CPU us (median)':>17s}{'distinct instr.':>17s}{'executed':>10s}"
           f"{'code objects':>14s}")  # fmt: skip

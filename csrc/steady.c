@@ -62,7 +62,7 @@ static int append_sample(PyObject *list, Py_ssize_t i, double v) {
 }
 
 const char core_steady_window_doc[] = PyDoc_STR(
-"steady_window(d, q, live, rig, threshold, dof, leverage, gains, median_chi2)\n"
+"steady_window(d, q, live, rig, threshold, dof, leverage, gains, spans, median_chi2)\n"
 "    -> (prev, by_floor, by_prop, heard), None or False\n\n"
 "steady.steady_window: None where the screen must decide, else the predictions, the\n"
 "noise model's samples and the mice heard.  False (declined: the caller runs the Python)\n"
@@ -70,10 +70,10 @@ const char core_steady_window_doc[] = PyDoc_STR(
 
 PyObject *core_steady_window(PyObject *self, PyObject *args) {
     (void)self;
-    PyObject *od, *oq, *olive, *orig, *olev, *othreshold, *odof, *ogains;
+    PyObject *od, *oq, *olive, *orig, *olev, *othreshold, *odof, *ogains, *ospans;
     double threshold, median_chi2;
-    if (!PyArg_ParseTuple(args, "OOOOOOOOd", &od, &oq, &olive, &orig, &othreshold, &odof, &olev,
-                          &ogains, &median_chi2))
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOd", &od, &oq, &olive, &orig, &othreshold, &odof, &olev,
+                          &ogains, &ospans, &median_chi2))
         return NULL;
     if (!core_float_of(othreshold, &threshold) || !PyLong_CheckExact(odof)) Py_RETURN_FALSE;
     int ovf = 0;
@@ -100,6 +100,10 @@ PyObject *core_steady_window(PyObject *self, PyObject *args) {
     if (!PyList_CheckExact(ogains) || PyList_GET_SIZE(ogains) != n) Py_RETURN_FALSE;
     for (Py_ssize_t i = 0; i < n; i++)
         if (!core_floats_of(PyList_GET_ITEM(ogains, i), gains + 4 * i, 4)) Py_RETURN_FALSE;
+    /* each mouse's long report span the window's edges cut (> 0), or None: none cut */
+    double spans[MAX_MICE];
+    int cut_any = ospans != Py_None;
+    if (cut_any && !core_floats_of(ospans, spans, n)) Py_RETURN_FALSE;
     int use_lev = dof > 0 && olev != Py_None;
     if (use_lev && !core_floats_of(olev, lev, n)) Py_RETURN_FALSE;
     for (Py_ssize_t i = 0; i < n; i++) {
@@ -117,7 +121,20 @@ PyObject *core_steady_window(PyObject *self, PyObject *args) {
         double seen = dx * dx + dy * dy, said = px * px + py * py;
         double m2 = said > seen ? said : seen; /* max(): the first unless the second is more */
         if (m2 >= max2[i]) Py_RETURN_NONE;     /* saturated: decide */
-        double fx = px - prev[2 * i], fy = py - prev[2 * i + 1];
+        double fx, fy;
+        if (cut_any && spans[i] > 0) {
+            /* the change of motion from what the others moved it (shortfall.others_word) */
+            const double *g = gains + 4 * i;
+            if (!(g[0] != 0.0 || g[1] != 0.0 || g[2] != 0.0 || g[3] != 0.0))
+                Py_RETURN_NONE; /* the others cannot place it: decide */
+            double rx = dx - px, ry = dy - py;
+            double ox = dx - (g[0] * rx + g[1] * ry), oy = dy - (g[2] * rx + g[3] * ry);
+            fx = ox - prev[2 * i];
+            fy = oy - prev[2 * i + 1];
+        } else {
+            fx = px - prev[2 * i];
+            fy = py - prev[2 * i + 1];
+        }
         double prop = rho2[i] * m2 + gran2[i] * (fx * fx + fy * fy);
         double rx = dx - px, ry = dy - py;
         double r2 = rx * rx + ry * ry;

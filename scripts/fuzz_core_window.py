@@ -104,9 +104,17 @@ def _case(rnd: random.Random) -> tuple[str, tuple, tuple]:
     rig = steady.Rig(_pairs(rnd, n), _floats(rnd, n), _pairs(rnd, n),
                      *(_floats(rnd, n) for _ in range(5)))  # fmt: skip
     live = tuple(rnd.random() < 0.8 for _ in range(n))
-    args = (_floats(rnd, 2 * n), _floats(rnd, 3), live, rig, _float(rnd),
-            rnd.randint(-2, 2 * n), rnd.choice([None, _floats(rnd, n)]),
-            [_floats(rnd, 4) for _ in range(n)])  # fmt: skip
+    args = (
+        _floats(rnd, 2 * n),
+        _floats(rnd, 3),
+        live,
+        rig,
+        _float(rnd),
+        rnd.randint(-2, 2 * n),
+        rnd.choice([None, _floats(rnd, n)]),
+        [_floats(rnd, 4) for _ in range(n)],
+        rnd.choice([None, _floats(rnd, n), [0.0] * n]),
+    )  # fmt: skip (the cut spans)
     return name, (*args, _MEDIAN_CHI2_2), args
 
 

@@ -48,6 +48,8 @@ def both(fn, *args):
     the compiled one must not decline (these tests draw what the Python is handed), so
     that the two are compared, not the Python with itself."""
     native_fn = getattr(core.native, fn.__name__)
+    if fn.__name__ == "steady_window" and len(args) == 8:
+        args = (*args, None)  # (its spans: none cut)
     extra = {"advance": (onewindow._SINC, onewindow._DSINC, onewindow._SWITCH),
              "steady_window": (_MEDIAN_CHI2_2,)}.get(fn.__name__, ())  # fmt: skip
     declined = native_fn(*[_copy(a) for a in args], *extra)
@@ -253,7 +255,10 @@ def steady_cases(draw):
     # others_gain_list's rows: (I - block)^-1, or zero where the others cannot say
     gain = st.tuples(*[st.floats(-3.0, 3.0)] * 4).map(list) | st.just([0.0] * 4)
     gains = draw(st.lists(gain, min_size=n, max_size=n))
-    return d, q, live, rig, threshold, dof, leverage, gains
+    # the long report spans the edges cut (fast_one's): none, or some mice's (a NaN too)
+    span = st.just(0.0) | st.floats(0.0, 0.05) | st.just(math.nan)
+    spans = draw(st.none() | st.lists(span, min_size=n, max_size=n))
+    return d, q, live, rig, threshold, dof, leverage, gains, spans
 
 
 @needs_core
@@ -273,16 +278,19 @@ def test_steady_window_declines_what_the_python_would_refuse():
     """Other types, other lengths, and a zero divisor (the Python raises) go to the Python."""
     rig = steady.Rig([[0.1, 0.0]], [math.inf], [[0.0, 0.0]], [1e-8], [1e-4], [0.0], [1e-8],
                      [1.0])  # fmt: skip
-    args = ([0.001, 0.0], [0.001, 0.0, 0.0], (True,), rig, 5.0, 1, [0.5], [[0.0] * 4], 1.386)
+    args = ([0.001, 0.0], [0.001, 0.0, 0.0], (True,), rig, 5.0, 1, [0.5], [[0.0] * 4], None,
+            1.386)  # fmt: skip
     native = core.native
     assert native.steady_window(*args) is not False
     assert native.steady_window([1, 0.0], *args[1:]) is False  # an int
     assert native.steady_window(*args[:2], (1,), *args[3:]) is False  # not a bool
     assert native.steady_window(*args[:3], rig._replace(max2=[]), *args[4:]) is False
     assert native.steady_window(*args[:3], rig[:7], *args[4:]) is False  # not a Rig
-    assert native.steady_window(*args[:7], [[0.0] * 3], args[8]) is False  # not four gains
-    assert native.steady_window(*args[:7], [(0.0,) * 4] * 2, args[8]) is False  # two mice
-    assert native.steady_window(*args[:7], ([0.0] * 4,), args[8]) is False  # a tuple
+    assert native.steady_window(*args[:7], [[0.0] * 3], *args[8:]) is False  # not four gains
+    assert native.steady_window(*args[:7], [(0.0,) * 4] * 2, *args[8:]) is False  # two mice
+    assert native.steady_window(*args[:7], ([0.0] * 4,), *args[8:]) is False  # a tuple
+    assert native.steady_window(*args[:8], [1], args[9]) is False  # a span not a float
+    assert native.steady_window(*args[:8], [0.0, 0.0], args[9]) is False  # two spans
     zero = rig._replace(floor=[0.0], rho2=[0.0])
     assert native.steady_window(args[0], [0.0, 0.0, 0.0], args[2], zero, *args[4:]) is False
     with pytest.raises(ZeroDivisionError):

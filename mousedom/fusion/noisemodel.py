@@ -305,6 +305,11 @@ class NoiseModel:
         g = (np.asarray(spans, dtype=float) / self.window) ** 2 / 8.0
         return np.maximum(self.gran2, g * g)
 
+    def f_gran2_for(self, spans: list[float]) -> list[float]:
+        """``f_gran2`` for a window whose edges cut report spans ``spans`` (``gran2_for``)."""
+        coef = self.gran2_for(spans)
+        return self.f_gran2 if coef is None else (self.lam_r * coef).tolist()
+
     # ----------------------------------------------------------------- learning
 
     def sample(self, i: int, r2: float, floor: float, prop: float, h: float) -> None:

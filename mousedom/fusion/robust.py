@@ -90,7 +90,7 @@ from mousedom.fusion.lateness import Lateness
 from mousedom.fusion.ledger import Ledger
 from mousedom.fusion.noisemodel import NoiseModel, norm2
 from mousedom.fusion.rigidtest import RigidTest, Statistic
-from mousedom.fusion.shortfall import SHORT, reads_short
+from mousedom.fusion.shortfall import SHORT, others_word, reads_short
 from mousedom.fusion.silences import Silences
 
 # The health's names are the screen's vocabulary (robust.EXCLUDED, robust.REASONS, ...).
@@ -362,12 +362,13 @@ class Screen(RigidTest):
 
     def fast_one(
         self, d: list[float], q: list[float], live: tuple[bool, ...], evidence: bool,
-        defer_block_end: bool = False,
+        defer_block_end: bool = False, spans: list[float] | None = None,
     ) -> bool:  # fmt: skip
         """The common case on floats: True (and the window is accepted as solved) when the
         state is steady for ``live``, no sensor evidence (SQUAL, overflow) is in the window,
         no mouse is beyond its speed and the test passes.  ``d``: every mouse's body-frame
-        displacement, flattened (x1, y1, x2, ...)."""
+        displacement, flattened (x1, y1, x2, ...); ``spans``: as ``decide``'s (the
+        granularity term of a mouse whose span the edges cut grows, ``steady_window``)."""
         if evidence or live != (self._steady if self._steady_known else self.steady()):
             return False
         dof = 2 * sum(live) - self.k
@@ -377,11 +378,12 @@ class Screen(RigidTest):
             if leverage is None:
                 leverage = self._leverage_lists[live] = self.leverage(np.array(live)).tolist()
         nm = self.noise
-        rig = steady.Rig(self._xy, self._max2, self._prev, nm.f_floor, nm.f_rho2, nm.f_gran2,
+        gran2 = nm.f_gran2 if spans is None else nm.f_gran2_for(spans)
+        rig = steady.Rig(self._xy, self._max2, self._prev, nm.f_floor, nm.f_rho2, gran2,
                          nm.sig2_list, nm.lam_r_list)  # fmt: skip
         threshold = self._thresholds[dof] if dof > 0 else math.inf
         gains = self.others_gain_list(live)
-        accepted = steady.steady_window(d, q, live, rig, threshold, dof, leverage, gains)
+        accepted = steady.steady_window(d, q, live, rig, threshold, dof, leverage, gains, spans)
         if accepted is None:
             return False  # decide (a shortfall among it: ``_quiet_blame``)
         p, by_floor, by_prop, heard = accepted
@@ -925,12 +927,21 @@ class Screen(RigidTest):
         with it its own tolerance, by a share of the jump: a glitch would excuse itself."""
         out = p
         cut = np.asarray(spans if spans is not None else np.zeros(self.n), dtype=float) > 0
+        gains = None
         for i in np.flatnonzero(cut & used).tolist():
-            rest = used.copy()
+            if gains is None:
+                gains = self.others_gain_list(tuple(used.tolist()))
+            out = out.copy() if out is p else out
+            if any(gains[i]):
+                # block deletion: the others' solve's prediction, as the common case takes
+                # it (steady.steady_window, screenbatch)
+                dx, dy = float(d[i, 0]), float(d[i, 1])
+                out[i] = others_word(dx, dy, float(p[i, 0]), float(p[i, 1]), gains[i])
+                continue
+            rest = used.copy()  # the others place it poorly or not at all: their solve
             rest[i] = False
             q = self._solve(d, rest)
             if q is not None:
-                out = out.copy() if out is p else out
                 out[i] = self.predict(q)[i]
         return out
 

@@ -55,8 +55,6 @@ def screen(
         evidence |= np.any(mask & (squal_scale != 1.0), axis=1)
     if low_quality is not None:
         evidence |= np.any(mask & low_quality, axis=1)
-    if spans is not None:
-        evidence |= np.any(mask & (spans > 0), axis=1)
     # Each row's live pattern and its leverages; one pattern throughout (the usual case)
     # is passed to the common case's test as one row.
     if len(changes):
@@ -84,7 +82,8 @@ def screen(
             horizon = min(n, i + blocks * sc.noise.block)
             rows = slice(i, horizon) if row_mask.ndim == 2 else slice(None)
             fast, samples = _fast_rows(sc, d[i:horizon], p[i:horizon], row_mask[rows],
-                                       lever[rows], gain[rows])  # fmt: skip
+                                       lever[rows], gain[rows],
+                                       None if spans is None else spans[i:horizon])  # fmt: skip
             bad = np.flatnonzero(~fast | evidence[i:horizon]) + i
         steady = sc.steady()
         if steady is not None and not prev_altered:
@@ -131,16 +130,34 @@ def _per_pattern(of, mask: np.ndarray, codes: np.ndarray) -> np.ndarray:
     return per_pattern[which.ravel()]
 
 
-def _fast_rows(sc: Screen, d, p, mask, lever, gain) -> tuple[np.ndarray, tuple]:
+def _fast_rows(sc: Screen, d, p, mask, lever, gain, spans=None) -> tuple[np.ndarray, tuple]:
     """The common case's test for every row at once, each row's previous window taken as
     the row before it unaltered (a row after an altered one goes to ``decide``), and the
     noise model's samples of each row were it accepted.  ``mask`` and ``lever`` are (rows,
     N), or (N,) when every row has that live pattern (the usual case: fewer operations);
-    ``gain`` (rows, N, 2, 2) or (N, 2, 2) likewise (``RigidTest.others_gain``)."""
+    ``gain`` (rows, N, 2, 2) or (N, 2, 2) likewise (``RigidTest.others_gain``); ``spans``
+    (rows, N) the long report spans the edges cut, or None (``steady.steady_window``: a cut
+    mouse's change of motion from the others' word, a row where they cannot place one
+    decided)."""
     prev_p = np.concatenate([sc.prev_p[None], p[:-1]])
     m2 = motion2(d, p)
-    floor, prop = sc.noise.parts(d, p, prev_p, m2)
-    r2 = norm2(d - p)
+    # what the others moved each mouse (shortfall.others_word, on arrays)
+    r = d - p
+    ox = d[..., 0] - (gain[..., 0, 0] * r[..., 0] + gain[..., 0, 1] * r[..., 1])
+    oy = d[..., 1] - (gain[..., 1, 0] * r[..., 0] + gain[..., 1, 1] * r[..., 1])
+    placed = np.any(gain != 0.0, axis=(-2, -1))
+    cut = None if spans is None else mask & (spans > 0)
+    if cut is not None and cut.any():
+        gran2 = sc.noise.gran2_for(spans)
+        gran_p = p.copy()
+        gran_p[..., 0] = np.where(cut, ox, p[..., 0])
+        gran_p[..., 1] = np.where(cut, oy, p[..., 1])
+        floor, prop = sc.noise.parts(d, p, prev_p, m2, gran2=gran2, gran_p=gran_p)
+        unplaced = cut & ~placed
+    else:
+        floor, prop = sc.noise.parts(d, p, prev_p, m2)
+        unplaced = None
+    r2 = norm2(r)
     t = _row_sum(np.where(mask, r2 / (floor + prop), 0.0))
     thr = np.array(sc._thresholds)
     if mask.ndim == 1:
@@ -155,10 +172,7 @@ def _fast_rows(sc: Screen, d, p, mask, lever, gain) -> tuple[np.ndarray, tuple]:
     p2 = norm2(p)
     moved = mask & (p2 > sc.noise.sig2)
     along = d[..., 0] * p[..., 0] + d[..., 1] * p[..., 1]
-    r = d - p
-    ox = d[..., 0] - (gain[..., 0, 0] * r[..., 0] + gain[..., 0, 1] * r[..., 1])
-    oy = d[..., 1] - (gain[..., 1, 0] * r[..., 0] + gain[..., 1, 1] * r[..., 1])
-    word = moved & np.any(gain != 0.0, axis=(-2, -1))
+    word = moved & placed
     o2 = ox * ox + oy * oy
     word &= o2 > 0.0
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -173,6 +187,8 @@ def _fast_rows(sc: Screen, d, p, mask, lever, gain) -> tuple[np.ndarray, tuple]:
     for i in range(saturated.shape[1]):
         ok &= ~saturated[:, i]
         ok &= ~quiet[:, i]
+        if unplaced is not None:
+            ok &= ~unplaced[:, i]
     samples = sc.noise.samples_for(r2, floor, prop, lever, mask & (m2 > sc.noise.sig2))
     return ok, samples
 

@@ -32,6 +32,17 @@ SHORT_OF_ALL = 0.9
 SHORT_ALONE = 0.25
 
 
+def others_word(
+    dx: float, dy: float, px: float, py: float, gain: Sequence[float]
+) -> tuple[float, float]:
+    """What the others moved a used mouse (the solve without it: ``d - gain (d - p)``,
+    block deletion) from its reading (dx, dy), the prediction with it (px, py) and its
+    ``others_gain_list`` row (m00, m01, m10, m11; meaningless where all zero)."""
+    g0, g1, g2, g3 = gain
+    rx, ry = dx - px, dy - py
+    return dx - (g0 * rx + g1 * ry), dy - (g2 * rx + g3 * ry)
+
+
 def reads_short(
     d: Sequence[float], p: Sequence[Sequence[float]], gains: Sequence[Sequence[float]],
     considered: Sequence[bool], used: Sequence[bool],
@@ -60,8 +71,7 @@ def reads_short(
         g0, g1, g2, g3 = gains[i]
         if not used[i] or not (g0 or g1 or g2 or g3):
             continue
-        rx, ry = dx - px, dy - py
-        ox, oy = dx - (g0 * rx + g1 * ry), dy - (g2 * rx + g3 * ry)
+        ox, oy = others_word(dx, dy, px, py, gains[i])
         o2 = ox * ox + oy * oy
         if not o2 > 0.0:
             continue

@@ -18,7 +18,7 @@ from typing import NamedTuple
 
 from mousedom import core
 from mousedom.fusion.noisemodel import _MEDIAN_CHI2_2, sample_values
-from mousedom.fusion.shortfall import reads_short
+from mousedom.fusion.shortfall import others_word, reads_short
 
 
 class Rig(NamedTuple):
@@ -46,16 +46,23 @@ Accepted = tuple[list[list[float]], list[tuple[int, float]], list[tuple[int, flo
 def steady_window(
     d: list[float], q: list[float], live: tuple[bool, ...], rig: Rig, threshold: float,
     dof: int, leverage: list[float] | None, gains: list[list[float]],
+    spans: list[float] | None = None,
 ) -> Accepted | None:  # fmt: skip
     """The window with body-frame displacements ``d`` (x1, y1, x2, ...) and solved twist
     ``q`` (ux, uy, a) of the ``live`` mice: None where the screen must decide (a mouse
     saturated, the statistic over ``threshold`` with ``dof`` > 0 degrees of freedom, or a
     mouse short of its motion), else what it gives (``Accepted``).  ``leverage``: each
     mouse's hat-matrix block trace under this live pattern (None where dof <= 0: no sample
-    is taken then); ``gains``: ``RigidTest.others_gain_list``'s under it."""
+    is taken then); ``gains``: ``RigidTest.others_gain_list``'s under it.
+
+    ``spans``: each mouse's long report span the window's edges cut (> 0), or None where
+    they cut none; ``rig.gran2`` then holds the coefficients for them
+    (``NoiseModel.f_gran2_for``).  A cut mouse's change of motion is taken from what the
+    others moved it (``others_word``, as ``Screen._span_p``): where they cannot place it
+    (its gains all zero), None: decide, which solves without it."""
     native = core.native
     if native is not None:
-        done = native.steady_window(d, q, live, rig, threshold, dof, leverage, gains,
+        done = native.steady_window(d, q, live, rig, threshold, dof, leverage, gains, spans,
                                     _MEDIAN_CHI2_2)  # fmt: skip
         if done is not False:  # False: declined (the types); None: decide
             return done
@@ -70,7 +77,14 @@ def steady_window(
         m2 = max(dx * dx + dy * dy, px * px + py * py)
         if m2 >= rig.max2[i]:
             return None  # saturated: decide
-        fx, fy = px - rig.prev[i][0], py - rig.prev[i][1]
+        if spans is not None and spans[i] > 0:
+            g0, g1, g2, g3 = gains[i]
+            if not (g0 or g1 or g2 or g3):
+                return None  # the others cannot place it: decide (the solve without it)
+            ox, oy = others_word(dx, dy, px, py, gains[i])
+            fx, fy = ox - rig.prev[i][0], oy - rig.prev[i][1]
+        else:
+            fx, fy = px - rig.prev[i][0], py - rig.prev[i][1]
         floor = rig.floor[i]
         prop = rig.rho2[i] * m2 + rig.gran2[i] * (fx * fx + fy * fy)
         rx, ry = dx - px, dy - py

@@ -145,8 +145,8 @@ class OneWindowPath:
         screen = self._screen
         # the factors this window is tested with (a block it ends may change them)
         learnt = screen.noise.lam_r_list if screen is not None else None
-        special = evidence is not None or spans is not None
-        if screen is None or screen.fast_one(d_all, q, live, special, defer_block_end):
+        if screen is None or screen.fast_one(d_all, q, live, evidence is not None,
+                                             defer_block_end, spans):  # fmt: skip
             # The common case (or no screen): every live mouse tracking, the rest missing,
             # and no reason for either (robust's health gives no other to those states).
             rows = self._steady.get(live)
