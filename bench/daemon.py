@@ -1,6 +1,7 @@
 """Daemon cost and latency next to the two baselines a user would compare it with.
 
     .venv/bin/python bench/daemon.py [--mice 4] [--report-hz 1000] [--seconds 8] [--rounds 3]
+                                     [--sparse 1]
 
 A feeder process writes each mouse's reports (REL_X, REL_Y, SYN_REPORT; 72 bytes) into its
 FIFO when due, stamped with the CLOCK_MONOTONIC time of the write, as the kernel stamps a
@@ -48,14 +49,16 @@ from mousedom.sources.events import EV_REL, EV_SYN, EVENT_DTYPE, SYN_REPORT  # n
 ALL_MICE = ("front", "left", "rear", "right", "m4", "m5", "m6", "m7")
 MICE = ALL_MICE[:4]
 REPORT_HZ = 1000.0
+SPARSE = 1  # each mouse reports every SPARSE-th period (a slow robot: only with a count)
 
 
-def configure(n_mice: int, report_hz: float) -> None:
+def configure(n_mice: int, report_hz: float, sparse: int = 1) -> None:
     """The load of the runs that follow (module settings: the feeder child reads them
     from its arguments)."""
-    global MICE, REPORT_HZ
+    global MICE, REPORT_HZ, SPARSE
     MICE = ALL_MICE[:n_mice]
     REPORT_HZ = float(report_hz)
+    SPARSE = int(sparse)
 
 
 def cpu_seconds(pid: int) -> float:
@@ -76,8 +79,9 @@ def record(t: float, dx: int, dy: int) -> bytes:
 # ----------------------------------------------------------------------------- feeder
 
 
-def feeder(paths: list[str], seconds: float, out: str, report_hz: float) -> None:
-    """Child process: write every mouse's reports when due; save the stamps."""
+def feeder(paths: list[str], seconds: float, out: str, report_hz: float, sparse: int = 1) -> None:
+    """Child process: write every mouse's reports when due (every ``sparse``-th period);
+    save the stamps."""
     fds = []
     for p in paths:
         while True:
@@ -96,7 +100,7 @@ def feeder(paths: list[str], seconds: float, out: str, report_hz: float) -> None
     k = 0
     end = start + seconds
     while True:
-        for i in range(n):
+        for i in range(n if k % sparse == 0 else 0):
             due = start + k * period + i * period / n
             now = time.monotonic()
             if due > now:
@@ -157,7 +161,7 @@ def start_feeder(fifos: list[Path], seconds: float, out: Path) -> subprocess.Pop
     """The feeder runs as this file with --feed, in its own process (its own core)."""
     return _spawn(
         [sys.executable, __file__, "--feed", str(out), str(seconds), str(REPORT_HZ),
-         *map(str, fifos)]
+         str(SPARSE), *map(str, fifos)]
     )  # fmt: skip
 
 
@@ -544,8 +548,10 @@ def tracker_cost(d: Path, rate_hz: float, windows: int = 2000) -> float:
     for w in range(windows):
         start = w / rate_hz
         for i in range(len(MICE)):
-            t = [start + (i + 0.5) / (len(MICE) * REPORT_HZ) + k / REPORT_HZ for k in range(per)]
-            tracker.push(i, t, [1] * per, [-3] * per)
+            t = [start + (i + 0.5) / (len(MICE) * REPORT_HZ) + k / REPORT_HZ
+                 for k in range(per) if (w * per + k) % SPARSE == 0]  # fmt: skip
+            if t:
+                tracker.push(i, t, [1] * len(t), [-3] * len(t))
             tracker.complete_until(start + 1 / rate_hz, mouse=i)
         tracker.poll()
     return (time.process_time() - t0) / windows
@@ -558,13 +564,16 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=8.0, help="measured seconds per run")
     ap.add_argument("--rate-hz", type=float, default=100.0)
     ap.add_argument("--rounds", type=int, default=3, help="floor, peer, mousedom, in turn")
+    ap.add_argument("--sparse", type=int, default=1, metavar="K",
+                    help="each mouse reports every K-th period, as at a slow speed "
+                         "(only with a count): K >= 2 makes windows cut long spans")  # fmt: skip
     ap.add_argument("--feed", nargs="+", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.feed:
-        out, seconds, report_hz, *paths = args.feed
-        feeder(paths, float(seconds), out, float(report_hz))
+        out, seconds, report_hz, sparse, *paths = args.feed
+        feeder(paths, float(seconds), out, float(report_hz), int(sparse))
         return
-    configure(args.mice, args.report_hz)
+    configure(args.mice, args.report_hz, args.sparse)
     # SIGTERM (a timeout's) as an exit, so that the children are ended below
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     try:
@@ -603,8 +612,10 @@ def measure(args: argparse.Namespace) -> None:
     min_peer = float(np.median([m["cpu"] / p["cpu"] for m, p in zip(minima, peers, strict=True)]))
     lat = np.concatenate([r["lat_ms"] for r in ours])
     lat_final = np.concatenate([r["lat_final_ms"] for r in ours])
-    print(f"{args.mice} mice x {args.report_hz:g} Hz through FIFOs, POSE at {args.rate_hz:g} Hz,"
-          f" {args.rounds} rounds x {args.seconds:g} s measured (medians)")  # fmt: skip
+    every = f" (every {args.sparse} periods)" if args.sparse > 1 else ""
+    print(f"{args.mice} mice x {args.report_hz:g} Hz{every} through FIFOs, POSE at "
+          f"{args.rate_hz:g} Hz, {args.rounds} rounds x {args.seconds:g} s measured "
+          "(medians)")  # fmt: skip
     print(f"floor (100 Hz batched reader)  {med(floors):6.2f} % of one core")
     print(f"peer-style daemon              {med(peers):6.2f} %")
     print(f"Python minimum (see MINIMUM)   {med(minima):6.2f} %   ratio to the floor "
