@@ -328,6 +328,22 @@ MUTANTS = [
         "replay's array screen takes a cut span's change of motion from its own prediction",
     ),
     Mutant(
+        "sparse-mouse-planned-on-its-period",
+        "mousedom/service/wake.py",
+        "            step = round(gap / period) * period\n",
+        "            step = period\n",
+        ("tests/test_daemon.py",),
+        "the loop wakes on a slow mouse's period and then for every report of the others",
+    ),
+    Mutant(
+        "sparse-wake-on-the-prediction",
+        "mousedom/service/wake.py",
+        "        early = min(step - period, period)\n",
+        "        early = 0.0\n",
+        ("tests/test_daemon.py",),
+        "a slow mouse's report stamped a little late leaves its window waiting for the wake",
+    ),
+    Mutant(
         "screen-batch-never-decides",
         "mousedom/fusion/screenbatch.py",
         "            bad = np.flatnonzero(~fast | evidence[i:horizon]) + i\n",

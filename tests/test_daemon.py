@@ -25,6 +25,7 @@ from mousedom.errors import UserError
 from mousedom.fusion.countfunction import CountFunction
 from mousedom.service.daemon import WAKE_SLACK_S, Daemon, plan_wake
 from mousedom.service.factory import make_source
+from mousedom.service.wake import SPARSE_MAX_S
 from mousedom.sources.base import Reports, Source, SourceGone, SourceUnavailable
 
 RECORD = struct.Struct("<ddd")  # t, dx, dy
@@ -116,20 +117,20 @@ def inproc(tmp_path):
 
 def test_plan_wake_predicts_the_first_report_after_the_window():
     end = 10.0
-    mice = [(0.001, 0.003, end - 0.0009 + k * 0.0002) for k in range(4)]
+    mice = [(0.001, 0.003, end - 0.0009 + k * 0.0002, 0.001) for k in range(4)]
     wake, give_up = plan_wake(end, mice)
     # each mouse's next report is its last + 1 ms, the latest end + 0.7 ms; its window is
     # final at the report after (end + 1.7 ms: sooner than P/2 + the 3 ms latency)
     assert wake == pytest.approx(end + 0.0017 + WAKE_SLACK_S)
     assert give_up == pytest.approx(end + 0.004)
     # a mouse already past the end and one never seen add nothing to wait for
-    assert plan_wake(end, [(0.001, 0.003, end + 0.0005), (0.008, 0.003, None)])[0] == (
+    assert plan_wake(end, [(0.001, 0.003, end + 0.0005, None), (0.008, 0.003, None, None)])[0] == (
         pytest.approx(end + WAKE_SLACK_S)
     )
     # a mouse silent for long: its slot after the end is still within one period, and
     # that report's span is final 7 ms after it (P/2 and the latency), or by the silence
     # rule's bound (a period and the latency after the end)
-    wake, give_up = plan_wake(end, [(0.008, 0.003, end - 1.0002)])
+    wake, give_up = plan_wake(end, [(0.008, 0.003, end - 1.0002, 1.0)])
     slot = end - 1.0002 + (math.floor(1.0002 / 0.008) + 1) * 0.008
     assert wake - WAKE_SLACK_S == pytest.approx(min(slot + 0.007, end + 0.011))
     assert give_up == pytest.approx(end + 0.011)
@@ -151,7 +152,7 @@ def test_the_wake_is_when_a_mouse_on_its_clock_closes_the_window(period, latency
     next plan, with the report read, waits on."""
     end = 10.0
     last += end
-    wake, give_up = plan_wake(end, [(period, latency, last)], bridge)
+    wake, give_up = plan_wake(end, [(period, latency, last, period)], bridge)
 
     def frontier_at(now: float) -> float:
         cf = CountFunction(period, bridge)
@@ -169,6 +170,47 @@ def test_the_wake_is_when_a_mouse_on_its_clock_closes_the_window(period, latency
 
 @settings(max_examples=300, deadline=None)
 @given(
+    st.sampled_from([0.000125, 0.0005, 0.001, 0.002]),  # period
+    st.integers(2, 32),  # the mouse reports every this many periods (a slow robot)
+    st.floats(0.0, 0.01),  # latency
+    st.floats(0.0, 0.5),  # bridge (late_report_s)
+    st.floats(-0.02, 0.0),  # last report, relative to the window's end
+)
+def test_a_mouse_reporting_every_few_periods_closes_the_window_at_the_wake(
+    period, every, latency, bridge, last
+):
+    """A mouse that reports only every few periods (only when it has a count): a period
+    after the planned wake (which is that early for a stamp a little late), with the
+    reports it made at that step read, its frontier has passed the end (the loop no
+    longer wakes on its period, and then for every report of the others until its report
+    comes).  Where the step is beyond SPARSE_MAX_S the plan is on the period, as
+    before."""
+    end = 10.0
+    last += end
+    step = every * period
+    wake, give_up = plan_wake(end, [(period, latency, last, step)], bridge)
+    if step > SPARSE_MAX_S:
+        on_period, _ = plan_wake(end, [(period, latency, last, period)], bridge)
+        assert wake == on_period
+        return
+    # the wake is a period early (a stamp a little late): its window is final a period on
+    early = min(step - period, period)
+    on_time = wake + early
+    cf = CountFunction(period, bridge)
+    k = np.arange(0, math.floor((on_time - last) / step + 1e-9) + 1)
+    t = (last + k * step).tolist()
+    cf.queue(t, [1] * len(t), [0] * len(t), t[-1])
+    cf.ingest(-math.inf)
+    cf.complete_to(on_time - latency)
+    if wake - WAKE_SLACK_S < give_up:
+        assert cf.frontier() >= end - 1e-9
+    # and no later than needed: the first report after the end, P/2 and the latency on
+    first = last + (math.floor((end - last) / step) + 1) * step
+    assert wake <= max(end, first + 0.5 * period + latency - early) + WAKE_SLACK_S + 1e-12
+
+
+@settings(max_examples=300, deadline=None)
+@given(
     st.floats(0.0002, 0.02),  # period
     st.floats(0.0, 0.01),  # latency
     st.floats(0.0, 0.5),  # bridge (late_report_s)
@@ -180,7 +222,7 @@ def test_give_up_is_when_the_silence_rule_closes_the_window(period, latency, bri
     only spin (it did, for up to late_report_s after every stop), nor after."""
     end = 10.0
     last += end
-    _, give_up = plan_wake(end, [(period, latency, last)], bridge)
+    _, give_up = plan_wake(end, [(period, latency, last, None)], bridge)
     cf = CountFunction(period, bridge)
     cf.queue([last], [1], [0], last)
     cf.ingest(-math.inf)  # as Tracker.poll does before asking

@@ -67,3 +67,26 @@ def test_the_rate_is_the_reports_of_the_last_second(rate_hz, read_every, seconds
     end = _feed(src, rate_hz, 0.0, seconds, read_every)
     # the reports read in (end - 1 s, end]: one read's worth of rounding either side
     assert src.rate(end) == pytest.approx(rate_hz, abs=rate_hz * read_every + 1.0)
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.lists(st.lists(st.floats(0.0001, 0.01), max_size=5), min_size=1, max_size=8))
+def test_the_last_gap_is_the_interval_before_the_last_report_across_reads(reads):
+    """``SourceHealth.last_gap`` (what the wake's plan predicts a sparse mouse's next
+    report from, service/wake.py) is the last report's stamp less the one before it,
+    whether that one came in the same read or in an earlier one; None before two."""
+    src = _Fed()
+    stamps: list[float] = []
+    t = 10.0
+    for gaps in reads:
+        batch = []
+        for g in gaps:
+            t += g
+            batch.append(t)
+        stamps += batch
+        src.next = batch
+        src.read(t + 0.001)
+        if len(stamps) >= 2:
+            assert src.health.last_gap == pytest.approx(stamps[-1] - stamps[-2], abs=1e-12)
+        else:
+            assert src.health.last_gap is None

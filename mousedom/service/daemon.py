@@ -413,7 +413,10 @@ class Daemon:
         end = running.tracker.frontier_time + 1.0 / running.config.rate_hz
         return plan_wake(
             end,
-            [(p, lat, h.last_t if h is not None else None) for p, lat, h in self.sensors.plan],
+            [
+                (p, lat, None, None) if h is None else (p, lat, h.last_t, h.last_gap)
+                for p, lat, h in self.sensors.plan
+            ],  # fmt: skip
             running.config.late_report_s,
         )
 

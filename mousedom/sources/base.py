@@ -205,6 +205,7 @@ class SourceHealth:
     connected: bool = False
     reports: int = 0
     last_t: float | None = None
+    last_gap: float | None = None  # last_t less the report's before (the wake's plan: not sent)
     reports_per_s: float = 0.0  # over the last second, when a status is made (Source.rate)
     dropped: int = 0  # frames or packets lost (SYN_DROPPED, sequence gaps, CRC errors)
     skipped: int = 0  # events that are not motion (buttons, wheels), counted not used
@@ -335,14 +336,17 @@ class Source(ABC):
                     bound_stamps(since, now)
                     it = iter(since)
                     b.lost_from[:] = [None if v is None else next(it) for v in b.lost_from]
-            self._count(n, float(t[-1]), now)
+            self._count(n, float(t[-1]), now, float(t[-2]) if n > 1 else None)
         return batches
 
-    def _count(self, n: int, last_t: float, now: float) -> None:
-        """``n`` reports read at ``now``, the last stamped ``last_t``: the health's counts,
-        last stamp, and the read for the report rate (``rate``)."""
+    def _count(self, n: int, last_t: float, now: float, before: float | None = None) -> None:
+        """``n`` reports read at ``now``, the last stamped ``last_t`` (``before``: the one
+        before it, where the read held both): the health's counts, last stamp and the
+        interval before it, and the read for the report rate (``rate``)."""
         health = self.health
         health.reports += n
+        prev = health.last_t if before is None else before
+        health.last_gap = None if prev is None else last_t - prev
         health.last_t = last_t
         reads = self._reads
         reads.append((now, n))
