@@ -457,8 +457,8 @@ MUTANTS = [
     Mutant(
         "wake-at-first-report",
         "mousedom/service/wake.py",
-        "            wake = max(wake, first + min(period, 0.5 * period + latency))",
-        "            wake = max(wake, first)",
+        "            wake = max(wake, first + min(step, 0.5 * period + latency) - early)",
+        "            wake = max(wake, first - early)",
         ("tests/test_daemon.py",),
         "the loop wakes at the first report after a window, which cannot close it yet",
     ),
