@@ -344,6 +344,14 @@ MUTANTS = [
         "a slow mouse's report stamped a little late leaves its window waiting for the wake",
     ),
     Mutant(
+        "sparse-edge-woken-early",
+        "mousedom/service/wake.py",
+        "            wake = max(wake, min(edge + 0.5 * period + latency, first - early))\n",
+        "            wake = max(wake, min(edge + 0.5 * period + latency, first) - early)\n",
+        ("tests/test_daemon.py",),
+        "a slow mouse's report on the window's end: woken before the window is final by time",
+    ),
+    Mutant(
         "screen-batch-never-decides",
         "mousedom/fusion/screenbatch.py",
         "            bad = np.flatnonzero(~fast | evidence[i:horizon]) + i\n",

@@ -209,6 +209,17 @@ def test_a_mouse_reporting_every_few_periods_closes_the_window_at_the_wake(
     assert wake <= max(end, first + 0.5 * period + latency - early) + WAKE_SLACK_S + 1e-12
 
 
+@pytest.mark.parametrize("latency", [0.0, 0.0003, 0.003])
+def test_a_sparse_mouse_reporting_on_the_end_is_final_by_time_not_woken_early(latency):
+    """A slow mouse whose report falls exactly on the window's end: that report's span
+    ends there, and the window is final P/2 and the latency later by time alone (or at its
+    next report).  Waking a period early is for a report's stamp; here it woke before the
+    window was final and then waited on the descriptors for the next report (3 ms)."""
+    end, period = 10.0, 0.001
+    wake, _ = plan_wake(end, [(period, latency, end - 0.003, 0.003)], 0.15)
+    assert wake == pytest.approx(min(end + 0.5 * period + latency, end + 0.002) + WAKE_SLACK_S)
+
+
 @settings(max_examples=300, deadline=None)
 @given(
     st.floats(0.0002, 0.02),  # period

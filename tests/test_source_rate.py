@@ -90,3 +90,18 @@ def test_the_last_gap_is_the_interval_before_the_last_report_across_reads(reads)
             assert src.health.last_gap == pytest.approx(stamps[-1] - stamps[-2], abs=1e-12)
         else:
             assert src.health.last_gap is None
+
+
+def test_a_read_of_several_reports_without_the_one_before_says_no_gap():
+    """A source that hands ``_count`` several reports but not the stamp before the last
+    (the gyro's: iio, ROS 2, replay) leaves ``last_gap`` unknown rather than the interval
+    since its previous read, which spans the whole read (a 1 kHz gyro read 4 at a time
+    was planned as a sparse mouse)."""
+    src = _Fed()
+    src._count(1, 10.0, 10.001)
+    src._count(1, 10.003, 10.004)
+    assert src.health.last_gap == pytest.approx(0.003)
+    src._count(4, 10.007, 10.008)
+    assert src.health.last_gap is None
+    src._count(4, 10.011, 10.012, before=10.010)
+    assert src.health.last_gap == pytest.approx(0.001)

@@ -31,8 +31,8 @@ def screen(
     spans: np.ndarray | None = None,
 ):
     """d: (n, N, 2) readings; mask: (n, N) live mice; q: (n, 3) the plain solution with
-    that mask; spans: (n, N) long report spans cut by each window's edges, or None (rows
-    with one go to ``decide``, whose noise model allows for them).  Returns (used (n, N),
+    that mask; spans: (n, N) long report spans cut by each window's edges, or None (the
+    noise model's granularity term grows for them: ``_fast_rows``).  Returns (used (n, N),
     inflate (n,), consistent (n,), state (n, N) int8,
     reason (n, N) int8, correction (n, 3) or None: Decision.correction, by row, factors:
     the noise model's proportional factors each row was tested with, as (first row, its

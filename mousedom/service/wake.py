@@ -70,8 +70,8 @@ def plan_wake(
         # period; a period early, 0.90).  Awake before the report, the loop then waits on
         # the descriptors as before.
         early = min(step - period, period)
-        if edge >= end:
-            wake = max(wake, min(edge + 0.5 * period + latency, first) - early)
+        if edge >= end:  # (final by time alone there: no report's stamp to be early for)
+            wake = max(wake, min(edge + 0.5 * period + latency, first - early))
         else:
             wake = max(wake, first + min(step, 0.5 * period + latency) - early)
     return min(wake, give_up) + WAKE_SLACK_S, give_up

@@ -304,6 +304,7 @@ class Source(ABC):
             raise
         self.health.connected = True
         self.health.error = None
+        self.health.last_gap = None  # (a reopened device's reports start again)
 
     def read(self, now: float) -> list[Reports]:
         """Read what is ready; raises SourceGone when the device vanished."""
@@ -345,7 +346,9 @@ class Source(ABC):
         interval before it, and the read for the report rate (``rate``)."""
         health = self.health
         health.reports += n
-        prev = health.last_t if before is None else before
+        # (a read of several reports without the one before the last says nothing of it:
+        # the gyro's sources, whose samples the wake's plan takes on their period)
+        prev = before if before is not None else health.last_t if n == 1 else None
         health.last_gap = None if prev is None else last_t - prev
         health.last_t = last_t
         reads = self._reads
