@@ -320,6 +320,22 @@ MUTANTS = [
         "the common case tests and learns a cut span's window without its granularity term",
     ),
     Mutant(
+        "span-common-case-keeps-silences",
+        "mousedom/fusion/robust.py",
+        "        if spans is not None and (self.silences.any or self._any_silent(d, live)):\n",
+        "        if False:\n",
+        ("tests/test_span_common_case.py",),
+        "a silence's account through a cut span kept at the floor's error: a late mouse excluded",
+    ),
+    Mutant(
+        "replay-span-rows-keep-silences",
+        "mousedom/fusion/screenbatch.py",
+        "    evidence |= silent_cut\n",
+        "    pass\n",
+        ("tests/test_span_common_case.py",),
+        "replay's common case keeps a silence's account through a cut span at the floor",
+    ),
+    Mutant(
         "replay-span-rows-from-their-own-reading",
         "mousedom/fusion/screenbatch.py",
         "        floor, prop = sc.noise.parts(d, p, prev_p, m2, gran2=gran2, gran_p=gran_p)\n",

@@ -18,12 +18,16 @@ no window."""
 from __future__ import annotations
 
 import copy
+import re
+import subprocess
+import sys
 
 import numpy as np
 import pytest
+from conftest import REPO
 from layouts import random_layout
 
-from mousedom.fusion import robust, scenarios, sim
+from mousedom.fusion import conditions, robust, scenarios, sim
 from mousedom.fusion.tracker import PoseBatch, Tracker
 
 LAYOUTS = ("triangle", "square", "pentagon", "wide", "kite", "offset-ring")
@@ -60,12 +64,20 @@ def _random_rig(seed: int) -> sim.Rig:
     return sim.Rig(mice)
 
 
-def _rig(case: str) -> sim.Rig:
+def _rig(case: str) -> tuple[sim.Rig, object]:
+    """The case's rig, and the config it is run with."""
     kind, _, seed = case.partition(":")
-    return _random_rig(int(seed)) if kind == "random" else scenarios.rig(kind)
+    if kind == "gaps":  # USB gaps and late stamps on a named layout: silences, catch-ups
+        layout, _, k = seed.partition("-")
+        base = scenarios.rig(layout)
+        cond = conditions.condition("usb-gaps+late-stamps", int(k))
+        return conditions.apply_condition(base, cond, 8.0), conditions.condition_config(base, cond)
+    rig = _random_rig(int(seed)) if kind == "random" else scenarios.rig(kind)
+    return rig, sim.rig_config(rig)
 
 
-CASES = [*(f"{name}:0" for name in LAYOUTS), *(f"random:{s}" for s in range(6))]
+CASES = [*(f"{name}:0" for name in LAYOUTS), *(f"random:{s}" for s in range(6)),
+         "gaps:triangle-12", "gaps:square-7", "gaps:pentagon-3"]  # fmt: skip
 
 
 class _Twin:
@@ -78,6 +90,7 @@ class _Twin:
         self.fast_one = robust.Screen.fast_one
         self.decide = robust.Screen.decide
         self.decided = 0  # windows with a cut span decided (either path's)
+        self.silent_cut = 0  # of which a live mouse read nothing (a silence may open)
 
     def install(self, monkeypatch: pytest.MonkeyPatch) -> None:
         twin = self
@@ -97,6 +110,9 @@ class _Twin:
                    defer_block_end=False):  # fmt: skip
             if spans is not None and np.any(np.asarray(live) & (np.asarray(spans) > 0)):
                 twin.decided += 1
+                reads = np.asarray(d, dtype=float).reshape(-1, 2)
+                quiet = np.sum(reads * reads, axis=1) <= 1e-6 * self.noise.sig2
+                twin.silent_cut += bool(np.any(np.asarray(live) & quiet))
             return twin.decide(self, d, live, squal_scale, low_quality, spans, defer_block_end)
 
         monkeypatch.setattr(robust.Screen, "fast_one", fast_one)
@@ -111,6 +127,18 @@ class _Twin:
         assert [h.state for h in other.health] == [h.state for h in fast.health]
         assert [h.reason for h in other.health] == [h.reason for h in fast.health]
         np.testing.assert_allclose(other._prev, fast._prev, rtol=1e-9, atol=1e-15)
+        # the silences' accounts and the ledger's (a late mouse's debt from before its
+        # hold is a silence's: the common case left one kept at the floor's error where
+        # the decision keeps it at the window's, and a drive ended 67 mm off for 30)
+        mine, theirs = fast.silences, other.silences
+        assert list(mine.silent) == list(theirs.silent)
+        np.testing.assert_allclose(np.asarray(mine.sum), np.asarray(theirs.sum), rtol=1e-7,
+                                   atol=1e-12)  # fmt: skip
+        np.testing.assert_allclose(np.asarray(mine.s2), np.asarray(theirs.s2), rtol=1e-7)
+        for name in ("owed", "pre", "pre_s2"):
+            np.testing.assert_allclose(np.asarray(getattr(fast.ledger, name)),
+                                       np.asarray(getattr(other.ledger, name)), rtol=1e-7,
+                                       atol=1e-12)  # fmt: skip
         # the noise model's samples: the same mice, the same values (but for the last bits
         # of the two solves' predictions)
         for mine, theirs in ((fast.noise._floor, other.noise._floor),
@@ -148,10 +176,9 @@ def _daemon(cfg, result, step: float = 0.01) -> tuple[PoseBatch, Tracker]:
 
 @pytest.mark.parametrize("case", CASES)
 def test_a_cut_span_is_accepted_by_the_common_case_as_decide_accepts_it(case, monkeypatch):
-    rig = _rig(case)
+    rig, cfg = _rig(case)
     seed = 31 + CASES.index(case)
     result = sim.simulate(rig, scenarios.drive(8.0, seed), seed=seed)
-    cfg = sim.rig_config(rig)
     twin = _Twin()
     twin.install(monkeypatch)
     live, daemon = _daemon(cfg, result)
@@ -164,7 +191,7 @@ def test_a_cut_span_is_accepted_by_the_common_case_as_decide_accepts_it(case, mo
     assert twin.cut >= 10, (twin.cut, windows)
     assert twin.accepted > 0.6 * twin.cut, (twin.accepted, twin.cut)
     # replay (the batch) decides every window as the daemon did
-    twin.decided = 0
+    silent_cut, twin.decided, twin.silent_cut = twin.silent_cut, 0, 0
     batch, replay = scenarios.run(result, cfg)
     assert len(batch.t) == windows
     np.testing.assert_array_equal(batch.state, live.state)
@@ -179,3 +206,28 @@ def test_a_cut_span_is_accepted_by_the_common_case_as_decide_accepts_it(case, mo
     # decides the window after one the decision left altered)
     left = twin.cut - twin.accepted
     assert twin.decided <= 2 * left, (twin.decided, twin.cut, twin.accepted)
+    # those in which a mouse read nothing among them: a silence's account is the decision's
+    assert twin.silent_cut >= silent_cut, (twin.silent_cut, silent_cut)
+
+
+def test_a_late_mouse_after_a_silence_through_cut_spans_is_paid_back():
+    """scripts/fault_sweep.py --seed 12 --only 116 (a triangle whose front mouse jumps,
+    under USB gaps and late stamps): when the common case first took windows that cut a
+    long span, a silence's account through them was kept at the floor's error
+    (``Silences.rows``) where the decision keeps each window at its own (``_runs``, the
+    span's term with it). The right mouse, held late at 7.72 s, then brought in less debt
+    from before its hold, was not found paid back (20.9 against a threshold of 18.4,
+    17.3 before), and was excluded for 1.3 s: 67.1 mm off at the end, against 30.5 with
+    fault handling off and before.  Such windows are the decision's again
+    (``Screen.fast_one``, ``screenbatch._cut_rows``)."""
+    done = subprocess.run(
+        [sys.executable, str(REPO / "scripts" / "fault_sweep.py"), "--drives", "300",
+         "--seed", "12", "--only", "116", "--jobs", "1"],
+        capture_output=True, text=True, timeout=300, cwd=REPO,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    row = done.stdout.splitlines()[0]
+    m = re.search(r"default\s+([\d.]+) mm.*off\s+([\d.]+) mm", row)
+    assert m is not None and row.startswith("k=116 "), row
+    default, off = float(m[1]), float(m[2])
+    assert default <= 1.1 * off + 2.0, row

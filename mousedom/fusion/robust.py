@@ -371,6 +371,10 @@ class Screen(RigidTest):
         granularity term of a mouse whose span the edges cut grows, ``steady_window``)."""
         if evidence or live != (self._steady if self._steady_known else self.steady()):
             return False
+        if spans is not None and (self.silences.any or self._any_silent(d, live)):
+            # a silence's account is the decision's to open and keep through a cut span
+            # (``_runs``: each window at its own variance, the span's term with it)
+            return False
         dof = 2 * sum(live) - self.k
         leverage = None
         if dof > 0:
@@ -628,6 +632,13 @@ class Screen(RigidTest):
         """No counts in the window (a thousandth of its sigma: the split of reports
         across windows leaves rounding dust where there were none)."""
         return self._reads_nothing(d[i], i)
+
+    def _any_silent(self, d: list[float], live: tuple[bool, ...]) -> bool:
+        """Whether a live mouse reads nothing in the window (``_silent``, on the flattened
+        floats the common case has)."""
+        sig2 = self.noise.sig2_list
+        return any(live[i] and d[2 * i] ** 2 + d[2 * i + 1] ** 2 <= 1e-6 * sig2[i]
+                   for i in range(self.n))  # fmt: skip
 
     def _reads_nothing(self, di: np.ndarray, i: int) -> bool:
         """``_silent`` for mouse i's reading ``di``."""

@@ -51,6 +51,8 @@ def screen(
     codes = mask.astype(np.int64) @ (np.int64(1) << np.arange(nm, dtype=np.int64))
     changes = np.flatnonzero(codes[1:] != codes[:-1]) + 1
     evidence = np.zeros(n, dtype=bool)
+    cut_rows, silent_cut = _cut_rows(sc, d, mask, spans)
+    evidence |= silent_cut
     if squal_scale is not None:
         evidence |= np.any(mask & (squal_scale != 1.0), axis=1)
     if low_quality is not None:
@@ -86,10 +88,17 @@ def screen(
                                        None if spans is None else spans[i:horizon])  # fmt: skip
             bad = np.flatnonzero(~fast | evidence[i:horizon]) + i
         steady = sc.steady()
-        if steady is not None and not prev_altered:
+        opened = sc.silences.any
+        if (
+            steady is not None
+            and not prev_altered
+            and not (opened and _next(cut_rows, i, i + 1) == i)
+        ):
             code = sum(1 << k for k, v in enumerate(steady) if v)
             if codes[i] == code:
                 stop = min(_next(bad, i, horizon), _next(changes, i + 1, horizon))
+                if opened:
+                    stop = min(stop, _next(cut_rows, i + 1, horizon))
                 if stop > i:
                     # A run of accepted rows, across learning blocks: up to the first
                     # block end that changes a factor (the arrays are then made again).
@@ -115,6 +124,22 @@ def screen(
         prev_altered = not np.array_equal(dec.used, mask[i])
         i += 1
     return used, inflate, consistent, state, reason, correction, factors
+
+
+def _cut_rows(sc: Screen, d: np.ndarray, mask: np.ndarray,
+              spans: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """The rows that cut a long report span (sorted), and those of them in which a live
+    mouse reads nothing.  The latter are the decision's: it opens a silence's account there
+    (``Screen._runs``: each window at its own variance, the span's term with it; the common
+    case's ``Silences.rows`` keeps one at the floor's).  While one is open, every row that
+    cuts a span is the decision's too; no run of accepted rows opens one, so a run that
+    starts with none open keeps none (``Screen.fast_one`` has the same rule)."""
+    n = len(mask)
+    if spans is None:
+        return np.zeros(0, dtype=np.int64), np.zeros(n, dtype=bool)
+    cut = np.any(mask & (spans > 0), axis=1)
+    silent = mask & (norm2(d) <= 1e-6 * sc.noise.sig2)
+    return np.flatnonzero(cut), cut & np.any(silent, axis=1)
 
 
 def _leverages(sc: Screen, mask: np.ndarray, codes: np.ndarray) -> np.ndarray:
