@@ -26,9 +26,9 @@ import numpy as np
 import pytest
 from conftest import REPO
 from layouts import random_layout
+from live_drive import live_windows
 
 from mousedom.fusion import conditions, robust, scenarios, sim
-from mousedom.fusion.tracker import PoseBatch, Tracker
 
 LAYOUTS = ("triangle", "square", "pentagon", "wide", "kite", "offset-ring")
 
@@ -156,24 +156,6 @@ def _last(samples, k: int = 8) -> np.ndarray:
     return np.concatenate(chunks)[-k:]
 
 
-def _daemon(cfg, result, step: float = 0.01) -> tuple[PoseBatch, Tracker]:
-    """The daemon's way: reports pushed as they arrive, windows closed one by one."""
-    tracker = Tracker(cfg, t0=float(result.motion.starts[0]))
-    reps = result.reports
-    end = max(float(r.t[-1]) for r in reps.values())
-    out = []
-    for k in range(int(end / step) + 1):
-        lo, hi = k * step, (k + 1) * step
-        for name, r in reps.items():
-            sel = (r.t > lo) & (r.t <= hi)
-            if sel.any():
-                tracker.push(name, r.t[sel], r.dx[sel], r.dy[sel])
-        tracker.complete_until(hi)
-        out.append(tracker.poll(one_by_one=True))
-    out.append(tracker.finish())
-    return PoseBatch.concat(out, len(reps)), tracker
-
-
 @pytest.mark.parametrize("case", CASES)
 def test_a_cut_span_is_accepted_by_the_common_case_as_decide_accepts_it(case, monkeypatch):
     rig, cfg = _rig(case)
@@ -181,7 +163,7 @@ def test_a_cut_span_is_accepted_by_the_common_case_as_decide_accepts_it(case, mo
     result = sim.simulate(rig, scenarios.drive(8.0, seed), seed=seed)
     twin = _Twin()
     twin.install(monkeypatch)
-    live, daemon = _daemon(cfg, result)
+    live, daemon = live_windows(cfg, result)
     # the check ran, and most windows with a cut span are the common case's (before, every
     # one was decided: a third to half of all windows on most of these rigs).  What is left
     # to the decision is mostly a coarse mouse's count that reads short of its motion at a

@@ -20,11 +20,11 @@ import math
 import numpy as np
 import pytest
 from layouts import random_layout
+from live_drive import live_windows
 
 from mousedom.config import RobustConfig
 from mousedom.fusion import scenarios, sim
 from mousedom.fusion.drives import drive
-from mousedom.fusion.tracker import PoseBatch, Tracker
 
 
 def _case(seed: int) -> tuple[sim.Rig, sim.Rig, float]:
@@ -91,24 +91,6 @@ def test_a_stall_ends_no_worse_than_fault_handling_off(seed):
     assert err[True] <= 1.2 * err[False] + 0.01, err
 
 
-def _live(cfg, result, step: float) -> PoseBatch:
-    """The daemon's way: reports pushed as they arrive, windows closed as time passes."""
-    tracker = Tracker(cfg, t0=float(result.motion.starts[0]))
-    reps = result.reports
-    end = max(float(r.t[-1]) for r in reps.values())
-    out = []
-    for k in range(int(end / step) + 1):
-        lo, hi = k * step, (k + 1) * step
-        for name, r in reps.items():
-            sel = (r.t > lo) & (r.t <= hi)
-            if sel.any():
-                tracker.push(name, r.t[sel], r.dx[sel], r.dy[sel])
-        tracker.complete_until(hi)
-        out.append(tracker.poll(one_by_one=True))
-    out.append(tracker.finish())
-    return PoseBatch.concat(out, len(reps))
-
-
 @pytest.mark.parametrize("seed", [847, 1427])
 def test_the_daemon_decides_a_stall_as_replay_does(seed):
     """Window by window, as time passes (a silent mouse holds the windows back up to
@@ -117,7 +99,7 @@ def test_the_daemon_decides_a_stall_as_replay_does(seed):
     result = sim.simulate(stalled, drive(duration, seed), seed=seed)
     cfg = sim.rig_config(healthy)
     replay, _ = scenarios.run(result, cfg)
-    live = _live(cfg, result, 0.01)
+    live, _ = live_windows(cfg, result, 0.01)
     assert np.array_equal(live.t, replay.t)
     assert np.array_equal(live.state, replay.state)
     assert np.array_equal(live.used, replay.used)

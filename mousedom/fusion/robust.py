@@ -91,7 +91,7 @@ from mousedom.fusion.ledger import Ledger
 from mousedom.fusion.noisemodel import NoiseModel, norm2
 from mousedom.fusion.rigidtest import RigidTest, Statistic
 from mousedom.fusion.shortfall import SHORT, others_word, reads_short
-from mousedom.fusion.silences import Silences
+from mousedom.fusion.silences import SILENT_SHARE, Silences
 
 # The health's names are the screen's vocabulary (robust.EXCLUDED, robust.REASONS, ...).
 __all__ = ["EXCLUDED", "INCONSISTENT", "LATE", "LOW_QUALITY", "MISSING", "NONE", "REASONS",
@@ -637,12 +637,12 @@ class Screen(RigidTest):
         """Whether a live mouse reads nothing in the window (``_silent``, on the flattened
         floats the common case has)."""
         sig2 = self.noise.sig2_list
-        return any(live[i] and d[2 * i] ** 2 + d[2 * i + 1] ** 2 <= 1e-6 * sig2[i]
+        return any(live[i] and d[2 * i] ** 2 + d[2 * i + 1] ** 2 <= SILENT_SHARE * sig2[i]
                    for i in range(self.n))  # fmt: skip
 
     def _reads_nothing(self, di: np.ndarray, i: int) -> bool:
         """``_silent`` for mouse i's reading ``di``."""
-        return float(di @ di) <= 1e-6 * self.noise.sig2[i]
+        return float(di @ di) <= SILENT_SHARE * self.noise.sig2[i]
 
     def decide(
         self,
@@ -1163,7 +1163,7 @@ class Screen(RigidTest):
         middle mouse for a lift at its end (1.3 m off at the end of a drive, against 5 mm
         informed)."""
         out = kept
-        nothing = norm2(then) <= 1e-6 * self.noise.sig2  # (``_silent``'s rule)
+        nothing = norm2(then) <= SILENT_SHARE * self.noise.sig2  # (``_silent``'s rule)
         for i in np.flatnonzero(kept & nothing).tolist():
             q = self._solve(then, _but(kept, i))
             if (

@@ -16,6 +16,7 @@ import numpy as np
 from mousedom.fusion.noisemodel import motion2, norm2
 from mousedom.fusion.robust import MISSING, TRACKING, Screen
 from mousedom.fusion.shortfall import SHORT, SHORT_ALONE, SHORT_OF_ALL
+from mousedom.fusion.silences import SILENT_SHARE
 
 HORIZON = 16  # learning blocks of rows tested at once after the factors changed
 HORIZON_MAX = 64  # and once they stayed as they were (bounded: (rows, mice) temporaries)
@@ -138,7 +139,7 @@ def _cut_rows(sc: Screen, d: np.ndarray, mask: np.ndarray,
     if spans is None:
         return np.zeros(0, dtype=np.int64), np.zeros(n, dtype=bool)
     cut = np.any(mask & (spans > 0), axis=1)
-    silent = mask & (norm2(d) <= 1e-6 * sc.noise.sig2)
+    silent = mask & (norm2(d) <= SILENT_SHARE * sc.noise.sig2)
     return np.flatnonzero(cut), cut & np.any(silent, axis=1)
 
 

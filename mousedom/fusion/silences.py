@@ -23,6 +23,12 @@ import numpy as np
 CATCH_UP_WINDOWS = 2
 
 
+# A mouse reads nothing in a window where its squared reading is at most this share of
+# its sigma^2 (the split of reports across windows leaves rounding dust where there were
+# none): Screen._silent, the common case's and replay's rules, and these rows.
+SILENT_SHARE = 1e-6
+
+
 class Silences:
     """The open silences of a rig of ``n`` mice (module docstring)."""
 
@@ -91,7 +97,7 @@ class Silences:
                 self.close(i)
                 continue
             r = d_rows[:, i] - p_rows[:, i]
-            silent = np.einsum("ij,ij->i", d_rows[:, i], d_rows[:, i]) <= 1e-6 * sig2[i]
+            silent = np.einsum("ij,ij->i", d_rows[:, i], d_rows[:, i]) <= SILENT_SHARE * sig2[i]
             # a standstill's silent rows at once (a parked rig: thousands), then row by row
             # from the first it reads in, until its catch-up's windows are over
             k = len(r) if self.after[i] == 0 and silent.all() else 0
