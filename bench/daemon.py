@@ -1,7 +1,7 @@
 """Daemon cost and latency next to the two baselines a user would compare it with.
 
     .venv/bin/python bench/daemon.py [--mice 4] [--report-hz 1000] [--seconds 8] [--rounds 3]
-                                     [--sparse 1]
+                                     [--sparse 1] [--still 0]
 
 A feeder process writes each mouse's reports (REL_X, REL_Y, SYN_REPORT; 72 bytes) into its
 FIFO when due, stamped with the CLOCK_MONOTONIC time of the write, as the kernel stamps a
@@ -50,15 +50,20 @@ ALL_MICE = ("front", "left", "rear", "right", "m4", "m5", "m6", "m7")
 MICE = ALL_MICE[:4]
 REPORT_HZ = 1000.0
 SPARSE = 1  # each mouse reports every SPARSE-th period (a slow robot: only with a count)
+# The last STILL mice stop reporting after STILL_AFTER_S (a mouse on the axis of a turn in
+# place, or lifted): each window waits late_report_s for them, while the others report.
+STILL = 0
+STILL_AFTER_S = 0.5
 
 
-def configure(n_mice: int, report_hz: float, sparse: int = 1) -> None:
+def configure(n_mice: int, report_hz: float, sparse: int = 1, still: int = 0) -> None:
     """The load of the runs that follow (module settings: the feeder child reads them
     from its arguments)."""
-    global MICE, REPORT_HZ, SPARSE
+    global MICE, REPORT_HZ, SPARSE, STILL
     MICE = ALL_MICE[:n_mice]
     REPORT_HZ = float(report_hz)
     SPARSE = int(sparse)
+    STILL = int(still)
 
 
 def cpu_seconds(pid: int) -> float:
@@ -79,9 +84,11 @@ def record(t: float, dx: int, dy: int) -> bytes:
 # ----------------------------------------------------------------------------- feeder
 
 
-def feeder(paths: list[str], seconds: float, out: str, report_hz: float, sparse: int = 1) -> None:
-    """Child process: write every mouse's reports when due (every ``sparse``-th period);
-    save the stamps."""
+def feeder(
+    paths: list[str], seconds: float, out: str, report_hz: float, sparse: int = 1, still: int = 0
+) -> None:
+    """Child process: write every mouse's reports when due (every ``sparse``-th period;
+    the last ``still`` mice only for STILL_AFTER_S); save the stamps."""
     fds = []
     for p in paths:
         while True:
@@ -100,7 +107,8 @@ def feeder(paths: list[str], seconds: float, out: str, report_hz: float, sparse:
     k = 0
     end = start + seconds
     while True:
-        for i in range(n if k % sparse == 0 else 0):
+        moving = n if k * period < STILL_AFTER_S else n - still
+        for i in range(moving if k % sparse == 0 else 0):
             due = start + k * period + i * period / n
             now = time.monotonic()
             if due > now:
@@ -161,7 +169,7 @@ def start_feeder(fifos: list[Path], seconds: float, out: Path) -> subprocess.Pop
     """The feeder runs as this file with --feed, in its own process (its own core)."""
     return _spawn(
         [sys.executable, __file__, "--feed", str(out), str(seconds), str(REPORT_HZ),
-         str(SPARSE), *map(str, fifos)]
+         str(SPARSE), str(STILL), *map(str, fifos)]
     )  # fmt: skip
 
 
@@ -194,7 +202,7 @@ def run_daemon(d: Path, seconds: float, rate_hz: float, extra: str = "", on_read
     poses.sock.close()
 
     data = np.load(stamps_file)
-    stamps = [data[k] for k in data.files]
+    stamps = [data[k] for k in data.files][: len(MICE) - STILL]  # (latency: the moving)
     after_c, after_f = _latencies(poses.received, stamps, wall0, wall1)
     n_poses = sum(1 for _, a in poses.received if wall0 <= a <= wall1)
     return {
@@ -567,13 +575,17 @@ def main() -> None:
     ap.add_argument("--sparse", type=int, default=1, metavar="K",
                     help="each mouse reports every K-th period, as at a slow speed "
                          "(only with a count): K >= 2 makes windows cut long spans")  # fmt: skip
+    ap.add_argument("--still", type=int, default=0, metavar="N",
+                    help="the last N mice stop reporting after the warm-up (a mouse on "
+                         "the axis of a turn in place): windows wait late_report_s for "
+                         "them")  # fmt: skip
     ap.add_argument("--feed", nargs="+", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.feed:
-        out, seconds, report_hz, sparse, *paths = args.feed
-        feeder(paths, float(seconds), out, float(report_hz), int(sparse))
+        out, seconds, report_hz, sparse, still, *paths = args.feed
+        feeder(paths, float(seconds), out, float(report_hz), int(sparse), int(still))
         return
-    configure(args.mice, args.report_hz, args.sparse)
+    configure(args.mice, args.report_hz, args.sparse, args.still)
     # SIGTERM (a timeout's) as an exit, so that the children are ended below
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     try:
@@ -613,6 +625,7 @@ def measure(args: argparse.Namespace) -> None:
     lat = np.concatenate([r["lat_ms"] for r in ours])
     lat_final = np.concatenate([r["lat_final_ms"] for r in ours])
     every = f" (every {args.sparse} periods)" if args.sparse > 1 else ""
+    every += f" ({args.still} of them still)" if args.still else ""
     print(f"{args.mice} mice x {args.report_hz:g} Hz{every} through FIFOs, POSE at "
           f"{args.rate_hz:g} Hz, {args.rounds} rounds x {args.seconds:g} s measured "
           "(medians)")  # fmt: skip

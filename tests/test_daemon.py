@@ -25,7 +25,7 @@ from mousedom.errors import UserError
 from mousedom.fusion.countfunction import CountFunction
 from mousedom.service.daemon import WAKE_SLACK_S, Daemon, plan_wake
 from mousedom.service.factory import make_source
-from mousedom.service.wake import SPARSE_MAX_S
+from mousedom.service.wake import ALONE_REPORTS, SPARSE_MAX_S, final_by_time, holding
 from mousedom.sources.base import Reports, Source, SourceGone, SourceUnavailable
 
 RECORD = struct.Struct("<ddd")  # t, dx, dy
@@ -157,6 +157,68 @@ def test_the_wake_is_when_a_mouse_on_its_clock_closes_the_window(period, latency
         assert _frontier_at(wake, period, period, latency, bridge, last) >= end - 1e-9
         at = wake - WAKE_SLACK_S - 1e-6
         assert _frontier_at(at, period, period, latency, bridge, last) < end
+
+
+def _two_reports(period: float, bridge: float, prev: float, last: float) -> CountFunction:
+    cf = CountFunction(period, bridge)
+    cf.queue([prev, last], [1, 1], [0, 0], last)
+    cf.ingest(-math.inf)  # as Tracker.poll does before asking
+    return cf
+
+
+@settings(max_examples=500, deadline=None)
+@given(
+    st.sampled_from([0.000125, 0.001, 0.008]),  # period
+    st.floats(0.0, 0.005),  # latency
+    st.sampled_from([0.0, 0.003, 0.15]),  # bridge (late_report_s)
+    st.floats(-0.03, 0.01),  # the report before the last, relative to the window's end
+    st.floats(0.0, 8.0),  # the interval to the last, in periods
+    st.floats(0.0, 0.02),  # the read after the last report
+)
+def test_the_loop_waits_for_the_mice_whose_reports_can_still_change_the_window(
+    period, latency, bridge, prev, gap, read
+):
+    """``holding`` against the count function: a mouse whose last two reports are
+    read at ``now`` is waited for where the window is not final as to it, until when it
+    is final by time (``final_by_time``, as ``complete`` = now - latency passes it); one
+    with two reports past the end is not (a report of its can no longer change the
+    window: the loop need not wake for it).  ``final_by_time`` is the plan's bound, in a
+    few cases later than the count function's rule (a stamp on the end, a span longer
+    than ``bridge``): a mouse already final is then waited for at most a period and its
+    latency longer."""
+    end = 10.0
+    prev += end
+    last = prev + gap * period
+    now = last + read
+    mouse = (period, latency, last, last - prev)
+    waited, alone_until = holding(end, [mouse], bridge, now)
+    cf = _two_reports(period, bridge, prev, last)
+    cf.complete_to(now - latency)
+    final_now = cf.frontier() >= end - 1e-9
+    final = final_by_time(end, period, latency, bridge, last)
+    if (prev > end and last - prev >= 0.5 * period) or now >= final:
+        assert waited == []
+    else:
+        assert [(w.mouse, w.final) for w in waited] == [(0, final)]
+        assert alone_until == pytest.approx(now + ALONE_REPORTS * period)
+        assert not final_now or final - now <= period + latency + 1e-12
+    if waited == [] and now < final:  # (past it, every mouse is final by time)
+        assert final_now
+    # final by time at ``final`` at the latest
+    cf = _two_reports(period, bridge, prev, last)
+    cf.complete_to(final - latency + 1e-9)
+    assert cf.frontier() >= end - 1e-9
+
+
+def test_a_mouse_not_reported_or_of_unknown_interval_is_not_waited_for():
+    """No report yet (the plan does not wait for it), or a read of several samples whose
+    interval is unknown past the end (a gyro): the loop watches every source then."""
+    end, p = 10.0, 0.001
+    assert holding(end, [(p, 0.0, None, None)], 0.15, end) == ([], end)
+    assert holding(end, [(p, 0.0, end + 0.0002, None)], 0.15, end + 0.0003) == ([], end)
+    # before the end, its interval does not matter: its first report past it is to come
+    waited, _ = holding(end, [(p, 0.0, end - 0.0002, None)], 0.15, end + 0.0003)
+    assert [w.mouse for w in waited] == [0]
 
 
 def _frontier_at(now: float, period: float, step: float, latency: float, bridge: float,
@@ -447,9 +509,10 @@ def test_reload_swaps_changed_mice_and_keeps_the_pose(tmp_path):
         assert (pose["x"], pose["y"]) == (3.0, -1.0)
         assert Conn(d.server.path).read()["sensors"] == ["a", "b", "c"]
         # what the loop keeps of the slots follows them (the wake planning, POSE "missing")
-        assert [id(h) for _, _, h in d.sensors.plan] == [
+        assert [id(p.health) for p in d.sensors.plan] == [
             id(s.source.health) for s in d.sensors.slots
         ]
+        assert [p.fd for p in d.sensors.plan] == [s.source.fileno() for s in d.sensors.slots]
         # b and c, opened by the reload, are used from the first window that begins
         # after they opened (Tracker.set_live): the windows before say they are missing
         assert pose["missing"] == ["b", "c"] and pose["used"] == 1
@@ -814,3 +877,34 @@ def test_one_clients_lines_in_a_wake_keep_to_the_clients_budget(inproc, lines):
     assert len(wakes) == lines
     per_wake = [wakes.count(w) for w in sorted(set(wakes))]
     assert max(per_wake) <= 3, per_wake
+
+
+def _feed_live(src: dict[str, PipeSource], names: list[str], period: float, until: float):
+    """Each named mouse reports on its clock until ``until``, stamped as written."""
+    nxt = time.monotonic()
+    while (now := time.monotonic()) < until:
+        if now >= nxt:
+            for n in names:
+                src[n].write([now], [1.0], [0.0])
+            nxt += period
+        time.sleep(max(0.0, min(nxt, until) - time.monotonic()))
+
+
+def test_a_window_waiting_for_a_still_mouse_sleeps_through_the_others_reports(inproc):
+    """One mouse of three goes still: its windows wait for it (late_report_s, 0.15 s),
+    and the loop waits on its descriptor alone, reading the others' every ALONE_REPORTS
+    periods, not at each of their reports (it woke at each: 116 wakes against 51 here).
+    The windows still close, and every count is in the pose."""
+    d, src = inproc("lsq", {"a": (0.1, 0.0), "b": (-0.1, 0.0), "c": (0.0, 0.1)})
+    c = Conn(d.server.path)
+    c.until("VERSION")
+    _feed_live(src, ["a", "b", "c"], 0.002, time.monotonic() + 0.2)  # all three report
+    w0, p0 = d.wakes, d.poses
+    _feed_live(src, ["a", "b"], 0.002, time.monotonic() + 0.6)  # c still: three silences
+    wakes, poses = d.wakes - w0, d.poses - p0
+    assert poses >= 20  # the windows close (by c's silence rule, then at once)
+    # the silences: 0.15 s each, a read every 16 periods (32 ms); the windows between
+    assert wakes < 80, (wakes, poses)
+    d.request_stop()
+    d.thread.join(5)
+    assert np.allclose(d.tracker.counts_out, d.tracker.counts_in)

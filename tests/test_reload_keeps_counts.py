@@ -83,7 +83,7 @@ def _run(
                 if change is not None:
                     config.write_text(CHANGES[change](text))
                     d.reloader.reload()
-            if clock.t >= d._plan()[0]:
+            if clock.t >= d._plan(clock.t)[0]:
                 d._window(clock.t)
     finally:
         d._shutdown()

@@ -176,7 +176,7 @@ def _readd_turns(tmp_path: Path, layout: str, drive: str, seed: int, mode: str) 
                     d.reloader.reload()
                 else:
                     plugged[mouse] = back
-            if clock.t >= d._plan()[0]:  # as the loop: read and close what is due
+            if clock.t >= d._plan(clock.t)[0]:  # as the loop: read and close what is due
                 d._window(clock.t)
             if d.sensors.missing_names:
                 d.sensors.retry(clock.t)
@@ -256,7 +256,7 @@ def test_a_mouse_a_reload_removes_is_not_used_in_the_window_still_open(tmp_path)
             clock.t = round(clock.t + STEP, 9)
             for s in sources:
                 s.arrived(clock.t)
-            if clock.t >= d._plan()[0]:
+            if clock.t >= d._plan(clock.t)[0]:
                 d._window(clock.t)
         config.write_text(_config_text(rig, names[:-1]))
         before = len(kept.rows)

@@ -46,7 +46,7 @@ from mousedom.service.sdnotify import Notifier, watchdog_interval
 from mousedom.service.server import Client, Command, Server
 from mousedom.service.slots import Sensors, Slot
 from mousedom.service.socketfile import default_socket_path
-from mousedom.service.wake import WAKE_SLACK_S, plan_wake
+from mousedom.service.wake import WAKE_SLACK_S, holding, plan_wake
 from mousedom.sources.base import Source
 
 if TYPE_CHECKING:
@@ -157,7 +157,11 @@ class Daemon:
         self.wakes = 0  # loop iterations: what the reading policy costs (see _plan)
         self._stop = False
         self._reload = False
-        self._watching = False  # wake on readable sources (a window is due, not closed yet)
+        # While a window is due and not closed yet, what the loop also waits for (_plan):
+        # any source readable (the sources' epoll, ``_watch``), or each of the mice the
+        # window waits for readable or final by time (``_waited``: descriptor, final)
+        self._watch: list[int] = []
+        self._waited: list[tuple[int, float]] = []
         self._wake_r, self._wake_w = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
         # Another thread's request_stop writes to _wake_w while the loop may be closing it:
         # without the lock the write can hit a closed descriptor (EBADF), or one the number
@@ -306,8 +310,8 @@ class Daemon:
         sensors, publisher, server = self.sensors, self.publisher, self.server
         while not self._stop:
             now = self.clock()
-            wake_at, give_up = self._plan()
-            watching = self._watching = now >= wake_at  # (see _select)
+            wake_at, give_up = self._plan(now)
+            watching = now >= wake_at  # (see _select)
             # a sensor to look for again, or none (inf)
             retry = sensors.next_retry() if sensors.missing_names else math.inf
             deadline = min(give_up if watching else wake_at, next_status, next_watchdog, retry)
@@ -399,26 +403,58 @@ class Daemon:
         remaining = deadline - self.clock()
         main = self.selector.fileno()
         if remaining > 0:
-            # While a window waits for reports, the sources' own epoll descriptor is
-            # waited on too: one select on both, no epoll_ctl per window to add and
-            # remove it from the main one.
-            fds = [main, self.sensors.fileno()] if self._watching else [main]
-            ready, _, _ = select.select(fds, [], [], remaining)
+            # While a window waits for reports, the sources' own epoll descriptor (or the
+            # descriptors of the mice it waits for) is waited on too: one select on
+            # both, no epoll_ctl per window to add and remove it from the main one.
+            if self._waited:
+                ready = [main] if self._wait_each(main, deadline) else []
+            else:
+                ready, _, _ = select.select([main, *self._watch], [], [], remaining)
             if main not in ready:
                 return []  # timed out, or a source is readable: nothing to dispatch
         return self.selector.select(0)
 
-    def _plan(self) -> tuple[float, float]:
-        running = self.running
+    def _wait_each(self, main: int, deadline: float) -> bool:
+        """Wait until each mouse in ``_waited`` is readable or final by time, or until
+        ``deadline``: no read can close the window before (``holding``), and a descriptor
+        stays readable until it is read.  Whether ``main`` (the loop's own descriptors)
+        is ready."""
+        waited = self._waited
+        while True:
+            now = self.clock()
+            waited = [(fd, final) for fd, final in waited if now < final]
+            if not waited or now >= deadline:
+                return False
+            until = min(deadline, *(final for _, final in waited))
+            ready, _, _ = select.select([main, *(fd for fd, _ in waited)], [], [], until - now)
+            if main in ready:
+                return True
+            waited = [(fd, final) for fd, final in waited if fd not in ready]
+
+    def _plan(self, now: float) -> tuple[float, float]:
+        """When to wake for the next window and when to give up on its reports
+        (``plan_wake``); where the wake is due, what to watch meanwhile (``_watch``).
+
+        A window that waits for some mice's first reports past its end wakes once each of
+        their descriptors is readable, for a bounded time (``holding``)."""
+        running, planned = self.running, self.sensors.plan
         end = running.tracker.frontier_time + 1.0 / running.config.rate_hz
-        return plan_wake(
-            end,
-            [
-                (p, lat, None, None) if h is None else (p, lat, h.last_t, h.last_gap)
-                for p, lat, h in self.sensors.plan
-            ],  # fmt: skip
-            running.config.late_report_s,
-        )
+        mice = [
+            (p, lat, None, None) if h is None else (p, lat, h.last_t, h.last_gap)
+            for p, lat, h, _ in planned
+        ]  # fmt: skip
+        bridge = running.config.late_report_s
+        wake_at, give_up = plan_wake(end, mice, bridge)
+        self._watch, self._waited = [], []
+        if now < wake_at:
+            return wake_at, give_up
+        waited, alone_until = holding(end, mice, bridge, now)
+        each = [(fd, w.final) for w in waited if (fd := planned[w.mouse].fd) is not None]
+        if waited and now < alone_until and len(each) == len(waited):  # (none paced)
+            self._waited = each
+            return wake_at, min(give_up, alone_until)
+        self._watch = [self.sensors.fileno()]
+        return wake_at, give_up
 
     # ------------------------------------------------------------------ the parts' callbacks
 

@@ -68,6 +68,7 @@ class PlannedSensor(NamedTuple):
     period: float
     latency: float
     health: SourceHealth | None
+    fd: int | None = None  # its descriptor, to wait on it alone (None: a paced source's)
 
 
 Sensor = MouseConfig | GyroConfig  # what a slot reads: a mouse, or the rig's gyro
@@ -431,7 +432,9 @@ class Sensors:
         self.missing_names = tuple(s.name for s in self.slots if not s.fused)
         self.names_by_state = {}
         self.plan = [
-            PlannedSensor(s.period, s.latency, s.source.health) for s in self.slots if s.fused
+            PlannedSensor(s.period, s.latency, s.source.health, None if s.paced else s.fd)
+            for s in self.slots
+            if s.fused
         ]
 
     def names_for(self, state: Sequence[int]) -> WindowNames:

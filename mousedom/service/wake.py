@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 WAKE_SLACK_S = 0.0001  # after a report's predicted time: pipe and scheduler delays
 # A mouse reports only when it has a count: at a slow speed a fast mouse's reports come
@@ -44,12 +45,9 @@ def plan_wake(
     """
     wake = give_up = end
     for period, latency, last, gap in mice:
+        give_up = max(give_up, final_by_time(end, period, latency, bridge, last))
         if last is None or last > end:
-            # past the end: final once no report can join its span (P/2 later)
-            done = end + period if last is None else max(end + period, last + 0.5 * period)
-            give_up = max(give_up, done + latency)
             continue
-        give_up = max(give_up, max(end + period, last + max(period, bridge)) + latency)
         # its reports' step: its period, or where it reports sparsely its last interval in
         # whole periods (reports come on the host's polls: the rest of the interval is the
         # stamps' jitter, and a step too long would only wake late)
@@ -75,3 +73,76 @@ def plan_wake(
         else:
             wake = max(wake, first + min(step, 0.5 * period + latency) - early)
     return min(wake, give_up) + WAKE_SLACK_S, give_up
+
+
+def final_by_time(
+    end: float, period: float, latency: float, bridge: float, last: float | None
+) -> float:
+    """When the window ending at ``end`` is final as to a mouse whose last report read is
+    stamped ``last`` (None: none yet) without another report, by ``complete`` (now -
+    latency; ``CountFunction.frontier``): one that reported at or past the end once no report
+    can join that report's span (P/2 after it) and a period after the end; one silent
+    since before the end once it has been silent ``max(period, bridge)`` and a period has
+    passed since the end (before that, a catch-up report may still cover the window).
+    ``bridge`` is ``late_report_s``."""
+    if last is None:
+        done = end + period
+    elif last >= end:
+        done = max(end + period, last + 0.5 * period)
+    else:
+        done = max(end + period, last + max(period, bridge))
+    return done + latency
+
+
+# While a window waits for reports from some of the mice, the loop waits until each of
+# them has reported or is final by time, and reads nothing before: the other mice's
+# reports, and the first ones of those waited for, wait in their kernel buffers.  evdev
+# gives a mouse's reader a buffer of at least 64 events (EVDEV_MIN_BUFFER_SIZE, more for
+# a device whose reports carry more), 21 reports of REL_X, REL_Y and SYN_REPORT; one that
+# overflows drops reports (SYN_DROPPED).  So the loop waits so for at most this many of
+# the fastest mouse's periods after its last read, then reads every source and waits
+# again.
+ALONE_REPORTS = 16
+
+
+class Waited(NamedTuple):
+    """A mouse whose next report the window waits for (``holding``)."""
+
+    mouse: int  # its index into the mice, as plan_wake takes them
+    final: float  # when it is final by time without that report (inf: never)
+
+
+def holding(
+    end: float,
+    mice: list[tuple[float, float, float | None, float | None]],
+    bridge: float,
+    now: float,
+) -> tuple[list[Waited], float]:
+    """The mice whose next report the window ending at ``end`` waits for at ``now``, just
+    after a read of every source, and until when the loop may wait for them without
+    reading (``ALONE_REPORTS``).  ``mice`` and ``bridge`` as ``plan_wake`` takes them.
+
+    Waited for, until final by time (``final_by_time``): a mouse whose last report read is
+    before ``end`` (its first report past the end is to come), and one whose last report
+    is its first past ``end`` (its span began before the end: final at its next report).
+    Not waited for: a mouse with two reports past the end (the second P/2 or more after
+    the first, whose span it would join otherwise), one that has not reported at all (the
+    plan does not wait for it), and one whose report before its last is unknown (a gyro's
+    read of several samples).  Until each of those waited for has reported or
+    is final, no read can close the window: waking at any report instead, a window that
+    waited for mice reporting every third period woke two to three times
+    (bench/daemon.py --sparse 3), and one that waited for a mouse gone still woke at every
+    report of the others until its silence was over.
+    """
+    waited: list[Waited] = []
+    for i, (period, latency, last, gap) in enumerate(mice):
+        if last is None or (
+            last >= end if gap is None else last - gap > end and gap >= 0.5 * period
+        ):
+            continue
+        final = final_by_time(end, period, latency, bridge, last)
+        if now < final:
+            waited.append(Waited(i, final))
+    if not waited:
+        return [], end
+    return waited, now + ALONE_REPORTS * min(p for p, _, _, _ in mice)
