@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from mousedom.fusion import scenarios, sim
 from mousedom.fusion.drives import drive
 from mousedom.fusion.posebatch import PoseBatch
-from mousedom.fusion.scalelearn import medians
+from mousedom.fusion.scalelearn import joined, medians
 from mousedom.fusion.tracker import Tracker
 
 
@@ -450,3 +450,24 @@ def test_thin_evidence_from_hard_driving_applies_no_wrong_scale(seed):
     e_learnt = scenarios.end_error(result, learnt)[0]
     e_plain = scenarios.end_error(result, plain)[0]
     assert e_learnt <= 1.1 * e_plain + 0.001, (e_learnt, e_plain)
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.integers(1, 4),  # mice
+    st.lists(st.integers(0, 3), min_size=1, max_size=8),  # windows per chunk (0: an array)
+    st.sampled_from([float, bool]),
+    st.randoms(use_true_random=False),
+)
+def test_a_blocks_rows_are_joined_as_their_concatenation(n, sizes, dtype, rnd):
+    """``joined``: the daemon's one-window lists built into one array are the arrays
+    replay's chunks would give, concatenated: the same values, shape and dtype."""
+    chunks: list = []
+    for k in sizes:
+        rows = [[[rnd.uniform(-5, 5), rnd.randint(-3, 3)] for _ in range(n)]
+                for _ in range(max(k, 1))]  # fmt: skip
+        chunks.append(np.array(rows) if k == 0 else rows)
+    want = np.concatenate([np.asarray(c, dtype=dtype) for c in chunks])
+    got = joined(chunks, dtype)
+    assert got.dtype == want.dtype and got.shape == want.shape
+    assert np.array_equal(got, want)

@@ -110,8 +110,9 @@ class WarmUp:
         """Propagate the unit covariances through the windows kept, and forget them."""
         if not self._chunks:
             return
+        # (each is only read: a lone chunk may be the caller's array)
         x, y, theta, q, ok, used, moving, qcov = (
-            np.concatenate([np.asarray(c[k], dtype=dt) for c in self._chunks])
+            scalelearn.joined([c[k] for c in self._chunks], dt)
             for k, dt in enumerate((float, float, float, float, bool, bool, bool, float))
         )
         self._chunks, self._kept = [], 0
