@@ -159,6 +159,39 @@ def test_the_wake_is_when_a_mouse_on_its_clock_closes_the_window(period, latency
         assert _frontier_at(at, period, period, latency, bridge, last) < end
 
 
+@pytest.mark.parametrize("cannot", ["probed", "past FD_SETSIZE", "nothing"])
+def test_a_mouse_whose_descriptor_cannot_be_waited_on_alone_is_watched_with_all(
+    inproc, monkeypatch, cannot
+):
+    """A probed source (its readiness does not say when it is gone: an IIO buffer) or a
+    descriptor select() cannot take: while the window waits for that mouse, the loop
+    watches every source (the sources' epoll), as before, never that mouse alone (and
+    where nothing stands in the way, that mouse alone)."""
+    import mousedom.service.daemon as daemon_module
+
+    if cannot == "past FD_SETSIZE":
+        monkeypatch.setattr(daemon_module, "FD_SETSIZE", 0)
+    mounts = {"a": (0.1, 0.0), "b": (-0.1, 0.0), "c": (0.0, 0.1)}
+    d, src = inproc("lsq", mounts)
+    if cannot == "probed":
+        src["c"].probe = True
+        d.sensors._live_changed()  # (as an open does: the plan is made from the slots)
+        assert [p.fd is None for p in d.sensors.plan] == [False, False, True]
+    c = Conn(d.server.path)
+    c.until("VERSION")
+    _feed_live(src, ["a", "b", "c"], 0.002, time.monotonic() + 0.1)
+    seen_each, seen_all = 0, 0
+    end = time.monotonic() + 0.3
+    while time.monotonic() < end:  # c still; sample what the loop waits on
+        _feed_live(src, ["a", "b"], 0.002, time.monotonic() + 0.01)
+        seen_each += bool(d._waited)
+        seen_all += d._watch == [d.sensors.fileno()]
+    if cannot == "nothing":
+        assert seen_each > 0
+    else:
+        assert seen_each == 0 and seen_all > 0
+
+
 def _two_reports(period: float, bridge: float, prev: float, last: float) -> CountFunction:
     cf = CountFunction(period, bridge)
     cf.queue([prev, last], [1, 1], [0, 0], last)
@@ -178,46 +211,58 @@ def _two_reports(period: float, bridge: float, prev: float, last: float) -> Coun
 def test_the_loop_waits_for_the_mice_whose_reports_can_still_change_the_window(
     period, latency, bridge, prev, gap, read
 ):
-    """``holding`` against the count function: a mouse whose last two reports are
-    read at ``now`` is waited for where the window is not final as to it, until when it
-    is final by time (``final_by_time``, as ``complete`` = now - latency passes it); one
-    with two reports past the end is not (a report of its can no longer change the
-    window: the loop need not wake for it).  ``final_by_time`` is the plan's bound, in a
-    few cases later than the count function's rule (a stamp on the end, a span longer
-    than ``bridge``): a mouse already final is then waited for at most a period and its
-    latency longer."""
+    """``holding`` against the count function: a mouse whose last two reports are read
+    at ``now`` is waited for exactly where the window is not final as to it, until when
+    it is final by time (``final_by_time``, as ``complete`` = now - latency passes it);
+    one whose last report's span begins at or after the end is not (a report of its can
+    no longer change the window: the loop need not wake for it).  The one exception: a
+    report under P/2 after the one before may have joined that one's span, whose start
+    the interval does not tell: waited for, at most until final by time."""
     end = 10.0
     prev += end
     last = prev + gap * period
     now = last + read
     mouse = (period, latency, last, last - prev)
-    waited, alone_until = holding(end, [mouse], bridge, now)
+    waited, alone_until = holding(end, [mouse], bridge, now, now - 0.001)
     cf = _two_reports(period, bridge, prev, last)
     cf.complete_to(now - latency)
-    final_now = cf.frontier() >= end - 1e-9
+    final_now = cf.frontier() >= end
     final = final_by_time(end, period, latency, bridge, last)
-    if (prev > end and last - prev >= 0.5 * period) or now >= final:
-        assert waited == []
-    else:
+    if waited:
         assert [(w.mouse, w.final) for w in waited] == [(0, final)]
-        assert alone_until == pytest.approx(now + ALONE_REPORTS * period)
-        assert not final_now or final - now <= period + latency + 1e-12
-    if waited == [] and now < final:  # (past it, every mouse is final by time)
-        assert final_now
-    # final by time at ``final`` at the latest
+        assert now < final
+        assert alone_until == pytest.approx(now - 0.001 + ALONE_REPORTS * period)
+        assert not final_now or last - prev < 0.5 * period  # (a joined span's start)
+    else:
+        assert final_now or now >= final
+    # final by time at ``final``, and not a microsecond before (unless by its reports)
     cf = _two_reports(period, bridge, prev, last)
     cf.complete_to(final - latency + 1e-9)
     assert cf.frontier() >= end - 1e-9
+    if waited and not final_now:
+        cf = _two_reports(period, bridge, prev, last)
+        cf.complete_to(final - latency - 1e-6)
+        assert cf.frontier() < end
+
+
+def test_the_loop_waits_for_its_mice_as_long_as_the_fastest_buffer_allows():
+    """Two mice waited for, of 125 Hz and 1 kHz: the loop reads again ALONE_REPORTS of
+    the faster's periods after its last read (its kernel buffer fills first)."""
+    end, read_at = 10.0, 10.0005
+    mice = [(0.008, 0.003, end - 0.004, 0.008), (0.001, 0.003, end - 0.0002, 0.001)]
+    waited, alone_until = holding(end, mice, 0.15, end + 0.0006, read_at)
+    assert [w.mouse for w in waited] == [0, 1]
+    assert alone_until == pytest.approx(read_at + ALONE_REPORTS * 0.001)
 
 
 def test_a_mouse_not_reported_or_of_unknown_interval_is_not_waited_for():
     """No report yet (the plan does not wait for it), or a read of several samples whose
     interval is unknown past the end (a gyro): the loop watches every source then."""
     end, p = 10.0, 0.001
-    assert holding(end, [(p, 0.0, None, None)], 0.15, end) == ([], end)
-    assert holding(end, [(p, 0.0, end + 0.0002, None)], 0.15, end + 0.0003) == ([], end)
+    assert holding(end, [(p, 0.0, None, None)], 0.15, end, end) == ([], end)
+    assert holding(end, [(p, 0.0, end + 0.0002, None)], 0.15, end + 0.0003, end) == ([], end)
     # before the end, its interval does not matter: its first report past it is to come
-    waited, _ = holding(end, [(p, 0.0, end - 0.0002, None)], 0.15, end + 0.0003)
+    waited, _ = holding(end, [(p, 0.0, end - 0.0002, None)], 0.15, end + 0.0003, end)
     assert [w.mouse for w in waited] == [0]
 
 
@@ -512,7 +557,8 @@ def test_reload_swaps_changed_mice_and_keeps_the_pose(tmp_path):
         assert [id(p.health) for p in d.sensors.plan] == [
             id(s.source.health) for s in d.sensors.slots
         ]
-        assert [p.fd for p in d.sensors.plan] == [s.source.fileno() for s in d.sensors.slots]
+        fused = [s for s in d.sensors.slots if s.fused]
+        assert [p.fd for p in d.sensors.plan] == [s.source.fileno() for s in fused]
         # b and c, opened by the reload, are used from the first window that begins
         # after they opened (Tracker.set_live): the windows before say they are missing
         assert pose["missing"] == ["b", "c"] and pose["used"] == 1

@@ -127,10 +127,11 @@ def joined(chunks: Sequence[ArrayLike], dtype: DTypeLike) -> np.ndarray:
     array, maybe, to read and keep no view of."""
     if len(chunks) == 1:
         return np.asarray(chunks[0], dtype=dtype)
-    if all(type(c) is list for c in chunks):
+    lists = [c for c in chunks if isinstance(c, list)]
+    if len(lists) == len(chunks):
         # the daemon's blocks: a window's lists each, one array built from all their rows
         # (an array per window and their concatenation cost a tenth of a block's learning)
-        return np.array([row for c in chunks for row in c], dtype=dtype)
+        return np.array([row for c in lists for row in c], dtype=dtype)
     return np.concatenate([np.asarray(c, dtype=dtype) for c in chunks])
 
 

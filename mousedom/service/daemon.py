@@ -65,6 +65,7 @@ STATUS_S = 1.0  # SOURCE broadcast period
 # The most a wake spends on clients' events before the sources get their turn: at 50 Hz a
 # window is 20 ms, and a healthy client's POSE may be late by at most this much per wake.
 CLIENT_BUDGET_S = 0.004
+FD_SETSIZE = 1024  # select() takes no descriptor numbered beyond
 
 
 def freeze_heap() -> None:
@@ -162,6 +163,7 @@ class Daemon:
         # window waits for readable or final by time (``_waited``: descriptor, final)
         self._watch: list[int] = []
         self._waited: list[tuple[int, float]] = []
+        self._read_at = -math.inf  # the last read of every source (_window)
         self._wake_r, self._wake_w = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
         # Another thread's request_stop writes to _wake_w while the loop may be closing it:
         # without the lock the write can hit a closed descriptor (EBADF), or one the number
@@ -358,6 +360,7 @@ class Daemon:
         if timing is not None:
             timing.start(self.publisher.poses)
         self.sensors.read_due(now)
+        self._read_at = now
         tracker = self.running.tracker
         self.publisher.publish(tracker.poll(defer_learning=True, one_by_one=True))
         tracker.settle()  # a learners' block end: after the POSE is out (Tracker.settle)
@@ -448,9 +451,12 @@ class Daemon:
         self._watch, self._waited = [], []
         if now < wake_at:
             return wake_at, give_up
-        waited, alone_until = holding(end, mice, bridge, now)
+        waited, alone_until = holding(end, mice, bridge, now, self._read_at)
         each = [(fd, w.final) for w in waited if (fd := planned[w.mouse].fd) is not None]
-        if waited and now < alone_until and len(each) == len(waited):  # (none paced)
+        # none paced or probed, and none select() cannot take (a mouse reopened while many
+        # clients are connected may get a descriptor past FD_SETSIZE)
+        usable = len(each) == len(waited) and all(fd < FD_SETSIZE for fd, _ in each)
+        if waited and now < alone_until and usable:
             self._waited = each
             return wake_at, min(give_up, alone_until)
         self._watch = [self.sensors.fileno()]

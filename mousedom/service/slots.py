@@ -68,7 +68,9 @@ class PlannedSensor(NamedTuple):
     period: float
     latency: float
     health: SourceHealth | None
-    fd: int | None = None  # its descriptor, to wait on it alone (None: a paced source's)
+    # its descriptor, to wait on it alone (None: a paced source's, which has none to
+    # wait on, and a probed one's, whose readiness does not say when it is gone)
+    fd: int | None = None
 
 
 Sensor = MouseConfig | GyroConfig  # what a slot reads: a mouse, or the rig's gyro
@@ -432,7 +434,9 @@ class Sensors:
         self.missing_names = tuple(s.name for s in self.slots if not s.fused)
         self.names_by_state = {}
         self.plan = [
-            PlannedSensor(s.period, s.latency, s.source.health, None if s.paced else s.fd)
+            PlannedSensor(
+                s.period, s.latency, s.source.health, None if s.paced or s.source.probe else s.fd
+            )
             for s in self.slots
             if s.fused
         ]

@@ -80,18 +80,29 @@ def final_by_time(
 ) -> float:
     """When the window ending at ``end`` is final as to a mouse whose last report read is
     stamped ``last`` (None: none yet) without another report, by ``complete`` (now -
-    latency; ``CountFunction.frontier``): one that reported at or past the end once no report
-    can join that report's span (P/2 after it) and a period after the end; one silent
-    since before the end once it has been silent ``max(period, bridge)`` and a period has
-    passed since the end (before that, a catch-up report may still cover the window).
-    ``bridge`` is ``late_report_s``."""
+    latency), as ``CountFunction.frontier`` rules: one that reported at or past the end
+    once no report can join that report's span (P/2 after it); one silent since before
+    the end once it has been silent ``max(period, bridge)`` and a period has passed since
+    the end (before that, a catch-up report may still cover the window; a report to come
+    covers at most a period before its stamp).  ``bridge`` is ``late_report_s``."""
     if last is None:
         done = end + period
     elif last >= end:
-        done = max(end + period, last + 0.5 * period)
+        done = last + 0.5 * period
     else:
         done = max(end + period, last + max(period, bridge))
     return done + latency
+
+
+def span_start(period: float, bridge: float, last: float, gap: float | None) -> float | None:
+    """Where the span of a mouse's last report begins (``CountFunction.ingest``'s rule),
+    from its stamp and the interval before it: at the report before, where that is P/2 to
+    ``max(period, bridge)`` before; a period before its stamp after a longer silence.
+    None where it is not known: no interval (a gyro's read of several samples), or one
+    under P/2 (the report may have joined the span before, which began earlier)."""
+    if gap is None or gap < 0.5 * period:
+        return None
+    return last - gap if gap <= max(period, bridge) else last - period
 
 
 # While a window waits for reports from some of the mice, the loop waits until each of
@@ -100,8 +111,8 @@ def final_by_time(
 # gives a mouse's reader a buffer of at least 64 events (EVDEV_MIN_BUFFER_SIZE, more for
 # a device whose reports carry more), 21 reports of REL_X, REL_Y and SYN_REPORT; one that
 # overflows drops reports (SYN_DROPPED).  So the loop waits so for at most this many of
-# the fastest mouse's periods after its last read, then reads every source and waits
-# again.
+# the fastest mouse's periods after its last read of every source, then reads them all
+# and waits again.
 ALONE_REPORTS = 16
 
 
@@ -109,7 +120,7 @@ class Waited(NamedTuple):
     """A mouse whose next report the window waits for (``holding``)."""
 
     mouse: int  # its index into the mice, as plan_wake takes them
-    final: float  # when it is final by time without that report (inf: never)
+    final: float  # when it is final by time without that report (final_by_time)
 
 
 def holding(
@@ -117,32 +128,36 @@ def holding(
     mice: list[tuple[float, float, float | None, float | None]],
     bridge: float,
     now: float,
+    read_at: float,
 ) -> tuple[list[Waited], float]:
-    """The mice whose next report the window ending at ``end`` waits for at ``now``, just
-    after a read of every source, and until when the loop may wait for them without
-    reading (``ALONE_REPORTS``).  ``mice`` and ``bridge`` as ``plan_wake`` takes them.
+    """The mice whose next report the window ending at ``end`` waits for at ``now``, and
+    until when the loop may wait for them without reading (``ALONE_REPORTS`` after
+    ``read_at``, its last read of every source).  ``mice`` and ``bridge`` as
+    ``plan_wake`` takes them.
 
-    Waited for, until final by time (``final_by_time``): a mouse whose last report read is
-    before ``end`` (its first report past the end is to come), and one whose last report
-    is its first past ``end`` (its span began before the end: final at its next report).
-    Not waited for: a mouse with two reports past the end (the second P/2 or more after
-    the first, whose span it would join otherwise), one that has not reported at all (the
-    plan does not wait for it), and one whose report before its last is unknown (a gyro's
-    read of several samples).  Until each of those waited for has reported or
-    is final, no read can close the window: waking at any report instead, a window that
+    Waited for, until final by time (``final_by_time``): a mouse whose last report read
+    is before ``end`` (its first report past the end is to come), and one past the end
+    whose span may begin before it (``span_start``: final at its next report).  Not
+    waited for: a mouse whose last report's span begins at or after the end (final by its
+    reports), one that has not reported at all (the plan does not wait for it), and one
+    past the end whose interval is unknown (a gyro's read of several samples; final by
+    time within the plan's give-up).  Until each of those waited for has reported or is
+    final, no read can close the window: waking at any report instead, a window that
     waited for mice reporting every third period woke two to three times
     (bench/daemon.py --sparse 3), and one that waited for a mouse gone still woke at every
     report of the others until its silence was over.
     """
     waited: list[Waited] = []
     for i, (period, latency, last, gap) in enumerate(mice):
-        if last is None or (
-            last >= end if gap is None else last - gap > end and gap >= 0.5 * period
-        ):
+        if last is None:
             continue
+        if last >= end:
+            start = span_start(period, bridge, last, gap)
+            if gap is None or (start is not None and start >= end):
+                continue
         final = final_by_time(end, period, latency, bridge, last)
         if now < final:
             waited.append(Waited(i, final))
     if not waited:
         return [], end
-    return waited, now + ALONE_REPORTS * min(p for p, _, _, _ in mice)
+    return waited, read_at + ALONE_REPORTS * min(p for p, _, _, _ in mice)
