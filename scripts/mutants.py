@@ -837,8 +837,8 @@ MUTANTS = [
     Mutant(
         "scale-change-at-a-fixed-split",
         "mousedom/fusion/scalelearn.py",
-        "        best = _change_point(segments)\n",
-        "        best = _CHANGE_SEGMENTS\n",
+        "        best = change_point(segments)\n",
+        "        best = CHANGE_SEGMENTS\n",
         ("tests/test_scale_beyond.py",),
         "a change a few segments back is mixed into the last ten: found late, its mean given back",
     ),

@@ -16,7 +16,8 @@ from hypothesis import strategies as st
 from mousedom.fusion import scenarios, sim
 from mousedom.fusion.drives import drive
 from mousedom.fusion.posebatch import PoseBatch
-from mousedom.fusion.scalelearn import joined, medians
+from mousedom.fusion.scalefit import medians
+from mousedom.fusion.scalelearn import joined
 from mousedom.fusion.tracker import Tracker
 
 
@@ -419,9 +420,9 @@ def _literal_jackknife(segments: list[np.ndarray]) -> np.ndarray:
 @settings(max_examples=50, deadline=None)
 @given(st.integers(3, 6), st.integers(2, 12), st.integers(0, 2**32 - 1))
 def test_the_jackknife_is_the_delete_one_spread_of_the_fits(n, b, seed):
-    """scalelearn.jackknife against its definition, on evidence from random rigid motions
+    """scalefit.jackknife against its definition, on evidence from random rigid motions
     of n mice read with random scales and noise (each segment a block's S)."""
-    from mousedom.fusion.scalelearn import jackknife
+    from mousedom.fusion.scalefit import jackknife
 
     rng = np.random.default_rng(seed)
     segments = []

@@ -15,7 +15,7 @@ right; docs/calibration.md, "Online scale").
 A mouse's two count axes may be off by different amounts (the config has ``cpi: {x,
 y}``).  One scale for both then reads as about their mean, and a mouse 3 % off on one axis
 looked as if it agreed with the others.  So the learner also keeps its evidence per count
-axis (``ScaleLearner.axis_gram``, ``scalelearn.fit_axes``), and a mouse whose two axes'
+axis (``ScaleLearner.axis_gram``, ``scalefit.fit_axes``), and a mouse whose two axes'
 scales differ plainly (beyond PLAIN_SIGMAS standard deviations of the difference and
 MIN_CHANGE, the rule by which a CPI is corrected) is given a scale per axis; where they
 agree, the one scale stands; where the drive does not tell the two apart (the
@@ -35,7 +35,8 @@ from mousedom.capture.assignment import assign, parse_capture_arg
 from mousedom.capture.replay import Replay
 from mousedom.config import Config
 from mousedom.errors import UserError
-from mousedom.fusion.scalelearn import GROUP_S, HALF_LIFE_S, fit_axes, reads
+from mousedom.fusion.scalefit import fit_axes, reads
+from mousedom.fusion.scalelearn import GROUP_S, HALF_LIFE_S
 
 MIN_MICE = 3  # two mice cannot tell which of them is off
 MAX_SPREAD = 0.005  # a scale known less well than this (a standard deviation) is refused
@@ -123,7 +124,7 @@ class MouseScale:
 
 
 def _per_axis(m: MouseScale, fitted: tuple | None, i: int, max_spread: float) -> MouseScale:
-    """Mouse i's scale per axis from ``scalelearn.fit_axes``' result, where its axes
+    """Mouse i's scale per axis from ``scalefit.fit_axes``' result, where its axes
     differ plainly; else the one scale, with the difference as learnt (its spread
     infinite where the drive cannot tell the axes apart: beyond ``max_spread``, the
     bar any scale must pass)."""

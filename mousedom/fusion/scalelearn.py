@@ -1,5 +1,8 @@
 """Online scale calibration from the redundancy of three or more mice (issue 31, item 3).
 
+This module holds the learner: its evidence, blocks, what it applies and gives back; the
+fits themselves, pure functions of the evidence, are ``scalefit``'s.
+
 A CPI a few per cent off hides inside each window's noise but is plain over many.  Stack
 every mouse's body displacement as its config reads it, d_i = M_i c_i (M_i: counts to
 body, c_i: its counts), and give each mouse a scale g_i: J g = (g_1 d_1, ..., g_N d_N).
@@ -21,20 +24,21 @@ direction.  One scale per mouse, both axes, for the fusion: a CPI is most often 
 a sensor as a whole, and per axis the sideways one (which reads the turn) is often too
 weakly observable to trust within the seconds the fusion has.  The same evidence is also
 kept per count axis, J's column per mouse split in two (S is then 2N x 2N), and
-``fit_axes`` gives a scale per axis with the spread of each and of their difference,
+``scalefit.fit_axes`` gives a scale per axis with the spread of each and of their difference,
 infinite where the drive does not tell an axis apart from the others: a mouse whose CPI
 is off on one axis only reads, in one scale, as some mean of the two (of either sign),
 and the misfit bends the healthy mice's scales.  So a mouse whose two axes differ plainly
 is given a scale per axis, the others one each from the same fit (``_split_axes``);
 `calibrate scales` reads the per-axis evidence over a whole drive.
 
-The learnt scale is applied where plain (more than ``_PLAIN`` of its standard deviations
-and ``_MIN_APPLIED`` from 1, after ``_MIN_GROUPS`` groups of evidence (the first second's
-estimate is no better than its start), as noise applied to a mouse that reads the turn is
-heading lost for good, and on healthy rigs the estimates sit within a tenth of a per cent
-of 1, timing and rounding), clipped to ``bounds`` (a CPI within +- ``limit`` of the
-config's), by multiplying the mouse's counts (its counts-to-body matrix) from the next
-block of windows on: a mouse 3 % off is corrected within the first seconds of motion.
+The learnt scale is applied where plain (more than ``scalefit.PLAIN`` of its standard
+deviations and ``_MIN_APPLIED`` from 1, after ``scalefit.MIN_GROUPS`` groups of evidence
+(the first second's estimate is no better than its start), as noise applied to a mouse
+that reads the turn is heading lost for good, and on healthy rigs the estimates sit within
+a tenth of a per cent of 1, timing and rounding), clipped to ``bounds`` (a CPI within +-
+``limit`` of the config's), by multiplying the mouse's counts (its counts-to-body
+matrix) from the next block of windows on: a mouse 3 % off is corrected within the first
+seconds of motion.
 ``robust.learn_scale: false`` leaves the counts as they are; the estimate is reported
 either way (PoseBatch.scale, the replay summary and CSV), and a mouse 10 % or more off is
 warned of (``warnings``): a CPI typo, or the wrong mouse's CPI.
@@ -55,7 +59,25 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, DTypeLike
 
-from mousedom.fusion import student
+from mousedom.fusion.scalefit import (
+    CHANGE_SEGMENTS,
+    MIN_GROUPS,
+    PLAIN,
+    AxisEvidence,
+    axis_scales,
+    change_point,
+    fit,
+    fit_axes,
+    motion_columns,
+    plain_change,
+    projected,
+    projector,
+    reads,
+    residual_per_dof,
+    scales_differ,
+    unexplained,
+    widened,
+)
 
 GROUP_S = 0.1  # windows are summed over this long before they are compared
 BLOCK_S = 0.5  # the scales are renewed this often
@@ -63,21 +85,15 @@ HALF_LIFE_S = 120.0  # seconds of evidence after which old sums count half
 # A mouse reading this much more or less than the others (beyond the scale's uncertainty)
 # is a clear CPI mistake: a CPI 10 % off is warned of, allowing for the estimate's noise.
 WARN = 0.095
-_PLAIN = 3.0  # a scale this many standard deviations from 1 is applied (learn_scale)...
-_PLAIN_P = math.erf(_PLAIN / math.sqrt(2.0))  # (the normal's chance within them: 0.9973)
-_MIN_APPLIED = 0.005  # ... and this far: below, the estimate's own bias (timing, rounding)
-_MIN_GROUPS = 10  # ... after this many groups of evidence (a second of motion), not before
+# A scale is applied where plain (``scalefit.PLAIN`` of its standard deviations from 1,
+# after ``scalefit.MIN_GROUPS`` groups of evidence) and this far from 1: below, the
+# estimate's own bias (timing, rounding)
+_MIN_APPLIED = 0.005
 # Once applied, a scale stays applied while this far out (hysteresis: a scale that crossed
 # the edge of plain back and forth would give its turn and take it back at every renewal)
 _KEEP_PLAIN = 2.0
 _KEEP_APPLIED = 0.0035
 _MIN_COUNTS = 40.0  # counts a mouse must read in a group for it to be evidence
-_RIDGE = 1e-6  # S + mu, mu this times S's diagonal: what the evidence leaves free stays near 1
-_MIN_EVIDENCE = 1e-3  # a mouse seen this little (S's diagonal against the most seen): not estimated
-# S's eigenvalues after the common mode's, against its largest: at least 0.3 on the rigs of
-# fusion/scenarios.py and triangles, squares, polygons and kites of 3-7 mice; 0.015-0.03
-# with a mouse 2 cm off a line across the robot; 1e-5-2e-2 with the three or four in line.
-_MIN_SEPARATION = 1e-2
 # A block's own scale this far beyond the bounds (a fraction of the bound), and this many of
 # its spreads, is a fault, not a CPI (``_faults``); from this many groups of the block.
 FAULT_MARGIN = 0.15
@@ -95,29 +111,9 @@ _ONE_SPLIT_MARGIN = 1.5
 # beyond this many (20 s of motion with every mouse tracking; older evidence is forgotten
 # towards half by HALF_LIFE_S).
 _SEGMENTS = 40
-# A change of scale (a mouse onto another floor, its lens dirtied: a CPI step) is looked for
-# at each renewal: the scales of the last _CHANGE_SEGMENTS segments of evidence against
-# those of the older ones, the change plain where beyond _CHANGE_SIGMAS of the two fits'
-# combined spread and _CHANGE_MIN (``_changed``).  Needs _CHANGE_OLDER older segments.
-_CHANGE_SEGMENTS = 10
+# The change test (``_changed``: ``scalefit.CHANGE_SEGMENTS`` recent segments of evidence
+# against the older ones) needs this many older segments.
 _CHANGE_OLDER = 4
-_CHANGE_SIGMAS = 5.0
-_CHANGE_MIN = 0.01
-# The change test corrects each count axis by its scale over the older evidence first
-# (``_change_evidence``), drawn to 1 where that evidence knows it less well than this
-# (``axis_scales``): a mouse off on one axis is then one scale throughout.
-_AXIS_PRIOR = 0.01
-
-
-def medians(v: np.ndarray) -> np.ndarray:
-    """``np.median`` over the last axis of a finite array, bit for bit, without its first
-    call's import of numpy.ma (8 ms): in the daemon that call is the loop's first scale
-    solve, and every mouse's window waited behind it."""
-    ordered = np.sort(v, axis=-1)
-    k = v.shape[-1] // 2
-    # np.median's own last step: the mean of the middle one or two (a mean of -0.0 is 0.0)
-    middle = ordered[..., k : k + 1] if v.shape[-1] % 2 else ordered[..., k - 1 : k + 1]
-    return np.mean(middle, axis=-1)
 
 
 def joined(chunks: Sequence[ArrayLike], dtype: DTypeLike) -> np.ndarray:
@@ -133,303 +129,6 @@ def joined(chunks: Sequence[ArrayLike], dtype: DTypeLike) -> np.ndarray:
         # (an array per window and their concatenation cost a tenth of a block's learning)
         return np.array([row for c in lists for row in c], dtype=dtype)
     return np.concatenate([np.asarray(c, dtype=dtype) for c in chunks])
-
-
-def scales(s: np.ndarray) -> np.ndarray:
-    """``fit``'s scales for a stack of S (..., N, N): the solution of (S + mu) g = mu,
-    divided by its median mouse (``medians``), NaN where S gives none."""
-    evidence = np.diagonal(s, axis1=-2, axis2=-1)
-    mu = _RIDGE * np.maximum(evidence, 1e-12 * evidence.max(axis=-1, keepdims=True))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        g = np.linalg.solve(s + mu[..., :, None] * np.eye(s.shape[-1]), mu[..., None])[..., 0]
-        mid = medians(g)[..., None]
-        return np.where(mid > 0, g / mid, np.nan)
-
-
-def reads(g: float, digits: int = 0) -> str:
-    """How a mouse whose counts need the scale ``g`` reads against the truth it is held
-    to, in words: "7.4 % less" (g > 1: it needs more of its counts) or "... more"."""
-    return f"{abs(1.0 / g - 1.0) * 100:.{digits}f} % {'less' if g > 1.0 else 'more'}"
-
-
-def _plain_change(diff: np.ndarray, spread: np.ndarray) -> np.ndarray:
-    """Which mice's scales differ plainly between two fits (``ScaleLearner._changed``):
-    by more than _CHANGE_SIGMAS of the difference's ``spread``, and _CHANGE_MIN."""
-    return (diff > _CHANGE_SIGMAS * spread) & (diff > _CHANGE_MIN)
-
-
-def jackknife(s: np.ndarray, segments: Sequence[np.ndarray]) -> np.ndarray:
-    """(N,) the standard error of ``fit``'s scales by a jackknife over the ``segments`` of
-    evidence that S sums (blocks of windows): each left out in turn, the scales' spread
-    over the fits of the rest, times (B - 1) / B.  Inf where fewer than two segments, or
-    where a fit without one gives none.
-
-    ``fit``'s own spread takes the residual as white noise.  It is not: a reading's error
-    follows the motion (stamps late while a turn speeds up, a group cut inside a long
-    span), so evidence from one stretch of driving is biased alike, and one block of hard
-    motion can outweigh the rest (a healthy close pair told a mouse 2.3 % off from four
-    blocks, 3.4 of fit's spreads, where leaving each block out moved the estimate by 1.9 %;
-    applied, it bent a 30 s drive 98 mm against 14).  Over segments the spread is that of
-    the evidence as it came, whatever its errors' structure."""
-    b = len(segments)
-    if b < 2:
-        return np.full(len(s), np.inf)
-    loo = scales(s[None] - np.stack(segments))
-    var = (b - 1) / b * np.sum((loo - loo.mean(axis=0)) ** 2, axis=0)
-    return np.where(np.isfinite(var), np.sqrt(var), np.inf)
-
-
-def widened(spread: np.ndarray, s: np.ndarray, segments: Sequence[np.ndarray]) -> np.ndarray:
-    """``fit``'s ``spread`` of the scales of S ``s``, widened to the jackknife's over the
-    ``segments`` S sums as the normal's equivalent: _PLAIN of it is t's quantile for its
-    degrees (the segments less one: with four, 9.2 of the jackknife's standard errors).
-    Inf with fewer than two segments."""
-    b = len(segments)
-    if b < 2:
-        return np.full(len(spread), np.inf)
-    t = student.quantile(_PLAIN_P, b - 1)
-    return np.maximum(spread, jackknife(s, segments) * (t / _PLAIN))
-
-
-def _motion_columns(positions: np.ndarray, cols: tuple[int, ...]) -> np.ndarray:
-    """A (2N, len(cols)): the stacked displacements (x, y per mouse) a unit rig motion
-    (forward, sideways, turn; ``cols`` of them) gives mice at ``positions`` (N, 2)."""
-    a = np.zeros((2 * len(positions), 3))
-    a[0::2, 0] = 1.0
-    a[1::2, 1] = 1.0
-    a[0::2, 2] = -positions[:, 1]
-    a[1::2, 2] = positions[:, 0]
-    return a[:, list(cols)]
-
-
-def _projector(a: np.ndarray, weight: np.ndarray) -> np.ndarray:
-    """P = I - A (A' W A)^-1 A' W: what of the stacked displacements no rig motion
-    explains (W: ``weight``, per reading); I for one mouse (nothing to compare with)."""
-    n2 = len(a)
-    if n2 < 4:
-        return np.eye(n2)
-    aw = a.T * weight
-    return np.eye(n2) - a @ np.linalg.solve(aw @ a, aw)
-
-
-def projected(
-    body: np.ndarray, project: np.ndarray, weight: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Groups' readings (G, N, 2) as configured: J g stacked (mouse i's two rows of column
-    i), the part of it no rig motion explains per unit scale, P J (G, 2N, N), and its
-    weighted square summed over the groups, S (N, N)."""
-    n = body.shape[1]
-    j = np.zeros((len(body), 2 * n, n))
-    for i in range(n):
-        j[:, 2 * i : 2 * i + 2, i] = body[:, i]
-    pj = np.einsum("rs,gst->grt", project, j)
-    return pj, np.einsum("grt,r,grs->ts", pj, weight, pj)
-
-
-def residual_per_dof(s: np.ndarray, g: np.ndarray, groups: float, cols: int) -> float:
-    """g' S g over its degrees of freedom: ``groups`` groups of 2N readings of N mice, less
-    the rig motion's ``cols`` per group and the N - 1 scales fitted."""
-    n = len(g)
-    return float(g @ s @ g) / max(1.0, groups * (2 * n - cols) - (n - 1))
-
-
-def fit(s: np.ndarray, groups: float, n: int, cols: int) -> tuple[np.ndarray, np.ndarray] | None:
-    """The scales g (N,) that minimise g' S g, drawn to 1 only where the evidence is
-    silent, the common mode pinned by the median mouse, and their spreads (N,) (inf: not
-    estimated), from ``groups`` groups of evidence of N mice and a rig motion of ``cols``
-    degrees of freedom; None where S gives nothing."""
-    evidence = np.diag(s).copy()
-    if not np.all(np.isfinite(s)) or evidence.max() <= 0:
-        return None
-    g = scales(s)
-    if not np.all(np.isfinite(g)):
-        return None
-    # the spread: the fit's residual per degree of freedom, through the inverse of S off
-    # its null direction (the common mode)
-    r2 = residual_per_dof(s, g, groups, cols)
-    w, v = np.linalg.eigh(s)  # ascending: the first is the common mode's (near 0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv = (v[:, 1:] / w[1:]) @ v[:, 1:].T
-        spread = np.sqrt(np.maximum(np.diag(inv), 0.0) * r2)
-    spread = np.where(np.isfinite(spread), spread, np.inf)  # another null direction
-    # A second direction the rig's geometry barely separates from the common mode (mice
-    # in a line across the robot: scales growing along the line read alike but in
-    # turns): the estimate follows whatever bias the readings have (a late mouse's timing
-    # gave 1.86 and 0.14 on healthy mice, with spreads of 2 %), and pinning the common
-    # mode on the median mouse spreads that over every other mouse: none is estimated
-    # (docs/models.md, "Scales").
-    if w[1] < _MIN_SEPARATION * w[-1]:
-        spread = np.full(n, np.inf)
-    known = evidence >= _MIN_EVIDENCE * evidence.max()
-    return np.where(known, g, 1.0), np.where(known, spread, np.inf)
-
-
-# ``fit_axes``' evidence: the per-axis S, its segments, the groups, N mice, the rig
-# motion's degrees of freedom
-AxisEvidence = tuple[np.ndarray, Sequence[np.ndarray], float, int, int]
-
-
-def _axis_map(split: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """For ``split`` (N,): each unknown's mouse (an axis of each split mouse, one scale of
-    each other), and T (2N, unknowns), the unknowns -> the count axes."""
-    n = len(split)
-    owner = np.repeat(np.arange(n), np.where(split, 2, 1))
-    t_map = np.zeros((2 * n, len(owner)))
-    col = 0
-    for i in range(n):
-        if split[i]:
-            t_map[2 * i, col], t_map[2 * i + 1, col + 1] = 1.0, 1.0
-        else:
-            t_map[2 * i : 2 * i + 2, col] = 1.0
-        col += 2 if split[i] else 1
-    return owner, t_map
-
-
-def unexplained(s: np.ndarray, split: np.ndarray) -> float:
-    """What the per-axis evidence S (2N x 2N) leaves unexplained at its best scales with
-    a scale per axis for the ``split`` mice and one for each other: g' S g at ``scales``'
-    solution, however weakly the evidence tells those scales apart (``fit_axes`` draws
-    what it does not tell apart to 1; here only the fit counts)."""
-    t_map = _axis_map(split)[1]
-    st = t_map.T @ s @ t_map
-    try:
-        with np.errstate(invalid="ignore"):
-            g = scales(st)
-    except np.linalg.LinAlgError:  # (no evidence at all)
-        return math.nan
-    return float(g @ st @ g) if np.all(np.isfinite(g)) else math.nan
-
-
-def fit_axes(
-    s: np.ndarray,
-    segments: Sequence[np.ndarray],
-    groups: float,
-    n: int,
-    cols: int,
-    split: np.ndarray | None = None,
-    jackknifed: bool = True,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
-    """A scale per count axis from the per-axis evidence S (2N x 2N, rows mouse-major:
-    mouse i's x then y) and its ``segments``: (g (N, 2), spread (N, 2), g_x - g_y (N,),
-    its spread (N,)), as ``fit`` and ``ScaleLearner._solve`` give one per mouse (the
-    scales drawn to 1 only where the evidence is silent, the common mode pinned by the
-    median, the spread the larger of the residual's and the jackknife's over the
-    segments).  ``split`` (N,): the mice given a scale per axis (default all); the others
-    one scale for both (their difference 0, its spread NaN): once a mouse off on one
-    axis is known, the others' one scale is no longer bent by it (a healthy mouse beside
-    one 2-4 % off on one axis was given 0.5-0.8 % by one scale per mouse).  An axis the
-    evidence does not separate from the others (its variance through the inverse of S,
-    the common mode pinned, beyond 1 / _MIN_SEPARATION of S's largest eigenvalue's
-    inverse: e.g. the sideways axes of a drive that never slides) has an infinite spread,
-    and so has its mouse's difference.  None where S gives nothing (too little
-    evidence).  ``jackknifed=False``: the spreads the residual's alone, a lower bound,
-    without the jackknife's solve per segment (what can be plain at all)."""
-    m = 2 * n
-    if groups < _MIN_GROUPS or s.shape != (m, m) or not np.all(np.isfinite(s)):
-        return None
-    if np.diag(s).max() <= 0 or len(segments) < 2:
-        return None
-    split = np.ones(n, bool) if split is None else np.asarray(split, bool)
-    owner, t_map = _axis_map(split)
-    k = len(owner)
-    s = t_map.T @ s @ t_map
-    evidence = np.diag(s)
-    g = scales(s)
-    if not np.all(np.isfinite(g)):
-        return None
-    dof = max(1.0, groups * (2 * n - cols) - (k - 1))
-    r2 = float(g @ s @ g) / dof
-    # The inverse of S with the common mode pinned (S + l c c', c the unit common mode):
-    # other directions S leaves (nearly) free show as large variances.  A drive that never
-    # slides leaves one such on a rig whose mice sit at two distances along x only (a
-    # triangle, a square): every sideways axis against every forward one, which a
-    # sideways drift of the rig proportional to its turn reads alike.
-    top = float(np.linalg.eigvalsh(s)[-1])
-    common = np.full(k, 1.0 / math.sqrt(k))
-    try:
-        inv = np.linalg.inv(s + top * np.outer(common, common))
-    except np.linalg.LinAlgError:
-        return None
-    # a split mouse's two unknowns are neighbours: x at ``first``, y next
-    first = np.flatnonzero(np.r_[True, owner[1:] != owner[:-1]])[split]
-    var = np.diag(inv)
-    var_d = var[first] + var[first + 1] - 2 * inv[first, first + 1]
-    # (u' inv u against |u|^2 = 2 for the difference u = e_x - e_y)
-    free = 1.0 / _MIN_SEPARATION / top
-    weak = ~(var < free) | (evidence < _MIN_EVIDENCE * evidence.max())
-    weak_d = ~(var_d < 2 * free) | weak[first] | weak[first + 1]
-    spread = np.sqrt(np.maximum(var, 0.0) * r2)
-    spread_d = np.sqrt(np.maximum(var_d, 0.0) * r2)
-    if jackknifed:
-        b = len(segments)
-        loo = scales(s[None] - np.stack([t_map.T @ seg @ t_map for seg in segments]))
-        t = student.quantile(_PLAIN_P, b - 1) / _PLAIN
-        with np.errstate(invalid="ignore", over="ignore"):
-            jack = np.sqrt((b - 1) / b * np.sum((loo - loo.mean(axis=0)) ** 2, axis=0))
-            loo_d = loo[:, first] - loo[:, first + 1]
-            jack_d = np.sqrt((b - 1) / b * np.sum((loo_d - loo_d.mean(axis=0)) ** 2, axis=0))
-        spread = np.maximum(spread, jack * t)
-        spread_d = np.maximum(spread_d, jack_d * t)
-    spread = np.where(np.isfinite(spread) & ~weak, spread, np.inf)
-    g = np.where(weak, 1.0, g)
-    d_all, spread_d_all = np.zeros(n), np.full(n, np.nan)
-    d_all[split] = g[first] - g[first + 1]
-    spread_d_all[split] = np.where(np.isfinite(spread_d) & ~weak_d, spread_d, np.inf)
-    axis_of = np.argmax(t_map, axis=1)  # each axis's unknown
-    return g[axis_of].reshape(n, 2), spread[axis_of].reshape(n, 2), d_all, spread_d_all
-
-
-def axis_scales(
-    s: np.ndarray, groups: float, n: int, cols: int, prior: np.ndarray | None = None
-) -> np.ndarray:
-    """(2N,) each count axis's scale from per-axis evidence S (2N x 2N, ``fit_axes``') of
-    ``groups`` groups of N mice and a rig motion of ``cols`` degrees of freedom, drawn to
-    ``prior`` (default all ones) as far as the evidence leaves it open: the solution of
-    (S + mu) g = mu prior, mu the residual per degree of freedom over _AXIS_PRIOR squared
-    (a direction of g known to better than _AXIS_PRIOR is the data's, one known less well
-    stays near the prior's: the common mode, and what the drive leaves nearly free, such
-    as the sideways axes against the forward ones of a drive that never slides), divided
-    by its median.  The prior where S gives nothing (too little evidence, or a scale not
-    positive)."""
-    ones = np.ones(len(s))
-    p = ones if prior is None else prior
-    if groups < _MIN_GROUPS or not np.all(np.isfinite(s)) or not np.diag(s).max() > 0:
-        return p
-    g = scales(s)
-    if not np.all(np.isfinite(g)):
-        return p
-    dof = max(1.0, groups * (2 * n - cols) - (2 * n - 1))
-    mu = max(float(g @ s @ g) / dof, 0.0) / _AXIS_PRIOR**2 + _RIDGE * float(np.diag(s).max())
-    g = np.linalg.solve(s + mu * np.eye(len(s)), mu * p)
-    mid = float(medians(g))
-    if not mid > 0 or not np.all(g > 0):
-        return p
-    return g / mid
-
-
-def _scales_differ(segments: np.ndarray, recent: int) -> bool:
-    """Whether the scales alone of the last ``recent`` of the ``segments`` and of the
-    older ones differ by _CHANGE_MIN for any mouse (one solve for both): a change under
-    that is none, whatever the spreads (a healthy rig's stay within a few tenths of a per
-    cent)."""
-    sums = np.stack([segments[-recent:].sum(axis=0), segments[:-recent].sum(axis=0)])
-    with np.errstate(invalid="ignore"):
-        return bool(np.any(np.abs(np.subtract(*scales(sums))) > _CHANGE_MIN))
-
-
-def _change_point(segments: np.ndarray) -> int:
-    """How many of the recent ``segments`` are after the change of scale ``_changed``
-    found: the last k (2 <= k <= _CHANGE_SEGMENTS) whose fit and the older ones' leave the
-    least residual together (the change's most likely place, to a block)."""
-    ks = np.arange(2, _CHANGE_SEGMENTS + 1)
-    total = np.cumsum(segments[::-1], axis=0)  # total[k - 1]: the last k summed
-    after = total[ks - 1]
-    parts = np.concatenate([after, total[-1][None] - after])
-    with np.errstate(invalid="ignore"):
-        g = np.nan_to_num(scales(parts), nan=1.0)
-        residual = np.einsum("ki,kij,kj->k", g, parts, g)
-    cost = residual[: len(ks)] + residual[len(ks) :]
-    return int(ks[np.argmin(cost)])
 
 
 class BlockGave(NamedTuple):
@@ -483,10 +182,10 @@ class ScaleLearner:
         # P = I - A (A' W A)^-1 A' W: what of the stacked displacements (2N,) no motion of
         # the rig explains, W the config's sigmas (all mice in use)
         n2 = 2 * self.n
-        a = _motion_columns(self.positions, self.cols)
+        a = motion_columns(self.positions, self.cols)
         self.weight = np.repeat(1.0 / np.asarray(sigma, dtype=float) ** 2, 2)
         aw = a.T * self.weight
-        self.project = _projector(a, self.weight)
+        self.project = projector(a, self.weight)
         # The heading row of that least squares (every mouse in use): what each reading
         # adds to a window's turn (_turn_owed)
         est = np.linalg.solve(aw @ a, aw) if self.n >= 3 else np.zeros((len(self.cols), n2))
@@ -710,11 +409,11 @@ class ScaleLearner:
         self.turn_given = (self.turn_given + self.scale * unit) * f
         # and this block's own part: its turn, its walk with the turn before the block left
         # out, and its steps turned summed, kept from the blocks of the last
-        # _CHANGE_SEGMENTS segments on, from which the sums are made again as of a horizon
+        # CHANGE_SEGMENTS segments on, from which the sums are made again as of a horizon
         # that began at a change of scale (``_drop_before_change``).  A block's part maps
         # (turn, walk) before it to after it, affinely: the parts of blocks with the same
         # first segment (kept or dropped together: a stop, a mouse out for long) are
-        # composed into one, so that the list holds at most _CHANGE_SEGMENTS + 1.
+        # composed into one, so that the list holds at most CHANGE_SEGMENTS + 1.
         local = np.einsum("kia,kb->iab", np.cumsum(per, axis=0) - per, perp) + straight
         first = self._serial - len(counts)
         block = BlockGave(per.sum(axis=0), local, perp.sum(axis=0), first, per, perp,
@@ -723,7 +422,7 @@ class ScaleLearner:
         # take-backs of windows older than the two blocks kept concern no give-back
         oldest = first if self._prev_block is None else self._prev_block.first
         self._taken = [mark for mark in self._taken if mark[2] > oldest]
-        since = self._segment_count - _CHANGE_SEGMENTS
+        since = self._segment_count - CHANGE_SEGMENTS
         kept = [part for part in self._recent_gave if part[0] >= since]
         part = (self._segment_count, f, unit * f, local * f, perp.sum(axis=0) * f)
         if kept and kept[-1][0] == part[0]:
@@ -903,16 +602,16 @@ class ScaleLearner:
 
     def _changed(self) -> int:
         """How many of the recent segments are after a change of a mouse's scale within the
-        evidence (0: none, else the split ``_change_point`` finds): the scales fitted to the
-        recent segments and to the older ones differ plainly (beyond _CHANGE_SIGMAS of
+        evidence (0: none, else the split ``change_point`` finds): the scales fitted to the
+        recent segments and to the older ones differ plainly (beyond CHANGE_SIGMAS of
         their combined spread, each the larger of the residual's and the jackknife's as in
-        ``_solve``, and by _CHANGE_MIN).  The evidence sums everything since the start
+        ``_solve``, and by CHANGE_MIN).  The evidence sums everything since the start
         (forgetting by half in two minutes), so after a change its fit is some mean of the
         two scales, and the turn given back at a renewal (``take_turn``) applies it to the
         whole horizon, windows before the change included: three mice, one reading 8.6 %
         less from 23 s on, ended a 31 s drive 2.0 m and 31 degrees off (0.04 m with no
-        learning), all of it in one window.  "Recent" is the last _CHANGE_SEGMENTS
-        segments and the split ``_change_point`` finds: a change a few segments back mixes
+        learning), all of it in one window.  "Recent" is the last CHANGE_SEGMENTS
+        segments and the split ``change_point`` finds: a change a few segments back mixes
         both scales into the last ten, whose jackknife spread it then widens, and the fit
         of the mixed evidence renewed meanwhile (three mice, one reading 14 % less: 60
         degrees given back over the whole horizon, a second before the fixed split saw
@@ -923,14 +622,14 @@ class ScaleLearner:
         drive's mix of directions did, and was taken for a change (a triangle, one mouse
         3 % off on x: 8 of 15 drives, the evidence before cut from 32 s to 7).  The scan
         is made only where the last ten segments' scales alone differ from the older
-        ones' by _CHANGE_MIN (a healthy rig pays nothing more than before)."""
-        if len(self._segments) - _CHANGE_SEGMENTS < _CHANGE_OLDER:
+        ones' by CHANGE_MIN (a healthy rig pays nothing more than before)."""
+        if len(self._segments) - CHANGE_SEGMENTS < _CHANGE_OLDER:
             return 0
         segments = self._change_evidence()
-        if not _scales_differ(segments, _CHANGE_SEGMENTS):
+        if not scales_differ(segments, CHANGE_SEGMENTS):
             return 0
-        best = _change_point(segments)
-        for recent in dict.fromkeys((best, _CHANGE_SEGMENTS)):
+        best = change_point(segments)
+        for recent in dict.fromkeys((best, CHANGE_SEGMENTS)):
             found = self._change_at(segments, recent)
             if found:
                 self.changed = found
@@ -940,15 +639,15 @@ class ScaleLearner:
     def _change_evidence(self) -> np.ndarray:
         """The segments ``_changed`` compares (K, N, N): the per-axis segments with each
         count axis's counts corrected by its scale over the segments older than the last
-        _CHANGE_SEGMENTS (``axis_scales``), summed per mouse into one column as S's are.
+        CHANGE_SEGMENTS (``axis_scales``), summed per mouse into one column as S's are.
         A CPI off on one axis is a fixed ratio of the mouse's two axes: corrected, the
         one scale of every stretch of the drive is the same whatever its directions, and
         a change of scale (both axes alike: another floor, a dirty lens) shows as it
         did."""
         n, cols = self.n, len(self.cols)
         whole = axis_scales(self.axis_gram, self.groups, n, cols)
-        older = np.sum(self.axis_segments[:-_CHANGE_SEGMENTS], axis=0)
-        groups = sum(self._segment_groups[:-_CHANGE_SEGMENTS])
+        older = np.sum(self.axis_segments[:-CHANGE_SEGMENTS], axis=0)
+        groups = sum(self._segment_groups[:-CHANGE_SEGMENTS])
         g = axis_scales(older, groups, n, cols, prior=whole)
         # (2N, N): mouse i's axes into its one column, each times its scale
         m = g[:, None] * np.repeat(np.eye(self.n), 2, axis=0)
@@ -962,9 +661,9 @@ class ScaleLearner:
         n, cols = self.n, len(self.cols)
         parts = (segments[-recent:], segments[:older])
         counts = (sum(self._segment_groups[-recent:]), sum(self._segment_groups[:older]))
-        if min(counts) < _MIN_GROUPS:
+        if min(counts) < MIN_GROUPS:
             return []
-        if not _scales_differ(segments, recent):
+        if not scales_differ(segments, recent):
             return []
         sums = [np.sum(part, axis=0) for part in parts]
         new, old = (fit(s, k, n, cols) for s, k in zip(sums, counts, strict=True))
@@ -974,11 +673,11 @@ class ScaleLearner:
         # First with the residual's spreads alone, a lower bound of the jackknifed ones:
         # where no change is plain with them, none is (and no jackknife is solved).
         with np.errstate(invalid="ignore"):
-            if not _plain_change(diff, np.hypot(new[1], old[1])).any():
+            if not plain_change(diff, np.hypot(new[1], old[1])).any():
                 return []
             widths = [widened(new[1], sums[0], list(parts[0])),
                       widened(old[1], sums[1], list(parts[1]))]  # fmt: skip
-            plain = _plain_change(diff, np.hypot(*widths))
+            plain = plain_change(diff, np.hypot(*widths))
         return [(int(i), float(new[0][i] / old[0][i])) for i in np.flatnonzero(plain)]
 
     def _drop_before_change(self, keep: int) -> None:
@@ -1032,7 +731,7 @@ class ScaleLearner:
         """The scales from the accumulated S (module docstring): the ones that leave the
         least unexplained motion, drawn to 1 only where the evidence is silent, the common
         mode pinned by the median mouse."""
-        if self.groups < _MIN_GROUPS:
+        if self.groups < MIN_GROUPS:
             return False
         fitted = fit(self.gram, self.groups, self.n, len(self.cols))
         if fitted is None:
@@ -1047,9 +746,9 @@ class ScaleLearner:
         # applied where plain: a scale within 3 of its standard deviations of 1 is noise,
         # and noise applied to a mouse that reads the turn is heading lost for good
         off = np.abs(self.estimate - 1.0)
-        plain = (off > _PLAIN * self.spread) & (off > _MIN_APPLIED)
+        plain = (off > PLAIN * self.spread) & (off > _MIN_APPLIED)
         plain |= (self.scale != 1.0) & (off > _KEEP_PLAIN * self.spread) & (off > _KEEP_APPLIED)
-        plain &= self.groups >= _MIN_GROUPS
+        plain &= self.groups >= MIN_GROUPS
         # A mouse plainly beyond the bounds is held out by the screen (``beyond``); its
         # scale, unclipped, gives back what it moved the pose since its evidence began
         # (a change of scale drops what came before: ``_drop_before_change``).
@@ -1061,7 +760,7 @@ class ScaleLearner:
         return True
 
     def _split_axes(self) -> None:
-        """A mouse whose two count axes' scales differ plainly (beyond _PLAIN of the
+        """A mouse whose two count axes' scales differ plainly (beyond PLAIN of the
         difference's spread and _MIN_APPLIED; kept while beyond _KEEP_PLAIN and
         _KEEP_APPLIED) is given a scale per axis, the others one each from the same fit
         (``fit_axes`` with ``split``).  One scale per mouse cannot fit a CPI off on one
@@ -1105,7 +804,7 @@ class ScaleLearner:
             off, sd = np.abs(fitted[2]), fitted[3]
             with np.errstate(invalid="ignore"):  # (NaN: a mouse with one scale)
                 kept = before & (off > _KEEP_PLAIN * sd) & (off > _KEEP_APPLIED)
-                plain = kept | ((off > _PLAIN * sd) & (off > _MIN_APPLIED))
+                plain = kept | ((off > PLAIN * sd) & (off > _MIN_APPLIED))
             if not plain.any():
                 break
         return plain
@@ -1145,13 +844,13 @@ class ScaleLearner:
         if not explained[best] > 0 or explained[best] < margin * explained[order[1]]:
             return split
         # What one parameter more explains is its difference squared over its variance,
-        # so a difference plain beyond _PLAIN of its residual's spread explains _PLAIN
+        # so a difference plain beyond PLAIN of its residual's spread explains PLAIN
         # squared times the residual per degree of freedom left: where it explains not
         # half of that, ``_plain_split``'s fits (a tenth of a healthy rig's learning
         # each) cannot find it plain.
         groups, cols = evidence[2], evidence[4]
         dof = max(1.0, groups * (2 * n - cols) - n)
-        if explained[best] < 0.5 * _PLAIN**2 * (left - explained[best]) / dof:
+        if explained[best] < 0.5 * PLAIN**2 * (left - explained[best]) / dof:
             return split
         split[best] = True
         plain = self._plain_split(evidence, split, before & split)
@@ -1221,8 +920,8 @@ class ScaleLearner:
 
     def _known_per_dof(self) -> float | None:
         """The evidence's residual per degree of freedom at its scales (None: too little
-        evidence to compare with, fewer than _MIN_GROUPS groups)."""
-        if self.groups < _MIN_GROUPS:
+        evidence to compare with, fewer than MIN_GROUPS groups)."""
+        if self.groups < MIN_GROUPS:
             return None
         return residual_per_dof(self.gram, self.one, self.groups, len(self.cols))
 
@@ -1253,10 +952,10 @@ class ScaleLearner:
         if 2 * n <= cols:
             return False
         others = [k for k in range(self.n) if k != i]
-        a = _motion_columns(self.positions[others], self.cols)
+        a = motion_columns(self.positions[others], self.cols)
         weight = self.weight.reshape(self.n, 2)[others].ravel()
         try:
-            project = _projector(a, weight)
+            project = projector(a, weight)
         except np.linalg.LinAlgError:  # the others at one point: no rig motion is fitted
             return False
         block = projected(body[:, others], project, weight)[1]
@@ -1386,7 +1085,7 @@ class ScaleLearner:
         lift or a seam: at most a tenth of them unexplained) and there are more of them
         than of the windows it was used in; else None."""
         xx, xy, yy, groups = self.held[:, i]
-        if groups < _MIN_GROUPS or xx <= 0 or yy <= 0:
+        if groups < MIN_GROUPS or xx <= 0 or yy <= 0:
             return None
         g = xy / xx
         unexplained = max(yy - g * xy, 0.0)

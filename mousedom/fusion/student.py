@@ -1,7 +1,7 @@
 """Student's t for whole degrees of freedom, without scipy (as ``chi2``).
 
 The scale learner judges its estimate by a jackknife over blocks of evidence
-(``scalelearn.jackknife``), whose standard error has as many degrees of freedom as there are
+(``scalefit.jackknife``), whose standard error has as many degrees of freedom as there are
 blocks less one: a handful at first.  Judged by the normal's 3 sigma, an estimate from four
 blocks would be applied on a 1-in-20 chance; t's quantile for their 3 degrees is 9.2.
 
