@@ -239,7 +239,7 @@ MUTANTS = [
     ),
     Mutant(
         "robust-never-readmits",
-        "mousedom/fusion/robust.py",
+        "mousedom/fusion/readmission.py",
         "        elif shows:\n            h.good += k\n",
         "        elif shows:\n            h.good += 0\n",
         ("tests/test_robust.py",),
@@ -279,8 +279,8 @@ MUTANTS = [
     ),
     Mutant(
         "saturated-mouse-given-nothing-back",
-        "mousedom/fusion/robust.py",
-        "                self.ledger.readmit(i, h.good)\n"
+        "mousedom/fusion/readmission.py",
+        "                ledger.readmit(i, h.good)\n"
         "                h.state, h.reason, h.good = TRACKING, NONE, 0\n        elif shows:",
         "                pass\n"
         "                h.state, h.reason, h.good = TRACKING, NONE, 0\n        elif shows:",
@@ -289,7 +289,7 @@ MUTANTS = [
     ),
     Mutant(
         "lifted-mouse-silence-agrees",
-        "mousedom/fusion/robust.py",
+        "mousedom/fusion/readmission.py",
         "        if h.good > 0 or (shows and k <= self._group):\n",
         "        if True:\n",
         ("tests/test_reconcile.py",),
@@ -669,7 +669,7 @@ MUTANTS = [
     ),
     Mutant(
         "readmission-without-the-run-fit",
-        "mousedom/fusion/robust.py",
+        "mousedom/fusion/readmission.py",
         "        return h.fit_r * h.fit_r <= thr1 * h.fit_info\n",
         "        return True\n",
         ("tests/test_robust.py", "tests/test_reconcile.py"),
@@ -677,7 +677,7 @@ MUTANTS = [
     ),
     Mutant(
         "readmission-held-to-its-own-error",
-        "mousedom/fusion/robust.py",
+        "mousedom/fusion/readmission.py",
         "        cov = s2 * np.eye(2) + pred_cov\n",
         "        cov = s2 * np.eye(2)\n",
         (
@@ -739,7 +739,7 @@ MUTANTS = [
     ),
     Mutant(
         "silence-shows-a-far-mouse-sound",
-        "mousedom/fusion/robust.py",
+        "mousedom/fusion/readmission.py",
         "            float(di @ pi) >= SHORT * p2\n            or float(",
         "            read2 > 0.0\n            or float(",
         ("tests/test_reconcile.py",),
@@ -772,7 +772,7 @@ MUTANTS = [
     ),
     Mutant(
         "readmit-judged-per-short-window",
-        "mousedom/fusion/robust.py",
+        "mousedom/fusion/readmission.py",
         "        self._group = max(1, math.ceil(EVIDENCE_S / window - 1e-9))",
         "        self._group = 1 or max(1, math.ceil(EVIDENCE_S / window - 1e-9))",
         ("tests/test_robust_short_windows.py",),
@@ -820,8 +820,8 @@ MUTANTS = [
     ),
     Mutant(
         "scale-beyond-readmitted",
-        "mousedom/fusion/robust.py",
-        "            if h.good >= self.readmit and i not in self._held_beyond:\n",
+        "mousedom/fusion/readmission.py",
+        "            if h.good >= self.readmit and not beyond:\n",
         "            if h.good >= self.readmit:\n",
         ("tests/test_scale_beyond.py",),
         "a mouse held out beyond the bounds passes its run's test and comes back",
@@ -1079,7 +1079,7 @@ MUTANTS = [
     ),
     Mutant(
         "readmission-fit-keeps-noise-bias",
-        "mousedom/fusion/robust.py",
+        "mousedom/fusion/readmission.py",
         "h.fit_r += (float(r @ di) - 2.0 * s2) / var",
         "h.fit_r += float(r @ di) / var",
         ("tests/test_readmission_evidence.py::test_the_run_fit_of_a_healthy_mouse_is_unbiased",),
@@ -1087,7 +1087,7 @@ MUTANTS = [
     ),
     Mutant(
         "readmission-fit-chosen-by-reading",
-        "mousedom/fusion/robust.py",
+        "mousedom/fusion/readmission.py",
         "        if moved and read2 > 0.0 and not caught_up:",
         "        if read2 > _SHOWS * thr2 * not_proportional and not caught_up:",
         ("tests/test_readmission_evidence.py::test_the_run_fit_of_a_healthy_mouse_is_unbiased",),
@@ -1095,7 +1095,7 @@ MUTANTS = [
     ),
     Mutant(
         "readmission-groups-never-grow",
-        "mousedom/fusion/robust.py",
+        "mousedom/fusion/readmission.py",
         "EVIDENCE_MAX_S = 0.25\n",
         "EVIDENCE_MAX_S = 0.01\n",
         ("tests/test_readmission_evidence.py",),
@@ -1103,7 +1103,7 @@ MUTANTS = [
     ),
     Mutant(
         "readmission-grown-group-given-back",
-        "mousedom/fusion/robust.py",
+        "mousedom/fusion/readmission.py",
         "or (shows and k <= self._group):",
         "or shows:",
         (

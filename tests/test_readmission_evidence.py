@@ -1,4 +1,4 @@
-"""An excluded mouse is let back once it shows itself sound (issue 31: robust.Screen._waiting),
+"""An excluded mouse is let back once it shows itself sound (issue 31: Readmission.waiting),
 however wide late stamps made its tolerance.
 
 Under long-tailed stamp delays the noise model learns wide errors not in proportion to the
@@ -7,9 +7,9 @@ nothing, and a mouse lifted for one second stayed excluded to the drive's end in
 drives (fault handling off and told the lift: none).  Worse, a healthy far mouse excluded
 once behind a close pair was never let back, and when one of the pair was lifted the pair
 alone made the pose spin: 7 m and 160 degrees off.  An excluded mouse's windows are now
-summed until the others moved it enough to show a fault (``Screen._grouped``), and the
+summed until the others moved it enough to show a fault (``Readmission.grouped``), and the
 run's fit of a proportional fault takes off the bias its own noise puts along its reading
-(``Screen._waiting``).
+(``Readmission.waiting``).
 
 The drives are generated: layouts of three mice and more, which mouse is lifted, when and
 for how long, the stamp delays' tail and whether USB gaps come with it, all drawn from a
@@ -140,7 +140,7 @@ def _excluded_screen(window: float) -> robust.Screen:
 
 @pytest.mark.parametrize("motion_to_noise", [80.0, 150.0, 400.0])
 def test_the_run_fit_of_a_healthy_mouse_is_unbiased(motion_to_noise):
-    """A healthy excluded mouse's fit of a proportional fault (``_run_agrees``) is
+    """A healthy excluded mouse's fit of a proportional fault (``run_agrees``) is
     centred on no fault, whatever its noise against its motion: over 24 runs of 400
     windows, its standardised g (g over its error) averages 0 within 0.75, where the
     noise's own bias along the reading put it near 4.5 (motion^2 80 times the noise's
@@ -155,7 +155,10 @@ def test_the_run_fit_of_a_healthy_mouse_is_unbiased(motion_to_noise):
             ang = rng.uniform(0.0, 2.0 * math.pi)
             p = math.sqrt(motion_to_noise * s2) * np.array([math.cos(ang), math.sin(ang)])
             d = p + rng.normal(0.0, math.sqrt(s2), 2)
-            screen._waiting(0, h, d, p, s2, s2, np.zeros((2, 2)), 1)
+            screen.readmission.waiting(
+                screen.ledger, 0, h, d, p, s2, s2, np.zeros((2, 2)), 1, beyond=True,
+                reads_nothing=False,
+            )  # fmt: skip
         assert h.fit_info > 0.0
         zs.append(h.fit_r / math.sqrt(h.fit_info))
     assert abs(float(np.mean(zs))) < 0.75, (np.mean(zs), zs)

@@ -174,7 +174,7 @@ def test_a_far_mouse_is_not_given_its_silence_where_the_others_predict_it_poorly
     had moved it beyond its own error) and gave that motion back at its return (seed 1:
     a heading 1 degree off, 30 mm at the end against 0.7 mm informed).  A window shows
     the mouse sound only where it read the motion too, or where the motion is beyond the
-    window's tolerance of a silence (Screen._waiting)."""
+    window's tolerance of a silence (Readmission.waiting)."""
     trial = scenarios.fault_trial("far-one", "lift", seed, 30.0)
     assert trial.default.exclusions >= 1
     assert trial.default.position <= 1.5 * trial.informed.position + 0.005, trial
@@ -342,7 +342,7 @@ def test_a_mouse_reading_short_while_it_waits_is_not_re_admitted(mouse, factor):
     """A mouse excluded for a jump then reads ``factor`` of its motion: each window within
     its tolerance (5 % of the motion, widened by the test's threshold to some 20 %), so it
     was re-admitted after readmit_s and used while it under-read.  The run's fit of a
-    proportional fault (Screen._run_agrees) tells it: it stays out; reading true again,
+    proportional fault (Readmission.run_agrees) tells it: it stays out; reading true again,
     it comes back."""
     rng = np.random.default_rng(10 + mouse)
     screen = _screen()
@@ -367,7 +367,7 @@ def test_the_window_a_far_mouse_lands_in_is_not_given_back(monkeypatch):
     lift within a window: it reads part of that window's motion, within its wide
     tolerance (the pair's poor prediction of it).  That window does not show the mouse
     sound (it read less than three quarters of its motion): a run started there gave its
-    shortfall back at the re-admission, half a degree of heading at once (Screen._waiting).
+    shortfall back at the re-admission, half a degree of heading at once (Readmission.waiting).
     The heading's error may not grow at the re-admission by more than a tenth of that."""
     layout = (
         ("m0", -0.16104096366271548, 0.10851063647807002, 250.0),

@@ -1,5 +1,5 @@
-"""An excluded mouse's re-admission at windows shorter than 10 ms (robust.EVIDENCE_S,
-Screen._grouped).
+"""An excluded mouse's re-admission at windows shorter than 10 ms (readmission.EVIDENCE_S,
+Readmission.grouped).
 
 A window's motion shrinks with its length while the error late stamps put in it does not
 (motion over the lateness, a few ms), so at 200-400 Hz windows a healthy mouse, once

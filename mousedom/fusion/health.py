@@ -63,8 +63,8 @@ class MouseHealth:
     behind: int = 0
     behind_r: np.ndarray = field(default_factory=lambda: np.zeros(2))
     behind_cov: np.ndarray = field(default_factory=lambda: np.zeros((2, 2)))
-    # Where windows are shorter than the evidence's group (robust.EVIDENCE_S), the windows
+    # Where windows are shorter than the evidence's group (readmission.EVIDENCE_S), the windows
     # of the group going on, and their reading, prediction, variances and prediction's
-    # covariance summed (robust.Screen._grouped)
+    # covariance summed (readmission.Readmission.grouped)
     group_n: int = 0
     group: np.ndarray = field(default_factory=lambda: np.zeros(10))

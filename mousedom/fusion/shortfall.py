@@ -26,7 +26,7 @@ from collections.abc import Sequence
 # drive 0.93 m off, told 5 mm): the others' word on the faulty mouse is not bent by it, on
 # the others it is, so only the mouse that reads the most out of proportion to the
 # others' word counts, and only where it reads short.  What a mouse must read to count as
-# sound again (robust.Screen._waiting) is SHORT of what the others moved it.
+# sound again (readmission.Readmission.waiting) is SHORT of what the others moved it.
 SHORT = 0.75
 SHORT_OF_ALL = 0.9
 SHORT_ALONE = 0.25
