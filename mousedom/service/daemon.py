@@ -2,7 +2,8 @@
 
 Data flows one way: sources -> ``Sensors.read`` -> ``Tracker.push`` -> ``Tracker.poll`` ->
 ``Publisher.publish`` -> the outputs (the socket's clients first).  The sources are read
-when the next window can close (``plan_wake``), not at every report.  There is no thread:
+when the next window can close (``plan_wake``), not at every report; a window still open
+then waits for the mice it waits for (``holding``), not for any report.  There is no thread:
 signal handlers only set a flag and wake the loop through ``signal.set_wakeup_fd``; timers
 (window wake-ups, SOURCE status, watchdog, reattaching vanished sensors) are deadlines
 checked after each wait.  The clock and the source factory are injected (gpiozero style)
