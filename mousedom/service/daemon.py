@@ -437,10 +437,9 @@ class Daemon:
 
     def _plan(self, now: float) -> tuple[float, float]:
         """When to wake for the next window and when to give up on its reports
-        (``plan_wake``); where the wake is due, what to watch meanwhile (``_watch``).
-
-        A window that waits for some mice's first reports past its end wakes once each of
-        their descriptors is readable, for a bounded time (``holding``)."""
+        (``plan_wake``); where the wake is due, what to watch meanwhile: each of the
+        mice the window waits for (``_waited``, ``holding``: their next reports, for a
+        bounded time), else any source (``_watch``)."""
         running, planned = self.running, self.sensors.plan
         end = running.tracker.frontier_time + 1.0 / running.config.rate_hz
         mice = [
